@@ -1,0 +1,164 @@
+"""Linear discrete-time dynamics x_{k+1} = A x_k + B u_k, and their condensed (stacked) form.
+
+The condensed form writes all future states as an affine function of the stacked controls,
+``X = Phi x_0 + Gamma U``, which is what the IRL derivatives and the MPC use.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import numpy as np
+
+__all__ = ["LinearDynamics", "point_mass", "longitudinal"]
+
+
+@dataclass(frozen=True)
+class LinearDynamics:
+    """x_{k+1} = A x_k + B u_k, sampled every ``dt`` seconds.
+
+    Parameters
+    ----------
+    A : array, shape (n_x, n_x)
+    B : array, shape (n_x, n_u)
+    dt : float
+        Sampling period [s].
+    state_names, control_names : tuple of str
+        Names with units, e.g. ``("s [m]", "v [m/s]")``; their count fixes n_x and n_u.
+    position_index : tuple of int
+        Indices of the state entries that are positions [m] (used by distance metrics).
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    dt: float
+    state_names: tuple[str, ...]
+    control_names: tuple[str, ...]
+    position_index: tuple[int, ...] = (0,)
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        A = np.array(self.A, dtype=float)
+        B = np.array(self.B, dtype=float)
+        n_x, n_u = len(self.state_names), len(self.control_names)
+        if A.shape != (n_x, n_x):
+            raise ValueError(f"A must have shape ({n_x}, {n_x}) for states {self.state_names}, got {A.shape}")
+        if B.shape != (n_x, n_u):
+            raise ValueError(f"B must have shape ({n_x}, {n_u}) for controls {self.control_names}, got {B.shape}")
+        if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
+            raise ValueError("A and B must be finite")
+        if not np.isfinite(self.dt) or self.dt <= 0:
+            raise ValueError(f"dt must be a positive number of seconds, got {self.dt!r}")
+        for i in self.position_index:
+            if not 0 <= i < n_x:
+                raise ValueError(f"position_index {i} is not a state index (0..{n_x - 1})")
+        A.setflags(write=False)
+        B.setflags(write=False)
+        object.__setattr__(self, "A", A)
+        object.__setattr__(self, "B", B)
+        object.__setattr__(self, "dt", float(self.dt))
+
+    @property
+    def n_x(self) -> int:
+        return self.A.shape[0]
+
+    @property
+    def n_u(self) -> int:
+        return self.B.shape[1]
+
+    def condensed(self, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """Stacked prediction matrices for states x_1 .. x_N.
+
+        Returns
+        -------
+        Phi : array, shape (N, n_x, n_x)
+            ``x_i = Phi[i-1] x_0 + sum_j Gamma[i-1, :, j, :] u_j``.
+        Gamma : array, shape (N, n_x, N, n_u)
+            Lower block-triangular in (i, j).
+        """
+        n_steps = int(n_steps)
+        if n_steps < 1:
+            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+        if n_steps not in self._cache:
+            n_x, n_u = self.n_x, self.n_u
+            powers = np.empty((n_steps + 1, n_x, n_x))
+            powers[0] = np.eye(n_x)
+            for k in range(1, n_steps + 1):
+                powers[k] = self.A @ powers[k - 1]
+            AB = powers[:n_steps] @ self.B  # AB[k] = A^k B, shape (N, n_x, n_u)
+            gamma = np.zeros((n_steps, n_x, n_steps, n_u))
+            for i in range(n_steps):  # x_{i+1} depends on u_0..u_i through A^{i-j} B
+                gamma[i, :, : i + 1, :] = np.moveaxis(AB[i::-1], 0, 1)
+            phi = powers[1:]
+            phi.setflags(write=False)
+            gamma.setflags(write=False)
+            self._cache[n_steps] = (phi, gamma)
+        return self._cache[n_steps]
+
+    def rollout(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """Simulate forward.
+
+        Parameters
+        ----------
+        x0 : array, shape (..., n_x)
+        controls : array, shape (..., N, n_u)
+
+        Returns
+        -------
+        states : array, shape (..., N + 1, n_x), including x0.
+        """
+        x0 = np.asarray(x0, dtype=float)
+        controls = np.asarray(controls, dtype=float)
+        if x0.shape[-1] != self.n_x or controls.ndim < 2 or controls.shape[-1] != self.n_u:
+            raise ValueError(
+                f"expected x0 (..., {self.n_x}) and controls (..., N, {self.n_u}), got {x0.shape} and {controls.shape}"
+            )
+        phi, gamma = self.condensed(controls.shape[-2])
+        future = np.einsum("iab,...b->...ia", phi, x0) + np.einsum("iajc,...jc->...ia", gamma, controls)
+        return np.concatenate([x0[..., None, :], future], axis=-2)
+
+    def residual(self, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """x_{k+1} - (A x_k + B u_k), shape (..., N, n_x): zero for a consistent trajectory."""
+        states = np.asarray(states, dtype=float)
+        controls = np.asarray(controls, dtype=float)
+        return states[..., 1:, :] - states[..., :-1, :] @ self.A.T - controls @ self.B.T
+
+    def controls_from_states(self, states: np.ndarray) -> np.ndarray:
+        """Least-squares controls that best explain consecutive states, shape (..., N, n_u).
+
+        Exact (the inverse of `rollout`) whenever the states were produced by these dynamics.
+        """
+        states = np.asarray(states, dtype=float)
+        drift = states[..., 1:, :] - states[..., :-1, :] @ self.A.T
+        pinv_B = np.linalg.pinv(self.B)
+        return drift @ pinv_B.T
+
+
+def point_mass(dt: float = 0.1) -> LinearDynamics:
+    """The paper's synthetic model: 1-D point mass, state (p [m], v [m/s]), control acceleration [m/s^2].
+
+    ``A = [[1, dt], [0, 1]]``, ``B = [0, dt]^T`` exactly as in the paper's equation.
+    """
+    return LinearDynamics(
+        A=np.array([[1.0, dt], [0.0, 1.0]]),
+        B=np.array([[0.0], [dt]]),
+        dt=dt,
+        state_names=("p [m]", "v [m/s]"),
+        control_names=("a [m/s^2]",),
+        position_index=(0,),
+    )
+
+
+def longitudinal(dt: float = 0.2) -> LinearDynamics:
+    """Longitudinal motion along a path: state (s [m], v [m/s], a [m/s^2]), control jerk [m/s^3].
+
+    Exact zero-order-hold discretisation of the triple integrator.
+    """
+    return LinearDynamics(
+        A=np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]]),
+        B=np.array([[dt**3 / 6], [dt**2 / 2], [dt]]),
+        dt=dt,
+        state_names=("s [m]", "v [m/s]", "a [m/s^2]"),
+        control_names=("j [m/s^3]",),
+        position_index=(0,),
+    )
+

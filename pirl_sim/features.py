@@ -1,0 +1,345 @@
+"""Named trajectory features and their exact derivatives with respect to the controls.
+
+Every feature is a reduction (sum or mean over the N steps) of a squared residual,
+``f(xi) = reduce_k ||r(x_k, u_{k-1})||^2`` for k = 1..N, where x_k is the state that control u_{k-1} produced
+(x_0 is given, so it carries no cost). The residual supplies its Jacobians (and, when it is not affine, the
+second derivatives), and `FeatureSet.derivatives` chains them through the condensed linear dynamics
+``X = Phi x_0 + Gamma U`` into exact gradients and Hessians in the stacked controls U (length d = N * n_u).
+
+A cost is ``C(xi) = theta . f(xi)`` with theta ordered as `FeatureSet.names`; weights may also be given as a
+``{name: weight}`` mapping, checked against the names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Literal, Mapping, NamedTuple, Sequence
+
+import numpy as np
+
+from .dynamics import LinearDynamics
+from .trajectory import Trajectory, stack_trajectories
+
+__all__ = [
+    "Residual",
+    "Feature",
+    "FeatureSet",
+    "FeatureDerivatives",
+    "squared_state",
+    "squared_control",
+    "lqr_features",
+]
+
+
+class Residual(NamedTuple):
+    """A residual and its derivatives at every stage.
+
+    Attributes
+    ----------
+    r : array, shape (M, N, p)
+    jac_x : array, shape (M or 1, N or 1, p, n_x)
+    jac_u : array, shape (M or 1, N or 1, p, n_u)
+    hess_x : array, shape (M, N, p, n_x, n_x), or None when the residual is affine in x.
+        Second derivatives of each residual component in the state (residuals are taken affine in u).
+    """
+
+    r: np.ndarray
+    jac_x: np.ndarray
+    jac_u: np.ndarray
+    hess_x: np.ndarray | None = None
+
+
+ResidualFn = Callable[[np.ndarray, np.ndarray], Residual]
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One named feature: reduce_k ||residual(x_k, u_{k-1})||^2.
+
+    Parameters
+    ----------
+    name : str
+    residual : callable ``(x (M, N, n_x), u (M, N, n_u)) -> Residual``
+    reduction : {"sum", "mean"}
+        Sum over the N stages, or their mean (the paper's roundabout features are means).
+    quadratic : bool
+        True when the residual is affine in (x, u): the feature is then exactly quadratic in U and its
+        Hessian is the same for every trajectory of the same length.
+    """
+
+    name: str
+    residual: ResidualFn
+    reduction: Literal["sum", "mean"] = "sum"
+    quadratic: bool = True
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"feature name must be a non-empty string, got {self.name!r}")
+        if self.reduction not in ("sum", "mean"):
+            raise ValueError(f"reduction must be 'sum' or 'mean', got {self.reduction!r}")
+        if not callable(self.residual):
+            raise TypeError(f"residual of feature {self.name!r} must be callable")
+
+
+class FeatureDerivatives(NamedTuple):
+    """Features of M trajectories and their derivatives in the stacked controls (d = N * n_u).
+
+    Attributes
+    ----------
+    values : array, shape (M, K)
+    grad : array, shape (M, K, d)
+    hess : array, shape (M, K, d, d), or (1, K, d, d) when shared by all M trajectories.
+    """
+
+    values: np.ndarray
+    grad: np.ndarray
+    hess: np.ndarray
+
+    @property
+    def shared_hessian(self) -> bool:
+        return self.hess.shape[0] == 1 and self.grad.shape[0] != 1
+
+
+@dataclass(frozen=True)
+class FeatureSet:
+    """An ordered set of named features with a reference feature that fixes the weights' scale.
+
+    Parameters
+    ----------
+    features : sequence of Feature
+    reference : str
+        Name of the feature whose weight is 1 in the reported normalisation (a control-effort feature, whose
+        Hessian is positive definite). Reported weights are ``theta / theta[reference]``.
+    """
+
+    features: tuple[Feature, ...]
+    reference: str
+
+    def __post_init__(self) -> None:
+        feats = tuple(self.features)
+        if not feats:
+            raise ValueError("a FeatureSet needs at least one feature")
+        for f in feats:
+            if not isinstance(f, Feature):
+                raise TypeError(f"expected Feature objects, got {type(f).__name__}")
+        names = [f.name for f in feats]
+        if len(set(names)) != len(names):
+            raise ValueError(f"feature names must be unique, got {names}")
+        if self.reference not in names:
+            raise ValueError(f"reference feature {self.reference!r} is not one of {names}")
+        object.__setattr__(self, "features", feats)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(f.name for f in self.features)
+
+    @property
+    def n_features(self) -> int:
+        return len(self.features)
+
+    @property
+    def reference_index(self) -> int:
+        return self.names.index(self.reference)
+
+    @property
+    def quadratic(self) -> bool:
+        return all(f.quadratic for f in self.features)
+
+    # ------------------------------------------------------------------ weights
+    def weights(self, theta: Mapping[str, float] | Sequence[float] | np.ndarray) -> np.ndarray:
+        """Weights as an array ordered like `names`, shape (..., K); a mapping must name every feature."""
+        if isinstance(theta, Mapping):
+            unknown = sorted(set(theta) - set(self.names))
+            missing = [n for n in self.names if n not in theta]
+            if unknown or missing:
+                raise ValueError(
+                    f"weights must name exactly the features {list(self.names)}; unknown: {unknown}, missing: {missing}"
+                )
+            arr = np.array([float(theta[n]) for n in self.names])
+        else:
+            arr = np.asarray(theta, dtype=float)
+        if arr.shape[-1:] != (self.n_features,):
+            raise ValueError(f"weights must have {self.n_features} entries {list(self.names)}, got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"weights must be finite, got {arr}")
+        return arr
+
+    def normalize(self, theta: np.ndarray) -> np.ndarray:
+        """Divide by the reference feature's weight: the reported normalisation, shape (..., K)."""
+        theta = self.weights(theta)
+        ref = theta[..., self.reference_index : self.reference_index + 1]
+        if np.any(ref <= 0):
+            raise ValueError(f"the reference weight ({self.reference!r}) must be > 0 to normalise, got {ref.ravel()}")
+        return theta / ref
+
+    def as_dict(self, theta: np.ndarray) -> dict[str, float]:
+        theta = self.weights(theta)
+        if theta.ndim != 1:
+            raise ValueError(f"as_dict takes one weight vector, got shape {theta.shape}")
+        return {n: float(w) for n, w in zip(self.names, theta)}
+
+    # ------------------------------------------------------------------ evaluation
+    @staticmethod
+    def _split(states: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return states[:, 1:, :], controls
+
+    def values(self, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """Feature values, shape (M, K), for states (M, N + 1, n_x) and controls (M, N, n_u)."""
+        states, controls = _check_arrays(states, controls)
+        x, u = self._split(states, controls)
+        out = np.empty((states.shape[0], self.n_features))
+        for k, feat in enumerate(self.features):
+            res = feat.residual(x, u)
+            stage = np.sum(res.r**2, axis=-1)
+            out[:, k] = stage.mean(axis=1) if feat.reduction == "mean" else stage.sum(axis=1)
+        return out
+
+    def trajectory_values(self, trajectories: Sequence[Trajectory]) -> np.ndarray:
+        """Feature values of trajectories of any lengths, shape (M, K)."""
+        trajectories = list(trajectories)
+        if not trajectories:
+            raise ValueError("expected at least one trajectory, got none")
+        out = np.empty((len(trajectories), self.n_features))
+        for idx, group in _group_by_length(trajectories).items():
+            states, controls, _ = stack_trajectories([trajectories[i] for i in group])
+            out[group] = self.values(states, controls)
+        return out
+
+    def derivatives(self, dynamics: LinearDynamics, states: np.ndarray, controls: np.ndarray) -> FeatureDerivatives:
+        """Exact values, gradients and Hessians of every feature in the stacked controls U.
+
+        Parameters
+        ----------
+        dynamics : LinearDynamics
+        states : array, shape (M, N + 1, n_x)
+        controls : array, shape (M, N, n_u)
+
+        Returns
+        -------
+        FeatureDerivatives
+            ``hess`` has a leading dimension of 1 when every feature is quadratic (shared Hessians).
+        """
+        states, controls = _check_arrays(states, controls)
+        M, N1, n_x = states.shape
+        N, n_u = N1 - 1, controls.shape[2]
+        if n_x != dynamics.n_x or n_u != dynamics.n_u:
+            raise ValueError(
+                f"trajectories have n_x={n_x}, n_u={n_u} but the dynamics have n_x={dynamics.n_x}, n_u={dynamics.n_u}"
+            )
+        _, gamma = dynamics.condensed(N)
+        G = gamma.reshape(N, n_x, N * n_u)  # d x_k / d U for k = 1..N
+        d = N * n_u
+        x, u = self._split(states, controls)
+        K = self.n_features
+        values = np.empty((M, K))
+        grad = np.empty((M, K, d))
+        shared = self.quadratic
+        hess = np.empty((1 if shared else M, K, d, d))
+        for k, feat in enumerate(self.features):
+            res = feat.residual(x, u)
+            scale = 1.0 / N if feat.reduction == "mean" else 1.0
+            r, Jx, Ju = res.r, res.jac_x, res.jac_u
+            values[:, k] = scale * np.sum(r**2, axis=(1, 2))
+            # stage gradients 2 J^T r
+            gx = 2.0 * np.einsum("mkpa,mkp->mka", np.broadcast_to(Jx, r.shape + (n_x,)), r)
+            gu = 2.0 * np.einsum("mkpc,mkp->mkc", np.broadcast_to(Ju, r.shape + (n_u,)), r)
+            grad[:, k] = scale * (np.einsum("kad,mka->md", G, gx) + gu.reshape(M, d))
+            # stage Hessians 2 J^T J (+ 2 r . d2r for non-affine residuals)
+            Hxx = 2.0 * np.einsum("mkpa,mkpb->mkab", Jx, Jx)
+            Hxu = 2.0 * np.einsum("mkpa,mkpc->mkac", Jx, Ju)
+            Huu = 2.0 * np.einsum("mkpc,mkpe->mkce", Ju, Ju)
+            if res.hess_x is not None:
+                Hxx = Hxx + 2.0 * np.einsum("mkp,mkpab->mkab", r, res.hess_x)
+            if shared:
+                Hxx, Hxu, Huu = Hxx[:1], Hxu[:1], Huu[:1]
+            hess[:, k] = scale * _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u)
+        return FeatureDerivatives(values, grad, hess)
+
+    def quadratic_terms(self, dynamics: LinearDynamics, x0: np.ndarray, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """Exact quadratic form of quadratic features around zero controls.
+
+        ``f_k(U) = 1/2 U^T H_k U + b_k . U + c_k`` for trajectories starting at x0.
+
+        Returns
+        -------
+        H : array, shape (K, d, d), shared by all starts.
+        b : array, shape (M, K, d)
+        """
+        if not self.quadratic:
+            nonq = [f.name for f in self.features if not f.quadratic]
+            raise ValueError(f"quadratic_terms needs quadratic features; not quadratic: {nonq}")
+        x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        zeros = np.zeros((x0.shape[0], int(n_steps), dynamics.n_u))
+        states = dynamics.rollout(x0, zeros)
+        der = self.derivatives(dynamics, states, zeros)
+        return der.hess[0], der.grad
+
+
+def _check_arrays(states: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    states = np.asarray(states, dtype=float)
+    controls = np.asarray(controls, dtype=float)
+    if states.ndim != 3 or controls.ndim != 3:
+        raise ValueError(f"expected states (M, N+1, n_x) and controls (M, N, n_u), got {states.shape}, {controls.shape}")
+    if states.shape[0] != controls.shape[0] or states.shape[1] != controls.shape[1] + 1:
+        raise ValueError(
+            f"expected one more state than controls per trajectory: states {states.shape}, controls {controls.shape}"
+        )
+    return states, controls
+
+
+def _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u) -> np.ndarray:
+    """sum_k G_k^T Hxx_k G_k + G_k^T Hxu_k E_k + E_k^T Hux_k G_k + E_k^T Huu_k E_k, shape (M', d, d)."""
+    Mp = max(Hxx.shape[0], Hxu.shape[0], Huu.shape[0])
+    n_x = G.shape[1]
+    d = N * n_u
+    Hxx = np.broadcast_to(Hxx, (Mp, N, n_x, n_x))
+    T = np.einsum("mkab,kbd->mkad", Hxx, G).reshape(Mp, N * n_x, d)
+    H = np.swapaxes(G.reshape(N * n_x, d), 0, 1)[None] @ T
+    Hxu = np.broadcast_to(Hxu, (Mp, N, n_x, n_u))
+    if np.any(Hxu):
+        C = np.einsum("kad,mkac->mdkc", G, Hxu).reshape(Mp, d, d)  # column block k-1 <- G_k^T Hxu_k
+        H = H + C + np.swapaxes(C, 1, 2)
+    Huu = np.broadcast_to(Huu, (Mp, N, n_u, n_u))
+    idx = np.arange(N)
+    blocks = H.reshape(Mp, N, n_u, N, n_u)
+    blocks[:, idx, :, idx, :] += np.moveaxis(Huu, 1, 0)
+    return blocks.reshape(Mp, d, d)
+
+
+def _group_by_length(trajectories: Sequence[Trajectory]) -> dict[int, np.ndarray]:
+    lengths = np.array([t.n_steps for t in trajectories])
+    return {int(n): np.flatnonzero(lengths == n) for n in np.unique(lengths)}
+
+
+# ---------------------------------------------------------------------- ready-made features
+def squared_state(name: str, index: Sequence[int] | None = None, *, reduction: str = "sum") -> Feature:
+    """reduce_k ||x_k[index]||^2 (all states if index is None)."""
+
+    def residual(x: np.ndarray, u: np.ndarray) -> Residual:
+        n_x = x.shape[-1]
+        sel = np.arange(n_x) if index is None else np.asarray(index, dtype=int)
+        if np.any((sel < 0) | (sel >= n_x)):
+            raise ValueError(f"feature {name!r}: state index {list(sel)} out of range for n_x={n_x}")
+        jac_x = np.eye(n_x)[sel][None, None]
+        jac_u = np.zeros((1, 1, len(sel), u.shape[-1]))
+        return Residual(x[..., sel], jac_x, jac_u)
+
+    return Feature(name, residual, reduction=reduction, quadratic=True)
+
+
+def squared_control(name: str, *, reduction: str = "sum") -> Feature:
+    """reduce_k ||u_{k-1}||^2."""
+
+    def residual(x: np.ndarray, u: np.ndarray) -> Residual:
+        n_u = u.shape[-1]
+        return Residual(u, np.zeros((1, 1, n_u, x.shape[-1])), np.eye(n_u)[None, None])
+
+    return Feature(name, residual, reduction=reduction, quadratic=True)
+
+
+def lqr_features() -> FeatureSet:
+    """The paper's synthetic LQR cost ``q sum ||x_k||^2 + r sum u_k^2`` as features (state_sq, control_sq).
+
+    Normalised weights are (q / r, 1): the paper's theta = q / r is the first entry.
+    """
+    return FeatureSet((squared_state("state_sq"), squared_control("control_sq")), reference="control_sq")

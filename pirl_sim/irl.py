@@ -1,0 +1,465 @@
+"""Continuous-domain maximum-entropy IRL with a Laplace approximation (Levine & Koltun, ICML 2012).
+
+For a demonstration with stacked controls U (length d) and a linear cost C = theta . f(U), the second-order
+expansion of C around U gives the approximate log-likelihood
+
+    log P(U | theta) ~= -1/2 g^T H^-1 g + 1/2 log|H| - d/2 log(2 pi),
+
+with g = sum_k theta_k grad f_k and H = sum_k theta_k hess f_k (this is the CIOC formula with the cost in place
+of the reward). For positive weights and convex features the negative log-likelihood is convex in theta:
+1/2 g^T H^-1 g is a matrix-fractional function of an affine map and -log|H| is convex.
+
+Identifiability. The overall scale of theta plays the role of the paper's rationality beta. On noise-free optimal
+demonstrations (g = 0 at the true direction) the likelihood grows without bound along the scale, so only the
+direction is identifiable. We therefore parametrise
+
+    w[ref] = log theta[ref] = log beta,   w[k] = log(theta[k] / theta[ref]) for k != ref,
+
+bound every w inside ``log_bounds`` (a scale at its bound is reported, never a divergence), and report weights
+normalised so that the reference feature's weight is 1 (``FeatureSet.normalize``). On Boltzmann-rational demos
+the scale is identified too.
+
+Indefinite Hessians (possible for non-convex features, e.g. a desired speed that depends on position): as in
+CIOC the Hessian is regularised, here by the smallest diagonal shift that makes it positive definite
+(``-lambda_min + eps``); a `HessianRegularizationWarning` reports how many demonstrations needed it and the most
+negative eigenvalue.
+
+Every objective is batched: M demonstrations share one vectorised evaluation, and parameters are tied through
+integer ``labels`` (one group per demonstration for per-demo IRL, one group for all, or one per cluster).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.linalg
+
+from .features import FeatureDerivatives, FeatureSet
+
+__all__ = [
+    "HessianRegularizationWarning",
+    "IRLConvergenceWarning",
+    "LogNormalPrior",
+    "IRLResult",
+    "LaplaceBlock",
+    "laplace_nll",
+    "fit_weights",
+]
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+class HessianRegularizationWarning(UserWarning):
+    """A demonstration's cost Hessian was not positive definite and was shifted."""
+
+
+class IRLConvergenceWarning(UserWarning):
+    """The batched Newton iteration stopped before meeting its tolerance for some groups."""
+
+
+@dataclass(frozen=True)
+class LogNormalPrior:
+    """Independent Gaussian prior on the optimisation coordinates w (see module doc), for MAP estimation.
+
+    Parameters
+    ----------
+    mean, std : array, shape (K,)
+        Entry ``ref`` is for log beta (the scale), the others for log of the normalised weights.
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+
+    def __post_init__(self) -> None:
+        mean = np.atleast_1d(np.asarray(self.mean, dtype=float))
+        std = np.atleast_1d(np.asarray(self.std, dtype=float))
+        if mean.shape != std.shape or mean.ndim != 1:
+            raise ValueError(f"prior mean and std must be 1-D of equal length, got {mean.shape} and {std.shape}")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(std))):
+            raise ValueError(f"prior mean and std must be finite, got {mean} and {std}")
+        if np.any(std <= 0):
+            raise ValueError(f"prior std must be > 0, got {std}")
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "std", std)
+
+
+# ---------------------------------------------------------------------------------------------- kernels
+@dataclass(frozen=True)
+class LaplaceBlock:
+    """Derivatives of a batch of equal-length demonstrations, prepared for fast likelihood evaluation.
+
+    When every feature Hessian is shared by the batch and the pencil of Hessians is simultaneously
+    diagonalisable by one congruence (always so for two features), the block is stored in that eigenbasis:
+    ``V^T H_k V = diag(lam_k)``. Every likelihood evaluation is then O(M K d) instead of O(M K d^3).
+
+    Attributes
+    ----------
+    grad : array, shape (M, K, d)   gradients (in the eigenbasis when ``diagonal``)
+    hess : array, shape (M' , K, d, d) or None
+    lam : array, shape (K, d) or None  eigen-spectra when ``diagonal``
+    log_det_v : float  log|det V| (the likelihood's constant from the change of basis)
+    """
+
+    grad: np.ndarray
+    hess: np.ndarray | None
+    lam: np.ndarray | None
+    log_det_v: float = 0.0
+
+    @property
+    def diagonal(self) -> bool:
+        return self.lam is not None
+
+    @property
+    def n_demos(self) -> int:
+        return self.grad.shape[0]
+
+    @property
+    def dim(self) -> int:
+        return self.grad.shape[2]
+
+    @classmethod
+    def from_derivatives(cls, der: FeatureDerivatives, reference_index: int, *, rtol: float = 1e-9) -> "LaplaceBlock":
+        grad, hess = der.grad, der.hess
+        if der.shared_hessian or (grad.shape[0] == 1 and hess.shape[0] == 1):
+            H = hess[0]
+            K = H.shape[0]
+            H_ref = H[reference_index]
+            others = [k for k in range(K) if k != reference_index]
+            try:
+                if others:
+                    _, V = scipy.linalg.eigh(H[others[0]], H_ref)
+                else:
+                    _, V = scipy.linalg.eigh(H_ref, np.eye(H_ref.shape[0]))
+            except np.linalg.LinAlgError:
+                return cls(grad, hess, None)
+            D = np.einsum("ia,kij,jb->kab", V, H, V)
+            diag = np.einsum("kaa->ka", D)
+            off = D - np.einsum("ka,ab->kab", diag, np.eye(D.shape[1]))
+            scale = np.max(np.abs(diag), axis=1, keepdims=True) + 1e-300
+            if np.all(np.abs(off) <= rtol * scale[:, :, None] * 10 * D.shape[1]):
+                ghat = np.einsum("ia,mki->mka", V, grad)
+                _, logabsdet = np.linalg.slogdet(V)
+                return cls(ghat, None, diag, float(logabsdet))
+        return cls(grad, hess, None)
+
+
+def _shift_to_pd(H: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """Cholesky of H (M, d, d); demos that are not positive definite get the smallest shift that fixes them."""
+    try:
+        return np.linalg.cholesky(H), H, 0, np.inf
+    except np.linalg.LinAlgError:
+        pass
+    eig_min = np.linalg.eigvalsh(H)[:, 0]
+    scale = np.abs(np.einsum("mii->m", H)) / H.shape[1] + np.finfo(float).tiny
+    bad = eig_min <= eps * scale
+    H = H.copy()
+    shift = np.where(bad, -eig_min + eps * scale, 0.0)
+    H += shift[:, None, None] * np.eye(H.shape[1])
+    return np.linalg.cholesky(H), H, int(bad.sum()), float(eig_min[bad].min())
+
+
+def laplace_nll(theta: np.ndarray, block: LaplaceBlock, order: int = 1, eps: float = 1e-9):
+    """Negative Laplace log-likelihood of each demonstration and its derivatives in theta.
+
+    Parameters
+    ----------
+    theta : array, shape (M, K)
+        Absolute weights (scale included), one row per demonstration of the block; must be > 0 for features
+        whose Hessians are only positive semi-definite.
+    block : LaplaceBlock
+    order : {0, 1, 2}
+        0: values only; 1: and gradients; 2: and Hessians.
+
+    Returns
+    -------
+    nll : array (M,)
+    grad : array (M, K) or None
+    hess : array (M, K, K) or None
+    n_regularized : int   demonstrations whose Hessian needed a shift
+    worst_eig : float     most negative eigenvalue met (inf if none)
+    """
+    theta = np.asarray(theta, dtype=float)
+    d = block.dim
+    if block.diagonal:
+        return _diag_nll(theta, block, order, eps)
+    G = np.einsum("mk,mkd->md", theta, block.grad)
+    H = np.einsum("mk,mkij->mij", theta, block.hess)
+    L, H, n_reg, worst = _shift_to_pd(H, eps)
+    logdet = 2.0 * np.sum(np.log(np.einsum("mii->mi", L)), axis=1)
+    y = scipy.linalg.solve_triangular(L, G[..., None], lower=True)[..., 0]
+    nll = 0.5 * np.sum(y**2, axis=1) - 0.5 * logdet + 0.5 * d * LOG_2PI
+    if order == 0:
+        return nll, None, None, n_reg, worst
+    Hinv = np.linalg.inv(H)
+    h = np.einsum("mij,mj->mi", Hinv, G)
+    hess_b = np.broadcast_to(block.hess, (G.shape[0],) + block.hess.shape[1:]) if block.hess.shape[0] == 1 else block.hess
+    Hk_h = np.einsum("mkij,mj->mki", hess_b, h)
+    grad = (
+        np.einsum("mki,mi->mk", block.grad, h)
+        - 0.5 * np.einsum("mki,mi->mk", Hk_h, h)
+        - 0.5 * np.einsum("mij,mkij->mk", Hinv, hess_b)
+    )
+    if order == 1:
+        return nll, grad, None, n_reg, worst
+    E = block.grad - Hk_h
+    term1 = np.einsum("mki,mij,mlj->mkl", E, Hinv, E)
+    B = Hinv[:, None] @ hess_b
+    term2 = 0.5 * np.einsum("mkij,mlji->mkl", B, B)
+    return nll, grad, term1 + term2, n_reg, worst
+
+
+def _diag_nll(theta, block, order, eps):
+    lam = block.lam  # (K, d)
+    D = theta @ lam  # (M, d)
+    n_reg, worst = 0, np.inf
+    dmin = D.min(axis=1)
+    scale = np.abs(D).max(axis=1) + np.finfo(float).tiny
+    bad = dmin <= eps * scale
+    if np.any(bad):
+        n_reg, worst = int(bad.sum()), float(dmin[bad].min())
+        D = D + np.where(bad, -dmin + eps * scale, 0.0)[:, None]
+    G = np.einsum("mk,mkd->md", theta, block.grad)
+    h = G / D
+    d = block.dim
+    nll = 0.5 * np.sum(G * h, axis=1) - 0.5 * np.sum(np.log(D), axis=1) + block.log_det_v + 0.5 * d * LOG_2PI
+    if order == 0:
+        return nll, None, None, n_reg, worst
+    grad = (
+        np.einsum("mkd,md->mk", block.grad, h)
+        - 0.5 * np.einsum("kd,md->mk", lam, h**2)
+        - 0.5 * np.einsum("kd,md->mk", lam, 1.0 / D)
+    )
+    if order == 1:
+        return nll, grad, None, n_reg, worst
+    E = block.grad - lam[None] * h[:, None, :]
+    hess = np.einsum("mkd,mld,md->mkl", E, E, 1.0 / D) + 0.5 * np.einsum("kd,ld,md->mkl", lam, lam, 1.0 / D**2)
+    return nll, grad, hess, n_reg, worst
+
+
+# ---------------------------------------------------------------------------------------------- fitting
+@dataclass(frozen=True)
+class IRLResult:
+    """Weights fitted per group.
+
+    Attributes
+    ----------
+    theta : array (G, K)        absolute weights, beta * normalised
+    normalized : array (G, K)   weights divided by the reference feature's weight (the reported form)
+    beta : array (G,)           scale (the reference weight)
+    neg_log_likelihood : array (G,)  summed over the group's demonstrations (prior excluded)
+    at_bound : array (G, K) bool     coordinate w at its bound at the end
+    converged : array (G,) bool
+    n_iter : int
+    n_regularized : int              demonstrations whose Hessian needed a shift at the solution
+    """
+
+    theta: np.ndarray
+    normalized: np.ndarray
+    beta: np.ndarray
+    neg_log_likelihood: np.ndarray
+    at_bound: np.ndarray
+    converged: np.ndarray
+    n_iter: int
+    n_regularized: int
+
+
+def _param_map(K: int, ref: int) -> np.ndarray:
+    """P with log theta = P w: log theta_ref = w_ref, log theta_k = w_ref + w_k."""
+    P = np.eye(K)
+    P[:, ref] = 1.0
+    return P
+
+
+def fit_weights(
+    blocks: Sequence[LaplaceBlock] | LaplaceBlock,
+    labels: Sequence[np.ndarray] | np.ndarray | None,
+    features: FeatureSet,
+    *,
+    n_groups: int | None = None,
+    prior: LogNormalPrior | None = None,
+    log_bounds: tuple[float, float] = (-20.0, 20.0),
+    max_iter: int = 100,
+    tol: float = 1e-7,
+) -> IRLResult:
+    """Maximum-likelihood (or MAP) weights, one vector per group of demonstrations, by batched damped Newton.
+
+    Parameters
+    ----------
+    blocks : LaplaceBlock or sequence of them
+        Demonstrations, grouped by length.
+    labels : int array (M_b,) per block, or None
+        Group of each demonstration, 0..G-1. None: one group per demonstration of a single block.
+    features : FeatureSet
+        Names the reference feature that fixes the normalisation.
+    n_groups : int, optional
+        G; default ``max(label) + 1``.
+    prior : LogNormalPrior, optional
+        MAP instead of ML: adds 1/2 sum ((w - mean) / std)^2 per group.
+    log_bounds : (low, high)
+        Box on every coordinate w (log beta and log normalised weights).
+    max_iter, tol : Newton iterations and tolerance on the step in w.
+
+    Returns
+    -------
+    IRLResult
+    """
+    if isinstance(blocks, LaplaceBlock):
+        blocks = [blocks]
+    blocks = list(blocks)
+    if labels is None:
+        if len(blocks) != 1:
+            raise ValueError("labels=None (one group per demonstration) needs a single block")
+        labels = [np.arange(blocks[0].n_demos)]
+    elif isinstance(labels, np.ndarray) and labels.ndim == 1 and len(blocks) == 1:
+        labels = [labels]
+    labels = [np.asarray(lab, dtype=int) for lab in labels]
+    if len(labels) != len(blocks):
+        raise ValueError(f"need one label array per block: {len(labels)} label arrays for {len(blocks)} blocks")
+    for b, lab in zip(blocks, labels):
+        if lab.shape != (b.n_demos,):
+            raise ValueError(f"labels of shape {lab.shape} do not match a block of {b.n_demos} demonstrations")
+        if lab.size and lab.min() < 0:
+            raise ValueError(f"labels must be >= 0, got {lab.min()}")
+    G = int(n_groups if n_groups is not None else max(int(lab.max()) + 1 for lab in labels if lab.size))
+    K = features.n_features
+    ref = features.reference_index
+    low, high = float(log_bounds[0]), float(log_bounds[1])
+    if not low < high:
+        raise ValueError(f"log_bounds must be (low, high) with low < high, got {log_bounds}")
+    if prior is not None and prior.mean.shape != (K,):
+        raise ValueError(f"prior has {prior.mean.shape[0]} entries, features have {K}")
+    P = _param_map(K, ref)
+
+    totals = {"reg": 0, "worst": np.inf}
+
+    def objective(w: np.ndarray, order: int):
+        logt = w @ P.T
+        theta = np.exp(logt)
+        f = np.zeros(G)
+        g = np.zeros((G, K)) if order >= 1 else None
+        H = np.zeros((G, K, K)) if order >= 2 else None
+        n_reg = 0
+        for block, lab in zip(blocks, labels):
+            nll, dg, dH, nr, worst = laplace_nll(theta[lab], block, order)
+            n_reg += nr
+            totals["worst"] = min(totals["worst"], worst)
+            np.add.at(f, lab, nll)
+            if order >= 1:
+                np.add.at(g, lab, dg)
+            if order >= 2:
+                np.add.at(H, lab, dH)
+        if order >= 1:
+            # chain rule: phi = log theta = P w
+            dphi = theta * g
+            gw = dphi @ P
+        if order >= 2:
+            Hphi = theta[:, :, None] * H * theta[:, None, :] + np.einsum("gk,kl->gkl", dphi, np.eye(K))
+            Hw = np.einsum("ka,gkl,lb->gab", P, Hphi, P)
+        if prior is not None:
+            z = (w - prior.mean) / prior.std
+            f = f + 0.5 * np.sum(z**2, axis=1)
+            if order >= 1:
+                gw = gw + z / prior.std
+            if order >= 2:
+                Hw = Hw + np.diag(1.0 / prior.std**2)[None]
+        totals["reg"] = n_reg
+        return f, (gw if order >= 1 else None), (Hw if order >= 2 else None)
+
+    w = _initial_guess(blocks, labels, G, features, low, high)
+    damping = np.full(G, 1e-4)
+    converged = np.zeros(G, dtype=bool)
+    f, gw, Hw = objective(w, 2)
+    n_iter = 0
+    eye = np.eye(K)
+    for n_iter in range(1, max_iter + 1):
+        active = ~converged
+        if not np.any(active):
+            break
+        # coordinates held at a bound where the descent direction points outwards
+        at_low = (w <= low + 1e-12) & (gw > 0)
+        at_high = (w >= high - 1e-12) & (gw < 0)
+        free = ~(at_low | at_high)
+        Hd = Hw + damping[:, None, None] * (np.abs(np.einsum("gkk->gk", Hw))[:, :, None] * eye + eye * 1e-12)
+        Hd = np.where(free[:, :, None] & free[:, None, :], Hd, eye[None] * 1.0)
+        rhs = np.where(free, -gw, 0.0)
+        try:
+            step = np.linalg.solve(Hd, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = rhs / np.maximum(np.abs(np.einsum("gkk->gk", Hd)), 1e-12)
+        step = np.where(active[:, None], step, 0.0)
+        w_new = np.clip(w + step, low, high)
+        f_new, _, _ = objective(w_new, 0)
+        better = (f_new <= f + 1e-12 * np.abs(f)) & active
+        moved = np.max(np.abs(w_new - w), axis=1)
+        w = np.where(better[:, None], w_new, w)
+        damping = np.where(better, np.maximum(damping / 4.0, 1e-10), np.minimum(damping * 8.0, 1e12))
+        small = moved < tol
+        stuck = (~better) & (damping >= 1e12)
+        converged |= active & ((better & small) | stuck)
+        f, gw, Hw = objective(w, 2)
+    else:
+        n_iter = max_iter
+    if not np.all(converged):
+        warnings.warn(
+            f"IRL Newton iteration did not converge for {int((~converged).sum())} of {G} groups within "
+            f"{max_iter} iterations (largest |gradient| {float(np.max(np.abs(gw[~converged]))):.3g})",
+            IRLConvergenceWarning,
+            stacklevel=2,
+        )
+    if totals["reg"]:
+        warnings.warn(
+            f"{totals['reg']} demonstrations had a cost Hessian that was not positive definite at the fitted "
+            f"weights (most negative eigenvalue {totals['worst']:.3g}); they were regularised by a diagonal shift",
+            HessianRegularizationWarning,
+            stacklevel=2,
+        )
+    theta = np.exp(w @ P.T)
+    at_bound = (w <= low + 1e-9) | (w >= high - 1e-9)
+    f_data = f - (0.5 * np.sum(((w - prior.mean) / prior.std) ** 2, axis=1) if prior is not None else 0.0)
+    return IRLResult(
+        theta=theta,
+        normalized=features.normalize(theta),
+        beta=theta[:, ref],
+        neg_log_likelihood=f_data,
+        at_bound=at_bound,
+        converged=converged,
+        n_iter=n_iter,
+        n_regularized=int(totals["reg"]),
+    )
+
+
+def _initial_guess(blocks, labels, G, features: FeatureSet, low: float, high: float) -> np.ndarray:
+    """Direction by least squares on the stationarity condition sum_k theta_k grad f_k = 0 (theta_ref = 1),
+    then the scale that maximises the likelihood along that direction (beta = d / g^T H^-1 g)."""
+    K = features.n_features
+    ref = features.reference_index
+    others = [k for k in range(K) if k != ref]
+    AtA = np.zeros((G, len(others), len(others)))
+    Atb = np.zeros((G, len(others)))
+    for block, lab in zip(blocks, labels):
+        A = block.grad[:, others, :]  # (M, K-1, d)
+        b = block.grad[:, ref, :]
+        np.add.at(AtA, lab, np.einsum("mkd,mld->mkl", A, A))
+        np.add.at(Atb, lab, -np.einsum("mkd,md->mk", A, b))
+    w = np.zeros((G, K))
+    if others:
+        reg = 1e-12 * (np.abs(np.einsum("gkk->g", AtA))[:, None, None] + 1e-300) * np.eye(len(others))
+        sol = np.linalg.solve(AtA + reg, Atb[..., None])[..., 0]
+        w[:, others] = np.log(np.clip(sol, np.exp(low), np.exp(high)))
+    # scale along the direction
+    theta = np.exp(w @ _param_map(K, ref).T)
+    quad = np.zeros(G)
+    dims = np.zeros(G)
+    for block, lab in zip(blocks, labels):
+        nll, *_ = laplace_nll(theta[lab], block, order=0)
+        # nll = q - 1/2 logdet + const; recover q = 1/2 g^T H^-1 g from a second evaluation at twice the scale
+        nll2, *_ = laplace_nll(2.0 * theta[lab], block, order=0)
+        q = nll2 - nll + 0.5 * block.dim * np.log(2.0)  # q(2 theta) - q(theta) = q(theta)
+        np.add.at(quad, lab, np.maximum(q, 0.0))
+        np.add.at(dims, lab, block.dim)
+    with np.errstate(divide="ignore"):
+        w[:, ref] = np.clip(np.log(dims / 2.0) - np.log(np.maximum(quad, 1e-300)), low, high)
+    return w

@@ -1,0 +1,261 @@
+"""Model-predictive prediction under a learned linear cost.
+
+For quadratic features the cost of a start x_0 and stacked controls U (length d = N n_u) is exactly
+
+    C(U) = theta . f = 1/2 U^T A(theta) U + b(theta, x_0) . U + const,
+    A = sum_k theta_k H_k,  b = sum_k theta_k (W_k x_0 + c_k),
+
+so the unconstrained optimum is U* = -A^-1 b (`LQPredictor`, batched over starts and weights), and bounds on
+states and controls make it a convex QP solved through casadi's ``conic`` interface (`ConstrainedLQPredictor`,
+daqp by default, warm-started from the previous solution). Both agree where no bound is active.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from .dynamics import LinearDynamics
+from .features import FeatureSet
+
+__all__ = ["QuadraticCost", "LQPredictor", "ConstrainedLQPredictor", "Bounds"]
+
+
+@dataclass(frozen=True)
+class QuadraticCost:
+    """The exact quadratic form of a quadratic `FeatureSet` over N steps of linear dynamics.
+
+    Attributes
+    ----------
+    H : array (K, d, d)     Hessian of each feature in U
+    W : array (K, d, n_x)   gradient of each feature at U = 0 is ``W_k x_0 + c_k``
+    c : array (K, d)
+    """
+
+    dynamics: LinearDynamics
+    features: FeatureSet
+    n_steps: int
+    H: np.ndarray = field(init=False, repr=False)
+    W: np.ndarray = field(init=False, repr=False)
+    c: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if int(self.n_steps) < 1:
+            raise ValueError(f"n_steps must be >= 1, got {self.n_steps}")
+        n_x = self.dynamics.n_x
+        starts = np.vstack([np.zeros(n_x), np.eye(n_x)])
+        H, b = self.features.quadratic_terms(self.dynamics, starts, int(self.n_steps))
+        c = b[0]
+        W = np.moveaxis(b[1:] - c[None], 0, -1)  # (K, d, n_x)
+        for name, arr in (("H", H), ("W", W), ("c", c)):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    @property
+    def dim(self) -> int:
+        return self.H.shape[1]
+
+    def terms(self, x0: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A (d, d) or (M, d, d) and b (M, d) for starts x0 (M, n_x) and weights (K,) or (M, K)."""
+        x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        theta = self.features.weights(theta)
+        if theta.ndim == 1:
+            A = np.tensordot(theta, self.H, axes=1)
+            b = np.einsum("k,kdx,mx->md", theta, self.W, x0) + theta @ self.c
+        else:
+            if theta.shape[0] != x0.shape[0]:
+                raise ValueError(f"got {theta.shape[0]} weight vectors for {x0.shape[0]} starts")
+            A = np.einsum("mk,kij->mij", theta, self.H)
+            b = np.einsum("mk,kdx,mx->md", theta, self.W, x0) + theta @ self.c
+        return A, b
+
+
+class LQPredictor:
+    """Closed-form, batched MPC prediction for quadratic features (no constraints).
+
+    Parameters
+    ----------
+    dynamics : LinearDynamics
+    features : FeatureSet   (all features quadratic)
+    """
+
+    def __init__(self, dynamics: LinearDynamics, features: FeatureSet):
+        if not features.quadratic:
+            raise ValueError("LQPredictor needs quadratic features; use the sequential MPC for the others")
+        self.dynamics = dynamics
+        self.features = features
+        self._costs: dict[int, QuadraticCost] = {}
+
+    def cost(self, n_steps: int) -> QuadraticCost:
+        n_steps = _check_horizon(n_steps)
+        if n_steps not in self._costs:
+            self._costs[n_steps] = QuadraticCost(self.dynamics, self.features, n_steps)
+        return self._costs[n_steps]
+
+    def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+        """Optimal controls, shape (M, N, n_u), for starts x0 (M, n_x) and weights (K,) shared or (M, K)."""
+        x0 = _check_starts(x0, self.dynamics)
+        cost = self.cost(n_steps)
+        theta = self.features.weights(theta)
+        if np.any(theta < 0):
+            raise ValueError(f"weights must be >= 0 for a convex cost, got {theta}")
+        A, b = cost.terms(x0, theta)
+        if A.ndim == 2:
+            L = np.linalg.cholesky(A)
+            U = -_cho_solve(L, b.T).T
+        else:
+            U = -np.linalg.solve(A, b[..., None])[..., 0]
+        return U.reshape(x0.shape[0], int(n_steps), self.dynamics.n_u)
+
+    def predict(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+        """Predicted states, shape (M, N + 1, n_x), starting with x0."""
+        x0 = _check_starts(x0, self.dynamics)
+        return self.dynamics.rollout(x0, self.controls(x0, theta, n_steps))
+
+
+def _cho_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    import scipy.linalg
+
+    return scipy.linalg.cho_solve((L, True), B)
+
+
+def _check_horizon(n_steps) -> int:
+    if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)):
+        raise TypeError(f"horizon must be an integer number of steps, got {n_steps!r}")
+    if n_steps < 1:
+        raise ValueError(f"horizon must be >= 1 step, got {n_steps}")
+    return int(n_steps)
+
+
+def _check_starts(x0: np.ndarray, dynamics: LinearDynamics) -> np.ndarray:
+    x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+    if x0.ndim != 2 or x0.shape[1] != dynamics.n_x:
+        raise ValueError(f"start states must have shape (M, {dynamics.n_x}), got {x0.shape}")
+    if not np.all(np.isfinite(x0)):
+        raise ValueError(f"start states must be finite, got {x0[~np.isfinite(x0)][:3]}")
+    return x0
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Box bounds for the constrained MPC, by state and control name (``None`` = unbounded).
+
+    Example: ``Bounds(state={"v [m/s]": (0.0, 15.0)}, control={"a [m/s^2]": (-3.0, 2.0)})``.
+    """
+
+    state: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    control: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+
+    def resolve(self, dynamics: LinearDynamics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Arrays (lower, upper) for states (n_x,) and controls (n_u,), checked against the names."""
+        out = []
+        for kind, mapping, names in (
+            ("state", self.state, dynamics.state_names),
+            ("control", self.control, dynamics.control_names),
+        ):
+            unknown = sorted(set(mapping) - set(names))
+            if unknown:
+                raise ValueError(f"unknown {kind} names {unknown}; allowed: {list(names)}")
+            lo = np.full(len(names), -np.inf)
+            hi = np.full(len(names), np.inf)
+            for name, (a, b) in mapping.items():
+                if not (a <= b) or np.isnan(a) or np.isnan(b):
+                    raise ValueError(f"{kind} bound for {name!r} must satisfy low <= high, got ({a}, {b})")
+                i = names.index(name)
+                lo[i], hi[i] = a, b
+            out += [lo, hi]
+        return tuple(out)  # type: ignore[return-value]
+
+
+class ConstrainedLQPredictor:
+    """MPC with box bounds on states and controls: a convex QP through casadi's ``conic`` interface.
+
+    The QP is condensed (variables: the stacked controls U); state bounds become linear constraints through
+    ``X = Phi x_0 + Gamma U``. Each solve is warm-started from the previous solution of the same horizon.
+
+    Parameters
+    ----------
+    dynamics, features : as for `LQPredictor`
+    bounds : Bounds
+    solver : str
+        A casadi conic plugin (``"daqp"`` default, ``"qpoases"``, ``"osqp"``, ...).
+    """
+
+    def __init__(self, dynamics: LinearDynamics, features: FeatureSet, bounds: Bounds, solver: str = "daqp"):
+        import casadi  # heavy: imported on use
+
+        self._casadi = casadi
+        self.dynamics = dynamics
+        self.features = features
+        self.bounds = bounds
+        self.solver = solver
+        self._lq = LQPredictor(dynamics, features)
+        self._x_lo, self._x_hi, self._u_lo, self._u_hi = bounds.resolve(dynamics)
+        if not casadi.has_conic(solver):
+            raise ValueError(f"casadi has no QP solver plugin {solver!r}")
+        self._solvers: dict[int, object] = {}
+        self._warm: dict[int, np.ndarray] = {}
+
+    def _setup(self, n_steps: int):
+        if n_steps not in self._solvers:
+            ca = self._casadi
+            d = n_steps * self.dynamics.n_u
+            rows = np.flatnonzero(np.isfinite(self._x_lo) | np.isfinite(self._x_hi))
+            _, gamma = self.dynamics.condensed(n_steps)
+            # constraint rows: bounded state entries of x_1..x_N
+            A = gamma[:, rows, :, :].reshape(n_steps * len(rows), d)
+            opts: dict = {"error_on_fail": False}
+            if self.solver == "qpoases":
+                opts["printLevel"] = "none"
+            elif self.solver == "osqp":
+                opts["osqp"] = {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9}
+            solver = ca.conic(
+                "mpc", self.solver, {"h": ca.DM.ones(d, d).sparsity(), "a": ca.DM(np.ones_like(A)).sparsity()}, opts
+            )
+            self._solvers[n_steps] = (solver, A, rows)
+        return self._solvers[n_steps]
+
+    def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+        """Optimal bounded controls, shape (M, N, n_u); solved one start at a time."""
+        x0 = _check_starts(x0, self.dynamics)
+        n_steps = _check_horizon(n_steps)
+        theta = self.features.weights(theta)
+        solver, Acon, rows = self._setup(n_steps)
+        cost = self._lq.cost(n_steps)
+        phi, _ = self.dynamics.condensed(n_steps)
+        d = cost.dim
+        out = np.empty((x0.shape[0], d))
+        u_lo = np.tile(self._u_lo, n_steps)
+        u_hi = np.tile(self._u_hi, n_steps)
+        for m in range(x0.shape[0]):
+            th = theta if theta.ndim == 1 else theta[m]
+            A, b = cost.terms(x0[m : m + 1], th)
+            free = (phi @ x0[m])[:, rows].reshape(-1)
+            lo = np.tile(self._x_lo[rows], n_steps) - free
+            hi = np.tile(self._x_hi[rows], n_steps) - free
+            sol = solver(
+                h=A,
+                g=b[0],
+                a=Acon,
+                lba=lo,
+                uba=hi,
+                lbx=u_lo,
+                ubx=u_hi,
+                x0=self._warm.get(n_steps, np.zeros(d)),
+            )
+            stats = solver.stats()
+            if not stats.get("success", True):
+                raise RuntimeError(
+                    f"QP solver {self.solver!r} failed for start {x0[m]} ({stats.get('return_status')}); "
+                    "the bounds may be infeasible from this start"
+                )
+            u = np.asarray(sol["x"]).ravel()
+            self._warm[n_steps] = u
+            out[m] = u
+        return out.reshape(x0.shape[0], n_steps, self.dynamics.n_u)
+
+    def predict(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+        x0 = _check_starts(x0, self.dynamics)
+        return self.dynamics.rollout(x0, self.controls(x0, theta, n_steps))
