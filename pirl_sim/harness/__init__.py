@@ -1,0 +1,1 @@
+"""Experiments: scenario x learner x protocol -> tidy rows, and the paper reproductions."""
