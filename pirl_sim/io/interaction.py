@@ -1,0 +1,409 @@
+"""Read and write track files in the INTERACTION dataset's CSV format.
+
+Vehicle files (``vehicle_tracks_NNN.csv``) have the header::
+
+    track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width
+
+Pedestrian/bicycle files (``pedestrian_tracks_NNN.csv``) have only the first eight of these columns.
+Units: ``timestamp_ms`` in milliseconds, ``x``, ``y``, ``length``, ``width`` in metres (local map frame),
+``vx``, ``vy`` in m/s, ``psi_rad`` in radians. Frames are 100 ms apart; in the real data
+``frame_id`` starts at 1 and ``timestamp_ms = 100 * frame_id``.
+
+Errors in a file are reported as ``ValueError`` naming the file, the 1-based line of the text file
+(the header is line 1) and the column.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .atomic import atomic_write_text
+
+__all__ = [
+    "VEHICLE_COLUMNS",
+    "PEDESTRIAN_COLUMNS",
+    "FRAME_DT_MS",
+    "read_tracks",
+    "write_tracks",
+    "split_tracks",
+    "iter_track_arrays",
+    "find_track_files",
+]
+
+VEHICLE_COLUMNS: tuple[str, ...] = (
+    "track_id", "frame_id", "timestamp_ms", "agent_type",
+    "x", "y", "vx", "vy", "psi_rad", "length", "width",
+)
+PEDESTRIAN_COLUMNS: tuple[str, ...] = VEHICLE_COLUMNS[:8]
+FRAME_DT_MS = 100  #: time between consecutive frames, ms
+
+_KINDS = {"vehicle": VEHICLE_COLUMNS, "pedestrian": PEDESTRIAN_COLUMNS}
+_INT_COLUMNS = ("track_id", "frame_id", "timestamp_ms")
+_STR_COLUMNS = ("agent_type",)
+
+Where = Callable[[int], str]  # row position -> "line N" style location
+
+
+# ----------------------------------------------------------------------------------------------
+# public API
+# ----------------------------------------------------------------------------------------------
+
+def read_tracks(path, *, kind: str = "auto") -> pd.DataFrame:
+    """Read one INTERACTION track CSV file and validate it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``vehicle_tracks_NNN.csv`` or ``pedestrian_tracks_NNN.csv`` file.
+    kind : {"auto", "vehicle", "pedestrian"}
+        Expected format; ``"auto"`` takes it from the header.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per line of the file, in file order, columns as in the header.
+        ``track_id``, ``frame_id``, ``timestamp_ms`` [ms] are int64, ``agent_type`` is str,
+        ``x``, ``y`` [m], ``vx``, ``vy`` [m/s], ``psi_rad`` [rad], ``length``, ``width`` [m] are float64.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If ``kind`` is invalid or the file is malformed: wrong header, rows with the wrong number
+        of fields, values that are not numbers or not finite, duplicated ``(track_id, frame_id)``,
+        frames not strictly increasing within a track, ``timestamp_ms`` not ``100 ms * frame_id``
+        plus one constant offset, or no rows at all. The message names the file, the line
+        (header = line 1) and the column.
+
+    Notes
+    -----
+    Blank lines are skipped. A last line cut mid-row is caught by its field count, but a cut inside
+    the last field leaves a shorter, still valid number and cannot be detected.
+    """
+    _check_kind(kind)
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"track file not found: {path}")
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        reader = csv.reader(fh)
+        try:
+            header = next(reader, None)
+            if header is None:
+                raise ValueError(f"{path}: file is empty (no header line)")
+            columns = _resolve_columns(header, kind, f"{path}: line 1 (header)")
+            rows, lines = [], []
+            for row in reader:
+                if not row:
+                    continue
+                if len(row) != len(columns):
+                    raise ValueError(f"{path}: line {reader.line_num}: " + _field_count_problem(row, columns))
+                rows.append(row)
+                lines.append(reader.line_num)
+        except csv.Error as exc:
+            raise ValueError(f"{path}: line {reader.line_num}: malformed CSV: {exc}") from None
+    if not rows:
+        raise ValueError(f"{path}: has no rows (header only)")
+    raw = dict(zip(columns, (np.array(col) for col in zip(*rows))))
+    return _validated_frame(raw, columns, str(path), lambda i: f"line {lines[i]}")
+
+
+def write_tracks(df: pd.DataFrame, path, *, kind: str = "auto") -> Path:
+    """Validate ``df`` and write it atomically as an INTERACTION track CSV file.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        Tracks with the columns of :data:`VEHICLE_COLUMNS` or :data:`PEDESTRIAN_COLUMNS` (any order,
+        no other columns; the index is not written). Units as in :func:`read_tracks`.
+    path : str or os.PathLike
+        Target file; missing parent directories are created.
+    kind : {"auto", "vehicle", "pedestrian"}
+        Format to write; ``"auto"`` takes it from the columns of ``df``.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is invalid or ``df`` fails the checks of :func:`read_tracks`; the message names the
+        row (and the line it would have in the file) and the column. Nothing is written then.
+
+    Notes
+    -----
+    Columns are written in header order, integers as integers and floats as the shortest decimal
+    that parses back to the same float64, so a write/read round trip is exact. The text goes to a
+    temporary file in the target directory that is renamed over ``path`` with :func:`os.replace`
+    only once complete, so a crash never leaves a partial file at ``path``.
+    """
+    _check_kind(kind)
+    path = Path(path)
+    if not isinstance(df, pd.DataFrame):
+        raise TypeError(f"cannot write {path}: expected a pandas DataFrame, got {type(df).__name__}")
+    columns = _resolve_columns(
+        [str(c) for c in df.columns], kind, f"cannot write {path}: DataFrame columns", ordered=False
+    )
+    if len(df) == 0:
+        raise ValueError(f"cannot write {path}: the DataFrame has no rows")
+    raw = {name: df[name].to_numpy() for name in columns}
+    clean = _validated_frame(raw, columns, f"cannot write {path}", lambda i: f"row {i} (line {i + 2} of the file)")
+    atomic_write_text(path, clean.to_csv(index=False, lineterminator="\n"))
+    return path
+
+
+def split_tracks(df: pd.DataFrame) -> dict[int, pd.DataFrame]:
+    """Split a track table into one table per track.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        Tracks as returned by :func:`read_tracks`.
+
+    Returns
+    -------
+    dict of int to pandas.DataFrame
+        ``{track_id: rows of that track sorted by frame_id}``, keys ascending, each with a fresh
+        0-based index.
+    """
+    _require_columns(df, ("track_id", "frame_id"))
+    return {
+        int(track_id): rows.sort_values("frame_id", kind="stable").reset_index(drop=True)
+        for track_id, rows in df.groupby("track_id", sort=True)
+    }
+
+
+def iter_track_arrays(df: pd.DataFrame) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Iterate over the tracks of a table as numpy arrays.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        Tracks as returned by :func:`read_tracks`.
+
+    Yields
+    ------
+    track_id : int
+    t_s : numpy.ndarray, shape (n,)
+        Time stamps [s] (``timestamp_ms / 1000``), increasing.
+    xy : numpy.ndarray, shape (n, 2)
+        Positions ``(x, y)`` [m].
+    v_xy : numpy.ndarray, shape (n, 2)
+        Velocities ``(vx, vy)`` [m/s].
+
+    Tracks come in ascending ``track_id`` order, the samples of each in ``frame_id`` order.
+    """
+    _require_columns(df, ("track_id", "frame_id", "timestamp_ms", "x", "y", "vx", "vy"))
+    tracks = split_tracks(df)
+
+    def generate():
+        for track_id, rows in tracks.items():
+            t_s = rows["timestamp_ms"].to_numpy(dtype=np.float64) / 1000.0
+            xy = rows[["x", "y"]].to_numpy(dtype=np.float64)
+            v_xy = rows[["vx", "vy"]].to_numpy(dtype=np.float64)
+            yield track_id, t_s, xy, v_xy
+
+    return generate()
+
+
+def find_track_files(directory) -> list[Path]:
+    """List the vehicle track files of a recording directory.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        A ``recorded_trackfiles/<scenario>`` directory.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The ``vehicle_tracks_*.csv`` files in ``directory`` (not recursive), sorted by name.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``directory`` does not exist.
+    ValueError
+        If it holds no such file.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"track directory not found: {directory}")
+    files = sorted(p for p in directory.glob("vehicle_tracks_*.csv") if p.is_file())
+    if not files:
+        raise ValueError(f"no vehicle_tracks_*.csv files in {directory}")
+    return files
+
+
+# ----------------------------------------------------------------------------------------------
+# validation
+# ----------------------------------------------------------------------------------------------
+
+def _check_kind(kind) -> None:
+    if kind != "auto" and kind not in _KINDS:
+        raise ValueError(f"invalid kind {kind!r}; allowed: 'auto', 'vehicle', 'pedestrian'")
+
+
+def _resolve_columns(header, kind: str, where: str, *, ordered: bool = True) -> tuple[str, ...]:
+    """Return the expected columns for ``header``, or raise naming what is missing or unknown."""
+    header = [h.strip() for h in header]
+    if kind == "auto":
+        # the format whose column set is nearest to the header
+        kind = min(_KINDS, key=lambda k: (len(set(header) ^ set(_KINDS[k])), k != "vehicle"))
+    expected = _KINDS[kind]
+    matches = tuple(header) == expected if ordered else sorted(header) == sorted(expected)
+    if matches:
+        return expected
+    problems = []
+    missing = [c for c in expected if c not in header]
+    unknown = [c for c in header if c not in expected]
+    repeated = sorted({c for c in header if header.count(c) > 1})
+    if missing:
+        problems.append("missing column(s) " + ", ".join(map(repr, missing)))
+    if unknown:
+        problems.append("unknown column(s) " + ", ".join(map(repr, unknown)))
+    if repeated:
+        problems.append("repeated column(s) " + ", ".join(map(repr, repeated)))
+    if not problems:
+        problems.append("columns out of order")
+    raise ValueError(
+        f"{where}: {'; '.join(problems)}. Expected the {kind} columns {','.join(expected)}, "
+        f"found {','.join(header)}"
+    )
+
+
+def _field_count_problem(row: list[str], columns: tuple[str, ...]) -> str:
+    n, m = len(row), len(columns)
+    if n < m:
+        return (f"{n} of {m} fields, no value for column '{columns[n]}' and after "
+                f"(truncated line? expected {','.join(columns)})")
+    return f"{n} fields, {n - m} more than the {m} columns after column '{columns[-1]}'"
+
+
+def _validated_frame(
+    raw: dict[str, np.ndarray], columns: tuple[str, ...], source: str, loc: Where
+) -> pd.DataFrame:
+    """Convert the raw columns to their dtypes and check the track structure."""
+
+    def where(i: int) -> str:
+        return f"{source}: {loc(i)}"
+
+    data = {}
+    for name in columns:
+        if name in _INT_COLUMNS:
+            data[name] = _int_column(raw[name], name, where)
+        elif name in _STR_COLUMNS:
+            data[name] = _str_column(raw[name], name, where)
+        else:
+            data[name] = _float_column(raw[name], name, where)
+    df = pd.DataFrame(data, columns=list(columns))
+    df["agent_type"] = df["agent_type"].astype(str)
+    _check_structure(df, where, loc)
+    return df
+
+
+def _int_column(values: np.ndarray, name: str, where: Where) -> np.ndarray:
+    if values.dtype.kind in "iu":
+        return values.astype(np.int64)
+    if values.dtype.kind == "U":
+        with contextlib.suppress(ValueError, OverflowError):
+            return values.astype(np.int64)
+    out = np.empty(len(values), dtype=np.int64)
+    for i, v in enumerate(values):
+        try:
+            out[i] = _parse_int(v)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{where(i)}, column '{name}': expected an integer, found {_show(v)}") from None
+    return out
+
+
+def _parse_int(v) -> int:
+    if isinstance(v, (bool, np.bool_)):
+        raise TypeError
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)) and float(v).is_integer():
+        return int(v)
+    if isinstance(v, str):
+        return int(v)
+    raise TypeError
+
+
+def _float_column(values: np.ndarray, name: str, where: Where) -> np.ndarray:
+    try:
+        out = values.astype(np.float64)
+    except (TypeError, ValueError):
+        for i, v in enumerate(values):
+            try:
+                float(v)
+            except (TypeError, ValueError):
+                raise ValueError(f"{where(i)}, column '{name}': expected a number, found {_show(v)}") from None
+        raise  # unreachable in practice: every element converted on its own
+    bad = np.flatnonzero(~np.isfinite(out))
+    if bad.size:
+        i = bad[0]
+        raise ValueError(f"{where(i)}, column '{name}': {out[i]} is not allowed (values must be finite)")
+    return out
+
+
+def _str_column(values: np.ndarray, name: str, where: Where) -> list[str]:
+    out = []
+    for i, v in enumerate(values):
+        if not isinstance(v, str) or not v.strip():
+            raise ValueError(f"{where(i)}, column '{name}': expected a non-empty string, found {_show(v)}")
+        out.append(str(v))
+    return out
+
+
+def _show(v) -> str:
+    if isinstance(v, str):
+        return "an empty value" if not v.strip() else repr(str(v))
+    return "a missing value (NaN)" if pd.isna(v) else repr(v)
+
+
+def _check_structure(df: pd.DataFrame, where: Where, loc: Where) -> None:
+    track = df["track_id"].to_numpy()
+    frame = df["frame_id"].to_numpy()
+    stamp = df["timestamp_ms"].to_numpy()
+
+    duplicated = df.duplicated(["track_id", "frame_id"], keep="first").to_numpy()
+    if duplicated.any():
+        i = int(np.argmax(duplicated))
+        first = int(np.flatnonzero((track == track[i]) & (frame == frame[i]))[0])
+        raise ValueError(
+            f"{where(i)}, column 'frame_id': duplicated (track_id, frame_id) = ({track[i]}, {frame[i]}), "
+            f"first at {loc(first)}"
+        )
+
+    previous = df.groupby("track_id", sort=False)["frame_id"].shift().to_numpy(dtype=np.float64)
+    decreasing = frame <= previous  # NaN (first row of a track) compares False
+    if decreasing.any():
+        i = int(np.argmax(decreasing))
+        raise ValueError(
+            f"{where(i)}, column 'frame_id': frame_id {frame[i]} of track {track[i]} follows frame_id "
+            f"{int(previous[i])} of that track; frames must increase strictly within a track"
+        )
+
+    offset = stamp - FRAME_DT_MS * frame
+    wrong = offset != offset[0]
+    if wrong.any():
+        i = int(np.argmax(wrong))
+        raise ValueError(
+            f"{where(i)}, column 'timestamp_ms': timestamp_ms {stamp[i]} does not fit frame_id {frame[i]}; "
+            f"expected {FRAME_DT_MS * frame[i] + offset[0]} ({FRAME_DT_MS} ms per frame, offset "
+            f"{offset[0]} ms as at {loc(0)})"
+        )
+
+
+def _require_columns(df: pd.DataFrame, names: tuple[str, ...]) -> None:
+    missing = [c for c in names if c not in df.columns]
+    if missing:
+        raise ValueError(f"track table lacks column(s) {', '.join(map(repr, missing))}")

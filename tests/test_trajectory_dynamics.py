@@ -1,0 +1,79 @@
+import numpy as np
+import pytest
+
+from pirl_sim.dynamics import LinearDynamics, longitudinal, point_mass
+from pirl_sim.trajectory import Trajectory, stack_trajectories
+
+
+def test_trajectory_validates_shapes_and_values():
+    t = Trajectory(np.zeros((4, 2)), np.zeros((3, 1)), 0.1, {"style": 1})
+    assert t.n_steps == 3 and t.duration == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="one more state than controls"):
+        Trajectory(np.zeros((3, 2)), np.zeros((3, 1)), 0.1)
+    with pytest.raises(ValueError, match="at least one step"):
+        Trajectory(np.zeros((1, 2)), np.zeros((0, 1)), 0.1)
+    bad = np.zeros((4, 2))
+    bad[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"states must be finite.*index \(2, 1\)"):
+        Trajectory(bad, np.zeros((3, 1)), 0.1)
+    bad[2, 1] = np.inf
+    with pytest.raises(ValueError, match="finite"):
+        Trajectory(bad, np.zeros((3, 1)), 0.1)
+    with pytest.raises(ValueError, match="2 dimensions"):
+        Trajectory(np.zeros(4), np.zeros((3, 1)), 0.1)
+    with pytest.raises(ValueError, match="dt must be"):
+        Trajectory(np.zeros((4, 2)), np.zeros((3, 1)), 0.0)
+    with pytest.raises(TypeError, match="dt"):
+        Trajectory(np.zeros((4, 2)), np.zeros((3, 1)), "0.1")
+    with pytest.raises(TypeError, match="numeric"):
+        Trajectory([["a", "b"]] * 4, np.zeros((3, 1)), 0.1)
+
+
+def test_trajectory_is_immutable_and_windows_keep_offsets():
+    t = Trajectory(np.arange(10.0).reshape(5, 2), np.ones((4, 1)), 0.1)
+    with pytest.raises(ValueError):
+        t.states[0, 0] = 1.0
+    w = t.window(1, 3)
+    assert w.n_steps == 2 and w.metadata["window_start"] == 1
+    np.testing.assert_array_equal(w.states, t.states[1:4])
+    assert t.window(-2).metadata["window_start"] == 2
+    with pytest.raises(ValueError, match="window"):
+        t.window(3, 3)
+
+
+def test_stack_rejects_mixed_lengths():
+    a = Trajectory(np.zeros((4, 2)), np.zeros((3, 1)), 0.1)
+    b = Trajectory(np.zeros((5, 2)), np.zeros((4, 1)), 0.1)
+    with pytest.raises(ValueError, match="group trajectories by length"):
+        stack_trajectories([a, b])
+    with pytest.raises(TypeError, match="expected a pirl_sim.Trajectory"):
+        stack_trajectories([a, "b"])
+
+
+@pytest.mark.parametrize("dyn", [point_mass(0.1), longitudinal(0.2), longitudinal(0.1)])
+def test_rollout_matches_step_by_step_and_inverts(dyn, rng):
+    x0 = rng.normal(size=(3, dyn.n_x))
+    U = rng.normal(size=(3, 7, dyn.n_u))
+    X = dyn.rollout(x0, U)
+    x = x0.copy()
+    for k in range(7):
+        x = x @ dyn.A.T + U[:, k] @ dyn.B.T
+        np.testing.assert_allclose(X[:, k + 1], x, atol=1e-12)
+    np.testing.assert_allclose(dyn.residual(X, U), 0.0, atol=1e-12)
+    np.testing.assert_allclose(dyn.controls_from_states(X), U, atol=1e-9)
+
+
+def test_longitudinal_is_exact_for_constant_jerk():
+    dyn = longitudinal(0.2)
+    j = 0.7
+    X = dyn.rollout(np.array([1.0, 2.0, 0.3]), np.full((10, 1), j))
+    t = 2.0
+    assert X[-1, 0] == pytest.approx(1.0 + 2.0 * t + 0.3 * t**2 / 2 + j * t**3 / 6)
+    assert X[-1, 1] == pytest.approx(2.0 + 0.3 * t + j * t**2 / 2)
+
+
+def test_dynamics_validation():
+    with pytest.raises(ValueError, match="A must have shape"):
+        LinearDynamics(np.eye(3), np.ones((2, 1)), 0.1, ("p", "v"), ("a",))
+    with pytest.raises(ValueError, match="dt must be"):
+        LinearDynamics(np.eye(2), np.ones((2, 1)), -1.0, ("p", "v"), ("a",))
