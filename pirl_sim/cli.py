@@ -42,6 +42,14 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument(
         "--history-steps", type=_positive_int, default=10, help="observed steps in the online protocol (default 10)"
     )
+    rep.add_argument(
+        "--position-range", type=float, nargs=2, default=(1.0, 1.0), metavar=("LOW", "HIGH"),
+        help="start positions drawn uniformly from [LOW, HIGH] m (default 1 1: the single start)",
+    )
+    rep.add_argument(
+        "--velocity-range", type=float, nargs=2, default=(0.0, 0.0), metavar=("LOW", "HIGH"),
+        help="start velocities drawn uniformly from [LOW, HIGH] m/s (default 0 0)",
+    )
     rep.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     return parser
 
@@ -53,7 +61,13 @@ def main(argv: list[str] | None = None) -> int:
         from pirl_sim.scenarios.synthetic import SyntheticConfig
 
         try:
-            config = SyntheticConfig(n_trajectories=args.n_trajectories, n_train=args.n_train, seed=args.seed)
+            config = SyntheticConfig(
+                n_trajectories=args.n_trajectories,
+                n_train=args.n_train,
+                seed=args.seed,
+                position_range=tuple(args.position_range),
+                velocity_range=tuple(args.velocity_range),
+            )
             if args.history_steps >= config.n_steps:
                 raise ValueError(
                     f"--history-steps must be less than the {config.n_steps} steps of a trajectory, got {args.history_steps}"

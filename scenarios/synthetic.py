@@ -68,7 +68,7 @@ class SyntheticConfig:
             raise ValueError(f"dt must be > 0 s, got {self.dt!r}")
         for name in ("position_range", "velocity_range"):
             lo, hi = getattr(self, name)
-            if not lo <= hi:
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
                 raise ValueError(f"{name} must be (low, high) with low <= high, got {(lo, hi)}")
 
     def model(self) -> DriverModel:
