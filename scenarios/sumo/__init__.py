@@ -1,0 +1,1 @@
+"""SUMO roundabout scenarios through libsumo (optional extra ``pirl_sim[sumo]``)."""
