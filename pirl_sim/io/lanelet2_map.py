@@ -1,0 +1,785 @@
+"""Lanelet2 OSM maps in and out, and matching a track to the lanelet route it drove.
+
+INTERACTION maps are Lanelet2 OSM files whose nodes carry lat/lon around (0, 0). The tracks' x, y [m] are
+in the local frame of ``lanelet2.projection.UtmProjector(lanelet2.io.Origin(0.0, 0.0))``; every function
+here uses that projector (:func:`projector`). Loading with a bare ``Origin`` instead falls back to a
+Mercator projector whose coordinates are off by centimetres to metres, silently.
+
+- :func:`load_map` reads a map into a :class:`LaneletMap` (lanelet2 map, vehicle routing graph, centerlines
+  as arrays).
+- :func:`match_route` finds the sequence of lanelets a track drove (a Viterbi search over the lanelets near
+  each point, moving only along routing-graph edges) and returns it as a :class:`RouteMatch`.
+- :func:`write_map` writes centerlines and successor relations of a simulated scene as a Lanelet2 OSM file
+  that :func:`load_map` reads back.
+
+lanelet2 (the ``maps`` extra) is imported inside the functions, so importing this module works without it.
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from .atomic import atomic_write_text
+
+__all__ = [
+    "LaneletMap",
+    "RouteMatch",
+    "projector",
+    "load_map",
+    "match_route",
+    "write_map",
+    "JOINT_TOLERANCE",
+]
+
+JOINT_TOLERANCE = 0.01  #: [m] largest gap between a lane's end and its successor's start that write_map joins
+
+# Costs of the route search, in units of the cost of one point lying max_offset from its lanelet's centerline.
+_COST_SUCCESSOR = 1.0  # entering a following lanelet
+_COST_LANE_CHANGE = 1.0  # changing to a left/right lanelet where the routing graph allows it
+_COST_ADJACENT = 3.0  # crossing to a neighbour where the markings forbid a lane change (drivers do it)
+_HEADING_WEIGHT = 2.0  # cost of driving against a lanelet's direction; (1 - cos angle) / 2 scaled by this
+_HEADING_WINDOW = 2  # [frames] either side of a point used to estimate its direction of motion
+_MIN_MOTION = 1.0  # [m] displacement over the window below which the direction of motion is not used
+_DUPLICATE = 1e-6  # [m] consecutive route points closer than this are one point
+_MAX_MITER = 4.0  # largest factor by which a boundary vertex is pushed out at a sharp corner
+
+_RELATION_COSTS = {
+    "successor": _COST_SUCCESSOR,
+    "left": _COST_LANE_CHANGE,
+    "right": _COST_LANE_CHANGE,
+    "adjacent_left": _COST_ADJACENT,
+    "adjacent_right": _COST_ADJACENT,
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# lanelet2 access
+# ----------------------------------------------------------------------------------------------
+
+def _lanelet2():
+    try:
+        import lanelet2  # noqa: F401
+        import lanelet2.core
+        import lanelet2.io
+        import lanelet2.projection
+        import lanelet2.routing
+        import lanelet2.traffic_rules
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "Lanelet2 maps need the lanelet2 package: pip install 'pirl_sim[maps]'"
+        ) from exc
+    return lanelet2
+
+
+def projector():
+    """The projector of INTERACTION maps: ``UtmProjector(Origin(0.0, 0.0))``.
+
+    Returns
+    -------
+    lanelet2.projection.UtmProjector
+        Maps lat/lon [deg] to local x, y [m] (``forward``) and back (``reverse``).
+    """
+    lanelet2 = _lanelet2()
+    return lanelet2.projection.UtmProjector(lanelet2.io.Origin(0.0, 0.0))
+
+
+# ----------------------------------------------------------------------------------------------
+# loading
+# ----------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class LaneletMap:
+    """A loaded Lanelet2 map with its vehicle routing graph.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The file it was read from.
+    map : lanelet2.core.LaneletMap
+        The lanelet2 map, coordinates in the local UTM frame [m].
+    routing_graph : lanelet2.routing.RoutingGraph
+        Routing graph for German traffic rules and vehicles (successor, left/right lane-change and
+        adjacent relations).
+    traffic_rules : lanelet2.traffic_rules.TrafficRules
+        The rules the routing graph was built with (kept alive beside it).
+    centerlines : dict[int, numpy.ndarray]
+        Lanelet id -> centerline, shape (P, 2), x, y in metres, in the lanelet's own direction.
+        The arrays are read-only.
+    """
+
+    path: Path
+    map: Any = field(repr=False)
+    routing_graph: Any = field(repr=False)
+    traffic_rules: Any = field(repr=False)
+    centerlines: dict[int, np.ndarray] = field(repr=False)
+
+    @property
+    def lanelet_ids(self) -> tuple[int, ...]:
+        """Ids of all lanelets, sorted."""
+        return tuple(sorted(self.centerlines))
+
+    def ids_by_name(self) -> dict[str, int]:
+        """Lanelet ids by the ``name`` tag of their relation (as :func:`write_map` writes it).
+
+        Returns
+        -------
+        dict[str, int]
+            Only lanelets that have a ``name`` tag.
+        """
+        out = {}
+        for ll in self.map.laneletLayer:
+            attrs = ll.attributes
+            if "name" in attrs:
+                out[str(attrs["name"])] = int(ll.id)
+        return out
+
+    @cached_property
+    def _index(self) -> _MatchIndex:
+        return _MatchIndex.build(self)
+
+
+def load_map(path) -> LaneletMap:
+    """Read a Lanelet2 OSM map in the INTERACTION frame.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.osm`` file. Nodes carry lat/lon [deg]; they are projected with
+        ``UtmProjector(Origin(0, 0))`` to local x, y [m], the frame of INTERACTION tracks.
+
+    Returns
+    -------
+    LaneletMap
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If the file cannot be parsed, lanelet2 reports any error while reading it (a broken reference,
+        a lanelet without exactly one left and right border, ...) or it has no lanelets; the message
+        names the file and the reason. lanelet2 would return a partial map in the error case, whose
+        broken lanelets crash the process (segmentation fault) when their centerline is computed, so it
+        is never used. ``lanelet2.io.load`` rejects the same files.
+    """
+    lanelet2 = _lanelet2()
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(errno.ENOENT, "Lanelet2 map not found", str(path))
+    if not path.is_file():
+        raise ValueError(f"{path}: not a file")
+    try:
+        lmap, errors = lanelet2.io.loadRobust(str(path), projector())
+    except Exception as exc:  # lanelet2 raises RuntimeError for XML it cannot parse
+        raise ValueError(f"{path}: not a readable Lanelet2 map: {exc}") from exc
+    errors = [str(e).strip() for e in errors if str(e).strip()]
+    if errors:
+        detail = "; ".join(errors[:6]) + (f"; ... ({len(errors)} messages)" if len(errors) > 6 else "")
+        raise ValueError(f"{path}: lanelet2 reported errors, the map would be incomplete: {detail}")
+    if len(lmap.laneletLayer) == 0:
+        raise ValueError(f"{path}: the map has no lanelets")
+
+    rules = lanelet2.traffic_rules.create(
+        lanelet2.traffic_rules.Locations.Germany, lanelet2.traffic_rules.Participants.Vehicle
+    )
+    graph = lanelet2.routing.RoutingGraph(lmap, rules)
+    centerlines = {}
+    for ll in lmap.laneletLayer:
+        line = np.array([[p.x, p.y] for p in ll.centerline], dtype=float).reshape(-1, 2)
+        line.setflags(write=False)
+        centerlines[int(ll.id)] = line
+    return LaneletMap(path=path, map=lmap, routing_graph=graph, traffic_rules=rules,
+                      centerlines=centerlines)
+
+
+# ----------------------------------------------------------------------------------------------
+# polyline geometry (pure numpy)
+# ----------------------------------------------------------------------------------------------
+
+def _arc_lengths(line: np.ndarray) -> np.ndarray:
+    """Cumulative arc length [m] at each vertex of a (P, 2) polyline."""
+    seg = np.hypot(*np.diff(line, axis=0).T) if len(line) > 1 else np.zeros(0)
+    return np.concatenate([[0.0], np.cumsum(seg)])
+
+
+def _project(points: np.ndarray, line: np.ndarray, cum: np.ndarray):
+    """Project points onto a polyline.
+
+    Returns distance [m] (m,), arc length of the foot point [m] (m,) and unit tangent there (m, 2).
+    """
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(line) == 1:
+        d = np.hypot(*(points - line[0]).T)
+        return d, np.zeros(len(points)), np.tile([1.0, 0.0], (len(points), 1))
+    a = line[:-1]
+    ab = np.diff(line, axis=0)  # (S, 2)
+    len2 = np.einsum("sk,sk->s", ab, ab)
+    ap = points[:, None, :] - a[None, :, :]  # (m, S, 2)
+    t = np.divide(np.einsum("msk,sk->ms", ap, ab), len2[None, :],
+                  out=np.zeros(ap.shape[:2]), where=len2[None, :] > 0)
+    np.clip(t, 0.0, 1.0, out=t)
+    diff = ap - t[..., None] * ab[None, :, :]
+    d2 = np.einsum("msk,msk->ms", diff, diff)
+    k = np.argmin(d2, axis=1)
+    rows = np.arange(len(points))
+    seg_len = np.sqrt(len2)
+    s = cum[k] + t[rows, k] * seg_len[k]
+    tangent = np.divide(ab[k], seg_len[k, None], out=np.tile([1.0, 0.0], (len(points), 1)),
+                        where=seg_len[k, None] > 0)
+    return np.sqrt(d2[rows, k]), s, tangent
+
+
+def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Even-odd point-in-polygon test for (m, 2) points and a closed (V, 2) polygon (last != first)."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    xi, yi = polygon[None, :, 0], polygon[None, :, 1]
+    xj, yj = np.roll(polygon[:, 0], 1)[None], np.roll(polygon[:, 1], 1)[None]
+    crosses = (yi > y) != (yj > y)
+    x_cross = xi + np.divide((y - yi) * (xj - xi), yj - yi, out=np.zeros(crosses.shape), where=crosses)
+    return (np.count_nonzero(crosses & (x < x_cross), axis=1) % 2) == 1
+
+
+def _slice(line: np.ndarray, cum: np.ndarray, s0: float, s1: float) -> np.ndarray:
+    """The part of a polyline between arc lengths s0 <= s1 [m], endpoints interpolated."""
+    s0 = float(np.clip(s0, 0.0, cum[-1]))
+    s1 = float(np.clip(s1, s0, cum[-1]))
+    inner = line[(cum > s0) & (cum < s1)]
+    ends = np.column_stack([np.interp([s0, s1], cum, line[:, 0]), np.interp([s0, s1], cum, line[:, 1])])
+    return np.vstack([ends[:1], inner, ends[1:]])
+
+
+def _drop_duplicates(line: np.ndarray) -> np.ndarray:
+    if len(line) < 2:
+        return line
+    step = np.hypot(*np.diff(line, axis=0).T)
+    return line[np.concatenate([[True], step > _DUPLICATE])]
+
+
+# ----------------------------------------------------------------------------------------------
+# route matching
+# ----------------------------------------------------------------------------------------------
+
+Node = tuple[int, bool]  # (lanelet id, driven against the lanelet's own direction)
+
+
+@dataclass(frozen=True)
+class _MatchIndex:
+    """Arrays the matcher needs, built once per map: passable directed lanelets and the graph over them."""
+
+    nodes: tuple[Node, ...]
+    lines: tuple[np.ndarray, ...]  # per node, in driving direction
+    cums: tuple[np.ndarray, ...]
+    lanelet_ids: tuple[int, ...]  # lanelets with at least one passable direction
+    polygons: dict[int, np.ndarray]
+    boxes: np.ndarray  # (len(lanelet_ids), 4): xmin, ymin, xmax, ymax of polygon and centerline
+    nodes_of: dict[int, tuple[int, ...]]  # lanelet id -> node indices
+    graph: Any  # scipy.sparse.csr_matrix (K, K) of edge costs
+    relation: dict[tuple[int, int], str]  # (node, node) -> cheapest relation kind
+
+    @classmethod
+    def build(cls, lmap: LaneletMap) -> _MatchIndex:
+        from scipy.sparse import csr_matrix
+
+        rules, graph = lmap.traffic_rules, lmap.routing_graph
+        nodes: list[Node] = []
+        objects = []
+        for ll in sorted(lmap.map.laneletLayer, key=lambda x: x.id):
+            for obj in (ll, ll.invert()):  # the inverted one is passable only if not one-way
+                if rules.canPass(obj):
+                    nodes.append((int(ll.id), bool(obj.inverted())))
+                    objects.append(obj)
+        index = {node: i for i, node in enumerate(nodes)}
+        lines, cums = [], []
+        for lanelet_id, inv in nodes:
+            line = lmap.centerlines[lanelet_id]
+            line = line[::-1].copy() if inv else line
+            lines.append(line)
+            cums.append(_arc_lengths(line))
+        lanelet_ids = tuple(sorted({n[0] for n in nodes}))
+        polygons, boxes = {}, []
+        for lanelet_id in lanelet_ids:
+            poly = np.array([[p.x, p.y] for p in lmap.map.laneletLayer[lanelet_id].polygon2d()], dtype=float)
+            polygons[lanelet_id] = poly.reshape(-1, 2)
+            both = np.vstack([polygons[lanelet_id], lmap.centerlines[lanelet_id]])
+            boxes.append([*both.min(axis=0), *both.max(axis=0)])
+        nodes_of: dict[int, list[int]] = {}
+        for i, (lanelet_id, _) in enumerate(nodes):
+            nodes_of.setdefault(lanelet_id, []).append(i)
+
+        relation: dict[tuple[int, int], str] = {}
+
+        def add(i: int, other, kind: str) -> None:
+            if other is None:
+                return
+            j = index.get((int(other.id), bool(other.inverted())))
+            if j is None or j == i:
+                return
+            old = relation.get((i, j))
+            if old is None or _RELATION_COSTS[kind] < _RELATION_COSTS[old]:
+                relation[(i, j)] = kind
+
+        for i, obj in enumerate(objects):
+            for nxt in graph.following(obj):
+                add(i, nxt, "successor")
+            add(i, graph.left(obj), "left")
+            add(i, graph.right(obj), "right")
+            add(i, graph.adjacentLeft(obj), "adjacent_left")
+            add(i, graph.adjacentRight(obj), "adjacent_right")
+        k = len(nodes)
+        if relation:
+            ij = np.array(list(relation), dtype=np.int64)
+            cost = np.array([_RELATION_COSTS[v] for v in relation.values()])
+            csr = csr_matrix((cost, (ij[:, 0], ij[:, 1])), shape=(k, k))
+        else:
+            csr = csr_matrix((k, k))
+        return cls(nodes=tuple(nodes), lines=tuple(lines), cums=tuple(cums), lanelet_ids=lanelet_ids,
+                   polygons=polygons, boxes=np.array(boxes, dtype=float).reshape(-1, 4),
+                   nodes_of={key: tuple(v) for key, v in nodes_of.items()}, graph=csr, relation=relation)
+
+
+@dataclass(frozen=True)
+class RouteMatch:
+    """The lanelet route a track drove.
+
+    Attributes
+    ----------
+    lanelet_ids : tuple[int, ...]
+        Lanelets in driving order, connected by routing-graph relations (successor, or a lane change to
+        a left/right neighbour). A lanelet appears twice if the track came back to it.
+    inverted : tuple[bool, ...]
+        Per entry of ``lanelet_ids``: True if it was driven against its own direction (only possible on
+        lanelets that are not one-way).
+    relations : tuple[str, ...]
+        How each lanelet was entered from the one before: ``"successor"``, ``"left"``, ``"right"``,
+        ``"adjacent_left"`` or ``"adjacent_right"`` (a neighbour across a line that forbids lane
+        changes). One shorter than ``lanelet_ids``.
+    centerline : numpy.ndarray
+        (P, 2) x, y [m]: the centerlines of the route concatenated, joint points once. Where the route
+        changes lane it leaves one centerline and joins the next at the point where the track crossed.
+    point_route_index : numpy.ndarray
+        (n,) int: for each track point, the position in ``lanelet_ids`` of its lanelet; -1 off-map.
+    offsets : numpy.ndarray
+        (n,) distance [m] of each track point from ``centerline``.
+    max_offset : float
+        The ``max_offset`` [m] of the match.
+    n_off_map : int
+        Points farther than ``max_offset`` from every lanelet centerline and outside every lanelet.
+    """
+
+    lanelet_ids: tuple[int, ...]
+    inverted: tuple[bool, ...]
+    relations: tuple[str, ...]
+    centerline: np.ndarray = field(repr=False)
+    point_route_index: np.ndarray = field(repr=False)
+    offsets: np.ndarray = field(repr=False)
+    max_offset: float
+    n_off_map: int
+
+    @property
+    def fraction_within(self) -> float:
+        """Fraction of the track's points within ``max_offset`` of ``centerline``."""
+        return float(np.mean(self.offsets <= self.max_offset))
+
+
+def match_route(lmap: LaneletMap, xy, *, max_offset: float = 3.0, psi=None) -> RouteMatch:
+    """Find the sequence of lanelets a track drove.
+
+    Every point gets candidate lanelets: those whose centerline is within ``max_offset`` of it or whose
+    polygon contains it (each passable direction of a lanelet is a candidate of its own). A Viterbi
+    search then picks one candidate per point minimising
+
+    - per point, (distance to the candidate's centerline / ``max_offset``)² plus, where the direction of
+      travel is known, 1 - cos(angle between it and the lanelet's direction) (0 along, 2 against), and
+    - per change of lanelet between consecutive matched points, the cost of the cheapest path between
+      them in the routing graph: 1 per successor or allowed lane change (left/right), 3 per crossing to
+      an adjacent lanelet where a lane change is not allowed; no path, no transition.
+
+    so among the routes the track is consistent with, the one with the fewest lanelet changes wins, and
+    lanelets skipped between two points (short ones, or gaps of off-map points) are filled in from the
+    graph. Off-map points take no part in the search.
+
+    Parameters
+    ----------
+    lmap : LaneletMap
+        From :func:`load_map`.
+    xy : array_like
+        (n, 2) track positions x, y [m] in the map frame, in time order.
+    max_offset : float
+        Largest distance [m] from a centerline at which a point counts as on that lanelet.
+    psi : array_like, optional
+        (n,) vehicle heading [rad] (INTERACTION ``psi_rad``). If omitted, the direction of motion over
+        ±2 points is used where the vehicle moved at least 1 m over them.
+
+    Returns
+    -------
+    RouteMatch
+
+    Raises
+    ------
+    ValueError
+        If ``xy`` or ``psi`` is malformed, ``max_offset`` is not positive, every point is off-map (the
+        message gives how many points), or no path through the routing graph connects the lanelets
+        under two consecutive on-map points.
+
+    Examples
+    --------
+    >>> lmap = load_map("maps/DR_USA_Roundabout_SR.osm")           # doctest: +SKIP
+    >>> m = match_route(lmap, track[["x", "y"]].to_numpy())        # doctest: +SKIP
+    >>> m.lanelet_ids, m.fraction_within                           # doctest: +SKIP
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    xy = np.asarray(xy, dtype=float)
+    if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) == 0:
+        raise ValueError(f"xy must have shape (n, 2) with n >= 1, got {xy.shape}")
+    if not np.all(np.isfinite(xy)):
+        raise ValueError(f"xy has {np.count_nonzero(~np.isfinite(xy).all(axis=1))} non-finite rows")
+    if not (math.isfinite(max_offset) and max_offset > 0):
+        raise ValueError(f"max_offset must be a positive number of metres, got {max_offset!r}")
+    n = len(xy)
+    direction = _directions(xy, psi)
+
+    idx = lmap._index
+    # candidates: per node, the points near it, with emission cost and foot-point arc length
+    emission = np.full((n, len(idx.nodes)), np.inf)
+    lo = xy.min(axis=0) - max_offset
+    hi = xy.max(axis=0) + max_offset
+    for b, lanelet_id in enumerate(idx.lanelet_ids):
+        xmin, ymin, xmax, ymax = idx.boxes[b]
+        if xmax < lo[0] or ymax < lo[1] or xmin > hi[0] or ymin > hi[1]:
+            continue
+        near = ((xy[:, 0] >= xmin - max_offset) & (xy[:, 0] <= xmax + max_offset)
+                & (xy[:, 1] >= ymin - max_offset) & (xy[:, 1] <= ymax + max_offset))
+        if not near.any():
+            continue
+        pts = xy[near]
+        inside = _inside(pts, idx.polygons[lanelet_id])
+        for node in idx.nodes_of[lanelet_id]:
+            d, _, tangent = _project(pts, idx.lines[node], idx.cums[node])
+            ok = (d <= max_offset) | inside
+            cost = (d / max_offset) ** 2
+            dirs = direction[near]
+            has_dir = np.isfinite(dirs[:, 0])
+            cos = np.einsum("mk,mk->m", np.where(has_dir[:, None], dirs, 0.0), tangent)
+            cost = cost + np.where(has_dir, _HEADING_WEIGHT * (1.0 - cos) / 2.0, 0.0)
+            emission[np.flatnonzero(near)[ok], node] = cost[ok]
+
+    on_map = np.flatnonzero(np.isfinite(emission).any(axis=1))
+    n_off = n - len(on_map)
+    if len(on_map) == 0:
+        raise ValueError(
+            f"all {n} of {n} points are off-map: more than {max_offset} m from every lanelet centerline "
+            f"and outside every lanelet of {lmap.path.name}"
+        )
+    cands = [np.flatnonzero(np.isfinite(emission[t])) for t in on_map]
+    sources = np.unique(np.concatenate(cands))
+    dist, pred = dijkstra(idx.graph, directed=True, indices=sources, return_predecessors=True)
+    row = {int(s): r for r, s in enumerate(sources)}
+
+    # Viterbi over on-map points
+    cost = emission[on_map[0], cands[0]]
+    back: list[np.ndarray] = []
+    for step in range(1, len(on_map)):
+        prev, cur = cands[step - 1], cands[step]
+        trans = dist[[row[int(p)] for p in prev]][:, cur]  # (|prev|, |cur|), 0 on the diagonal
+        total = cost[:, None] + trans
+        best = np.argmin(total, axis=0)
+        best_cost = total[best, np.arange(len(cur))]
+        if not np.isfinite(best_cost).any():
+            before = sorted({idx.nodes[int(i)][0] for i in prev})
+            after = sorted({idx.nodes[int(i)][0] for i in cur})
+            raise ValueError(
+                f"no route through the routing graph leads from lanelet(s) {before} at point "
+                f"{on_map[step - 1]} to lanelet(s) {after} at point {on_map[step]}"
+            )
+        back.append(best)
+        cost = best_cost + emission[on_map[step], cur]
+    state = [int(np.argmin(cost))]
+    for best in reversed(back):
+        state.append(int(best[state[-1]]))
+    state.reverse()
+    path_nodes = [int(cands[step][s]) for step, s in enumerate(state)]
+
+    # expand into the route, filling in lanelets between consecutive points from the graph
+    route = [path_nodes[0]]
+    relations: list[str] = []
+    switch: list[np.ndarray | None] = [None]  # per route entry: where it was entered by a lateral move
+    point_route_index = np.full(n, -1, dtype=np.int64)
+    point_route_index[on_map[0]] = 0
+    for step in range(1, len(on_map)):
+        u, v = path_nodes[step - 1], path_nodes[step]
+        if u != v:
+            chain = [v]
+            p = pred[row[u]]
+            while chain[-1] != u:
+                chain.append(int(p[chain[-1]]))
+            chain.reverse()
+            crossing = 0.5 * (xy[on_map[step - 1]] + xy[on_map[step]])
+            for a, b in zip(chain[:-1], chain[1:]):
+                kind = idx.relation[(a, b)]
+                route.append(b)
+                relations.append(kind)
+                switch.append(None if kind == "successor" else crossing)
+        point_route_index[on_map[step]] = len(route) - 1
+
+    centerline = _route_centerline(idx, route, switch)
+    offsets, _, _ = _project(xy, centerline, _arc_lengths(centerline))
+    return RouteMatch(
+        lanelet_ids=tuple(idx.nodes[r][0] for r in route),
+        inverted=tuple(idx.nodes[r][1] for r in route),
+        relations=tuple(relations),
+        centerline=centerline,
+        point_route_index=point_route_index,
+        offsets=offsets,
+        max_offset=float(max_offset),
+        n_off_map=int(n_off),
+    )
+
+
+def _directions(xy: np.ndarray, psi) -> np.ndarray:
+    """Unit direction of travel per point (n, 2); rows of NaN where unknown."""
+    n = len(xy)
+    if psi is not None:
+        psi = np.asarray(psi, dtype=float)
+        if psi.shape != (n,):
+            raise ValueError(f"psi must have shape ({n},) like xy, got {psi.shape}")
+        if not np.all(np.isfinite(psi)):
+            raise ValueError(f"psi has {np.count_nonzero(~np.isfinite(psi))} non-finite values")
+        return np.column_stack([np.cos(psi), np.sin(psi)])
+    i = np.arange(n)
+    disp = xy[np.minimum(i + _HEADING_WINDOW, n - 1)] - xy[np.maximum(i - _HEADING_WINDOW, 0)]
+    norm = np.hypot(*disp.T)
+    moving = norm >= _MIN_MOTION
+    out = np.full((n, 2), np.nan)
+    out[moving] = disp[moving] / norm[moving, None]
+    return out
+
+
+def _route_centerline(idx: _MatchIndex, route: Sequence[int], switch: Sequence[np.ndarray | None]) -> np.ndarray:
+    """Concatenate route centerlines; at lateral moves cut both lanes where the track crossed."""
+    start = [0.0] * len(route)
+    end = [float(idx.cums[r][-1]) for r in route]
+    for k in range(1, len(route)):
+        if switch[k] is None:
+            continue
+        q = switch[k][None, :]
+        a, b = route[k - 1], route[k]
+        end[k - 1] = float(_project(q, idx.lines[a], idx.cums[a])[1][0])
+        start[k] = float(_project(q, idx.lines[b], idx.cums[b])[1][0])
+    parts = [_slice(idx.lines[r], idx.cums[r], start[k], max(start[k], end[k])) for k, r in enumerate(route)]
+    return _drop_duplicates(np.vstack(parts))
+
+
+# ----------------------------------------------------------------------------------------------
+# writing
+# ----------------------------------------------------------------------------------------------
+
+def write_map(
+    centerlines: Mapping[str, np.ndarray],
+    successors: Mapping[str, Sequence[str]],
+    path,
+    *,
+    lane_width: float = 3.5,
+) -> dict[str, int]:
+    """Write lanes of a simulated scene as a Lanelet2 OSM map in the INTERACTION frame.
+
+    Each lane becomes a lanelet (``type=lanelet``, ``subtype=road``, ``location=urban``,
+    ``one_way=yes``, ``name=<lane name>``) whose left and right boundaries are its centerline offset by
+    ``+lane_width/2`` to the left and right (solid thin lines). Where a lane has a successor, its last
+    boundary nodes and the successor's first ones are the same OSM nodes (so the routing graph links
+    them); their offset direction is the mean of the directions of all lanes meeting there. Node lat/lon
+    [deg] are the inverse of ``UtmProjector(Origin(0, 0))`` (:func:`projector`), so :func:`load_map`
+    returns the input centerlines. The file is written atomically.
+
+    Parameters
+    ----------
+    centerlines : mapping of str to array_like
+        Lane name -> centerline (P, 2), x, y [m], P >= 2, in driving direction, consecutive points
+        distinct. Lanelet ids are 1, 2, ... in this order.
+    successors : mapping of str to sequence of str
+        Lane name -> names of the lanes that follow it. A lane's end must be within
+        :data:`JOINT_TOLERANCE` (0.01 m) of each successor's start.
+    path : str or os.PathLike
+        The ``.osm`` file to write (the extension is what lanelet2 reads it by).
+    lane_width : float
+        Distance [m] between a lane's boundaries.
+
+    Returns
+    -------
+    dict[str, int]
+        Lane name -> lanelet id in the file (also available after loading as
+        :meth:`LaneletMap.ids_by_name`).
+
+    Raises
+    ------
+    ValueError
+        If a centerline is malformed, a successor names an unknown lane, a lane's end is farther than
+        the tolerance from a successor's start, lanes meet head-on, or ``lane_width`` is not positive.
+    """
+    lanelet2 = _lanelet2()
+    if not (math.isfinite(lane_width) and lane_width > 0):
+        raise ValueError(f"lane_width must be a positive number of metres, got {lane_width!r}")
+    lines = _checked_centerlines(centerlines)
+    links = _checked_successors(successors, lines)
+    half = 0.5 * lane_width
+
+    # joints: union of lane ends and the starts of their successors
+    parent: dict[tuple[str, str], tuple[str, str]] = {}
+
+    def find(key):
+        parent.setdefault(key, key)
+        while parent[key] != key:
+            parent[key] = parent[parent[key]]
+            key = parent[key]
+        return key
+
+    for a, b in links:
+        gap = float(np.hypot(*(lines[a][-1] - lines[b][0])))
+        if gap > JOINT_TOLERANCE:
+            raise ValueError(
+                f"lane {a!r} ends {gap:.3f} m from the start of its successor {b!r}; "
+                f"they must meet within {JOINT_TOLERANCE} m"
+            )
+        parent[find(("end", a))] = find(("start", b))
+    members: dict[tuple[str, str], list[tuple[str, str]]] = {}
+    for key in list(parent):
+        members.setdefault(find(key), []).append(key)
+
+    def end_tangent(key) -> np.ndarray:
+        kind, name = key
+        seg = lines[name][1] - lines[name][0] if kind == "start" else lines[name][-1] - lines[name][-2]
+        return seg / np.hypot(*seg)
+
+    joint_offset: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}  # root -> (point, left offset)
+    for root, keys in members.items():
+        tangents = np.array([end_tangent(k) for k in keys])
+        mean = tangents.sum(axis=0)
+        norm = float(np.hypot(*mean))
+        if norm < 1e-6 * len(keys):
+            raise ValueError(f"lanes {sorted({k[1] for k in keys})} meet head-on; no boundary can join them")
+        mean /= norm
+        normal = np.array([-mean[1], mean[0]])
+        cos = min(float(np.dot(normal, [-t[1], t[0]])) for t in tangents)
+        scale = min(1.0 / max(cos, 1.0 / _MAX_MITER), _MAX_MITER)
+        kind, name = keys[0]
+        point = lines[name][0] if kind == "start" else lines[name][-1]
+        joint_offset[root] = (point, half * scale * normal)
+
+    names = list(lines)
+    lanelet_ids = {name: i + 1 for i, name in enumerate(names)}
+    next_id = len(names) + 1
+    way_ids = {}
+    for name in names:
+        way_ids[name] = (next_id, next_id + 1)  # left, right
+        next_id += 2
+
+    proj = projector()
+    node_xy: dict[int, np.ndarray] = {}
+    joint_nodes: dict[tuple[str, str], tuple[int, int]] = {}
+    way_nodes: dict[str, tuple[list[int], list[int]]] = {}
+
+    def new_node(p: np.ndarray) -> int:
+        nonlocal next_id
+        node_xy[next_id] = p
+        next_id += 1
+        return next_id - 1
+
+    for name in names:
+        line = lines[name]
+        offsets = _left_offsets(line, half)
+        left, right = [], []
+        for i, p in enumerate(line):
+            key = ("start", name) if i == 0 else ("end", name) if i == len(line) - 1 else None
+            if key is not None and key in parent:
+                root = find(key)
+                if root not in joint_nodes:
+                    jp, jo = joint_offset[root]
+                    joint_nodes[root] = (new_node(jp + jo), new_node(jp - jo))
+                lid, rid = joint_nodes[root]
+            else:
+                lid, rid = new_node(p + offsets[i]), new_node(p - offsets[i])
+            left.append(lid)
+            right.append(rid)
+        way_nodes[name] = (left, right)
+
+    out = ['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="pirl_sim">']
+    for node_id, p in node_xy.items():
+        gps = proj.reverse(lanelet2.core.BasicPoint3d(float(p[0]), float(p[1]), 0.0))
+        out.append(f'  <node id="{node_id}" visible="true" version="1" lat="{gps.lat:.12f}" lon="{gps.lon:.12f}" />')
+    for name in names:
+        for way_id, refs in zip(way_ids[name], way_nodes[name]):
+            out.append(f'  <way id="{way_id}" visible="true" version="1">')
+            out.extend(f'    <nd ref="{r}" />' for r in refs)
+            out.append('    <tag k="type" v="line_thin" />')
+            out.append('    <tag k="subtype" v="solid" />')
+            out.append("  </way>")
+    for name in names:
+        left_way, right_way = way_ids[name]
+        out.append(f'  <relation id="{lanelet_ids[name]}" visible="true" version="1">')
+        out.append(f'    <member type="way" ref="{left_way}" role="left" />')
+        out.append(f'    <member type="way" ref="{right_way}" role="right" />')
+        for k, v in (("type", "lanelet"), ("subtype", "road"), ("location", "urban"), ("one_way", "yes"),
+                     ("name", name)):
+            out.append(f"    <tag k={quoteattr(k)} v={quoteattr(v)} />")
+        out.append("  </relation>")
+    out.append("</osm>")
+    atomic_write_text(path, "\n".join(out) + "\n")
+    return lanelet_ids
+
+
+def _checked_centerlines(centerlines: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    if not isinstance(centerlines, Mapping) or len(centerlines) == 0:
+        raise ValueError("centerlines must be a non-empty mapping of lane name -> (P, 2) array")
+    lines = {}
+    for name, line in centerlines.items():
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"lane names must be non-empty strings, got {name!r}")
+        arr = np.asarray(line, dtype=float)
+        if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 2:
+            raise ValueError(f"centerline of lane {name!r} must have shape (P, 2) with P >= 2, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"centerline of lane {name!r} has non-finite values")
+        step = np.hypot(*np.diff(arr, axis=0).T)
+        if np.any(step <= 1e-9):
+            raise ValueError(f"centerline of lane {name!r} repeats a point (after index "
+                             f"{int(np.flatnonzero(step <= 1e-9)[0])})")
+        lines[name] = arr
+    return lines
+
+
+def _checked_successors(successors: Mapping[str, Sequence[str]], lines: Mapping[str, np.ndarray]):
+    links = []
+    for a, nexts in successors.items():
+        if isinstance(nexts, str):
+            raise ValueError(f"successors[{a!r}] must be a list of lane names, got the string {nexts!r}")
+        unknown = [x for x in [a, *nexts] if x not in lines]
+        if unknown:
+            raise ValueError(f"successors name lanes without a centerline: {unknown}")
+        links.extend((a, b) for b in nexts)
+    return links
+
+
+def _left_offsets(line: np.ndarray, half: float) -> np.ndarray:
+    """Per vertex, the vector [m] from the centerline to the left boundary (miter joins)."""
+    seg = np.diff(line, axis=0)
+    tangent = seg / np.hypot(*seg.T)[:, None]
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    out = np.empty_like(line)
+    out[0], out[-1] = normal[0], normal[-1]
+    if len(line) > 2:
+        mean = normal[:-1] + normal[1:]
+        norm = np.hypot(*mean.T)
+        bisector = np.divide(mean, norm[:, None], out=normal[1:].copy(), where=norm[:, None] > 1e-9)
+        cos = np.einsum("sk,sk->s", bisector, normal[1:])
+        scale = 1.0 / np.maximum(cos, 1.0 / _MAX_MITER)
+        out[1:-1] = bisector * scale[:, None]
+    return half * out
