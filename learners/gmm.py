@@ -49,22 +49,22 @@ class _MixtureLearner(BaseLearner):
                 UserWarning,
                 stacklevel=3,
             )
-        labels = self._assign(Z)
-        self.n_styles_ = len(self.components_)
-        self.sample_labels_ = labels
         # one label per training trajectory: the majority over its windows. The IRL runs on whole
         # trajectories: a window cut from the middle of an optimal trajectory is not optimal for the window's
-        # own cost (the driver also cares about what follows), so windows would bias the weights.
-        counts = np.zeros((len(trajectories), self.n_styles_), dtype=int)
-        np.add.at(counts, (owners, labels), 1)
-        self.labels_ = counts.argmax(axis=1)
-        present = np.unique(self.labels_)
-        if len(present) < self.n_styles_:
-            missing = sorted(set(range(self.n_styles_)) - set(present.tolist()))
-            raise ValueError(
-                f"{type(self).__name__}: styles {missing} own no training trajectory after the majority vote over "
-                "windows; use fewer components or a larger min_cluster_size"
-            )
+        # own cost (the driver also cares about what follows), so windows would bias the weights. A component
+        # that wins no trajectory's vote is dropped too (its windows go to the next most probable component).
+        for _ in range(mixture.n_components):
+            labels = self._assign(Z)
+            counts = np.zeros((len(trajectories), len(self.components_)), dtype=int)
+            np.add.at(counts, (owners, labels), 1)
+            votes = counts.argmax(axis=1)
+            present = np.unique(votes)
+            if len(present) == len(self.components_):
+                break
+            self.components_ = self.components_[present]
+        self.n_styles_ = len(self.components_)
+        self.sample_labels_ = labels
+        self.labels_ = votes
         res = self._irl(model, trajectories, self.labels_, self.n_styles_)
         self.irl_result_ = res
         self.theta_ = res.normalized

@@ -205,7 +205,9 @@ class FeatureSet:
             out[group] = self.values(states, controls)
         return out
 
-    def derivatives(self, dynamics: LinearDynamics, states: np.ndarray, controls: np.ndarray) -> FeatureDerivatives:
+    def derivatives(
+        self, dynamics: LinearDynamics, states: np.ndarray, controls: np.ndarray, *, gauss_newton: bool = False
+    ) -> FeatureDerivatives:
         """Exact values, gradients and Hessians of every feature in the stacked controls U.
 
         Parameters
@@ -213,6 +215,9 @@ class FeatureSet:
         dynamics : LinearDynamics
         states : array, shape (M, N + 1, n_x)
         controls : array, shape (M, N, n_u)
+        gauss_newton : bool
+            Drop the residuals' second derivatives (``2 r . d2r``): the Hessians become the positive
+            semi-definite Gauss-Newton ones (for the MPC's sequential scheme); exact when False.
 
         Returns
         -------
@@ -248,7 +253,7 @@ class FeatureSet:
             Hxx = 2.0 * np.einsum("mkpa,mkpb->mkab", Jx, Jx)
             Hxu = 2.0 * np.einsum("mkpa,mkpc->mkac", Jx, Ju)
             Huu = 2.0 * np.einsum("mkpc,mkpe->mkce", Ju, Ju)
-            if res.hess_x is not None:
+            if res.hess_x is not None and not gauss_newton:
                 Hxx = Hxx + 2.0 * np.einsum("mkp,mkpab->mkab", r, res.hess_x)
             if shared:
                 Hxx, Hxu, Huu = Hxx[:1], Hxu[:1], Huu[:1]

@@ -50,6 +50,10 @@ __all__ = [
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
+_START_BOX = 9.0  # initial log-weights are kept within +-9 (factor 8,000) of 1
+_MAX_RESTARTS = 3
+_TRAP_LOG = -6.0  # a normalised weight below e^-6 = 0.0025 whose likelihood still wants it larger is restarted
+_RESTART_VALUES = (-4.0, -2.0, 0.0, 2.0)
 
 
 class HessianRegularizationWarning(UserWarning):
@@ -352,6 +356,7 @@ def fit_weights(
             if order >= 2:
                 np.add.at(H, lab, dH)
         if order >= 1:
+            totals["g_theta"] = g
             # chain rule: phi = log theta = P w
             dphi = theta * g
             gw = dphi @ P
@@ -369,39 +374,60 @@ def fit_weights(
         return f, (gw if order >= 1 else None), (Hw if order >= 2 else None)
 
     w = _initial_guess(blocks, labels, G, features, low, high)
-    damping = np.full(G, 1e-4)
     converged = np.zeros(G, dtype=bool)
-    f, gw, Hw = objective(w, 2)
-    n_iter = 0
     eye = np.eye(K)
-    for n_iter in range(1, max_iter + 1):
-        active = ~converged
-        if not np.any(active):
-            break
-        # coordinates held at a bound where the descent direction points outwards
-        at_low = (w <= low + 1e-12) & (gw > 0)
-        at_high = (w >= high - 1e-12) & (gw < 0)
-        free = ~(at_low | at_high)
-        Hd = Hw + damping[:, None, None] * (np.abs(np.einsum("gkk->gk", Hw))[:, :, None] * eye + eye * 1e-12)
-        Hd = np.where(free[:, :, None] & free[:, None, :], Hd, eye[None] * 1.0)
-        rhs = np.where(free, -gw, 0.0)
-        try:
-            step = np.linalg.solve(Hd, rhs[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = rhs / np.maximum(np.abs(np.einsum("gkk->gk", Hd)), 1e-12)
-        step = np.where(active[:, None], step, 0.0)
-        w_new = np.clip(w + step, low, high)
-        f_new, _, _ = objective(w_new, 0)
-        better = (f_new <= f + 1e-12 * np.abs(f)) & active
-        moved = np.max(np.abs(w_new - w), axis=1)
-        w = np.where(better[:, None], w_new, w)
-        damping = np.where(better, np.maximum(damping / 4.0, 1e-10), np.minimum(damping * 8.0, 1e12))
-        small = moved < tol
-        stuck = (~better) & (damping >= 1e12)
-        converged |= active & ((better & small) | stuck)
+    others = [k for k in range(K) if k != ref]
+    n_iter = 0
+    for _restart in range(_MAX_RESTARTS + 1):
+        damping = np.full(G, 1e-4)
         f, gw, Hw = objective(w, 2)
-    else:
-        n_iter = max_iter
+        while n_iter < max_iter and not np.all(converged):
+            n_iter += 1
+            active = ~converged
+            # coordinates held at a bound where the descent direction points outwards
+            at_low = (w <= low + 1e-12) & (gw > 0)
+            at_high = (w >= high - 1e-12) & (gw < 0)
+            free = ~(at_low | at_high)
+            Hd = Hw + damping[:, None, None] * (np.abs(np.einsum("gkk->gk", Hw))[:, :, None] * eye + eye * 1e-12)
+            Hd = np.where(free[:, :, None] & free[:, None, :], Hd, eye[None] * 1.0)
+            rhs = np.where(free, -gw, 0.0)
+            try:
+                step = np.linalg.solve(Hd, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                step = rhs / np.maximum(np.abs(np.einsum("gkk->gk", Hd)), 1e-12)
+            step = np.where(active[:, None], step, 0.0)
+            w_new = np.clip(w + step, low, high)
+            f_new, _, _ = objective(w_new, 0)
+            better = (f_new <= f + 1e-12 * np.abs(f)) & active
+            moved = np.max(np.abs(w_new - w), axis=1)
+            w = np.where(better[:, None], w_new, w)
+            damping = np.where(better, np.maximum(damping / 4.0, 1e-10), np.minimum(damping * 8.0, 1e12))
+            small = moved < tol
+            stuck = (~better) & (damping >= 1e12)
+            converged |= active & ((better & small) | stuck)
+            f, gw, Hw = objective(w, 2)
+        # Escape the flat corner of the log parametrisation: a normalised weight driven towards 0 has a
+        # vanishing gradient in w even when the (convex) likelihood in theta would still fall as it grows.
+        # Where the theta-gradient says so, restart that coordinate from the best of a few values.
+        if not others or n_iter >= max_iter:
+            break
+        g_theta = totals["g_theta"]
+        trapped = (w[:, others] < _TRAP_LOG) & (g_theta[:, others] < 0)
+        if not trapped.any():
+            break
+        best_w, best_f = w.copy(), f.copy()
+        for value in _RESTART_VALUES:
+            trial = w.copy()
+            trial[:, others] = np.where(trapped, np.clip(value, low, high), w[:, others])
+            f_trial, _, _ = objective(trial, 0)
+            take = f_trial < best_f
+            best_w = np.where(take[:, None], trial, best_w)
+            best_f = np.where(take, f_trial, best_f)
+        moved_groups = best_f < f
+        if not moved_groups.any():
+            break
+        w = best_w
+        converged &= ~moved_groups
     if not np.all(converged):
         warnings.warn(
             f"IRL Newton iteration did not converge for {int((~converged).sum())} of {G} groups within "
@@ -448,7 +474,10 @@ def _initial_guess(blocks, labels, G, features: FeatureSet, low: float, high: fl
     if others:
         reg = 1e-12 * (np.abs(np.einsum("gkk->g", AtA))[:, None, None] + 1e-300) * np.eye(len(others))
         sol = np.linalg.solve(AtA + reg, Atb[..., None])[..., 0]
-        w[:, others] = np.log(np.clip(sol, np.exp(low), np.exp(high)))
+        # Start well inside the box: in log coordinates the likelihood is flat where a weight is ~0, so a
+        # start at a bound (a non-positive least-squares weight) would never leave it. Non-positive -> 1.
+        start = np.where(sol > 0, np.log(np.where(sol > 0, sol, 1.0)), 0.0)
+        w[:, others] = np.clip(start, max(low, -_START_BOX), min(high, _START_BOX))
     # scale along the direction
     theta = np.exp(w @ _param_map(K, ref).T)
     quad = np.zeros(G)

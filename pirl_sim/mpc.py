@@ -20,7 +20,7 @@ import numpy as np
 from .dynamics import LinearDynamics
 from .features import FeatureSet
 
-__all__ = ["QuadraticCost", "LQPredictor", "ConstrainedLQPredictor", "Bounds"]
+__all__ = ["QuadraticCost", "LQPredictor", "ConstrainedLQPredictor", "SequentialMPC", "BoxQP", "Bounds"]
 
 
 @dataclass(frozen=True)
@@ -169,11 +169,86 @@ class Bounds:
         return tuple(out)  # type: ignore[return-value]
 
 
+class BoxQP:
+    """Condensed QP over the stacked controls U with box bounds on states and controls, via casadi ``conic``.
+
+    ``min 1/2 U^T A U + b . U  s.t.  lo_x <= x_k(U) <= hi_x (bounded entries), lo_u <= u_k <= hi_u``,
+    with ``x_k = Phi_k x_0 + Gamma_k U``. One solver per horizon, warm-started from its previous solution.
+    """
+
+    def __init__(self, dynamics: LinearDynamics, bounds: Bounds, solver: str = "daqp"):
+        import casadi  # heavy: imported on use
+
+        self._casadi = casadi
+        self.dynamics = dynamics
+        self.solver = solver
+        self._x_lo, self._x_hi, self._u_lo, self._u_hi = bounds.resolve(dynamics)
+        if not casadi.has_conic(solver):
+            raise ValueError(f"casadi has no QP solver plugin {solver!r}")
+        self._rows = np.flatnonzero(np.isfinite(self._x_lo) | np.isfinite(self._x_hi))
+        self._solvers: dict[int, tuple] = {}
+        self._warm: dict[int, np.ndarray] = {}
+
+    def _setup(self, n_steps: int):
+        if n_steps not in self._solvers:
+            ca = self._casadi
+            d = n_steps * self.dynamics.n_u
+            _, gamma = self.dynamics.condensed(n_steps)
+            A = gamma[:, self._rows, :, :].reshape(n_steps * len(self._rows), d)
+            opts: dict = {"error_on_fail": False}
+            if self.solver == "qpoases":
+                opts["printLevel"] = "none"
+            elif self.solver == "osqp":
+                opts["osqp"] = {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9}
+            sparsity = {"h": ca.DM.ones(d, d).sparsity(), "a": ca.DM(np.ones_like(A)).sparsity()}
+            self._solvers[n_steps] = (ca.conic("mpc", self.solver, sparsity, opts), A)
+        return self._solvers[n_steps]
+
+    def violation(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Largest bound violation of each row of a batch, shape (M,): 0 when feasible."""
+        X = self.dynamics.rollout(x0, U)[:, 1:]
+        viol = np.maximum(self._x_lo - X, 0.0).max(axis=(1, 2)) if np.isfinite(self._x_lo).any() else 0.0
+        viol = np.maximum(viol, np.maximum(X - self._x_hi, 0.0).max(axis=(1, 2)))
+        viol = np.maximum(viol, np.maximum(self._u_lo - U, 0.0).max(axis=(1, 2)))
+        return np.maximum(viol, np.maximum(U - self._u_hi, 0.0).max(axis=(1, 2)))
+
+    def clip_start(self, x0: np.ndarray) -> np.ndarray:
+        """Start states moved inside the state bounds (an estimate from noisy data can sit outside)."""
+        return np.clip(x0, self._x_lo, self._x_hi)
+
+    def solve(self, A: np.ndarray, b: np.ndarray, x0: np.ndarray, n_steps: int) -> np.ndarray:
+        """Controls (d,) for one start x0 (n_x,). Raises RuntimeError when the bounds are infeasible."""
+        solver, Acon = self._setup(n_steps)
+        phi, _ = self.dynamics.condensed(n_steps)
+        d = n_steps * self.dynamics.n_u
+        free = (phi @ x0)[:, self._rows].reshape(-1)
+        sol = solver(
+            h=A,
+            g=b,
+            a=Acon,
+            lba=np.tile(self._x_lo[self._rows], n_steps) - free,
+            uba=np.tile(self._x_hi[self._rows], n_steps) - free,
+            lbx=np.tile(self._u_lo, n_steps),
+            ubx=np.tile(self._u_hi, n_steps),
+            x0=self._warm.get(n_steps, np.zeros(d)),
+        )
+        stats = solver.stats()
+        if not stats.get("success", True):
+            raise RuntimeError(
+                f"QP solver {self.solver!r} failed for start {x0} ({stats.get('return_status')}); "
+                "the bounds may be infeasible from this start"
+            )
+        u = np.asarray(sol["x"]).ravel()
+        self._warm[n_steps] = u
+        return u
+
+
 class ConstrainedLQPredictor:
-    """MPC with box bounds on states and controls: a convex QP through casadi's ``conic`` interface.
+    """MPC with box bounds on states and controls for quadratic features: one convex QP per start.
 
     The QP is condensed (variables: the stacked controls U); state bounds become linear constraints through
-    ``X = Phi x_0 + Gamma U``. Each solve is warm-started from the previous solution of the same horizon.
+    ``X = Phi x_0 + Gamma U`` (`BoxQP`). Both this and `LQPredictor` give the same answer where no bound is
+    active.
 
     Parameters
     ----------
@@ -184,78 +259,121 @@ class ConstrainedLQPredictor:
     """
 
     def __init__(self, dynamics: LinearDynamics, features: FeatureSet, bounds: Bounds, solver: str = "daqp"):
-        import casadi  # heavy: imported on use
-
-        self._casadi = casadi
         self.dynamics = dynamics
         self.features = features
         self.bounds = bounds
-        self.solver = solver
         self._lq = LQPredictor(dynamics, features)
-        self._x_lo, self._x_hi, self._u_lo, self._u_hi = bounds.resolve(dynamics)
-        if not casadi.has_conic(solver):
-            raise ValueError(f"casadi has no QP solver plugin {solver!r}")
-        self._solvers: dict[int, object] = {}
-        self._warm: dict[int, np.ndarray] = {}
-
-    def _setup(self, n_steps: int):
-        if n_steps not in self._solvers:
-            ca = self._casadi
-            d = n_steps * self.dynamics.n_u
-            rows = np.flatnonzero(np.isfinite(self._x_lo) | np.isfinite(self._x_hi))
-            _, gamma = self.dynamics.condensed(n_steps)
-            # constraint rows: bounded state entries of x_1..x_N
-            A = gamma[:, rows, :, :].reshape(n_steps * len(rows), d)
-            opts: dict = {"error_on_fail": False}
-            if self.solver == "qpoases":
-                opts["printLevel"] = "none"
-            elif self.solver == "osqp":
-                opts["osqp"] = {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9}
-            solver = ca.conic(
-                "mpc", self.solver, {"h": ca.DM.ones(d, d).sparsity(), "a": ca.DM(np.ones_like(A)).sparsity()}, opts
-            )
-            self._solvers[n_steps] = (solver, A, rows)
-        return self._solvers[n_steps]
+        self._qp = BoxQP(dynamics, bounds, solver)
 
     def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
         """Optimal bounded controls, shape (M, N, n_u); solved one start at a time."""
         x0 = _check_starts(x0, self.dynamics)
         n_steps = _check_horizon(n_steps)
         theta = self.features.weights(theta)
-        solver, Acon, rows = self._setup(n_steps)
         cost = self._lq.cost(n_steps)
-        phi, _ = self.dynamics.condensed(n_steps)
-        d = cost.dim
-        out = np.empty((x0.shape[0], d))
-        u_lo = np.tile(self._u_lo, n_steps)
-        u_hi = np.tile(self._u_hi, n_steps)
+        out = np.empty((x0.shape[0], cost.dim))
         for m in range(x0.shape[0]):
-            th = theta if theta.ndim == 1 else theta[m]
-            A, b = cost.terms(x0[m : m + 1], th)
-            free = (phi @ x0[m])[:, rows].reshape(-1)
-            lo = np.tile(self._x_lo[rows], n_steps) - free
-            hi = np.tile(self._x_hi[rows], n_steps) - free
-            sol = solver(
-                h=A,
-                g=b[0],
-                a=Acon,
-                lba=lo,
-                uba=hi,
-                lbx=u_lo,
-                ubx=u_hi,
-                x0=self._warm.get(n_steps, np.zeros(d)),
-            )
-            stats = solver.stats()
-            if not stats.get("success", True):
-                raise RuntimeError(
-                    f"QP solver {self.solver!r} failed for start {x0[m]} ({stats.get('return_status')}); "
-                    "the bounds may be infeasible from this start"
-                )
-            u = np.asarray(sol["x"]).ravel()
-            self._warm[n_steps] = u
-            out[m] = u
+            A, b = cost.terms(x0[m : m + 1], theta if theta.ndim == 1 else theta[m])
+            out[m] = self._qp.solve(A, b[0], x0[m], n_steps)
         return out.reshape(x0.shape[0], n_steps, self.dynamics.n_u)
 
     def predict(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
         x0 = _check_starts(x0, self.dynamics)
+        return self.dynamics.rollout(x0, self.controls(x0, theta, n_steps))
+
+
+class SequentialMPC:
+    """MPC for features that are not quadratic in the controls (e.g. a desired speed that depends on position).
+
+    Gauss-Newton sequential scheme: starting from zero controls, the residuals are linearised around the
+    current trajectory (`FeatureSet.derivatives` with ``gauss_newton=True``, positive semi-definite), the
+    resulting quadratic model is minimised, and the step repeated ``n_iter`` times. Unconstrained steps are
+    batched closed-form solves over all starts; with `Bounds`, the starts whose unconstrained solution breaks a
+    bound are re-solved as ``n_qp_iter`` bounded QPs (`BoxQP`, casadi ``conic``), linearised first at the
+    unconstrained optimum (one QP is enough where the bounds move s little; raise it for more accuracy). Starts outside the state
+    bounds are first moved inside them (`BoxQP.clip_start`); if the bounded QP is still infeasible the
+    unconstrained solution is kept and counted in ``n_infeasible``.
+
+    Parameters
+    ----------
+    dynamics : LinearDynamics
+    features : FeatureSet
+    bounds : Bounds or None
+    n_iter : int     unconstrained Gauss-Newton iterations
+    n_qp_iter : int  bounded QP iterations for starts whose unconstrained solution breaks a bound
+    solver : str     casadi conic plugin for the bounded QPs
+    """
+
+    def __init__(
+        self,
+        dynamics,
+        features,
+        bounds: Bounds | None = None,
+        *,
+        n_iter: int = 3,
+        n_qp_iter: int = 1,
+        solver: str = "daqp",
+    ):
+        for name, value in (("n_iter", n_iter), ("n_qp_iter", n_qp_iter)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        self.n_qp_iter = int(n_qp_iter)
+        self.dynamics = dynamics
+        self.features = features
+        self.bounds = bounds
+        self.n_iter = int(n_iter)
+        self._qp = BoxQP(dynamics, bounds, solver) if bounds is not None else None
+        self.n_qp = 0
+        self.n_infeasible = 0
+
+    def _model(self, x0, U, theta):
+        """Gauss-Newton model at U: A (M, d, d) and linear term b with the model 1/2 U'AU + b'U."""
+        X = self.dynamics.rollout(x0, U)
+        der = self.features.derivatives(self.dynamics, X, U, gauss_newton=True)
+        g = np.einsum("mk,mkd->md", theta, der.grad)
+        A = np.einsum("mk,mkij->mij", theta, der.hess)
+        u = U.reshape(U.shape[0], -1)
+        return A, g - np.einsum("mij,mj->mi", A, u)
+
+    def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+        """Controls (M, N, n_u) minimising theta . f from each start x0 (M, n_x)."""
+        x0 = _check_starts(x0, self.dynamics)
+        n_steps = _check_horizon(n_steps)
+        theta = self.features.weights(theta)
+        if np.any(theta < 0):
+            raise ValueError(f"weights must be >= 0, got {theta}")
+        M = x0.shape[0]
+        theta = np.broadcast_to(theta, (M, self.features.n_features))
+        if self._qp is not None:
+            x0 = self._qp.clip_start(x0)
+        d = n_steps * self.dynamics.n_u
+        U = np.zeros((M, n_steps, self.dynamics.n_u))
+        eye = np.eye(d)
+        for _ in range(self.n_iter):
+            A, b = self._model(x0, U, theta)
+            ridge = 1e-12 * (np.abs(np.einsum("mii->m", A)) / d + 1e-300)[:, None, None] * eye
+            U = -np.linalg.solve(A + ridge, b[..., None])[..., 0].reshape(U.shape)
+        if self._qp is None:
+            return U
+        bad = np.flatnonzero(self._qp.violation(x0, U) > 1e-9)
+        ok = np.ones(len(bad), dtype=bool)
+        for _ in range(self.n_qp_iter):
+            if not ok.any():
+                break
+            rows = bad[ok]
+            A, b = self._model(x0[rows], U[rows], theta[rows])  # one batched linearisation for all of them
+            for j, m in enumerate(rows):
+                try:
+                    U[m] = self._qp.solve(A[j], b[j], x0[m], n_steps).reshape(U.shape[1:])
+                    self.n_qp += 1
+                except RuntimeError:
+                    self.n_infeasible += 1
+                    ok[np.flatnonzero(bad == m)[0]] = False
+        return U
+
+    def predict(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+        """Predicted states (M, N + 1, n_x); row 0 is the (possibly bound-clipped) start."""
+        x0 = _check_starts(x0, self.dynamics)
+        if self._qp is not None:
+            x0 = self._qp.clip_start(x0)
         return self.dynamics.rollout(x0, self.controls(x0, theta, n_steps))

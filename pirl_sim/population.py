@@ -4,7 +4,10 @@ A `Population` is a mixture of named `Style` s; each style is a Gaussian over th
 feature = 1), truncated to positive values by redrawing. Demonstrations are either noise-free optimal (the
 paper's LQR data) or Boltzmann-rational: for quadratic features P(U) ∝ exp(-beta theta . f(U)) is exactly the
 Gaussian N(-A^-1 b, A^-1) with A, b the quadratic form of beta theta . f (`pirl_sim.mpc.QuadraticCost`), so
-demonstrations come from the true MaxEnt model and weight recovery is well posed.
+demonstrations come from the true MaxEnt model and weight recovery is well posed. For features that are not
+quadratic (the roundabout's desired speed depends on position) the Gaussian is the Laplace approximation at the
+optimum, N(U*, H(U*)^-1), and an independence Metropolis-Hastings chain with that Gaussian as proposal corrects
+it to the exact density (`sample_boltzmann_controls` reports the acceptance rate; it is 1 for quadratic costs).
 """
 
 from __future__ import annotations
@@ -17,10 +20,10 @@ import scipy.linalg
 
 from .features import FeatureSet
 from .model import DriverModel
-from .mpc import LQPredictor
+from .mpc import LQPredictor, SequentialMPC
 from .trajectory import Trajectory
 
-__all__ = ["Style", "Population", "sample_boltzmann_controls", "generate_demonstrations"]
+__all__ = ["Style", "Population", "optimal_controls", "sample_boltzmann_controls", "generate_demonstrations"]
 
 _MAX_REDRAWS = 1000
 
@@ -155,10 +158,25 @@ def _positive_gaussian(mean, cov, n, rng, name) -> np.ndarray:
     raise ValueError(f"style {name!r}: could not draw positive weights (mean {mean}); reduce its spread")
 
 
+def optimal_controls(model: DriverModel, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+    """Unconstrained optimum of theta . f from each start: (M, n_steps, n_u) (closed form when quadratic,
+    Gauss-Newton to convergence otherwise)."""
+    if model.features.quadratic:
+        return LQPredictor(model.dynamics, model.features).controls(x0, theta, n_steps)
+    return SequentialMPC(model.dynamics, model.features, None, n_iter=8).controls(x0, theta, n_steps)
+
+
 def sample_boltzmann_controls(
-    model: DriverModel, x0: np.ndarray, theta: np.ndarray, n_steps: int, rng: np.random.Generator
-) -> np.ndarray:
-    """Exact samples from P(U) ∝ exp(-theta . f(U)) for quadratic features.
+    model: DriverModel,
+    x0: np.ndarray,
+    theta: np.ndarray,
+    n_steps: int,
+    rng: np.random.Generator,
+    *,
+    mh_steps: int = 30,
+    return_acceptance: bool = False,
+):
+    """Samples from P(U) ∝ exp(-theta . f(U)): exact for quadratic features, Laplace + Metropolis otherwise.
 
     Parameters
     ----------
@@ -167,27 +185,65 @@ def sample_boltzmann_controls(
         Absolute weights (the scale is the rationality).
     n_steps : int
     rng : numpy.random.Generator
+    mh_steps : int
+        Independence Metropolis-Hastings steps per chain for non-quadratic features.
+    return_acceptance : bool
+        Also return the mean acceptance rate of the Metropolis steps (1.0 for quadratic features).
 
     Returns
     -------
-    controls : array (M, n_steps, n_u)
+    controls : array (M, n_steps, n_u) [, acceptance : float]
     """
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    predictor = LQPredictor(model.dynamics, model.features)
     x0 = np.atleast_2d(np.asarray(x0, dtype=float))
     theta = model.features.weights(theta)
     if np.any(theta <= 0):
         raise ValueError(f"Boltzmann sampling needs positive weights, got {theta[theta <= 0][:3]}")
-    cost = predictor.cost(n_steps)
-    A, b = cost.terms(x0, theta)
-    M, d = b.shape
-    A = np.broadcast_to(A, (M, d, d))
+    M = x0.shape[0]
+    theta = np.broadcast_to(theta, (M, model.features.n_features))
+    n_u = model.dynamics.n_u
+    if model.features.quadratic:
+        cost = LQPredictor(model.dynamics, model.features).cost(n_steps)
+        A, b = cost.terms(x0, theta)
+        mean = -np.linalg.solve(A, b[..., None])[..., 0]
+    else:
+        mean = optimal_controls(model, x0, theta, n_steps).reshape(M, -1)
+        X = model.dynamics.rollout(x0, mean.reshape(M, n_steps, n_u))
+        der = model.features.derivatives(model.dynamics, X, mean.reshape(M, n_steps, n_u))
+        A = np.einsum("mk,mkij->mij", theta, der.hess)
+    d = mean.shape[1]
     L = np.linalg.cholesky(A)
-    mean = -np.linalg.solve(A, b[..., None])[..., 0]
-    z = rng.standard_normal((M, d))
-    noise = scipy.linalg.solve_triangular(np.swapaxes(L, -1, -2), z[..., None], lower=False)[..., 0]
-    return (mean + noise).reshape(M, n_steps, model.dynamics.n_u)
+    Lt = np.swapaxes(L, -1, -2)
+
+    def propose():
+        z = rng.standard_normal((M, d))
+        return mean + scipy.linalg.solve_triangular(Lt, z[..., None], lower=False)[..., 0], 0.5 * np.sum(z**2, axis=1)
+
+    U, q = propose()
+    if model.features.quadratic:
+        out = U.reshape(M, n_steps, n_u)
+        return (out, 1.0) if return_acceptance else out
+
+    def energy(Uf):
+        Uc = Uf.reshape(M, n_steps, n_u)
+        return np.einsum("mk,mk->m", theta, model.features.values(model.dynamics.rollout(x0, Uc), Uc))
+
+    e = energy(U)
+    accepted = 0
+    for _ in range(int(mh_steps)):
+        U_new, q_new = propose()
+        e_new = energy(U_new)
+        # log acceptance: target exp(-e), proposal density exp(-q) (same normaliser for both)
+        log_alpha = (-e_new + q_new) - (-e + q)
+        take = np.log(rng.random(M)) < log_alpha
+        U = np.where(take[:, None], U_new, U)
+        e = np.where(take, e_new, e)
+        q = np.where(take, q_new, q)
+        accepted += int(take.sum())
+    out = U.reshape(M, n_steps, n_u)
+    rate = accepted / max(1, M * int(mh_steps))
+    return (out, rate) if return_acceptance else out
 
 
 def generate_demonstrations(
@@ -207,7 +263,7 @@ def generate_demonstrations(
     x0 = np.atleast_2d(np.asarray(x0, dtype=float))
     theta, style = population.sample_weights(x0.shape[0], rng)
     if population.rationality is None:
-        U = LQPredictor(model.dynamics, model.features).controls(x0, theta, n_steps)
+        U = optimal_controls(model, x0, theta, n_steps)
     else:
         U = sample_boltzmann_controls(model, x0, population.rationality * theta, n_steps, rng)
     X = model.dynamics.rollout(x0, U)

@@ -10,6 +10,11 @@ online
     Honest forecasting: weights are inferred from the first ``history_steps`` steps only (learners look up
     features of the same window length in their training data), and the MPC predicts the remaining steps from
     the last observed state.
+rolling
+    Online inference along the whole trajectory (the paper's "at each time step ... T' steps of history"):
+    at every ``stride``-th step t with t >= history_steps and t + horizon <= N, weights come from steps
+    t - history_steps .. t and the MPC predicts steps t .. t + horizon. MED averages over all those
+    predictions. Learners use sliding training windows.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from pirl_sim.trajectory import Trajectory
 
 __all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate"]
 
-PROTOCOL_KINDS = ("paper", "online")
+PROTOCOL_KINDS = ("paper", "online", "rolling")
 
 
 @dataclass(frozen=True)
@@ -34,9 +39,13 @@ class Protocol:
 
     Parameters
     ----------
-    kind : {"paper", "online"}
+    kind : {"paper", "online", "rolling"}
     history_steps : int or None
-        Steps observed before predicting (``online`` only).
+        Steps observed before predicting (``online`` and ``rolling``).
+    horizon : int or None
+        Predicted steps (``rolling`` only).
+    stride : int
+        Steps between predictions (``rolling`` only).
     window_mode : {"first", "sliding"}
         Training windows for look-ups under ``online`` (see `pirl_sim.learners.base`): "first" when every
         history starts at the beginning of an episode.
@@ -45,28 +54,51 @@ class Protocol:
     kind: str = "paper"
     history_steps: int | None = None
     window_mode: str = "first"
+    horizon: int | None = None
+    stride: int = 1
 
     def __post_init__(self) -> None:
         if self.kind not in PROTOCOL_KINDS:
             raise ValueError(f"protocol kind must be one of {PROTOCOL_KINDS}, got {self.kind!r}")
-        if self.kind == "online":
+        if self.kind in ("online", "rolling"):
             h = self.history_steps
             if isinstance(h, bool) or not isinstance(h, (int, np.integer)) or h < 1:
-                raise ValueError(f"the online protocol needs history_steps >= 1, got {h!r}")
-        elif self.history_steps is not None:
+                raise ValueError(f"the {self.kind} protocol needs history_steps >= 1, got {h!r}")
+        if self.kind == "rolling":
+            for name in ("horizon", "stride"):
+                v = getattr(self, name)
+                if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                    raise ValueError(f"the rolling protocol needs {name} >= 1, got {v!r}")
+            if self.window_mode != "sliding":
+                raise ValueError("the rolling protocol infers from windows anywhere in a trajectory: window_mode must be 'sliding'")
+        elif self.horizon is not None:
+            raise ValueError(f"horizon is only used by the rolling protocol, not {self.kind!r}")
+        if self.kind == "paper" and self.history_steps is not None:
             raise ValueError("the paper protocol uses whole trajectories: history_steps must be None")
         if self.window_mode not in ("first", "sliding"):
             raise ValueError(f"window_mode must be 'first' or 'sliding', got {self.window_mode!r}")
 
     @property
     def name(self) -> str:
-        return "paper" if self.kind == "paper" else f"online (history {self.history_steps} steps)"
+        if self.kind == "paper":
+            return "paper"
+        if self.kind == "online":
+            return f"online (history {self.history_steps} steps)"
+        return f"rolling (history {self.history_steps}, horizon {self.horizon} steps)"
 
     def learner_params(self) -> dict:
         """Parameters a learner needs to follow this protocol."""
         if self.kind == "paper":
             return {"window": None}
         return {"window": int(self.history_steps), "windows": self.window_mode}
+
+    def steps_needed(self) -> int:
+        """The shortest test trajectory this protocol can score [steps]."""
+        if self.kind == "paper":
+            return 1
+        if self.kind == "online":
+            return self.history_steps + 1
+        return self.history_steps + self.horizon
 
 
 PAPER_PROTOCOL = Protocol()
@@ -84,6 +116,8 @@ def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol) -> dict:
     test = list(test)
     if not test:
         raise ValueError("no test trajectories")
+    if protocol.kind == "rolling":
+        return _evaluate_rolling(learner, test, protocol)
     model = learner.model_
     per_traj = np.empty(len(test))
     final = np.empty(len(test))
@@ -120,6 +154,41 @@ def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol) -> dict:
     if all("theta" in t.metadata for t in test):
         true = np.stack([np.asarray(t.metadata["theta"], dtype=float) for t in test])
         row["weight_error"] = float(np.median(weight_recovery_error(inferred, true, model.features.reference_index)))
+    return row
+
+
+def _evaluate_rolling(learner, test: list[Trajectory], protocol: Protocol) -> dict:
+    model = learner.model_
+    T, H = protocol.history_steps, protocol.horizon
+    histories, futures, owners = [], [], []
+    for i, t in enumerate(test):
+        for step in range(T, t.n_steps - H + 1, protocol.stride):
+            histories.append(t.window(step - T, step))
+            futures.append(t.states[step : step + H + 1])
+            owners.append(i)
+    if not histories:
+        raise ValueError(f"no test trajectory is long enough for {T} history + {H} predicted steps")
+    owners = np.asarray(owners)
+    t0 = time.perf_counter()
+    theta = learner.infer_weights(histories)
+    pred = model.predict_states(np.stack([h.states[-1] for h in histories]), theta, H)
+    elapsed = time.perf_counter() - t0
+    truth = np.stack(futures)
+    err = euclidean_errors(model.positions(pred[:, 1:]), model.positions(truth[:, 1:]))
+    per_traj = np.bincount(owners, err.mean(axis=1)) / np.bincount(owners)
+    per_traj = per_traj[np.bincount(owners) > 0]
+    row = {
+        "protocol": protocol.name,
+        "n_test": len(test),
+        "n_predictions": len(histories),
+        "med": float(per_traj.mean()),
+        "med_std": float(per_traj.std()),
+        "fde": float(err[:, -1].mean()),
+        "infer_predict_s": elapsed,
+    }
+    if all("theta" in t.metadata for t in test):
+        true = np.stack([np.asarray(test[i].metadata["theta"], dtype=float) for i in owners])
+        row["weight_error"] = float(np.median(weight_recovery_error(theta, true, model.features.reference_index)))
     return row
 
 

@@ -1,0 +1,121 @@
+"""A single-lane roundabout passage with drivers of three known styles (the paper's driving model, simulated).
+
+The reference path is a straight approach, part of a ring, and a straight exit (the path a car drives through
+a roundabout); every driver follows the paper's longitudinal model (`pirl_sim.driving`) with its own weights
+over (speed_dev, acc_sq, jerk_sq). The styles are the three answers of the paper's user study. On the
+approach the desired speed is the speed limit, on the ring sqrt(a_lat / |kappa|), so the styles differ in how
+they brake into the ring — which is what makes them identifiable from features.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pirl_sim.driving import PathDriverModel, roundabout_model
+from pirl_sim.paths import ReferencePath
+from pirl_sim.population import Population, Style, generate_demonstrations
+from pirl_sim.trajectory import Trajectory
+
+__all__ = ["PassageConfig", "PassageData", "THREE_STYLES", "passage_polyline", "generate"]
+
+#: The user-study styles of the paper, as normalised weights (jerk_sq = 1).
+THREE_STYLES = (
+    Style("tracks desired speed", 1.0, {"speed_dev": 3.0, "acc_sq": 0.3}, {"speed_dev": 0.3, "acc_sq": 0.03}),
+    Style("minimises acceleration", 1.0, {"speed_dev": 0.1, "acc_sq": 3.0}, {"speed_dev": 0.01, "acc_sq": 0.3}),
+    Style("no preference", 1.0, {"speed_dev": 0.3, "acc_sq": 0.3}, {"speed_dev": 0.03, "acc_sq": 0.03}),
+)
+
+
+def passage_polyline(radius: float, approach: float, ring_angle_deg: float, exit_length: float, step: float = 2.0):
+    """Vertices (P, 2) [m] of approach -> counter-clockwise ring arc -> exit, ring centred at the origin."""
+    for name, v in (("radius", radius), ("approach", approach), ("exit_length", exit_length), ("step", step)):
+        if not np.isfinite(v) or v <= 0:
+            raise ValueError(f"{name} must be > 0 m, got {v!r}")
+    if not 0 < ring_angle_deg < 360:
+        raise ValueError(f"ring_angle_deg must be in (0, 360), got {ring_angle_deg!r}")
+    n_app = max(2, int(np.ceil(approach / step)) + 1)
+    app = np.column_stack([np.linspace(-approach, 0.0, n_app), np.full(n_app, -radius)])
+    sweep = np.deg2rad(ring_angle_deg)
+    n_ring = max(3, int(np.ceil(radius * sweep / step)) + 1)
+    ang = -np.pi / 2 + np.linspace(0.0, sweep, n_ring)[1:]
+    ring = radius * np.column_stack([np.cos(ang), np.sin(ang)])
+    end, heading = ring[-1], ang[-1] + np.pi / 2
+    n_exit = max(2, int(np.ceil(exit_length / step)) + 1)
+    t = np.linspace(0.0, exit_length, n_exit)[1:]
+    exit_ = end + t[:, None] * np.array([np.cos(heading), np.sin(heading)])
+    return np.vstack([app, ring, exit_])
+
+
+@dataclass(frozen=True)
+class PassageConfig:
+    """A population of drivers through a roundabout passage.
+
+    Attributes
+    ----------
+    radius, approach, ring_angle_deg, exit_length : geometry [m, m, deg, m]
+    styles : tuple of Style          over (speed_dev, acc_sq, jerk_sq)
+    rationality : float or None      Boltzmann scale beta (None: exact optima)
+    n_trajectories, n_train : int
+    n_steps : int                    steps per demonstration at dt
+    dt : float [s]
+    start_s : (float, float)         start positions along the path [m]
+    start_v : (float, float)         start speeds [m/s]
+    seed : int
+    """
+
+    radius: float = 20.0
+    approach: float = 50.0
+    ring_angle_deg: float = 270.0
+    exit_length: float = 50.0
+    styles: tuple[Style, ...] = field(default=THREE_STYLES)
+    rationality: float | None = 100.0
+    n_trajectories: int = 600
+    n_train: int = 500
+    n_steps: int = 40
+    dt: float = 0.2
+    start_s: tuple[float, float] = (10.0, 40.0)
+    start_v: tuple[float, float] = (9.0, 12.0)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.n_train < self.n_trajectories:
+            raise ValueError(f"n_train must be in [1, n_trajectories - 1], got {self.n_train} of {self.n_trajectories}")
+        if self.n_steps < 2:
+            raise ValueError(f"n_steps must be >= 2, got {self.n_steps}")
+        for name in ("start_s", "start_v"):
+            lo, hi = getattr(self, name)
+            if not lo <= hi:
+                raise ValueError(f"{name} must be (low, high) with low <= high, got {(lo, hi)}")
+        if self.start_v[0] < 0:
+            raise ValueError(f"start speeds must be >= 0 m/s, got {self.start_v}")
+        passage_polyline(self.radius, self.approach, self.ring_angle_deg, self.exit_length)  # validates geometry
+
+    def path(self) -> ReferencePath:
+        return ReferencePath.from_polyline(
+            passage_polyline(self.radius, self.approach, self.ring_angle_deg, self.exit_length)
+        )
+
+    def model(self) -> PathDriverModel:
+        return roundabout_model(self.path(), dt=self.dt)
+
+
+@dataclass(frozen=True)
+class PassageData:
+    config: PassageConfig
+    model: PathDriverModel
+    train: list[Trajectory]
+    test: list[Trajectory]
+
+
+def generate(config: PassageConfig = PassageConfig()) -> PassageData:
+    """Draw the data set; same config (seed included), same bytes."""
+    rng = np.random.default_rng(config.seed)
+    model = config.model()
+    n = config.n_trajectories
+    x0 = np.column_stack([rng.uniform(*config.start_s, n), rng.uniform(*config.start_v, n), np.zeros(n)])
+    pop = Population(model.features, config.styles, config.rationality)
+    demos = generate_demonstrations(model, pop, x0, config.n_steps, rng)
+    order = rng.permutation(n)
+    return PassageData(config, model, [demos[i] for i in order[: config.n_train]], [demos[i] for i in order[config.n_train :]])
