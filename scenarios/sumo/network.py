@@ -1,0 +1,603 @@
+"""Parametric single- or multi-lane roundabouts as SUMO networks, and reference paths along their routes.
+
+Geometry (all lengths in metres, angles counter-clockwise from +x, right-hand traffic):
+
+- The ring is a circle of ``radius`` around ``center`` (the centre line of the ring edge; with one lane that
+  is the lane's centre line), driven counter-clockwise.
+- Arm ``i`` points outwards at angle ``first_arm_deg + 360 i / n_arms``. Each arm is two one-way edges:
+  ``arm{i}_in`` (towards the ring) and ``arm{i}_out`` (away from it), parallel to the arm's axis and offset
+  to either side of it by ``splitter_width / 2 + lanes * lane_width / 2`` (``in`` on the left when looking
+  outwards, as right-hand traffic requires). Both are ``approach_length`` long before netconvert cuts the
+  junction areas off.
+- Arm ``i`` meets the ring in node ``ring{i}`` on the circle at the arm's angle; ``arm{i}_out`` leaves the
+  ring before and ``arm{i}_in`` joins it after that point in the driving direction (where their centre
+  lines cross the circle). The ring is ``n_arms`` edges ``ring{i}_{j}`` from node ``ring{i}`` to the next
+  node ``ring{j}``, each with ``shape`` points on the circle so the ring is round, not a polygon of chords.
+- Through each ring node the ring -> ring connection gets the circle as its custom shape (netconvert's
+  default there bulges ~0.2 m outwards); entries and exits get netconvert's smooth curves with
+  ``junction_radius``.
+
+``build_network`` writes the plain-XML files (``*.nod.xml``; ``*.edg.xml`` with a ``<roundabout>``
+element, so netconvert gives the ring right of way; ``*.con.xml``), then runs netconvert with
+``--offset.disable-normalization true`` (coordinates stay as written) and ``--no-turnarounds true``.
+Junction-internal lanes are kept, so a continuous reference path through the junctions exists:
+``route_centerline``. ``routes`` lists every entry-to-exit route; ``validate_route`` checks one against a
+built network (with sumolib, before any simulation starts).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from pirl_sim.io.atomic import atomic_write_text
+
+__all__ = [
+    "RoundaboutSpec",
+    "NetworkFiles",
+    "build_network",
+    "routes",
+    "route_id",
+    "route_edges",
+    "validate_route",
+    "route_centerline",
+    "load_net",
+]
+
+_NETCONVERT_TIMEOUT_S = 120.0  # [s] a roundabout converts in well under a second
+_DUPLICATE_TOL = 1e-3  # [m] consecutive shape points closer than this are one point
+_MIN_RING_EDGE = 1.0  # [m] shortest ring edge left between two arm junctions
+
+
+@dataclass(frozen=True)
+class RoundaboutSpec:
+    """Geometry and traffic rules of a roundabout (validated on construction).
+
+    Attributes
+    ----------
+    radius : float
+        Ring centre-line radius [m], > 0.
+    n_arms : int
+        Number of arms, >= 3, evenly spaced.
+    lanes : int
+        Lanes on the ring and on every arm edge, >= 1.
+    approach_length : float
+        Length of each arm edge [m], > 0.
+    ring_segments : int
+        The ring's shape is a polygon of about this many straight pieces over the full circle (each ring
+        edge gets its share, at least one), >= ``n_arms``. The default, 64, keeps the chords within
+        ``radius * (1 - cos(pi / 64))`` (2.4 cm at 20 m) of the circle.
+    speed_limit : float
+        Speed limit on all edges [m/s], > 0.
+    lane_width : float
+        [m], > 0.
+    splitter_width : float
+        Width of the island between an arm's in and out lanes [m], >= 0.
+    center : (float, float)
+        Centre of the ring [m].
+    first_arm_deg : float
+        Direction of arm 0 [deg], counter-clockwise from +x.
+    junction_radius : float
+        Turning radius netconvert gives the curves between arms and ring [m], > 0 (netconvert's own
+        default is 4 m). Larger radii make the S-bend where a right-turning entry meets the left-curving
+        ring milder (SUMO keeps both bumpers on the lane, so on an S-bend the body heading and the
+        centre's direction of motion differ, by up to ~0.09 rad with 6 m, ~0.11 rad with 4 m) but make
+        the junctions bigger; :func:`build_network` rejects junctions that run into each other.
+    """
+
+    radius: float = 20.0
+    n_arms: int = 4
+    lanes: int = 1
+    approach_length: float = 80.0
+    ring_segments: int = 64
+    speed_limit: float = 13.9
+    lane_width: float = 3.5
+    splitter_width: float = 1.0
+    center: tuple[float, float] = (0.0, 0.0)
+    first_arm_deg: float = 0.0
+    junction_radius: float = 6.0
+
+    def __post_init__(self) -> None:
+        for name in ("n_arms", "lanes", "ring_segments"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise ValueError(f"{name} must be an integer, got {v!r}")
+        for name in ("radius", "approach_length", "speed_limit", "lane_width", "splitter_width",
+                     "first_arm_deg", "junction_radius"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(v):
+                raise ValueError(f"{name} must be a finite number, got {v!r}")
+        for name in ("radius", "approach_length", "speed_limit", "lane_width", "junction_radius"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if self.splitter_width < 0:
+            raise ValueError(f"splitter_width must be >= 0, got {self.splitter_width!r}")
+        if self.n_arms < 3:
+            raise ValueError(f"n_arms must be >= 3, got {self.n_arms!r}")
+        if self.lanes < 1:
+            raise ValueError(f"lanes must be >= 1, got {self.lanes!r}")
+        if self.ring_segments < self.n_arms:
+            raise ValueError(f"ring_segments must be >= n_arms = {self.n_arms}, got {self.ring_segments!r}")
+        c = self.center
+        if isinstance(c, str) or not (hasattr(c, "__len__") and len(c) == 2 and all(
+                isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                and math.isfinite(v) for v in c)):
+            raise ValueError(f"center must be two finite numbers (x, y) [m], got {c!r}")
+        object.__setattr__(self, "center", (float(c[0]), float(c[1])))
+        ring_width = self.lanes * self.lane_width
+        if ring_width >= self.radius:
+            raise ValueError(f"radius = {self.radius} m must exceed the ring's width lanes * lane_width = "
+                             f"{ring_width} m (the inner edge of the ring would cross the centre)")
+        # the ring between neighbouring arms must keep a positive length
+        sector = 2.0 * math.pi / self.n_arms
+        if 2.0 * self.arm_half_angle >= 0.75 * sector:
+            raise ValueError(
+                f"arms too wide for the ring: with radius = {self.radius} m, n_arms = {self.n_arms}, "
+                f"lanes = {self.lanes}, lane_width = {self.lane_width} m, splitter_width = "
+                f"{self.splitter_width} m each arm takes {math.degrees(2 * self.arm_half_angle):.1f} deg "
+                f"of the ring's {math.degrees(sector):.1f} deg per arm; use a larger radius or fewer arms")
+
+    @property
+    def arm_offset(self) -> float:
+        """Lateral distance [m] from an arm's axis to the centre line of its in (and out) edge."""
+        return 0.5 * self.splitter_width + 0.5 * self.lanes * self.lane_width
+
+    @property
+    def arm_half_angle(self) -> float:
+        """Angle [rad] on the ring between an arm's axis and where its in (or out) edge meets the circle."""
+        ratio = self.arm_offset / self.radius
+        return math.asin(ratio) if ratio < 1.0 else math.pi / 2
+
+    def arm_angle(self, arm: int) -> float:
+        """Direction of arm ``arm`` [rad], counter-clockwise from +x."""
+        return math.radians(self.first_arm_deg) + 2.0 * math.pi * arm / self.n_arms
+
+
+@dataclass(frozen=True)
+class NetworkFiles:
+    """Paths written by :func:`build_network`.
+
+    Attributes
+    ----------
+    nodes, edges, connections : pathlib.Path
+        The plain-XML ``*.nod.xml``, ``*.edg.xml`` and ``*.con.xml`` inputs.
+    net : pathlib.Path
+        The ``*.net.xml`` written by netconvert.
+    spec : RoundaboutSpec
+        The geometry they were built from.
+    """
+
+    nodes: Path
+    edges: Path
+    connections: Path
+    net: Path
+    spec: RoundaboutSpec
+
+
+# ----------------------------------------------------------------------------------------------
+# names and routes
+# ----------------------------------------------------------------------------------------------
+
+def _in(i: int) -> str:
+    return f"arm{i}_in"
+
+
+def _out(i: int) -> str:
+    return f"arm{i}_out"
+
+
+def _ring(i: int, n: int) -> str:
+    return f"ring{i}_{(i + 1) % n}"
+
+
+def _ring_node(i: int) -> str:
+    return f"ring{i}"
+
+
+def route_id(entry_arm: int, exit_arm: int) -> str:
+    """Id of the route entering from arm ``entry_arm`` and leaving by arm ``exit_arm``.
+
+    Returns
+    -------
+    str
+        ``"arm{entry_arm}_to_arm{exit_arm}"``.
+    """
+    return f"arm{entry_arm}_to_arm{exit_arm}"
+
+
+def _check_arm(spec: RoundaboutSpec, arm, name: str) -> int:
+    if isinstance(arm, bool) or not isinstance(arm, (int, np.integer)) or not 0 <= arm < spec.n_arms:
+        raise ValueError(f"{name} must be an arm index in [0, {spec.n_arms - 1}], got {arm!r}")
+    return int(arm)
+
+
+def route_edges(spec: RoundaboutSpec, entry_arm: int, exit_arm: int) -> list[str]:
+    """Edge ids from arm ``entry_arm`` counter-clockwise round the ring to arm ``exit_arm``.
+
+    Parameters
+    ----------
+    spec : RoundaboutSpec
+    entry_arm, exit_arm : int
+        Different arm indices in ``[0, n_arms)``; ``exit_arm = entry_arm + 1`` is the first exit (a right
+        turn), larger offsets go further round.
+
+    Returns
+    -------
+    list of str
+        ``[arm{entry}_in, ring{entry}_{entry+1}, ..., ring{exit-1}_{exit}, arm{exit}_out]``.
+
+    Raises
+    ------
+    ValueError
+        If an arm index is out of range or both are the same (no U-turn routes).
+    """
+    n = spec.n_arms
+    entry_arm = _check_arm(spec, entry_arm, "entry_arm")
+    exit_arm = _check_arm(spec, exit_arm, "exit_arm")
+    if entry_arm == exit_arm:
+        raise ValueError(f"exit_arm must differ from entry_arm (no U-turn routes), got arm {entry_arm} for both")
+    edges = [_in(entry_arm)]
+    i = entry_arm
+    while i != exit_arm:
+        edges.append(_ring(i, n))
+        i = (i + 1) % n
+    edges.append(_out(exit_arm))
+    return edges
+
+
+def routes(spec: RoundaboutSpec) -> list[tuple[str, list[str]]]:
+    """Every route from each entry arm to each other exit arm.
+
+    Parameters
+    ----------
+    spec : RoundaboutSpec
+
+    Returns
+    -------
+    list of (str, list of str)
+        ``(route_id(i, j), route_edges(spec, i, j))`` for all ``i != j``, ordered by entry arm and then by
+        how far round the ring the exit is (first exit first). With 4 arms the three routes per entry are
+        the right turn, the through route and the left turn.
+    """
+    n = spec.n_arms
+    return [(route_id(i, (i + k) % n), route_edges(spec, i, (i + k) % n))
+            for i in range(n) for k in range(1, n)]
+
+
+# ----------------------------------------------------------------------------------------------
+# plain XML and netconvert
+# ----------------------------------------------------------------------------------------------
+
+def _fmt(v: float) -> str:
+    return f"{v:.3f}"
+
+
+def _pt(p) -> str:
+    return f"{_fmt(p[0])},{_fmt(p[1])}"
+
+
+def _ring_point(spec: RoundaboutSpec, angle: float) -> np.ndarray:
+    cx, cy = spec.center
+    return np.array([cx + spec.radius * math.cos(angle), cy + spec.radius * math.sin(angle)])
+
+
+def _lane_radius(spec: RoundaboutSpec, lane: int) -> float:
+    """Radius [m] of ring lane ``lane`` (0 = rightmost = outermost for counter-clockwise driving)."""
+    return spec.radius + (0.5 * (spec.lanes - 1) - lane) * spec.lane_width
+
+
+def _arc_points(spec: RoundaboutSpec, radius: float, a0: float, a1: float, max_step: float) -> str:
+    pieces = max(1, math.ceil(radius * abs(a1 - a0) / max_step))
+    cx, cy = spec.center
+    return " ".join(_pt((cx + radius * math.cos(a), cy + radius * math.sin(a)))
+                    for a in np.linspace(a0, a1, pieces + 1))
+
+
+def _plain_xml(spec: RoundaboutSpec) -> tuple[str, str, str]:
+    """Node, edge and connection plain-XML text for ``spec``."""
+    n = spec.n_arms
+    cx, cy = spec.center
+    c = np.array([cx, cy])
+    d = spec.arm_offset
+    half = spec.arm_half_angle
+    along = spec.radius * math.cos(half)  # distance from the centre, along the arm axis, to the ring
+    full = 2.0 * math.pi
+    common = (f'numLanes="{spec.lanes}" speed="{_fmt(spec.speed_limit)}" width="{_fmt(spec.lane_width)}" '
+              f'spreadType="center"')
+    nodes: list[str] = []
+    edges: list[str] = []
+    cons: list[str] = []
+
+    for i in range(n):
+        a = spec.arm_angle(i)
+        u = np.array([math.cos(a), math.sin(a)])  # outwards along the arm
+        left = np.array([-u[1], u[0]])  # left of u: the in edge's side
+        ring = _ring_point(spec, a)
+        far = c + (along + spec.approach_length) * u
+        nodes += [
+            f'    <node id="{_ring_node(i)}" x="{_fmt(ring[0])}" y="{_fmt(ring[1])}" type="priority"/>',
+            f'    <node id="arm{i}_start" x="{_fmt((far + d * left)[0])}" y="{_fmt((far + d * left)[1])}"/>',
+            f'    <node id="arm{i}_end" x="{_fmt((far - d * left)[0])}" y="{_fmt((far - d * left)[1])}"/>',
+        ]
+        # the arm edges run parallel to the axis and end / start where their centre line meets the ring
+        edges += [
+            f'    <edge id="{_in(i)}" from="arm{i}_start" to="{_ring_node(i)}" priority="1" {common} '
+            f'shape="{_pt(far + d * left)} {_pt(c + along * u + d * left)}"/>',
+            f'    <edge id="{_out(i)}" from="{_ring_node(i)}" to="arm{i}_end" priority="1" {common} '
+            f'shape="{_pt(c + along * u - d * left)} {_pt(far - d * left)}"/>',
+        ]
+    for i in range(n):
+        a0 = spec.arm_angle(i)
+        a1 = a0 + full / n
+        pieces = max(1, round(spec.ring_segments / n))
+        shape = " ".join(_pt(_ring_point(spec, a)) for a in np.linspace(a0, a1, pieces + 1))
+        edges.append(f'    <edge id="{_ring(i, n)}" from="{_ring_node(i)}" to="{_ring_node((i + 1) % n)}" '
+                     f'priority="2" {common} shape="{shape}"/>')
+    edges.append(f'    <roundabout nodes={quoteattr(" ".join(_ring_node(i) for i in range(n)))} '
+                 f'edges={quoteattr(" ".join(_ring(i, n) for i in range(n)))}/>')
+
+    # Ring -> ring connections through each ring node get the circle as custom shape (netconvert trims
+    # it to the junction). netconvert's own shape for such a gentle bend is a cubic Bezier whose control
+    # points sit min(5 m, chord / 2) out, which bulges ~0.2 m outwards over the junction and makes the
+    # heading wobble. Entries and exits keep netconvert's shapes (quadratic Beziers through the
+    # intersection of the lanes' directions). Declaring an edge's connections stops netconvert from
+    # guessing its others, so the exits are declared too.
+    span = min(0.45 * full / n, 3.0 * half + spec.junction_radius / spec.radius)  # [rad] beyond the junction
+    for i in range(n):
+        prev = _ring((i - 1) % n, n)
+        at = spec.arm_angle(i)
+        for lane in range(spec.lanes):
+            shape = _arc_points(spec, _lane_radius(spec, lane), at - span, at + span, 0.5)
+            cons.append(f'    <connection from="{prev}" to="{_ring(i, n)}" fromLane="{lane}" toLane="{lane}" '
+                        f'shape="{shape}"/>')
+            cons.append(f'    <connection from="{prev}" to="{_out(i)}" fromLane="{lane}" toLane="{lane}"/>')
+
+    header = '<?xml version="1.0" encoding="UTF-8"?>\n'
+    comment = f"<!-- pirl_sim roundabout: {spec!r} -->\n"
+    nod = header + comment + "<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n"
+    edg = header + comment + "<edges>\n" + "\n".join(edges) + "\n</edges>\n"
+    con = header + comment + "<connections>\n" + "\n".join(cons) + "\n</connections>\n"
+    return nod, edg, con
+
+
+def build_network(spec: RoundaboutSpec, out_dir, *, name: str = "roundabout") -> NetworkFiles:
+    """Write ``{name}.nod.xml``, ``{name}.edg.xml`` and, through netconvert, ``{name}.net.xml``.
+
+    Every file appears atomically (written beside its target, then renamed over it), so concurrent
+    builders of the same network never see a half-written file.
+
+    Parameters
+    ----------
+    spec : RoundaboutSpec
+    out_dir : str or os.PathLike
+        Created if missing.
+    name : str
+        File name stem.
+
+    Returns
+    -------
+    NetworkFiles
+
+    Raises
+    ------
+    ValueError
+        If the junctions of neighbouring arms overlap (netconvert then squeezes the ring edge between
+        them to nothing): the message suggests what to change.
+    RuntimeError
+        If netconvert fails (its output is in the message).
+    """
+    import sumolib  # heavy optional dependency, imported lazily
+
+    if not isinstance(spec, RoundaboutSpec):
+        raise TypeError(f"spec must be a RoundaboutSpec, got {type(spec).__name__}")
+    if not name or any(ch in name for ch in "/\\"):
+        raise ValueError(f"name must be a plain file name stem, got {name!r}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    nod_text, edg_text, con_text = _plain_xml(spec)
+    nod = atomic_write_text(out_dir / f"{name}.nod.xml", nod_text)
+    edg = atomic_write_text(out_dir / f"{name}.edg.xml", edg_text)
+    con = atomic_write_text(out_dir / f"{name}.con.xml", con_text)
+    net = out_dir / f"{name}.net.xml"
+    fd, tmp = tempfile.mkstemp(prefix=f".{net.name}.", suffix=".tmp.net.xml", dir=out_dir)
+    os.close(fd)
+    cmd = [
+        sumolib.checkBinary("netconvert"),
+        "--node-files", str(nod),
+        "--edge-files", str(edg),
+        "--connection-files", str(con),
+        "--output-file", tmp,
+        "--offset.disable-normalization", "true",
+        "--no-turnarounds", "true",
+        "--no-internal-links", "false",
+        "--output.street-names", "false",
+        "--junctions.corner-detail", "5",
+        "--junctions.internal-link-detail", "20",  # smooth curves through junctions (default 5 points)
+        "--default.junctions.radius", _fmt(spec.junction_radius),
+                "--xml-validation", "never",
+    ]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=_NETCONVERT_TIMEOUT_S)
+        if proc.returncode != 0:
+            raise RuntimeError(f"netconvert failed (exit code {proc.returncode}) for {spec!r}:\n"
+                               f"{proc.stderr.strip() or proc.stdout.strip()}")
+        _check_built(spec, tmp)
+        for line in proc.stderr.splitlines():
+            if line.startswith("Warning:") and "SUMO_HOME" not in line:
+                warnings.warn(f"netconvert: {line[len('Warning:'):].strip()}", UserWarning, stacklevel=2)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, net)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return NetworkFiles(nodes=nod, edges=edg, connections=con, net=net, spec=spec)
+
+
+def _check_built(spec: RoundaboutSpec, net_path) -> None:
+    """Reject a built network whose arm junctions touch (a ring edge shorter than ``_MIN_RING_EDGE``)."""
+    net = load_net(net_path)
+    n = spec.n_arms
+    shortest = min(net.getEdge(_ring(i, n)).getLength() for i in range(n))
+    if shortest < _MIN_RING_EDGE:
+        raise ValueError(
+            f"the junctions of neighbouring arms overlap: with radius = {spec.radius} m, n_arms = {n}, "
+            f"lanes = {spec.lanes} and junction_radius = {spec.junction_radius} m netconvert leaves "
+            f"{shortest:.2f} m of ring between them (< {_MIN_RING_EDGE} m); use a larger radius, fewer "
+            "arms or a smaller junction_radius")
+
+
+# ----------------------------------------------------------------------------------------------
+# reading networks back
+# ----------------------------------------------------------------------------------------------
+
+def load_net(net):
+    """A ``sumolib.net.Net`` with internal (junction) lanes, from a path, NetworkFiles or a loaded net."""
+    import sumolib
+
+    if isinstance(net, NetworkFiles):
+        net = net.net
+    if isinstance(net, (str, os.PathLike)):
+        path = Path(net)
+        if not path.is_file():
+            raise FileNotFoundError(f"no SUMO network file at {path}")
+        return sumolib.net.readNet(str(path), withInternal=True)
+    if hasattr(net, "getEdge") and hasattr(net, "hasEdge"):
+        return net
+    raise TypeError(f"net must be a path, NetworkFiles or sumolib Net, got {type(net).__name__}")
+
+
+def validate_route(net, edges, *, route_id: str | None = None) -> list[str]:
+    """Check that ``edges`` is a drivable route of ``net``; return it as a list.
+
+    Parameters
+    ----------
+    net : str, os.PathLike, NetworkFiles or sumolib.net.Net
+    edges : sequence of str
+        Normal (not junction-internal) edge ids in driving order.
+    route_id : str, optional
+        Named in error messages.
+
+    Raises
+    ------
+    ValueError
+        If the route is empty, names an edge the network does not have (or an internal edge), or two
+        consecutive edges are not connected; the message names the route and the offending edges.
+    """
+    label = f"route {route_id!r}" if route_id is not None else "route"
+    if isinstance(edges, str):
+        raise ValueError(f"{label}: edges must be a sequence of edge ids, got the string {edges!r}")
+    edges = list(edges)
+    if not edges:
+        raise ValueError(f"{label} is empty")
+    net = load_net(net)
+    for e in edges:
+        if not isinstance(e, str) or not net.hasEdge(e) or net.getEdge(e).getFunction() == "internal":
+            known = sorted(x.getID() for x in net.getEdges(withInternal=False))
+            raise ValueError(f"{label} is unreachable: unknown edge {e!r} (the network's edges: "
+                             f"{', '.join(known)})")
+    for a, b in zip(edges[:-1], edges[1:]):
+        if net.getEdge(b) not in net.getEdge(a).getOutgoing():
+            reachable = sorted(x.getID() for x in net.getEdge(a).getOutgoing())
+            raise ValueError(f"{label} is unreachable: edge {a!r} does not lead to {b!r} "
+                             f"(it leads to: {', '.join(reachable) or 'nothing'})")
+    return edges
+
+
+def _pick_connection(conns, prefer_from_lane: int | None):
+    if prefer_from_lane is not None:
+        for c in conns:
+            if c.getFromLane().getIndex() == prefer_from_lane:
+                return c
+    return min(conns, key=lambda c: (c.getFromLane().getIndex(), c.getToLane().getIndex()))
+
+
+def _densify(shape, max_spacing: float | None) -> np.ndarray:
+    """Points of ``shape`` (K, 2) with straight pieces longer than ``max_spacing`` [m] subdivided."""
+    shape = np.asarray(shape, dtype=float)[:, :2]
+    if max_spacing is None or len(shape) < 2:
+        return shape
+    out = [shape[:1]]
+    for a, b in zip(shape[:-1], shape[1:]):
+        n = max(1, math.ceil(float(np.hypot(*(b - a))) / max_spacing))
+        t = np.arange(1, n + 1)[:, None] / n
+        out.append(a + t * (b - a))
+    return np.concatenate(out)
+
+
+def route_centerline(net, route_edges, *, route_id: str | None = None,
+                     max_spacing: float | None = 1.0) -> np.ndarray:
+    """Reference path along a route: lane shapes joined through the junction-internal lanes.
+
+    For each pair of consecutive edges the connection between them is taken (the rightmost one, or the
+    one continuing in the lane the previous connection arrived in), and the shapes of the lane it leaves
+    from and of its internal lane(s) (the connection's ``via`` lane and any further internal lanes that
+    lane leads to, when an internal junction splits it) are appended, then the last edge's lane.
+    Consecutive points closer than 1 mm are merged. Straight pieces of a lane shape longer than
+    ``max_spacing`` are subdivided (points on the same straight line); the joins between lanes are left
+    as SUMO made them, so a gap there would show.
+
+    Parameters
+    ----------
+    net : str, os.PathLike, NetworkFiles or sumolib.net.Net
+        A network built with internal links (netconvert's default, and :func:`build_network`'s).
+    route_edges : sequence of str
+    route_id : str, optional
+        Named in error messages.
+    max_spacing : float or None
+        Largest distance [m] between consecutive points within one lane shape; None keeps SUMO's points.
+
+    Returns
+    -------
+    numpy.ndarray, shape (P, 2)
+        x, y [m] in network coordinates, in driving order.
+
+    Raises
+    ------
+    ValueError
+        If the route is not drivable (see :func:`validate_route`), the network has no internal lanes, or
+        ``max_spacing`` is not positive.
+    """
+    if max_spacing is not None and not (math.isfinite(max_spacing) and max_spacing > 0):
+        raise ValueError(f"max_spacing must be a positive number of metres or None, got {max_spacing!r}")
+    net = load_net(net)
+    edges = validate_route(net, route_edges, route_id=route_id)
+    pieces: list[np.ndarray] = []
+    lane_index: int | None = None
+    for k, eid in enumerate(edges):
+        edge = net.getEdge(eid)
+        if k + 1 == len(edges):
+            idx = lane_index if lane_index is not None and lane_index < edge.getLaneNumber() else 0
+            pieces.append(_densify(edge.getLane(idx).getShape(), max_spacing))
+            break
+        conn = _pick_connection(edge.getOutgoing()[net.getEdge(edges[k + 1])], lane_index)
+        pieces.append(_densify(conn.getFromLane().getShape(), max_spacing))
+        via = conn.getViaLaneID()
+        if not via:
+            raise ValueError(f"the network has no internal lane between {eid!r} and {edges[k + 1]!r}; "
+                             "build it with internal links (netconvert's default)")
+        lane = net.getLane(via)
+        for _ in range(64):  # an internal lane may be split at an internal junction: follow the chain
+            pieces.append(_densify(lane.getShape(), max_spacing))
+            onward = [c for c in lane.getOutgoing() if c.getTo().getID() == edges[k + 1]]
+            if not onward or not onward[0].getViaLaneID():
+                break
+            lane = net.getLane(onward[0].getViaLaneID())
+        lane_index = conn.getToLane().getIndex()
+    arr = np.concatenate(pieces)
+    keep = np.ones(len(arr), dtype=bool)
+    last = arr[0]
+    for i in range(1, len(arr)):
+        if np.hypot(*(arr[i] - last)) < _DUPLICATE_TOL:
+            keep[i] = False
+        else:
+            last = arr[i]
+    return arr[keep]

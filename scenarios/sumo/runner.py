@@ -1,0 +1,780 @@
+"""Run SUMO on a network through libsumo (or TraCI), record every vehicle every step, let a controller drive some.
+
+One :class:`SumoRun` is one simulation::
+
+    with SumoRun(files.net, routes(spec), vehicles, pirl_ids={"v0"}, controller=ctrl, seed=0) as run:
+        rec = run.run(60.0)                      # SumoRecording: rec.frame, rec.summary
+
+or in one call, :func:`simulate`. libsumo holds **one simulation per process**: a run always closes SUMO
+when it ends (context manager, also on errors), a second concurrent libsumo run in the same process is
+refused, and :func:`run_in_subprocess` runs a function in a fresh spawned process so that sweeps can run
+many simulations side by side. ``backend="traci"`` starts the same command as a separate SUMO process over
+a socket (slower, but any number per process), e.g. to benchmark libsumo against TraCI.
+
+Recording conventions (all SI units):
+
+- ``time`` [s] is the simulation time *after* the step; positions, speeds and lanes are those at that time.
+- ``x``, ``y`` [m] are the centre of the vehicle's box, as in the INTERACTION data; SUMO's own position is
+  the middle of the front bumper (``x_front``, ``y_front``), and the centre lies ``length / 2`` behind it
+  along the heading.
+- ``psi_rad`` is the heading counter-clockwise from +x in (-pi, pi]; SUMO's angle is in degrees clockwise
+  from north (navigational), so ``psi_rad = wrap(pi/2 - radians(angle))``. SUMO keeps both bumpers on the
+  lane, so the heading is the direction of the bumper-to-bumper chord: on a circle it is exactly the
+  centre's direction of motion, on S-bends (entering a roundabout) it differs by up to ~0.1 rad.
+- ``vx``, ``vy`` [m/s] are ``speed`` along the heading.
+- With more than one lane SUMO changes lanes in a single step by default: the vehicle jumps sideways by a
+  lane width. Pass ``extra_args=("--lanechange.duration", "3")`` for continuous 3 s lane changes (headings
+  then stay within ~0.08 rad of the direction of motion on a two-lane ring too).
+
+Controller. For the vehicles in ``pirl_ids`` the runner calls ``controller(time, vehicle_id, observation)``
+every step they are in the network; a number is a commanded speed [m/s] applied with
+``vehicle.setSpeed`` for the next step, ``None`` hands the vehicle back to SUMO's car-following model
+(``setSpeed(-1)``). All other vehicles always follow SUMO's model. After the step the runner compares the
+speed SUMO actually drove with the command: ``overridden`` is true where they differ by more than
+``override_tol``.
+
+Speed mode. Controlled vehicles get ``speed_mode`` (default :data:`SPEED_MODE_ALL_CHECKS` = 31, which is
+also SUMO's default): SUMO still enforces the safe speed of its car-following model, the vehicle type's
+maximum acceleration and deceleration, right of way at the roundabout's entries and red lights. A command
+is therefore carried out only where it is safe and physically possible, and otherwise overridden (and
+flagged). We keep all checks on because (1) the recorded trajectories feed IRL features (accelerations,
+jerks): with the acceleration bounds off a discontinuous command would become an unbounded acceleration in
+the data; (2) the driver model plans from its own observation and cannot see every foe at a merge, so SUMO
+must keep the interaction collision-free; (3) the ``overridden`` flag then measures exactly how often the
+driver model asked for something SUMO's vehicle would not do. Use :func:`speed_mode` to build another mode
+(e.g. ``speed_mode(max_accel=False, max_decel=False)`` = 25 to follow commands without the vehicle type's
+acceleration limits but still safely).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+import time as _time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .network import NetworkFiles, load_net, validate_route
+
+__all__ = [
+    "BACKENDS",
+    "SPEED_MODE_ALL_CHECKS",
+    "RECORD_COLUMNS",
+    "SUMMARY_COLUMNS",
+    "VehicleSpec",
+    "VehicleState",
+    "Observation",
+    "Controller",
+    "ConstantSpeed",
+    "SumoRecording",
+    "SumoRun",
+    "speed_mode",
+    "sumo_command",
+    "sumo_angle_to_psi",
+    "simulate",
+    "run_in_subprocess",
+]
+
+BACKENDS = ("libsumo", "traci")
+SPEED_MODE_ALL_CHECKS = 31  #: safe speed, max accel, max decel, right of way, red lights (SUMO's default)
+DEFAULT_STEP_LENGTH = 0.1  # [s]
+DEFAULT_OVERRIDE_TOL = 0.01  # [m/s]
+DEFAULT_LEADER_LOOKAHEAD = 100.0  # [m]
+
+#: columns of :attr:`SumoRecording.frame`, in order
+RECORD_COLUMNS: tuple[str, ...] = (
+    "step", "time", "vehicle_id", "route_id", "pirl",
+    "x", "y", "x_front", "y_front", "psi_rad", "speed", "vx", "vy", "accel",
+    "length", "width", "edge_id", "lane_id", "lane_pos",
+    "commanded_speed", "overridden", "collided", "arrived", "vanished",
+)
+#: columns of :attr:`SumoRecording.summary`, in order
+SUMMARY_COLUMNS: tuple[str, ...] = (
+    "vehicle_id", "route_id", "pirl", "depart", "first_time", "last_time", "n_steps", "status",
+    "collided", "removed_early", "n_commanded", "overridden_fraction",
+)
+
+_libsumo_owner: SumoRun | None = None  # the run holding this process's libsumo simulation, if any
+
+
+def speed_mode(*, safe_speed: bool = True, max_accel: bool = True, max_decel: bool = True,
+               right_of_way: bool = True, red_light: bool = True,
+               ignore_junction_foes: bool = False) -> int:
+    """SUMO speed-mode bitset from named checks (TraCI ``setSpeedMode``).
+
+    Parameters
+    ----------
+    safe_speed : bool
+        bit 0: never faster than the car-following model's safe speed.
+    max_accel, max_decel : bool
+        bits 1, 2: respect the vehicle type's maximum acceleration / deceleration.
+    right_of_way : bool
+        bit 3: respect right of way towards foes approaching the junction.
+    red_light : bool
+        bit 4: brake hard to avoid passing a red light.
+    ignore_junction_foes : bool
+        bit 5 (inverted): disregard right of way towards foes already inside the junction.
+
+    Returns
+    -------
+    int
+        E.g. 31 with all defaults, 25 without the acceleration bounds.
+    """
+    bits = (safe_speed, max_accel, max_decel, right_of_way, red_light, ignore_junction_foes)
+    return sum(int(bool(b)) << i for i, b in enumerate(bits))
+
+
+def sumo_angle_to_psi(angle_deg):
+    """Convert SUMO's vehicle angle to a mathematical heading.
+
+    Parameters
+    ----------
+    angle_deg : float or array_like
+        SUMO's ``vehicle.getAngle``: degrees clockwise from north (+y), navigational.
+
+    Returns
+    -------
+    float or numpy.ndarray
+        Heading [rad] counter-clockwise from +x, in (-pi, pi]: 0 deg -> pi/2, 90 deg -> 0, 270 deg -> pi.
+    """
+    psi = np.pi / 2 - np.radians(angle_deg)
+    return np.pi - np.mod(np.pi - psi, 2 * np.pi)
+
+
+def sumo_command(net_path, *, seed: int = 0, step_length: float = DEFAULT_STEP_LENGTH,
+                 extra_args: Sequence[str] = ()) -> list[str]:
+    """The SUMO command line both backends start.
+
+    Parameters
+    ----------
+    net_path : str or os.PathLike
+    seed : int
+        SUMO's random seed (``--seed``): same seed, same simulation.
+    step_length : float
+        [s]
+    extra_args : sequence of str
+        Appended (e.g. ``["--additional-files", "types.add.xml"]``).
+
+    Returns
+    -------
+    list of str
+        ``[sumo, -n, net, --step-length, ..., --no-step-log, --no-warnings, --seed, ..., --collision.action,
+        warn, --time-to-teleport, -1, --begin, 0, --collision.check-junctions, true, *extra_args]``. Collisions
+        are reported and the vehicles stay (``warn``), jammed vehicles are never teleported away, and
+        collisions inside junctions are checked too (SUMO's default checks lanes only, and a roundabout's
+        conflicts are inside its junctions).
+    """
+    import sumolib
+
+    return [
+        sumolib.checkBinary("sumo"), "-n", str(net_path),
+        "--step-length", repr(float(step_length)),
+        "--no-step-log", "--no-warnings",
+        "--seed", str(int(seed)),
+        "--collision.action", "warn",
+        "--time-to-teleport", "-1",
+        "--begin", "0",
+        "--collision.check-junctions", "true",
+        *map(str, extra_args),
+    ]
+
+
+@dataclass(frozen=True)
+class VehicleSpec:
+    """A vehicle to insert.
+
+    Attributes
+    ----------
+    vehicle_id : str
+    route_id : str
+        One of the run's routes.
+    depart : float
+        Scheduled insertion time [s], >= 0 (SUMO delays the insertion while the start of the route is
+        occupied).
+    depart_speed : str or float
+        SUMO ``departSpeed``: a speed [m/s] or one of "max", "desired", "speedLimit", "random", "avg", "last".
+    type_id : str
+        Vehicle type; ``"DEFAULT_VEHTYPE"`` (passenger car, Krauss, 5 m x 1.8 m) unless more types are
+        loaded with ``extra_args``.
+    """
+
+    vehicle_id: str
+    route_id: str
+    depart: float
+    depart_speed: str | float = "max"
+    type_id: str = "DEFAULT_VEHTYPE"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.vehicle_id, str) or not self.vehicle_id:
+            raise ValueError(f"vehicle_id must be a non-empty string, got {self.vehicle_id!r}")
+        if not isinstance(self.route_id, str) or not self.route_id:
+            raise ValueError(f"vehicle {self.vehicle_id!r}: route_id must be a non-empty string, "
+                             f"got {self.route_id!r}")
+        d = self.depart
+        if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(d) or d < 0:
+            raise ValueError(f"vehicle {self.vehicle_id!r}: depart must be a finite time >= 0 s, got {d!r}")
+        s = self.depart_speed
+        if isinstance(s, str):
+            if s not in ("max", "desired", "speedLimit", "random", "avg", "last") and not _is_number(s):
+                raise ValueError(f"vehicle {self.vehicle_id!r}: unknown depart_speed {s!r}")
+        elif isinstance(s, bool) or not isinstance(s, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(s) or s < 0:
+            raise ValueError(f"vehicle {self.vehicle_id!r}: depart_speed must be >= 0 m/s or a SUMO "
+                             f"keyword, got {s!r}")
+
+
+def _is_number(s: str) -> bool:
+    try:
+        return math.isfinite(float(s)) and float(s) >= 0
+    except ValueError:
+        return False
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """One vehicle at one time, as the controller sees it (SI units; conventions in the module docstring)."""
+
+    x: float
+    y: float
+    x_front: float
+    y_front: float
+    psi_rad: float
+    speed: float
+    accel: float
+    length: float
+    width: float
+    edge_id: str
+    lane_id: str
+    lane_pos: float
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a controller is told about one controlled vehicle at one step.
+
+    Attributes
+    ----------
+    time : float
+        [s]
+    vehicle_id : str
+    ego : VehicleState
+    others : Mapping[str, VehicleState]
+        Every other vehicle in the network at this time (read-only).
+    leader : (str, float) or None
+        SUMO's leader on the ego's route within the lookahead and the gap to it [m] (front bumper of ego
+        to back of leader, minus ego's minGap), or None. Vehicles about to merge from an entry are not
+        leaders; look at ``others`` for them.
+    route_edges : tuple of str
+        The ego's route.
+    """
+
+    time: float
+    vehicle_id: str
+    ego: VehicleState
+    others: Mapping[str, VehicleState]
+    leader: tuple[str, float] | None
+    route_edges: tuple[str, ...]
+
+
+#: ``controller(time [s], vehicle_id, observation) -> commanded speed [m/s] or None``
+Controller = Callable[[float, str, Observation], "float | None"]
+
+
+@dataclass(frozen=True)
+class ConstantSpeed:
+    """A picklable controller commanding the same speed to every controlled vehicle (tests, benchmarks).
+
+    Attributes
+    ----------
+    speed : float
+        [m/s], >= 0.
+    """
+
+    speed: float
+
+    def __post_init__(self) -> None:
+        if isinstance(self.speed, bool) or not isinstance(self.speed, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(self.speed) or self.speed < 0:
+            raise ValueError(f"speed must be a finite speed >= 0 m/s, got {self.speed!r}")
+
+    def __call__(self, time: float, vehicle_id: str, observation: Observation) -> float:
+        return float(self.speed)
+
+
+@dataclass(frozen=True)
+class SumoRecording:
+    """Result of a run.
+
+    Attributes
+    ----------
+    frame : pandas.DataFrame
+        One row per vehicle per step, columns :data:`RECORD_COLUMNS`, ordered by step and then by the
+        order the vehicles were given in. ``commanded_speed`` [m/s] is NaN where no command was given;
+        ``overridden`` (nullable boolean) is NA there and where the vehicle left before the command could
+        be checked. ``collided`` is true at the times SUMO reported the vehicle in a collision;
+        ``arrived`` / ``vanished`` are true on a vehicle's last row when it left the network in the next
+        step at the end of its route / anywhere else.
+    summary : pandas.DataFrame
+        One row per vehicle, columns :data:`SUMMARY_COLUMNS`. ``status`` is "arrived", "vanished",
+        "running" (still in the network at the end) or "not_departed"; ``removed_early`` is
+        ``status == "vanished"``; ``overridden_fraction`` is the share of checked commands SUMO overrode
+        (NaN without commands).
+    wall_time_s : float
+        Wall-clock time of the stepping [s] (SUMO start and vehicle insertion excluded).
+    sim_time_s : float
+        Simulated time [s].
+    backend : str
+    seed : int
+    """
+
+    frame: pd.DataFrame
+    summary: pd.DataFrame
+    wall_time_s: float
+    sim_time_s: float
+    backend: str
+    seed: int
+
+
+# ----------------------------------------------------------------------------------------------
+# the run
+# ----------------------------------------------------------------------------------------------
+
+@dataclass
+class _VehicleRecord:
+    spec: VehicleSpec
+    pirl: bool
+    length: float = float("nan")
+    width: float = float("nan")
+    last_row: int = -1
+    first_time: float = float("nan")
+    last_time: float = float("nan")
+    last_edge: str = ""
+    status: str = "not_departed"
+    commanded: bool = False  # a command is active (so None must hand control back)
+
+
+class SumoRun:
+    """One SUMO simulation of a network with given routes and vehicles (a context manager).
+
+    Everything is validated when the run is constructed, before SUMO starts: routes against the network
+    (with sumolib, edges exist and connect), vehicles against the routes, controlled ids against the
+    vehicles.
+
+    Parameters
+    ----------
+    net : str, os.PathLike or NetworkFiles
+        The ``*.net.xml``.
+    routes : mapping str -> sequence of str, or iterable of (route_id, edges)
+        E.g. ``network.routes(spec)``.
+    vehicles : iterable of VehicleSpec
+    pirl_ids : iterable of str
+        Vehicles driven by ``controller``.
+    controller : Controller, optional
+        Required when ``pirl_ids`` is not empty.
+    seed : int
+        SUMO's ``--seed``.
+    step_length : float
+        [s]
+    backend : {"libsumo", "traci"}
+    speed_mode : int
+        TraCI speed mode of the controlled vehicles (see the module docstring and :func:`speed_mode`).
+    override_tol : float
+        [m/s] a command counts as overridden when SUMO's speed after the step differs by more.
+    leader_lookahead : float
+        [m] distance within which ``Observation.leader`` is looked for.
+    extra_args : sequence of str
+        Appended to the SUMO command line.
+
+    Raises
+    ------
+    ValueError
+        For unknown backends, unreachable or unknown routes, duplicate vehicle ids, vehicles on unknown
+        routes, controlled ids that are not vehicles, a missing controller, or bad numbers.
+    """
+
+    def __init__(self, net, routes, vehicles: Iterable[VehicleSpec], *, pirl_ids: Iterable[str] = (),
+                 controller: Controller | None = None, seed: int = 0,
+                 step_length: float = DEFAULT_STEP_LENGTH, backend: str = "libsumo",
+                 speed_mode: int = SPEED_MODE_ALL_CHECKS, override_tol: float = DEFAULT_OVERRIDE_TOL,
+                 leader_lookahead: float = DEFAULT_LEADER_LOOKAHEAD, extra_args: Sequence[str] = ()):
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise ValueError(f"seed must be an integer, got {seed!r}")
+        for name, v in (("step_length", step_length), ("override_tol", override_tol),
+                        ("leader_lookahead", leader_lookahead)):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        if isinstance(speed_mode, bool) or not isinstance(speed_mode, (int, np.integer)) \
+                or not 0 <= speed_mode < 128:
+            raise ValueError(f"speed_mode must be an integer bitset in [0, 127], got {speed_mode!r}")
+        if isinstance(extra_args, str):
+            raise ValueError(f"extra_args must be a sequence of arguments, got the string {extra_args!r}")
+        if isinstance(net, NetworkFiles):
+            net = net.net
+        self.net_path = os.fspath(net)
+        sumo_net = load_net(self.net_path)
+
+        items = list(routes.items()) if isinstance(routes, Mapping) else list(routes)
+        self.routes: dict[str, tuple[str, ...]] = {}
+        for item in items:
+            if not (isinstance(item, (tuple, list)) and len(item) == 2 and isinstance(item[0], str)):
+                raise ValueError(f"routes must be (route_id, edges) pairs, got {item!r}")
+            rid, edges = item
+            if rid in self.routes:
+                raise ValueError(f"route {rid!r} is given twice")
+            self.routes[rid] = tuple(validate_route(sumo_net, edges, route_id=rid))
+
+        self.vehicles: list[VehicleSpec] = list(vehicles)
+        seen: set[str] = set()
+        for v in self.vehicles:
+            if not isinstance(v, VehicleSpec):
+                raise ValueError(f"vehicles must be VehicleSpec instances, got {v!r}")
+            if v.vehicle_id in seen:
+                raise ValueError(f"vehicle id {v.vehicle_id!r} is given twice")
+            seen.add(v.vehicle_id)
+            if v.route_id not in self.routes:
+                raise ValueError(f"vehicle {v.vehicle_id!r}: unknown route {v.route_id!r} "
+                                 f"(routes: {', '.join(self.routes) or 'none'})")
+        if isinstance(pirl_ids, str):
+            raise ValueError(f"pirl_ids must be a collection of vehicle ids, got the string {pirl_ids!r}")
+        self.pirl_ids = frozenset(pirl_ids)
+        unknown = sorted(self.pirl_ids - seen)
+        if unknown:
+            raise ValueError(f"pirl_ids name vehicles that are not in the run: {unknown}")
+        if self.pirl_ids and controller is None:
+            raise ValueError("pirl_ids are given but no controller drives them")
+        if controller is not None and not callable(controller):
+            raise ValueError(f"controller must be callable, got {controller!r}")
+
+        self.controller = controller
+        self.seed = int(seed)
+        self.step_length = float(step_length)
+        self.backend = backend
+        self.speed_mode = int(speed_mode)
+        self.override_tol = float(override_tol)
+        self.leader_lookahead = float(leader_lookahead)
+        self.command = sumo_command(self.net_path, seed=self.seed, step_length=self.step_length,
+                                    extra_args=extra_args)
+
+        self._api: Any = None  # libsumo module or traci connection while running
+        self._closed = False
+        self._order = {v.vehicle_id: k for k, v in enumerate(self.vehicles)}
+        self._veh = {v.vehicle_id: _VehicleRecord(v, v.vehicle_id in self.pirl_ids) for v in self.vehicles}
+        self._cols: dict[str, list] = {c: [] for c in RECORD_COLUMNS}
+        self._pending: dict[str, tuple[int, float]] = {}  # vehicle -> (row, commanded speed)
+        self._present: set[str] = set()  # vehicles recorded in the last step
+        self._step = 0
+        self._wall = 0.0
+        self._vars: tuple[int, ...] = ()
+
+    # -- lifecycle --------------------------------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        """Whether SUMO is started and not yet closed."""
+        return self._api is not None
+
+    def start(self) -> SumoRun:
+        """Start SUMO and schedule the routes and vehicles; returns ``self``.
+
+        Raises
+        ------
+        RuntimeError
+            If this run was started before, or (libsumo) another libsumo run of this process is open.
+        """
+        global _libsumo_owner
+        if self._api is not None or self._closed:
+            raise RuntimeError("a SumoRun starts once; build a new one for another simulation")
+        if self.backend == "libsumo":
+            if _libsumo_owner is not None:
+                raise RuntimeError(
+                    "libsumo runs one simulation per process and another SumoRun holds it; close that "
+                    "run first, use run_in_subprocess(...), or backend='traci'")
+            import libsumo
+
+            libsumo.start(self.command)
+            _libsumo_owner = self
+            api = libsumo
+        else:
+            import traci
+
+            label = f"pirl_sim-{os.getpid()}-{id(self)}"
+            traci.start(self.command, label=label)
+            api = traci.getConnection(label)
+        self._api = api
+        try:
+            from traci import constants as tc  # pure-Python constants, identical in libsumo
+
+            self._vars = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_ACCELERATION,
+                          tc.VAR_ROAD_ID, tc.VAR_LANE_ID, tc.VAR_LANEPOSITION)
+            for rid, edges in self.routes.items():
+                api.route.add(rid, list(edges))
+            for v in self.vehicles:
+                api.vehicle.add(v.vehicle_id, v.route_id, typeID=v.type_id, depart=repr(float(v.depart)),
+                                departLane="best", departPos="base", departSpeed=str(v.depart_speed))
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        """Close SUMO (idempotent; also called by ``__exit__``)."""
+        global _libsumo_owner
+        api, self._api = self._api, None
+        self._closed = True
+        if api is None:
+            return
+        try:
+            api.close()
+        finally:
+            if _libsumo_owner is self:
+                _libsumo_owner = None
+
+    def __enter__(self) -> SumoRun:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):  # last resort: never leave libsumo's one simulation open
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # -- stepping ---------------------------------------------------------------------------------
+
+    @property
+    def time(self) -> float:
+        """Current simulation time [s]."""
+        self._require_running()
+        return float(self._api.simulation.getTime())
+
+    def _require_running(self) -> None:
+        if self._api is None:
+            raise RuntimeError("the run is not started (use `with SumoRun(...) as run:` or run.start())")
+
+    def step(self) -> None:
+        """Advance one step: SUMO moves, then the new state is recorded and the controller is asked."""
+        self._require_running()
+        api = self._api
+        t0 = _time.perf_counter()
+        api.simulationStep()
+        self._step += 1
+        t = float(api.simulation.getTime())
+
+        for vid in api.simulation.getDepartedIDList():
+            rec = self._veh[vid]
+            api.vehicle.subscribe(vid, self._vars)
+            rec.length = float(api.vehicle.getLength(vid))
+            rec.width = float(api.vehicle.getWidth(vid))
+            rec.first_time = t
+            if rec.pirl:
+                api.vehicle.setSpeedMode(vid, self.speed_mode)
+        cols = self._cols
+        colliding = set(api.simulation.getCollidingVehiclesIDList())
+        results = api.vehicle.getAllSubscriptionResults()
+        ids = sorted(results, key=self._order.__getitem__)
+        # vehicles gone since the last step: arrived when SUMO says so at the end of their route, else
+        # vanished (removed through the API, teleported away, ... - these are not all in the arrived list)
+        arrived = set(api.simulation.getArrivedIDList())
+        for vid in [v for v in self._present if v not in results]:
+            rec = self._veh[vid]
+            done = vid in arrived and rec.last_edge == self.routes[rec.spec.route_id][-1]
+            rec.status = "arrived" if done else "vanished"
+            cols["arrived" if done else "vanished"][rec.last_row] = True
+            self._pending.pop(vid, None)
+        self._present = set(results)
+        for vid in ids:
+            self._veh[vid].status = "running"  # also back from a teleport
+        states = {vid: self._state(vid, results[vid]) for vid in ids}
+        # commands of the previous step: did SUMO drive them?
+        for vid, (row, cmd) in self._pending.items():
+            st = states.get(vid)
+            if st is not None:
+                cols["overridden"][row] = abs(st.speed - cmd) > self.override_tol
+        self._pending.clear()
+
+        for vid in ids:
+            rec = self._veh[vid]
+            st = states[vid]
+            row = len(cols["step"])
+            rec.last_row, rec.last_time, rec.last_edge = row, t, st.edge_id
+            for name, value in (
+                ("step", self._step), ("time", t), ("vehicle_id", vid), ("route_id", rec.spec.route_id),
+                ("pirl", rec.pirl), ("x", st.x), ("y", st.y), ("x_front", st.x_front),
+                ("y_front", st.y_front), ("psi_rad", st.psi_rad), ("speed", st.speed),
+                ("vx", st.speed * math.cos(st.psi_rad)), ("vy", st.speed * math.sin(st.psi_rad)),
+                ("accel", st.accel), ("length", st.length), ("width", st.width), ("edge_id", st.edge_id),
+                ("lane_id", st.lane_id), ("lane_pos", st.lane_pos), ("commanded_speed", math.nan),
+                ("overridden", None), ("collided", vid in colliding), ("arrived", False),
+                ("vanished", False),
+            ):
+                cols[name].append(value)
+
+        if self.pirl_ids:
+            frozen_states = MappingProxyType(states)
+            for vid in ids:
+                rec = self._veh[vid]
+                if not rec.pirl:
+                    continue
+                others = MappingProxyType({k: s for k, s in frozen_states.items() if k != vid})
+                obs = Observation(time=t, vehicle_id=vid, ego=states[vid], others=others,
+                                  leader=self._leader(vid), route_edges=self.routes[rec.spec.route_id])
+                cmd = self.controller(t, vid, obs)
+                if cmd is None:
+                    if rec.commanded:
+                        api.vehicle.setSpeed(vid, -1.0)
+                        rec.commanded = False
+                    continue
+                if isinstance(cmd, bool) or not isinstance(cmd, (int, float, np.integer, np.floating)) \
+                        or not math.isfinite(cmd) or cmd < 0:
+                    raise ValueError(f"controller returned {cmd!r} for vehicle {vid!r} at t = {t} s; "
+                                     "expected a speed >= 0 m/s or None")
+                cmd = float(cmd)
+                api.vehicle.setSpeed(vid, cmd)
+                rec.commanded = True
+                cols["commanded_speed"][rec.last_row] = cmd
+                self._pending[vid] = (rec.last_row, cmd)
+        self._wall += _time.perf_counter() - t0
+
+    def _state(self, vid: str, r: Mapping[int, Any]) -> VehicleState:
+        rec = self._veh[vid]
+        xf, yf = r[self._vars[0]]
+        psi = float(sumo_angle_to_psi(r[self._vars[1]]))
+        half = 0.5 * rec.length
+        return VehicleState(
+            x=xf - half * math.cos(psi), y=yf - half * math.sin(psi), x_front=float(xf), y_front=float(yf),
+            psi_rad=psi, speed=float(r[self._vars[2]]), accel=float(r[self._vars[3]]),
+            length=rec.length, width=rec.width, edge_id=r[self._vars[4]], lane_id=r[self._vars[5]],
+            lane_pos=float(r[self._vars[6]]),
+        )
+
+    def _leader(self, vid: str) -> tuple[str, float] | None:
+        lead = self._api.vehicle.getLeader(vid, self.leader_lookahead)
+        if not lead or not lead[0]:
+            return None
+        return str(lead[0]), float(lead[1])
+
+    def run(self, duration: float, *, until_empty: bool = True) -> SumoRecording:
+        """Step for ``duration`` [s] of simulated time (fewer if ``until_empty`` and every vehicle is done).
+
+        Parameters
+        ----------
+        duration : float
+            [s], > 0; rounded to whole steps.
+        until_empty : bool
+            Stop early once no vehicle is in the network or waiting to be inserted.
+
+        Returns
+        -------
+        SumoRecording
+            Everything recorded since the start (a run may be continued by calling ``run`` again).
+        """
+        if isinstance(duration, bool) or not isinstance(duration, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(duration) or duration <= 0:
+            raise ValueError(f"duration must be a finite time > 0 s, got {duration!r}")
+        self._require_running()
+        n_steps = max(1, round(duration / self.step_length))
+        for _ in range(n_steps):
+            self.step()
+            if until_empty and self._api.simulation.getMinExpectedNumber() == 0:
+                break
+        return self.recording()
+
+    # -- results ----------------------------------------------------------------------------------
+
+    def recording(self) -> SumoRecording:
+        """The recording so far as tidy DataFrames."""
+        cols = self._cols
+        frame = pd.DataFrame({c: cols[c] for c in RECORD_COLUMNS})
+        frame = frame.astype({
+            "step": "int64", "time": "float64", "vehicle_id": "object", "route_id": "object", "pirl": "bool",
+            "x": "float64", "y": "float64", "x_front": "float64", "y_front": "float64",
+            "psi_rad": "float64", "speed": "float64", "vx": "float64", "vy": "float64", "accel": "float64",
+            "length": "float64", "width": "float64", "edge_id": "object", "lane_id": "object",
+            "lane_pos": "float64", "commanded_speed": "float64", "overridden": "boolean",
+            "collided": "bool", "arrived": "bool", "vanished": "bool",
+        })
+        groups = {vid: g for vid, g in frame.groupby("vehicle_id", sort=False)}
+        rows = []
+        for v in self.vehicles:
+            rec = self._veh[v.vehicle_id]
+            mine = groups.get(v.vehicle_id, frame.iloc[:0])
+            checked = mine["overridden"].dropna()
+            rows.append({
+                "vehicle_id": v.vehicle_id, "route_id": v.route_id, "pirl": rec.pirl,
+                "depart": float(v.depart), "first_time": rec.first_time, "last_time": rec.last_time,
+                "n_steps": len(mine), "status": rec.status, "collided": bool(mine["collided"].any()),
+                "removed_early": rec.status == "vanished",
+                "n_commanded": int(mine["commanded_speed"].notna().sum()),
+                "overridden_fraction": float(checked.astype(bool).mean()) if len(checked) else math.nan,
+            })
+        summary = pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS)).astype({
+            "pirl": "bool", "depart": "float64", "first_time": "float64", "last_time": "float64",
+            "n_steps": "int64", "collided": "bool", "removed_early": "bool", "n_commanded": "int64",
+            "overridden_fraction": "float64",
+        })
+        return SumoRecording(frame=frame, summary=summary, wall_time_s=self._wall,
+                             sim_time_s=self._step * self.step_length, backend=self.backend, seed=self.seed)
+
+
+# ----------------------------------------------------------------------------------------------
+# one-call helpers
+# ----------------------------------------------------------------------------------------------
+
+def simulate(net, routes, vehicles: Iterable[VehicleSpec], duration: float, *,
+             until_empty: bool = True, **kwargs) -> SumoRecording:
+    """Build a :class:`SumoRun`, run it for ``duration`` [s] and close it (also on errors).
+
+    Parameters
+    ----------
+    net, routes, vehicles
+        As for :class:`SumoRun`.
+    duration : float
+        [s]
+    until_empty : bool
+        See :meth:`SumoRun.run`.
+    **kwargs
+        Passed to :class:`SumoRun` (``pirl_ids``, ``controller``, ``seed``, ``backend``, ...).
+
+    Returns
+    -------
+    SumoRecording
+    """
+    with SumoRun(net, routes, vehicles, **kwargs) as run:
+        return run.run(duration, until_empty=until_empty)
+
+
+def run_in_subprocess(fn: Callable[..., Any], *args, **kwargs) -> Any:
+    """Call ``fn(*args, **kwargs)`` in a fresh spawned worker process and return its result.
+
+    libsumo holds one simulation per process, and a forked child would inherit the parent's libsumo
+    state; a spawned child starts clean. ``fn``, the arguments (controllers included) and the result must
+    be picklable: module-level functions and classes, not lambdas or closures. The child imports the
+    caller's ``__main__`` module, so a script calling this needs the ``if __name__ == "__main__":`` guard.
+    Starting the child costs ~1 s (Python, numpy, pandas, libsumo imports).
+
+    Parameters
+    ----------
+    fn : callable
+    *args, **kwargs
+        Passed to ``fn``.
+
+    Returns
+    -------
+    Whatever ``fn`` returns; its exceptions are re-raised here.
+    """
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        return pool.submit(fn, *args, **kwargs).result()
