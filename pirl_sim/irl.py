@@ -36,6 +36,7 @@ from typing import Sequence
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 from .features import FeatureDerivatives, FeatureSet
 
@@ -124,6 +125,13 @@ class LaplaceBlock:
     def dim(self) -> int:
         return self.grad.shape[2]
 
+    def subset(self, mask: np.ndarray) -> "LaplaceBlock":
+        """The block restricted to the demonstrations where ``mask`` (M,) is True."""
+        hess = self.hess
+        if hess is not None and hess.shape[0] > 1:
+            hess = hess[mask]
+        return LaplaceBlock(self.grad[mask], hess, self.lam, self.log_det_v)
+
     @classmethod
     def from_derivatives(cls, der: FeatureDerivatives, reference_index: int, *, rtol: float = 1e-9) -> "LaplaceBlock":
         grad, hess = der.grad, der.hess
@@ -150,19 +158,46 @@ class LaplaceBlock:
         return cls(grad, hess, None)
 
 
-def _shift_to_pd(H: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray, int, float]:
-    """Cholesky of H (M, d, d); demos that are not positive definite get the smallest shift that fixes them."""
+def _cholesky_rows(H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched Cholesky that tolerates failures: factors (M, d, d) and a mask of rows that are not PD.
+
+    numpy factors a whole stack or raises; after a failure each matrix is factored by LAPACK's ``potrf``,
+    which reports instead of raising, so only the failing rows need an eigen-decomposition.
+    """
     try:
-        return np.linalg.cholesky(H), H, 0, np.inf
+        return np.linalg.cholesky(H), np.zeros(H.shape[0], dtype=bool)
     except np.linalg.LinAlgError:
         pass
-    eig_min = np.linalg.eigvalsh(H)[:, 0]
-    scale = np.abs(np.einsum("mii->m", H)) / H.shape[1] + np.finfo(float).tiny
-    bad = eig_min <= eps * scale
+    L = np.zeros_like(H)
+    bad = np.zeros(H.shape[0], dtype=bool)
+    for m in range(H.shape[0]):
+        c, info = scipy.linalg.lapack.dpotrf(H[m], lower=1, clean=1)
+        if info == 0:
+            L[m] = c
+        else:
+            bad[m] = True
+    return L, bad
+
+
+def shift_to_pd(H: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """Cholesky of H (M, d, d); matrices that are not positive definite get the smallest diagonal shift
+    (-lambda_min + eps * mean |diag|) that makes them so.
+
+    Returns
+    -------
+    L : (M, d, d) factors, H : the (shifted) matrices, n_shifted : int, worst : most negative eigenvalue
+    """
+    L, bad = _cholesky_rows(H)
+    if not bad.any():
+        return L, H, 0, np.inf
+    Hb = H[bad]
+    eig_min = np.linalg.eigvalsh(Hb)[:, 0]
+    scale = np.abs(np.einsum("mii->m", Hb)) / H.shape[1] + np.finfo(float).tiny
+    shift = np.maximum(-eig_min, 0.0) + eps * scale
     H = H.copy()
-    shift = np.where(bad, -eig_min + eps * scale, 0.0)
-    H += shift[:, None, None] * np.eye(H.shape[1])
-    return np.linalg.cholesky(H), H, int(bad.sum()), float(eig_min[bad].min())
+    H[bad] = Hb + shift[:, None, None] * np.eye(H.shape[1])
+    L[bad] = np.linalg.cholesky(H[bad])
+    return L, H, int(bad.sum()), float(eig_min.min())
 
 
 def laplace_nll(theta: np.ndarray, block: LaplaceBlock, order: int = 1, eps: float = 1e-9):
@@ -191,9 +226,9 @@ def laplace_nll(theta: np.ndarray, block: LaplaceBlock, order: int = 1, eps: flo
         return _diag_nll(theta, block, order, eps)
     G = np.einsum("mk,mkd->md", theta, block.grad)
     H = np.einsum("mk,mkij->mij", theta, block.hess)
-    L, H, n_reg, worst = _shift_to_pd(H, eps)
+    L, H, n_reg, worst = shift_to_pd(H, eps)
     logdet = 2.0 * np.sum(np.log(np.einsum("mii->mi", L)), axis=1)
-    y = scipy.linalg.solve_triangular(L, G[..., None], lower=True)[..., 0]
+    y = np.linalg.solve(L, G[..., None])[..., 0]
     nll = 0.5 * np.sum(y**2, axis=1) - 0.5 * logdet + 0.5 * d * LOG_2PI
     if order == 0:
         return nll, None, None, n_reg, worst
@@ -339,7 +374,9 @@ def fit_weights(
 
     totals = {"reg": 0, "worst": np.inf}
 
-    def objective(w: np.ndarray, order: int):
+    def objective(w: np.ndarray, order: int, active: np.ndarray | None = None):
+        """Objective per group; with ``active``, only those groups' demonstrations are evaluated (the
+        other entries are returned as 0 and must not be used)."""
         logt = w @ P.T
         theta = np.exp(logt)
         f = np.zeros(G)
@@ -347,6 +384,12 @@ def fit_weights(
         H = np.zeros((G, K, K)) if order >= 2 else None
         n_reg = 0
         for block, lab in zip(blocks, labels):
+            if active is not None:
+                sel = active[lab]
+                if not sel.any():
+                    continue
+                if not sel.all():
+                    block, lab = block.subset(sel), lab[sel]
             nll, dg, dH, nr, worst = laplace_nll(theta[lab], block, order)
             n_reg += nr
             totals["worst"] = min(totals["worst"], worst)
@@ -397,7 +440,7 @@ def fit_weights(
                 step = rhs / np.maximum(np.abs(np.einsum("gkk->gk", Hd)), 1e-12)
             step = np.where(active[:, None], step, 0.0)
             w_new = np.clip(w + step, low, high)
-            f_new, _, _ = objective(w_new, 0)
+            f_new, _, _ = objective(w_new, 0, active)
             better = (f_new <= f + 1e-12 * np.abs(f)) & active
             moved = np.max(np.abs(w_new - w), axis=1)
             w = np.where(better[:, None], w_new, w)
@@ -405,12 +448,18 @@ def fit_weights(
             small = moved < tol
             stuck = (~better) & (damping >= 1e12)
             converged |= active & ((better & small) | stuck)
-            f, gw, Hw = objective(w, 2)
+            todo = ~converged
+            if todo.any():
+                f_u, gw_u, Hw_u = objective(w, 2, todo)
+                f = np.where(todo, f_u, f)
+                gw = np.where(todo[:, None], gw_u, gw)
+                Hw = np.where(todo[:, None, None], Hw_u, Hw)
         # Escape the flat corner of the log parametrisation: a normalised weight driven towards 0 has a
         # vanishing gradient in w even when the (convex) likelihood in theta would still fall as it grows.
         # Where the theta-gradient says so, restart that coordinate from the best of a few values.
         if not others or n_iter >= max_iter:
             break
+        _, _, _ = objective(w, 1)
         g_theta = totals["g_theta"]
         trapped = (w[:, others] < _TRAP_LOG) & (g_theta[:, others] < 0)
         if not trapped.any():
@@ -428,6 +477,7 @@ def fit_weights(
             break
         w = best_w
         converged &= ~moved_groups
+    f, gw, _ = objective(w, 1)  # every group at the solution: values and regularisation counts
     if not np.all(converged):
         warnings.warn(
             f"IRL Newton iteration did not converge for {int((~converged).sum())} of {G} groups within "

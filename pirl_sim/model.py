@@ -7,6 +7,8 @@ weights into a predicted future (MPC).
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -42,7 +44,7 @@ def check_trajectories(trajectories, dynamics: LinearDynamics | None = None, *, 
                     f"trajectory {i} has n_x={t.n_x}, n_u={t.n_u}; the model's dynamics need "
                     f"n_x={dynamics.n_x} {dynamics.state_names}, n_u={dynamics.n_u} {dynamics.control_names}"
                 )
-            if not np.isclose(t.dt, dynamics.dt):
+            if not math.isclose(t.dt, dynamics.dt, rel_tol=1e-9):
                 raise ValueError(f"trajectory {i} has dt={t.dt} s; the model's dynamics use dt={dynamics.dt} s")
     return trajectories
 

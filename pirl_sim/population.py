@@ -19,6 +19,7 @@ import numpy as np
 import scipy.linalg
 
 from .features import FeatureSet
+from .irl import shift_to_pd
 from .model import DriverModel
 from .mpc import LQPredictor, SequentialMPC
 from .trajectory import Trajectory
@@ -213,7 +214,9 @@ def sample_boltzmann_controls(
         der = model.features.derivatives(model.dynamics, X, mean.reshape(M, n_steps, n_u))
         A = np.einsum("mk,mkij->mij", theta, der.hess)
     d = mean.shape[1]
-    L = np.linalg.cholesky(A)
+    # the proposal's precision: the Hessian at the optimum, shifted where it is not positive definite (the
+    # Metropolis step corrects any mismatch with the exact density)
+    L, A, _, _ = shift_to_pd(np.ascontiguousarray(A), 1e-9)
     Lt = np.swapaxes(L, -1, -2)
 
     def propose():

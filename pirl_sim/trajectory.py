@@ -7,6 +7,8 @@ A trajectory of ``N`` steps holds ``N + 1`` states and ``N`` controls sampled ev
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Mapping, Sequence
@@ -149,7 +151,7 @@ def stack_trajectories(trajectories: Sequence[Trajectory]) -> tuple[np.ndarray, 
                 f"trajectory {i} has states {t.states.shape} and controls {t.controls.shape}, but trajectory 0 has "
                 f"{first.states.shape} and {first.controls.shape}; group trajectories by length first"
             )
-        if not np.isclose(t.dt, first.dt):
+        if not math.isclose(t.dt, first.dt, rel_tol=1e-9):
             raise ValueError(f"trajectory {i} has dt={t.dt} s, trajectory 0 has dt={first.dt} s")
     states = np.stack([t.states for t in trajectories])
     controls = np.stack([t.controls for t in trajectories])
