@@ -157,7 +157,7 @@ class PathDriverModel(DriverModel):
     """
 
     path: ReferencePath | None = None
-    n_iter: int = 3
+    n_iter: int = 10
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -168,6 +168,15 @@ class PathDriverModel(DriverModel):
         if "seq" not in self._predictors:
             self._predictors["seq"] = SequentialMPC(self.dynamics, self.features, self.bounds, n_iter=self.n_iter)
         return self._predictors["seq"]
+
+    def predict_states(self, x0: np.ndarray, theta: np.ndarray, horizon: int) -> np.ndarray:
+        """As `DriverModel.predict_states`, after making start states physical: a start estimated from noisy
+        data with v < 0 is a stopped car (v = 0), and a stopped car does not decelerate further (a >= 0)."""
+        x0 = np.array(np.atleast_2d(x0), dtype=float)
+        stopped = x0[:, 1] <= 0.0
+        x0[stopped, 1] = 0.0
+        x0[stopped, 2] = np.maximum(x0[stopped, 2], 0.0)
+        return super().predict_states(x0, theta, horizon)
 
     def positions(self, states: np.ndarray, offset: np.ndarray | float = 0.0) -> np.ndarray:
         """Cartesian positions (..., 2) [m] of states (..., n_x) at lateral offset d [m] from the path."""

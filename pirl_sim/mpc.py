@@ -285,9 +285,9 @@ class ConstrainedLQPredictor:
 class SequentialMPC:
     """MPC for features that are not quadratic in the controls (e.g. a desired speed that depends on position).
 
-    Gauss-Newton sequential scheme: starting from zero controls, the residuals are linearised around the
-    current trajectory (`FeatureSet.derivatives` with ``gauss_newton=True``, positive semi-definite), the
-    resulting quadratic model is minimised, and the step repeated ``n_iter`` times. Unconstrained steps are
+    Sequential scheme: starting from zero controls, the cost is expanded to second order around the current
+    trajectory (exact Hessian, shifted where it is not positive definite), the quadratic model is minimised,
+    and the step repeated until the controls move less than ``tol`` or ``n_iter`` steps were taken. Unconstrained steps are
     batched closed-form solves over all starts; with `Bounds`, the starts whose unconstrained solution breaks a
     bound are re-solved as ``n_qp_iter`` bounded QPs (`BoxQP`, casadi ``conic``), linearised first at the
     unconstrained optimum (one QP is enough where the bounds move s little; raise it for more accuracy). Starts outside the state
@@ -299,7 +299,8 @@ class SequentialMPC:
     dynamics : LinearDynamics
     features : FeatureSet
     bounds : Bounds or None
-    n_iter : int     unconstrained Gauss-Newton iterations
+    n_iter : int     most unconstrained Newton iterations
+    tol : float      stop when no control moves more than this [control units]
     n_qp_iter : int  bounded QP iterations for starts whose unconstrained solution breaks a bound
     solver : str     casadi conic plugin for the bounded QPs
     """
@@ -310,10 +311,12 @@ class SequentialMPC:
         features,
         bounds: Bounds | None = None,
         *,
-        n_iter: int = 3,
+        n_iter: int = 10,
         n_qp_iter: int = 1,
+        tol: float = 1e-8,
         solver: str = "daqp",
     ):
+        self.tol = float(tol)
         for name, value in (("n_iter", n_iter), ("n_qp_iter", n_qp_iter)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -327,11 +330,18 @@ class SequentialMPC:
         self.n_infeasible = 0
 
     def _model(self, x0, U, theta):
-        """Gauss-Newton model at U: A (M, d, d) and linear term b with the model 1/2 U'AU + b'U."""
+        """Newton model at U: A (M, d, d) positive definite and b with the model 1/2 U'AU + b'U.
+
+        The exact Hessian is used where it is positive definite (quadratic convergence); elsewhere it is
+        shifted until it is (`pirl_sim.irl.shift_to_pd`).
+        """
+        from .irl import shift_to_pd
+
         X = self.dynamics.rollout(x0, U)
-        der = self.features.derivatives(self.dynamics, X, U, gauss_newton=True)
+        der = self.features.derivatives(self.dynamics, X, U)
         g = np.einsum("mk,mkd->md", theta, der.grad)
         A = np.einsum("mk,mkij->mij", theta, der.hess)
+        _, A, _, _ = shift_to_pd(np.ascontiguousarray(A), 1e-9)
         u = U.reshape(U.shape[0], -1)
         return A, g - np.einsum("mij,mj->mi", A, u)
 
@@ -346,13 +356,16 @@ class SequentialMPC:
         theta = np.broadcast_to(theta, (M, self.features.n_features))
         if self._qp is not None:
             x0 = self._qp.clip_start(x0)
-        d = n_steps * self.dynamics.n_u
         U = np.zeros((M, n_steps, self.dynamics.n_u))
-        eye = np.eye(d)
+        todo = np.arange(M)
         for _ in range(self.n_iter):
-            A, b = self._model(x0, U, theta)
-            ridge = 1e-12 * (np.abs(np.einsum("mii->m", A)) / d + 1e-300)[:, None, None] * eye
-            U = -np.linalg.solve(A + ridge, b[..., None])[..., 0].reshape(U.shape)
+            A, b = self._model(x0[todo], U[todo], theta[todo])
+            new = -np.linalg.solve(A, b[..., None])[..., 0].reshape((len(todo),) + U.shape[1:])
+            step = np.max(np.abs(new - U[todo]), axis=(1, 2))
+            U[todo] = new
+            todo = todo[step > self.tol]
+            if not len(todo):
+                break
         if self._qp is None:
             return U
         bad = np.flatnonzero(self._qp.violation(x0, U) > 1e-9)
