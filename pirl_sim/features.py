@@ -12,7 +12,7 @@ A cost is ``C(xi) = theta . f(xi)`` with theta ordered as `FeatureSet.names`; we
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Literal, Mapping, NamedTuple, Sequence
 
 import numpy as np
@@ -114,6 +114,7 @@ class FeatureSet:
 
     features: tuple[Feature, ...]
     reference: str
+    _hessian_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         feats = tuple(self.features)
@@ -240,24 +241,34 @@ class FeatureSet:
         grad = np.empty((M, K, d))
         shared = self.quadratic
         hess = np.empty((1 if shared else M, K, d, d))
+        Gflat = G.reshape(N * n_x, d)
         for k, feat in enumerate(self.features):
             res = feat.residual(x, u)
             scale = 1.0 / N if feat.reduction == "mean" else 1.0
             r, Jx, Ju = res.r, res.jac_x, res.jac_u
             values[:, k] = scale * np.sum(r**2, axis=(1, 2))
-            # stage gradients 2 J^T r
-            gx = 2.0 * np.einsum("mkpa,mkp->mka", np.broadcast_to(Jx, r.shape + (n_x,)), r)
-            gu = 2.0 * np.einsum("mkpc,mkp->mkc", np.broadcast_to(Ju, r.shape + (n_u,)), r)
-            grad[:, k] = scale * (np.einsum("kad,mka->md", G, gx) + gu.reshape(M, d))
-            # stage Hessians 2 J^T J (+ 2 r . d2r for non-affine residuals)
-            Hxx = 2.0 * np.einsum("mkpa,mkpb->mkab", Jx, Jx)
-            Hxu = 2.0 * np.einsum("mkpa,mkpc->mkac", Jx, Ju)
-            Huu = 2.0 * np.einsum("mkpc,mkpe->mkce", Ju, Ju)
+            # stage gradients 2 J^T r, chained through the dynamics
+            JxT, JuT = np.swapaxes(Jx, -1, -2), np.swapaxes(Ju, -1, -2)
+            gx = 2.0 * (JxT @ r[..., None])[..., 0]  # (M, N, n_x)
+            gu = 2.0 * (JuT @ r[..., None])[..., 0]  # (M, N, n_u)
+            grad[:, k] = scale * (gx.reshape(M, N * n_x) @ Gflat + gu.reshape(M, d))
+            # stage Hessians 2 J^T J (+ 2 r . d2r for non-affine residuals); constant for quadratic features
+            key = (k, N, id(dynamics))
+            if feat.quadratic and key in self._hessian_cache:
+                hess[:, k] = self._hessian_cache[key][0]
+                continue
+            Hxx = 2.0 * (JxT @ Jx)
+            Hxu = 2.0 * (JxT @ Ju)
+            Huu = 2.0 * (JuT @ Ju)
             if res.hess_x is not None and not gauss_newton:
                 Hxx = Hxx + 2.0 * np.einsum("mkp,mkpab->mkab", r, res.hess_x)
-            if shared:
-                Hxx, Hxu, Huu = Hxx[:1], Hxu[:1], Huu[:1]
-            hess[:, k] = scale * _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u)
+            if feat.quadratic:
+                Hxx, Hxu, Huu = Hxx[:1, :], Hxu[:1, :], Huu[:1, :]
+            Hk = scale * _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u)
+            if feat.quadratic:
+                Hk.setflags(write=False)
+                self._hessian_cache[key] = (Hk, dynamics)  # keeps the dynamics alive: its id stays unique
+            hess[:, k] = Hk
         return FeatureDerivatives(values, grad, hess)
 
     def quadratic_terms(self, dynamics: LinearDynamics, x0: np.ndarray, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
@@ -298,7 +309,7 @@ def _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u) -> np.ndarray:
     n_x = G.shape[1]
     d = N * n_u
     Hxx = np.broadcast_to(Hxx, (Mp, N, n_x, n_x))
-    T = np.einsum("mkab,kbd->mkad", Hxx, G).reshape(Mp, N * n_x, d)
+    T = (Hxx @ G[None]).reshape(Mp, N * n_x, d)
     H = np.swapaxes(G.reshape(N * n_x, d), 0, 1)[None] @ T
     Hxu = np.broadcast_to(Hxu, (Mp, N, n_x, n_u))
     if np.any(Hxu):

@@ -6,8 +6,8 @@ For quadratic features the cost of a start x_0 and stacked controls U (length d 
     A = sum_k theta_k H_k,  b = sum_k theta_k (W_k x_0 + c_k),
 
 so the unconstrained optimum is U* = -A^-1 b (`LQPredictor`, batched over starts and weights), and bounds on
-states and controls make it a convex QP solved through casadi's ``conic`` interface (`ConstrainedLQPredictor`,
-daqp by default, warm-started from the previous solution). Both agree where no bound is active.
+states and controls make it a convex QP (`ConstrainedLQPredictor`), solved by DAQP through its own binding or
+through casadi's ``conic`` interface (`BoxQP`). Both agree where no bound is active.
 """
 
 from __future__ import annotations
@@ -170,38 +170,67 @@ class Bounds:
 
 
 class BoxQP:
-    """Condensed QP over the stacked controls U with box bounds on states and controls, via casadi ``conic``.
+    """Condensed QP over the stacked controls U with box bounds on states and controls.
+
+    Solvers: ``"daqp"`` (default: the DAQP active-set solver through its own Python binding) or
+    ``"casadi:<plugin>"`` (casadi's ``conic`` interface: ``casadi:daqp``, ``casadi:qpoases``, ...). Both give
+    the same solutions (tested); the binding is faster because casadi converts every dense numpy matrix
+    element by element (~0.1 ms for 40x40, measured in `benchmarks/bench_mpc.py`).
 
     ``min 1/2 U^T A U + b . U  s.t.  lo_x <= x_k(U) <= hi_x (bounded entries), lo_u <= u_k <= hi_u``,
     with ``x_k = Phi_k x_0 + Gamma_k U``. One solver per horizon, warm-started from its previous solution.
     """
 
     def __init__(self, dynamics: LinearDynamics, bounds: Bounds, solver: str = "daqp"):
-        import casadi  # heavy: imported on use
-
-        self._casadi = casadi
         self.dynamics = dynamics
         self.solver = solver
         self._x_lo, self._x_hi, self._u_lo, self._u_hi = bounds.resolve(dynamics)
-        if not casadi.has_conic(solver):
-            raise ValueError(f"casadi has no QP solver plugin {solver!r}")
+        if solver == "daqp":
+            import daqp  # the solver's own Python binding: numpy in, no conversion layer
+
+            self._daqp = daqp
+        elif isinstance(solver, str) and solver.startswith("casadi:"):
+            import casadi  # heavy: imported on use
+
+            self._casadi = casadi
+            if not casadi.has_conic(solver.split(":", 1)[1]):
+                raise ValueError(f"casadi has no QP solver plugin {solver.split(':', 1)[1]!r}")
+        else:
+            raise ValueError(f"solver must be 'daqp' or 'casadi:<conic plugin>' (e.g. 'casadi:qpoases'), got {solver!r}")
         self._rows = np.flatnonzero(np.isfinite(self._x_lo) | np.isfinite(self._x_hi))
         self._solvers: dict[int, tuple] = {}
         self._warm: dict[int, np.ndarray] = {}
 
     def _setup(self, n_steps: int):
         if n_steps not in self._solvers:
-            ca = self._casadi
             d = n_steps * self.dynamics.n_u
             _, gamma = self.dynamics.condensed(n_steps)
             A = gamma[:, self._rows, :, :].reshape(n_steps * len(self._rows), d)
-            opts: dict = {"error_on_fail": False}
-            if self.solver == "qpoases":
-                opts["printLevel"] = "none"
-            elif self.solver == "osqp":
-                opts["osqp"] = {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9}
-            sparsity = {"h": ca.DM.ones(d, d).sparsity(), "a": ca.DM(np.ones_like(A)).sparsity()}
-            self._solvers[n_steps] = (ca.conic("mpc", self.solver, sparsity, opts), A)
+            fixed = {
+                "lo": np.tile(self._x_lo[self._rows], n_steps),
+                "hi": np.tile(self._x_hi[self._rows], n_steps),
+                "u_lo": np.tile(self._u_lo, n_steps),
+                "u_hi": np.tile(self._u_hi, n_steps),
+            }
+            if self.solver == "daqp":
+                from ctypes import c_int
+
+                fixed["a"] = np.ascontiguousarray(A)
+                fixed["sense"] = np.zeros(d + A.shape[0], dtype=c_int)
+                self._solvers[n_steps] = (None, fixed)
+            else:
+                ca = self._casadi
+                plugin = self.solver.split(":", 1)[1]
+                opts: dict = {"error_on_fail": False}
+                if plugin == "qpoases":
+                    opts["printLevel"] = "none"
+                elif plugin == "osqp":
+                    opts["osqp"] = {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9}
+                sparsity = {"h": ca.DM.ones(d, d).sparsity(), "a": ca.DM(np.ones_like(A)).sparsity()}
+                # what does not change between solves is converted to casadi once (a dense numpy to DM
+                # conversion costs ~0.1 ms per 40x40 matrix)
+                fixed.update(a=ca.DM(A), lbx=ca.DM(fixed["u_lo"]), ubx=ca.DM(fixed["u_hi"]))
+                self._solvers[n_steps] = (ca.conic("mpc", plugin, sparsity, opts), fixed)
         return self._solvers[n_steps]
 
     def violation(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -212,33 +241,49 @@ class BoxQP:
         viol = np.maximum(viol, np.maximum(self._u_lo - U, 0.0).max(axis=(1, 2)))
         return np.maximum(viol, np.maximum(U - self._u_hi, 0.0).max(axis=(1, 2)))
 
+    def touches(self, x0: np.ndarray, U: np.ndarray, tol: float = 1e-7) -> np.ndarray:
+        """Rows (M,) whose plan sits on a bound (an active set worth keeping when warm-starting)."""
+        X = self.dynamics.rollout(x0, U)[:, 1:]
+        near = lambda v, lo, hi: (np.abs(v - lo) <= tol) | (np.abs(v - hi) <= tol)
+        return near(X, self._x_lo, self._x_hi).any(axis=(1, 2)) | near(U, self._u_lo, self._u_hi).any(axis=(1, 2))
+
     def clip_start(self, x0: np.ndarray) -> np.ndarray:
         """Start states moved inside the state bounds (an estimate from noisy data can sit outside)."""
         return np.clip(x0, self._x_lo, self._x_hi)
 
     def solve(self, A: np.ndarray, b: np.ndarray, x0: np.ndarray, n_steps: int) -> np.ndarray:
         """Controls (d,) for one start x0 (n_x,). Raises RuntimeError when the bounds are infeasible."""
-        solver, Acon = self._setup(n_steps)
+        solver, fixed = self._setup(n_steps)
         phi, _ = self.dynamics.condensed(n_steps)
         d = n_steps * self.dynamics.n_u
         free = (phi @ x0)[:, self._rows].reshape(-1)
-        sol = solver(
-            h=A,
-            g=b,
-            a=Acon,
-            lba=np.tile(self._x_lo[self._rows], n_steps) - free,
-            uba=np.tile(self._x_hi[self._rows], n_steps) - free,
-            lbx=np.tile(self._u_lo, n_steps),
-            ubx=np.tile(self._u_hi, n_steps),
-            x0=self._warm.get(n_steps, np.zeros(d)),
-        )
-        stats = solver.stats()
-        if not stats.get("success", True):
-            raise RuntimeError(
-                f"QP solver {self.solver!r} failed for start {x0} ({stats.get('return_status')}); "
-                "the bounds may be infeasible from this start"
+        if self.solver == "daqp":
+            big = 1e30  # daqp's "no bound"
+            upper = np.concatenate([fixed["u_hi"], fixed["hi"] - free]).clip(-big, big)
+            lower = np.concatenate([fixed["u_lo"], fixed["lo"] - free]).clip(-big, big)
+            u, _, flag, _ = self._daqp.solve(
+                np.ascontiguousarray(A), np.ascontiguousarray(b), fixed["a"], upper, lower, fixed["sense"]
             )
-        u = np.asarray(sol["x"]).ravel()
+            ok, status = flag >= 1, f"daqp exit flag {flag}"
+        else:
+            sol = solver(
+                h=self._casadi.DM(A),
+                g=b,
+                a=fixed["a"],
+                lba=fixed["lo"] - free,
+                uba=fixed["hi"] - free,
+                lbx=fixed["lbx"],
+                ubx=fixed["ubx"],
+                x0=self._warm.get(n_steps, np.zeros(d)),
+            )
+            stats = solver.stats()
+            ok, status = stats.get("success", True), stats.get("return_status")
+            u = np.asarray(sol["x"]).ravel()
+        if not ok:
+            raise RuntimeError(
+                f"QP solver {self.solver!r} failed for start {x0} ({status}); the bounds may be infeasible from this start"
+            )
+        u = np.asarray(u, dtype=float).ravel()
         self._warm[n_steps] = u
         return u
 
@@ -255,7 +300,7 @@ class ConstrainedLQPredictor:
     dynamics, features : as for `LQPredictor`
     bounds : Bounds
     solver : str
-        A casadi conic plugin (``"daqp"`` default, ``"qpoases"``, ``"osqp"``, ...).
+        ``"daqp"`` (default) or ``"casadi:<conic plugin>"`` (see `BoxQP`).
     """
 
     def __init__(self, dynamics: LinearDynamics, features: FeatureSet, bounds: Bounds, solver: str = "daqp"):
@@ -289,8 +334,9 @@ class SequentialMPC:
     trajectory (exact Hessian, shifted where it is not positive definite), the quadratic model is minimised,
     and the step repeated until the controls move less than ``tol`` or ``n_iter`` steps were taken. Unconstrained steps are
     batched closed-form solves over all starts; with `Bounds`, the starts whose unconstrained solution breaks a
-    bound are re-solved as ``n_qp_iter`` bounded QPs (`BoxQP`, casadi ``conic``), linearised first at the
-    unconstrained optimum (one QP is enough where the bounds move s little; raise it for more accuracy). Starts outside the state
+    bound are re-solved as a sequence of bounded QPs (`BoxQP`), each expanded at the
+    previous solution (the first at the unconstrained optimum), until the controls move less than ``qp_tol``
+    or ``n_qp_iter`` QPs were solved. Starts outside the state
     bounds are first moved inside them (`BoxQP.clip_start`); if the bounded QP is still infeasible the
     unconstrained solution is kept and counted in ``n_infeasible``.
 
@@ -301,8 +347,9 @@ class SequentialMPC:
     bounds : Bounds or None
     n_iter : int     most unconstrained Newton iterations
     tol : float      stop when no control moves more than this [control units]
-    n_qp_iter : int  bounded QP iterations for starts whose unconstrained solution breaks a bound
-    solver : str     casadi conic plugin for the bounded QPs
+    n_qp_iter : int  most bounded QPs for a start whose unconstrained solution breaks a bound
+    qp_tol : float   stop the QP sequence when no control moves more than this [control units]
+    solver : str     QP solver of the bounded QPs, see `BoxQP`
     """
 
     def __init__(
@@ -312,11 +359,13 @@ class SequentialMPC:
         bounds: Bounds | None = None,
         *,
         n_iter: int = 10,
-        n_qp_iter: int = 1,
-        tol: float = 1e-8,
+        n_qp_iter: int = 4,
+        tol: float = 1e-6,
+        qp_tol: float = 1e-2,
         solver: str = "daqp",
     ):
         self.tol = float(tol)
+        self.qp_tol = float(qp_tol)
         for name, value in (("n_iter", n_iter), ("n_qp_iter", n_qp_iter)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -329,24 +378,38 @@ class SequentialMPC:
         self.n_qp = 0
         self.n_infeasible = 0
 
+    def _cost(self, x0, U, theta):
+        return np.einsum("mk,mk->m", theta, self.features.values(self.dynamics.rollout(x0, U), U))
+
     def _model(self, x0, U, theta):
         """Newton model at U: A (M, d, d) positive definite and b with the model 1/2 U'AU + b'U.
 
-        The exact Hessian is used where it is positive definite (quadratic convergence); elsewhere it is
-        shifted until it is (`pirl_sim.irl.shift_to_pd`).
+        The exact Hessian where it is safely positive definite (quadratic convergence), the Gauss-Newton one
+        elsewhere (positive semi-definite, and definite as soon as the control-effort feature has weight).
         """
-        from .irl import shift_to_pd
+        from .irl import _cholesky_rows
 
         X = self.dynamics.rollout(x0, U)
         der = self.features.derivatives(self.dynamics, X, U)
-        g = np.einsum("mk,mkd->md", theta, der.grad)
-        A = np.einsum("mk,mkij->mij", theta, der.hess)
-        _, A, _, _ = shift_to_pd(np.ascontiguousarray(A), 1e-9)
+        g = (theta[:, None, :] @ der.grad)[:, 0]
+        M, K, d, _ = der.hess.shape
+        A = (theta[:, None, :] @ der.hess.reshape(M, K, d * d)).reshape(M, d, d)
+        # exact Hessian only where it stays at least half as curved as the control-effort term alone;
+        # near-singular exact Hessians give huge Newton steps
+        ref = self.features.reference_index
+        margin = 0.5 * theta[:, ref, None, None] * np.broadcast_to(der.hess[:, ref], A.shape)
+        _, bad = _cholesky_rows(A - margin)
+        if bad.any():
+            gn = self.features.derivatives(self.dynamics, X[bad], U[bad], gauss_newton=True)
+            A[bad] = np.einsum("mk,mkij->mij", theta[bad], gn.hess)
         u = U.reshape(U.shape[0], -1)
         return A, g - np.einsum("mij,mj->mi", A, u)
 
-    def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
-        """Controls (M, N, n_u) minimising theta . f from each start x0 (M, n_x)."""
+    def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int, init: np.ndarray | None = None) -> np.ndarray:
+        """Controls (M, N, n_u) minimising theta . f from each start x0 (M, n_x).
+
+        ``init`` (M, N, n_u) warm-starts the iteration, e.g. with the previous plan shifted by one step.
+        """
         x0 = _check_starts(x0, self.dynamics)
         n_steps = _check_horizon(n_steps)
         theta = self.features.weights(theta)
@@ -356,37 +419,63 @@ class SequentialMPC:
         theta = np.broadcast_to(theta, (M, self.features.n_features))
         if self._qp is not None:
             x0 = self._qp.clip_start(x0)
-        U = np.zeros((M, n_steps, self.dynamics.n_u))
+        if init is None:
+            U = np.zeros((M, n_steps, self.dynamics.n_u))
+        else:
+            U = np.array(init, dtype=float)
+            if U.shape != (M, n_steps, self.dynamics.n_u) or not np.all(np.isfinite(U)):
+                raise ValueError(f"init must be finite with shape {(M, n_steps, self.dynamics.n_u)}, got {U.shape}")
         todo = np.arange(M)
+        on_bounds = np.zeros(M, dtype=bool)
+        if init is not None and self._qp is not None:
+            # a warm start that sits on a bound keeps its active set: straight to the bounded QPs
+            on_bounds = self._qp.touches(x0, U)
+            todo = todo[~on_bounds]
+        cost = self._cost(x0, U, theta)
         for _ in range(self.n_iter):
+            if not len(todo):
+                break
             A, b = self._model(x0[todo], U[todo], theta[todo])
-            new = -np.linalg.solve(A, b[..., None])[..., 0].reshape((len(todo),) + U.shape[1:])
-            step = np.max(np.abs(new - U[todo]), axis=(1, 2))
-            U[todo] = new
+            full = -np.linalg.solve(A, b[..., None])[..., 0].reshape((len(todo),) + U.shape[1:]) - U[todo]
+            # backtracking: halve the Newton step where it does not lower the cost (at most 6 times)
+            alpha = np.ones(len(todo))
+            for _half in range(7):
+                trial = U[todo] + alpha[:, None, None] * full
+                trial_cost = self._cost(x0[todo], trial, theta[todo])
+                worse = trial_cost > cost[todo] + 1e-12 * np.abs(cost[todo])
+                if not worse.any() or _half == 6:
+                    break
+                alpha = np.where(worse, alpha / 2.0, alpha)
+            accept = ~worse
+            step = np.where(accept, alpha * np.max(np.abs(full), axis=(1, 2)), 0.0)
+            U[todo[accept]] = trial[accept]
+            cost[todo[accept]] = trial_cost[accept]
             todo = todo[step > self.tol]
             if not len(todo):
                 break
         if self._qp is None:
             return U
-        bad = np.flatnonzero(self._qp.violation(x0, U) > 1e-9)
-        ok = np.ones(len(bad), dtype=bool)
+        bad = np.flatnonzero((self._qp.violation(x0, U) > 1e-9) | on_bounds)
         for _ in range(self.n_qp_iter):
-            if not ok.any():
+            if not len(bad):
                 break
-            rows = bad[ok]
-            A, b = self._model(x0[rows], U[rows], theta[rows])  # one batched linearisation for all of them
-            for j, m in enumerate(rows):
+            A, b = self._model(x0[bad], U[bad], theta[bad])  # one batched expansion for all of them
+            moved = np.zeros(len(bad))
+            for j, m in enumerate(bad):
                 try:
-                    U[m] = self._qp.solve(A[j], b[j], x0[m], n_steps).reshape(U.shape[1:])
+                    new = self._qp.solve(A[j], b[j], x0[m], n_steps).reshape(U.shape[1:])
                     self.n_qp += 1
                 except RuntimeError:
                     self.n_infeasible += 1
-                    ok[np.flatnonzero(bad == m)[0]] = False
+                    continue
+                moved[j] = np.max(np.abs(new - U[m]))
+                U[m] = new
+            bad = bad[moved > self.qp_tol]
         return U
 
-    def predict(self, x0: np.ndarray, theta: np.ndarray, n_steps: int) -> np.ndarray:
+    def predict(self, x0: np.ndarray, theta: np.ndarray, n_steps: int, init: np.ndarray | None = None) -> np.ndarray:
         """Predicted states (M, N + 1, n_x); row 0 is the (possibly bound-clipped) start."""
         x0 = _check_starts(x0, self.dynamics)
         if self._qp is not None:
             x0 = self._qp.clip_start(x0)
-        return self.dynamics.rollout(x0, self.controls(x0, theta, n_steps))
+        return self.dynamics.rollout(x0, self.controls(x0, theta, n_steps, init))

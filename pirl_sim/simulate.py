@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from .model import DriverModel
+from .mpc import SequentialMPC
 from .trajectory import Trajectory
 
 __all__ = ["simulate_receding_horizon"]
@@ -65,8 +66,14 @@ def simulate_receding_horizon(
     states = np.empty((M, n_steps + 1, dyn.n_x))
     controls = np.empty((M, n_steps, dyn.n_u))
     states[:, 0] = x
+    warm = isinstance(predictor, SequentialMPC)
+    plan = None
     for k in range(n_steps):
-        plan = predictor.controls(x, schedule[k], horizon)
+        if warm and plan is not None:  # warm start: the previous plan shifted by one step
+            init = np.concatenate([plan[:, 1:], plan[:, -1:]], axis=1)
+            plan = predictor.controls(x, schedule[k], horizon, init=init)
+        else:
+            plan = predictor.controls(x, schedule[k], horizon)
         u = plan[:, 0]
         if control_noise > 0:
             u = u + control_noise * rng.standard_normal(u.shape)
