@@ -32,13 +32,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="reproduce one of the paper's experiments and write tables and figures",
         description="Reproduce one of the paper's experiments; writes CSV/Markdown tables, figures and a summary.",
     )
-    rep.add_argument("experiment", choices=["synthetic"], help="which experiment: synthetic (LQR point mass)")
+    rep.add_argument(
+        "experiment",
+        choices=["synthetic", "passage"],
+        help="synthetic (the paper's LQR point mass) or passage (roundabout drivers of three known styles)",
+    )
     rep.add_argument("--out", type=Path, default=None, help="output directory (default: results/<experiment>)")
     rep.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     rep.add_argument(
-        "--n-trajectories", type=_positive_int, default=2000, help="trajectories in all (default 2000, the paper's)"
+        "--n-trajectories", type=_positive_int, default=None,
+        help="trajectories in all (default: synthetic 2000, the paper's; passage 600)",
     )
-    rep.add_argument("--n-train", type=_positive_int, default=1800, help="training trajectories (default 1800)")
+    rep.add_argument(
+        "--n-train", type=_positive_int, default=None, help="training trajectories (default: synthetic 1800; passage 500)"
+    )
     rep.add_argument(
         "--history-steps", type=_positive_int, default=10, help="observed steps in the online protocol (default 10)"
     )
@@ -56,14 +63,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "reproduce" and args.experiment == "passage":
+        from pirl_sim.harness.reproduce import reproduce_passage
+        from pirl_sim.scenarios.passage import PassageConfig
+
+        try:
+            sizes = {k: v for k, v in (("n_trajectories", args.n_trajectories), ("n_train", args.n_train)) if v}
+            config = PassageConfig(seed=args.seed, **sizes)
+        except (TypeError, ValueError) as exc:
+            print(f"pirl-sim: error: {exc}", file=sys.stderr)
+            return 2
+        out = args.out if args.out is not None else Path("results") / "passage"
+        table = reproduce_passage(out, config, history_steps=args.history_steps, progress=not args.quiet)
+        print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+        print(f"wrote {out}/")
+        return 0
     if args.command == "reproduce":
         from pirl_sim.harness.reproduce import reproduce_synthetic, ordering_holds
         from pirl_sim.scenarios.synthetic import SyntheticConfig
 
         try:
             config = SyntheticConfig(
-                n_trajectories=args.n_trajectories,
-                n_train=args.n_train,
+                n_trajectories=args.n_trajectories or 2000,
+                n_train=args.n_train or 1800,
                 seed=args.seed,
                 position_range=tuple(args.position_range),
                 velocity_range=tuple(args.velocity_range),

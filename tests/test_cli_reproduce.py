@@ -37,3 +37,13 @@ def test_console_script_help_lists_every_subcommand():
         [sys.executable, "-m", "pirl_sim.cli", "reproduce", "--help"], capture_output=True, text=True, check=True
     )
     assert "--history-steps" in out.stdout
+
+
+def test_reproduce_passage_quick_config(tmp_path, capsys):
+    out = tmp_path / "p"
+    assert main(["reproduce", "passage", "--n-trajectories", "150", "--n-train", "120", "--quiet", "--out", str(out)]) == 0
+    table = pd.read_csv(out / "table.csv")
+    assert len(table) == 12 and table["med"].notna().all()
+    for name in ("knn_k.png", "clusters.png", "s_t.png", "switch.png", "README.md"):
+        assert (out / name).stat().st_size > 0
+    assert "crosses half-way after" in (out / "README.md").read_text()
