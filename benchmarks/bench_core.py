@@ -90,7 +90,7 @@ def main(argv=None):
     print(f"per-demo IRL, {len(train)} synthetic demos (N=50), medians of {args.repeats}:")
     print(f"  batched, eigenbasis path (PIRLKNN.fit) : {t_batched:8.3f} s   max |log err| {err_batched:.1e}  target < 2 s")
     print(f"  batched, dense generic path            : {t_dense:8.3f} s")
-    print(f"  baseline scipy L-BFGS-B loop{'' if n_base == len(train) else f' (x{len(train)/n_base:.1f} from {n_base})'}       : {t_base:8.3f} s   max |log err| {err_base:.1e}")
+    print(f"  baseline scipy L-BFGS-B loop {'' if n_base == len(train) else f' (x{len(train)/n_base:.1f} from {n_base})'}       : {t_base:8.3f} s   max |log err| {err_base:.1e}")
     print(f"  speed-up vs baseline: eigenbasis {t_base / t_batched:6.1f}x (target >= 20x), dense {t_base / t_dense:6.1f}x")
 
     pred = LQPredictor(model.dynamics, model.features)
