@@ -35,6 +35,7 @@ from .mpc import Bounds, SequentialMPC
 from .paths import DEFAULT_A_LAT, DEFAULT_V_MAX, ReferencePath
 
 __all__ = [
+    "CompositePath",
     "smooth_desired_speed",
     "SpeedProfile",
     "roundabout_features",
@@ -69,12 +70,81 @@ def smooth_desired_speed(kappa: np.ndarray, a_lat: float = DEFAULT_A_LAT, v_max:
 
 
 @dataclass(frozen=True, eq=False)
+class CompositePath:
+    """Several reference paths laid end to end on one arc-length axis, separated by straight gaps.
+
+    Recorded scenes have one path per route, but a learner works with one driver model. Putting path k at
+    ``s`` in ``[offset_k, offset_k + length_k]`` lets one speed profile and one model serve every route: a
+    trajectory on path k carries arc lengths shifted by ``offset_k``. Between paths lies a gap of ``gap``
+    metres of zero curvature (the desired speed there is the speed limit), which is also what a prediction
+    running past the end of its path sees (the straight-line extension of `ReferencePath`).
+
+    Parameters
+    ----------
+    segments : tuple of ReferencePath (open paths)
+    gap : float  [m], longer than any prediction overruns a path's end
+    """
+
+    segments: tuple
+    gap: float = 300.0
+    spacing: float = 0.5
+
+    def __post_init__(self) -> None:
+        segs = tuple(self.segments)
+        if not segs:
+            raise ValueError("a CompositePath needs at least one ReferencePath")
+        for i, p in enumerate(segs):
+            if not isinstance(p, ReferencePath):
+                raise TypeError(f"segment {i} is a {type(p).__name__}, expected a ReferencePath")
+            if p.closed:
+                raise ValueError(f"segment {i} is a closed path; only open paths can be laid end to end")
+        if not np.isfinite(self.gap) or self.gap <= 0:
+            raise ValueError(f"gap must be > 0 m, got {self.gap!r}")
+        lengths = np.array([p.length for p in segs])
+        offsets = np.concatenate([[0.0], np.cumsum(lengths + self.gap)[:-1]])
+        s_parts, k_parts = [], []
+        for p, off in zip(segs, offsets):
+            s_parts.append(p.s + off)
+            k_parts.append(p.kappa)
+            gap_s = np.linspace(off + p.length, off + p.length + self.gap, 4)[1:]
+            s_parts.append(gap_s)
+            k_parts.append(np.zeros_like(gap_s))
+        s_tab = np.concatenate(s_parts)
+        keep = np.concatenate([[True], np.diff(s_tab) > 1e-9])
+        object.__setattr__(self, "segments", segs)
+        object.__setattr__(self, "offsets", offsets)
+        object.__setattr__(self, "s", s_tab[keep])
+        object.__setattr__(self, "kappa", np.concatenate(k_parts)[keep])
+
+    closed = False
+
+    @property
+    def length(self) -> float:
+        return float(self.s[-1])
+
+    def segment_of(self, s: np.ndarray) -> np.ndarray:
+        """Index of the path that arc length s belongs to (its gap counts with it)."""
+        return np.clip(np.searchsorted(self.offsets, np.asarray(s, dtype=float), side="right") - 1, 0, None)
+
+    def to_cartesian(self, s, d, *, extrapolate: bool = True) -> np.ndarray:
+        """Point at composite arc length s [m] and lateral offset d [m], shape (..., 2)."""
+        s = np.asarray(s, dtype=float)
+        d = np.broadcast_to(np.asarray(d, dtype=float), s.shape)
+        out = np.empty(s.shape + (2,))
+        seg = self.segment_of(s)
+        for k in np.unique(seg):
+            sel = seg == k
+            out[sel] = self.segments[k].to_cartesian(s[sel] - self.offsets[k], d[sel], extrapolate=True)
+        return out
+
+
+@dataclass(frozen=True, eq=False)
 class SpeedProfile:
     """The desired speed along a path, v_des(s), with exact first and second derivatives in s.
 
     Parameters
     ----------
-    path : ReferencePath
+    path : ReferencePath or CompositePath
     a_lat : float   comfortable lateral acceleration [m/s^2] (the paper's 1.8)
     v_max : float   speed limit [m/s]
     """
@@ -85,8 +155,8 @@ class SpeedProfile:
     _spline: CubicSpline = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.path, ReferencePath):
-            raise TypeError(f"path must be a ReferencePath, got {type(self.path).__name__}")
+        if not isinstance(self.path, (ReferencePath, CompositePath)):
+            raise TypeError(f"path must be a ReferencePath or CompositePath, got {type(self.path).__name__}")
         for name in ("a_lat", "v_max"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
@@ -156,13 +226,13 @@ class PathDriverModel(DriverModel):
     n_iter : int   Gauss-Newton iterations of the MPC
     """
 
-    path: ReferencePath | None = None
+    path: ReferencePath | CompositePath | None = None
     n_iter: int = 10
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not isinstance(self.path, ReferencePath):
-            raise TypeError(f"path must be a ReferencePath, got {type(self.path).__name__}")
+        if not isinstance(self.path, (ReferencePath, CompositePath)):
+            raise TypeError(f"path must be a ReferencePath or CompositePath, got {type(self.path).__name__}")
 
     def predictor(self):
         if "seq" not in self._predictors:
@@ -185,7 +255,7 @@ class PathDriverModel(DriverModel):
 
 
 def roundabout_model(
-    path: ReferencePath,
+    path: ReferencePath | CompositePath,
     *,
     dt: float = 0.2,
     a_lat: float = DEFAULT_A_LAT,

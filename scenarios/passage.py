@@ -18,7 +18,16 @@ from pirl_sim.paths import ReferencePath
 from pirl_sim.population import Population, Style, generate_demonstrations
 from pirl_sim.trajectory import Trajectory
 
-__all__ = ["PassageConfig", "PassageData", "THREE_STYLES", "passage_polyline", "generate"]
+__all__ = [
+    "PassageConfig",
+    "PassageData",
+    "THREE_STYLES",
+    "passage_polyline",
+    "generate",
+    "track_table",
+    "lanelet_centerlines",
+    "write_scene",
+]
 
 #: The user-study styles of the paper, as normalised weights (jerk_sq = 1).
 THREE_STYLES = (
@@ -119,3 +128,74 @@ def generate(config: PassageConfig = PassageConfig()) -> PassageData:
     demos = generate_demonstrations(model, pop, x0, config.n_steps, rng)
     order = rng.permutation(n)
     return PassageData(config, model, [demos[i] for i in order[: config.n_train]], [demos[i] for i in order[config.n_train :]])
+
+
+def track_table(data: PassageData, *, frames_apart: int = 100) -> tuple["pd.DataFrame", "pd.DataFrame"]:
+    """The passages as an INTERACTION vehicle track table at 0.1 s frames, and their ground-truth sidecar.
+
+    States at the model's dt are refined to 0.1 s frames through the exact dynamics (the jerk is constant
+    over a step), placed on the path (x, y, heading; vx, vy along the heading). Track k starts at frame
+    1 + k * ``frames_apart`` so that drivers do not meet (the passage has no interaction).
+
+    Returns
+    -------
+    tracks : DataFrame with `pirl_sim.io.interaction.VEHICLE_COLUMNS`
+    truth : DataFrame (track_id, style, style_name, theta_<feature>...)
+    """
+    import pandas as pd
+
+    from pirl_sim.dynamics import longitudinal
+
+    model = data.model
+    dt = model.dynamics.dt
+    sub = int(round(dt / 0.1))
+    fine = longitudinal(dt / sub)
+    names = model.features.names
+    rows, truth = [], []
+    for k, t in enumerate(data.train + data.test):
+        U = np.repeat(t.controls, sub, axis=0)
+        X = fine.rollout(t.states[0], U)
+        s, v = X[:, 0], X[:, 1]
+        xy = model.path.position(s, extrapolate=True)
+        psi = model.path.heading_at(s, extrapolate=True)
+        frame = 1 + k * frames_apart + np.arange(len(s))
+        rows.append(pd.DataFrame({
+            "track_id": k + 1, "frame_id": frame, "timestamp_ms": 100 * frame, "agent_type": "car",
+            "x": xy[:, 0], "y": xy[:, 1], "vx": v * np.cos(psi), "vy": v * np.sin(psi),
+            "psi_rad": np.arctan2(np.sin(psi), np.cos(psi)), "length": 4.5, "width": 1.8,
+        }))
+        truth.append({"track_id": k + 1, "style": t.metadata["style"], "style_name": t.metadata["style_name"],
+                      **{f"theta_{n}": float(w) for n, w in zip(names, t.metadata["theta"])}})
+    return pd.concat(rows, ignore_index=True), pd.DataFrame(truth)
+
+
+def lanelet_centerlines(config: PassageConfig, spacing: float = 1.0) -> tuple[dict, dict]:
+    """The passage as three lanelets (approach, ring, exit): centerlines (P, 2) [m] and successors."""
+    path = config.path()
+    ring_start = config.approach
+    ring_end = ring_start + np.deg2rad(config.ring_angle_deg) * config.radius
+    cuts = [0.0, ring_start, ring_end, path.length]
+    lines = {}
+    for name, a, b in zip(("approach", "ring", "exit"), cuts[:-1], cuts[1:]):
+        n = max(2, int(np.ceil((b - a) / spacing)) + 1)
+        lines[name] = path.position(np.linspace(a, b, n))
+    return lines, {"approach": ["ring"], "ring": ["exit"], "exit": []}
+
+
+def write_scene(data: PassageData, out_dir) -> dict:
+    """Write the passages as a recorded scene: ``vehicle_tracks_000.csv``, ``ground_truth.csv`` and
+    ``map.osm`` (Lanelet2), atomically. Returns the paths."""
+    from pathlib import Path
+
+    from pirl_sim.io.atomic import atomic_write_text
+    from pirl_sim.io.interaction import write_tracks
+    from pirl_sim.io.lanelet2_map import write_map
+
+    out = Path(out_dir)
+    tracks, truth = track_table(data)
+    paths = {"tracks": out / "vehicle_tracks_000.csv", "truth": out / "ground_truth.csv", "map": out / "map.osm"}
+    write_tracks(tracks, paths["tracks"])
+    atomic_write_text(paths["truth"], truth.to_csv(index=False))
+    lines, successors = lanelet_centerlines(data.config)
+    write_map(lines, successors, paths["map"])
+    return paths
