@@ -71,7 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--gmm-k", type=_positive_int, default=3, help="clusters of PIRL-GMM (default 3)")
-    rp.add_argument("--knn-k", type=_positive_int, default=10, help="neighbours of PIRL-kNN (default 10)")
+    rp.add_argument("--knn-k", default="10",
+                    help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
+                         "(default 10)")
     rp.add_argument("--seeds", type=_positive_int, default=3, help="number of train/test split seeds (default 3)")
     rp.add_argument("--history", type=float, default=2.0, help="observed history [s] (default 2)")
     rp.add_argument("--horizon", type=float, default=3.0, help="predicted horizon [s] (default 3)")
@@ -86,18 +88,30 @@ def _replay(args) -> int:
     from pirl_sim.scenarios.replay import load_replay
 
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-    known = {"tirl": ("TIRL", {}), "pirl-gmm": (f"PIRL-GMM (k={args.gmm_k})", {"n_components": args.gmm_k}),
-             "pirl-dpgmm": ("PIRL-DPGMM", {}),
-             "pirl-knn": (f"PIRL-kNN (k={args.knn_k})", {"n_neighbors": args.knn_k, "prior": "population", "stride": 2})}
+    known = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
     try:
         keys = [k.strip() for k in args.learners.split(",") if k.strip()]
         unknown = [k for k in keys if k not in known]
         if unknown or not keys:
             raise ValueError(f"unknown learners {unknown or keys}; choose from {sorted(known)}")
+        try:
+            knn_ks = [int(k) for k in str(args.knn_k).split(",")]
+        except ValueError:
+            raise ValueError(f"--knn-k must be positive integers separated by commas, got {args.knn_k!r}") from None
+        if any(k < 1 for k in knn_ks):
+            raise ValueError(f"--knn-k must be positive integers, got {args.knn_k!r}")
         if "tirl" not in keys:
             keys.insert(0, "tirl")  # the reference of the paired differences
-        specs = [(known[k][0], k, dict(known[k][1], **({"random_state": 0} if k in ("pirl-gmm", "pirl-dpgmm") else {})))
-                 for k in keys]
+        specs = []
+        for k in keys:
+            if k == "tirl":
+                specs.append(("TIRL", k, {}))
+            elif k == "pirl-gmm":
+                specs.append((f"PIRL-GMM (k={args.gmm_k})", k, {"n_components": args.gmm_k, "random_state": 0}))
+            elif k == "pirl-dpgmm":
+                specs.append(("PIRL-DPGMM", k, {"random_state": 0}))
+            else:
+                specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, "prior": "population", "stride": 2}) for n in knn_ks]
         files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
         dt = 0.2
         proto = ReplayProtocol(history=max(1, int(round(args.history / dt))), horizon=max(1, int(round(args.horizon / dt))),

@@ -107,9 +107,11 @@ def test_replay_cli_end_to_end(scene_dir, tmp_path, capsys):
     out, _ = scene_dir
     res = tmp_path / "res"
     assert main(["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "2",
-                 "--learners", "tirl,pirl-knn", "--out", str(res), "--quiet"]) == 0
+                 "--learners", "tirl,pirl-knn", "--knn-k", "3,10", "--out", str(res), "--quiet"]) == 0
     summary = pd.read_csv(res / "summary.csv")
-    assert {"TIRL", "PIRL-kNN (k=10)", "CV (path)", "CA (path)", "CV (x, y)"} <= set(summary["method"])
+    assert {"TIRL", "PIRL-kNN (k=3)", "PIRL-kNN (k=10)", "CV (path)", "CA (path)", "CV (x, y)"} <= set(summary["method"])
+    for name in ("clusters.png", "s_t.png", "knn_k.png"):
+        assert (res / name).stat().st_size > 0
     assert (res / "README.md").read_text().count("Tracks read: 160") == 1
     assert main(["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--learners", "svm",
                  "--out", str(res)]) == 2

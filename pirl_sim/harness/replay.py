@@ -121,7 +121,7 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         )
     model = scene.model
     dt = model.dynamics.dt
-    rows, errors = [], {}
+    rows, errors, examples = [], {}, {}
     for seed in proto.seeds:
         order = np.random.default_rng(seed).permutation(len(tracks))
         n_test = max(1, int(round(proto.test_fraction * len(tracks))))
@@ -148,6 +148,14 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             extra = _truth_scores(learner, train, test, windows, theta, model)
             methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
             say(f"seed {seed}: {name} fitted in {fit_s:.1f} s")
+        if seed == proto.seeds[0]:  # a few windows for the S-T figure
+            shown = np.linspace(0, len(windows) - 1, min(4, len(windows))).astype(int)
+            examples = {
+                "t": dt * np.arange(-proto.history, proto.horizon + 1),
+                "truth": np.stack([test[windows[w][0]].states[windows[w][1] - proto.history:
+                                                             windows[w][1] + proto.horizon + 1, 0] for w in shown]),
+                "predictions": {name: m[0][shown] for name, m in methods.items()},
+            }
         for name, (s_pred, fit_s, pred_s, extra) in methods.items():
             err = _errors(model, test, windows, s_pred, proto)
             errors[(seed, name)] = err.mean(axis=1)
@@ -170,7 +178,8 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
         rows.append(row)
     rows = pd.DataFrame(rows)
-    return {"rows": rows, "paired": paired_differences(errors, "TIRL"), "errors": errors, "selected": len(tracks)}
+    return {"rows": rows, "paired": paired_differences(errors, "TIRL"), "errors": errors, "selected": len(tracks),
+            "examples": examples, "history": proto.history}
 
 
 def _truth_scores(learner, train, test, windows, theta, model) -> dict:
@@ -222,6 +231,7 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     atomic_write_text(out / "rows.csv", result["rows"].to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "summary.csv", summary.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "paired.csv", result["paired"].to_csv(index=False, float_format="%.6g"))
+    _write_figures(result, scene, out)
     n_inter = sum(t.metadata["interacted"] for t in scene.trajectories)
     lines = [
         "# Replay experiment",
@@ -238,5 +248,40 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "## Paired differences against TIRL (MED, per window; mean and standard error over seeds)",
         "",
         _markdown(result["paired"]),
+        "",
+        "![clusters](clusters.png) ![S-T](s_t.png)" + (" ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""),
     ]
     atomic_write_text(out / "README.md", "\n".join(lines) + "\n")
+
+
+def _write_figures(result: dict, scene, out) -> None:
+    """clusters.png (PIRL-GMM, k=3, whole tracks), s_t.png (a few predicted windows), knn_k.png (when several
+    kNN learners ran)."""
+    import re
+
+    from pirl_sim.harness import figures
+    from pirl_sim.io.atomic import atomic_write_bytes
+    from pirl_sim.learners import PIRLGMM
+
+    tracks = scene.selected
+    model = scene.model
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        gmm = PIRLGMM(model, n_components=min(3, len(tracks)), random_state=0).fit(tracks)
+    styles = np.array([t.metadata.get("style", -1) for t in tracks])
+    atomic_write_bytes(out / "clusters.png", figures.feature_clusters(
+        model.feature_values(tracks), model.features.names, gmm.labels_, styles if np.all(styles >= 0) else None))
+    ex = result["examples"]
+    if ex:
+        h = result["history"]
+        preds = {k: np.concatenate([np.repeat(ex["truth"][:, h : h + 1], 1, axis=1), v], axis=1)
+                 for k, v in ex["predictions"].items()}
+        atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(ex["t"], ex["truth"], preds, h))
+    rows = result["rows"]
+    knn = rows[rows["method"].str.startswith("PIRL-kNN (k=")]
+    if knn["method"].nunique() > 1:
+        per_seed = knn.groupby("method")["med"].agg(["mean", "std"]).reset_index()
+        per_seed["k"] = [int(re.search(r"k=(\d+)", m).group(1)) for m in per_seed["method"]]
+        table = pd.DataFrame({"protocol": "replay (std over seeds)", "k": per_seed["k"],
+                              "med": per_seed["mean"], "med_std": per_seed["std"].fillna(0.0)}).sort_values("k")
+        atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(table, "PIRL-kNN on replayed tracks: MED vs k"))
