@@ -1,0 +1,1 @@
+"""Scenario sweeps: config grids, local processes or Dask, a resumable result store, reports."""
