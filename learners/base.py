@@ -24,6 +24,7 @@ from sklearn.utils.validation import check_is_fitted
 from pirl_sim.irl import IRLResult, LogNormalPrior, fit_weights
 from pirl_sim.model import DriverModel, synthetic_model
 from pirl_sim.trajectory import Trajectory
+from pirl_sim.validation import is_positive_int
 
 __all__ = ["BaseLearner", "FEATURE_TRANSFORMS"]
 
@@ -61,9 +62,9 @@ class BaseLearner(BaseEstimator):
 
     def _check_common(self) -> None:
         if self.window is not None:
-            if isinstance(self.window, bool) or not isinstance(self.window, (int, np.integer)) or self.window < 1:
+            if not is_positive_int(self.window):
                 raise ValueError(f"window must be a positive number of steps or None, got {self.window!r}")
-        if isinstance(self.stride, bool) or not isinstance(self.stride, (int, np.integer)) or self.stride < 1:
+        if not is_positive_int(self.stride):
             raise ValueError(f"stride must be a positive number of steps, got {self.stride!r}")
         if self.windows not in WINDOW_MODES:
             raise ValueError(f"windows must be one of {WINDOW_MODES}, got {self.windows!r}")

@@ -17,6 +17,7 @@ import numpy as np
 from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
 
 from .base import BaseLearner
+from pirl_sim.validation import is_positive_int
 
 __all__ = ["PIRLGMM", "PIRLDPGMM"]
 
@@ -27,7 +28,7 @@ class _MixtureLearner(BaseLearner):
 
     def _check_min_size(self) -> None:
         m = self.min_cluster_size
-        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+        if not is_positive_int(m):
             raise ValueError(f"min_cluster_size must be a positive integer, got {m!r}")
 
     def _fit(self, model, trajectories):
@@ -147,7 +148,7 @@ class PIRLGMM(_MixtureLearner):
     def _make_mixture(self, Z):
         n = Z.shape[0]
         if self.n_components == "bic":
-            if isinstance(self.max_components, bool) or not isinstance(self.max_components, (int, np.integer)) or self.max_components < 1:
+            if not is_positive_int(self.max_components):
                 raise ValueError(f"max_components must be a positive integer, got {self.max_components!r}")
             ks = range(1, min(int(self.max_components), n) + 1)
             fits = {k: self._gmm(k).fit(Z) for k in ks}
@@ -155,7 +156,7 @@ class PIRLGMM(_MixtureLearner):
             best = min(self.bic_, key=self.bic_.get)
             return fits[best]
         k = self.n_components
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        if not is_positive_int(k):
             raise ValueError(f"n_components must be a positive integer or 'bic', got {k!r}")
         if k > n:
             raise ValueError(f"n_components={k} is larger than the number of training samples ({n})")
@@ -219,7 +220,7 @@ class PIRLDPGMM(_MixtureLearner):
 
     def _make_mixture(self, Z):
         k = self.max_components
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        if not is_positive_int(k):
             raise ValueError(f"max_components must be a positive integer, got {k!r}")
         k = min(int(k), Z.shape[0])
         return BayesianGaussianMixture(

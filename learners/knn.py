@@ -16,6 +16,7 @@ import numpy as np
 from sklearn.neighbors import NearestNeighbors
 
 from .base import BaseLearner, population_prior
+from pirl_sim.validation import is_positive_int
 
 __all__ = ["PIRLKNN"]
 
@@ -67,7 +68,7 @@ class PIRLKNN(BaseLearner):
 
     def _fit(self, model, trajectories):
         k = self.n_neighbors
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        if not is_positive_int(k):
             raise ValueError(f"n_neighbors must be a positive integer, got {k!r}")
         if self.average not in AVERAGES:
             raise ValueError(f"average must be one of {AVERAGES}, got {self.average!r}")

@@ -19,6 +19,7 @@ import numpy as np
 
 from .dynamics import LinearDynamics
 from .features import FeatureSet
+from .validation import is_positive_int
 
 __all__ = ["QuadraticCost", "LQPredictor", "ConstrainedLQPredictor", "SequentialMPC", "BoxQP", "Bounds"]
 
@@ -367,7 +368,7 @@ class SequentialMPC:
         self.tol = float(tol)
         self.qp_tol = float(qp_tol)
         for name, value in (("n_iter", n_iter), ("n_qp_iter", n_qp_iter)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            if not is_positive_int(value):
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         self.n_qp_iter = int(n_qp_iter)
         self.dynamics = dynamics

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
 from scipy.spatial import cKDTree
+from .validation import is_positive_int
 
 __all__ = ["ReferencePath", "desired_speed_from_curvature"]
 
@@ -449,7 +450,7 @@ class ReferencePath:
             Wrong shape or non-finite points, a projection beyond the ends without ``extrapolate``, or no
             convergence (points beyond the local centre of curvature).
         """
-        if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        if not is_positive_int(max_iter):
             raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
         q = _as_float_array("xy", xy)
         if q.ndim < 1 or q.shape[-1] != 2:

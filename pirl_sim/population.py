@@ -23,6 +23,7 @@ from .irl import shift_to_pd
 from .model import DriverModel
 from .mpc import LQPredictor, SequentialMPC
 from .trajectory import Trajectory
+from .validation import is_positive_int
 
 __all__ = ["Style", "Population", "optimal_controls", "sample_boltzmann_controls", "generate_demonstrations"]
 
@@ -137,7 +138,7 @@ class Population:
         """Draw n normalised weight vectors (n, K) and their style indices (n,); draws kept positive."""
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        if not is_positive_int(n):
             raise ValueError(f"n must be a positive integer, got {n!r}")
         w = np.array([s.weight for s in self.styles], dtype=float)
         style = rng.choice(len(self.styles), size=int(n), p=w / w.sum())

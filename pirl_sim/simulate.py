@@ -13,6 +13,7 @@ import numpy as np
 from .model import DriverModel
 from .mpc import SequentialMPC
 from .trajectory import Trajectory
+from .validation import is_positive_int
 
 __all__ = ["simulate_receding_horizon"]
 
@@ -49,7 +50,7 @@ def simulate_receding_horizon(
     """
     x = np.atleast_2d(np.asarray(x0, dtype=float))
     M = x.shape[0]
-    if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
+    if not is_positive_int(n_steps):
         raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
     if control_noise < 0 or not np.isfinite(control_noise):
         raise ValueError(f"control_noise must be >= 0, got {control_noise!r}")

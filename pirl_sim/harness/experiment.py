@@ -27,6 +27,7 @@ import numpy as np
 
 from pirl_sim.metrics import adjusted_rand_index, euclidean_errors, weight_recovery_error
 from pirl_sim.trajectory import Trajectory
+from pirl_sim.validation import is_positive_int
 
 __all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate"]
 
@@ -62,12 +63,12 @@ class Protocol:
             raise ValueError(f"protocol kind must be one of {PROTOCOL_KINDS}, got {self.kind!r}")
         if self.kind in ("online", "rolling"):
             h = self.history_steps
-            if isinstance(h, bool) or not isinstance(h, (int, np.integer)) or h < 1:
+            if not is_positive_int(h):
                 raise ValueError(f"the {self.kind} protocol needs history_steps >= 1, got {h!r}")
         if self.kind == "rolling":
             for name in ("horizon", "stride"):
                 v = getattr(self, name)
-                if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                if not is_positive_int(v):
                     raise ValueError(f"the rolling protocol needs {name} >= 1, got {v!r}")
             if self.window_mode != "sliding":
                 raise ValueError("the rolling protocol infers from windows anywhere in a trajectory: window_mode must be 'sliding'")

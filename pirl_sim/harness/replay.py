@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
+from pirl_sim.validation import is_positive_int
 
 __all__ = ["ReplayProtocol", "run_replay", "paired_differences", "BASELINES"]
 
@@ -56,7 +57,7 @@ class ReplayProtocol:
     def __post_init__(self) -> None:
         for name in ("history", "horizon", "stride"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            if not is_positive_int(v):
                 raise ValueError(f"{name} must be a positive number of steps, got {v!r}")
         if any(not 1 <= k <= self.horizon for k in self.fde_steps):
             raise ValueError(f"fde_steps must lie in [1, horizon={self.horizon}], got {self.fde_steps}")
