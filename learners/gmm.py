@@ -16,8 +16,9 @@ import warnings
 import numpy as np
 from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
 
-from .base import BaseLearner
 from pirl_sim.validation import is_positive_int
+
+from .base import BaseLearner
 
 __all__ = ["PIRLGMM", "PIRLDPGMM"]
 

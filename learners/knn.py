@@ -15,8 +15,9 @@ from __future__ import annotations
 import numpy as np
 from sklearn.neighbors import NearestNeighbors
 
-from .base import BaseLearner, population_prior
 from pirl_sim.validation import is_positive_int
+
+from .base import BaseLearner, population_prior
 
 __all__ = ["PIRLKNN"]
 

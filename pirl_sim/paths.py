@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
 from scipy.spatial import cKDTree
+
 from .validation import is_positive_int
 
 __all__ = ["ReferencePath", "desired_speed_from_curvature"]
