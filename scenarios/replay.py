@@ -114,6 +114,32 @@ def interaction_flags(df: pd.DataFrame, rule: SelectionRule) -> dict[int, bool]:
     return flags
 
 
+def _lenient_tracks(file: Path) -> tuple[pd.DataFrame | None, int]:
+    """Rows that parse, grouped by track; tracks with any unparseable, non-finite or repeated frame are
+    dropped. Returns (frame or None when nothing is usable, number of dropped tracks)."""
+    from pirl_sim.io.interaction import VEHICLE_COLUMNS
+
+    try:
+        raw = pd.read_csv(file, on_bad_lines="skip", dtype=str)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError):
+        return None, 0
+    if list(raw.columns) != list(VEHICLE_COLUMNS):
+        return None, 0
+    numeric = [c for c in VEHICLE_COLUMNS if c != "agent_type"]
+    df = raw.copy()
+    df[numeric] = df[numeric].apply(pd.to_numeric, errors="coerce")
+    bad_rows = ~np.isfinite(df[numeric].to_numpy(dtype=float)).all(axis=1)
+    bad_ids = set(df.loc[bad_rows, "track_id"].dropna().astype(int))
+    df = df[~bad_rows]
+    df = df.astype({"track_id": int, "frame_id": int, "timestamp_ms": int})
+    dup = df.duplicated(["track_id", "frame_id"], keep=False)
+    bad_ids |= set(df.loc[dup, "track_id"])
+    df = df[~df["track_id"].isin(bad_ids)]
+    if df.empty:
+        return None, len(bad_ids)
+    return df, len(bad_ids)
+
+
 def _sidecar(track_file: Path) -> pd.DataFrame | None:
     path = track_file.parent / "ground_truth.csv"
     if not path.exists():
@@ -158,12 +184,21 @@ def load_replay(
     n_tracks = 0
     for file in (Path(f) for f in track_files):
         try:
-            df = read_tracks(file)
             truth = _sidecar(file)
-        except (ValueError, FileNotFoundError) as exc:
+            df = read_tracks(file)
+        except FileNotFoundError as exc:
             skipped["unreadable file"] += 1
             log.warning("skipping %s: %s", file, exc)
             continue
+        except ValueError as exc:
+            # a bad row should not cost the file's good tracks: read leniently, drop the broken tracks
+            log.warning("%s failed validation (%s); keeping its valid tracks", file, exc)
+            df, n_bad = _lenient_tracks(file)
+            skipped["invalid rows (track dropped)"] += n_bad
+            if df is None:
+                if not n_bad:
+                    skipped["unreadable file"] += 1
+                continue
         df = df[df["agent_type"].isin(rule.agent_types)]
         flags = interaction_flags(df, rule) if len(df) else {}
         for track_id, track in df.groupby("track_id", sort=True):

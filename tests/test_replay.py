@@ -83,10 +83,16 @@ def test_bad_files_are_counted_not_fatal(scene_dir, tmp_path):
     from pirl_sim.io.interaction import write_tracks
 
     write_tracks(far, far_file)
-    scene = load_replay([good, truncated, nan_file, far_file], out / "map.osm")
-    assert scene.skipped["unreadable file"] == 2
+    dup_file = tmp_path / "vehicle_tracks_004.csv"
+    dup_file.write_text("\n".join(text[:200] + [text[5]]) + "\n")  # a repeated frame of track 1
+    scene = load_replay([good, truncated, nan_file, far_file, dup_file], out / "map.osm")
+    # a cut-off row, a NaN and a repeated frame each drop their own track only; the good file is untouched
+    assert scene.skipped["invalid rows (track dropped)"] == 3
+    assert "unreadable file" not in scene.skipped
     assert scene.skipped["no route on the map"] == 1
-    assert len(scene.trajectories) == 160  # the good file's tracks are all still there
+    files = [t.metadata["file"] for t in scene.trajectories]
+    assert files.count(str(good)) == 160  # the good file's tracks are all still there
+    assert files.count(str(dup_file)) >= 1
     broken_map = tmp_path / "broken.osm"
     broken_map.write_text((out / "map.osm").read_text()[:200])
     with pytest.raises(ValueError):
