@@ -59,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rep.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
+    from pirl_sim.scenarios.sumo.cli import add_simulate_parser
+
+    add_simulate_parser(sub)
+
     rp = sub.add_parser(
         "replay",
         help="learn from recorded tracks (INTERACTION format) and score predictions against them",
@@ -136,6 +140,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "replay":
         return _replay(args)
+    if args.command == "simulate":
+        from pirl_sim.scenarios.sumo.cli import run_simulate
+
+        return run_simulate(args)
     if args.command == "reproduce" and args.experiment == "passage":
         from pirl_sim.harness.reproduce import reproduce_passage
         from pirl_sim.scenarios.passage import PassageConfig

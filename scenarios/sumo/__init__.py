@@ -2,14 +2,17 @@
 
 ``network`` builds parametric roundabouts (plain XML -> netconvert) and reference paths along their
 routes; ``runner`` simulates them with libsumo (or TraCI), records every vehicle every step and lets a
-controller drive chosen vehicles. SUMO itself (sumolib, libsumo, traci) is imported only when a function
-needs it.
+controller drive chosen vehicles; ``drivers`` puts the paper's roundabout driver model on all routes at
+once and drives PIRL vehicles with it (one batched MPC call per step); ``scenario`` plans a population,
+runs it and records it (:func:`run_sumo_scenario`); ``cli`` is ``pirl-sim simulate sumo``. SUMO itself
+(sumolib, libsumo, traci) is imported only when a function needs it.
 """
 
 from .network import (
     NetworkFiles,
     RoundaboutSpec,
     build_network,
+    lane_graph,
     load_net,
     route_centerline,
     route_edges,
@@ -19,9 +22,11 @@ from .network import (
 )
 from .runner import (
     BACKENDS,
+    COLLISION_ACTIONS,
     RECORD_COLUMNS,
     SPEED_MODE_ALL_CHECKS,
     SUMMARY_COLUMNS,
+    BatchController,
     ConstantSpeed,
     Controller,
     Observation,
@@ -62,4 +67,47 @@ __all__ = [
     "speed_mode",
     "sumo_angle_to_psi",
     "sumo_command",
+    "BatchController",
+    "COLLISION_ACTIONS",
+    "lane_graph",
+    "ROUTE_SPACING",
+    "RouteSet",
+    "RouteSetProfile",
+    "RouteSetDriverModel",
+    "route_set_model",
+    "PirlDrivers",
+    "STEP_LENGTH",
+    "DEFAULT_NETWORK",
+    "DriverConfig",
+    "SumoScenarioConfig",
+    "SumoScenarioResult",
+    "SumoRunData",
+    "scenario_from_dict",
+    "load_scenario",
+    "plan_vehicles",
+    "run_sumo_scenario",
+    "run_to_directory",
+    "recorded_demonstrations",
+    "load_sumo_run",
 ]
+
+# drivers and scenario pull in the driver model and the MPC: loaded on first use, so that importing the
+# package (e.g. for the command line's parser) stays light
+_LAZY = {
+    **{name: "drivers" for name in ("ROUTE_SPACING", "PirlDrivers", "RouteSet", "RouteSetDriverModel",
+                                     "RouteSetProfile", "route_set_model")},
+    **{name: "scenario" for name in ("STEP_LENGTH", "DEFAULT_NETWORK", "DriverConfig", "SumoRunData",
+                                     "SumoScenarioConfig", "SumoScenarioResult", "load_scenario",
+                                     "load_sumo_run", "plan_vehicles", "recorded_demonstrations",
+                                     "run_sumo_scenario", "run_to_directory", "scenario_from_dict")},
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

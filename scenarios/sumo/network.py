@@ -50,11 +50,14 @@ __all__ = [
     "validate_route",
     "route_centerline",
     "load_net",
+    "lane_graph",
+    "LANE_JOINT_SNAP",
 ]
 
 _NETCONVERT_TIMEOUT_S = 120.0  # [s] a roundabout converts in well under a second
 _DUPLICATE_TOL = 1e-3  # [m] consecutive shape points closer than this are one point
 _MIN_RING_EDGE = 1.0  # [m] shortest ring edge left between two arm junctions
+LANE_JOINT_SNAP = 0.05  #: [m] largest gap between a lane's end and its successor's start that lane_graph closes
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,12 @@ class RoundaboutSpec:
         ring milder (SUMO keeps both bumpers on the lane, so on an S-bend the body heading and the
         centre's direction of motion differ, by up to ~0.09 rad with 6 m, ~0.11 rad with 4 m) but make
         the junctions bigger; :func:`build_network` rejects junctions that run into each other.
+    entry_visibility : float or None
+        Distance [m] before an entry's stop line from which its drivers see the traffic on the ring (the
+        ``visibility`` of SUMO's entry -> ring connections), > 0; None keeps SUMO's default of 4.5 m for
+        yielding links. With 4.5 m a SUMO vehicle must approach every entry slowly enough to stop at the
+        line, whether or not anybody comes (a lone car is braked at its maximum deceleration ~20 m before
+        the line); with a larger visibility it yields only when ring traffic actually conflicts.
     """
 
     radius: float = 20.0
@@ -104,6 +113,7 @@ class RoundaboutSpec:
     center: tuple[float, float] = (0.0, 0.0)
     first_arm_deg: float = 0.0
     junction_radius: float = 6.0
+    entry_visibility: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("n_arms", "lanes", "ring_segments"):
@@ -119,6 +129,10 @@ class RoundaboutSpec:
         for name in ("radius", "approach_length", "speed_limit", "lane_width", "junction_radius"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        v = self.entry_visibility
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+                              or not math.isfinite(v) or v <= 0):
+            raise ValueError(f"entry_visibility must be a distance > 0 m or None, got {v!r}")
         if self.splitter_width < 0:
             raise ValueError(f"splitter_width must be >= 0, got {self.splitter_width!r}")
         if self.n_arms < 3:
@@ -360,6 +374,10 @@ def _plain_xml(spec: RoundaboutSpec) -> tuple[str, str, str]:
             cons.append(f'    <connection from="{prev}" to="{_ring(i, n)}" fromLane="{lane}" toLane="{lane}" '
                         f'shape="{shape}"/>')
             cons.append(f'    <connection from="{prev}" to="{_out(i)}" fromLane="{lane}" toLane="{lane}"/>')
+        if spec.entry_visibility is not None:  # declared entries: lane k joins ring lane k
+            for lane in range(spec.lanes):
+                cons.append(f'    <connection from="{_in(i)}" to="{_ring(i, n)}" fromLane="{lane}" '
+                            f'toLane="{lane}" visibility="{_fmt(spec.entry_visibility)}"/>')
 
     header = '<?xml version="1.0" encoding="UTF-8"?>\n'
     comment = f"<!-- pirl_sim roundabout: {spec!r} -->\n"
@@ -601,3 +619,72 @@ def route_centerline(net, route_edges, *, route_id: str | None = None,
         else:
             last = arr[i]
     return arr[keep]
+
+
+def lane_graph(net) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
+    """Every lane of a network (junction-internal lanes included) as centerlines with successor links.
+
+    The form :func:`pirl_sim.io.lanelet2_map.write_map` takes, so the network can be written as a
+    Lanelet2 map with one lanelet per lane (the arms' lanes, the ring's lanes and each junction
+    connection), successors connected. Successors of a normal lane are the internal lanes of its
+    connections (or the target lanes where a connection has none); successors of an internal lane are
+    the lanes its connections lead to. SUMO writes shapes with 1 cm precision and custom connection
+    shapes, so a lane may end up to ~1 cm from its successor's start; every group of lane ends and starts
+    that meet is moved to the mean of its points, so they meet exactly (moves larger than
+    :data:`LANE_JOINT_SNAP` raise).
+
+    Parameters
+    ----------
+    net : str, os.PathLike, NetworkFiles or sumolib.net.Net
+
+    Returns
+    -------
+    centerlines : dict of str to numpy.ndarray
+        Lane id -> (P, 2) x, y [m], in driving direction, consecutive points distinct (closer than 1 mm
+        merged), sorted by lane id.
+    successors : dict of str to list of str
+        Lane id -> ids of the lanes that follow it (sorted), for every lane with a successor.
+
+    Raises
+    ------
+    ValueError
+        If a lane's end is farther than :data:`LANE_JOINT_SNAP` from a successor's start.
+    """
+    net = load_net(net)
+    lines: dict[str, np.ndarray] = {}
+    succ: dict[str, list[str]] = {}
+    for edge in net.getEdges(withInternal=True):
+        for lane in edge.getLanes():
+            lid = lane.getID()
+            pts = np.asarray(lane.getShape(), dtype=float)[:, :2]
+            keep = np.concatenate(([True], np.hypot(*np.diff(pts, axis=0).T) >= _DUPLICATE_TOL))
+            lines[lid] = pts[keep].copy()
+            nxt = sorted({c.getViaLaneID() or c.getToLane().getID() for c in lane.getOutgoing()})
+            if nxt:
+                succ[lid] = nxt
+    # union-find over lane ends and starts that meet
+    parent: dict[tuple[str, str], tuple[str, str]] = {}
+
+    def find(key):
+        parent.setdefault(key, key)
+        while parent[key] != key:
+            parent[key] = parent[parent[key]]
+            key = parent[key]
+        return key
+
+    for a, nexts in succ.items():
+        for b in nexts:
+            gap = float(np.hypot(*(lines[a][-1] - lines[b][0])))
+            if gap > LANE_JOINT_SNAP:
+                raise ValueError(f"lane {a!r} ends {gap:.3f} m from the start of its successor {b!r} "
+                                 f"(more than {LANE_JOINT_SNAP} m)")
+            parent[find(("end", a))] = find(("start", b))
+    groups: dict[tuple[str, str], list[tuple[str, str]]] = {}
+    for key in list(parent):
+        groups.setdefault(find(key), []).append(key)
+    for keys in groups.values():
+        pts = np.array([lines[name][0 if kind == "start" else -1] for kind, name in keys])
+        mean = pts.mean(axis=0)
+        for kind, name in keys:
+            lines[name][0 if kind == "start" else -1] = mean
+    return dict(sorted(lines.items())), dict(sorted(succ.items()))

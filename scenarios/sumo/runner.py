@@ -33,6 +33,17 @@ every step they are in the network; a number is a commanded speed [m/s] applied 
 speed SUMO actually drove with the command: ``overridden`` is true where they differ by more than
 ``override_tol``.
 
+Batch controllers. A controller that also has a method ``commands(time, observations)`` (see
+:class:`BatchController`) is called once per step with the observations of every controlled vehicle in the
+network (a mapping vehicle id -> :class:`Observation`) and returns a mapping vehicle id -> commanded speed
+[m/s] or None (a vehicle left out is handed back to SUMO like None); so a controller can plan all its
+vehicles in one batched computation.
+
+Collisions. ``collision_action`` is SUMO's ``--collision.action``: ``"warn"`` (default) reports them and
+keeps the vehicles, ``"remove"`` takes the vehicles in a collision out of the network (they are then
+recorded as vanished, ``removed_early``, and ``collided`` is set on their last row), ``"teleport"`` moves
+them on, ``"none"`` ignores them.
+
 Speed mode. Controlled vehicles get ``speed_mode`` (default :data:`SPEED_MODE_ALL_CHECKS` = 31, which is
 also SUMO's default): SUMO still enforces the safe speed of its car-following model, the vehicle type's
 maximum acceleration and deceleration, right of way at the roundabout's entries and red lights. A command
@@ -56,7 +67,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import pandas as pd
@@ -72,6 +83,8 @@ __all__ = [
     "VehicleState",
     "Observation",
     "Controller",
+    "BatchController",
+    "COLLISION_ACTIONS",
     "ConstantSpeed",
     "SumoRecording",
     "SumoRun",
@@ -87,6 +100,7 @@ SPEED_MODE_ALL_CHECKS = 31  #: safe speed, max accel, max decel, right of way, r
 DEFAULT_STEP_LENGTH = 0.1  # [s]
 DEFAULT_OVERRIDE_TOL = 0.01  # [m/s]
 DEFAULT_LEADER_LOOKAHEAD = 100.0  # [m]
+COLLISION_ACTIONS = ("warn", "remove", "teleport", "none")  #: SUMO's --collision.action values
 
 #: columns of :attr:`SumoRecording.frame`, in order
 RECORD_COLUMNS: tuple[str, ...] = (
@@ -149,7 +163,7 @@ def sumo_angle_to_psi(angle_deg):
 
 
 def sumo_command(net_path, *, seed: int = 0, step_length: float = DEFAULT_STEP_LENGTH,
-                 extra_args: Sequence[str] = ()) -> list[str]:
+                 extra_args: Sequence[str] = (), collision_action: str = "warn") -> list[str]:
     """The SUMO command line both backends start.
 
     Parameters
@@ -161,13 +175,17 @@ def sumo_command(net_path, *, seed: int = 0, step_length: float = DEFAULT_STEP_L
         [s]
     extra_args : sequence of str
         Appended (e.g. ``["--additional-files", "types.add.xml"]``).
+    collision_action : {"warn", "remove", "teleport", "none"}
+        SUMO's ``--collision.action`` (SUMO refuses an option given twice, so it is a parameter here and
+        not an extra argument).
 
     Returns
     -------
     list of str
         ``[sumo, -n, net, --step-length, ..., --no-step-log, --no-warnings, --seed, ..., --collision.action,
-        warn, --time-to-teleport, -1, --begin, 0, --collision.check-junctions, true, *extra_args]``. Collisions
-        are reported and the vehicles stay (``warn``), jammed vehicles are never teleported away, and
+        <collision_action>, --time-to-teleport, -1, --begin, 0, --collision.check-junctions, true,
+        *extra_args]``. Collisions are reported and by default the vehicles stay (``warn``), jammed vehicles
+        are never teleported away, and
         collisions inside junctions are checked too (SUMO's default checks lanes only, and a roundabout's
         conflicts are inside its junctions).
     """
@@ -178,7 +196,7 @@ def sumo_command(net_path, *, seed: int = 0, step_length: float = DEFAULT_STEP_L
         "--step-length", repr(float(step_length)),
         "--no-step-log", "--no-warnings",
         "--seed", str(int(seed)),
-        "--collision.action", "warn",
+        "--collision.action", str(collision_action),
         "--time-to-teleport", "-1",
         "--begin", "0",
         "--collision.check-junctions", "true",
@@ -288,6 +306,18 @@ class Observation:
 Controller = Callable[[float, str, Observation], "float | None"]
 
 
+@runtime_checkable
+class BatchController(Protocol):
+    """A controller that commands all its vehicles of a step in one call (see the module docstring).
+
+    ``commands(time [s], observations: Mapping[vehicle id, Observation]) -> Mapping[vehicle id, float |
+    None]``: commanded speeds [m/s] (None or a missing id hands that vehicle back to SUMO).
+    """
+
+    def commands(self, time: float, observations: Mapping[str, Observation]) -> Mapping[str, float | None]:
+        ...
+
+
 @dataclass(frozen=True)
 class ConstantSpeed:
     """A picklable controller commanding the same speed to every controlled vehicle (tests, benchmarks).
@@ -392,6 +422,8 @@ class SumoRun:
         [m] distance within which ``Observation.leader`` is looked for.
     extra_args : sequence of str
         Appended to the SUMO command line.
+    collision_action : {"warn", "remove", "teleport", "none"}
+        SUMO's ``--collision.action`` (see the module docstring).
 
     Raises
     ------
@@ -404,9 +436,12 @@ class SumoRun:
                  controller: Controller | None = None, seed: int = 0,
                  step_length: float = DEFAULT_STEP_LENGTH, backend: str = "libsumo",
                  speed_mode: int = SPEED_MODE_ALL_CHECKS, override_tol: float = DEFAULT_OVERRIDE_TOL,
-                 leader_lookahead: float = DEFAULT_LEADER_LOOKAHEAD, extra_args: Sequence[str] = ()):
+                 leader_lookahead: float = DEFAULT_LEADER_LOOKAHEAD, extra_args: Sequence[str] = (),
+                 collision_action: str = "warn"):
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if collision_action not in COLLISION_ACTIONS:
+            raise ValueError(f"collision_action must be one of {COLLISION_ACTIONS}, got {collision_action!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
             raise ValueError(f"seed must be an integer, got {seed!r}")
         for name, v in (("step_length", step_length), ("override_tol", override_tol),
@@ -457,14 +492,16 @@ class SumoRun:
             raise ValueError(f"controller must be callable, got {controller!r}")
 
         self.controller = controller
+        self._batch = controller is not None and callable(getattr(controller, "commands", None))
         self.seed = int(seed)
         self.step_length = float(step_length)
         self.backend = backend
         self.speed_mode = int(speed_mode)
         self.override_tol = float(override_tol)
         self.leader_lookahead = float(leader_lookahead)
+        self.collision_action = collision_action
         self.command = sumo_command(self.net_path, seed=self.seed, step_length=self.step_length,
-                                    extra_args=extra_args)
+                                    extra_args=extra_args, collision_action=collision_action)
 
         self._api: Any = None  # libsumo module or traci connection while running
         self._closed = False
@@ -560,6 +597,21 @@ class SumoRun:
         self._require_running()
         return float(self._api.simulation.getTime())
 
+    def expected(self) -> int:
+        """Vehicles in the network or still waiting to be inserted (0: the run has nothing left to do)."""
+        self._require_running()
+        return int(self._api.simulation.getMinExpectedNumber())
+
+    @property
+    def n_present(self) -> int:
+        """Vehicles in the network after the last step."""
+        return len(self._present)
+
+    @property
+    def n_finished(self) -> int:
+        """Vehicles that have left the network (arrived or vanished) so far."""
+        return sum(rec.status in ("arrived", "vanished") for rec in self._veh.values())
+
     def _require_running(self) -> None:
         if self._api is None:
             raise RuntimeError("the run is not started (use `with SumoRun(...) as run:` or run.start())")
@@ -593,6 +645,8 @@ class SumoRun:
             done = vid in arrived and rec.last_edge == self.routes[rec.spec.route_id][-1]
             rec.status = "arrived" if done else "vanished"
             cols["arrived" if done else "vanished"][rec.last_row] = True
+            if vid in colliding:  # taken out by collision.action=remove in this step
+                cols["collided"][rec.last_row] = True
             self._pending.pop(vid, None)
         self._present = set(results)
         for vid in ids:
@@ -624,14 +678,28 @@ class SumoRun:
 
         if self.pirl_ids:
             frozen_states = MappingProxyType(states)
+            observations = {}
             for vid in ids:
                 rec = self._veh[vid]
                 if not rec.pirl:
                     continue
                 others = MappingProxyType({k: s for k, s in frozen_states.items() if k != vid})
-                obs = Observation(time=t, vehicle_id=vid, ego=states[vid], others=others,
-                                  leader=self._leader(vid), route_edges=self.routes[rec.spec.route_id])
-                cmd = self.controller(t, vid, obs)
+                observations[vid] = Observation(time=t, vehicle_id=vid, ego=states[vid], others=others,
+                                                leader=self._leader(vid),
+                                                route_edges=self.routes[rec.spec.route_id])
+            batch = None
+            if observations and self._batch:
+                batch = self.controller.commands(t, MappingProxyType(observations))
+                if not isinstance(batch, Mapping):
+                    raise ValueError(f"controller.commands returned {type(batch).__name__} at t = {t} s; "
+                                     "expected a mapping vehicle id -> speed or None")
+                stray = sorted(set(batch) - set(observations))
+                if stray:
+                    raise ValueError(f"controller.commands returned commands for vehicles it was not asked "
+                                     f"about at t = {t} s: {stray}")
+            for vid, obs in observations.items():
+                rec = self._veh[vid]
+                cmd = batch.get(vid) if batch is not None else self.controller(t, vid, obs)
                 if cmd is None:
                     if rec.commanded:
                         api.vehicle.setSpeed(vid, -1.0)
@@ -688,7 +756,7 @@ class SumoRun:
         n_steps = max(1, round(duration / self.step_length))
         for _ in range(n_steps):
             self.step()
-            if until_empty and self._api.simulation.getMinExpectedNumber() == 0:
+            if until_empty and self.expected() == 0:
                 break
         return self.recording()
 

@@ -1,0 +1,330 @@
+"""One writer for every simulated scenario: INTERACTION tracks, a ground-truth sidecar and a Lanelet2 map.
+
+Simulated and real data go through one replay path: every simulator (SUMO, highway-env, ...) turns its
+run into a :class:`ScenarioRecording` and :func:`write_recording` writes it into a directory as
+
+- ``vehicle_tracks_000.csv``: the INTERACTION vehicle format (:mod:`pirl_sim.io.interaction`): 100 ms
+  frames, ``frame_id`` = simulation time / 100 ms (so the first step after t = 0 is frame 1) and
+  ``timestamp_ms = 100 * frame_id``; x, y [m] the centre of the vehicle's box, vx, vy [m/s], psi_rad
+  [rad] counter-clockwise from +x, length, width [m];
+- ``ground_truth.csv``: one row per track, columns :data:`GROUND_TRUTH_COLUMNS`: the agent's id in the
+  simulator and route, whether a PIRL driver drove it and then its style and normalised cost weights
+  (``theta_<feature>``; empty for background traffic, whose weights are unknown), and what happened to it:
+  ``interacted`` (the simulator overrode or took over the driver's commands at least once, or it
+  collided; empty for background traffic, whose commands are not observed), ``collided``, ``removed_early`` (taken out of the simulation
+  before the end of its route), ``overridden_fraction`` (share of the driver's commands overridden),
+  ``status`` and ``n_frames``;
+- ``map.osm``: the lanes as a Lanelet2 map (:func:`pirl_sim.io.lanelet2_map.write_map`, one lanelet per
+  lane, successors connected) that :func:`pirl_sim.io.lanelet2_map.load_map` reads with
+  ``UtmProjector(Origin(0, 0))``;
+- ``run.json``: the simulator, seed and configuration (``info``), written **last**.
+
+Every file is written atomically (a temporary file renamed over the target), so no file is ever half
+written. A directory holds one recording: ``run.json`` of a previous recording is deleted first and
+written again only once everything else is complete, so a crash while writing leaves a directory that
+:func:`read_recording` refuses as incomplete rather than a mix of two runs.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.io.interaction import FRAME_DT_MS, VEHICLE_COLUMNS, read_tracks, write_tracks
+
+__all__ = [
+    "TRACK_COLUMNS",
+    "GROUND_TRUTH_COLUMNS",
+    "THETA_FEATURES",
+    "STATUSES",
+    "TRACKS_FILE",
+    "GROUND_TRUTH_FILE",
+    "MAP_FILE",
+    "INFO_FILE",
+    "FORMAT_VERSION",
+    "ScenarioRecording",
+    "RecordingFiles",
+    "interaction_tracks",
+    "write_recording",
+    "read_recording",
+]
+
+TRACKS_FILE = "vehicle_tracks_000.csv"
+GROUND_TRUTH_FILE = "ground_truth.csv"
+MAP_FILE = "map.osm"
+INFO_FILE = "run.json"
+FORMAT_VERSION = 1
+FRAME_DT_S = FRAME_DT_MS / 1000.0  # [s]
+_GRID_TOL = 1e-6  # [frames] times must sit this close to the 100 ms grid
+
+#: features whose ground-truth weights the sidecar holds (the roundabout driver model's, in its order)
+THETA_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq", "jerk_sq")
+#: what became of a track: left at the end of its route, taken out early, or still driving at the end
+STATUSES: tuple[str, ...] = ("arrived", "vanished", "running")
+
+#: columns of :attr:`ScenarioRecording.tracks`: one row per track per frame
+TRACK_COLUMNS: tuple[str, ...] = (
+    "track_id", "time_s", "agent_type", "x", "y", "vx", "vy", "psi_rad", "length", "width",
+)
+#: columns of :attr:`ScenarioRecording.ground_truth` and ``ground_truth.csv``: one row per track
+GROUND_TRUTH_COLUMNS: tuple[str, ...] = (
+    "track_id", "agent_id", "route_id", "is_pirl", "style", "style_name",
+    *(f"theta_{f}" for f in THETA_FEATURES),
+    "interacted", "collided", "removed_early", "overridden_fraction", "status", "n_frames",
+)
+_GT_DTYPES = {
+    "track_id": "int64", "agent_id": "object", "route_id": "object", "is_pirl": "bool", "style": "int64",
+    "style_name": "object", **{f"theta_{f}": "float64" for f in THETA_FEATURES}, "interacted": "boolean",
+    "collided": "bool", "removed_early": "bool", "overridden_fraction": "float64", "status": "object",
+    "n_frames": "int64",
+}
+BACKGROUND_STYLE = -1  #: ``style`` of background traffic
+BACKGROUND_STYLE_NAME = "background"  #: ``style_name`` of background traffic
+
+
+@dataclass(frozen=True, eq=False)
+class ScenarioRecording:
+    """A simulated run in simulator-neutral form (validated on construction).
+
+    Attributes
+    ----------
+    tracks : pandas.DataFrame
+        Columns :data:`TRACK_COLUMNS`: ``track_id`` (int >= 1), ``time_s`` [s] on the 100 ms grid and
+        >= 0.1 s, ``agent_type`` (e.g. "car"), x, y [m], vx, vy [m/s], psi_rad [rad], length, width [m];
+        any row order (the file is written by track, then frame).
+    ground_truth : pandas.DataFrame
+        Columns :data:`GROUND_TRUTH_COLUMNS`, one row per track of ``tracks`` (same ids), sorted by
+        ``track_id``. PIRL rows have ``style >= 0``, a style name and positive ``theta_*`` with
+        ``theta_jerk_sq = 1``; background rows have ``style = -1``, ``style_name = "background"``, NaN
+        weights, NA ``interacted`` and NaN ``overridden_fraction``.
+    lanes : mapping str -> numpy.ndarray
+        Lane centerlines (P, 2) [m] for the map.
+    successors : mapping str -> sequence of str
+        Lane successors for the map.
+    info : mapping
+        JSON-serialisable description of the run (simulator, seed, configuration); no wall-clock times,
+        so that equal runs write equal bytes.
+
+    Raises
+    ------
+    ValueError
+        Wrong or missing columns, times off the 100 ms grid, tracks without ground truth (or the reverse),
+        inconsistent PIRL/background rows, unknown statuses, or an ``info`` that JSON cannot encode.
+    """
+
+    tracks: pd.DataFrame
+    ground_truth: pd.DataFrame
+    lanes: Mapping[str, np.ndarray]
+    successors: Mapping[str, Sequence[str]]
+    info: Mapping[str, Any]
+
+    def __post_init__(self) -> None:
+        tracks, gt = self.tracks, self.ground_truth
+        for label, df, cols in (("tracks", tracks, TRACK_COLUMNS), ("ground_truth", gt, GROUND_TRUTH_COLUMNS)):
+            if not isinstance(df, pd.DataFrame):
+                raise ValueError(f"{label} must be a pandas DataFrame, got {type(df).__name__}")
+            if tuple(df.columns) != cols:
+                missing = [c for c in cols if c not in df.columns]
+                extra = [c for c in df.columns if c not in cols]
+                raise ValueError(f"{label} must have the columns {', '.join(cols)} in this order; missing: "
+                                 f"{missing or 'none'}, unknown: {extra or 'none'}")
+        if len(tracks) == 0:
+            raise ValueError("tracks has no rows: the run recorded no vehicle")
+        frames = _frames(tracks["time_s"].to_numpy(dtype=float))
+        ids = tracks["track_id"].to_numpy()
+        if ids.dtype.kind not in "iu" or ids.min() < 1:
+            raise ValueError("track_id must be integers >= 1")
+        gt_ids = gt["track_id"].to_numpy()
+        if len(set(gt_ids.tolist())) != len(gt_ids):
+            raise ValueError("ground_truth repeats a track_id")
+        if set(gt_ids.tolist()) != set(ids.tolist()):
+            only_tracks = sorted(set(ids.tolist()) - set(gt_ids.tolist()))
+            only_gt = sorted(set(gt_ids.tolist()) - set(ids.tolist()))
+            raise ValueError(f"tracks and ground_truth must hold the same track ids; only in tracks: "
+                             f"{only_tracks[:10]}, only in ground_truth: {only_gt[:10]}")
+        if not np.all(np.diff(gt_ids) > 0):
+            raise ValueError("ground_truth must be sorted by track_id")
+        gt = gt.astype(_GT_DTYPES)
+        pirl = gt["is_pirl"].to_numpy()
+        theta = gt[[f"theta_{f}" for f in THETA_FEATURES]].to_numpy(dtype=float)
+        bad = pirl & ((gt["style"].to_numpy() < 0) | ~np.all(np.isfinite(theta) & (theta > 0), axis=1))
+        if bad.any():
+            raise ValueError(f"PIRL tracks need a style >= 0 and positive weights; track "
+                             f"{int(gt_ids[np.argmax(bad)])} has style {int(gt['style'].iloc[np.argmax(bad)])} "
+                             f"and theta {theta[np.argmax(bad)].tolist()}")
+        bad = ~pirl & ((gt["style"].to_numpy() != BACKGROUND_STYLE) | np.isfinite(theta).any(axis=1))
+        if bad.any():
+            raise ValueError(f"background tracks have style {BACKGROUND_STYLE} and no weights; track "
+                             f"{int(gt_ids[np.argmax(bad)])} does not")
+        unknown = sorted(set(gt["status"]) - set(STATUSES))
+        if unknown:
+            raise ValueError(f"unknown status {unknown}; allowed: {STATUSES}")
+        counts = pd.Series(frames).groupby(ids).size()
+        n = gt.set_index("track_id")["n_frames"]
+        if not (counts.reindex(n.index).to_numpy() == n.to_numpy()).all():
+            raise ValueError("ground_truth n_frames must equal each track's number of frames")
+        try:
+            json.dumps(dict(self.info), allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"info must be JSON-serialisable without NaN: {exc}") from None
+        object.__setattr__(self, "ground_truth", gt)
+        object.__setattr__(self, "lanes", MappingProxyType(dict(self.lanes)))
+        object.__setattr__(self, "successors", MappingProxyType({k: tuple(v) for k, v in self.successors.items()}))
+        object.__setattr__(self, "info", MappingProxyType(dict(self.info)))
+
+    @property
+    def pirl_track_ids(self) -> np.ndarray:
+        """Track ids driven by PIRL drivers."""
+        gt = self.ground_truth
+        return gt.loc[gt["is_pirl"], "track_id"].to_numpy()
+
+
+def _frames(time_s: np.ndarray) -> np.ndarray:
+    f = time_s / FRAME_DT_S
+    frames = np.round(f).astype(np.int64)
+    off = np.abs(f - frames) > _GRID_TOL
+    if off.any():
+        raise ValueError(f"time_s must lie on the {FRAME_DT_MS} ms grid of the INTERACTION format; "
+                         f"{time_s[np.argmax(off)]!r} s does not (resample the run first)")
+    if len(frames) and frames.min() < 1:
+        raise ValueError(f"time_s must be >= {FRAME_DT_S} s (frame_id 1 is the first frame), got "
+                         f"{time_s.min()!r} s")
+    return frames
+
+
+def interaction_tracks(tracks: pd.DataFrame) -> pd.DataFrame:
+    """Tracks in the INTERACTION vehicle format (columns :data:`pirl_sim.io.interaction.VEHICLE_COLUMNS`).
+
+    ``frame_id = time_s / 0.1 s`` and ``timestamp_ms = 100 * frame_id``; rows sorted by track, then frame
+    (the order of the INTERACTION files).
+    """
+    frames = _frames(tracks["time_s"].to_numpy(dtype=float))
+    out = pd.DataFrame({
+        "track_id": tracks["track_id"].to_numpy(dtype=np.int64),
+        "frame_id": frames,
+        "timestamp_ms": FRAME_DT_MS * frames,
+        "agent_type": tracks["agent_type"].astype(str).to_numpy(),
+        **{c: tracks[c].to_numpy(dtype=float) for c in ("x", "y", "vx", "vy", "psi_rad", "length", "width")},
+    }, columns=list(VEHICLE_COLUMNS))
+    return out.sort_values(["track_id", "frame_id"], kind="stable").reset_index(drop=True)
+
+
+@dataclass(frozen=True)
+class RecordingFiles:
+    """Paths written by :func:`write_recording`."""
+
+    directory: Path
+    tracks: Path
+    ground_truth: Path
+    map: Path
+    info: Path
+
+
+def _ground_truth_csv(gt: pd.DataFrame) -> str:
+    return gt.to_csv(index=False, lineterminator="\n", na_rep="")
+
+
+def write_recording(recording: ScenarioRecording, out_dir, *, lane_width: float = 3.5) -> RecordingFiles:
+    """Write a recording into ``out_dir`` (see the module docstring for the files and their order).
+
+    Parameters
+    ----------
+    recording : ScenarioRecording
+    out_dir : str or os.PathLike
+        Created if missing; a previous recording there is replaced.
+    lane_width : float
+        Lane width [m] of the map's lanelets.
+
+    Returns
+    -------
+    RecordingFiles
+
+    Raises
+    ------
+    ValueError
+        If the map cannot be written (lanes that do not meet their successors, ...); ``run.json`` is then
+        not written.
+    """
+    if not isinstance(recording, ScenarioRecording):
+        raise TypeError(f"recording must be a ScenarioRecording, got {type(recording).__name__}")
+    from pirl_sim.io.lanelet2_map import write_map  # lanelet2 is an optional extra
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = RecordingFiles(out, out / TRACKS_FILE, out / GROUND_TRUTH_FILE, out / MAP_FILE, out / INFO_FILE)
+    files.info.unlink(missing_ok=True)  # the directory is incomplete until run.json is back
+    write_tracks(interaction_tracks(recording.tracks), files.tracks, kind="vehicle")
+    atomic_write_text(files.ground_truth, _ground_truth_csv(recording.ground_truth))
+    write_map(dict(recording.lanes), {k: list(v) for k, v in recording.successors.items()}, files.map,
+              lane_width=lane_width)
+    info = {"format": "pirl_sim scenario recording", "format_version": FORMAT_VERSION,
+            "files": {"tracks": TRACKS_FILE, "ground_truth": GROUND_TRUTH_FILE, "map": MAP_FILE},
+            "n_tracks": int(len(recording.ground_truth)),
+            "n_pirl_tracks": int(recording.ground_truth["is_pirl"].sum()),
+            **dict(recording.info)}
+    atomic_write_text(files.info, json.dumps(info, indent=2, sort_keys=True, allow_nan=False) + "\n")
+    return files
+
+
+def read_recording(directory) -> ScenarioRecording:
+    """Read a recording written by :func:`write_recording` (tracks, ground truth, map lanes, info).
+
+    Returns
+    -------
+    ScenarioRecording
+        ``tracks`` with ``time_s = frame_id * 0.1``; ``lanes`` from the map's lanelet centerlines by lane
+        name and ``successors`` from its routing graph.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the directory or one of its files is missing.
+    ValueError
+        If ``run.json`` is missing (an incomplete recording) or a file is malformed.
+    """
+    from pirl_sim.io.lanelet2_map import load_map
+
+    d = Path(directory)
+    if not d.is_dir():
+        raise FileNotFoundError(f"recording directory not found: {d}")
+    info_path = d / INFO_FILE
+    if not info_path.is_file():
+        raise ValueError(f"{d}: no {INFO_FILE}: the recording is incomplete (a run that crashed while "
+                         "writing) or not a pirl_sim recording")
+    info = json.loads(info_path.read_text(encoding="utf-8"))
+    raw = read_tracks(d / TRACKS_FILE, kind="vehicle")
+    tracks = pd.DataFrame({
+        "track_id": raw["track_id"], "time_s": raw["frame_id"] * FRAME_DT_S, "agent_type": raw["agent_type"],
+        **{c: raw[c] for c in ("x", "y", "vx", "vy", "psi_rad", "length", "width")},
+    }, columns=list(TRACK_COLUMNS))
+    gt_path = d / GROUND_TRUTH_FILE
+    if not gt_path.is_file():
+        raise FileNotFoundError(f"ground truth not found: {gt_path}")
+    gt = pd.read_csv(gt_path, dtype={"agent_id": str, "route_id": str, "style_name": str, "status": str},
+                     keep_default_na=False, na_values={c: [""] for c in GROUND_TRUTH_COLUMNS
+                                                       if c not in ("agent_id", "route_id", "style_name",
+                                                                    "status")})
+    if tuple(gt.columns) != GROUND_TRUTH_COLUMNS:
+        raise ValueError(f"{gt_path}: expected the columns {', '.join(GROUND_TRUTH_COLUMNS)}, found "
+                         f"{', '.join(map(str, gt.columns))}")
+    gt["interacted"] = gt["interacted"].map({True: True, False: False, "True": True, "False": False},
+                                            na_action="ignore").astype("boolean")
+    lmap = load_map(d / MAP_FILE)
+    names = {int(ll.id): ll.attributes["name"] for ll in lmap.map.laneletLayer}
+    lanes = {names[i]: np.array(line) for i, line in sorted(lmap.centerlines.items())}
+    successors = {}
+    for ll in lmap.map.laneletLayer:
+        nxt = sorted(names[int(f.id)] for f in lmap.routing_graph.following(ll))
+        if nxt:
+            successors[names[int(ll.id)]] = nxt
+    keep = {k: v for k, v in info.items() if k not in ("format", "format_version", "files", "n_tracks",
+                                                       "n_pirl_tracks")}
+    return ScenarioRecording(tracks, gt, lanes, dict(sorted(successors.items())), keep)

@@ -1,0 +1,789 @@
+"""SUMO roundabout scenarios: mixed-style populations of PIRL drivers with known cost weights, recorded.
+
+One call, :func:`run_sumo_scenario`, does everything for a :class:`SumoScenarioConfig` and a seed:
+
+1. **Plan** (:func:`plan_vehicles`, before anything runs): departure times, which vehicles are background
+   traffic (``round(background_share * n_vehicles)`` of them, chosen at random), each PIRL vehicle's style
+   and normalised weights θ over (speed_dev, acc_sq, jerk_sq) drawn from the population
+   (:meth:`pirl_sim.population.Population.sample_weights`), and every vehicle's route, all from
+   ``numpy.random.SeedSequence(seed)``. Every input is validated here or when the configs are built:
+   bad configs raise ``ValueError`` before netconvert or SUMO start.
+2. **Network**: :func:`~.network.build_network` into a temporary directory; every route is checked
+   against it (:func:`~.network.validate_route`: an unreachable route raises before SUMO starts); the
+   reference paths of all routes go into one :class:`~.drivers.RouteSet`.
+3. **Simulate** with :class:`~.runner.SumoRun` (libsumo by default) at 0.1 s steps, SUMO seeded with
+   ``seed``, the ballistic position update (``--step-method.ballistic``: positions advance by the mean of
+   the speeds at both ends of a step, as in the driver model's constant-jerk dynamics), until every vehicle
+   has left or ``max_duration``. PIRL vehicles are driven by :class:`~.drivers.PirlDrivers` (every step,
+   one batched MPC call re-plans all of them); background vehicles by SUMO's Krauss model (vehicle type
+   ``background``: SUMO's passenger-car defaults, driver imperfection sigma = 0.5, speed factor N(1, 0.1)).
+4. **Record** (:mod:`pirl_sim.scenarios.recording`): tracks, ground truth and the map in one
+   :class:`~pirl_sim.scenarios.recording.ScenarioRecording`, written to ``out_dir`` if given, with the
+   network files under ``out_dir/network/`` (netconvert's header comment with its time stamp dropped, so
+   that the same seed writes byte-identical files).
+
+Speed mode. PIRL vehicles run with SUMO speed mode 31 (:data:`~.runner.SPEED_MODE_ALL_CHECKS`, SUMO's
+default, configurable): SUMO keeps its safe speed towards leaders, right of way at the entries, and the
+vehicle type's acceleration limits. The ``pirl`` vehicle type's limits (accel 3.5, decel 4.5 m/s^2) lie
+outside the MPC's bounds (a in [-4, 3] m/s^2), its speed factor 1.2 puts SUMO's lane-speed caps (11.8 m/s
+on the default network's junction lanes) above any speed the driver model wants, and the default network
+lets drivers see ring traffic from 50 m before an entry (``RoundaboutSpec.entry_visibility``; with SUMO's
+4.5 m every vehicle is braked before every entry). So a command SUMO does not carry out is an
+**interaction** (a leader too close, a foe with right of way), not a limit of the simulator. Each step
+records whether SUMO overrode the command (speed after the step more than ``override_tol`` from the
+command). A track is flagged ``interacted`` when SUMO overrode at least one of its commands, it collided,
+or SUMO stopped it and drove it until it was moving again (the standstill hand-back of
+:class:`~.drivers.PirlDrivers`). The paper selected drivers "without too much interaction"; the tracks
+that are not flagged are what :func:`recorded_demonstrations` keeps by default.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.driving import fit_longitudinal_states
+from pirl_sim.dynamics import longitudinal
+from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
+from pirl_sim.trajectory import Trajectory
+
+from ..population_config import (
+    DEFAULT_POPULATION,
+    FEATURE_NAMES,
+    PopulationConfig,
+    population_from_dict,
+)
+from ..recording import (
+    BACKGROUND_STYLE,
+    BACKGROUND_STYLE_NAME,
+    FRAME_DT_S,
+    GROUND_TRUTH_COLUMNS,
+    INFO_FILE,
+    TRACK_COLUMNS,
+    RecordingFiles,
+    ScenarioRecording,
+    read_recording,
+    write_recording,
+)
+from .drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_model
+from .network import RoundaboutSpec, build_network, lane_graph, load_net, routes as network_routes, validate_route
+from .runner import BACKENDS, COLLISION_ACTIONS, SPEED_MODE_ALL_CHECKS, SumoRecording, SumoRun, VehicleSpec
+
+__all__ = [
+    "STEP_LENGTH",
+    "DEFAULT_NETWORK",
+    "PIRL_VTYPE",
+    "BACKGROUND_VTYPE",
+    "DriverConfig",
+    "SumoScenarioConfig",
+    "SumoScenarioResult",
+    "SumoRunData",
+    "scenario_from_dict",
+    "load_scenario",
+    "plan_vehicles",
+    "vehicle_types_xml",
+    "run_sumo_scenario",
+    "run_to_directory",
+    "recorded_demonstrations",
+    "load_sumo_run",
+]
+
+STEP_LENGTH = FRAME_DT_S  #: [s] simulation step = INTERACTION frame = driver-model step
+PIRL_VTYPE = "pirl"
+BACKGROUND_VTYPE = "background"
+NETWORK_DIR = "network"  # under out_dir
+_NET_NAME = "roundabout"
+_DEFAULT_EXTRA_TIME = 300.0  # [s] after the last departure, when max_duration is not given
+
+#: The scenarios' default roundabout: 4 arms, single lane, ring radius 25 m, junction curves of 10 m radius,
+#: ring traffic visible from 50 m before an entry. Larger than :class:`~.network.RoundaboutSpec`'s defaults
+#: (20 m, 6 m) so that the entries' S-bends are drivable at the driver model's comfortable lateral
+#: acceleration without near-stops (with 20 m / 6 m the desired speed dips to ~4.6 m/s at every entry and
+#: the "tracks desired speed" and "no preference" styles brake to a standstill there in free flow). The
+#: visibility lets SUMO override a PIRL driver at an entry only when ring traffic conflicts (with SUMO's
+#: 4.5 m every PIRL vehicle, even alone in the network, was braked before every entry).
+DEFAULT_NETWORK = RoundaboutSpec(radius=25.0, junction_radius=10.0, entry_visibility=50.0)
+
+
+def _positive(label: str, v, *, allow_zero: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
+            or v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{label} must be a finite number {'>=' if allow_zero else '>'} 0, got {v!r}")
+    return float(v)
+
+
+def _int_at_least(label: str, v, low: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+        raise ValueError(f"{label} must be an integer >= {low}, got {v!r}")
+    return int(v)
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    """The PIRL drivers' model, MPC and SUMO vehicle type (validated on construction).
+
+    Attributes
+    ----------
+    horizon : int
+        MPC horizon [steps of 0.1 s], >= 1.
+    n_iter : int
+        Newton iterations per re-plan (warm-started: 1 is a real-time iteration), >= 1.
+    n_qp_iter : int
+        Bounded QPs per re-plan where a bound is active, >= 1.
+    a_lat : float
+        Comfortable lateral acceleration of the desired speed [m/s^2], > 0.
+    v_max : float
+        Speed cap of the desired speed [m/s], > 0.
+    smoothing : float
+        Smoothing length [m], >= 0, of the routes' reference paths (their geometry, on which recorded
+        positions are projected): 2 m keeps the paths within 0.2 m of the lanes' centre lines.
+    speed_smoothing : float
+        Further smoothing length [m], >= 0, of the paths' curvature for the desired speed (see
+        :class:`~.drivers.RouteSet`). The default 10 m rounds the S-bend where an entry meets the ring: with
+        4 m its curvature peaks make the desired speed dip to ~4.6 m/s over ~10 m, and drivers that
+        dislike braking stop there in free flow (measured on the default network: with 7 m "no preference"
+        drivers still stop, with 8 m none does, 10 m leaves a margin).
+    depart_speed : float
+        Speed [m/s] at insertion, >= 0 (SUMO delays the insertion while it is unsafe).
+    accel, decel : float
+        SUMO vehicle-type limits [m/s^2] of PIRL vehicles, > 0; keep them above the MPC's bounds (3 and
+        4 m/s^2) so that SUMO overrides a command only for safety or right of way.
+    speed_factor : float
+        SUMO speed factor of PIRL vehicles (their speed cap is speed limit x factor), > 0.
+    stop_speed, resume_speed : float
+        [m/s] Standstill hand-back of :class:`~.drivers.PirlDrivers`: a PIRL vehicle slower than
+        ``stop_speed`` is driven by SUMO until it is faster than ``resume_speed`` (its track is then flagged
+        ``interacted``), 0 <= stop_speed <= resume_speed.
+    """
+
+    horizon: int = 30
+    n_iter: int = 1
+    n_qp_iter: int = 1
+    a_lat: float = DEFAULT_A_LAT
+    v_max: float = DEFAULT_V_MAX
+    smoothing: float = 2.0
+    speed_smoothing: float = 10.0
+    depart_speed: float = DEFAULT_V_MAX
+    accel: float = 3.5
+    decel: float = 4.5
+    speed_factor: float = 1.2
+    stop_speed: float = 0.5
+    resume_speed: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "n_iter", "n_qp_iter"):
+            object.__setattr__(self, name, _int_at_least(f"drivers.{name}", getattr(self, name), 1))
+        for name in ("a_lat", "v_max", "accel", "decel", "speed_factor"):
+            object.__setattr__(self, name, _positive(f"drivers.{name}", getattr(self, name)))
+        for name in ("smoothing", "speed_smoothing", "depart_speed", "stop_speed", "resume_speed"):
+            object.__setattr__(self, name, _positive(f"drivers.{name}", getattr(self, name), allow_zero=True))
+        if self.stop_speed > self.resume_speed:
+            raise ValueError(f"drivers.stop_speed = {self.stop_speed} m/s must not exceed drivers.resume_speed = "
+                             f"{self.resume_speed} m/s")
+
+
+@dataclass(frozen=True)
+class SumoScenarioConfig:
+    """A SUMO roundabout scenario (validated on construction; routes against the network once it is built).
+
+    Attributes
+    ----------
+    network : RoundaboutSpec
+        Default :data:`DEFAULT_NETWORK`.
+    population : PopulationConfig
+        Default: the paper's three styles, 20 % background
+        (:data:`~pirl_sim.scenarios.population_config.DEFAULT_POPULATION`).
+    drivers : DriverConfig
+    routes : mapping route id -> edge ids, or None
+        The route catalogue (kept sorted by id); None: every entry-to-exit route of the roundabout
+        (:func:`~.network.routes`).
+    pirl_routes, background_routes : tuple of str or None
+        Routes (ids in the catalogue) PIRL / background vehicles draw theirs from, uniformly; None: all.
+    speed_mode : int
+        SUMO speed mode of PIRL vehicles, in [0, 127] (see the module docstring).
+    collision_action : {"warn", "remove", "teleport", "none"}
+        SUMO's ``--collision.action``.
+    override_tol : float
+        [m/s] a command counts as overridden when SUMO's speed after the step differs by more, > 0.
+    max_duration : float or None
+        Longest simulated time [s], > 0; None: last departure + 300 s. The run stops earlier once every
+        vehicle has left.
+    """
+
+    network: RoundaboutSpec = DEFAULT_NETWORK
+    population: PopulationConfig = DEFAULT_POPULATION
+    drivers: DriverConfig = field(default_factory=DriverConfig)
+    routes: Mapping[str, Sequence[str]] | None = None
+    pirl_routes: tuple[str, ...] | None = None
+    background_routes: tuple[str, ...] | None = None
+    speed_mode: int = SPEED_MODE_ALL_CHECKS
+    collision_action: str = "warn"
+    override_tol: float = 0.01
+    max_duration: float | None = None
+
+    def __post_init__(self) -> None:
+        for name, cls in (("network", RoundaboutSpec), ("population", PopulationConfig), ("drivers", DriverConfig)):
+            if not isinstance(getattr(self, name), cls):
+                raise ValueError(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
+        if self.routes is not None:
+            if not isinstance(self.routes, Mapping) or not self.routes:
+                raise ValueError(f"routes must be a non-empty mapping route id -> edge ids, got {self.routes!r}")
+            cat = {}
+            for rid, edges in self.routes.items():
+                if not isinstance(rid, str) or not rid:
+                    raise ValueError(f"route ids must be non-empty strings, got {rid!r}")
+                if isinstance(edges, str) or not all(isinstance(e, str) for e in edges) or not len(edges):
+                    raise ValueError(f"route {rid!r} must be a non-empty list of edge ids, got {edges!r}")
+                cat[rid] = tuple(edges)
+            object.__setattr__(self, "routes", dict(sorted(cat.items())))  # canonical order (draws use it)
+        known = self.route_catalogue()
+        for name in ("pirl_routes", "background_routes"):
+            chosen = getattr(self, name)
+            if chosen is None:
+                continue
+            if isinstance(chosen, str) or not len(chosen):
+                raise ValueError(f"{name} must be a non-empty list of route ids, got {chosen!r}")
+            unknown = [r for r in chosen if r not in known]
+            if unknown:
+                raise ValueError(f"{name}: unknown route(s) {unknown}; routes: {', '.join(known)}")
+            object.__setattr__(self, name, tuple(chosen))
+        sm = self.speed_mode
+        if isinstance(sm, bool) or not isinstance(sm, (int, np.integer)) or not 0 <= sm < 128:
+            raise ValueError(f"speed_mode must be an integer bitset in [0, 127], got {sm!r}")
+        if self.collision_action not in COLLISION_ACTIONS:
+            raise ValueError(f"collision_action must be one of {COLLISION_ACTIONS}, got {self.collision_action!r}")
+        object.__setattr__(self, "override_tol", _positive("override_tol", self.override_tol))
+        if self.max_duration is not None:
+            object.__setattr__(self, "max_duration", _positive("max_duration", self.max_duration))
+
+    def route_catalogue(self) -> dict[str, tuple[str, ...]]:
+        """Route id -> edge ids of every route of the scenario (not yet checked against a built network)."""
+        if self.routes is not None:
+            return dict(self.routes)
+        return {rid: tuple(edges) for rid, edges in network_routes(self.network)}
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain (TOML/JSON-ready) form that :func:`scenario_from_dict` reads back."""
+        net = asdict(self.network)
+        net["center"] = list(net["center"])
+        out: dict[str, Any] = {
+            "network": net,
+            "drivers": asdict(self.drivers),
+            "population": self.population.to_dict(),
+            "speed_mode": self.speed_mode,
+            "collision_action": self.collision_action,
+            "override_tol": self.override_tol,
+        }
+        if self.routes is not None:
+            out["routes"] = {k: list(v) for k, v in self.routes.items()}
+        for name in ("pirl_routes", "background_routes"):
+            if getattr(self, name) is not None:
+                out[name] = list(getattr(self, name))
+        if self.max_duration is not None:
+            out["max_duration"] = self.max_duration
+        return out
+
+
+_SCENARIO_KEYS = ("network", "population", "drivers", "routes", "pirl_routes", "background_routes",
+                  "speed_mode", "collision_action", "override_tol", "max_duration")
+
+
+def _table(label: str, data: Any, cls) -> Any:
+    valid = tuple(f.name for f in fields(cls) if f.init)
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{label} must be a table, got {data!r}")
+    unknown = [k for k in data if k not in valid]
+    if unknown:
+        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: {', '.join(valid)}")
+    kwargs = dict(data)
+    if cls is RoundaboutSpec and "center" in kwargs and isinstance(kwargs["center"], list):
+        kwargs["center"] = tuple(kwargs["center"])
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise ValueError(f"{label}: {exc}") from None
+
+
+def scenario_from_dict(data: Mapping[str, Any], *, source: str = "scenario",
+                       population: PopulationConfig | None = None) -> SumoScenarioConfig:
+    """Build a :class:`SumoScenarioConfig` from plain data (a parsed TOML file).
+
+    Parameters
+    ----------
+    data : mapping
+        Top-level keys as the attributes of :class:`SumoScenarioConfig`; ``network`` and ``drivers`` are
+        tables of :class:`~.network.RoundaboutSpec` / :class:`DriverConfig` fields, ``population`` a table
+        as :func:`~pirl_sim.scenarios.population_config.population_from_dict` reads.
+    source : str
+        Named in error messages.
+    population : PopulationConfig, optional
+        Used instead of the ``population`` table (which must then be absent).
+
+    Raises
+    ------
+    ValueError
+        Unknown keys (listing the valid ones) and every invalid value.
+    """
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{source}: expected a table of settings, got {type(data).__name__}")
+    unknown = [k for k in data if k not in _SCENARIO_KEYS]
+    if unknown:
+        raise ValueError(f"{source}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: "
+                         f"{', '.join(_SCENARIO_KEYS)}")
+    kwargs: dict[str, Any] = {}
+    if "network" in data:
+        kwargs["network"] = _table(f"{source}: network", data["network"], RoundaboutSpec)
+    if "drivers" in data:
+        kwargs["drivers"] = _table(f"{source}: drivers", data["drivers"], DriverConfig)
+    if "population" in data:
+        if population is not None:
+            raise ValueError(f"{source}: has a population table and a population was given too")
+        kwargs["population"] = population_from_dict(data["population"], source=f"{source}: population")
+    elif population is not None:
+        kwargs["population"] = population
+    for k in ("routes", "speed_mode", "collision_action", "override_tol", "max_duration"):
+        if k in data:
+            kwargs[k] = data[k]
+    for k in ("pirl_routes", "background_routes"):
+        if k in data:
+            kwargs[k] = data[k] if isinstance(data[k], str) else tuple(data[k])
+    try:
+        return SumoScenarioConfig(**kwargs)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def load_scenario(path, *, population: PopulationConfig | None = None) -> SumoScenarioConfig:
+    """Read a scenario TOML file (see :func:`scenario_from_dict`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"scenario config not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    return scenario_from_dict(data, source=str(path), population=population)
+
+
+# ----------------------------------------------------------------------------------------------
+# planning
+# ----------------------------------------------------------------------------------------------
+
+_PLAN_COLUMNS = ("vehicle_id", "depart", "route_id", "is_pirl", "style", "style_name",
+                 *(f"theta_{f}" for f in FEATURE_NAMES))
+
+
+def _check_seed(seed) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**31:
+        raise ValueError(f"seed must be an integer in [0, 2**31), got {seed!r}")
+    return int(seed)
+
+
+def _streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
+    """(population draws, control noise): independent generators from ``SeedSequence(seed)``."""
+    a, b = np.random.SeedSequence(seed).spawn(2)
+    return np.random.default_rng(a), np.random.default_rng(b)
+
+
+def plan_vehicles(config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
+    """Every vehicle of the scenario, drawn from ``seed`` before anything runs.
+
+    Parameters
+    ----------
+    config : SumoScenarioConfig
+    seed : int
+        In [0, 2**31).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per vehicle in departure order: ``vehicle_id`` ("veh000", ...), ``depart`` [s],
+        ``route_id``, ``is_pirl``, ``style`` (index into the population's styles; -1 for background),
+        ``style_name`` ("background" for background) and ``theta_speed_dev``, ``theta_acc_sq``,
+        ``theta_jerk_sq`` (normalised weights, NaN for background).
+    """
+    if not isinstance(config, SumoScenarioConfig):
+        raise TypeError(f"config must be a SumoScenarioConfig, got {type(config).__name__}")
+    seed = _check_seed(seed)
+    rng, _ = _streams(seed)
+    pop = config.population
+    n = pop.n_vehicles
+    depart = pop.depart_times(rng)
+    is_pirl = np.ones(n, dtype=bool)
+    is_pirl[rng.choice(n, size=pop.n_background, replace=False)] = False
+    n_pirl = int(is_pirl.sum())
+    theta = np.full((n, len(FEATURE_NAMES)), np.nan)
+    style = np.full(n, BACKGROUND_STYLE, dtype=np.int64)
+    if n_pirl:
+        theta[is_pirl], style[is_pirl] = pop.sample_weights(n_pirl, rng)
+    catalogue = list(config.route_catalogue())
+    pirl_routes = list(config.pirl_routes or catalogue)
+    bg_routes = list(config.background_routes or catalogue)
+    route = np.empty(n, dtype=object)
+    route[is_pirl] = [pirl_routes[i] for i in rng.integers(len(pirl_routes), size=n_pirl)]
+    route[~is_pirl] = [bg_routes[i] for i in rng.integers(len(bg_routes), size=n - n_pirl)]
+    width = max(3, len(str(n - 1)))
+    names = pop.style_names
+    return pd.DataFrame({
+        "vehicle_id": [f"veh{k:0{width}d}" for k in range(n)],
+        "depart": depart,
+        "route_id": route.astype(str),
+        "is_pirl": is_pirl,
+        "style": style,
+        "style_name": [names[s] if s >= 0 else BACKGROUND_STYLE_NAME for s in style],
+        **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
+    }, columns=list(_PLAN_COLUMNS))
+
+
+def vehicle_types_xml(drivers: DriverConfig) -> str:
+    """SUMO additional file with the vehicle types ``pirl`` and ``background`` (see the module docstring)."""
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n<additional>\n'
+        f'    <vType id="{PIRL_VTYPE}" vClass="passenger" carFollowModel="Krauss" accel="{drivers.accel!r}" '
+        f'decel="{drivers.decel!r}" emergencyDecel="9.0" sigma="0" tau="1.0" length="5.0" width="1.8" '
+        f'minGap="2.5" speedFactor="{drivers.speed_factor!r}" speedDev="0"/>\n'
+        f'    <vType id="{BACKGROUND_VTYPE}" vClass="passenger" carFollowModel="Krauss" accel="2.6" '
+        'decel="4.5" emergencyDecel="9.0" sigma="0.5" tau="1.0" length="5.0" width="1.8" minGap="2.5" '
+        'speedFactor="1.0" speedDev="0.1"/>\n'
+        '</additional>\n'
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# running
+# ----------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class SumoScenarioResult:
+    """Everything a run produced.
+
+    Attributes
+    ----------
+    config : SumoScenarioConfig
+    seed : int
+    backend : str
+    vehicles : pandas.DataFrame
+        The plan (:func:`plan_vehicles`).
+    sumo : SumoRecording
+        The runner's raw per-step recording (commands, overrides, SUMO's edges and lanes, ...).
+    recording : ScenarioRecording
+        Tracks, ground truth, map lanes and info: what :func:`write_recording` writes.
+    routes : RouteSet
+        Reference paths of every route on one arc-length axis.
+    model : RouteSetDriverModel
+        The drivers' model (converged MPC settings) for learning and prediction.
+    timing : dict
+        ``sim_time_s``, ``wall_time_s`` (stepping, controller included), ``control_time_s``,
+        ``plan_time_s`` (MPC), ``n_steps``, ``n_plans``, ``mean_vehicles`` and ``max_vehicles`` in the
+        network per step, ``real_time_factor`` (simulated / wall seconds).
+    files : RecordingFiles or None
+        When written.
+    """
+
+    config: SumoScenarioConfig
+    seed: int
+    backend: str
+    vehicles: pd.DataFrame
+    sumo: SumoRecording
+    recording: ScenarioRecording
+    routes: RouteSet
+    model: RouteSetDriverModel
+    timing: Mapping[str, float]
+    files: RecordingFiles | None = None
+
+    def demonstrations(self, **kwargs) -> list[Trajectory]:
+        """:func:`recorded_demonstrations` of this run."""
+        return recorded_demonstrations(self.recording, self.routes, **kwargs)
+
+
+#: ``progress(simulated time [s], vehicles finished, vehicles in all)``
+Progress = Callable[[float, int, int], None]
+
+
+def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *, out_dir=None,
+                      backend: str = "libsumo", progress: Progress | None = None) -> SumoScenarioResult:
+    """Plan, simulate and record one scenario (see the module docstring).
+
+    Parameters
+    ----------
+    config : SumoScenarioConfig, optional
+        Default: ``SumoScenarioConfig()`` (4-arm, 20 m roundabout; the default population).
+    seed : int
+        Seeds every draw and SUMO; the same seed gives byte-identical files.
+    out_dir : str or os.PathLike, optional
+        Where to write the recording (:func:`pirl_sim.scenarios.recording.write_recording`) and the network
+        (``network/``). Nothing is written there before the simulation has finished.
+    backend : {"libsumo", "traci"}
+    progress : callable, optional
+        Called every simulated second as ``progress(time_s, n_finished, n_vehicles)``.
+
+    Returns
+    -------
+    SumoScenarioResult
+
+    Raises
+    ------
+    ValueError
+        Bad seed or backend, or a route that is not drivable in the built network: before SUMO starts.
+    """
+    config = SumoScenarioConfig() if config is None else config
+    if not isinstance(config, SumoScenarioConfig):
+        raise TypeError(f"config must be a SumoScenarioConfig, got {type(config).__name__}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    seed = _check_seed(seed)
+    plan = plan_vehicles(config, seed)
+    _, noise_rng = _streams(seed)
+    drv = config.drivers
+    with tempfile.TemporaryDirectory(prefix="pirl_sumo_") as tmp:
+        files = build_network(config.network, tmp, name=_NET_NAME)
+        net = load_net(files.net)
+        catalogue = config.route_catalogue()
+        for rid, edges in catalogue.items():
+            validate_route(net, edges, route_id=rid)
+        routes = RouteSet.from_network(net, catalogue, smoothing=drv.smoothing,
+                                       speed_smoothing=drv.speed_smoothing)
+        vtypes = Path(tmp) / "vtypes.add.xml"
+        atomic_write_text(vtypes, vehicle_types_xml(drv))
+        model = route_set_model(routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
+                                n_qp_iter=drv.n_qp_iter)
+        pirl = plan[plan["is_pirl"]]
+        theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
+        controller = PirlDrivers(
+            model, {r.vehicle_id: (r.route_id, np.array([getattr(r, c) for c in theta_cols]))
+                    for r in pirl.itertuples(index=False)},
+            horizon=drv.horizon, control_noise=config.population.control_noise, rng=noise_rng,
+            override_tol=config.override_tol, stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
+        specs = [VehicleSpec(r.vehicle_id, r.route_id, float(r.depart),
+                             depart_speed=drv.depart_speed if r.is_pirl else "max",
+                             type_id=PIRL_VTYPE if r.is_pirl else BACKGROUND_VTYPE)
+                 for r in plan.itertuples(index=False)]
+        duration = config.max_duration or float(plan["depart"].max()) + _DEFAULT_EXTRA_TIME
+        n_max = max(1, round(duration / STEP_LENGTH))
+        present = []
+        with SumoRun(files.net, catalogue, specs, pirl_ids=set(pirl["vehicle_id"]), controller=controller,
+                     seed=seed, step_length=STEP_LENGTH, backend=backend, speed_mode=config.speed_mode,
+                     override_tol=config.override_tol, collision_action=config.collision_action,
+                     extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true")) as run:
+            for k in range(n_max):
+                run.step()
+                present.append(run.n_present)
+                if progress is not None and (k + 1) % 10 == 0:
+                    progress((k + 1) * STEP_LENGTH, run.n_finished, len(specs))
+                if run.expected() == 0:
+                    break
+            sumo_rec = run.recording()
+        if progress is not None:
+            progress(sumo_rec.sim_time_s, int(sumo_rec.summary["status"].isin(("arrived", "vanished")).sum()),
+                     len(specs))
+        lanes, successors = lane_graph(net)
+        info = {
+            "simulator": "sumo",
+            "backend": backend,
+            "seed": seed,
+            "step_length_s": STEP_LENGTH,
+            "config": config.to_dict(),
+            "routes": [[k, list(v)] for k, v in catalogue.items()],  # in catalogue order
+            "network_file": f"{NETWORK_DIR}/{_NET_NAME}.net.xml",
+            "n_vehicles": int(len(plan)),
+            "n_not_departed": int((sumo_rec.summary["status"] == "not_departed").sum()),
+            "sim_time_s": round(sumo_rec.sim_time_s, 6),
+        }
+        recording = _scenario_recording(plan, sumo_rec, lanes, successors, info, set(controller.handbacks))
+        written = None
+        if out_dir is not None:
+            out = Path(out_dir)
+            out.mkdir(parents=True, exist_ok=True)
+            (out / INFO_FILE).unlink(missing_ok=True)  # incomplete until write_recording puts it back
+            for p in (files.nodes, files.edges, files.connections, files.net, vtypes):
+                atomic_write_text(out / NETWORK_DIR / p.name, _without_generator_comment(p.read_text("utf-8")))
+            written = write_recording(recording, out, lane_width=config.network.lane_width)
+    wall = sumo_rec.wall_time_s
+    timing = {
+        "sim_time_s": sumo_rec.sim_time_s,
+        "wall_time_s": wall,
+        "control_time_s": controller.control_time_s,
+        "plan_time_s": controller.plan_time_s,
+        "n_steps": len(present),
+        "n_plans": controller.n_plans,
+        "mean_vehicles": float(np.mean(present)) if present else 0.0,
+        "max_vehicles": int(max(present, default=0)),
+        "real_time_factor": sumo_rec.sim_time_s / wall if wall > 0 else math.inf,
+    }
+    learner_model = route_set_model(routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max)
+    return SumoScenarioResult(config, seed, backend, plan, sumo_rec, recording, routes, learner_model, timing,
+                              written)
+
+
+def _without_generator_comment(xml: str) -> str:
+    """XML text without netconvert's leading ``<!-- generated on <time> ... -->`` comment (a time stamp and
+    temporary paths), so that equal runs write equal bytes."""
+    start = xml.find("<!-- generated on ")
+    if start < 0 or start > 200:
+        return xml
+    end = xml.find("-->", start)
+    return xml if end < 0 else xml[:start] + xml[end + 3:].lstrip("\n")
+
+
+def _scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors, info,
+                        handed_back: set[str]) -> ScenarioRecording:
+    """The simulator-neutral recording of a SUMO run (track ids 1, 2, ... in departure order).
+
+    ``interacted`` (PIRL tracks): SUMO overrode at least one command, the vehicle collided, or it was
+    handed back to SUMO at a standstill (``handed_back``).
+    """
+    summary = rec.summary.set_index("vehicle_id")
+    departed = [v for v in plan["vehicle_id"] if summary.loc[v, "n_steps"] > 0]
+    track_of = {v: k + 1 for k, v in enumerate(departed)}
+    frame = rec.frame
+    tracks = pd.DataFrame({
+        "track_id": frame["vehicle_id"].map(track_of).to_numpy(dtype=np.int64),
+        "time_s": frame["time"].to_numpy(dtype=float),
+        "agent_type": "car",
+        **{c: frame[c].to_numpy(dtype=float) for c in ("x", "y", "vx", "vy", "psi_rad", "length", "width")},
+    }, columns=list(TRACK_COLUMNS))
+    overridden_any = frame.groupby("vehicle_id", sort=False)["overridden"].apply(
+        lambda s: bool(s.fillna(False).astype(bool).any()))
+    p = plan.set_index("vehicle_id").loc[departed]
+    s = summary.loc[departed]
+    pirl = p["is_pirl"].to_numpy()
+    collided = s["collided"].to_numpy(dtype=bool)
+    interacted = pd.array([bool(overridden_any.get(v, False)) or bool(c) or v in handed_back if is_p else pd.NA
+                           for v, is_p, c in zip(departed, pirl, collided)], dtype="boolean")
+    gt = pd.DataFrame({
+        "track_id": np.arange(1, len(departed) + 1, dtype=np.int64),
+        "agent_id": departed,
+        "route_id": p["route_id"].to_numpy(),
+        "is_pirl": pirl,
+        "style": p["style"].to_numpy(dtype=np.int64),
+        "style_name": p["style_name"].to_numpy(),
+        **{f"theta_{f}": p[f"theta_{f}"].to_numpy(dtype=float) for f in FEATURE_NAMES},
+        "interacted": interacted,
+        "collided": collided,
+        "removed_early": s["removed_early"].to_numpy(dtype=bool),
+        "overridden_fraction": np.where(pirl, s["overridden_fraction"].to_numpy(dtype=float), np.nan),
+        "status": s["status"].to_numpy(),
+        "n_frames": s["n_steps"].to_numpy(dtype=np.int64),
+    }, columns=list(GROUND_TRUTH_COLUMNS))
+    return ScenarioRecording(tracks, gt, lanes, successors, info)
+
+
+def run_to_directory(config: SumoScenarioConfig | None, seed: int, out_dir, backend: str = "libsumo") -> dict:
+    """:func:`run_sumo_scenario` writing to ``out_dir``, returning only a picklable summary (for
+    :func:`~.runner.run_in_subprocess` and worker pools: libsumo runs one simulation per process).
+
+    Returns
+    -------
+    dict
+        ``out_dir``, ``n_tracks``, ``n_pirl``, ``n_interacted`` and the timing of the run.
+    """
+    res = run_sumo_scenario(config, seed, out_dir=out_dir, backend=backend)
+    gt = res.recording.ground_truth
+    return {"out_dir": os.fspath(out_dir), "n_tracks": int(len(gt)), "n_pirl": int(gt["is_pirl"].sum()),
+            "n_interacted": int(gt["interacted"].fillna(False).astype(bool).sum()), **dict(res.timing)}
+
+
+# ----------------------------------------------------------------------------------------------
+# back to demonstrations
+# ----------------------------------------------------------------------------------------------
+
+def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, dt: float = STEP_LENGTH,
+                            pirl_only: bool = True, non_interacting: bool = True, min_steps: int = 10,
+                            jerk_weight: float = 1e-2) -> list[Trajectory]:
+    """Recorded tracks as longitudinal demonstrations (s, v, a; jerk) on the routes' global axis.
+
+    Each track's positions are projected on its route's reference path
+    (:meth:`pirl_sim.paths.ReferencePath.to_frenet`), shifted to the route's place on the global axis,
+    sampled every ``dt`` and turned into states and controls consistent with the dynamics by
+    :func:`pirl_sim.driving.fit_longitudinal_states`.
+
+    Parameters
+    ----------
+    recording : ScenarioRecording
+    routes : RouteSet
+        Must hold every selected track's route.
+    dt : float
+        [s], a whole multiple of the 0.1 s frames.
+    pirl_only : bool
+        Only tracks driven by PIRL drivers.
+    non_interacting : bool
+        Leave out tracks that interacted, collided or were removed early.
+    min_steps : int
+        Leave out shorter tracks [steps of dt].
+    jerk_weight : float
+        Ridge on the jerks of the fit (see ``fit_longitudinal_states``).
+
+    Returns
+    -------
+    list of Trajectory
+        In track order; metadata ``track_id``, ``agent_id``, ``route_id``, ``is_pirl``, ``style``,
+        ``style_name``, ``theta`` (normalised weights, NaN for background), ``interacted``.
+    """
+    stride = round(dt / FRAME_DT_S)
+    if stride < 1 or not math.isclose(stride * FRAME_DT_S, dt, rel_tol=1e-9):
+        raise ValueError(f"dt must be a whole multiple of {FRAME_DT_S} s, got {dt!r}")
+    gt = recording.ground_truth
+    keep = np.ones(len(gt), dtype=bool)
+    if pirl_only:
+        keep &= gt["is_pirl"].to_numpy()
+    if non_interacting:
+        keep &= ~(gt["interacted"].fillna(False).to_numpy(dtype=bool) | gt["collided"].to_numpy()
+                  | gt["removed_early"].to_numpy())
+    dyn = longitudinal(dt)
+    by_track = {tid: g for tid, g in recording.tracks.groupby("track_id", sort=True)}
+    out = []
+    for row in gt[keep].itertuples(index=False):
+        g = by_track[row.track_id].sort_values("time_s", kind="stable")
+        frames = np.round(g["time_s"].to_numpy() / FRAME_DT_S).astype(np.int64)
+        if np.any(np.diff(frames) != 1):
+            raise ValueError(f"track {row.track_id} has gaps in its frames; cannot make one demonstration")
+        xy = g[["x", "y"]].to_numpy()[::stride]
+        if len(xy) - 1 < min_steps:
+            continue
+        r = routes.index(row.route_id)
+        s, _ = routes.paths[r].to_frenet(xy, extrapolate=True)
+        states, controls = fit_longitudinal_states(routes.offsets[r] + s, dyn, jerk_weight=jerk_weight)
+        theta = np.array([getattr(row, f"theta_{f}") for f in FEATURE_NAMES])
+        out.append(Trajectory(states, controls, dt, {
+            "track_id": int(row.track_id), "agent_id": row.agent_id, "route_id": row.route_id,
+            "is_pirl": bool(row.is_pirl), "style": int(row.style), "style_name": row.style_name,
+            "theta": theta, "interacted": None if pd.isna(row.interacted) else bool(row.interacted)}))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class SumoRunData:
+    """A SUMO run read back from its directory (:func:`load_sumo_run`)."""
+
+    recording: ScenarioRecording
+    routes: RouteSet
+    model: RouteSetDriverModel
+
+    def demonstrations(self, **kwargs) -> list[Trajectory]:
+        """:func:`recorded_demonstrations` of this run."""
+        return recorded_demonstrations(self.recording, self.routes, **kwargs)
+
+
+def load_sumo_run(directory) -> SumoRunData:
+    """Read a run written by :func:`run_sumo_scenario`: recording, the routes' reference paths (from the
+    network under ``network/`` and the route catalogue in ``run.json``) and the drivers' model."""
+    d = Path(directory)
+    rec = read_recording(d)
+    info = rec.info
+    if info.get("simulator") != "sumo":
+        raise ValueError(f"{d}: not a SUMO recording (simulator {info.get('simulator')!r})")
+    drv = DriverConfig(**info["config"]["drivers"])
+    routes = RouteSet.from_network(d / info["network_file"], [(k, tuple(v)) for k, v in info["routes"]],
+                                   smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
+    model = route_set_model(routes, dt=info["step_length_s"], a_lat=drv.a_lat, v_max=drv.v_max)
+    return SumoRunData(rec, routes, model)
