@@ -24,7 +24,7 @@ __all__ = [
     "THREE_STYLES",
     "passage_polyline",
     "generate",
-    "track_table",
+    "recording",
     "lanelet_centerlines",
     "write_scene",
 ]
@@ -130,21 +130,18 @@ def generate(config: PassageConfig = PassageConfig()) -> PassageData:
     return PassageData(config, model, [demos[i] for i in order[: config.n_train]], [demos[i] for i in order[config.n_train :]])
 
 
-def track_table(data: PassageData, *, frames_apart: int = 100) -> tuple["pd.DataFrame", "pd.DataFrame"]:
-    """The passages as an INTERACTION vehicle track table at 0.1 s frames, and their ground-truth sidecar.
+def recording(data: PassageData, *, frames_apart: int = 100):
+    """The passages as a `pirl_sim.scenarios.recording.ScenarioRecording` (tracks at 0.1 s frames, ground
+    truth, the three lanelets of the passage).
 
     States at the model's dt are refined to 0.1 s frames through the exact dynamics (the jerk is constant
-    over a step), placed on the path (x, y, heading; vx, vy along the heading). Track k starts at frame
-    1 + k * ``frames_apart`` so that drivers do not meet (the passage has no interaction).
-
-    Returns
-    -------
-    tracks : DataFrame with `pirl_sim.io.interaction.VEHICLE_COLUMNS`
-    truth : DataFrame (track_id, style, style_name, theta_<feature>...)
+    over a step) and placed on the path (x, y, heading; vx, vy along the heading). Track k starts at
+    frame 1 + k * ``frames_apart`` so that drivers do not meet (the passage has no interaction).
     """
     import pandas as pd
 
     from pirl_sim.dynamics import longitudinal
+    from pirl_sim.scenarios.recording import GROUND_TRUTH_COLUMNS, TRACK_COLUMNS, ScenarioRecording
 
     model = data.model
     dt = model.dynamics.dt
@@ -153,20 +150,31 @@ def track_table(data: PassageData, *, frames_apart: int = 100) -> tuple["pd.Data
     names = model.features.names
     rows, truth = [], []
     for k, t in enumerate(data.train + data.test):
-        U = np.repeat(t.controls, sub, axis=0)
-        X = fine.rollout(t.states[0], U)
+        X = fine.rollout(t.states[0], np.repeat(t.controls, sub, axis=0))
         s, v = X[:, 0], X[:, 1]
         xy = model.path.position(s, extrapolate=True)
         psi = model.path.heading_at(s, extrapolate=True)
         frame = 1 + k * frames_apart + np.arange(len(s))
         rows.append(pd.DataFrame({
-            "track_id": k + 1, "frame_id": frame, "timestamp_ms": 100 * frame, "agent_type": "car",
-            "x": xy[:, 0], "y": xy[:, 1], "vx": v * np.cos(psi), "vy": v * np.sin(psi),
-            "psi_rad": np.arctan2(np.sin(psi), np.cos(psi)), "length": 4.5, "width": 1.8,
+            "track_id": k + 1, "time_s": frame / 10.0, "agent_type": "car", "x": xy[:, 0], "y": xy[:, 1],
+            "vx": v * np.cos(psi), "vy": v * np.sin(psi), "psi_rad": np.arctan2(np.sin(psi), np.cos(psi)),
+            "length": 4.5, "width": 1.8,
         }))
-        truth.append({"track_id": k + 1, "style": t.metadata["style"], "style_name": t.metadata["style_name"],
-                      **{f"theta_{n}": float(w) for n, w in zip(names, t.metadata["theta"])}})
-    return pd.concat(rows, ignore_index=True), pd.DataFrame(truth)
+        truth.append({
+            "track_id": k + 1, "agent_id": f"passage_{k + 1}", "route_id": "passage", "is_pirl": True,
+            "style": t.metadata["style"], "style_name": t.metadata["style_name"],
+            **{f"theta_{n}": float(w) for n, w in zip(names, t.metadata["theta"])},
+            "interacted": False, "collided": False, "removed_early": False, "overridden_fraction": 0.0,
+            "status": "arrived", "n_frames": len(s),
+        })
+    lanes, successors = lanelet_centerlines(data.config)
+    return ScenarioRecording(
+        tracks=pd.concat(rows, ignore_index=True)[list(TRACK_COLUMNS)],
+        ground_truth=pd.DataFrame(truth)[list(GROUND_TRUTH_COLUMNS)],
+        lanes=lanes,
+        successors=successors,
+        info={"simulator": "pirl_sim passage", "seed": data.config.seed, "n_trajectories": data.config.n_trajectories},
+    )
 
 
 def lanelet_centerlines(config: PassageConfig, spacing: float = 1.0) -> tuple[dict, dict]:
@@ -183,19 +191,12 @@ def lanelet_centerlines(config: PassageConfig, spacing: float = 1.0) -> tuple[di
 
 
 def write_scene(data: PassageData, out_dir) -> dict:
-    """Write the passages as a recorded scene: ``vehicle_tracks_000.csv``, ``ground_truth.csv`` and
-    ``map.osm`` (Lanelet2), atomically. Returns the paths."""
+    """Write the passages as a recorded scene with the one recording writer
+    (`pirl_sim.scenarios.recording.write_recording`): tracks, ground truth, Lanelet2 map. Returns the paths."""
     from pathlib import Path
 
-    from pirl_sim.io.atomic import atomic_write_text
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
+    from pirl_sim.scenarios.recording import GROUND_TRUTH_FILE, MAP_FILE, TRACKS_FILE, write_recording
 
     out = Path(out_dir)
-    tracks, truth = track_table(data)
-    paths = {"tracks": out / "vehicle_tracks_000.csv", "truth": out / "ground_truth.csv", "map": out / "map.osm"}
-    write_tracks(tracks, paths["tracks"])
-    atomic_write_text(paths["truth"], truth.to_csv(index=False))
-    lines, successors = lanelet_centerlines(data.config)
-    write_map(lines, successors, paths["map"])
-    return paths
+    write_recording(recording(data), out)
+    return {"tracks": out / TRACKS_FILE, "truth": out / GROUND_TRUTH_FILE, "map": out / MAP_FILE}

@@ -10,7 +10,7 @@ import pytest
 from pirl_sim.cli import main
 from pirl_sim.harness.replay import ReplayProtocol, run_replay
 from pirl_sim.io.interaction import read_tracks
-from pirl_sim.scenarios.passage import PassageConfig, generate, track_table, write_scene
+from pirl_sim.scenarios.passage import PassageConfig, generate, recording, write_scene
 from pirl_sim.scenarios.replay import SelectionRule, interaction_flags, load_replay
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
@@ -28,7 +28,7 @@ def scene_dir(tmp_path_factory):
 
 def test_simulated_scene_round_trips_through_the_interaction_format(scene_dir):
     out, data = scene_dir
-    tracks, _ = track_table(data)
+    tracks = recording(data).tracks.sort_values(["track_id", "time_s"])
     back = read_tracks(out / "vehicle_tracks_000.csv")
     np.testing.assert_allclose(back[["x", "y"]].to_numpy(), tracks[["x", "y"]].to_numpy(), atol=1e-6)
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
