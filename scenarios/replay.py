@@ -30,6 +30,7 @@ import pandas as pd
 from pirl_sim.driving import CompositePath, PathDriverModel, fit_longitudinal_states, roundabout_model
 from pirl_sim.paths import ReferencePath
 from pirl_sim.trajectory import Trajectory
+from pirl_sim.validation import is_positive_int
 
 __all__ = ["SelectionRule", "ReplayScene", "load_replay", "interaction_flags", "FRAME_DT"]
 
@@ -158,6 +159,7 @@ def load_replay(
     rule: SelectionRule = SelectionRule(),
     max_offset: float = 3.0,
     jerk_weight: float = 1e-2,
+    max_steps: int | None = 100,
 ) -> ReplayScene:
     """Read track files recorded on one map into a `ReplayScene`.
 
@@ -169,6 +171,10 @@ def load_replay(
     rule : SelectionRule
     max_offset : float [m]  route matching tolerance
     jerk_weight : float   smoothing of the state estimate (see `fit_longitudinal_states`)
+    max_steps : int or None
+        Longer tracks are cut into consecutive pieces of at most this many steps (metadata ``piece``); the
+        per-demonstration IRL costs O(steps^3), and a 20 s piece holds a whole roundabout passage.
+        Experiments split train and test by track, never by piece.
     """
     from pirl_sim.io.interaction import read_tracks
     from pirl_sim.io.lanelet2_map import load_map, match_route
@@ -236,7 +242,19 @@ def load_replay(
     model = roundabout_model(composite, dt=dt)
     names = model.features.names
     trajectories = []
+    if max_steps is not None and not is_positive_int(max_steps):
+        raise ValueError(f"max_steps must be a positive integer or None, got {max_steps!r}")
+    pieces = []
     for segment, s_local, d, xy, meta in pending:
+        n = len(s_local) - 1
+        size = n if max_steps is None else max_steps
+        starts = list(range(0, max(n - 1, 1), size))
+        for p, a in enumerate(starts):
+            b = min(a + size, n)
+            if b - a < 2:
+                continue
+            pieces.append((segment, s_local[a : b + 1], d[a : b + 1], xy[a : b + 1], dict(meta, piece=p)))
+    for segment, s_local, d, xy, meta in pieces:
         s = s_local + composite.offsets[segment]
         states, controls = fit_longitudinal_states(s, model.dynamics, jerk_weight=jerk_weight)
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy))

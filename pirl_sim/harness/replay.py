@@ -123,11 +123,15 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     model = scene.model
     dt = model.dynamics.dt
     rows, errors, examples = [], {}, {}
+    # split by track: pieces of one long track never sit on both sides
+    keys = [(t.metadata.get("file"), t.metadata.get("track_id", i)) for i, t in enumerate(tracks)]
+    unique = sorted(set(keys), key=str)
     for seed in proto.seeds:
-        order = np.random.default_rng(seed).permutation(len(tracks))
-        n_test = max(1, int(round(proto.test_fraction * len(tracks))))
-        test = [tracks[i] for i in order[:n_test]]
-        train = [tracks[i] for i in order[n_test:]]
+        order = np.random.default_rng(seed).permutation(len(unique))
+        n_test = max(1, int(round(proto.test_fraction * len(unique))))
+        test_keys = {unique[i] for i in order[:n_test]}
+        test = [t for t, k in zip(tracks, keys) if k in test_keys]
+        train = [t for t, k in zip(tracks, keys) if k not in test_keys]
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
