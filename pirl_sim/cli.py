@@ -60,8 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
     from pirl_sim.scenarios.sumo.cli import add_simulate_parser
+    from pirl_sim.sweep.cli import add_sweep_parsers
 
     add_simulate_parser(sub)
+    add_sweep_parsers(sub)
 
     rp = sub.add_parser(
         "replay",
@@ -140,6 +142,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "replay":
         return _replay(args)
+    if args.command in ("sweep", "report"):
+        from pirl_sim.sweep.cli import run_report_command, run_sweep_command
+
+        return run_sweep_command(args) if args.command == "sweep" else run_report_command(args)
     if args.command == "simulate":
         from pirl_sim.scenarios.sumo.cli import run_simulate
 

@@ -1,0 +1,238 @@
+"""One sweep cell, run in a worker: scenario data -> learner.fit -> evaluate -> a JSON-serialisable result.
+
+`run_cell` is what executors ship to worker processes (local or Dask); it takes the cell's plain-JSON spec
+(`pirl_sim.sweep.config.Cell.spec`) so nothing but small dicts crosses process or machine boundaries.
+
+- **Same numbers everywhere.** Each worker process limits BLAS/OpenMP to one thread before its first cell
+  (sweeps parallelise over cells), so a cell computes the same floating-point result whichever executor,
+  worker or machine runs it, and workers do not oversubscribe the cores.
+- **Same code everywhere.** A worker whose code version differs from the sweep's refuses the cell: its result
+  would be stored under a key that claims other code.
+- **Data cache.** Scenario data is cached per process (the last `CACHE_SIZE` data sets, by scenario, parameters
+  and seed): cells of one scenario on one worker generate it once. Generation is deterministic, so caching
+  never changes a result, only ``generate_s``.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+import warnings
+from collections import OrderedDict
+from contextlib import contextmanager
+
+import numpy as np
+
+__all__ = ["run_cell", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE"]
+
+CACHE_SIZE = 3  #: scenario data sets kept per worker process
+MAX_RECOVERY_POINTS = 200  #: test histories whose inferred weights are kept for the recovery scatter
+MAX_WARNING_MESSAGES = 10
+
+_CACHE: OrderedDict = OrderedDict()
+_THREADS_LIMITED = False
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
+                "NUMEXPR_NUM_THREADS")
+
+
+def limit_threads() -> None:
+    """One BLAS/OpenMP thread in this process from now on (idempotent; see module doc)."""
+    global _THREADS_LIMITED
+    if _THREADS_LIMITED:
+        return
+    for var in _THREAD_VARS:
+        os.environ[var] = "1"  # libraries loaded later, and child processes
+    import scipy.linalg  # noqa: F401  load the BLAS and OpenMP runtimes the cells use, then limit them
+    import sklearn.mixture  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1)
+    _THREADS_LIMITED = True
+
+
+@contextmanager
+def single_threaded():
+    """One BLAS/OpenMP thread inside the block only, for cells run in the calling process (InlineExecutor)."""
+    global _THREADS_LIMITED
+    if _THREADS_LIMITED:
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    import scipy.linalg  # noqa: F401
+    import sklearn.mixture  # noqa: F401
+
+    with threadpool_limits(limits=1):
+        _THREADS_LIMITED = True
+        try:
+            yield
+        finally:
+            _THREADS_LIMITED = False
+
+
+def warm_up(seconds: float = 0.0) -> int:
+    """Import what cells use and limit threads (worker start-up, outside any cell's timing); returns the pid."""
+    limit_threads()
+    import pirl_sim.harness.experiment  # noqa: F401
+    import pirl_sim.learners  # noqa: F401
+    import pirl_sim.scenarios.passage  # noqa: F401
+    import pirl_sim.scenarios.synthetic  # noqa: F401
+
+    _worker_version()
+    if seconds > 0:
+        time.sleep(seconds)  # keeps this worker busy so that the next warm-up task starts another one
+    return os.getpid()
+
+
+_VERSION: str | None = None
+
+
+def _worker_version() -> str:
+    """The code version of this process: computed once, when it first runs a cell (after its imports)."""
+    global _VERSION
+    if _VERSION is None:
+        from .store import code_version
+
+        _VERSION = code_version()
+    return _VERSION
+
+
+def _data(spec: dict):
+    from .config import canonical_json
+    from .scenarios import scenario_spec
+
+    key = canonical_json([spec["scenario"], spec["scenario_params"], spec["data_fingerprint"], spec["seed"]])
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    data = scenario_spec(spec["scenario"]).build(spec["scenario_params"], spec["seed"])
+    _CACHE[key] = data
+    while len(_CACHE) > CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return data
+
+
+def _histories(test, protocol):
+    """The histories the protocol infers weights from, and the index of the test trajectory of each."""
+    if protocol.kind == "paper":
+        return list(test), np.arange(len(test))
+    if protocol.kind == "online":
+        return [t.window(0, protocol.history_steps) for t in test], np.arange(len(test))
+    T, H = protocol.history_steps, protocol.horizon
+    hist, owner = [], []
+    for i, t in enumerate(test):
+        for step in range(T, t.n_steps - H + 1, protocol.stride):
+            hist.append(t.window(step - T, step))
+            owner.append(i)
+    return hist, np.asarray(owner, dtype=int)
+
+
+def _recovery(learner, test, protocol, model) -> dict | None:
+    """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories (truth permitting)."""
+    if not all("theta" in t.metadata for t in test):
+        return None
+    hist, owner = _histories(test, protocol)
+    if len(hist) > MAX_RECOVERY_POINTS:
+        pick = np.unique(np.linspace(0, len(hist) - 1, MAX_RECOVERY_POINTS).astype(int))
+        hist, owner = [hist[i] for i in pick], owner[pick]
+    inferred = learner.infer_weights(hist)
+    true = np.stack([np.asarray(test[i].metadata["theta"], dtype=float) for i in owner])
+    names = list(model.features.names)
+    ref = model.features.reference_index
+    keep = [j for j in range(len(names)) if j != ref]
+    return {
+        "features": [names[j] for j in keep],
+        "reference": names[ref],
+        "true": true[:, keep].tolist(),
+        "inferred": inferred[:, keep].tolist(),
+    }
+
+
+def _float(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def run_cell(spec: dict, code_version: str | None = None) -> dict:
+    """Run one cell.
+
+    Parameters
+    ----------
+    spec : dict
+        `pirl_sim.sweep.config.Cell.spec`: scenario, scenario_params, data_fingerprint, protocol (Protocol
+        fields), learner, learner_params, seed.
+    code_version : str or None
+        The sweep's `pirl_sim.sweep.store.code_version`; a worker running other code raises RuntimeError.
+
+    Returns
+    -------
+    dict
+        ``scores``: med, med_std, fde [m], weight_error (median |log| ratio, None without truth), ari (None
+        for learners without clusters or data without styles), n_styles, n_train, n_test, n_predictions,
+        n_warnings; ``timings`` [s]: generate_s (0 when cached), fit_s, evaluate_s, cell_s (wall clock),
+        cpu_s (CPU time of the worker process: below cell_s when the worker waited for a core);
+        ``recovery`` (see `_recovery`) or None; ``warnings``: distinct warning messages (of the data generation
+        too, when this cell generated the data); ``worker``: host, pid.
+    """
+    t_cell, cpu_cell = time.perf_counter(), time.process_time()
+    limit_threads()
+    if code_version is not None and _worker_version() != code_version:
+        raise RuntimeError(
+            f"worker {socket.gethostname()} pid {os.getpid()} runs pirl_sim {_worker_version()}, the sweep "
+            f"{code_version}: install the same code on every worker (or the sources changed while the sweep "
+            "ran: run it again)"
+        )
+    from pirl_sim.harness.experiment import Protocol, evaluate, style_agreement
+    from pirl_sim.learners import make_learner
+
+    protocol = Protocol(**spec["protocol"])
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as data_warnings:  # only on a cache miss: kept out of n_warnings
+        warnings.simplefilter("always")
+        data = _data(spec)
+    generate_s = time.perf_counter() - t0
+    test = [t for t in data.test if t.n_steps >= protocol.steps_needed()]
+    if not test:
+        need = protocol.steps_needed()
+        raise ValueError(f"no test trajectory has the {need} steps the {protocol.name} protocol needs")
+    params = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["learner_params"].items()}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        learner = make_learner(spec["learner"], model=data.model, **params, **protocol.learner_params())
+        t0 = time.perf_counter()
+        learner.fit(data.train)
+        fit_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        row = evaluate(learner, test, protocol)
+        evaluate_s = time.perf_counter() - t0
+        ari = style_agreement(learner, data.train)
+        recovery = _recovery(learner, test, protocol, data.model)
+    n_styles = getattr(learner, "n_styles_", 1 if spec["learner"] == "tirl" else None)
+    messages = []
+    for w in [*caught, *data_warnings]:
+        text = f"{w.category.__name__}: {w.message}"
+        if text not in messages and len(messages) < MAX_WARNING_MESSAGES:
+            messages.append(text)
+    scores = {
+        "med": _float(row["med"]),
+        "med_std": _float(row["med_std"]),
+        "fde": _float(row["fde"]),
+        "weight_error": _float(row.get("weight_error")),
+        "ari": _float(ari),
+        "n_styles": None if n_styles is None else int(n_styles),
+        "n_train": len(data.train),
+        "n_test": len(test),
+        "n_predictions": int(row.get("n_predictions", len(test))),
+        "n_warnings": len(caught),
+    }
+    return {
+        "scores": scores,
+        "timings": {"generate_s": generate_s, "fit_s": fit_s, "evaluate_s": evaluate_s,
+                    "cell_s": time.perf_counter() - t_cell, "cpu_s": time.process_time() - cpu_cell},
+        "recovery": recovery,
+        "warnings": messages,
+        "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+    }

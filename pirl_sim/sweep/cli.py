@@ -1,0 +1,135 @@
+"""The ``pirl-sim sweep`` and ``pirl-sim report`` commands (wired into `pirl_sim.cli` by `add_sweep_parsers`)."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+__all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "main"]
+
+DEFAULT_OUT = Path("results") / "sweep"
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of workers >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number of workers >= 0, got {value}")
+    return value
+
+
+def add_sweep_parsers(subparsers) -> None:
+    """Add ``sweep`` and ``report`` to an ``argparse`` sub-parser collection."""
+    sw = subparsers.add_parser(
+        "sweep",
+        help="run a grid of scenario x learner x protocol x seed cells; resumable, local processes or Dask",
+        description="Run every cell of a sweep config (TOML) that the results directory does not hold yet: local "
+        "worker processes by default, a Dask cluster with --scheduler. Each finished cell is stored at once "
+        "(keyed by its config and the code version): run the same command again after an interruption and only "
+        "the missing cells run. Writes table.parquet / table.csv (one row per cell).",
+    )
+    sw.add_argument("config", nargs="?", default="default",
+                    help="sweep config (TOML); 'default' or nothing: the embedded default (the paper's experiments)")
+    sw.add_argument("--workers", type=_workers, default=None,
+                    help="local worker processes (default: the usable cores; 0: run in this process)")
+    sw.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                    help="Dask scheduler to run the cells on (workers: same pirl_sim version, --nthreads 1)")
+    sw.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"results directory (default {DEFAULT_OUT})")
+    sw.add_argument("--report", action="store_true", help="draw the figures and README.md afterwards (as report)")
+    sw.add_argument("--dry-run", action="store_true",
+                    help="validate the config and count the cells (and those already stored); run nothing")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    rp = subparsers.add_parser(
+        "report",
+        help="figures and a Markdown summary of a sweep's results",
+        description="Draw MED vs k, the learners side by side and weight recovery from a sweep's table, and "
+        "write README.md with the tables, orderings and the command that made them.",
+    )
+    rp.add_argument("results", type=Path, help="results directory of pirl-sim sweep (or its table.parquet)")
+    rp.add_argument("--out", type=Path, default=None, help="where to write (default: the results directory)")
+
+
+def _command(args) -> str:
+    argv = sys.argv[1:]
+    if "sweep" in argv:
+        return "pirl-sim " + shlex.join(argv[argv.index("sweep"):])
+    return "pirl-sim sweep " + shlex.join([str(args.config), "--out", str(args.out)])
+
+
+def run_sweep_command(args) -> int:
+    """``pirl-sim sweep``: 0 when every cell finished, 1 when some failed, 2 for a bad config or option,
+    130 when interrupted (finished cells are kept)."""
+    from .config import load_config
+    from .run import run_sweep
+
+    try:
+        if args.workers is not None and args.scheduler is not None:
+            raise ValueError("give --workers or --scheduler, not both: with a scheduler the Dask workers run the cells")
+        config = load_config(args.config)
+    except ValueError as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
+    if args.dry_run:
+        from .store import ResultStore, code_version
+
+        version = code_version()
+        keys = {c.key(version) for c in config.cells}
+        stored = keys & ResultStore(args.out).finished()
+        print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(keys)} distinct), "
+              f"{len(stored)} already in {args.out}/, {len(keys) - len(stored)} to run (code {version})")
+        return 0
+    try:
+        run = run_sweep(config, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.quiet,
+                        command=_command(args))
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished cells are kept in {args.out}/cells/; run the same command to resume",
+              file=sys.stderr)
+        return 130
+    except ValueError as exc:  # e.g. a bad scheduler address
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # e.g. no scheduler at that address
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{len(run.table)} cells in {args.out}/table.parquet ({len(run.computed)} run now, {len(run.cached)} "
+          f"from the store) in {run.wall_s:.1f} s")
+    for key, err in run.failed.items():
+        print(f"cell {key} failed: {err}", file=sys.stderr)
+    if run.failed:
+        print(f"{len(run.failed)} cells failed (details in {args.out}/errors/); they run again next time",
+              file=sys.stderr)
+    if args.report and not run.table.empty:
+        from .report import write_report
+
+        write_report(args.out)
+        print(f"wrote the report to {args.out}/README.md")
+    return 1 if run.failed else 0
+
+
+def run_report_command(args) -> int:
+    """``pirl-sim report``: 0, or 2 when the results cannot be read."""
+    from .report import write_report
+
+    try:
+        written = write_report(args.results, args.out)
+    except ValueError as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
+    out = args.out if args.out is not None else (args.results if args.results.is_dir() else args.results.parent)
+    print(f"wrote {', '.join(sorted(written))} to {out}/")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m pirl_sim.sweep {sweep,report} ...`` (the same commands as ``pirl-sim``)."""
+    parser = argparse.ArgumentParser(prog="python -m pirl_sim.sweep")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    add_sweep_parsers(sub)
+    args = parser.parse_args(argv)
+    return run_sweep_command(args) if args.command == "sweep" else run_report_command(args)

@@ -1,0 +1,205 @@
+"""Where cells run: one small interface over local worker processes, Dask distributed, and the calling process.
+
+The sweep loop (`pirl_sim.sweep.run.run_sweep`) only uses ``submit(fn, *args) -> future``,
+``as_completed(futures)`` (yields futures as they finish), ``future.result()``, ``warm_up()`` and ``close()``,
+which `concurrent.futures` and `dask.distributed` both provide; so the same loop drives both:
+
+- `LocalExecutor`: a `concurrent.futures.ProcessPoolExecutor` with the *spawn* start method (libsumo allows
+  one simulation per process, and spawned workers share no state with the parent);
+- `DaskExecutor`: a `dask.distributed.Client` connected to a scheduler (``tcp://HOST:PORT``; workers on any
+  number of machines, each with pirl_sim installed at the same code version; start them with
+  ``--nthreads 1``, one cell per process), or to a client you made (a ``LocalCluster`` in tests);
+- `InlineExecutor`: runs the cells one by one in the calling process (``--workers 0``; debugging).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import re
+
+__all__ = ["LocalExecutor", "DaskExecutor", "InlineExecutor", "make_executor", "default_workers"]
+
+_ADDRESS = re.compile(r"^[a-z][a-z0-9+]*://\S+$")
+
+
+def default_workers() -> int:
+    """Cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class LocalExecutor:
+    """Cells in ``workers`` local processes (spawn start method).
+
+    Parameters
+    ----------
+    workers : int     worker processes (>= 1)
+    """
+
+    kind = "local"
+
+    def __init__(self, workers: int) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        self.workers = workers
+        self._pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def describe(self) -> str:
+        return f"{self.workers} local worker process{'es' if self.workers > 1 else ''}"
+
+    def submit(self, fn, *args):
+        return self._pool.submit(fn, *args)
+
+    def as_completed(self, futures):
+        return cf.as_completed(futures)
+
+    def warm_up(self) -> None:
+        """Start every worker and import what cells need (so start-up is not charged to the first cells)."""
+        from .cell import warm_up
+
+        seconds = 0.5 if self.workers > 1 else 0.0
+        for f in [self._pool.submit(warm_up, seconds) for _ in range(self.workers)]:
+            f.result()
+
+    def close(self, cancel: bool = False) -> None:
+        self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close(cancel=exc[0] is not None)
+
+
+class DaskExecutor:
+    """Cells on a Dask distributed cluster.
+
+    Parameters
+    ----------
+    client_or_address : dask.distributed.Client or str
+        A client, or a scheduler address such as ``tcp://10.0.0.5:8786`` (connected here, closed by `close`).
+    """
+
+    kind = "dask"
+
+    def __init__(self, client_or_address) -> None:
+        try:
+            from dask.distributed import Client
+        except ImportError:  # pragma: no cover - dask is an extra
+            raise ValueError("--scheduler needs dask[distributed]: pip install 'pirl_sim[dask]'") from None
+        if isinstance(client_or_address, str):
+            if not _ADDRESS.match(client_or_address):
+                raise ValueError(f"scheduler address must look like tcp://HOST:PORT, got {client_or_address!r}")
+            self.client = Client(client_or_address, timeout="30s")
+            self._own = True
+        else:
+            self.client = client_or_address
+            self._own = False
+
+    @property
+    def workers(self) -> int:
+        """Threads over all workers: how many cells run at once."""
+        info = self.client.scheduler_info()["workers"]
+        return sum(w.get("nthreads", 1) for w in info.values()) or 1
+
+    def describe(self) -> str:
+        info = self.client.scheduler_info()["workers"]
+        return f"Dask scheduler {self.client.scheduler.address}: {len(info)} workers, {self.workers} threads"
+
+    def submit(self, fn, *args):
+        return self.client.submit(fn, *args, pure=False)
+
+    def as_completed(self, futures):
+        from dask.distributed import as_completed
+
+        return as_completed(list(futures))
+
+    def warm_up(self) -> None:
+        from .cell import warm_up
+
+        self.client.run(warm_up)  # every worker, once
+
+    def close(self, cancel: bool = False) -> None:
+        if self._own:
+            self.client.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close(cancel=exc[0] is not None)
+
+
+class _Deferred:
+    """A cell to run in the calling process when `InlineExecutor.as_completed` reaches it."""
+
+    def __init__(self, fn, args) -> None:
+        self._fn, self._args, self._done, self._value, self._error = fn, args, False, None, None
+
+    def _run(self) -> None:
+        from .cell import single_threaded
+
+        if not self._done:
+            try:
+                with single_threaded():
+                    self._value = self._fn(*self._args)
+            except Exception as exc:  # noqa: BLE001 - handed to the caller through result()
+                self._error = exc
+            self._done = True
+
+    def result(self):
+        self._run()
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+    def cancel(self) -> bool:
+        return not self._done
+
+
+class InlineExecutor:
+    """Cells in the calling process, one after another (each runs when `as_completed` reaches it)."""
+
+    kind = "inline"
+    workers = 1
+
+    def describe(self) -> str:
+        return "the calling process"
+
+    def submit(self, fn, *args):
+        return _Deferred(fn, args)
+
+    def as_completed(self, futures):
+        for f in list(futures):
+            f._run()
+            yield f
+
+    def warm_up(self) -> None:
+        from . import cell
+
+        cell._VERSION = None  # this process is the worker: take the code version of this run's files
+
+    def close(self, cancel: bool = False) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        pass
+
+
+def make_executor(workers: int | None = None, scheduler: str | None = None):
+    """`DaskExecutor` for a scheduler address, else `LocalExecutor` (``workers`` default: the usable cores),
+    `InlineExecutor` for ``workers == 0``."""
+    if scheduler is not None:
+        if workers is not None:
+            raise ValueError("give --workers or --scheduler, not both: with a scheduler the Dask workers run the cells")
+        return DaskExecutor(scheduler)
+    if workers == 0:
+        return InlineExecutor()
+    return LocalExecutor(default_workers() if workers is None else workers)

@@ -1,0 +1,346 @@
+"""`pirl-sim report RESULTS`: figures and a Markdown summary drawn from a sweep's tidy table.
+
+Files written (into the results directory unless told otherwise; PNGs without timestamps, so the same table
+gives the same bytes):
+
+- ``med_vs_k.png``: MED against k, one panel per scenario (variant), one line per learner and protocol (mean
+  over seeds, bars: std over seeds when there are several), for every learner with more than one k;
+- ``learners.png``: the learners side by side, one panel per experiment, bars grouped by scenario variant and
+  protocol; for learners run with several k the best k (lowest mean MED) stands for the learner and is named
+  in the legend;
+- ``recovery.png``: true against inferred normalised weights of test histories (``recovery.parquet``), one row
+  per experiment (its first scenario variant and protocol), one column per learner (best k), when the
+  scenario knows the truth;
+- ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI), whether
+  the paper's ordering MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) holds, timings and the figures.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+
+from .run import read_table
+
+__all__ = ["write_report", "summary_table", "best_variants"]
+
+_K_IN_LABEL = re.compile(r"k=[^,)]+(, )?")
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    _plt().close(fig)
+    return buf.getvalue()
+
+
+def _base_label(label: str) -> str:
+    """The learner label without its k: 'PIRL-kNN (k=10)' -> 'PIRL-kNN'."""
+    out = _K_IN_LABEL.sub("", label).replace(" ()", "")
+    return out.replace(", )", ")")
+
+
+def summary_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Mean (and std) over seeds per experiment, scenario variant, protocol and learner variant, table order."""
+    keys = ["experiment", "scenario_label", "protocol", "learner_label"]
+    t = table.copy()
+    t["learner_base"] = [_base_label(x) for x in t["learner_label"]]
+    for c in ("n_styles", "k"):
+        t[c] = t[c].astype(float)
+    agg = t.groupby(keys, sort=False).agg(
+        learner=("learner", "first"), learner_base=("learner_base", "first"), k=("k", "first"),
+        med=("med", "mean"), med_sd=("med", "std"), fde=("fde", "mean"), weight_error=("weight_error", "mean"),
+        ari=("ari", "mean"), n_styles=("n_styles", "mean"), seeds=("seed", "nunique"), cell_s=("cell_s", "sum"),
+    )
+    return agg.reset_index()
+
+
+def best_variants(summary: pd.DataFrame) -> pd.DataFrame:
+    """Per experiment, scenario variant, protocol and learner (k removed): the variant with the lowest MED."""
+    idx = summary.groupby(["experiment", "scenario_label", "protocol", "learner_base"], sort=False)["med"].idxmin()
+    return summary.loc[idx.dropna().astype(int)].reset_index(drop=True)
+
+
+def _grid(n: int, width: float = 4.6, height: float = 3.4):
+    plt = _plt()
+    ncols = min(3, n)
+    nrows = math.ceil(n / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(width * ncols, height * nrows), dpi=100, squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    return fig, list(axes.flat[:n])
+
+
+def med_vs_k(summary: pd.DataFrame) -> bytes | None:
+    """MED vs k per scenario variant (None when no learner ran with several k)."""
+    s = summary[summary["k"].notna()]
+    multi = s.groupby(["scenario_label", "learner_base", "protocol"], sort=False)["k"].nunique()
+    multi = multi[multi > 1]
+    if multi.empty:
+        return None
+    scenarios = list(dict.fromkeys(multi.index.get_level_values(0)))
+    fig, axes = _grid(len(scenarios))
+    for ax, scen in zip(axes, scenarios):
+        for c, ((base, proto), _) in enumerate(multi.loc[scen].groupby(level=[0, 1], sort=False)):
+            g = s[(s["scenario_label"] == scen) & (s["learner_base"] == base) & (s["protocol"] == proto)]
+            g = g.sort_values("k")
+            yerr = g["med_sd"] if g["seeds"].max() > 1 else None
+            ax.errorbar(g["k"], g["med"], yerr=yerr, marker="o", ms=4, capsize=3, color=f"C{c}",
+                        label=f"{base}, {proto}")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("k")
+        ax.set_ylabel("MED [m]")
+        ax.set_title(scen, fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6)
+    fig.suptitle("MED vs k (mean over seeds)", fontsize=10)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _variant(scenario_label: str, experiment: str) -> str:
+    """'passage population (rationality=20, mix=equal)' -> 'rationality=20, mix=equal'."""
+    if scenario_label.startswith(experiment + " (") and scenario_label.endswith(")"):
+        return scenario_label[len(experiment) + 2 : -1]
+    return scenario_label
+
+
+def _log_floor(values) -> float:
+    v = np.asarray([x for x in values if x == x and x > 0], dtype=float)
+    return float(v.min() / 2.5) if v.size else 1e-6
+
+
+def learners_side_by_side(best: pd.DataFrame) -> bytes:
+    """Bars of MED per learner (best k), one panel per experiment, grouped by scenario variant and protocol."""
+    experiments = list(dict.fromkeys(best["experiment"]))
+    fig, axes = _grid(len(experiments), width=5.6)
+    learners = list(dict.fromkeys(best["learner_base"]))
+    colors = {lb: f"C{i}" for i, lb in enumerate(learners)}
+    for ax, exp in zip(axes, experiments):
+        b = best[best["experiment"] == exp]
+        groups = list(dict.fromkeys(zip(b["scenario_label"], b["protocol"])))
+        several_variants = len({g[0] for g in groups}) > 1
+        several_protocols = len({g[1] for g in groups}) > 1
+        names = list(dict.fromkeys(b["learner_base"]))
+        width = 0.8 / max(1, len(names))
+        for j, name in enumerate(names):
+            xs, ys, errs, ks = [], [], [], []
+            for i, (scen, proto) in enumerate(groups):
+                r = b[(b["scenario_label"] == scen) & (b["protocol"] == proto) & (b["learner_base"] == name)]
+                if r.empty:
+                    continue
+                xs.append(i + (j - (len(names) - 1) / 2) * width)
+                ys.append(float(r["med"].iloc[0]))
+                errs.append(float(r["med_sd"].iloc[0]) if r["seeds"].iloc[0] > 1 else 0.0)
+                ks.append(r["k"].iloc[0])
+            kset = sorted({int(k) for k in ks if k == k})
+            label = name + (f" (best k: {', '.join(map(str, kset))})" if kset else "")
+            ax.bar(xs, ys, width=width, yerr=errs if any(errs) else None, color=colors[name], label=label, capsize=2)
+        ticks = []
+        for scen, proto in groups:
+            parts = ([_variant(scen, exp).replace(", ", "\n")] if several_variants else [])
+            parts += [proto] if several_protocols else []
+            ticks.append("\n".join(p.replace(" (", "\n(") for p in parts) or proto)
+        ax.set_xticks(range(len(groups)))
+        ax.set_xticklabels(ticks, fontsize=6)
+        ax.set_yscale("log")
+        ax.set_ylim(bottom=_log_floor(b["med"]))
+        ax.set_ylabel("MED [m]")
+        title = exp if several_protocols else f"{exp}, {groups[0][1]}"
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+        ax.legend(fontsize=6)
+    fig.suptitle("Learners side by side (best k where several ran)", fontsize=10)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None:
+    """True vs inferred normalised weights: one row per experiment (its first scenario variant and protocol),
+    one column per learner (best k). Inferred weights beyond a decade outside the true range are drawn at the
+    edge (triangles)."""
+    if recovery is None or recovery.empty:
+        return None
+    panels = []
+    for exp in dict.fromkeys(recovery["experiment"]):
+        r = recovery[recovery["experiment"] == exp]
+        scen, proto = r["scenario_label"].iloc[0], r["protocol"].iloc[0]
+        b = best[(best["scenario_label"] == scen) & (best["protocol"] == proto)]
+        labels = [lab for lab in b["learner_label"] if lab in set(r["learner_label"])]
+        if labels:
+            panels.append((scen, proto, labels))
+    if not panels:
+        return None
+    plt = _plt()
+    ncols = max(len(p[2]) for p in panels)
+    fig, axes = plt.subplots(len(panels), ncols, figsize=(2.9 * ncols, 2.9 * len(panels)), dpi=100, squeeze=False)
+    for row, (scen, proto, labels) in enumerate(panels):
+        r = recovery[(recovery["scenario_label"] == scen) & (recovery["protocol"] == proto)]
+        features = list(dict.fromkeys(r["feature"]))
+        true_all = r["true"].to_numpy()
+        true_all = true_all[np.isfinite(true_all) & (true_all > 0)]
+        lo, hi = (true_all.min() / 10, true_all.max() * 10) if true_all.size else (1e-3, 1e3)
+        for col in range(ncols):
+            ax = axes[row][col]
+            if col >= len(labels):
+                ax.set_visible(False)
+                continue
+            g = r[r["learner_label"] == labels[col]]
+            for c, f in enumerate(features):
+                gf = g[g["feature"] == f]
+                y = gf["inferred"].to_numpy()
+                inside = (y >= lo) & (y <= hi)
+                ax.scatter(gf["true"][inside], y[inside], s=6, alpha=0.5, color=f"C{c}", label=f)
+                for sel, edge, marker in ((y < lo, lo, "v"), (y > hi, hi, "^")):
+                    if sel.any():
+                        ax.scatter(gf["true"][sel], np.full(sel.sum(), edge), s=14, color=f"C{c}", marker=marker)
+            ax.plot([lo, hi], [lo, hi], "k:", lw=1)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlim(lo, hi)
+            ax.set_ylim(lo / 1.3, hi * 1.3)
+            ax.set_title(labels[col], fontsize=8)
+            ax.set_xlabel("true weight", fontsize=7)
+            ax.set_ylabel(f"{scen}\n{proto}\ninferred weight" if col == 0 else "inferred weight", fontsize=7)
+            ax.tick_params(labelsize=6)
+            ax.grid(True, which="both", alpha=0.3)
+            if col == 0:
+                ax.legend(fontsize=6, markerscale=2)
+    fig.suptitle("Weight recovery on test histories (normalised weights; dotted: inferred = true; triangles: "
+                 "beyond the axes)", fontsize=9)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _fmt(x) -> str:
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return ""
+    if isinstance(x, (float, np.floating)):
+        return f"{x:.3g}"
+    return str(x)
+
+
+def _markdown(df: pd.DataFrame) -> str:
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, row in df.iterrows():
+        lines.append("| " + " | ".join(_fmt(row[c]) for c in cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _orderings(best: pd.DataFrame) -> list[str]:
+    lines = []
+    for (scen, proto), g in best.groupby(["scenario_label", "protocol"], sort=False):
+        med = dict(zip(g["learner"], g["med"]))
+        lab = dict(zip(g["learner"], g["learner_label"]))
+        if all(k in med for k in ("tirl", "pirl-gmm", "pirl-knn")):
+            ok = med["tirl"] > med["pirl-gmm"] > med["pirl-knn"]
+            lines.append(f"- {scen}, {proto}: MED(TIRL) > MED({lab['pirl-gmm']}) > MED({lab['pirl-knn']}) "
+                         f"{'holds' if ok else 'does NOT hold'} ({med['tirl']:.3g} / {med['pirl-gmm']:.3g} / "
+                         f"{med['pirl-knn']:.3g} m).")
+    return lines
+
+
+def write_report(results, out_dir=None) -> dict:
+    """Draw the figures and write ``README.md`` for a sweep's results (see module doc).
+
+    Parameters
+    ----------
+    results : path       a results directory of `pirl-sim sweep` (or its table.parquet / table.csv)
+    out_dir : path       where to write (default: the results directory)
+
+    Returns
+    -------
+    dict {name: path} of the files written.
+    """
+    results = Path(results)
+    table = read_table(results)
+    if table.empty:
+        raise ValueError(f"{results}: the table has no finished cell")
+    res_dir = results if results.is_dir() else results.parent
+    out = Path(out_dir) if out_dir is not None else res_dir
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = {}
+    if (res_dir / "sweep.json").exists():
+        manifest = json.loads((res_dir / "sweep.json").read_text(encoding="utf-8"))
+    recovery = pd.read_parquet(res_dir / "recovery.parquet") if (res_dir / "recovery.parquet").exists() else None
+    if recovery is not None:
+        recovery = recovery[recovery["key"].isin(set(table["key"]))]
+
+    summary = summary_table(table)
+    best = best_variants(summary)
+    written = {}
+    figures = {"med_vs_k.png": med_vs_k(summary), "learners.png": learners_side_by_side(best),
+               "recovery.png": recovery_scatter(recovery, best)}
+    for name, png in figures.items():
+        if png is not None:
+            written[name] = atomic_write_bytes(out / name, png)
+        else:
+            (out / name).unlink(missing_ok=True)
+
+    name = manifest.get("name", res_dir.name)
+    lines = [f"# Sweep {name!r}", ""]
+    if manifest.get("description"):
+        lines += [manifest["description"], ""]
+    command = manifest.get("command") or "pirl-sim sweep"
+    n_cells = manifest.get("n_cells", len(table))
+    lines += [
+        f"Made by `{command}`, then `pirl-sim report`; every number below is read from `table.parquet` (also "
+        "`table.csv`) in this directory.",
+        "",
+        f"- code version: `{manifest.get('code_version', table['code_version'].iloc[0])}`",
+        f"- cells: {len(table)} finished of {n_cells} ({table['key'].nunique()} distinct computations); "
+        f"seeds: {sorted(int(s) for s in table['seed'].unique())}",
+        f"- cell time: {table.drop_duplicates('key')['cell_s'].sum():.0f} s in all (sum over cells, any number "
+        "of workers)",
+        "",
+        "MED [m]: mean over test trajectories of the mean distance between predicted and true positions; FDE [m]: "
+        "final displacement; weight error: median |log(inferred / true)| of the normalised weights; ARI: "
+        "adjusted Rand index of the training clusters against the true styles. Means over seeds (std when "
+        "several).",
+        "",
+    ]
+    for exp, g in summary.groupby("experiment", sort=False):
+        lines += [f"## {exp}", ""]
+        cols = {"scenario_label": "scenario", "protocol": "protocol", "learner_label": "learner", "med": "MED [m]",
+                "med_sd": "MED std over seeds", "fde": "FDE [m]", "weight_error": "weight error", "ari": "ARI",
+                "n_styles": "styles", "seeds": "seeds"}
+        view = g[list(cols)].rename(columns=cols)
+        if g["seeds"].max() <= 1:
+            view = view.drop(columns=["MED std over seeds"])
+        if view["scenario"].nunique() == 1:
+            view = view.drop(columns=["scenario"])
+        lines += [_markdown(view), ""]
+        order = _orderings(best[best["experiment"] == exp])
+        if order:
+            lines += ["Orderings (best k of each learner):", "", *order, ""]
+    lines += ["## Figures", ""]
+    captions = {"learners.png": "Learners side by side", "med_vs_k.png": "MED vs k", "recovery.png": "Weight recovery"}
+    for fname in ("learners.png", "med_vs_k.png", "recovery.png"):
+        if fname in written:
+            lines += [f"![{captions[fname]}]({fname})", ""]
+    timing = table.drop_duplicates("key").groupby("learner", sort=False)[["fit_s", "evaluate_s", "cell_s"]].sum()
+    lines += ["## Time per learner [s] (sums over cells)", "", _markdown(timing.reset_index()), ""]
+    if manifest.get("config"):
+        lines += ["## Configuration", "", "```toml", manifest["config"].rstrip(), "```", ""]
+    written["README.md"] = atomic_write_text(out / "README.md", "\n".join(lines))
+    return written

@@ -1,0 +1,299 @@
+"""Run a sweep: cells missing from the store go to an executor, each result is stored as it finishes, and
+the tidy table is assembled from the store.
+
+A killed sweep loses only the cells that were running: run the same command again and only the missing cells
+run (a cell's key is its full config and the code version, see `pirl_sim.sweep.store`). A cell that raises is
+reported (``errors/<key>.json``, the exit status) and the others go on; it runs again next time.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+
+from .cell import run_cell
+from .config import SweepConfig, canonical_json
+from .executors import make_executor
+from .progress import Progress
+from .store import ResultStore, code_version
+
+__all__ = ["SweepRun", "run_sweep", "assemble_table", "read_table", "TIMING_COLUMNS", "SCORE_COLUMNS",
+           "TABLE_COLUMNS"]
+
+#: wall-clock timings [s]: differ from run to run (everything else in the table does not)
+TIMING_COLUMNS = ("generate_s", "fit_s", "evaluate_s", "cell_s", "cpu_s")
+SCORE_COLUMNS = ("med", "med_std", "fde", "weight_error", "ari", "n_styles", "n_train", "n_test", "n_predictions",
+                 "n_warnings")
+TABLE_COLUMNS = (
+    "key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "history_steps", "horizon",
+    "learner", "learner_label", "k", "seed", *SCORE_COLUMNS, *TIMING_COLUMNS, "scenario_params", "learner_params",
+    "code_version",
+)
+_INT_COLUMNS = ("history_steps", "horizon", "k", "seed", "n_styles", "n_train", "n_test", "n_predictions", "n_warnings")
+_COST = {"tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3}  # rough relative cost: long cells go first
+
+
+@dataclass
+class SweepRun:
+    """What `run_sweep` did.
+
+    Attributes
+    ----------
+    out : Path                  results directory
+    table : DataFrame           one row per finished cell (`TABLE_COLUMNS`)
+    computed : list of str      keys computed by this run, in the order they finished
+    cached : list of str        keys found in the store
+    failed : dict {key: str}    cells that raised (not in the table)
+    code_version : str
+    executor : str              where the cells ran
+    wall_s : float [s]          the whole call
+    startup_s : float [s]       starting and warming up the workers
+    work_s : float [s]          sum of the computed cells' own time (``cell_s``)
+    cpu_s : float [s]           sum of their CPU time (``cpu_s``)
+    """
+
+    out: Path
+    table: pd.DataFrame
+    computed: list = field(default_factory=list)
+    cached: list = field(default_factory=list)
+    failed: dict = field(default_factory=dict)
+    code_version: str = ""
+    executor: str = ""
+    wall_s: float = 0.0
+    startup_s: float = 0.0
+    work_s: float = 0.0
+    cpu_s: float = 0.0
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _manifest(config: SweepConfig, keys: list[str], version: str, command: str | None) -> str:
+    cells = [{"key": k, **c.labels(), "learner": c.learner, "scenario": c.scenario, "seed": c.seed}
+             for c, k in zip(config.cells, keys)]
+    return json.dumps({
+        "name": config.name,
+        "description": config.description,
+        "source": config.source,
+        "command": command,
+        "code_version": version,
+        "n_cells": len(cells),
+        "n_unique_cells": len(set(keys)),
+        "cells": cells,
+        "config": config.text,
+    }, indent=1) + "\n"
+
+
+def run_sweep(
+    config: SweepConfig,
+    out_dir,
+    *,
+    executor=None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+    command: str | None = None,
+    stream=None,
+) -> SweepRun:
+    """Run the cells of ``config`` that ``out_dir`` does not hold yet, then write the tables.
+
+    Parameters
+    ----------
+    config : SweepConfig        validated (see `pirl_sim.sweep.config.load_config`)
+    out_dir : path              results directory (created); reused: finished cells are not run again
+    executor : executor or None an object of `pirl_sim.sweep.executors` (kept open); None: made from
+                                ``workers`` / ``scheduler`` and closed at the end
+    workers : int or None       local worker processes (None: the usable cores; 0: in this process)
+    scheduler : str or None     Dask scheduler address ``tcp://HOST:PORT``
+    progress : bool             progress bar with ETA on ``stream`` (default stderr)
+    command : str or None       recorded in ``sweep.json``
+
+    Returns
+    -------
+    SweepRun
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    store = ResultStore(out)
+    version, keys, unique, records, todo = _plan(config, store)
+    out.mkdir(parents=True, exist_ok=True)
+
+    bar = None
+    computed, failed = [], {}
+    startup_s = work_s = cpu_s = 0.0
+    description = "nothing to run"
+    if todo:
+        own = executor is None
+        ex = make_executor(workers, scheduler) if own else executor
+        try:
+            description = ex.describe()
+            t0 = time.perf_counter()
+            ex.warm_up()
+            startup_s = time.perf_counter() - t0
+            if code_version() != version:  # the sources changed while the workers started: plan again
+                version, keys, unique, records, todo = _plan(config, store)
+            atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
+            bar = Progress(len(unique), len(records), stream=stream, enabled=progress)
+            if progress:
+                print(f"sweep {config.name!r}: {len(todo)} of {len(unique)} cells to run on {description} "
+                      f"(code {version}); results in {out}/", file=stream or sys.stderr, flush=True)
+            bar.start()
+            futures = {ex.submit(run_cell, unique[k].spec(), version): k for k in todo}
+            try:
+                for fut in ex.as_completed(futures):
+                    k = futures[fut]
+                    try:
+                        res = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a failing cell must not stop the others
+                        failed[k] = f"{type(exc).__name__}: {exc}"
+                        store.write_error(k, {"key": k, "cell": unique[k].spec(), "error": failed[k],
+                                              "at": _now(), "code_version": version})
+                        bar.update(failed=True)
+                        continue
+                    record = {"key": k, "code_version": version, "cell": unique[k].spec(), "result": res["scores"],
+                              "timings": res["timings"], "recovery": res["recovery"], "warnings": res["warnings"],
+                              "worker": res["worker"], "finished_at": _now()}
+                    store.write(record)
+                    records[k] = record
+                    computed.append(k)
+                    work_s += res["timings"]["cell_s"]
+                    cpu_s += res["timings"]["cpu_s"]
+                    bar.update()
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
+        except BaseException:
+            if bar is not None:
+                bar.close()
+            if own:
+                ex.close(cancel=True)
+            raise
+        if own:
+            ex.close()
+        bar.close()
+    else:
+        atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
+
+    cached = [k for k in records if k not in set(computed)]
+    table = assemble_table(config, keys, records)
+    _write_table(table, out)
+    _write_recovery(config, keys, records, out)
+    return SweepRun(out, table, computed, cached, failed, version, description,
+                    time.perf_counter() - t_start, startup_s, work_s, cpu_s)
+
+
+def _plan(config: SweepConfig, store: ResultStore):
+    """Keys under the current code version, the stored records, and the cells to run (in submission order)."""
+    version = code_version()
+    keys = [c.key(version) for c in config.cells]
+    unique = dict(zip(keys, config.cells))  # first occurrence of every key
+    present = store.finished()
+    records = {}
+    for k in unique:
+        if k in present:
+            rec = store.load(k)
+            if rec is not None:
+                records[k] = rec
+    todo = [k for k in unique if k not in records]
+
+    def data_set(k):
+        c = unique[k]
+        return canonical_json([c.scenario, dict(c.scenario_params), c.seed])
+
+    first = {}
+    for k in todo:  # group the cells of one data set (worker caches), long learners first
+        first.setdefault(data_set(k), len(first))
+    todo.sort(key=lambda k: (first[data_set(k)],
+                             -_COST.get(unique[k].learner, 1) * (2 if unique[k].protocol["kind"] == "rolling" else 1)))
+    return version, keys, unique, records, todo
+
+
+def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
+    """One row per cell of ``config`` whose result is in ``records`` (key -> stored record), in config order."""
+    rows = []
+    for cell, k in zip(config.cells, keys):
+        rec = records.get(k)
+        if rec is None:
+            continue
+        p = cell.protocol
+        row = {"key": k, "experiment": cell.experiment, "scenario": cell.scenario,
+               "scenario_label": cell.scenario_label, "protocol": cell.protocol_label, "protocol_kind": p["kind"], "history_steps": p["history_steps"],
+               "horizon": p["horizon"], "learner": cell.learner, "learner_label": cell.learner_label, "k": cell.k,
+               "seed": cell.seed}
+        row.update({c: rec["result"].get(c) for c in SCORE_COLUMNS})
+        row.update({c: rec["timings"].get(c) for c in TIMING_COLUMNS})
+        row["scenario_params"] = canonical_json(rec["cell"]["scenario_params"])
+        row["learner_params"] = canonical_json(rec["cell"]["learner_params"])
+        row["code_version"] = rec["code_version"]
+        rows.append(row)
+    table = pd.DataFrame(rows, columns=list(TABLE_COLUMNS))
+    for c in _INT_COLUMNS:
+        table[c] = pd.array(table[c].tolist(), dtype="Int64")
+    for c in ("med", "med_std", "fde", "weight_error", "ari", *TIMING_COLUMNS):
+        table[c] = pd.to_numeric(table[c], errors="coerce").astype(float)
+    return table
+
+
+def _write_table(table: pd.DataFrame, out: Path) -> None:
+    import io
+
+    buf = io.BytesIO()
+    table.to_parquet(buf, index=False)
+    atomic_write_bytes(out / "table.parquet", buf.getvalue())
+    atomic_write_text(out / "table.csv", table.to_csv(index=False))
+
+
+def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:
+    import io
+
+    frames = []
+    for cell, k in zip(config.cells, keys):
+        rec = records.get(k)
+        if rec is None or not rec.get("recovery"):
+            continue
+        r = rec["recovery"]
+        true, inferred = np.asarray(r["true"], dtype=float), np.asarray(r["inferred"], dtype=float)
+        for j, name in enumerate(r["features"]):
+            frames.append(pd.DataFrame({
+                "key": k, "experiment": cell.experiment, "scenario_label": cell.scenario_label,
+                "protocol": cell.protocol_label, "learner_label": cell.learner_label, "seed": cell.seed,
+                "feature": f"{name} / {r['reference']}", "point": np.arange(len(true)),
+                "true": true[:, j], "inferred": inferred[:, j],
+            }))
+    path = out / "recovery.parquet"
+    if not frames:
+        path.unlink(missing_ok=True)
+        return
+    buf = io.BytesIO()
+    pd.concat(frames, ignore_index=True).to_parquet(buf, index=False)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def read_table(results) -> pd.DataFrame:
+    """The tidy table of a results directory (``table.parquet``, else ``table.csv``) or of a table file."""
+    path = Path(results)
+    if path.is_dir():
+        for name in ("table.parquet", "table.csv"):
+            if (path / name).exists():
+                path = path / name
+                break
+        else:
+            raise ValueError(f"{results}: no table.parquet or table.csv (run pirl-sim sweep first)")
+    if not path.exists():
+        raise ValueError(f"{results}: no such file or directory")
+    if path.suffix == ".parquet":
+        return pd.read_parquet(path)
+    if path.suffix == ".csv":
+        return pd.read_csv(path)
+    raise ValueError(f"{results}: expected a results directory, table.parquet or table.csv")

@@ -1,0 +1,524 @@
+"""The scenario registry of sweeps: a name -> how to build train/test data from a validated parameter dict.
+
+Each entry is a `ScenarioSpec`: the valid parameters with their kinds and defaults, a ``check`` that turns the
+parameters of a config into a complete, JSON-serialisable dict (defaults filled in, everything validated by
+building the scenario's own config dataclass, so a bad value fails before any work starts), a ``build`` that
+draws the data for one seed, a ``train_shape`` that tells the sweep how many training trajectories of which
+lengths there will be (to reject a k larger than the training set up front) and, for scenarios that read
+files, a ``fingerprint`` of their content (part of every cell key, so changed data is recomputed).
+
+Adding a scenario is one entry::
+
+    register_scenario(ScenarioSpec(
+        name="sumo",
+        summary="SUMO roundabout, mixed-style PIRL drivers",
+        params={"config": Param("path", None, "scenario TOML"), "n_train": Param("int", 100, "...")},
+        check=_check_sumo, build=_build_sumo, train_shape=_sumo_shape,
+    ))
+
+``build(params, seed)`` must be a module-level function (worker processes import it by name) and must give
+the same trajectories for the same parameters and seed. Heavy simulators are imported inside ``build``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "Param",
+    "ScenarioData",
+    "ScenarioSpec",
+    "TrainShape",
+    "SCENARIOS",
+    "register_scenario",
+    "scenario_spec",
+    "resolve_scenario_params",
+]
+
+PARAM_KINDS = ("int", "float", "range", "rationality", "mix", "styles", "path", "bool")
+
+
+@dataclass(frozen=True)
+class Param:
+    """One scenario parameter.
+
+    Attributes
+    ----------
+    kind : {"int", "float", "range", "rationality", "mix", "styles", "path", "bool"}
+        ``range`` is a [low, high] pair; ``rationality`` a Boltzmann beta > 0 or ``inf`` (exact optima);
+        ``mix`` a table {style name: mixture weight >= 0} over the scenario's styles (0 drops a style);
+        ``styles`` a list of preset style names or tables {name, weight, mean, std} (feature name -> value);
+        ``path`` a file or directory, relative paths taken from the config file's directory.
+    default : JSON value or None
+        None for ``path`` means required.
+    doc : str
+        Meaning and unit.
+    """
+
+    kind: str
+    default: Any
+    doc: str
+
+    def __post_init__(self) -> None:
+        if self.kind not in PARAM_KINDS:
+            raise ValueError(f"parameter kind must be one of {PARAM_KINDS}, got {self.kind!r}")
+
+
+@dataclass(frozen=True)
+class ScenarioData:
+    """What a scenario gives a sweep cell.
+
+    Attributes
+    ----------
+    model : DriverModel      dynamics, features and predictor shared by the learners
+    train, test : list of Trajectory
+        Test trajectories carry ``theta`` (normalised true weights) and ``style`` in their metadata when
+        the truth is known.
+    """
+
+    model: Any
+    train: list
+    test: list
+
+
+@dataclass(frozen=True)
+class TrainShape:
+    """Training set size known before any data is drawn.
+
+    Attributes
+    ----------
+    n_train : int               training trajectories (an upper bound when ``exact`` is False)
+    lengths : tuple of int      steps of the longest ``n_train`` trajectories that can be in the training set
+    exact : bool
+    """
+
+    n_train: int
+    lengths: tuple[int, ...]
+    exact: bool = True
+
+    def n_samples(self, window: int | None, windows: str, stride: int) -> int:
+        """Training samples a learner looks up: trajectories, or their feature windows of ``window`` steps."""
+        if window is None or windows == "first":
+            return sum(1 for n in self.lengths if window is None or n >= window)
+        return sum((n - window) // stride + 1 for n in self.lengths if n >= window)
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """A registered scenario (see module doc).
+
+    Attributes
+    ----------
+    name : str
+    summary : str
+    params : mapping {name: Param}
+    check : callable(dict) -> dict
+        Complete parameters (defaults merged, kinds converted) -> normalised JSON-serialisable parameters;
+        raises ValueError naming the problem.
+    build : callable(dict, int) -> ScenarioData
+    train_shape : callable(dict) -> TrainShape
+    fingerprint : callable(dict) -> str or None
+        Hash of the data files a scenario reads (None: nothing read).
+    """
+
+    name: str
+    summary: str
+    params: Mapping[str, Param]
+    check: Callable[[dict], dict]
+    build: Callable[[dict, int], ScenarioData]
+    train_shape: Callable[[dict], TrainShape]
+    fingerprint: Callable[[dict], str | None] = field(default=lambda params: None)
+
+
+SCENARIOS: dict[str, ScenarioSpec] = {}
+
+
+def register_scenario(spec: ScenarioSpec) -> ScenarioSpec:
+    """Add a scenario to `SCENARIOS`; a name can be registered once."""
+    if not isinstance(spec, ScenarioSpec):
+        raise TypeError(f"expected a ScenarioSpec, got {type(spec).__name__}")
+    if spec.name in SCENARIOS:
+        raise ValueError(f"scenario {spec.name!r} is already registered")
+    SCENARIOS[spec.name] = spec
+    return spec
+
+
+def scenario_spec(name: str) -> ScenarioSpec:
+    """The registered scenario ``name``; ValueError listing the registered ones otherwise."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; registered scenarios: {', '.join(sorted(SCENARIOS))}")
+    return SCENARIOS[name]
+
+
+# ------------------------------------------------------------------------------------------ conversion
+def _number(label: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{label} must be a number, got {value!r}")
+    return float(value)
+
+
+def _convert(kind: str, label: str, value, base_dir: Path | None):
+    """A TOML value of a parameter as its normalised JSON value."""
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"{label} must be an integer, got {value!r}")
+        return int(value)
+    if kind == "float":
+        v = _number(label, value)
+        if not math.isfinite(v):
+            raise ValueError(f"{label} must be finite, got {value!r}")
+        return v
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ValueError(f"{label} must be true or false, got {value!r}")
+        return value
+    if kind == "range":
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise ValueError(f"{label} must be a [low, high] pair, got {value!r}")
+        lo, hi = (_number(label, v) for v in value)
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise ValueError(f"{label} must be [low, high] with finite low <= high, got {value!r}")
+        return [lo, hi]
+    if kind == "rationality":
+        if value is None:
+            return None
+        v = _number(label, value)
+        if v == math.inf:
+            return None  # beta -> infinity: exactly optimal demonstrations
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{label} must be a Boltzmann beta > 0 or inf (exact optima), got {value!r}")
+        return v
+    if kind == "mix":
+        if value is None:
+            return None
+        if not isinstance(value, Mapping) or not value:
+            raise ValueError(f"{label} must be a table {{style name = weight}}, got {value!r}")
+        out = {}
+        for name, w in value.items():
+            w = _number(f"{label}[{name!r}]", w)
+            if not (math.isfinite(w) and w >= 0):
+                raise ValueError(f"{label}[{name!r}] must be a weight >= 0, got {w!r}")
+            out[str(name)] = w
+        if not any(w > 0 for w in out.values()):
+            raise ValueError(f"{label} gives every style weight 0")
+        return out
+    if kind == "styles":
+        if value is None:
+            return None
+        if not isinstance(value, (list, tuple)) or not value:
+            raise ValueError(f"{label} must be a non-empty list of styles, got {value!r}")
+        out = []
+        for i, s in enumerate(value):
+            if isinstance(s, str):
+                out.append(s)
+                continue
+            if not isinstance(s, Mapping):
+                raise ValueError(f"{label}[{i}] must be a preset name or a table {{name, weight, mean, std}}")
+            valid = ("name", "weight", "mean", "std")
+            unknown = [k for k in s if k not in valid]
+            if unknown:
+                raise ValueError(f"{label}[{i}]: unknown key(s) {unknown}; valid keys: {', '.join(valid)}")
+            if "name" not in s or "mean" not in s:
+                raise ValueError(f"{label}[{i}] needs at least a name and a mean")
+            entry = {"name": str(s["name"]), "weight": _number(f"{label}[{i}].weight", s.get("weight", 1.0))}
+            for part in ("mean", "std"):
+                table = s.get(part, {})
+                if not isinstance(table, Mapping):
+                    raise ValueError(f"{label}[{i}].{part} must be a table {{feature name = value}}")
+                entry[part] = {str(k): _number(f"{label}[{i}].{part}[{k!r}]", v) for k, v in table.items()}
+            out.append(entry)
+        return out
+    if kind == "path":
+        if value is None:
+            return None
+        if not isinstance(value, str) or not value:
+            raise ValueError(f"{label} must be a path string, got {value!r}")
+        p = Path(value).expanduser()
+        if not p.is_absolute() and base_dir is not None:
+            p = base_dir / p
+        return str(p.resolve())
+    raise AssertionError(kind)  # pragma: no cover - Param validates kinds
+
+
+def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path | None = None) -> dict:
+    """Validate the parameters of scenario ``name`` and complete them with its defaults.
+
+    Parameters
+    ----------
+    name : str                   a registered scenario
+    given : mapping              parameters from a config (TOML values)
+    base_dir : Path or None      directory that relative paths are taken from
+
+    Returns
+    -------
+    dict
+        Normalised, JSON-serialisable parameters: what a cell key hashes and what ``build`` receives.
+
+    Raises
+    ------
+    ValueError
+        Unknown scenario or parameter (the valid ones are listed), or a bad value.
+    """
+    spec = scenario_spec(name)
+    unknown = [k for k in given if k not in spec.params]
+    if unknown:
+        raise ValueError(
+            f"scenario {name!r}: unknown parameter(s) {', '.join(map(repr, unknown))}; valid parameters: "
+            f"{', '.join(spec.params)}"
+        )
+    full = {}
+    for key, p in spec.params.items():
+        value = given.get(key, p.default)
+        full[key] = _convert(p.kind, f"scenario {name!r} parameter {key!r}", value, base_dir)
+    try:
+        return spec.check(full)
+    except TypeError as exc:  # the scenario config's own type checks
+        raise ValueError(f"scenario {name!r}: {exc}") from None
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith(f"scenario {name!r}") else f"scenario {name!r}: {msg}") from None
+
+
+# ------------------------------------------------------------------------------------------ styles
+def _styles(label: str, presets, styles, mix, features):
+    """Style objects from preset names / tables, mixture weights applied, validated against the features."""
+    from pirl_sim.population import Style
+
+    by_name = {s.name: s for s in presets}
+    if styles is None:
+        chosen = list(presets)
+    else:
+        chosen = []
+        for s in styles:
+            if isinstance(s, str):
+                if s not in by_name:
+                    raise ValueError(f"{label}: unknown preset style {s!r}; presets: {', '.join(by_name)}")
+                chosen.append(by_name[s])
+            else:
+                chosen.append(Style(s["name"], s["weight"], dict(s["mean"]), dict(s["std"])))
+    if mix is not None:
+        names = [s.name for s in chosen]
+        unknown = [k for k in mix if k not in names]
+        if unknown:
+            raise ValueError(f"{label}: mix names unknown style(s) {unknown}; styles: {', '.join(names)}")
+        chosen = [
+            Style(s.name, mix.get(s.name, 0.0), s.mean, s.std, s.cov) for s in chosen if mix.get(s.name, 0.0) > 0
+        ]
+    for s in chosen:
+        s.moments(features)  # unknown feature names, bad covariance
+    if len({s.name for s in chosen}) != len(chosen):
+        raise ValueError(f"{label}: style names must be unique, got {[s.name for s in chosen]}")
+    return chosen
+
+
+def _style_dicts(styles) -> list[dict]:
+    out = []
+    for s in styles:
+        if s.cov is not None:  # pragma: no cover - presets use std
+            raise ValueError(f"style {s.name!r}: a full covariance cannot be written to a sweep config")
+        out.append({"name": s.name, "weight": float(s.weight), "mean": {k: float(v) for k, v in s.mean.items()},
+                    "std": {k: float(v) for k, v in s.std.items()}})
+    return out
+
+
+def _style_objects(dicts) -> tuple:
+    from pirl_sim.population import Style
+
+    return tuple(Style(d["name"], d["weight"], dict(d["mean"]), dict(d["std"])) for d in dicts)
+
+
+# ------------------------------------------------------------------------------------------ synthetic
+_SYNTHETIC_PARAMS = {
+    "n_trajectories": Param("int", 2000, "trajectories in all (train + test)"),
+    "n_train": Param("int", 1800, "training trajectories; the rest are the test set"),
+    "n_steps": Param("int", 50, "steps N per trajectory"),
+    "dt": Param("float", 0.1, "step [s]"),
+    "position_range": Param("range", [1.0, 1.0], "start positions [m], drawn uniformly"),
+    "velocity_range": Param("range", [0.0, 0.0], "start velocities [m/s], drawn uniformly"),
+    "rationality": Param("rationality", math.inf, "Boltzmann beta; inf: exact LQR optima (the paper's)"),
+    "styles": Param("styles", None, "styles over (state_sq, control_sq); default: the paper's two kernels"),
+    "mix": Param("mix", None, "mixture weights by style name (0 drops a style); default: the styles' own"),
+}
+
+
+def _synthetic_config(params: dict, seed: int = 0):
+    from pirl_sim.scenarios.synthetic import SyntheticConfig
+
+    p = dict(params)
+    p["styles"] = _style_objects(p["styles"])
+    p["position_range"] = tuple(p["position_range"])
+    p["velocity_range"] = tuple(p["velocity_range"])
+    p.pop("mix", None)
+    return SyntheticConfig(**p, seed=seed)
+
+
+def _check_synthetic(params: dict) -> dict:
+    from pirl_sim.features import lqr_features
+    from pirl_sim.scenarios.synthetic import PAPER_STYLES
+
+    styles = _styles("scenario 'synthetic'", PAPER_STYLES, params["styles"], params["mix"], lqr_features())
+    out = dict(params, styles=_style_dicts(styles))
+    out.pop("mix")
+    _synthetic_config(out)  # SyntheticConfig validates counts, ranges, dt
+    return out
+
+
+def _build_synthetic(params: dict, seed: int) -> ScenarioData:
+    from pirl_sim.scenarios.synthetic import generate
+
+    data = generate(_synthetic_config(params, seed))
+    return ScenarioData(data.model, data.train, data.test)
+
+
+def _shape_fixed(params: dict) -> TrainShape:
+    return TrainShape(params["n_train"], (params["n_steps"],) * params["n_train"])
+
+
+# ------------------------------------------------------------------------------------------ passage
+_PASSAGE_PARAMS = {
+    "radius": Param("float", 20.0, "ring radius [m]"),
+    "approach": Param("float", 50.0, "straight approach [m]"),
+    "ring_angle_deg": Param("float", 270.0, "part of the ring driven [deg]"),
+    "exit_length": Param("float", 50.0, "straight exit [m]"),
+    "rationality": Param("rationality", 100.0, "Boltzmann beta; inf: exactly optimal drivers"),
+    "styles": Param("styles", None, "styles over (speed_dev, acc_sq, jerk_sq); default: the three user-study styles"),
+    "mix": Param("mix", None, "mixture weights by style name (0 drops a style); default: equal"),
+    "n_trajectories": Param("int", 600, "passages in all (train + test)"),
+    "n_train": Param("int", 500, "training passages; the rest are the test set"),
+    "n_steps": Param("int", 40, "steps per passage"),
+    "dt": Param("float", 0.2, "step [s]"),
+    "start_s": Param("range", [10.0, 40.0], "start positions along the path [m]"),
+    "start_v": Param("range", [9.0, 12.0], "start speeds [m/s]"),
+}
+
+
+def _passage_config(params: dict, seed: int = 0):
+    from pirl_sim.scenarios.passage import PassageConfig
+
+    p = dict(params)
+    p["styles"] = _style_objects(p["styles"])
+    p["start_s"] = tuple(p["start_s"])
+    p["start_v"] = tuple(p["start_v"])
+    p.pop("mix", None)
+    return PassageConfig(**p, seed=seed)
+
+
+def _check_passage(params: dict) -> dict:
+    from pirl_sim.scenarios.passage import THREE_STYLES
+
+    geometry = _passage_config(dict(params, styles=_style_dicts(THREE_STYLES)))  # validates all but styles
+    features = geometry.model().features
+    styles = _styles("scenario 'passage'", THREE_STYLES, params["styles"], params["mix"], features)
+    out = dict(params, styles=_style_dicts(styles))
+    out.pop("mix")
+    _passage_config(out)
+    return out
+
+
+def _build_passage(params: dict, seed: int) -> ScenarioData:
+    from pirl_sim.scenarios.passage import generate
+
+    data = generate(_passage_config(params, seed))
+    return ScenarioData(data.model, data.train, data.test)
+
+
+# ------------------------------------------------------------------------------------------ replay
+_REPLAY_PARAMS = {
+    "tracks": Param("path", None, "a vehicle_tracks_*.csv file or a directory of them (required)"),
+    "map": Param("path", None, "the Lanelet2 OSM map of the recording (required)"),
+    "dt": Param("float", 0.2, "model step [s], a multiple of the 0.1 s frames"),
+    "test_fraction": Param("float", 0.25, "share of the selected tracks in the test set (split by the seed)"),
+    "include_interacting": Param("bool", False, "also use tracks flagged as interacting with a leader"),
+}
+
+
+def _replay_files(params: dict) -> list[Path]:
+    from pirl_sim.io.interaction import find_track_files
+
+    tracks = Path(params["tracks"])
+    if tracks.is_dir():
+        return find_track_files(tracks)
+    if not tracks.is_file():
+        raise ValueError(f"scenario 'replay': tracks {str(tracks)!r} is neither a file nor a directory")
+    return [tracks]
+
+
+def _check_replay(params: dict) -> dict:
+    for key in ("tracks", "map"):
+        if params[key] is None:
+            raise ValueError(f"scenario 'replay' needs the parameter {key!r}")
+    if not Path(params["map"]).is_file():
+        raise ValueError(f"scenario 'replay': map {params['map']!r} is not a file")
+    try:
+        _replay_files(params)
+    except FileNotFoundError as exc:
+        raise ValueError(f"scenario 'replay': {exc}") from None
+    if not 0 < params["test_fraction"] < 1:
+        raise ValueError(f"test_fraction must be in (0, 1), got {params['test_fraction']!r}")
+    stride = params["dt"] / 0.1
+    if params["dt"] <= 0 or not math.isclose(stride, round(stride)):
+        raise ValueError(f"dt must be a positive multiple of the 0.1 s frames, got {params['dt']!r}")
+    return dict(params)
+
+
+def _replay_split(n: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    order = np.random.default_rng(seed).permutation(n)
+    n_test = max(1, int(round(test_fraction * n)))
+    return order[n_test:], order[:n_test]
+
+
+def _build_replay(params: dict, seed: int) -> ScenarioData:
+    from pirl_sim.scenarios.replay import load_replay
+
+    scene = load_replay(_replay_files(params), params["map"], dt=params["dt"])
+    tracks = scene.trajectories if params["include_interacting"] else scene.selected
+    if len(tracks) < 2:
+        raise ValueError(f"replay: only {len(tracks)} usable tracks (skipped: {scene.skipped})")
+    train, test = _replay_split(len(tracks), params["test_fraction"], seed)
+    return ScenarioData(scene.model, [tracks[i] for i in train], [tracks[i] for i in test])
+
+
+def _shape_replay(params: dict) -> TrainShape:
+    """An upper bound from the files alone: every track of every file, the longest ones in the training set."""
+    import pandas as pd
+
+    stride = int(round(params["dt"] / 0.1))
+    lengths = []
+    for f in _replay_files(params):
+        frames = pd.read_csv(f, usecols=["track_id"])["track_id"].value_counts()
+        lengths += [int((n - 1) // stride) for n in frames]
+    n = len(lengths)
+    n_train = n - max(1, int(round(params["test_fraction"] * n))) if n > 1 else n
+    return TrainShape(n_train, tuple(sorted(lengths, reverse=True)[:n_train]), exact=False)
+
+
+def _fingerprint_replay(params: dict) -> str:
+    h = hashlib.sha256()
+    files = _replay_files(params)
+    sidecars = sorted({f.parent / "ground_truth.csv" for f in files if (f.parent / "ground_truth.csv").exists()})
+    for f in [*files, *sidecars, Path(params["map"])]:
+        h.update(f.name.encode() + b"\0")
+        h.update(f.read_bytes())
+        h.update(b"\0")
+    return h.hexdigest()[:20]
+
+
+register_scenario(ScenarioSpec(
+    "synthetic", "the paper's 1-D point mass regulated by LQR, theta = q/r from two kernels",
+    _SYNTHETIC_PARAMS, _check_synthetic, _build_synthetic, _shape_fixed,
+))
+register_scenario(ScenarioSpec(
+    "passage", "roundabout passage, drivers of the paper's three user-study styles",
+    _PASSAGE_PARAMS, _check_passage, _build_passage, _shape_fixed,
+))
+register_scenario(ScenarioSpec(
+    "replay", "recorded INTERACTION-format tracks on their Lanelet2 map, split into train/test by the seed",
+    _REPLAY_PARAMS, _check_replay, _build_replay, _shape_replay, _fingerprint_replay,
+))
