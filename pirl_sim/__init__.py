@@ -10,6 +10,8 @@ from .model import DriverModel, synthetic_model
 from .population import Population, Style
 from .trajectory import Trajectory
 
+from . import envs  # registers pirl_sim/Roundabout-v0 with gymnasium when it is installed
+
 __version__ = "0.1.0"
 
 __all__ = [
@@ -26,5 +28,6 @@ __all__ = [
     "synthetic_model",
     "Population",
     "Style",
+    "envs",
     "__version__",
 ]

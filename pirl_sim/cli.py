@@ -62,7 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
     from pirl_sim.scenarios.sumo.cli import add_simulate_parser
     from pirl_sim.sweep.cli import add_sweep_parsers
 
-    add_simulate_parser(sub)
+    from pirl_sim.scenarios.highway.cli import add_highway_parser
+
+    simulate = add_simulate_parser(sub)
+    simulators = next(a for a in simulate._actions if isinstance(a, argparse._SubParsersAction))
+    add_highway_parser(simulators)
     add_sweep_parsers(sub)
 
     rp = sub.add_parser(
@@ -146,6 +150,10 @@ def main(argv: list[str] | None = None) -> int:
         from pirl_sim.sweep.cli import run_report_command, run_sweep_command
 
         return run_sweep_command(args) if args.command == "sweep" else run_report_command(args)
+    if args.command == "simulate" and args.simulator == "highway":
+        from pirl_sim.scenarios.highway.cli import run_simulate_highway
+
+        return run_simulate_highway(args)
     if args.command == "simulate":
         from pirl_sim.scenarios.sumo.cli import run_simulate
 

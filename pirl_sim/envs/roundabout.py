@@ -1,0 +1,504 @@
+"""``pirl_sim/Roundabout-v0``: drive through highway-env's roundabout among PIRL drivers of known weights.
+
+The agent drives an ego vehicle along one route (default: south entry to north exit, as in highway-env's
+roundabout) of highway-env's ``roundabout-generic-v0`` road (one ring lane, radius 20 m by default),
+populated by :class:`~pirl_sim.scenarios.highway.traffic.RoundaboutTraffic`: PIRL drivers whose weights
+and styles are drawn from the ``population`` (a :class:`~pirl_sim.scenarios.population_config.PopulationConfig`,
+the same as the SUMO and highway-env scenarios'), each re-planning with its MPC every 0.1 s, plus
+highway-env IDM background traffic; vehicles yield at entries, leave at exits, and crashed ones are
+removed after ``rules.crash_removal_delay``. ``initial_vehicles`` of the plan are on the road at reset, the
+others arrive at the entries at their planned departure times (counted from the reset).
+
+Spaces
+------
+- **Action**: ``Box(-1, 1, (1,), float32)``, the ego's longitudinal acceleration, mapped linearly to
+  ``[0, a_max]`` for positive and ``[a_min, 0]`` for negative values (``action.acceleration_range``,
+  default ``[-4, 3]`` m/s^2, the driver model's bounds: 0 is 0 m/s^2). Steering is highway-env's lane
+  following along the ego's route; the ego never reverses.
+- **Observation**: any highway-env observation (``observation`` config, keys checked against the type's
+  parameters). Default: ``Kinematics`` of the ego and its 7 nearest vehicles (behind too), rows
+  ``[presence, x, y, vx, vy, cos_h, sin_h]``; the ego's row absolute, the others relative to it; x, y
+  scaled from [-100, 100] m and vx, vy from [-15, 15] m/s to [-1, 1] and clipped; empty rows are zero.
+  Shape (8, 7), float32, in ``[-1, 1]`` (the space says so when every feature is bounded).
+
+Rewards (``reward``)
+--------------------
+Every step (``simulation_frequency / policy_frequency`` frames of 0.1 s; default 2 frames, 0.2 s):
+
+- ``"task"``: ``progress_reward * ds / (v_max T) + comfort_reward * mean_k((a_k/3)^2 + (j_k/8)^2)
+  + collision_reward * crashed + arrival_reward * arrived`` with ``ds`` [m] the ego's progress along its
+  route, ``T`` [s] the step, ``a_k`` [m/s^2] and ``j_k`` [m/s^3] its acceleration and jerk in each frame.
+- ``"theta"``: ``-(theta . f) T + collision_reward * crashed + arrival_reward * arrived``, with ``f`` the
+  driver model's features (speed_dev, acc_sq, jerk_sq) of the ego's frames in the step (means, as the
+  paper's) along its route's reference path and ``theta`` the normalised weights ``reward_theta``
+  (``{"speed_dev": ..., "acc_sq": ...}``, ``jerk_sq`` = 1): the return is minus the cost that a PIRL
+  driver of that style minimises, so an agent can be trained to drive in a given style. A crash also
+  costs what the stopped vehicle would have cost until the time limit, ``theta_speed_dev v_des^2
+  (duration - t)`` (``crash_cost_to_go``): otherwise ending the episode by a crash would save the agent
+  the rest of its cost, and a cost-only reward would teach it to crash.
+
+``info["rewards"]`` holds every term of both. The episode terminates when the ego crashes or reaches the
+end of its route, and is truncated after ``duration`` [s].
+
+Info
+----
+``speed`` [m/s], ``crashed``, ``arrived``, ``progress`` [m] (route coordinate), ``features`` (3,) of the
+step, ``rewards``, ``n_vehicles`` on the road, and, aligned with the observation's rows 1..V-1 (the
+neighbours, in the order highway-env's ``Kinematics`` observation lists them): ``neighbour_ids`` (vehicle
+ids, ``""`` for empty rows), ``neighbour_is_pirl`` (bool), ``neighbour_styles`` (style index, -1 for
+background traffic, -2 for empty rows), ``neighbour_theta`` (V-1, 3) normalised weights (0 where not a
+PIRL driver: background drivers' weights are unknown); ``style_names`` and ``feature_names`` name the
+indices.
+
+Configuration
+-------------
+``gymnasium.make("pirl_sim/Roundabout-v0", config={...})`` or ``env.reset(options={"config": {...}})``.
+Unknown keys raise ``ValueError`` listing the valid ones (:meth:`PirlRoundaboutEnv.default_config`), as do
+bad values; highway-env itself ignores unknown keys silently. ``simulation_frequency`` is fixed at 10 Hz
+(the driver model's and the recordings' step). Seeded resets are deterministic: ``reset(seed=s)`` draws the
+population plan, placement and noise from ``s``.
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+import math
+from collections.abc import Mapping
+
+import numpy as np
+from gymnasium import spaces
+from highway_env.envs.common.abstract import AbstractEnv
+from highway_env.envs.common.action import ActionType
+from highway_env.envs.common import observation as _obs
+
+from pirl_sim.scenarios.highway.network import (
+    RoundaboutGeometry,
+    build_network,
+    lane_graph,
+    route_catalogue,
+    route_set,
+)
+from pirl_sim.scenarios.highway.planning import plan_population, random_streams
+from pirl_sim.scenarios.highway.scenario import ROUTE_IDS, drivers_from_dict, rules_from_dict
+from pirl_sim.scenarios.highway.traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
+from pirl_sim.scenarios.highway.vehicles import EGO, PIRL, EgoVehicle
+from pirl_sim.scenarios.population_config import (
+    DEFAULT_POPULATION,
+    FEATURE_NAMES,
+    FREE_FEATURES,
+    REFERENCE_FEATURE,
+    PopulationConfig,
+    population_from_dict,
+)
+
+__all__ = ["PirlRoundaboutEnv", "LongitudinalAction", "REWARDS", "EGO_ID"]
+
+REWARDS = ("task", "theta")  #: values of the ``reward`` option
+EGO_ID = "ego"  #: the ego's vehicle id (and ``agent_id`` in recordings)
+_ACC_REF, _JERK_REF = 3.0, 8.0  # [m/s^2], [m/s^3] comfort-term scales (the driver model's bounds)
+_EMPTY_ROW_STYLE = -2
+_EGO_COLOR = (50, 200, 0)
+
+#: highway-env's observation types by config name (``observation_factory``'s list)
+_OBSERVATIONS = {
+    "TimeToCollision": _obs.TimeToCollisionObservation,
+    "Kinematics": _obs.KinematicObservation,
+    "OccupancyGrid": _obs.OccupancyGridObservation,
+    "KinematicsGoal": _obs.KinematicsGoalObservation,
+    "GrayscaleObservation": _obs.GrayscaleObservation,
+    "AttributesObservation": _obs.AttributesObservation,
+    "TupleObservation": _obs.TupleObservation,
+    "LidarObservation": _obs.LidarObservation,
+    "ExitObservation": _obs.ExitObservation,
+}
+#: Kinematics features that stay in [-1, 1] after normalisation and clipping
+_BOUNDED_FEATURES = {"presence", "cos_h", "sin_h", "cos_d", "sin_d"}
+
+# network, route catalogue and reference paths are the same for equal settings: built once per process
+_ROUTES_CACHE: dict[tuple, tuple] = {}
+
+
+def _routes_for(radius: float, smoothing: float, speed_smoothing: float):
+    key = (radius, smoothing, speed_smoothing)
+    if key not in _ROUTES_CACHE:
+        net = build_network(RoundaboutGeometry(radius))
+        catalogue = route_catalogue(net)
+        _ROUTES_CACHE[key] = (net, catalogue, route_set(net, catalogue, smoothing=smoothing,
+                                                         speed_smoothing=speed_smoothing))
+    return _ROUTES_CACHE[key]
+
+
+class LongitudinalAction(ActionType):
+    """A continuous longitudinal action: ``Box(-1, 1, (1,))`` -> acceleration [m/s^2] of the ego.
+
+    Positive values scale ``a_max``, negative ones ``-a_min`` (so 0 means no acceleration); the ego's
+    steering is lane following along its route (:class:`~pirl_sim.scenarios.highway.vehicles.EgoVehicle`).
+    """
+
+    TYPE = "LongitudinalAcceleration"
+
+    def __init__(self, env, acceleration_range=(-4.0, 3.0), **kwargs) -> None:
+        super().__init__(env)
+        lo, hi = (float(a) for a in acceleration_range)
+        self.acceleration_range = (lo, hi)
+        self.last_action = np.zeros(1, dtype=np.float32)
+
+    def space(self) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+    @property
+    def vehicle_class(self):
+        return EgoVehicle
+
+    def acceleration(self, action) -> float:
+        """The acceleration [m/s^2] of an action (clipped to [-1, 1] first)."""
+        x = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1.0, 1.0))
+        lo, hi = self.acceleration_range
+        return x * hi if x >= 0 else -x * lo
+
+    def act(self, action) -> None:
+        self.last_action = np.asarray(action, dtype=np.float32).reshape(1)
+        self.controlled_vehicle.command_acceleration = self.acceleration(action)
+
+
+def _keys_error(label: str, given, valid) -> None:
+    unknown = [k for k in given if k not in valid]
+    if unknown:
+        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: "
+                         f"{', '.join(valid)}")
+
+
+def _finite(label: str, v, *, low: float | None = None, strict: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
+        raise ValueError(f"{label} must be a finite number, got {v!r}")
+    if low is not None and (v < low or (strict and v == low)):
+        raise ValueError(f"{label} must be {'>' if strict else '>='} {low:g}, got {v!r}")
+    return float(v)
+
+
+class PirlRoundaboutEnv(AbstractEnv):
+    """highway-env roundabout populated by PIRL drivers of known, diverse weights (see the module docstring).
+
+    Parameters
+    ----------
+    config : dict, optional
+        Overrides of :meth:`default_config` (unknown keys raise ``ValueError``).
+    render_mode : {"human", "rgb_array"}, optional
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    @classmethod
+    def default_config(cls) -> dict:
+        """Every configuration key with its default (the valid keys)."""
+        config = super().default_config()
+        del config["other_vehicles_type"]  # the traffic's vehicle classes are fixed
+        config.update({
+            "observation": {
+                "type": "Kinematics",
+                "vehicles_count": 8,
+                "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],
+                "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-15, 15], "vy": [-15, 15]},
+                "absolute": False,
+                "normalize": True,
+                "clip": True,
+                "see_behind": True,
+                "order": "sorted",
+            },
+            "action": {"type": LongitudinalAction.TYPE, "acceleration_range": [-4.0, 3.0]},
+            "simulation_frequency": 10,  # [Hz] fixed: the driver model's step
+            "policy_frequency": 5,  # [Hz]
+            "duration": 40.0,  # [s]
+            "roundabout_radius": 20.0,  # [m]
+            "population": DEFAULT_POPULATION,
+            "initial_vehicles": 8,
+            "drivers": DriverConfig(),
+            "rules": TrafficRules(),
+            "ego_route": "arm0_to_arm2",
+            "ego_start": 40.0,  # [m] route coordinate at reset
+            "ego_speed": 8.0,  # [m/s]
+            "reward": "task",
+            "reward_theta": {"speed_dev": 1.0, "acc_sq": 1.0},
+            "progress_reward": 1.0,
+            "comfort_reward": -0.1,
+            "collision_reward": -10.0,
+            "arrival_reward": 1.0,
+            "record_tracks": False,
+            "screen_width": 600,  # [px]
+            "screen_height": 600,  # [px]
+            "centering_position": [0.5, 0.6],
+        })
+        return config
+
+    # -- configuration ------------------------------------------------------------------------------
+
+    def configure(self, config: dict | None) -> None:
+        """Check ``config`` (keys and values) and merge it into the current configuration."""
+        if config:
+            if not isinstance(config, Mapping):
+                raise ValueError(f"config must be a mapping, got {type(config).__name__}")
+            valid = tuple(self.default_config())
+            _keys_error("config", config, valid)
+            merged = dict(self.config)
+            merged.update(copy.deepcopy(dict(config)))
+            self._validate(merged)
+            self.config = merged
+        super().configure(None)
+
+    @staticmethod
+    def _validate(c: dict) -> None:
+        """Normalise and check a full configuration in place (raises ValueError)."""
+        if c["simulation_frequency"] != 10:
+            raise ValueError(f"simulation_frequency must be 10 Hz (the driver model's step of {STEP_LENGTH} s), "
+                             f"got {c['simulation_frequency']!r}")
+        pf = c["policy_frequency"]
+        if isinstance(pf, bool) or not isinstance(pf, (int, np.integer)) or pf < 1 or 10 % pf:
+            raise ValueError(f"policy_frequency must divide 10 Hz (1, 2, 5 or 10), got {pf!r}")
+        obs = c["observation"]
+        if not isinstance(obs, Mapping) or obs.get("type") not in _OBSERVATIONS:
+            raise ValueError(f"observation must be a mapping with a type in {sorted(_OBSERVATIONS)}, got {obs!r}")
+        params = [p for p in inspect.signature(_OBSERVATIONS[obs["type"]].__init__).parameters
+                  if p not in ("self", "env", "kwargs")]
+        _keys_error(f"observation ({obs['type']})", obs, ("type", *params))
+        act = c["action"]
+        if not isinstance(act, Mapping) or act.get("type") != LongitudinalAction.TYPE:
+            raise ValueError(f"action must be {{'type': {LongitudinalAction.TYPE!r}, 'acceleration_range': "
+                             f"[a_min, a_max]}}, got {act!r}")
+        _keys_error("action", act, ("type", "acceleration_range"))
+        rng = act.get("acceleration_range", (-4.0, 3.0))
+        if len(rng) != 2 or not _finite("action acceleration_range[0]", rng[0]) < 0 < \
+                _finite("action acceleration_range[1]", rng[1]):
+            raise ValueError(f"action acceleration_range must be [a_min < 0, a_max > 0] m/s^2, got {rng!r}")
+        _finite("duration", c["duration"], low=0.0, strict=True)
+        c["roundabout_radius"] = RoundaboutGeometry(c["roundabout_radius"]).radius
+        pop = c["population"]
+        if isinstance(pop, Mapping):
+            c["population"] = population_from_dict(pop, source="config population")
+        elif not isinstance(pop, PopulationConfig):
+            raise ValueError(f"population must be a PopulationConfig or a mapping, got {type(pop).__name__}")
+        if isinstance(c["drivers"], Mapping):
+            c["drivers"] = drivers_from_dict(c["drivers"], source="config drivers")
+        elif not isinstance(c["drivers"], DriverConfig):
+            raise ValueError(f"drivers must be a DriverConfig or a mapping, got {type(c['drivers']).__name__}")
+        if isinstance(c["rules"], Mapping):
+            c["rules"] = rules_from_dict(c["rules"], source="config rules")
+        elif not isinstance(c["rules"], TrafficRules):
+            raise ValueError(f"rules must be a TrafficRules or a mapping, got {type(c['rules']).__name__}")
+        n0 = c["initial_vehicles"]
+        if isinstance(n0, bool) or not isinstance(n0, (int, np.integer)) or n0 < 0:
+            raise ValueError(f"initial_vehicles must be an integer >= 0, got {n0!r}")
+        if n0 > c["population"].n_vehicles:
+            raise ValueError(f"initial_vehicles = {n0} exceeds the population's n_vehicles = "
+                             f"{c['population'].n_vehicles}")
+        if c["ego_route"] not in ROUTE_IDS:
+            raise ValueError(f"ego_route must be one of {', '.join(ROUTE_IDS)}, got {c['ego_route']!r}")
+        _finite("ego_start", c["ego_start"], low=0.0)
+        _finite("ego_speed", c["ego_speed"], low=0.0)
+        if c["reward"] not in REWARDS:
+            raise ValueError(f"reward must be one of {REWARDS}, got {c['reward']!r}")
+        theta = c["reward_theta"]
+        if not isinstance(theta, Mapping):
+            raise ValueError(f"reward_theta must be a mapping feature -> weight, got {theta!r}")
+        _keys_error("reward_theta", theta, (*FREE_FEATURES, REFERENCE_FEATURE))
+        missing = [f for f in FREE_FEATURES if f not in theta]
+        if missing:
+            raise ValueError(f"reward_theta misses {missing}; give {', '.join(FREE_FEATURES)}")
+        for f, w in theta.items():
+            _finite(f"reward_theta[{f!r}]", w, low=0.0, strict=True)
+        if theta.get(REFERENCE_FEATURE, 1.0) != 1.0:
+            raise ValueError(f"reward_theta[{REFERENCE_FEATURE!r}] is the reference weight, fixed at 1")
+        for name in ("progress_reward", "comfort_reward", "collision_reward", "arrival_reward"):
+            _finite(name, c[name])
+        if not isinstance(c["record_tracks"], bool):
+            raise ValueError(f"record_tracks must be true or false, got {c['record_tracks']!r}")
+
+    @property
+    def reward_weights(self) -> np.ndarray:
+        """Normalised weights (3,) of the ``"theta"`` reward over :data:`FEATURE_NAMES`."""
+        theta = self.config["reward_theta"]
+        return np.array([float(theta.get(f, 1.0)) for f in FEATURE_NAMES])
+
+    def define_spaces(self) -> None:
+        obs = dict(self.config["observation"])
+        self.observation_type = _obs.observation_factory(self, obs)
+        self.action_type = LongitudinalAction(self, **{k: v for k, v in self.config["action"].items()
+                                                       if k != "type"})
+        self.observation_space = self.observation_type.space()
+        self.action_space = self.action_type.space()
+        if isinstance(self.observation_type, _obs.KinematicObservation) and self.observation_type.normalize \
+                and self.observation_type.clip:
+            ranged = set(self.observation_type.features_range or {})
+            if all(f in _BOUNDED_FEATURES or f in ranged for f in self.observation_type.features):
+                self.observation_space = spaces.Box(-1.0, 1.0, shape=self.observation_space.shape,
+                                                    dtype=np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Reset (see :class:`gymnasium.Env`); ``options`` may hold ``"config"`` (checked as at construction)."""
+        if options is not None:
+            if not isinstance(options, Mapping):
+                raise ValueError(f"options must be a mapping, got {type(options).__name__}")
+            _keys_error("options", options, ("config",))
+        return super().reset(seed=seed, options=options)
+
+    # -- scene ----------------------------------------------------------------------------------------
+
+    def _reset(self) -> None:
+        c = self.config
+        drv: DriverConfig = c["drivers"]
+        net, catalogue, routes = _routes_for(c["roundabout_radius"], drv.smoothing, drv.speed_smoothing)
+        seed = int(self.np_random.integers(2**31))
+        pop: PopulationConfig = c["population"]
+        plan = plan_population(pop, ROUTE_IDS, seed)
+        _, noise_rng, behaviour_rng = random_streams(seed)
+        traffic = RoundaboutTraffic(net, catalogue, routes, plan, drivers=drv, rules=c["rules"],
+                                    control_noise=pop.control_noise, noise_rng=noise_rng,
+                                    behaviour_rng=behaviour_rng, np_random=self.np_random,
+                                    record=c["record_tracks"], record_history=c["show_trajectories"])
+        self.road = traffic
+        route = catalogue[c["ego_route"]]
+        start = min(float(c["ego_start"]), route.length - 10.0)
+        ego = traffic.add_vehicle(EGO, EGO_ID, c["ego_route"], start, float(c["ego_speed"]))
+        ego.color = _EGO_COLOR
+        self.vehicle = ego
+        n0 = int(c["initial_vehicles"])
+        if n0:
+            traffic.place_initial(n0)
+        first = plan["depart"].iloc[n0] if n0 < len(plan) else 0.0
+        traffic.shift_departures(float(first))
+        traffic.insert_due()
+        self._route_index = routes.index(c["ego_route"])
+        self._routes = routes
+        self._frames: list[tuple[float, float, float]] = []  # (speed_dev, a, jerk) per frame of the step
+        self._s_path = float(routes.project([self._route_index], ego.position[None, :])[0])
+        self._prev_acc = 0.0
+        self._v_des = float(traffic.profile(routes.offsets[self._route_index] + np.array([self._s_path]))[0][0])
+        self._crash_charged = False
+        self._step_features = np.zeros(len(FEATURE_NAMES))
+        self._step_terms = self._terms(progress=0.0)
+        traffic.step_callbacks.append(self._log_ego)
+
+    def _log_ego(self, traffic: RoundaboutTraffic) -> None:
+        ego = self.vehicle
+        r = self._route_index
+        try:
+            self._s_path = float(self._routes.project([r], ego.position[None, :], [self._s_path])[0])
+        except ValueError:  # the warm start lost the ego (e.g. pushed by a crash): project from scratch
+            self._s_path = float(self._routes.project([r], ego.position[None, :])[0])
+        v_des = float(traffic.profile(self._routes.offsets[r] + np.array([self._s_path]))[0][0])
+        a = ego.applied_acceleration
+        self._v_des = v_des
+        self._frames.append(((ego.speed - v_des) ** 2, a, (a - self._prev_acc) / STEP_LENGTH))
+        self._prev_acc = a
+
+    # -- stepping -------------------------------------------------------------------------------------
+
+    def _simulate(self, action=None) -> None:
+        start = self.vehicle.route_s
+        self._frames = []
+        super()._simulate(action)
+        f = np.array(self._frames) if self._frames else np.zeros((1, 3))
+        self._step_features = np.array([f[:, 0].mean(), (f[:, 1] ** 2).mean(), (f[:, 2] ** 2).mean()])
+        comfort = float(((f[:, 1] / _ACC_REF) ** 2 + (f[:, 2] / _JERK_REF) ** 2).mean())
+        self._step_terms = self._terms(progress=self.vehicle.route_s - start, comfort=comfort)
+
+    @property
+    def _period(self) -> float:
+        return 1.0 / self.config["policy_frequency"]
+
+    def _terms(self, *, progress: float, comfort: float = 0.0) -> dict[str, float]:
+        c = self.config
+        v_ref = c["drivers"].v_max
+        cost_to_go = 0.0
+        if self.vehicle.crashed and not self._crash_charged:
+            # a crashed vehicle stands still: over the rest of the episode it would cost speed_dev = v_des^2
+            # per second (acc_sq and jerk_sq 0), so that a crash never ends the style cost early
+            self._crash_charged = True
+            cost_to_go = float(self.reward_weights[0] * self._v_des**2 * max(c["duration"] - self.time, 0.0))
+        return {
+            "progress": progress / (v_ref * self._period),
+            "comfort": comfort,
+            "style_cost": float(self.reward_weights @ self._step_features) * self._period,
+            "crash_cost_to_go": cost_to_go,
+            "collision": float(self.vehicle.crashed),
+            "arrival": float(self._arrived),
+        }
+
+    @property
+    def _arrived(self) -> bool:
+        return self.vehicle is not None and self.vehicle.remaining <= 0.0
+
+    def _rewards(self, action) -> dict[str, float]:
+        return dict(self._step_terms)
+
+    def _reward(self, action) -> float:
+        c, t = self.config, self._step_terms
+        r = c["collision_reward"] * t["collision"] + c["arrival_reward"] * t["arrival"]
+        if c["reward"] == "task":
+            r += c["progress_reward"] * t["progress"] + c["comfort_reward"] * t["comfort"]
+        else:
+            r -= t["style_cost"] + t["crash_cost_to_go"]
+        return float(r)
+
+    def _is_terminated(self) -> bool:
+        return bool(self.vehicle.crashed or self._arrived)
+
+    def _is_truncated(self) -> bool:
+        return bool(self.time >= self.config["duration"] - 1e-9)
+
+    def _neighbours(self) -> list:
+        """The vehicles of the observation's rows 1..V-1 (highway-env's Kinematics order)."""
+        o = self.observation_type
+        if isinstance(o, _obs.KinematicObservation):
+            count, see_behind, sort, only = o.vehicles_count, o.see_behind, o.order == "sorted", \
+                not o.include_obstacles
+        else:
+            count, see_behind, sort, only = 8, True, True, True
+        close = self.road.close_objects_to(self.vehicle, self.PERCEPTION_DISTANCE, count=count - 1,
+                                           see_behind=see_behind, sort=sort, vehicles_only=only)
+        rows = close[-count + 1:] if count > 1 else []
+        return list(rows) + [None] * (count - 1 - len(rows))
+
+    def _info(self, obs, action=None) -> dict:
+        rows = self._neighbours()
+        k = len(FEATURE_NAMES)
+        ids, pirl, styles, theta = [], [], [], np.zeros((len(rows), k))
+        for i, v in enumerate(rows):
+            if v is None:
+                ids.append("")
+                pirl.append(False)
+                styles.append(_EMPTY_ROW_STYLE)
+                continue
+            ids.append(getattr(v, "vehicle_id", ""))
+            is_pirl = getattr(v, "kind", None) == PIRL
+            pirl.append(is_pirl)
+            styles.append(int(v.style) if is_pirl else -1)
+            if is_pirl:
+                theta[i] = v.theta
+        return {
+            "speed": float(self.vehicle.speed),
+            "crashed": bool(self.vehicle.crashed),
+            "arrived": bool(self._arrived),
+            "progress": float(self.vehicle.route_s),
+            "features": self._step_features.copy(),
+            "rewards": self._rewards(action),
+            "n_vehicles": len(self.road.vehicles),
+            "neighbour_ids": tuple(ids),
+            "neighbour_is_pirl": np.array(pirl, dtype=bool),
+            "neighbour_styles": np.array(styles, dtype=np.int64),
+            "neighbour_theta": theta,
+            "style_names": self.config["population"].style_names,
+            "feature_names": FEATURE_NAMES,
+        }
+
+    # -- recording ------------------------------------------------------------------------------------
+
+    def recording(self):
+        """The episode so far as a :class:`~pirl_sim.scenarios.recording.ScenarioRecording` (needs
+        ``record_tracks=True``; the ego is a track with ``agent_id`` "ego" and style name "ego")."""
+        net, _, _ = _routes_for(self.config["roundabout_radius"], self.config["drivers"].smoothing,
+                                self.config["drivers"].speed_smoothing)
+        lanes, successors = lane_graph(net)
+        info = {"simulator": "highway-env (pirl_sim/Roundabout-v0)", "ego_route": self.config["ego_route"],
+                "step_length_s": STEP_LENGTH}
+        return self.road.recording(info, lanes, successors)

@@ -1,0 +1,114 @@
+"""Who drives, when and where: a population plan drawn before a simulation starts (simulator-neutral).
+
+:func:`plan_population` draws, from ``numpy.random.SeedSequence(seed)``, the departure times, which
+vehicles are background traffic, each PIRL driver's style and normalised weights and every vehicle's route
+— in the same order and from the same stream as :func:`pirl_sim.scenarios.sumo.scenario.plan_vehicles`,
+so that for the same population, route catalogue and seed both simulators get the same plan (tested).
+It takes plain arguments instead of a simulator's config, so any simulator can use it (the SUMO scenario
+could call it too).
+
+Random streams (:func:`random_streams`): ``SeedSequence(seed).spawn(3)`` gives the population draws
+(stream 0, as SUMO's), the drivers' control noise (stream 1, as SUMO's) and the simulator's own behaviour
+(stream 2: background drivers' parameters, initial placement).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..population_config import FEATURE_NAMES, PopulationConfig
+from ..recording import BACKGROUND_STYLE, BACKGROUND_STYLE_NAME
+
+__all__ = ["PLAN_COLUMNS", "check_seed", "random_streams", "plan_population"]
+
+#: columns of a plan, one row per vehicle in departure order
+PLAN_COLUMNS: tuple[str, ...] = ("vehicle_id", "depart", "route_id", "is_pirl", "style", "style_name",
+                                 *(f"theta_{f}" for f in FEATURE_NAMES))
+
+
+def check_seed(seed) -> int:
+    """``seed`` as an int, or ``ValueError`` unless it is an integer in [0, 2**31)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**31:
+        raise ValueError(f"seed must be an integer in [0, 2**31), got {seed!r}")
+    return int(seed)
+
+
+def random_streams(seed: int) -> tuple[np.random.Generator, np.random.Generator, np.random.Generator]:
+    """(population draws, control noise, simulator behaviour): independent generators from ``seed``."""
+    a, b, c = np.random.SeedSequence(check_seed(seed)).spawn(3)
+    return np.random.default_rng(a), np.random.default_rng(b), np.random.default_rng(c)
+
+
+def _route_list(label: str, chosen, catalogue: Sequence[str]) -> list[str]:
+    if chosen is None:
+        return list(catalogue)
+    if isinstance(chosen, str) or not len(chosen):
+        raise ValueError(f"{label} must be a non-empty list of route ids, got {chosen!r}")
+    unknown = [r for r in chosen if r not in catalogue]
+    if unknown:
+        raise ValueError(f"{label}: unknown route(s) {unknown}; routes: {', '.join(catalogue)}")
+    return list(chosen)
+
+
+def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed: int, *,
+                    pirl_routes: Sequence[str] | None = None,
+                    background_routes: Sequence[str] | None = None) -> pd.DataFrame:
+    """Every vehicle of a run, drawn from ``seed`` before anything runs.
+
+    Parameters
+    ----------
+    population : PopulationConfig
+    route_ids : sequence of str
+        The route catalogue in its canonical order (draws index into it).
+    seed : int
+        In [0, 2**31).
+    pirl_routes, background_routes : sequence of str, optional
+        Routes PIRL / background vehicles draw theirs from, uniformly; None: all of ``route_ids``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns :data:`PLAN_COLUMNS`, one row per vehicle in departure order: ``vehicle_id`` ("veh000",
+        ...), ``depart`` [s], ``route_id``, ``is_pirl``, ``style`` (index into the population's styles; -1
+        for background), ``style_name`` ("background" for background) and the normalised weights
+        ``theta_speed_dev``, ``theta_acc_sq``, ``theta_jerk_sq`` (NaN for background).
+
+    Raises
+    ------
+    ValueError
+        A bad seed, an empty catalogue or unknown route ids.
+    """
+    if not isinstance(population, PopulationConfig):
+        raise TypeError(f"population must be a PopulationConfig, got {type(population).__name__}")
+    catalogue = list(route_ids)
+    if not catalogue:
+        raise ValueError("route_ids must name at least one route")
+    pirl_list = _route_list("pirl_routes", pirl_routes, catalogue)
+    bg_list = _route_list("background_routes", background_routes, catalogue)
+    rng, _, _ = random_streams(seed)
+    n = population.n_vehicles
+    depart = population.depart_times(rng)
+    is_pirl = np.ones(n, dtype=bool)
+    is_pirl[rng.choice(n, size=population.n_background, replace=False)] = False
+    n_pirl = int(is_pirl.sum())
+    theta = np.full((n, len(FEATURE_NAMES)), np.nan)
+    style = np.full(n, BACKGROUND_STYLE, dtype=np.int64)
+    if n_pirl:
+        theta[is_pirl], style[is_pirl] = population.sample_weights(n_pirl, rng)
+    route = np.empty(n, dtype=object)
+    route[is_pirl] = [pirl_list[i] for i in rng.integers(len(pirl_list), size=n_pirl)]
+    route[~is_pirl] = [bg_list[i] for i in rng.integers(len(bg_list), size=n - n_pirl)]
+    width = max(3, len(str(n - 1)))
+    names = population.style_names
+    return pd.DataFrame({
+        "vehicle_id": [f"veh{k:0{width}d}" for k in range(n)],
+        "depart": depart,
+        "route_id": route.astype(str),
+        "is_pirl": is_pirl,
+        "style": style,
+        "style_name": [names[s] if s >= 0 else BACKGROUND_STYLE_NAME for s in style],
+        **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
+    }, columns=list(PLAN_COLUMNS))

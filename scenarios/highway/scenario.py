@@ -1,0 +1,412 @@
+"""highway-env roundabout scenarios: the SUMO scenario's populations on highway-env's roundabout, recorded.
+
+One call, :func:`run_highway_scenario`, does everything for a :class:`HighwayScenarioConfig` and a seed:
+
+1. **Plan** (:func:`~.planning.plan_population`, the same draws as the SUMO scenario's
+   :func:`~pirl_sim.scenarios.sumo.scenario.plan_vehicles` for the same population and seed): departure
+   times, background vehicles, each PIRL driver's style and weights, routes.
+2. **Road**: highway-env's ``roundabout-generic-v0`` network with one ring lane
+   (:func:`~.network.build_network`), the 12 entry-to-exit routes (:func:`~.network.route_catalogue`, the
+   SUMO scenario's route ids) and their reference paths (:func:`~.network.route_set`).
+3. **Simulate** :class:`~.traffic.RoundaboutTraffic` (a highway-env ``Road``) at 0.1 s steps until every
+   vehicle has left or ``max_duration``: PIRL drivers re-plan every step in one batched MPC call,
+   background drivers are highway-env's IDM, entering vehicles yield to the ring (see
+   :mod:`~.traffic`).
+4. **Record** through :func:`pirl_sim.scenarios.recording.write_recording` (the one writer of every
+   simulator): INTERACTION tracks, ``ground_truth.csv``, the lanes as a Lanelet2 ``map.osm`` (lanelets
+   named ``"<from>_<to>"`` after highway-env's nodes, 4 m wide), ``run.json``.
+
+:func:`load_highway_run` reads a run back (recording, reference paths rebuilt from the configuration in
+``run.json``, the drivers' model) and :meth:`HighwayRunData.demonstrations` turns its tracks into
+demonstrations for the learners, as the SUMO scenario does
+(:func:`~pirl_sim.scenarios.sumo.scenario.recorded_demonstrations`: by default PIRL tracks without
+interaction, collision or removal).
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.trajectory import Trajectory
+
+from ..population_config import DEFAULT_POPULATION, PopulationConfig, population_from_dict
+from ..recording import RecordingFiles, ScenarioRecording, read_recording, write_recording
+from ..sumo.drivers import RouteSet, RouteSetDriverModel, route_set_model
+from ..sumo.network import route_id
+from ..sumo.scenario import recorded_demonstrations
+from .network import ARMS, LANE_WIDTH, RoundaboutGeometry, build_network, lane_graph, route_catalogue, route_set
+from .planning import check_seed, plan_population, random_streams
+from .traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
+
+__all__ = [
+    "SIMULATOR",
+    "ROUTE_IDS",
+    "HighwayScenarioConfig",
+    "HighwayScenarioResult",
+    "HighwayRunData",
+    "scenario_from_dict",
+    "drivers_from_dict",
+    "rules_from_dict",
+    "load_scenario",
+    "build_routes",
+    "run_highway_scenario",
+    "load_highway_run",
+]
+
+SIMULATOR = "highway-env"  #: ``simulator`` in ``run.json``
+_DEFAULT_EXTRA_TIME = 300.0  # [s] after the last departure, when max_duration is not given
+
+#: the route catalogue's ids in canonical order (entry arm, then first exit first), as the SUMO scenario's
+ROUTE_IDS: tuple[str, ...] = tuple(route_id(i, (i + k) % len(ARMS)) for i in range(len(ARMS))
+                                   for k in range(1, len(ARMS)))
+
+
+@dataclass(frozen=True)
+class HighwayScenarioConfig:
+    """A highway-env roundabout scenario (validated on construction).
+
+    Attributes
+    ----------
+    geometry : RoundaboutGeometry
+        Ring radius (default 20 m, highway-env's).
+    population : PopulationConfig
+        Default: the paper's three styles, 20 % background (the SUMO scenario's default).
+    drivers : DriverConfig
+        The PIRL drivers' model and MPC.
+    rules : TrafficRules
+        Leaders, yielding, crash removal.
+    pirl_routes, background_routes : tuple of str or None
+        Routes (of :data:`ROUTE_IDS`) PIRL / background vehicles draw theirs from, uniformly; None: all.
+    max_duration : float or None
+        Longest simulated time [s], > 0; None: last departure + 300 s. The run stops earlier once every
+        vehicle has left.
+    """
+
+    geometry: RoundaboutGeometry = field(default_factory=RoundaboutGeometry)
+    population: PopulationConfig = DEFAULT_POPULATION
+    drivers: DriverConfig = field(default_factory=DriverConfig)
+    rules: TrafficRules = field(default_factory=TrafficRules)
+    pirl_routes: tuple[str, ...] | None = None
+    background_routes: tuple[str, ...] | None = None
+    max_duration: float | None = None
+
+    def __post_init__(self) -> None:
+        for name, cls in (("geometry", RoundaboutGeometry), ("population", PopulationConfig),
+                          ("drivers", DriverConfig), ("rules", TrafficRules)):
+            if not isinstance(getattr(self, name), cls):
+                raise ValueError(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
+        for name in ("pirl_routes", "background_routes"):
+            chosen = getattr(self, name)
+            if chosen is None:
+                continue
+            if isinstance(chosen, str) or not len(chosen):
+                raise ValueError(f"{name} must be a non-empty list of route ids, got {chosen!r}")
+            unknown = [r for r in chosen if r not in ROUTE_IDS]
+            if unknown:
+                raise ValueError(f"{name}: unknown route(s) {unknown}; routes: {', '.join(ROUTE_IDS)}")
+            object.__setattr__(self, name, tuple(chosen))
+        if self.max_duration is not None:
+            m = self.max_duration
+            if isinstance(m, bool) or not isinstance(m, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(m) or m <= 0:
+                raise ValueError(f"max_duration must be a positive number of seconds, got {m!r}")
+            object.__setattr__(self, "max_duration", float(m))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain (TOML/JSON-ready) form that :func:`scenario_from_dict` reads back."""
+        rules = asdict(self.rules)
+        if rules["crash_removal_delay"] is None:
+            del rules["crash_removal_delay"]  # TOML and JSON-from-TOML have no null: a flag instead
+            rules["crash_removal"] = False
+        out: dict[str, Any] = {
+            "geometry": asdict(self.geometry),
+            "population": self.population.to_dict(),
+            "drivers": asdict(self.drivers),
+            "rules": rules,
+        }
+        for name in ("pirl_routes", "background_routes"):
+            if getattr(self, name) is not None:
+                out[name] = list(getattr(self, name))
+        if self.max_duration is not None:
+            out["max_duration"] = self.max_duration
+        return out
+
+
+_SCENARIO_KEYS = ("geometry", "population", "drivers", "rules", "pirl_routes", "background_routes", "max_duration")
+
+
+def _table(label: str, data: Any, cls, extra: tuple[str, ...] = ()) -> dict[str, Any]:
+    valid = tuple(f.name for f in fields(cls) if f.init) + extra
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{label} must be a table, got {data!r}")
+    unknown = [k for k in data if k not in valid]
+    if unknown:
+        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: {', '.join(valid)}")
+    return dict(data)
+
+
+def rules_from_dict(data: Mapping[str, Any], *, source: str = "rules") -> TrafficRules:
+    """A :class:`~.traffic.TrafficRules` from a table (``crash_removal = false`` keeps crashed vehicles)."""
+    kwargs = _table(source, data, TrafficRules, extra=("crash_removal",))
+    if "crash_removal" in kwargs:
+        keep = kwargs.pop("crash_removal")
+        if not isinstance(keep, bool):
+            raise ValueError(f"{source}: crash_removal must be true or false, got {keep!r}")
+        if not keep:
+            if "crash_removal_delay" in kwargs:
+                raise ValueError(f"{source}: crash_removal = false and crash_removal_delay exclude each other")
+            kwargs["crash_removal_delay"] = None
+    try:
+        return TrafficRules(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def drivers_from_dict(data: Mapping[str, Any], *, source: str = "drivers") -> DriverConfig:
+    """A :class:`~.traffic.DriverConfig` from a table (unknown keys rejected, listing the valid ones)."""
+    try:
+        return DriverConfig(**_table(source, data, DriverConfig))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def scenario_from_dict(data: Mapping[str, Any], *, source: str = "scenario",
+                       population: PopulationConfig | None = None) -> HighwayScenarioConfig:
+    """Build a :class:`HighwayScenarioConfig` from plain data (a parsed TOML file).
+
+    Parameters
+    ----------
+    data : mapping
+        Top-level keys :data:`_SCENARIO_KEYS`: ``geometry`` (``radius``), ``drivers`` and ``rules`` tables of
+        :class:`~.traffic.DriverConfig` / :class:`~.traffic.TrafficRules` fields, ``population`` as
+        :func:`~pirl_sim.scenarios.population_config.population_from_dict` reads, route lists,
+        ``max_duration``.
+    source : str
+        Named in error messages.
+    population : PopulationConfig, optional
+        Used instead of the ``population`` table (which must then be absent).
+
+    Raises
+    ------
+    ValueError
+        Unknown keys (listing the valid ones) and every invalid value.
+    """
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{source}: expected a table of settings, got {type(data).__name__}")
+    unknown = [k for k in data if k not in _SCENARIO_KEYS]
+    if unknown:
+        raise ValueError(f"{source}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: "
+                         f"{', '.join(_SCENARIO_KEYS)}")
+    kwargs: dict[str, Any] = {}
+    if "geometry" in data:
+        try:
+            kwargs["geometry"] = RoundaboutGeometry(**_table(f"{source}: geometry", data["geometry"],
+                                                             RoundaboutGeometry))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: geometry: {exc}") from None
+    if "drivers" in data:
+        kwargs["drivers"] = drivers_from_dict(data["drivers"], source=f"{source}: drivers")
+    if "rules" in data:
+        kwargs["rules"] = rules_from_dict(data["rules"], source=f"{source}: rules")
+    if "population" in data:
+        if population is not None:
+            raise ValueError(f"{source}: has a population table and a population was given too")
+        kwargs["population"] = population_from_dict(data["population"], source=f"{source}: population")
+    elif population is not None:
+        kwargs["population"] = population
+    for k in ("pirl_routes", "background_routes"):
+        if k in data:
+            kwargs[k] = data[k] if isinstance(data[k], str) else tuple(data[k])
+    if "max_duration" in data:
+        kwargs["max_duration"] = data["max_duration"]
+    try:
+        return HighwayScenarioConfig(**kwargs)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def load_scenario(path, *, population: PopulationConfig | None = None) -> HighwayScenarioConfig:
+    """Read a scenario TOML file (see :func:`scenario_from_dict`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"scenario config not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    return scenario_from_dict(data, source=str(path), population=population)
+
+
+# ----------------------------------------------------------------------------------------------
+# running
+# ----------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class HighwayScenarioResult:
+    """Everything a run produced.
+
+    Attributes
+    ----------
+    config : HighwayScenarioConfig
+    seed : int
+    vehicles : pandas.DataFrame
+        The plan (:func:`~.planning.plan_population`).
+    summary : pandas.DataFrame
+        One row per vehicle that was on the road (:meth:`~.traffic.RoundaboutTraffic.summary`).
+    recording : ScenarioRecording
+        What :func:`~pirl_sim.scenarios.recording.write_recording` writes.
+    routes : RouteSet
+        Reference paths of every route on one arc-length axis.
+    model : RouteSetDriverModel
+        The drivers' model (converged MPC settings) for learning and prediction.
+    timing : dict
+        ``sim_time_s``, ``wall_time_s``, ``act_time_s`` (deciding commands, MPC included), ``plan_time_s``
+        (MPC), ``n_steps``, ``n_plans``, ``mean_vehicles`` and ``max_vehicles`` on the road per step,
+        ``real_time_factor``.
+    files : RecordingFiles or None
+    """
+
+    config: HighwayScenarioConfig
+    seed: int
+    vehicles: pd.DataFrame
+    summary: pd.DataFrame
+    recording: ScenarioRecording
+    routes: RouteSet
+    model: RouteSetDriverModel
+    timing: Mapping[str, float]
+    files: RecordingFiles | None = None
+
+    def demonstrations(self, **kwargs) -> list[Trajectory]:
+        """:func:`~pirl_sim.scenarios.sumo.scenario.recorded_demonstrations` of this run."""
+        return recorded_demonstrations(self.recording, self.routes, **kwargs)
+
+
+#: ``progress(simulated time [s], vehicles finished, vehicles in all)``
+Progress = Callable[[float, int, int], None]
+
+
+def build_routes(config: HighwayScenarioConfig):
+    """(network, route catalogue, RouteSet) of a configuration."""
+    net = build_network(config.geometry)
+    catalogue = route_catalogue(net)
+    if tuple(catalogue) != ROUTE_IDS:  # pragma: no cover - guards the constant against the network
+        raise AssertionError(f"route catalogue {tuple(catalogue)} differs from ROUTE_IDS")
+    routes = route_set(net, catalogue, smoothing=config.drivers.smoothing,
+                       speed_smoothing=config.drivers.speed_smoothing)
+    return net, catalogue, routes
+
+
+def run_highway_scenario(config: HighwayScenarioConfig | None = None, seed: int = 0, *, out_dir=None,
+                         progress: Progress | None = None) -> HighwayScenarioResult:
+    """Plan, simulate and record one scenario (see the module docstring).
+
+    Parameters
+    ----------
+    config : HighwayScenarioConfig, optional
+        Default ``HighwayScenarioConfig()``.
+    seed : int
+        Seeds every draw; the same seed gives byte-identical files.
+    out_dir : str or os.PathLike, optional
+        Where to write the recording; nothing is written before the simulation has finished.
+    progress : callable, optional
+        Called every simulated second as ``progress(time_s, n_finished, n_vehicles)``.
+
+    Raises
+    ------
+    ValueError
+        A bad seed or configuration, before anything runs.
+    """
+    import highway_env
+
+    config = HighwayScenarioConfig() if config is None else config
+    if not isinstance(config, HighwayScenarioConfig):
+        raise TypeError(f"config must be a HighwayScenarioConfig, got {type(config).__name__}")
+    seed = check_seed(seed)
+    plan = plan_population(config.population, ROUTE_IDS, seed, pirl_routes=config.pirl_routes,
+                           background_routes=config.background_routes)
+    _, noise_rng, behaviour_rng = random_streams(seed)
+    net, catalogue, routes = build_routes(config)
+    traffic = RoundaboutTraffic(net, catalogue, routes, plan, drivers=config.drivers, rules=config.rules,
+                                control_noise=config.population.control_noise, noise_rng=noise_rng,
+                                behaviour_rng=behaviour_rng, np_random=np.random.default_rng(seed))
+    duration = config.max_duration or float(plan["depart"].max()) + _DEFAULT_EXTRA_TIME
+    n_max = max(1, round(duration / STEP_LENGTH))
+    present = []
+    t0 = _time.perf_counter()
+    traffic.insert_due()
+    for k in range(n_max):
+        traffic.act()
+        traffic.step(STEP_LENGTH)
+        present.append(len(traffic.vehicles))
+        if progress is not None and (k + 1) % 10 == 0:
+            progress(traffic.time, traffic.n_finished, len(plan))
+        if traffic.n_pending == 0 and not traffic.vehicles:
+            break
+    wall = _time.perf_counter() - t0
+    if progress is not None:
+        progress(traffic.time, traffic.n_finished, len(plan))
+    lanes, successors = lane_graph(net)
+    info = {
+        "simulator": SIMULATOR,
+        "highway_env_version": highway_env.__version__,
+        "seed": seed,
+        "step_length_s": STEP_LENGTH,
+        "config": config.to_dict(),
+        "routes": list(ROUTE_IDS),
+        "n_vehicles": int(len(plan)),
+        "n_not_departed": int(traffic.n_pending),
+        "sim_time_s": round(traffic.time, 6),
+    }
+    recording = traffic.recording(info, lanes, successors)
+    files = write_recording(recording, out_dir, lane_width=LANE_WIDTH) if out_dir is not None else None
+    ctrl = traffic.controller
+    timing = {
+        "sim_time_s": traffic.time,
+        "wall_time_s": wall,
+        "act_time_s": traffic.act_time_s,
+        "plan_time_s": ctrl.plan_time_s,
+        "n_steps": len(present),
+        "n_plans": ctrl.n_plans,
+        "mean_vehicles": float(np.mean(present)) if present else 0.0,
+        "max_vehicles": int(max(present, default=0)),
+        "real_time_factor": traffic.time / wall if wall > 0 else math.inf,
+    }
+    model = route_set_model(routes, dt=STEP_LENGTH, a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
+    return HighwayScenarioResult(config, seed, plan, traffic.summary(), recording, routes, model, timing, files)
+
+
+@dataclass(frozen=True, eq=False)
+class HighwayRunData:
+    """A highway-env run read back from its directory (:func:`load_highway_run`)."""
+
+    recording: ScenarioRecording
+    config: HighwayScenarioConfig
+    routes: RouteSet
+    model: RouteSetDriverModel
+
+    def demonstrations(self, **kwargs) -> list[Trajectory]:
+        """:func:`~pirl_sim.scenarios.sumo.scenario.recorded_demonstrations` of this run."""
+        return recorded_demonstrations(self.recording, self.routes, **kwargs)
+
+
+def load_highway_run(directory) -> HighwayRunData:
+    """Read a run written by :func:`run_highway_scenario`: the recording, its configuration, the routes'
+    reference paths (rebuilt from the configuration in ``run.json``) and the drivers' model."""
+    d = Path(directory)
+    rec = read_recording(d)
+    info = rec.info
+    if info.get("simulator") != SIMULATOR:
+        raise ValueError(f"{d}: not a highway-env recording (simulator {info.get('simulator')!r})")
+    config = scenario_from_dict(info["config"], source=f"{d}/run.json")
+    _, _, routes = build_routes(config)
+    model = route_set_model(routes, dt=info["step_length_s"], a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
+    return HighwayRunData(rec, config, routes, model)

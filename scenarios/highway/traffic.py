@@ -1,0 +1,797 @@
+"""Traffic on highway-env's roundabout: PIRL drivers, background IDM drivers, entries, exits and crashes.
+
+:class:`RoundaboutTraffic` is a highway-env :class:`~highway_env.road.road.Road` (so highway-env's
+environments, observations and rendering work with it unchanged) that also runs the traffic: every
+``act()`` it decides every vehicle's longitudinal command, every ``step(dt)`` it moves the vehicles
+(highway-env's dynamics and collision checks), then removes vehicles that reached the end of their route
+(status ``arrived``) or crashed ``crash_removal_delay`` seconds ago (``vanished``), inserts vehicles whose
+departure time has come (at the start of their route, once there is room), and records one frame.
+
+Longitudinal commands (one step of ``dt = 0.1 s``, the driver model's step and the INTERACTION frame):
+
+- **PIRL drivers** (:class:`~.vehicles.PirlVehicle`): every step all of them re-plan in **one** batched
+  MPC call (:class:`pirl_sim.scenarios.sumo.drivers.PirlDrivers`, the SUMO scenario's controller: start
+  state from the vehicle's position projected on its route's reference path, warm starts, standstill
+  hand-back) under their own weights; the command is the planned speed one step ahead, i.e. the
+  acceleration ``(v_plan - v) / dt``. The driver's cost knows no other vehicle: like SUMO's safety checks
+  in the SUMO scenario, the traffic then **overrides** the command where other vehicles require it — the
+  applied acceleration is ``min(command, IDM limit)``, the IDM limit being highway-env's IDM interaction
+  term ``a_max (1 - (s*/gap)^2)`` towards the leader on the route (and towards the stop line while
+  yielding). A step whose command was cut by more than ``override_tol / dt`` counts as overridden; a
+  track with any override, hand-back or collision is flagged ``interacted`` in the ground truth (the paper
+  kept drivers "without too much interaction"), and the demonstrations exclude it by default.
+- **Background drivers** (:class:`~.vehicles.BackgroundVehicle`): highway-env's IDM with its own
+  parameters (``IDMVehicle`` constants, exponent drawn in highway-env's range), desired speed
+  ``speed_factor`` (drawn from N(1, 0.1^2), clipped to [0.7, 1.3]) times the route's desired speed at the
+  vehicle, leader and stop line as above.
+- **The ego** (env only): the agent's acceleration, nothing added.
+
+What highway-env's own roundabout traffic lacks, and what is added here:
+
+- **Leaders across lane segments.** highway-env's IDM looks for the leader on the vehicle's current lane
+  segment only (ring segments are 15-17 m long), so it runs into vehicles just past a segment boundary.
+  Here the leader is the nearest vehicle ahead on any lane of the vehicle's route (within ``lookahead``).
+- **Yielding at entries** (gap acceptance). Within ``yield_distance`` of the ring, a vehicle that has not
+  yet committed checks the ring vehicles approaching its merge node (within ``yield_lookback``, and only
+  those whose route passes the node, so vehicles leaving at the exit just before it do not count). A ring
+  vehicle conflicts when it would reach the node less than ``yield_headway`` after the entering vehicle
+  has cleared it (travelling its distance plus a length from its current speed at ``entry_acceleration``),
+  or is closer than ``yield_min_distance``. On a conflict the vehicle stops at a stop line before the node
+  (IDM towards it; the line is where a waiting vehicle leaves ``stop_clearance`` to the ring lane, ~2.5 m
+  before the node, as entries meet the ring at 66 degrees). The decision is taken again every step until the vehicle could no
+  longer stop before the line within ``max_deceleration``: then it commits and goes. Committed vehicles
+  are leaders for ring vehicles upstream of their node (placed at their distance to the node), so the ring
+  makes room for a vehicle that is merging.
+- **Despawn at exits**, **crash removal** (highway-env leaves crashed vehicles on the road for ever) and
+  insertion only where there is room (``s0 + v T`` ahead at the departure speed).
+
+Collisions are highway-env's (``Road.step``): a vehicle that crashed is flagged ``collided`` (and, when
+removed, ``removed_early``), never hidden.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from highway_env.road.road import Road
+from highway_env.vehicle.behavior import IDMVehicle
+
+from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
+
+from ..population_config import FEATURE_NAMES
+from ..recording import (
+    BACKGROUND_STYLE,
+    BACKGROUND_STYLE_NAME,
+    GROUND_TRUTH_COLUMNS,
+    TRACK_COLUMNS,
+    ScenarioRecording,
+)
+from ..sumo.drivers import PirlDrivers, RouteSet, RouteSetProfile, route_set_model
+from .network import RouteLanes
+from .vehicles import (
+    BACKGROUND,
+    EGO,
+    PIRL,
+    STYLE_COLORS,
+    BackgroundVehicle,
+    EgoVehicle,
+    PirlVehicle,
+    RouteFollowing,
+    place_on_route,
+)
+
+__all__ = ["STEP_LENGTH", "DriverConfig", "TrafficRules", "RoundaboutTraffic", "idm_acceleration"]
+
+STEP_LENGTH = 0.1  #: [s] simulation step = driver-model step = INTERACTION frame
+_EPS = 1e-9
+_STANDSTILL = 0.1  # [m/s] slower counts as stopped at the line
+
+
+def _number(label: str, v, *, low: float = 0.0, allow_equal: bool = True) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
+            or v < low or (v == low and not allow_equal):
+        raise ValueError(f"{label} must be a finite number {'>=' if allow_equal else '>'} {low:g}, got {v!r}")
+    return float(v)
+
+
+def _int_at_least(label: str, v, low: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+        raise ValueError(f"{label} must be an integer >= {low}, got {v!r}")
+    return int(v)
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    """The PIRL drivers' model and MPC (validated on construction; as the SUMO scenario's, without SUMO's
+    vehicle type).
+
+    Attributes
+    ----------
+    horizon : int
+        MPC horizon [steps of 0.1 s], >= 1.
+    n_iter, n_qp_iter : int
+        Newton iterations and bounded QPs per re-plan (warm-started: 1 each is a real-time iteration), >= 1.
+    a_lat, v_max : float
+        Desired speed: comfortable lateral acceleration [m/s^2] and speed cap [m/s], > 0.
+    smoothing : float
+        Smoothing length [m], >= 0, of the routes' reference paths (their geometry).
+    speed_smoothing : float
+        Further smoothing length [m], >= 0, of the paths' curvature for the desired speed (see
+        :mod:`~.network` for why 8 m).
+    depart_speed : float
+        Speed [m/s] at insertion, >= 0 (capped by the desired speed there).
+    stop_speed, resume_speed : float
+        [m/s] standstill hand-back of :class:`~pirl_sim.scenarios.sumo.drivers.PirlDrivers` (IDM drives a
+        PIRL vehicle slower than ``stop_speed`` until it is faster than ``resume_speed``).
+    override_tol : float
+        [m/s] a command counts as overridden when the speed after the step misses it by more, > 0.
+    """
+
+    horizon: int = 30
+    n_iter: int = 1
+    n_qp_iter: int = 1
+    a_lat: float = DEFAULT_A_LAT
+    v_max: float = DEFAULT_V_MAX
+    smoothing: float = 2.0
+    speed_smoothing: float = 8.0
+    depart_speed: float = DEFAULT_V_MAX
+    stop_speed: float = 0.5
+    resume_speed: float = 3.0
+    override_tol: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "n_iter", "n_qp_iter"):
+            object.__setattr__(self, name, _int_at_least(f"drivers.{name}", getattr(self, name), 1))
+        for name in ("a_lat", "v_max", "override_tol"):
+            object.__setattr__(self, name, _number(f"drivers.{name}", getattr(self, name), allow_equal=False))
+        for name in ("smoothing", "speed_smoothing", "depart_speed", "stop_speed", "resume_speed"):
+            object.__setattr__(self, name, _number(f"drivers.{name}", getattr(self, name)))
+        if self.stop_speed > self.resume_speed:
+            raise ValueError(f"drivers.stop_speed = {self.stop_speed} m/s must not exceed drivers.resume_speed = "
+                             f"{self.resume_speed} m/s")
+
+
+@dataclass(frozen=True)
+class TrafficRules:
+    """How vehicles share the roundabout (see the module docstring; validated on construction).
+
+    Attributes
+    ----------
+    lookahead : float
+        [m] how far ahead on its route a vehicle looks for a leader, > 0.
+    yield_distance : float
+        [m] an entering vehicle decides whether to yield within this distance of the ring, > 0.
+    yield_lookback : float
+        [m] ring vehicles up to this far before the merge node count, > 0.
+    yield_headway : float
+        [s] time a ring vehicle must stay away after the entering vehicle has cleared the node, >= 0.
+    yield_min_distance : float
+        [m] a ring vehicle closer than this to the node always conflicts, >= 0.
+    entry_acceleration : float
+        [m/s^2] acceleration assumed for clearing the node, > 0.
+    max_deceleration : float
+        [m/s^2] a vehicle that would need more to stop before the node commits (and goes), > 0.
+    stop_clearance : float
+        [m] lateral clearance, >= 0, between a vehicle waiting at an entry and the ring lane's edge (a
+        vehicle's half width from the ring's centre line): sets where the stop line is.
+    stop_margin : float
+        [m] waiting vehicles stop this far before the stop line (the IDM's jam gap there), >= 0.
+    crash_removal_delay : float or None
+        [s] crashed vehicles are removed this long after the crash, >= 0; None: never (they stay on the
+        road, stopped).
+    initial_spacing : float
+        [m] least distance between vehicles placed at a reset (env), > 0.
+    background_speed_factor_std : float
+        Standard deviation of background drivers' speed factors (mean 1, clipped to [0.7, 1.3]), >= 0.
+    """
+
+    lookahead: float = 80.0
+    yield_distance: float = 40.0
+    yield_lookback: float = 60.0
+    yield_headway: float = 1.5
+    yield_min_distance: float = 10.0
+    entry_acceleration: float = 1.5
+    max_deceleration: float = 5.0
+    stop_clearance: float = 0.75
+    stop_margin: float = 0.5
+    crash_removal_delay: float | None = 2.0
+    initial_spacing: float = 15.0
+    background_speed_factor_std: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("lookahead", "yield_distance", "yield_lookback", "entry_acceleration", "max_deceleration", "initial_spacing"):
+            object.__setattr__(self, name, _number(f"rules.{name}", getattr(self, name), allow_equal=False))
+        for name in ("yield_headway", "yield_min_distance", "stop_clearance", "stop_margin", "background_speed_factor_std"):
+            object.__setattr__(self, name, _number(f"rules.{name}", getattr(self, name)))
+        if self.crash_removal_delay is not None:
+            object.__setattr__(self, "crash_removal_delay",
+                               _number("rules.crash_removal_delay", self.crash_removal_delay))
+
+
+# ----------------------------------------------------------------------------------------------
+# IDM (highway-env's parameters)
+# ----------------------------------------------------------------------------------------------
+
+#: highway-env's IDM parameters (``IDMVehicle`` class constants)
+IDM_A_MAX = IDMVehicle.COMFORT_ACC_MAX  # [m/s^2]
+IDM_B = -IDMVehicle.COMFORT_ACC_MIN  # [m/s^2]
+IDM_T = IDMVehicle.TIME_WANTED  # [s]
+IDM_S0 = IDMVehicle.DISTANCE_WANTED - IDMVehicle.LENGTH  # [m] jam gap, bumper to bumper
+IDM_ACC_LIMIT = IDMVehicle.ACC_MAX  # [m/s^2] |acceleration| cap of highway-env's IDM
+
+
+def idm_acceleration(v: float, v0: float, gap: float | None = None, v_lead: float = 0.0, *,
+                     delta: float = IDMVehicle.DELTA, s0: float = IDM_S0, free: bool = True) -> float:
+    """The IDM's acceleration [m/s^2] with highway-env's parameters.
+
+    ``a_max (1 - (v/v0)^delta) - a_max (s*/gap)^2`` with ``s* = s0 + max(0, v T + v (v - v_lead) / (2 sqrt(a_max b)))``.
+
+    Parameters
+    ----------
+    v, v0 : float
+        Speed and desired speed [m/s].
+    gap : float or None
+        Bumper-to-bumper gap [m] to the leader (None: no leader).
+    v_lead : float
+        Leader speed [m/s].
+    delta : float
+        Exponent of the free-road term.
+    s0 : float
+        Jam gap [m].
+    free : bool
+        False: leave out the free-road term (``a_max`` instead): the limit an obstacle imposes.
+    """
+    v = max(v, 0.0)
+    a = IDM_A_MAX * (1.0 - (v / max(v0, _EPS)) ** delta) if free else IDM_A_MAX
+    if gap is not None:
+        s_star = s0 + max(0.0, v * IDM_T + v * (v - v_lead) / (2.0 * math.sqrt(IDM_A_MAX * IDM_B)))
+        a -= IDM_A_MAX * (s_star / max(gap, 0.01)) ** 2
+    return a
+
+
+def _time_to_cover(d: float, v: float, a: float) -> float:
+    """Time [s] to travel d [m] from speed v [m/s] at constant acceleration a > 0 [m/s^2]."""
+    if d <= 0:
+        return 0.0
+    return (-v + math.sqrt(v * v + 2.0 * a * d)) / a
+
+
+# ----------------------------------------------------------------------------------------------
+# the traffic
+# ----------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _EgoState:  # what PirlDrivers reads of a vehicle (duck-typed like SUMO's VehicleState)
+    x: float
+    y: float
+    speed: float
+    accel: float
+
+
+@dataclass(frozen=True)
+class _Observation:
+    ego: _EgoState
+
+
+@dataclass
+class _Track:
+    """Bookkeeping of one vehicle, from insertion on."""
+
+    track_id: int
+    vehicle_id: str
+    route_id: str
+    kind: str
+    style: int
+    style_name: str
+    theta: np.ndarray
+    n_frames: int = 0
+    n_commands: int = 0
+    n_overridden: int = 0
+    handed_back: bool = False
+    collided: bool = False
+    crash_time: float | None = None
+    status: str = "running"
+    removed_early: bool = False
+
+
+@dataclass(frozen=True)
+class _Departure:
+    vehicle_id: str
+    depart: float
+    route_id: str
+    is_pirl: bool
+    style: int
+    style_name: str
+    theta: np.ndarray
+
+
+class RoundaboutTraffic(Road):
+    """highway-env ``Road`` whose ``act``/``step`` run the roundabout's traffic (see the module docstring).
+
+    Parameters
+    ----------
+    network : highway_env.road.road.RoadNetwork
+        From :func:`~.network.build_network`.
+    routes : mapping route id -> RouteLanes
+        The route catalogue (:func:`~.network.route_catalogue`); every planned route must be in it.
+    route_set : RouteSet
+        Reference paths of the same routes (:func:`~.network.route_set`).
+    plan : pandas.DataFrame
+        Vehicles to insert (:func:`~.planning.plan_population` columns), departing at ``depart`` [s] of
+        this traffic's clock (which starts at 0).
+    drivers : DriverConfig
+    rules : TrafficRules
+    control_noise : float
+        [m/s^3] std of Gaussian noise on PIRL drivers' applied jerk.
+    noise_rng, behaviour_rng : numpy.random.Generator
+        Control noise; background drivers' parameters and initial placement.
+    np_random : numpy.random.Generator, optional
+        highway-env's road generator (the env's ``np_random``).
+    record : bool
+        Keep every vehicle's state every step (for :meth:`recording`).
+    record_history : bool
+        highway-env's trajectory display.
+
+    Attributes
+    ----------
+    time : float
+        [s] since the start.
+    controller : PirlDrivers
+        The PIRL drivers' batched MPC controller (its ``plan_time_s``, ``n_plans``, ... count the work).
+    act_time_s : float
+        Wall time [s] spent deciding commands (controller included).
+    """
+
+    def __init__(self, network, routes: Mapping[str, RouteLanes], route_set: RouteSet, plan: pd.DataFrame, *,
+                 drivers: DriverConfig, rules: TrafficRules, control_noise: float = 0.0,
+                 noise_rng: np.random.Generator | None = None, behaviour_rng: np.random.Generator | None = None,
+                 np_random=None, record: bool = True, record_history: bool = False) -> None:
+        super().__init__(network=network, vehicles=[], np_random=np_random, record_history=record_history)
+        if not isinstance(drivers, DriverConfig) or not isinstance(rules, TrafficRules):
+            raise TypeError("drivers must be a DriverConfig and rules a TrafficRules")
+        self.routes = dict(routes)
+        self.route_set = route_set
+        unknown = sorted(set(plan["route_id"]) - set(self.routes))
+        if unknown:
+            raise ValueError(f"planned routes {unknown} are not in the catalogue {sorted(self.routes)}")
+        missing = [r for r in self.routes if r not in route_set.route_ids]
+        if missing:
+            raise ValueError(f"routes {missing} have no reference path in the route set")
+        self.drivers = drivers
+        self.rules = rules
+        self.record = record
+        self.behaviour_rng = behaviour_rng if behaviour_rng is not None else np.random.default_rng(0)
+        self.model = route_set_model(route_set, dt=STEP_LENGTH, a_lat=drivers.a_lat, v_max=drivers.v_max,
+                                     n_iter=drivers.n_iter, n_qp_iter=drivers.n_qp_iter)
+        self.profile = RouteSetProfile(route_set, drivers.a_lat, drivers.v_max)
+        theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
+        self._pending: list[_Departure] = [
+            _Departure(r.vehicle_id, float(r.depart), r.route_id, bool(r.is_pirl), int(r.style), r.style_name,
+                       np.array([getattr(r, c) for c in theta_cols], dtype=float))
+            for r in plan.sort_values("depart", kind="stable").itertuples(index=False)]
+        self.controller = PirlDrivers(
+            self.model, {d.vehicle_id: (d.route_id, d.theta) for d in self._pending if d.is_pirl},
+            horizon=drivers.horizon, control_noise=control_noise, rng=noise_rng,
+            override_tol=drivers.override_tol, stop_speed=drivers.stop_speed, resume_speed=drivers.resume_speed)
+        self.time = 0.0
+        self.frame = 0
+        self.act_time_s = 0.0
+        self.tracks: dict[str, _Track] = {}
+        self._rows: list[tuple] = []
+        self._commands: dict[str, float] = {}  # PIRL vehicle id -> commanded acceleration this step
+        self._upstream = self._upstream_ring_lanes()
+        self._stop_offset = self._stop_offsets()
+        self._vdes_cache: dict[tuple[str, float], float] = {}
+        #: called as ``callback(traffic)`` at the end of every :meth:`step` (after removal, recording, insertion)
+        self.step_callbacks: list = []
+
+    # -- set-up -------------------------------------------------------------------------------------
+
+    def _upstream_ring_lanes(self) -> dict[str, dict[tuple[str, str], float]]:
+        """merge node -> {ring lane (from, to): distance [m] from the lane's start to the node}, walking
+        back round the ring up to ``yield_lookback`` (plus one lane)."""
+        graph = self.network.graph
+        pred: dict[str, str] = {}
+        for a, tos in graph.items():
+            for b in tos:
+                if len(a) == 2 and len(b) == 2:  # ring lane
+                    pred[b] = a
+        out: dict[str, dict[tuple[str, str], float]] = {}
+        for route in self.routes.values():
+            node = route.merge_node
+            if node in out:
+                continue
+            lanes: dict[tuple[str, str], float] = {}
+            dist, b = 0.0, node
+            while dist < self.rules.yield_lookback and b in pred and len(lanes) < len(pred):
+                a = pred[b]
+                dist += self.network.get_lane((a, b, 0)).length
+                lanes[(a, b)] = dist
+                b = a
+            out[node] = lanes
+        return out
+
+    def _stop_offsets(self) -> dict[str, float]:
+        """merge node -> distance [m] before the node where a waiting vehicle's front bumper stops.
+
+        Entries meet the ring at an angle (66 degrees here), so a vehicle whose front is at the node blocks
+        the ring. The stop position is the nearest one (0.25 m steps along the entry lane) at which every
+        corner of a vehicle box on the lane centre is at least ``WIDTH / 2 + stop_clearance`` from the ring
+        lanes' centre line next to the node.
+        """
+        out: dict[str, float] = {}
+        length, width = IDMVehicle.LENGTH, IDMVehicle.WIDTH
+        need = 0.5 * width + self.rules.stop_clearance
+        for route in self.routes.values():
+            node = route.merge_node
+            if node in out:
+                continue
+            entry = self.network.get_lane(route.lanes[route.entry_lane])
+            ring = [self.network.get_lane((a, b, 0)) for a, tos in self.network.graph.items() for b in tos
+                    if len(a) == 2 and len(b) == 2 and node in (a, b)]
+            x = 0.0
+            while x < entry.length - length:
+                sc = entry.length - x - 0.5 * length
+                c, h = entry.position(sc, 0.0), entry.heading_at(sc)
+                d = np.array([math.cos(h), math.sin(h)])
+                n = np.array([-d[1], d[0]])
+                corners = [c + a * 0.5 * length * d + b * 0.5 * width * n for a in (-1, 1) for b in (-1, 1)]
+                if min(abs(lane.local_coordinates(p)[1]) for lane in ring for p in corners) >= need:
+                    break
+                x += 0.25
+            out[node] = x
+        return out
+
+    def v_des(self, vehicle: RouteFollowing) -> float:
+        """The desired speed [m/s] of the vehicle's route at its route coordinate."""
+        return float(self.v_des_many([vehicle])[0])
+
+    def v_des_many(self, vehicles: list) -> np.ndarray:
+        """:meth:`v_des` of several vehicles in one evaluation, shape (len(vehicles),)."""
+        if not vehicles:
+            return np.zeros(0)
+        rs = self.route_set
+        s = np.array([rs.offsets[rs.index(v.route_lanes.route_id)] + v.route_s for v in vehicles])
+        return self.profile(s)[0]
+
+    def add_vehicle(self, kind: str, vehicle_id: str, route_id: str, s: float, speed: float, *,
+                    style: int = BACKGROUND_STYLE, style_name: str = BACKGROUND_STYLE_NAME,
+                    theta: np.ndarray | None = None):
+        """Put a vehicle on the road at route coordinate ``s`` [m] with ``speed`` [m/s] and start its track.
+
+        ``kind`` is ``"pirl"`` (then ``vehicle_id`` must be a planned PIRL vehicle), ``"background"`` or
+        ``"ego"``. Returns the vehicle.
+        """
+        if vehicle_id in self.tracks:
+            raise ValueError(f"vehicle {vehicle_id!r} is already on the road (or was)")
+        route = self.routes[route_id]
+        cls = {PIRL: PirlVehicle, BACKGROUND: BackgroundVehicle, EGO: EgoVehicle}[kind]
+        v = place_on_route(cls, self, route, s, speed, vehicle_id)
+        if kind == PIRL:
+            v.theta = np.asarray(theta, dtype=float)
+            v.style, v.style_name = int(style), style_name
+            v.color = STYLE_COLORS[int(style) % len(STYLE_COLORS)]
+        elif kind == BACKGROUND:
+            rng = self.behaviour_rng
+            v.speed_factor = float(np.clip(1.0 + self.rules.background_speed_factor_std * rng.standard_normal(),
+                                           0.7, 1.3))
+            v.DELTA = float(rng.uniform(*IDMVehicle.DELTA_RANGE))  # highway-env's randomize_behavior, our rng
+        self.vehicles.append(v)
+        self.tracks[vehicle_id] = _Track(
+            len(self.tracks) + 1, vehicle_id, route_id, kind, int(style) if kind == PIRL else BACKGROUND_STYLE,
+            style_name if kind == PIRL else (BACKGROUND_STYLE_NAME if kind == BACKGROUND else "ego"),
+            np.asarray(theta, dtype=float) if kind == PIRL else np.full(len(FEATURE_NAMES), np.nan))
+        return v
+
+    def _depart_speed(self, route_id: str, s: float, kind: str, factor: float = 1.0) -> float:
+        key = (route_id, s)
+        if key not in self._vdes_cache:
+            r = self.route_set.index(route_id)
+            self._vdes_cache[key] = float(self.profile(self.route_set.offsets[r] + np.array([s]))[0][0])
+        return min(self.drivers.depart_speed, factor * self._vdes_cache[key])
+
+    def place_initial(self, n: int, *, avoid: tuple = ()) -> int:
+        """Take the first ``n`` pending departures and put them on their routes at once (an env's reset).
+
+        Route coordinates are drawn uniformly (behaviour stream) up to 10 m before the route's end, at
+        least ``initial_spacing`` from every vehicle on the road, not within 15 m before a merge node;
+        speed: the desired speed there (capped by ``depart_speed``). A vehicle without a free place after
+        20 draws departs normally at time 0 instead. Returns the number placed.
+        """
+        rng = self.behaviour_rng
+        placed = 0
+        chosen, rest = self._pending[:n], self._pending[n:]
+        later = []
+        for d in chosen:
+            route = self.routes[d.route_id]
+            for _ in range(20):
+                s = float(rng.uniform(0.0, route.length - 10.0))
+                if route.merge_s - 15.0 < s < route.merge_s:
+                    continue
+                k = int(np.clip(np.searchsorted(route.offsets, s, side="right") - 1, 0, len(route.lanes) - 1))
+                xy = self.network.get_lane(route.lanes[k]).position(s - route.offsets[k], 0.0)
+                if all(np.hypot(*(xy - v.position)) >= self.rules.initial_spacing for v in self.vehicles):
+                    break
+            else:
+                later.append(_Departure(d.vehicle_id, 0.0, d.route_id, d.is_pirl, d.style, d.style_name, d.theta))
+                continue
+            kind = PIRL if d.is_pirl else BACKGROUND
+            v = self.add_vehicle(kind, d.vehicle_id, d.route_id, s, 0.0, style=d.style, style_name=d.style_name,
+                                 theta=d.theta)
+            v.speed = self._depart_speed(d.route_id, s, kind, getattr(v, "speed_factor", 1.0))
+            placed += 1
+        self._pending = later + rest
+        return placed
+
+    def shift_departures(self, dt: float) -> None:
+        """Move every pending departure ``dt`` [s] earlier (not before 0)."""
+        self._pending = [_Departure(d.vehicle_id, max(0.0, d.depart - dt), d.route_id, d.is_pirl, d.style,
+                                    d.style_name, d.theta) for d in self._pending]
+
+    @property
+    def n_pending(self) -> int:
+        """Planned vehicles not yet on the road."""
+        return len(self._pending)
+
+    def insert_due(self) -> int:
+        """Insert pending vehicles whose departure time has come, where their first lane has room (a
+        blocked vehicle also holds back the later ones of its route's entry). Returns the number inserted."""
+        inserted = 0
+        blocked: set[str] = set()
+        keep = []
+        for d in self._pending:
+            route = self.routes[d.route_id]
+            first = route.lanes[0][:2]
+            if d.depart > self.time + 1e-9 or first in blocked:
+                keep.append(d)
+                continue
+            speed = self._depart_speed(d.route_id, 0.0, PIRL if d.is_pirl else BACKGROUND)
+            need = IDM_S0 + speed * IDM_T + IDMVehicle.LENGTH
+            free = all(not (isinstance(v, RouteFollowing) and v.lane_index[:2] == first and v.lane_s < need)
+                       for v in self.vehicles)
+            if not free:
+                blocked.add(first)
+                keep.append(d)
+                continue
+            kind = PIRL if d.is_pirl else BACKGROUND
+            v = self.add_vehicle(kind, d.vehicle_id, d.route_id, 0.0, speed, style=d.style,
+                                 style_name=d.style_name, theta=d.theta)
+            v.speed = self._depart_speed(d.route_id, 0.0, kind, getattr(v, "speed_factor", 1.0))
+            inserted += 1
+        self._pending = keep
+        return inserted
+
+    # -- one step -----------------------------------------------------------------------------------
+
+    def _leader(self, v: RouteFollowing, others: list) -> tuple[float | None, float]:
+        """(bumper gap [m], speed [m/s]) of the nearest vehicle ahead on ``v``'s route, None if none within
+        ``lookahead``; committed entering vehicles count at their distance to their merge node."""
+        route = v.route_lanes
+        pos_of = route.position_of
+        k, s = v.route_pos, v.route_s
+        best_d, best_v, best_len = self.rules.lookahead, 0.0, 0.0
+        found = False
+        for o in others:
+            if o is v:
+                continue
+            m = pos_of.get(o.lane_index[:2])
+            if m is not None and m >= k:
+                d = route.offsets[m] + (o.lane_s if isinstance(o, RouteFollowing)
+                                        else o.lane.local_coordinates(o.position)[0]) - s
+                if 0.0 < d < best_d:
+                    best_d, best_v, best_len, found = d, o.speed, o.LENGTH, True
+            if isinstance(o, RouteFollowing) and o.committed and o.entering:
+                m = route.start_pos.get(o.route_lanes.merge_node)
+                if m is not None:
+                    d = route.offsets[m] - o.merge_distance - s
+                    if m > k and 0.0 < d < best_d:  # the node is ahead of v on its route
+                        best_d, best_v, best_len, found = d, o.speed, o.LENGTH, True
+        if not found:
+            return None, 0.0
+        return best_d - 0.5 * (v.LENGTH + best_len), best_v
+
+    def _must_yield(self, v: RouteFollowing, others: list) -> bool:
+        """Gap acceptance at ``v``'s merge node (see the module docstring); updates ``v.committed``."""
+        rules = self.rules
+        d = v.merge_distance
+        if v.committed or not v.entering or d > rules.yield_distance:
+            return False
+        node = v.route_lanes.merge_node
+        upstream = self._upstream[node]
+        t_clear = _time_to_cover(d + v.LENGTH, v.speed, rules.entry_acceleration)
+        conflict = False
+        for o in others:
+            if o is v or o.crashed:
+                continue
+            key = o.lane_index[:2]
+            if key not in upstream:
+                continue
+            if isinstance(o, RouteFollowing):
+                p = o.route_lanes.start_pos.get(node)
+                if p is None or p <= o.route_pos:
+                    continue  # it leaves the ring before the node
+                s_lane = o.lane_s
+            else:
+                s_lane = o.lane.local_coordinates(o.position)[0]
+            d_o = upstream[key] - s_lane
+            if d_o > rules.yield_lookback:
+                continue
+            if d_o < rules.yield_min_distance or d_o / max(o.speed, 0.1) < t_clear + rules.yield_headway:
+                conflict = True
+                break
+        stop_gap = d - 0.5 * v.LENGTH - self._stop_offset[node] - rules.stop_margin
+        if stop_gap > 0.0:
+            can_stop = v.speed ** 2 / (2.0 * stop_gap) <= rules.max_deceleration
+        else:
+            can_stop = v.speed < _STANDSTILL  # waiting at the line
+        if not can_stop:
+            v.committed = True  # cannot stop before the node any more: go
+            return False
+        return conflict
+
+    def _limit(self, v: RouteFollowing, others: list, *, free_v0: float | None, delta: float) -> float:
+        """IDM acceleration of ``v`` with its leader and, when yielding, the stop line; ``free_v0`` None:
+        without the free-road term (the limit others impose on a PIRL driver)."""
+        gap, v_lead = self._leader(v, others)
+        v.yielding = self._must_yield(v, others)
+        free = free_v0 is not None
+        v0 = free_v0 if free else 1.0
+        a = idm_acceleration(v.speed, v0, gap, v_lead, delta=delta, free=free) if gap is not None \
+            else (idm_acceleration(v.speed, v0, delta=delta) if free else math.inf)
+        if v.yielding:
+            stop_gap = v.merge_distance - 0.5 * v.LENGTH - self._stop_offset[v.route_lanes.merge_node]
+            a = min(a, idm_acceleration(v.speed, v0, stop_gap, 0.0, delta=delta, s0=self.rules.stop_margin,
+                                        free=free))
+        return a
+
+    def act(self) -> None:
+        """Decide every vehicle's command, then let each act (steering, and the command)."""
+        t0 = _time.perf_counter()
+        others = self.vehicles
+        pirl = [v for v in others if getattr(v, "kind", None) == PIRL and not v.crashed]
+        commands = self.controller.commands(self.time, {
+            v.vehicle_id: _Observation(_EgoState(float(v.position[0]), float(v.position[1]), float(v.speed),
+                                                 float(v.applied_acceleration))) for v in pirl}) if pirl else {}
+        self._commands = {}
+        tol = self.drivers.override_tol / STEP_LENGTH
+        idm = [v for v in others if isinstance(v, RouteFollowing) and not v.crashed
+               and (v.kind == BACKGROUND or (v.kind == PIRL and commands.get(v.vehicle_id) is None))]
+        v_des = dict(zip(map(id, idm), self.v_des_many(idm)))  # one profile evaluation for all IDM drivers
+        for v in others:
+            if v.crashed or not isinstance(v, RouteFollowing) or v.kind == EGO:
+                continue
+            track = self.tracks[v.vehicle_id]
+            if v.kind == BACKGROUND:
+                a = self._limit(v, others, free_v0=v.speed_factor * v_des[id(v)], delta=v.DELTA)
+            else:
+                cmd = commands.get(v.vehicle_id)
+                if cmd is None:  # handed back at a standstill: highway-env's IDM towards the desired speed
+                    track.handed_back = True
+                    a = self._limit(v, others, free_v0=v_des[id(v)], delta=v.DELTA)
+                else:
+                    a_cmd = (cmd - v.speed) / STEP_LENGTH
+                    a = min(a_cmd, self._limit(v, others, free_v0=None, delta=v.DELTA))
+                    self._commands[v.vehicle_id] = a_cmd
+                    track.n_commands += 1
+                    if a < a_cmd - tol:
+                        track.n_overridden += 1
+            v.command_acceleration = float(min(max(a, -IDM_ACC_LIMIT), IDM_ACC_LIMIT))
+        for v in others:
+            v.act()
+        self.act_time_s += _time.perf_counter() - t0
+
+    def _move_and_collide(self, dt: float) -> None:
+        """highway-env's ``Road.step``: every vehicle steps, then every pair checks for a collision — here
+        only the pairs that pass highway-env's own first test (``RoadObject._is_colliding``: centres closer
+        than half the sum of the diagonals plus the first one's speed times ``dt``), found for all pairs at
+        once with numpy; the other pairs' checks return without effect in highway-env, so the outcome is
+        the same."""
+        vehicles = self.vehicles
+        for v in vehicles:
+            v.step(dt)
+        n = len(vehicles)
+        if n > 1:
+            pos = np.array([v.position for v in vehicles])
+            reach = np.array([0.5 * v.diagonal for v in vehicles])
+            speed = np.array([v.speed for v in vehicles])
+            dist = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=-1))
+            near = dist <= reach[:, None] + reach[None, :] + speed[:, None] * dt
+            for i, j in zip(*np.nonzero(np.triu(near, k=1))):
+                vehicles[i].handle_collisions(vehicles[j], dt)
+        for i, v in enumerate(vehicles):
+            for other in self.objects:
+                v.handle_collisions(other, dt)
+
+    def step(self, dt: float) -> None:
+        """Move every vehicle (highway-env), then remove, insert and record (see the module docstring)."""
+        if abs(dt - STEP_LENGTH) > 1e-9:
+            raise ValueError(f"the roundabout traffic steps by {STEP_LENGTH} s (the driver model's step), got {dt}")
+        self._move_and_collide(dt)
+        self.frame += 1
+        self.time = round(self.frame * STEP_LENGTH, 9)
+        delay = self.rules.crash_removal_delay
+        keep = []
+        for v in self.vehicles:
+            track = self.tracks.get(getattr(v, "vehicle_id", None))
+            if track is None:
+                keep.append(v)
+                continue
+            if v.crashed and not track.collided:
+                track.collided, track.crash_time = True, self.time
+            if v.kind != EGO and v.remaining <= 0.0:
+                track.status = "arrived"
+            elif v.kind != EGO and track.collided and delay is not None and self.time - track.crash_time >= delay - 1e-9:
+                track.status, track.removed_early = "vanished", True
+            else:
+                keep.append(v)
+        self.vehicles = keep
+        if self.record:
+            for v in keep:
+                track = self.tracks.get(getattr(v, "vehicle_id", None))
+                if track is None:
+                    continue
+                track.n_frames += 1
+                c, s = math.cos(v.heading), math.sin(v.heading)
+                self._rows.append((track.track_id, self.time, float(v.position[0]), float(v.position[1]),
+                                   v.speed * c, v.speed * s, float(v.heading), v.LENGTH, v.WIDTH))
+        self.insert_due()
+        for callback in self.step_callbacks:
+            callback(self)
+
+    # -- results ------------------------------------------------------------------------------------
+
+    @property
+    def n_finished(self) -> int:
+        """Vehicles that arrived or were removed."""
+        return sum(t.status != "running" for t in self.tracks.values())
+
+    def summary(self) -> pd.DataFrame:
+        """One row per vehicle that was on the road: ids, kind, style, flags, status, frames."""
+        return pd.DataFrame([{
+            "track_id": t.track_id, "vehicle_id": t.vehicle_id, "route_id": t.route_id, "kind": t.kind,
+            "style": t.style, "style_name": t.style_name, "n_frames": t.n_frames, "n_commands": t.n_commands,
+            "n_overridden": t.n_overridden, "handed_back": t.handed_back, "collided": t.collided,
+            "removed_early": t.removed_early, "status": t.status} for t in self.tracks.values()])
+
+    def recording(self, info: Mapping[str, Any], lanes, successors) -> ScenarioRecording:
+        """The run so far as a :class:`~pirl_sim.scenarios.recording.ScenarioRecording` (needs ``record``).
+
+        Track ids in insertion order (1, 2, ...); vehicles never recorded (inserted in the last step) are
+        left out. ``interacted`` (PIRL tracks): a command was overridden, the vehicle was handed back at a
+        standstill, or it collided; the ego is a non-PIRL track with style name ``"ego"``.
+        """
+        if not self.record:
+            raise ValueError("this traffic was created with record=False")
+        tracks = pd.DataFrame(self._rows, columns=["track_id", "time_s", "x", "y", "vx", "vy", "psi_rad",
+                                                   "length", "width"])
+        tracks.insert(2, "agent_type", "car")
+        tracks = tracks[list(TRACK_COLUMNS)]
+        recorded = [t for t in sorted(self.tracks.values(), key=lambda t: t.track_id) if t.n_frames > 0]
+        renumber = {t.track_id: k + 1 for k, t in enumerate(recorded)}
+        tracks["track_id"] = tracks["track_id"].map(renumber).astype(np.int64)
+        pirl = np.array([t.kind == PIRL for t in recorded], dtype=bool)
+        theta = np.array([t.theta for t in recorded]).reshape(len(recorded), len(FEATURE_NAMES))
+        gt = pd.DataFrame({
+            "track_id": np.arange(1, len(recorded) + 1, dtype=np.int64),
+            "agent_id": [t.vehicle_id for t in recorded],
+            "route_id": [t.route_id for t in recorded],
+            "is_pirl": pirl,
+            "style": np.array([t.style for t in recorded], dtype=np.int64),
+            "style_name": [t.style_name for t in recorded],
+            **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
+            "interacted": pd.array([(t.n_overridden > 0 or t.handed_back or t.collided) if t.kind == PIRL else pd.NA
+                                    for t in recorded], dtype="boolean"),
+            "collided": np.array([t.collided for t in recorded], dtype=bool),
+            "removed_early": np.array([t.removed_early for t in recorded], dtype=bool),
+            "overridden_fraction": np.array([t.n_overridden / t.n_commands if t.kind == PIRL and t.n_commands
+                                             else (0.0 if t.kind == PIRL else np.nan) for t in recorded]),
+            "status": [t.status for t in recorded],
+            "n_frames": np.array([t.n_frames for t in recorded], dtype=np.int64),
+        }, columns=list(GROUND_TRUTH_COLUMNS))
+        return ScenarioRecording(tracks, gt, lanes, successors, info)

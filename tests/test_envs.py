@@ -1,0 +1,245 @@
+"""``pirl_sim/Roundabout-v0``: registration, gymnasium's checker, seeded determinism, config checks, rewards,
+the neighbours' ground truth in ``info``, and a stable-baselines3 agent (slow, when SB3 is installed)."""
+
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+pytest.importorskip("highway_env")
+
+import pirl_sim.envs  # noqa: E402,F401  (registers the env ids)
+from gymnasium.utils.env_checker import check_env, data_equivalence  # noqa: E402
+from pirl_sim.envs import ENV_IDS, register_envs  # noqa: E402
+
+
+ENV_ID = "pirl_sim/Roundabout-v0"
+#: warnings check_env may raise on these envs without failing the test: none (it raises none today); add an
+#: entry here, with the reason, before tolerating one
+TOLERATED_WARNINGS: tuple[str, ...] = ()
+
+
+def make(**config):
+    return gym.make(ENV_ID, config=config or None)
+
+
+def test_registration_is_idempotent_and_lazy():
+    assert register_envs() and register_envs()  # twice: no duplicate-registration error
+    for env_id, entry_point in ENV_IDS.items():
+        assert gym.spec(env_id).entry_point == entry_point
+    # registering imports neither highway-env nor the env module
+    code = ("import sys, pirl_sim.envs, gymnasium; assert 'pirl_sim/Roundabout-v0' in gymnasium.registry; "
+            "print('highway_env' in sys.modules, 'pirl_sim.envs.roundabout' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "False"]
+
+
+def _wired() -> bool:
+    code = "import sys, pirl_sim; print('pirl_sim.envs' in sys.modules)"
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.strip() == "True"
+
+
+@pytest.mark.xfail(not _wired(), strict=True,
+                   reason="pirl_sim/__init__.py does not import pirl_sim.envs yet (see the issue's wiring note)")
+def test_register_envs_of_the_package_makes_the_env():
+    code = ("import gymnasium, pirl_sim; gymnasium.register_envs(pirl_sim); "
+            "env = gymnasium.make('pirl_sim/Roundabout-v0'); env.reset(seed=0); print('ok')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+def test_module_prefixed_id_imports_the_package_itself():
+    code = "import gymnasium; env = gymnasium.make('pirl_sim.envs:pirl_sim/Roundabout-v0'); env.reset(seed=0)"
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
+@pytest.mark.parametrize("render_mode", [None, "rgb_array"])
+def test_check_env_passes(render_mode):
+    env = gym.make(ENV_ID, render_mode=render_mode)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    unexpected = [str(w.message) for w in caught if not any(t in str(w.message) for t in TOLERATED_WARNINGS)]
+    assert not unexpected
+    if render_mode == "rgb_array":
+        env.reset(seed=0)
+        frame = env.render()
+        assert frame.shape == (600, 600, 3) and frame.dtype == np.uint8
+    env.close()
+
+
+def rollout(env, seed, n=25):
+    obs, info = env.reset(seed=seed)
+    out = [(obs, info)]
+    actions = np.sin(np.arange(n))[:, None].astype(np.float32)
+    for a in actions:
+        obs, reward, terminated, truncated, info = env.step(a)
+        out.append((obs, reward, terminated, truncated, info))
+        if terminated or truncated:
+            break
+    return out
+
+
+def test_seeded_resets_are_deterministic():
+    a = rollout(make(initial_vehicles=12), seed=11)
+    b = rollout(make(initial_vehicles=12), seed=11)
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert data_equivalence(x, y, exact=True)
+    c = rollout(make(initial_vehicles=12), seed=12)
+    assert not np.array_equal(a[0][0], c[0][0])
+
+
+@pytest.mark.parametrize("config, match", [
+    ({"vehicles_count": 20}, r"config: unknown key\(s\) 'vehicles_count'; valid keys: observation, action"),
+    ({"other_vehicles_type": "x"}, r"unknown key\(s\) 'other_vehicles_type'"),
+    ({"observation": {"type": "Kinematics", "vehicle_count": 5}},
+     r"observation \(Kinematics\): unknown key\(s\) 'vehicle_count'; valid keys: type, features, vehicles_count"),
+    ({"observation": {"type": "Pixels"}}, r"observation must be a mapping with a type in"),
+    ({"action": {"type": "DiscreteMetaAction"}}, r"action must be \{'type': 'LongitudinalAcceleration'"),
+    ({"population": {"n_vehicle": 3}}, r"config population: unknown key\(s\) 'n_vehicle'"),
+    ({"drivers": {"horizn": 3}}, r"config drivers: unknown key\(s\) 'horizn'"),
+    ({"simulation_frequency": 15}, r"simulation_frequency must be 10 Hz"),
+    ({"policy_frequency": 3}, r"policy_frequency must divide 10 Hz"),
+    ({"reward": "speed"}, r"reward must be one of \('task', 'theta'\)"),
+    ({"reward_theta": {"speed_dev": 1.0, "accel": 1.0}}, r"reward_theta: unknown key\(s\) 'accel'"),
+    ({"ego_route": "arm0_to_arm0"}, r"ego_route must be one of"),
+    ({"initial_vehicles": 1000}, r"initial_vehicles = 1000 exceeds"),
+])
+def test_bad_config_keys_and_values_are_rejected(config, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make(ENV_ID, config=config)
+
+
+def test_bad_keys_in_reset_options_are_rejected_too():
+    env = make()
+    with pytest.raises(ValueError, match=r"config: unknown key\(s\) 'lanes_count'"):
+        env.reset(seed=0, options={"config": {"lanes_count": 2}})
+    with pytest.raises(ValueError, match=r"options: unknown key\(s\) 'confg'; valid keys: config"):
+        env.reset(seed=0, options={"confg": {}})
+    obs, _ = env.reset(seed=0, options={"config": {"initial_vehicles": 0, "population": {"n_vehicles": 1}}})
+    assert env.unwrapped.config["population"].n_vehicles == 1
+
+
+def test_actions_map_to_the_acceleration_range():
+    env = make().unwrapped
+    env.reset(seed=0)
+    act = env.action_type
+    assert act.acceleration(np.array([1.0])) == 3.0 and act.acceleration(np.array([-1.0])) == -4.0
+    assert act.acceleration(np.array([0.0])) == 0.0 and act.acceleration(np.array([2.0])) == 3.0
+    v0 = env.vehicle.speed
+    env.step(np.array([0.5], dtype=np.float32))  # 1.5 m/s^2 for 0.2 s
+    assert env.vehicle.speed == pytest.approx(v0 + 0.3)
+
+
+def test_info_carries_the_neighbours_ground_truth_aligned_with_the_observation():
+    env = make(initial_vehicles=15).unwrapped
+    obs, info = env.reset(seed=2)
+    for _ in range(5):
+        obs, _, _, _, info = env.step(np.zeros(1, dtype=np.float32))
+    present = obs[1:, 0] > 0  # presence of observation rows 1..V-1
+    ids = np.array(info["neighbour_ids"])
+    assert ((ids != "") == present).all() and present.sum() >= 3
+    plan_theta = {v.vehicle_id: v.theta for v in env.road.vehicles if getattr(v, "kind", "") == "pirl"}
+    for vid, is_pirl, style, theta in zip(ids, info["neighbour_is_pirl"], info["neighbour_styles"],
+                                          info["neighbour_theta"]):
+        if vid == "":
+            assert style == -2 and not theta.any()
+        elif is_pirl:
+            np.testing.assert_array_equal(theta, plan_theta[vid])
+            assert 0 <= style < len(info["style_names"])
+        else:
+            assert style == -1 and not theta.any()
+    # the observation's rows are these vehicles, in this order (relative positions)
+    by_id = {v.vehicle_id: v for v in env.road.vehicles}
+    ego = env.vehicle
+    for row, vid in zip(obs[1:][present], ids[present]):
+        rel = (by_id[vid].position - ego.position) / 100.0
+        np.testing.assert_allclose(row[1:3], np.clip(rel, -1, 1), atol=1e-5)
+
+
+def test_theta_reward_is_minus_the_styles_cost_of_the_egos_step():
+    theta = {"speed_dev": 2.0, "acc_sq": 0.5}
+    env = make(reward="theta", reward_theta=theta, collision_reward=0.0, arrival_reward=0.0,
+               initial_vehicles=0).unwrapped
+    env.reset(seed=0)
+    for a in (0.5, -0.2, 0.0):
+        _, reward, terminated, _, info = env.step(np.array([a], dtype=np.float32))
+        f = info["features"]
+        assert f.shape == (3,) and (f >= 0).all()
+        assert reward == pytest.approx(-(2.0 * f[0] + 0.5 * f[1] + 1.0 * f[2]) * 0.2)
+        assert info["rewards"]["style_cost"] == pytest.approx(-reward)
+    # the features are the driver model's: acceleration squared of the frames in the step
+    env.step(np.array([0.5], dtype=np.float32))
+    _, _, _, _, info = env.step(np.array([0.5], dtype=np.float32))
+    assert info["features"][1] == pytest.approx(1.5**2) and info["features"][2] == pytest.approx(0.0)
+
+
+def test_task_reward_pays_progress_and_ends_on_arrival():
+    env = make(initial_vehicles=0, ego_start=250.0, ego_speed=10.0, comfort_reward=0.0).unwrapped
+    env.reset(seed=0)
+    total, steps = 0.0, 0
+    while True:
+        _, reward, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        total += reward
+        steps += 1
+        if terminated or truncated:
+            break
+    assert terminated and info["arrived"] and not info["crashed"]
+    assert env.vehicle.route_s >= env.road.routes["arm0_to_arm2"].length
+    progress = env.vehicle.route_s - 250.0  # [m]
+    step = 1.0 / env.config["policy_frequency"]  # [s]
+    # progress term (1 per step at the speed limit) + arrival reward
+    assert total == pytest.approx(progress / (env.config["drivers"].v_max * step) + 1.0)
+
+
+def test_a_crash_terminates_the_episode_and_the_recording_says_so():
+    # the ego never yields: at constant 8 m/s into the ring through dense traffic it hits someone
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, population_from_dict
+
+    pop = population_from_dict({**DEFAULT_POPULATION.to_dict(), "depart_interval": 1.0, "n_vehicles": 60})
+    env = make(population=pop, initial_vehicles=25, record_tracks=True, duration=60.0).unwrapped
+    crashed = False
+    for seed in range(5):
+        env.reset(seed=seed)
+        while True:
+            _, reward, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+            if terminated or truncated:
+                break
+        if info["crashed"]:
+            crashed = True
+            break
+    assert crashed and terminated and reward <= env.config["collision_reward"] + 1.0
+    # in the "theta" reward a crash also costs what the stopped ego would have cost until the time limit
+    expected = env.reward_weights[0] * env._v_des**2 * (env.config["duration"] - env.time)
+    assert info["rewards"]["crash_cost_to_go"] == pytest.approx(expected) and expected > 0
+    rec = env.recording()
+    gt = rec.ground_truth.set_index("agent_id")
+    assert gt.loc["ego", "collided"] and gt.loc["ego", "style_name"] == "ego" and not gt.loc["ego", "is_pirl"]
+    assert gt["collided"].sum() >= 2  # the ego and whoever it hit
+
+
+@pytest.mark.slow
+def test_a_stable_baselines3_ppo_agent_trains_on_the_env():
+    sb3 = pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.wrappers.FlattenObservation(make(initial_vehicles=6, duration=20.0))  # for PPO's MLP
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sb3_check_env(env, warn=True)
+    model = sb3.PPO("MlpPolicy", env, n_steps=256, batch_size=64, n_epochs=2, seed=0, verbose=0, device="cpu")
+    model.learn(total_timesteps=1024)
+    obs, _ = env.reset(seed=123)
+    total = 0.0
+    for _ in range(50):
+        action, _ = model.predict(obs, deterministic=True)
+        assert env.action_space.contains(action)
+        obs, reward, terminated, truncated, _ = env.step(action)
+        total += reward
+        if terminated or truncated:
+            break
+    assert np.isfinite(total)
