@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("highway_env")
 
-from pirl_sim.scenarios.highway.planning import PLAN_COLUMNS, plan_population  # noqa: E402
+from pirl_sim.scenarios.planning import PLAN_COLUMNS, plan_population  # noqa: E402
 from pirl_sim.scenarios.highway.scenario import ROUTE_IDS, HighwayScenarioConfig, build_routes  # noqa: E402
 from pirl_sim.scenarios.highway.traffic import (  # noqa: E402
     IDM_A_MAX,

@@ -79,7 +79,7 @@ from pirl_sim.scenarios.highway.network import (
     route_catalogue,
     route_set,
 )
-from pirl_sim.scenarios.highway.planning import plan_population, random_streams
+from pirl_sim.scenarios.planning import plan_population, random_streams
 from pirl_sim.scenarios.highway.scenario import ROUTE_IDS, drivers_from_dict, rules_from_dict
 from pirl_sim.scenarios.highway.traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
 from pirl_sim.scenarios.highway.vehicles import EGO, PIRL, EgoVehicle

@@ -6,7 +6,8 @@ The SUMO scenario's populations (:mod:`pirl_sim.scenarios.population_config`) on
 
 - ``network``: highway-env's roundabout (one ring lane), the route catalogue (the SUMO scenario's route
   ids), reference paths and the Lanelet2 lanes;
-- ``planning``: :func:`plan_population`, the population plan (the same draws as the SUMO scenario's);
+- :func:`plan_population` (from :mod:`pirl_sim.scenarios.planning`, shared with the SUMO scenario): the
+  population plan;
 - ``vehicles``: highway-env vehicle classes that follow one route (PIRL, background IDM, ego);
 - ``traffic``: :class:`RoundaboutTraffic`, a highway-env ``Road`` that runs the traffic: PIRL drivers'
   batched MPC, background IDM, leaders across lane segments, yielding at entries, exits, crashes;
@@ -50,7 +51,7 @@ __all__ = [
 _LAZY = {
     **{name: "network" for name in ("ARMS", "RoundaboutGeometry", "RouteLanes", "build_network",
                                      "route_catalogue", "route_set", "lane_graph")},
-    **{name: "planning" for name in ("plan_population", "random_streams")},
+    **{name: ".planning" for name in ("plan_population", "random_streams")},  # pirl_sim.scenarios.planning
     **{name: "traffic" for name in ("STEP_LENGTH", "DriverConfig", "TrafficRules", "RoundaboutTraffic",
                                      "idm_acceleration")},
     **{name: "vehicles" for name in ("PirlVehicle", "BackgroundVehicle", "EgoVehicle")},

@@ -44,7 +44,7 @@ from ..sumo.drivers import RouteSet, RouteSetDriverModel, route_set_model
 from ..sumo.network import route_id
 from ..sumo.scenario import recorded_demonstrations
 from .network import ARMS, LANE_WIDTH, RoundaboutGeometry, build_network, lane_graph, route_catalogue, route_set
-from .planning import check_seed, plan_population, random_streams
+from ..planning import check_seed, plan_population, random_streams
 from .traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
 
 __all__ = [

@@ -57,6 +57,7 @@ from pirl_sim.io.atomic import atomic_write_text
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
 from pirl_sim.trajectory import Trajectory
 
+from ..planning import check_seed, plan_population, random_streams
 from ..population_config import (
     DEFAULT_POPULATION,
     FEATURE_NAMES,
@@ -64,8 +65,6 @@ from ..population_config import (
     population_from_dict,
 )
 from ..recording import (
-    BACKGROUND_STYLE,
-    BACKGROUND_STYLE_NAME,
     FRAME_DT_S,
     GROUND_TRUTH_COLUMNS,
     INFO_FILE,
@@ -379,22 +378,6 @@ def load_scenario(path, *, population: PopulationConfig | None = None) -> SumoSc
 # planning
 # ----------------------------------------------------------------------------------------------
 
-_PLAN_COLUMNS = ("vehicle_id", "depart", "route_id", "is_pirl", "style", "style_name",
-                 *(f"theta_{f}" for f in FEATURE_NAMES))
-
-
-def _check_seed(seed) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**31:
-        raise ValueError(f"seed must be an integer in [0, 2**31), got {seed!r}")
-    return int(seed)
-
-
-def _streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
-    """(population draws, control noise): independent generators from ``SeedSequence(seed)``."""
-    a, b = np.random.SeedSequence(seed).spawn(2)
-    return np.random.default_rng(a), np.random.default_rng(b)
-
-
 def plan_vehicles(config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
     """Every vehicle of the scenario, drawn from ``seed`` before anything runs.
 
@@ -414,35 +397,9 @@ def plan_vehicles(config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
     """
     if not isinstance(config, SumoScenarioConfig):
         raise TypeError(f"config must be a SumoScenarioConfig, got {type(config).__name__}")
-    seed = _check_seed(seed)
-    rng, _ = _streams(seed)
-    pop = config.population
-    n = pop.n_vehicles
-    depart = pop.depart_times(rng)
-    is_pirl = np.ones(n, dtype=bool)
-    is_pirl[rng.choice(n, size=pop.n_background, replace=False)] = False
-    n_pirl = int(is_pirl.sum())
-    theta = np.full((n, len(FEATURE_NAMES)), np.nan)
-    style = np.full(n, BACKGROUND_STYLE, dtype=np.int64)
-    if n_pirl:
-        theta[is_pirl], style[is_pirl] = pop.sample_weights(n_pirl, rng)
-    catalogue = list(config.route_catalogue())
-    pirl_routes = list(config.pirl_routes or catalogue)
-    bg_routes = list(config.background_routes or catalogue)
-    route = np.empty(n, dtype=object)
-    route[is_pirl] = [pirl_routes[i] for i in rng.integers(len(pirl_routes), size=n_pirl)]
-    route[~is_pirl] = [bg_routes[i] for i in rng.integers(len(bg_routes), size=n - n_pirl)]
-    width = max(3, len(str(n - 1)))
-    names = pop.style_names
-    return pd.DataFrame({
-        "vehicle_id": [f"veh{k:0{width}d}" for k in range(n)],
-        "depart": depart,
-        "route_id": route.astype(str),
-        "is_pirl": is_pirl,
-        "style": style,
-        "style_name": [names[s] if s >= 0 else BACKGROUND_STYLE_NAME for s in style],
-        **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
-    }, columns=list(_PLAN_COLUMNS))
+    return plan_population(config.population, list(config.route_catalogue()), seed,
+                           pirl_routes=config.pirl_routes or None,
+                           background_routes=config.background_routes or None)
 
 
 def vehicle_types_xml(drivers: DriverConfig) -> str:
@@ -541,9 +498,9 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
         raise TypeError(f"config must be a SumoScenarioConfig, got {type(config).__name__}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    seed = _check_seed(seed)
+    seed = check_seed(seed)
     plan = plan_vehicles(config, seed)
-    _, noise_rng = _streams(seed)
+    _, noise_rng, _ = random_streams(seed)
     drv = config.drivers
     with tempfile.TemporaryDirectory(prefix="pirl_sumo_") as tmp:
         files = build_network(config.network, tmp, name=_NET_NAME)

@@ -2,13 +2,12 @@
 
 :func:`plan_population` draws, from ``numpy.random.SeedSequence(seed)``, the departure times, which
 vehicles are background traffic, each PIRL driver's style and normalised weights and every vehicle's route
-— in the same order and from the same stream as :func:`pirl_sim.scenarios.sumo.scenario.plan_vehicles`,
-so that for the same population, route catalogue and seed both simulators get the same plan (tested).
-It takes plain arguments instead of a simulator's config, so any simulator can use it (the SUMO scenario
-could call it too).
+— the one plan of every simulator: the SUMO scenario (:func:`pirl_sim.scenarios.sumo.scenario.plan_vehicles`)
+and the highway-env scenario both call it, so for the same population, route catalogue and seed they get the
+same plan. It takes plain arguments instead of a simulator's config.
 
 Random streams (:func:`random_streams`): ``SeedSequence(seed).spawn(3)`` gives the population draws
-(stream 0, as SUMO's), the drivers' control noise (stream 1, as SUMO's) and the simulator's own behaviour
+(stream 0), the drivers' control noise (stream 1) and the simulator's own behaviour
 (stream 2: background drivers' parameters, initial placement).
 """
 
@@ -19,8 +18,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from ..population_config import FEATURE_NAMES, PopulationConfig
-from ..recording import BACKGROUND_STYLE, BACKGROUND_STYLE_NAME
+from .population_config import FEATURE_NAMES, PopulationConfig
+from .recording import BACKGROUND_STYLE, BACKGROUND_STYLE_NAME
 
 __all__ = ["PLAN_COLUMNS", "check_seed", "random_streams", "plan_population"]
 
