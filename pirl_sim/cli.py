@@ -6,17 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from pirl_sim.validation import positive_int_arg
+
 __all__ = ["main", "build_parser"]
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,14 +32,14 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--out", type=Path, default=None, help="output directory (default: results/<experiment>)")
     rep.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     rep.add_argument(
-        "--n-trajectories", type=_positive_int, default=None,
+        "--n-trajectories", type=positive_int_arg, default=None,
         help="trajectories in all (default: synthetic 2000, the paper's; passage 600)",
     )
     rep.add_argument(
-        "--n-train", type=_positive_int, default=None, help="training trajectories (default: synthetic 1800; passage 500)"
+        "--n-train", type=positive_int_arg, default=None, help="training trajectories (default: synthetic 1800; passage 500)"
     )
     rep.add_argument(
-        "--history-steps", type=_positive_int, default=10, help="observed steps in the online protocol (default 10)"
+        "--history-steps", type=positive_int_arg, default=10, help="observed steps in the online protocol (default 10)"
     )
     rep.add_argument(
         "--position-range", type=float, nargs=2, default=(1.0, 1.0), metavar=("LOW", "HIGH"),
@@ -59,13 +51,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rep.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
-    from pirl_sim.scenarios.sumo.cli import add_simulate_parser
+    from pirl_sim.scenarios.highway.cli import add_highway_parser
+    from pirl_sim.scenarios.simulate_cli import add_simulate_parser
+    from pirl_sim.scenarios.sumo.cli import add_sumo_parser
     from pirl_sim.sweep.cli import add_sweep_parsers
 
-    from pirl_sim.scenarios.highway.cli import add_highway_parser
-
-    simulate = add_simulate_parser(sub)
-    simulators = next(a for a in simulate._actions if isinstance(a, argparse._SubParsersAction))
+    simulators = add_simulate_parser(sub)
+    add_sumo_parser(simulators)
     add_highway_parser(simulators)
     add_sweep_parsers(sub)
 
@@ -80,11 +72,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--map", type=Path, required=True, help="the Lanelet2 OSM map of the recording")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
-    rp.add_argument("--gmm-k", type=_positive_int, default=3, help="clusters of PIRL-GMM (default 3)")
+    rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
     rp.add_argument("--knn-k", default="10",
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
                          "(default 10)")
-    rp.add_argument("--seeds", type=_positive_int, default=3, help="number of train/test split seeds (default 3)")
+    rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
     rp.add_argument("--history", type=float, default=2.0, help="observed history [s] (default 2)")
     rp.add_argument("--horizon", type=float, default=3.0, help="predicted horizon [s] (default 3)")
     rp.add_argument("--out", type=Path, default=Path("results") / "replay", help="output directory")
@@ -154,10 +146,10 @@ def main(argv: list[str] | None = None) -> int:
         from pirl_sim.scenarios.highway.cli import run_simulate_highway
 
         return run_simulate_highway(args)
-    if args.command == "simulate":
-        from pirl_sim.scenarios.sumo.cli import run_simulate
+    if args.command == "simulate" and args.simulator == "sumo":
+        from pirl_sim.scenarios.sumo.cli import run_simulate_sumo
 
-        return run_simulate(args)
+        return run_simulate_sumo(args)
     if args.command == "reproduce" and args.experiment == "passage":
         from pirl_sim.harness.reproduce import reproduce_passage
         from pirl_sim.scenarios.passage import PassageConfig

@@ -21,7 +21,7 @@ import pandas as pd
 from .population_config import FEATURE_NAMES, PopulationConfig
 from .recording import BACKGROUND_STYLE, BACKGROUND_STYLE_NAME
 
-__all__ = ["PLAN_COLUMNS", "check_seed", "random_streams", "plan_population"]
+__all__ = ["PLAN_COLUMNS", "check_seed", "random_streams", "route_id", "check_routes", "plan_population"]
 
 #: columns of a plan, one row per vehicle in departure order
 PLAN_COLUMNS: tuple[str, ...] = ("vehicle_id", "depart", "route_id", "is_pirl", "style", "style_name",
@@ -41,15 +41,23 @@ def random_streams(seed: int) -> tuple[np.random.Generator, np.random.Generator,
     return np.random.default_rng(a), np.random.default_rng(b), np.random.default_rng(c)
 
 
-def _route_list(label: str, chosen, catalogue: Sequence[str]) -> list[str]:
+def route_id(entry_arm: int, exit_arm: int) -> str:
+    """Id of the roundabout route entering from arm ``entry_arm`` and leaving by arm ``exit_arm``: every
+    simulator's name for it (``"arm{entry_arm}_to_arm{exit_arm}"``)."""
+    return f"arm{entry_arm}_to_arm{exit_arm}"
+
+
+def check_routes(label: str, chosen, catalogue: Sequence[str]) -> tuple[str, ...] | None:
+    """``chosen`` route ids as a tuple (None stays None: every route), or ``ValueError`` naming the ones
+    that are not in ``catalogue``."""
     if chosen is None:
-        return list(catalogue)
+        return None
     if isinstance(chosen, str) or not len(chosen):
         raise ValueError(f"{label} must be a non-empty list of route ids, got {chosen!r}")
     unknown = [r for r in chosen if r not in catalogue]
     if unknown:
         raise ValueError(f"{label}: unknown route(s) {unknown}; routes: {', '.join(catalogue)}")
-    return list(chosen)
+    return tuple(chosen)
 
 
 def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed: int, *,
@@ -85,8 +93,8 @@ def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed
     catalogue = list(route_ids)
     if not catalogue:
         raise ValueError("route_ids must name at least one route")
-    pirl_list = _route_list("pirl_routes", pirl_routes, catalogue)
-    bg_list = _route_list("background_routes", background_routes, catalogue)
+    pirl_list = list(check_routes("pirl_routes", pirl_routes, catalogue) or catalogue)
+    bg_list = list(check_routes("background_routes", background_routes, catalogue) or catalogue)
     rng, _, _ = random_streams(seed)
     n = population.n_vehicles
     depart = population.depart_times(rng)

@@ -55,6 +55,7 @@ import numpy as np
 
 from pirl_sim.features import Feature, FeatureSet, squared_control, squared_state
 from pirl_sim.population import Population, Style
+from pirl_sim.validation import check_keys, number
 
 from .passage import THREE_STYLES
 
@@ -124,20 +125,6 @@ class Arrivals(str, enum.Enum):
 # validation helpers
 # ----------------------------------------------------------------------------------------------
 
-def _number(label: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(value):
-        raise ValueError(f"{label} must be a finite number, got {value!r}")
-    return float(value)
-
-
-def _check_keys(label: str, given: Mapping[str, Any], valid: tuple[str, ...]) -> None:
-    unknown = [k for k in given if k not in valid]
-    if unknown:
-        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: "
-                         f"{', '.join(valid)}")
-
-
 def _feature_mapping(label: str, mapping: Any, *, allow_reference: bool) -> dict[str, float]:
     """A {free feature name: number} dict, with unknown names rejected."""
     if not isinstance(mapping, Mapping):
@@ -147,7 +134,7 @@ def _feature_mapping(label: str, mapping: Any, *, allow_reference: bool) -> dict
     if unknown:
         raise ValueError(f"{label}: unknown feature name(s) {', '.join(map(repr, unknown))}; allowed: "
                          f"{', '.join(allowed)}")
-    return {str(k): _number(f"{label}[{k!r}]", v) for k, v in mapping.items()}
+    return {str(k): number(f"{label}[{k!r}]", v) for k, v in mapping.items()}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -187,7 +174,7 @@ class StyleConfig:
         if not isinstance(self.name, str) or not self.name.strip():
             raise ValueError(f"style name must be a non-empty string, got {self.name!r}")
         label = f"style {self.name!r}"
-        weight = _number(f"{label}: weight", self.weight)
+        weight = number(f"{label}: weight", self.weight)
         if weight <= 0:
             raise ValueError(f"{label}: weight must be > 0, got {weight!r}")
         mean = _feature_mapping(f"{label}: mean", self.mean, allow_reference=True)
@@ -344,7 +331,7 @@ class PopulationConfig:
         repeated = sorted({n for n in names if names.count(n) > 1})
         if repeated:
             raise ValueError(f"style names must be unique, repeated: {repeated}")
-        share = _number("background_share", self.background_share)
+        share = number("background_share", self.background_share)
         if not 0.0 <= share <= 1.0:
             raise ValueError(f"background_share must be in [0, 1], got {share!r}")
         n = self.n_vehicles
@@ -352,14 +339,14 @@ class PopulationConfig:
             raise ValueError(f"n_vehicles must be an integer, got {n!r}")
         if n < 1:
             raise ValueError(f"n_vehicles must be >= 1, got {n!r}")
-        interval = _number("depart_interval", self.depart_interval)
+        interval = number("depart_interval", self.depart_interval)
         if interval <= 0:
             raise ValueError(f"depart_interval must be > 0 s, got {interval!r}")
         try:
             arrivals = Arrivals(self.arrivals)
         except ValueError:
             raise ValueError(f"arrivals must be one of {[a.value for a in Arrivals]}, got {self.arrivals!r}") from None
-        noise = _number("control_noise", self.control_noise)
+        noise = number("control_noise", self.control_noise)
         if noise < 0:
             raise ValueError(f"control_noise must be >= 0 m/s^3, got {noise!r}")
         object.__setattr__(self, "styles", styles)
@@ -480,13 +467,13 @@ def population_from_dict(data: Mapping[str, Any], *, source: str = "population")
     """
     if not isinstance(data, Mapping):
         raise ValueError(f"{source}: expected a table of settings, got {type(data).__name__}")
-    _check_keys(source, data, _TOP_KEYS)
+    check_keys(source, data, _TOP_KEYS)
     kwargs: dict[str, Any] = {k: data[k] for k in ("background_share", "n_vehicles", "depart_interval",
                                                    "arrivals", "control_noise") if k in data}
     if "depart_rate" in data:
         if "depart_interval" in data:
             raise ValueError(f"{source}: give depart_interval [s] or depart_rate [veh/h], not both")
-        rate = _number(f"{source}: depart_rate", data["depart_rate"])
+        rate = number(f"{source}: depart_rate", data["depart_rate"])
         if rate <= 0:
             raise ValueError(f"{source}: depart_rate must be > 0 veh/h, got {rate!r}")
         kwargs["depart_interval"] = 3600.0 / rate
@@ -504,7 +491,7 @@ def population_from_dict(data: Mapping[str, Any], *, source: str = "population")
 def _style_from_dict(data: Any, label: str) -> StyleConfig:
     if not isinstance(data, Mapping):
         raise ValueError(f"{label}: a style must be a table, got {data!r}")
-    _check_keys(label, data, _STYLE_KEYS)
+    check_keys(label, data, _STYLE_KEYS)
     if "preset" in data:
         name = data["preset"]
         if not isinstance(name, str) or name not in PRESET_STYLES:

@@ -11,7 +11,7 @@ pytest.importorskip("lanelet2")
 from pirl_sim.learners import PIRLGMM  # noqa: E402
 from pirl_sim.metrics import adjusted_rand_index  # noqa: E402
 from pirl_sim.scenarios.highway import load_highway_run, run_highway_scenario  # noqa: E402
-from pirl_sim.scenarios.sumo.drivers import route_set_model  # noqa: E402
+from pirl_sim.scenarios.drivers import route_set_model  # noqa: E402
 
 #: Measured 1.0 for seeds 0-7 (24-37 demonstrations each). With ~30 demonstrations in three styles, one
 #: misassigned demonstration costs ~0.07 (ARI 0.93), two ~0.12, three ~0.17: 0.8 fails the test from the

@@ -17,7 +17,7 @@ from pirl_sim.scenarios.highway.network import (  # noqa: E402
     route_set,
 )
 from pirl_sim.scenarios.highway.scenario import ROUTE_IDS  # noqa: E402
-from pirl_sim.scenarios.sumo.drivers import RouteSetProfile  # noqa: E402
+from pirl_sim.scenarios.drivers import RouteSetProfile  # noqa: E402
 from pirl_sim.scenarios.sumo.network import RoundaboutSpec, routes as sumo_routes  # noqa: E402
 
 

@@ -103,7 +103,7 @@ def test_same_seed_byte_identical_files_different_seed_different(small_run, tmp_
     ({"geometry": {"lanes": 2}}, r"geometry: unknown key\(s\) 'lanes'; valid keys: radius"),
     ({"pirl_routes": ["arm0_to_arm9"]}, r"unknown route"),
     ({"population": {"n_vehicle": 3}}, r"population: unknown key\(s\) 'n_vehicle'"),
-    ({"max_duration": -1}, r"max_duration must be a positive number"),
+    ({"max_duration": -1}, r"max_duration must be a finite number > 0, got -1"),
     ({"rules": {"crash_removal": False, "crash_removal_delay": 1.0}}, r"exclude each other"),
 ])
 def test_bad_configs_raise_before_anything_runs(data, match):

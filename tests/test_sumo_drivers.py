@@ -9,18 +9,16 @@ import pytest
 pytest.importorskip("sumolib")
 
 from pirl_sim.driving import SpeedProfile, roundabout_model  # noqa: E402
+from pirl_sim.scenarios.drivers import PirlDrivers, RouteSet, RouteSetProfile, route_set_model  # noqa: E402
 from pirl_sim.scenarios.sumo import (  # noqa: E402
     DEFAULT_NETWORK,
     Observation,
-    PirlDrivers,
-    RouteSet,
-    RouteSetProfile,
     VehicleState,
     build_network,
     lane_graph,
-    route_set_model,
     routes,
 )
+from pirl_sim.scenarios.sumo.network import route_set as network_route_set  # noqa: E402
 from pirl_sim.trajectory import Trajectory  # noqa: E402
 
 STYLES = np.array([[3.0, 0.3, 1.0], [0.1, 3.0, 1.0], [0.3, 0.3, 1.0]])  # the paper's three, normalised
@@ -34,7 +32,7 @@ def net(tmp_path_factory):
 @pytest.fixture(scope="module")
 def route_set(net):
     """The scenarios' default paths: geometry smoothed by 2 m, curvature for the desired speed by 10 m."""
-    return RouteSet.from_network(net, routes(DEFAULT_NETWORK), smoothing=2.0, speed_smoothing=10.0)
+    return network_route_set(net, routes(DEFAULT_NETWORK), smoothing=2.0, speed_smoothing=10.0)
 
 
 def test_route_set_layout(route_set):

@@ -10,12 +10,8 @@ pytest.importorskip("lanelet2")
 
 from pirl_sim.learners import PIRLGMM  # noqa: E402
 from pirl_sim.metrics import adjusted_rand_index  # noqa: E402
-from pirl_sim.scenarios.sumo import (  # noqa: E402
-    SumoScenarioConfig,
-    load_sumo_run,
-    route_set_model,
-    run_sumo_scenario,
-)
+from pirl_sim.scenarios.drivers import route_set_model  # noqa: E402
+from pirl_sim.scenarios.sumo import SumoScenarioConfig, load_sumo_run, run_sumo_scenario  # noqa: E402
 
 ARI_TARGET = 0.8  # the target; measured 1.0 for seeds 0-7 of this configuration
 LEARNING_DT = 0.2  # [s] the learner's model step (see the test's docstring)

@@ -15,11 +15,11 @@ import libsumo  # noqa: E402
 
 from pirl_sim.io.interaction import read_tracks  # noqa: E402
 from pirl_sim.io.lanelet2_map import load_map, match_route  # noqa: E402
+from pirl_sim.scenarios.drivers import PirlDrivers  # noqa: E402
 from pirl_sim.scenarios.population_config import DEFAULT_POPULATION  # noqa: E402
 from pirl_sim.scenarios.recording import GROUND_TRUTH_COLUMNS, read_recording  # noqa: E402
 from pirl_sim.scenarios.sumo import (  # noqa: E402
     DEFAULT_NETWORK,
-    PirlDrivers,
     SumoScenarioConfig,
     load_sumo_run,
     plan_vehicles,
@@ -29,7 +29,8 @@ from pirl_sim.scenarios.sumo import (  # noqa: E402
     scenario_from_dict,
     speed_mode,
 )
-from pirl_sim.scenarios.sumo.cli import add_simulate_parser, run_simulate  # noqa: E402
+from pirl_sim.scenarios.simulate_cli import add_simulate_parser  # noqa: E402
+from pirl_sim.scenarios.sumo.cli import add_sumo_parser, run_simulate_sumo  # noqa: E402
 
 SMALL = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=16)
 FILES = ("vehicle_tracks_000.csv", "ground_truth.csv", "map.osm", "run.json", "network/roundabout.net.xml")
@@ -248,8 +249,8 @@ def test_runs_in_a_spawned_worker_process(tmp_path):
 
 def _cli(argv):
     parser = argparse.ArgumentParser(prog="pirl-sim")
-    add_simulate_parser(parser.add_subparsers(dest="command"))
-    return run_simulate(parser.parse_args(argv))
+    add_sumo_parser(add_simulate_parser(parser.add_subparsers(dest="command")))
+    return run_simulate_sumo(parser.parse_args(argv))
 
 
 def test_cli_runs_and_reports(tmp_path, capsys):
@@ -266,7 +267,7 @@ def test_cli_runs_and_reports(tmp_path, capsys):
 
 def test_cli_defaults_and_errors(tmp_path, capsys, no_sumo):
     parser = argparse.ArgumentParser(prog="pirl-sim")
-    add_simulate_parser(parser.add_subparsers(dest="command"))
+    add_sumo_parser(add_simulate_parser(parser.add_subparsers(dest="command")))
     args = parser.parse_args(["simulate", "sumo"])
     assert (args.population, args.seed, str(args.out), args.backend) == (None, 0, "results/sumo_run", "libsumo")
     assert _cli(["simulate", "sumo", "--print-default-population"]) == 0

@@ -41,7 +41,6 @@ __all__ = [
     "ROUTE_IDS",
     "HighwayScenarioConfig",
     "HighwayScenarioResult",
-    "HighwayRunData",
     "scenario_from_dict",
     "load_scenario",
     "run_highway_scenario",
@@ -56,7 +55,7 @@ _LAZY = {
                                      "idm_acceleration")},
     **{name: "vehicles" for name in ("PirlVehicle", "BackgroundVehicle", "EgoVehicle")},
     **{name: "scenario" for name in ("ROUTE_IDS", "HighwayScenarioConfig", "HighwayScenarioResult",
-                                     "HighwayRunData", "scenario_from_dict", "load_scenario",
+                                     "scenario_from_dict", "load_scenario",
                                      "run_highway_scenario", "load_highway_run")},
 }
 

@@ -9,7 +9,7 @@ image for the exit. Lanes are named by highway-env's node pairs: entry ``"ser" -
 
 Arms are numbered in driving order round the ring (:data:`ARMS`: 0 south, 1 east, 2 north, 3 west): from
 arm ``i`` the first exit is arm ``i + 1``, as in the SUMO scenario, and routes carry the same ids
-(``"arm{i}_to_arm{j}"``, :func:`pirl_sim.scenarios.sumo.network.route_id`), so one population plan means
+(``"arm{i}_to_arm{j}"``, :func:`pirl_sim.scenarios.planning.route_id`), so one population plan means
 the same thing in both simulators.
 
 Geometry facts that matter for the drivers: every lane meets its successor exactly (0 m gap), but the
@@ -35,8 +35,8 @@ import numpy as np
 
 from pirl_sim.paths import DEFAULT_SMOOTHING, ReferencePath
 
-from ..sumo.drivers import ROUTE_SPACING, RouteSet
-from ..sumo.network import route_id
+from ..drivers import ROUTE_SPACING, RouteSet
+from ..planning import route_id
 
 __all__ = [
     "ARMS",
@@ -154,7 +154,7 @@ class RouteLanes:
 
 
 def route_catalogue(network, *, u_turns: bool = False) -> dict[str, RouteLanes]:
-    """Every entry-to-exit route, keyed by :func:`~pirl_sim.scenarios.sumo.network.route_id`.
+    """Every entry-to-exit route, keyed by :func:`~pirl_sim.scenarios.planning.route_id`.
 
     Ordered by entry arm, then by how far round the ring the exit is (first exit first), as
     :func:`pirl_sim.scenarios.sumo.network.routes`: with 4 arms the right turn, the through route and the
@@ -248,10 +248,10 @@ def route_set(network, routes: Mapping[str, RouteLanes] | Sequence[RouteLanes], 
               smoothing: float = DEFAULT_SMOOTHING, speed_smoothing: float = 0.0,
               spacing: float = ROUTE_SPACING) -> RouteSet:
     """Reference paths (:func:`route_path`) of ``routes`` on one global arc-length axis
-    (:class:`~pirl_sim.scenarios.sumo.drivers.RouteSet`).
+    (:class:`~pirl_sim.scenarios.drivers.RouteSet`).
 
     ``smoothing`` [m] smooths each path's geometry, ``speed_smoothing`` [m] the curvature that sets the
-    desired speed (see :class:`~pirl_sim.scenarios.sumo.drivers.RouteSet`).
+    desired speed (see :class:`~pirl_sim.scenarios.drivers.RouteSet`).
     """
     items = list(routes.values()) if isinstance(routes, Mapping) else list(routes)
     paths = tuple(route_path(network, r, smoothing=smoothing) for r in items)

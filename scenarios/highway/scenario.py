@@ -16,20 +16,19 @@ One call, :func:`run_highway_scenario`, does everything for a :class:`HighwaySce
    simulator): INTERACTION tracks, ``ground_truth.csv``, the lanes as a Lanelet2 ``map.osm`` (lanelets
    named ``"<from>_<to>"`` after highway-env's nodes, 4 m wide), ``run.json``.
 
-:func:`load_highway_run` reads a run back (recording, reference paths rebuilt from the configuration in
-``run.json``, the drivers' model) and :meth:`HighwayRunData.demonstrations` turns its tracks into
-demonstrations for the learners, as the SUMO scenario does
-(:func:`~pirl_sim.scenarios.sumo.scenario.recorded_demonstrations`: by default PIRL tracks without
-interaction, collision or removal).
+:func:`load_highway_run` reads a run back as a :class:`~pirl_sim.scenarios.demonstrations.RecordedRun`
+(recording, configuration, reference paths rebuilt from the configuration in ``run.json``, the drivers'
+model), whose ``demonstrations()`` turns its tracks into demonstrations for the learners, as for the SUMO
+scenario (:func:`~pirl_sim.scenarios.demonstrations.recorded_demonstrations`: by default PIRL tracks
+without interaction, collision or removal).
 """
 
 from __future__ import annotations
 
 import math
 import time as _time
-import tomllib
-from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field, fields
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,14 +36,15 @@ import numpy as np
 import pandas as pd
 
 from pirl_sim.trajectory import Trajectory
+from pirl_sim.validation import number
 
-from ..population_config import DEFAULT_POPULATION, PopulationConfig, population_from_dict
-from ..recording import RecordingFiles, ScenarioRecording, read_recording, write_recording
-from ..sumo.drivers import RouteSet, RouteSetDriverModel, route_set_model
-from ..sumo.network import route_id
-from ..sumo.scenario import recorded_demonstrations
+from ..demonstrations import RecordedRun, recorded_demonstrations
+from ..drivers import RouteSet, RouteSetDriverModel, route_set_model
+from ..planning import check_routes, check_seed, plan_population, random_streams, route_id
+from ..population_config import DEFAULT_POPULATION, PopulationConfig
+from ..recording import INFO_FILE, RecordingFiles, ScenarioRecording, read_recording, write_recording
+from ..scenario_config import Progress, config_table, from_table, load_toml, scenario_from_table
 from .network import ARMS, LANE_WIDTH, RoundaboutGeometry, build_network, lane_graph, route_catalogue, route_set
-from ..planning import check_seed, plan_population, random_streams
 from .traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
 
 __all__ = [
@@ -52,7 +52,6 @@ __all__ = [
     "ROUTE_IDS",
     "HighwayScenarioConfig",
     "HighwayScenarioResult",
-    "HighwayRunData",
     "scenario_from_dict",
     "drivers_from_dict",
     "rules_from_dict",
@@ -105,21 +104,10 @@ class HighwayScenarioConfig:
             if not isinstance(getattr(self, name), cls):
                 raise ValueError(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
         for name in ("pirl_routes", "background_routes"):
-            chosen = getattr(self, name)
-            if chosen is None:
-                continue
-            if isinstance(chosen, str) or not len(chosen):
-                raise ValueError(f"{name} must be a non-empty list of route ids, got {chosen!r}")
-            unknown = [r for r in chosen if r not in ROUTE_IDS]
-            if unknown:
-                raise ValueError(f"{name}: unknown route(s) {unknown}; routes: {', '.join(ROUTE_IDS)}")
-            object.__setattr__(self, name, tuple(chosen))
+            object.__setattr__(self, name, check_routes(name, getattr(self, name), ROUTE_IDS))
         if self.max_duration is not None:
-            m = self.max_duration
-            if isinstance(m, bool) or not isinstance(m, (int, float, np.integer, np.floating)) \
-                    or not math.isfinite(m) or m <= 0:
-                raise ValueError(f"max_duration must be a positive number of seconds, got {m!r}")
-            object.__setattr__(self, "max_duration", float(m))
+            object.__setattr__(self, "max_duration", number("max_duration", self.max_duration, low=0.0,
+                                                            allow_equal=False))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain (TOML/JSON-ready) form that :func:`scenario_from_dict` reads back."""
@@ -141,22 +129,9 @@ class HighwayScenarioConfig:
         return out
 
 
-_SCENARIO_KEYS = ("geometry", "population", "drivers", "rules", "pirl_routes", "background_routes", "max_duration")
-
-
-def _table(label: str, data: Any, cls, extra: tuple[str, ...] = ()) -> dict[str, Any]:
-    valid = tuple(f.name for f in fields(cls) if f.init) + extra
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{label} must be a table, got {data!r}")
-    unknown = [k for k in data if k not in valid]
-    if unknown:
-        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: {', '.join(valid)}")
-    return dict(data)
-
-
 def rules_from_dict(data: Mapping[str, Any], *, source: str = "rules") -> TrafficRules:
     """A :class:`~.traffic.TrafficRules` from a table (``crash_removal = false`` keeps crashed vehicles)."""
-    kwargs = _table(source, data, TrafficRules, extra=("crash_removal",))
+    kwargs = config_table(source, data, TrafficRules, extra=("crash_removal",))
     if "crash_removal" in kwargs:
         keep = kwargs.pop("crash_removal")
         if not isinstance(keep, bool):
@@ -173,77 +148,27 @@ def rules_from_dict(data: Mapping[str, Any], *, source: str = "rules") -> Traffi
 
 def drivers_from_dict(data: Mapping[str, Any], *, source: str = "drivers") -> DriverConfig:
     """A :class:`~.traffic.DriverConfig` from a table (unknown keys rejected, listing the valid ones)."""
-    try:
-        return DriverConfig(**_table(source, data, DriverConfig))
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{source}: {exc}") from None
+    return from_table(source, data, DriverConfig)
 
 
 def scenario_from_dict(data: Mapping[str, Any], *, source: str = "scenario",
                        population: PopulationConfig | None = None) -> HighwayScenarioConfig:
-    """Build a :class:`HighwayScenarioConfig` from plain data (a parsed TOML file).
-
-    Parameters
-    ----------
-    data : mapping
-        Top-level keys :data:`_SCENARIO_KEYS`: ``geometry`` (``radius``), ``drivers`` and ``rules`` tables of
-        :class:`~.traffic.DriverConfig` / :class:`~.traffic.TrafficRules` fields, ``population`` as
-        :func:`~pirl_sim.scenarios.population_config.population_from_dict` reads, route lists,
-        ``max_duration``.
-    source : str
-        Named in error messages.
-    population : PopulationConfig, optional
-        Used instead of the ``population`` table (which must then be absent).
-
-    Raises
-    ------
-    ValueError
-        Unknown keys (listing the valid ones) and every invalid value.
+    """Build a :class:`HighwayScenarioConfig` from plain data (a parsed TOML file): top-level keys are its
+    attributes, ``geometry``, ``drivers`` and ``rules`` tables of :class:`~.network.RoundaboutGeometry`,
+    :class:`~.traffic.DriverConfig` and :class:`~.traffic.TrafficRules` fields (``rules_from_dict``),
+    ``population`` a table as :func:`~pirl_sim.scenarios.population_config.population_from_dict` reads or
+    the given ``population``; errors as :func:`~pirl_sim.scenarios.scenario_config.scenario_from_table`
+    raises them (unknown keys listing the valid ones, every invalid value, named by ``source``).
     """
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{source}: expected a table of settings, got {type(data).__name__}")
-    unknown = [k for k in data if k not in _SCENARIO_KEYS]
-    if unknown:
-        raise ValueError(f"{source}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: "
-                         f"{', '.join(_SCENARIO_KEYS)}")
-    kwargs: dict[str, Any] = {}
-    if "geometry" in data:
-        try:
-            kwargs["geometry"] = RoundaboutGeometry(**_table(f"{source}: geometry", data["geometry"],
-                                                             RoundaboutGeometry))
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{source}: geometry: {exc}") from None
-    if "drivers" in data:
-        kwargs["drivers"] = drivers_from_dict(data["drivers"], source=f"{source}: drivers")
-    if "rules" in data:
-        kwargs["rules"] = rules_from_dict(data["rules"], source=f"{source}: rules")
-    if "population" in data:
-        if population is not None:
-            raise ValueError(f"{source}: has a population table and a population was given too")
-        kwargs["population"] = population_from_dict(data["population"], source=f"{source}: population")
-    elif population is not None:
-        kwargs["population"] = population
-    for k in ("pirl_routes", "background_routes"):
-        if k in data:
-            kwargs[k] = data[k] if isinstance(data[k], str) else tuple(data[k])
-    if "max_duration" in data:
-        kwargs["max_duration"] = data["max_duration"]
-    try:
-        return HighwayScenarioConfig(**kwargs)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
+    return scenario_from_table(HighwayScenarioConfig, data, source, population, {
+        "geometry": lambda table, label: from_table(label, table, RoundaboutGeometry),
+        "drivers": lambda table, label: drivers_from_dict(table, source=label),
+        "rules": lambda table, label: rules_from_dict(table, source=label)})
 
 
 def load_scenario(path, *, population: PopulationConfig | None = None) -> HighwayScenarioConfig:
     """Read a scenario TOML file (see :func:`scenario_from_dict`)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"scenario config not found: {path}")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
-    return scenario_from_dict(data, source=str(path), population=population)
+    return scenario_from_dict(load_toml(path), source=str(path), population=population)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -286,12 +211,8 @@ class HighwayScenarioResult:
     files: RecordingFiles | None = None
 
     def demonstrations(self, **kwargs) -> list[Trajectory]:
-        """:func:`~pirl_sim.scenarios.sumo.scenario.recorded_demonstrations` of this run."""
+        """:func:`~pirl_sim.scenarios.demonstrations.recorded_demonstrations` of this run."""
         return recorded_demonstrations(self.recording, self.routes, **kwargs)
-
-
-#: ``progress(simulated time [s], vehicles finished, vehicles in all)``
-Progress = Callable[[float, int, int], None]
 
 
 def build_routes(config: HighwayScenarioConfig):
@@ -384,21 +305,7 @@ def run_highway_scenario(config: HighwayScenarioConfig | None = None, seed: int 
     return HighwayScenarioResult(config, seed, plan, traffic.summary(), recording, routes, model, timing, files)
 
 
-@dataclass(frozen=True, eq=False)
-class HighwayRunData:
-    """A highway-env run read back from its directory (:func:`load_highway_run`)."""
-
-    recording: ScenarioRecording
-    config: HighwayScenarioConfig
-    routes: RouteSet
-    model: RouteSetDriverModel
-
-    def demonstrations(self, **kwargs) -> list[Trajectory]:
-        """:func:`~pirl_sim.scenarios.sumo.scenario.recorded_demonstrations` of this run."""
-        return recorded_demonstrations(self.recording, self.routes, **kwargs)
-
-
-def load_highway_run(directory) -> HighwayRunData:
+def load_highway_run(directory) -> RecordedRun:
     """Read a run written by :func:`run_highway_scenario`: the recording, its configuration, the routes'
     reference paths (rebuilt from the configuration in ``run.json``) and the drivers' model."""
     d = Path(directory)
@@ -406,7 +313,7 @@ def load_highway_run(directory) -> HighwayRunData:
     info = rec.info
     if info.get("simulator") != SIMULATOR:
         raise ValueError(f"{d}: not a highway-env recording (simulator {info.get('simulator')!r})")
-    config = scenario_from_dict(info["config"], source=f"{d}/run.json")
+    config = scenario_from_dict(info["config"], source=f"{d}/{INFO_FILE}")
     _, _, routes = build_routes(config)
     model = route_set_model(routes, dt=info["step_length_s"], a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
-    return HighwayRunData(rec, config, routes, model)
+    return RecordedRun(rec, config, routes, model)

@@ -10,7 +10,7 @@ departure time has come (at the start of their route, once there is room), and r
 Longitudinal commands (one step of ``dt = 0.1 s``, the driver model's step and the INTERACTION frame):
 
 - **PIRL drivers** (:class:`~.vehicles.PirlVehicle`): every step all of them re-plan in **one** batched
-  MPC call (:class:`pirl_sim.scenarios.sumo.drivers.PirlDrivers`, the SUMO scenario's controller: start
+  MPC call (:class:`pirl_sim.scenarios.drivers.PirlDrivers`, the SUMO scenario's controller: start
   state from the vehicle's position projected on its route's reference path, warm starts, standstill
   hand-back) under their own weights; the command is the planned speed one step ahead, i.e. the
   acceleration ``(v_plan - v) / dt``. The driver's cost knows no other vehicle: like SUMO's safety checks
@@ -62,7 +62,7 @@ import pandas as pd
 from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 
-from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
+from pirl_sim.validation import number
 
 from ..population_config import FEATURE_NAMES
 from ..recording import (
@@ -72,7 +72,8 @@ from ..recording import (
     TRACK_COLUMNS,
     ScenarioRecording,
 )
-from ..sumo.drivers import PirlDrivers, RouteSet, RouteSetProfile, route_set_model
+from ..scenario_config import MpcDriverConfig
+from ..drivers import PirlDrivers, RouteSet, RouteSetProfile, route_set_model
 from .network import RouteLanes
 from .vehicles import (
     BACKGROUND,
@@ -93,68 +94,33 @@ _EPS = 1e-9
 _STANDSTILL = 0.1  # [m/s] slower counts as stopped at the line
 
 
-def _number(label: str, v, *, low: float = 0.0, allow_equal: bool = True) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
-            or v < low or (v == low and not allow_equal):
-        raise ValueError(f"{label} must be a finite number {'>=' if allow_equal else '>'} {low:g}, got {v!r}")
-    return float(v)
-
-
-def _int_at_least(label: str, v, low: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-        raise ValueError(f"{label} must be an integer >= {low}, got {v!r}")
-    return int(v)
-
-
 @dataclass(frozen=True)
-class DriverConfig:
-    """The PIRL drivers' model and MPC (validated on construction; as the SUMO scenario's, without SUMO's
-    vehicle type).
+class DriverConfig(MpcDriverConfig):
+    """The PIRL drivers' model and MPC (:class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`, as the
+    SUMO scenario's, without SUMO's vehicle type; validated on construction).
 
     Attributes
     ----------
-    horizon : int
-        MPC horizon [steps of 0.1 s], >= 1.
-    n_iter, n_qp_iter : int
-        Newton iterations and bounded QPs per re-plan (warm-started: 1 each is a real-time iteration), >= 1.
-    a_lat, v_max : float
-        Desired speed: comfortable lateral acceleration [m/s^2] and speed cap [m/s], > 0.
-    smoothing : float
-        Smoothing length [m], >= 0, of the routes' reference paths (their geometry).
     speed_smoothing : float
-        Further smoothing length [m], >= 0, of the paths' curvature for the desired speed (see
-        :mod:`~.network` for why 8 m).
+        Default 8 m (see :mod:`~.network` for why).
     depart_speed : float
-        Speed [m/s] at insertion, >= 0 (capped by the desired speed there).
+        Speed [m/s] at insertion (capped by the desired speed there).
     stop_speed, resume_speed : float
-        [m/s] standstill hand-back of :class:`~pirl_sim.scenarios.sumo.drivers.PirlDrivers` (IDM drives a
-        PIRL vehicle slower than ``stop_speed`` until it is faster than ``resume_speed``).
+        [m/s] standstill hand-back: IDM drives a PIRL vehicle slower than ``stop_speed`` until it is faster
+        than ``resume_speed``.
     override_tol : float
         [m/s] a command counts as overridden when the speed after the step misses it by more, > 0.
+
+    The other attributes are :class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`'s.
     """
 
-    horizon: int = 30
-    n_iter: int = 1
-    n_qp_iter: int = 1
-    a_lat: float = DEFAULT_A_LAT
-    v_max: float = DEFAULT_V_MAX
-    smoothing: float = 2.0
     speed_smoothing: float = 8.0
-    depart_speed: float = DEFAULT_V_MAX
-    stop_speed: float = 0.5
-    resume_speed: float = 3.0
     override_tol: float = 0.01
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "n_iter", "n_qp_iter"):
-            object.__setattr__(self, name, _int_at_least(f"drivers.{name}", getattr(self, name), 1))
-        for name in ("a_lat", "v_max", "override_tol"):
-            object.__setattr__(self, name, _number(f"drivers.{name}", getattr(self, name), allow_equal=False))
-        for name in ("smoothing", "speed_smoothing", "depart_speed", "stop_speed", "resume_speed"):
-            object.__setattr__(self, name, _number(f"drivers.{name}", getattr(self, name)))
-        if self.stop_speed > self.resume_speed:
-            raise ValueError(f"drivers.stop_speed = {self.stop_speed} m/s must not exceed drivers.resume_speed = "
-                             f"{self.resume_speed} m/s")
+        super().__post_init__()
+        object.__setattr__(self, "override_tol", number("drivers.override_tol", self.override_tol, low=0.0,
+                                                        allow_equal=False))
 
 
 @dataclass(frozen=True)
@@ -205,13 +171,15 @@ class TrafficRules:
     background_speed_factor_std: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in ("lookahead", "yield_distance", "yield_lookback", "entry_acceleration", "max_deceleration", "initial_spacing"):
-            object.__setattr__(self, name, _number(f"rules.{name}", getattr(self, name), allow_equal=False))
-        for name in ("yield_headway", "yield_min_distance", "stop_clearance", "stop_margin", "background_speed_factor_std"):
-            object.__setattr__(self, name, _number(f"rules.{name}", getattr(self, name)))
+        for name in ("lookahead", "yield_distance", "yield_lookback", "entry_acceleration", "max_deceleration",
+                     "initial_spacing"):
+            object.__setattr__(self, name, number(f"rules.{name}", getattr(self, name), low=0.0, allow_equal=False))
+        for name in ("yield_headway", "yield_min_distance", "stop_clearance", "stop_margin",
+                     "background_speed_factor_std"):
+            object.__setattr__(self, name, number(f"rules.{name}", getattr(self, name), low=0.0))
         if self.crash_removal_delay is not None:
             object.__setattr__(self, "crash_removal_delay",
-                               _number("rules.crash_removal_delay", self.crash_removal_delay))
+                               number("rules.crash_removal_delay", self.crash_removal_delay, low=0.0))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -2,8 +2,8 @@
 
 ``network`` builds parametric roundabouts (plain XML -> netconvert) and reference paths along their
 routes; ``runner`` simulates them with libsumo (or TraCI), records every vehicle every step and lets a
-controller drive chosen vehicles; ``drivers`` puts the paper's roundabout driver model on all routes at
-once and drives PIRL vehicles with it (one batched MPC call per step); ``scenario`` plans a population,
+controller drive chosen vehicles (the PIRL drivers are :class:`pirl_sim.scenarios.drivers.PirlDrivers`,
+shared with the highway-env scenario: one batched MPC call per step); ``scenario`` plans a population,
 runs it and records it (:func:`run_sumo_scenario`); ``cli`` is ``pirl-sim simulate sumo``. SUMO itself
 (sumolib, libsumo, traci) is imported only when a function needs it.
 """
@@ -15,6 +15,7 @@ from .network import (
     lane_graph,
     load_net,
     route_centerline,
+    route_set,
     route_edges,
     route_id,
     routes,
@@ -70,35 +71,26 @@ __all__ = [
     "BatchController",
     "COLLISION_ACTIONS",
     "lane_graph",
-    "ROUTE_SPACING",
-    "RouteSet",
-    "RouteSetProfile",
-    "RouteSetDriverModel",
-    "route_set_model",
-    "PirlDrivers",
+    "route_set",
     "STEP_LENGTH",
     "DEFAULT_NETWORK",
     "DriverConfig",
     "SumoScenarioConfig",
     "SumoScenarioResult",
-    "SumoRunData",
     "scenario_from_dict",
     "load_scenario",
     "plan_vehicles",
     "run_sumo_scenario",
     "run_to_directory",
-    "recorded_demonstrations",
     "load_sumo_run",
 ]
 
-# drivers and scenario pull in the driver model and the MPC: loaded on first use, so that importing the
+# scenario pulls in the driver model and the MPC: loaded on first use, so that importing the
 # package (e.g. for the command line's parser) stays light
 _LAZY = {
-    **{name: "drivers" for name in ("ROUTE_SPACING", "PirlDrivers", "RouteSet", "RouteSetDriverModel",
-                                     "RouteSetProfile", "route_set_model")},
-    **{name: "scenario" for name in ("STEP_LENGTH", "DEFAULT_NETWORK", "DriverConfig", "SumoRunData",
+    **{name: "scenario" for name in ("STEP_LENGTH", "DEFAULT_NETWORK", "DriverConfig",
                                      "SumoScenarioConfig", "SumoScenarioResult", "load_scenario",
-                                     "load_sumo_run", "plan_vehicles", "recorded_demonstrations",
+                                     "load_sumo_run", "plan_vehicles",
                                      "run_sumo_scenario", "run_to_directory", "scenario_from_dict")},
 }
 

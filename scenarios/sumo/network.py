@@ -32,6 +32,7 @@ import os
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -39,6 +40,8 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from pirl_sim.io.atomic import atomic_write_text
+
+from ..planning import route_id
 
 __all__ = [
     "RoundaboutSpec",
@@ -49,6 +52,7 @@ __all__ = [
     "route_edges",
     "validate_route",
     "route_centerline",
+    "route_set",
     "load_net",
     "lane_graph",
     "LANE_JOINT_SNAP",
@@ -215,17 +219,6 @@ def _ring(i: int, n: int) -> str:
 
 def _ring_node(i: int) -> str:
     return f"ring{i}"
-
-
-def route_id(entry_arm: int, exit_arm: int) -> str:
-    """Id of the route entering from arm ``entry_arm`` and leaving by arm ``exit_arm``.
-
-    Returns
-    -------
-    str
-        ``"arm{entry_arm}_to_arm{exit_arm}"``.
-    """
-    return f"arm{entry_arm}_to_arm{exit_arm}"
 
 
 def _check_arm(spec: RoundaboutSpec, arm, name: str) -> int:
@@ -619,6 +612,41 @@ def route_centerline(net, route_edges, *, route_id: str | None = None,
         else:
             last = arr[i]
     return arr[keep]
+
+
+def route_set(net, routes, *, smoothing: float | None = None, speed_smoothing: float = 0.0,
+              spacing: float | None = None):
+    """Reference paths along routes of a network (:func:`route_centerline`, smoothed) on one global arc-length
+    axis (:class:`~pirl_sim.scenarios.drivers.RouteSet`).
+
+    Parameters
+    ----------
+    net : str, os.PathLike, NetworkFiles or sumolib.net.Net
+    routes : mapping or iterable of (route_id, edges)
+    smoothing : float, optional
+        Smoothing length [m] of the paths' geometry (:meth:`pirl_sim.paths.ReferencePath.from_polyline`;
+        default ``pirl_sim.paths.DEFAULT_SMOOTHING``).
+    speed_smoothing : float
+        Further smoothing length [m] of their curvature for the desired speed (see ``RouteSet``).
+    spacing : float, optional
+        [m] (default ``ROUTE_SPACING``).
+
+    Raises
+    ------
+    ValueError
+        If a route is not drivable in ``net`` (see :func:`validate_route`).
+    """
+    from pirl_sim.paths import DEFAULT_SMOOTHING, ReferencePath
+
+    from ..drivers import ROUTE_SPACING, RouteSet
+
+    net = load_net(net)
+    items = list(routes.items()) if isinstance(routes, Mapping) else list(routes)
+    paths = tuple(ReferencePath.from_polyline(route_centerline(net, list(edges), route_id=rid),
+                                              smoothing=DEFAULT_SMOOTHING if smoothing is None else smoothing)
+                  for rid, edges in items)
+    return RouteSet(tuple(rid for rid, _ in items), paths, ROUTE_SPACING if spacing is None else spacing,
+                    speed_smoothing)
 
 
 def lane_graph(net) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:

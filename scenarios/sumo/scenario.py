@@ -10,11 +10,11 @@ One call, :func:`run_sumo_scenario`, does everything for a :class:`SumoScenarioC
    bad configs raise ``ValueError`` before netconvert or SUMO start.
 2. **Network**: :func:`~.network.build_network` into a temporary directory; every route is checked
    against it (:func:`~.network.validate_route`: an unreachable route raises before SUMO starts); the
-   reference paths of all routes go into one :class:`~.drivers.RouteSet`.
+   reference paths of all routes go into one :class:`~pirl_sim.scenarios.drivers.RouteSet`.
 3. **Simulate** with :class:`~.runner.SumoRun` (libsumo by default) at 0.1 s steps, SUMO seeded with
    ``seed``, the ballistic position update (``--step-method.ballistic``: positions advance by the mean of
    the speeds at both ends of a step, as in the driver model's constant-jerk dynamics), until every vehicle
-   has left or ``max_duration``. PIRL vehicles are driven by :class:`~.drivers.PirlDrivers` (every step,
+   has left or ``max_duration``. PIRL vehicles are driven by :class:`~pirl_sim.scenarios.drivers.PirlDrivers` (every step,
    one batched MPC call re-plans all of them); background vehicles by SUMO's Krauss model (vehicle type
    ``background``: SUMO's passenger-car defaults, driver imperfection sigma = 0.5, speed factor N(1, 0.1)).
 4. **Record** (:mod:`pirl_sim.scenarios.recording`): tracks, ground truth and the map in one
@@ -33,8 +33,8 @@ lets drivers see ring traffic from 50 m before an entry (``RoundaboutSpec.entry_
 records whether SUMO overrode the command (speed after the step more than ``override_tol`` from the
 command). A track is flagged ``interacted`` when SUMO overrode at least one of its commands, it collided,
 or SUMO stopped it and drove it until it was moving again (the standstill hand-back of
-:class:`~.drivers.PirlDrivers`). The paper selected drivers "without too much interaction"; the tracks
-that are not flagged are what :func:`recorded_demonstrations` keeps by default.
+:class:`~pirl_sim.scenarios.drivers.PirlDrivers`). The paper selected drivers "without too much interaction"; the tracks
+that are not flagged are what :func:`~pirl_sim.scenarios.demonstrations.recorded_demonstrations` keeps by default.
 """
 
 from __future__ import annotations
@@ -42,28 +42,22 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-import tomllib
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from pirl_sim.driving import fit_longitudinal_states
-from pirl_sim.dynamics import longitudinal
 from pirl_sim.io.atomic import atomic_write_text
-from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
 from pirl_sim.trajectory import Trajectory
+from pirl_sim.validation import number
 
-from ..planning import check_seed, plan_population, random_streams
-from ..population_config import (
-    DEFAULT_POPULATION,
-    FEATURE_NAMES,
-    PopulationConfig,
-    population_from_dict,
-)
+from ..demonstrations import RecordedRun, recorded_demonstrations
+from ..drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_model
+from ..planning import check_routes, check_seed, plan_population, random_streams
+from ..population_config import DEFAULT_POPULATION, FEATURE_NAMES, PopulationConfig
 from ..recording import (
     FRAME_DT_S,
     GROUND_TRUTH_COLUMNS,
@@ -74,8 +68,9 @@ from ..recording import (
     read_recording,
     write_recording,
 )
-from .drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_model
-from .network import RoundaboutSpec, build_network, lane_graph, load_net, routes as network_routes, validate_route
+from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, scenario_from_table
+from .network import RoundaboutSpec, build_network, lane_graph, load_net, route_set, routes as network_routes, \
+    validate_route
 from .runner import BACKENDS, COLLISION_ACTIONS, SPEED_MODE_ALL_CHECKS, SumoRecording, SumoRun, VehicleSpec
 
 __all__ = [
@@ -86,14 +81,12 @@ __all__ = [
     "DriverConfig",
     "SumoScenarioConfig",
     "SumoScenarioResult",
-    "SumoRunData",
     "scenario_from_dict",
     "load_scenario",
     "plan_vehicles",
     "vehicle_types_xml",
     "run_sumo_scenario",
     "run_to_directory",
-    "recorded_demonstrations",
     "load_sumo_run",
 ]
 
@@ -114,81 +107,39 @@ _DEFAULT_EXTRA_TIME = 300.0  # [s] after the last departure, when max_duration i
 DEFAULT_NETWORK = RoundaboutSpec(radius=25.0, junction_radius=10.0, entry_visibility=50.0)
 
 
-def _positive(label: str, v, *, allow_zero: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
-            or v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{label} must be a finite number {'>=' if allow_zero else '>'} 0, got {v!r}")
-    return float(v)
-
-
-def _int_at_least(label: str, v, low: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-        raise ValueError(f"{label} must be an integer >= {low}, got {v!r}")
-    return int(v)
-
-
 @dataclass(frozen=True)
-class DriverConfig:
-    """The PIRL drivers' model, MPC and SUMO vehicle type (validated on construction).
+class DriverConfig(MpcDriverConfig):
+    """The PIRL drivers' model and MPC (:class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`) and their
+    SUMO vehicle type (validated on construction).
 
     Attributes
     ----------
-    horizon : int
-        MPC horizon [steps of 0.1 s], >= 1.
-    n_iter : int
-        Newton iterations per re-plan (warm-started: 1 is a real-time iteration), >= 1.
-    n_qp_iter : int
-        Bounded QPs per re-plan where a bound is active, >= 1.
-    a_lat : float
-        Comfortable lateral acceleration of the desired speed [m/s^2], > 0.
-    v_max : float
-        Speed cap of the desired speed [m/s], > 0.
-    smoothing : float
-        Smoothing length [m], >= 0, of the routes' reference paths (their geometry, on which recorded
-        positions are projected): 2 m keeps the paths within 0.2 m of the lanes' centre lines.
     speed_smoothing : float
-        Further smoothing length [m], >= 0, of the paths' curvature for the desired speed (see
-        :class:`~.drivers.RouteSet`). The default 10 m rounds the S-bend where an entry meets the ring: with
-        4 m its curvature peaks make the desired speed dip to ~4.6 m/s over ~10 m, and drivers that
-        dislike braking stop there in free flow (measured on the default network: with 7 m "no preference"
-        drivers still stop, with 8 m none does, 10 m leaves a margin).
+        Default 10 m: it rounds the S-bend where an entry meets the ring. With 4 m its curvature peaks make
+        the desired speed dip to ~4.6 m/s over ~10 m, and drivers that dislike braking stop there in free
+        flow (measured on the default network: with 7 m "no preference" drivers still stop, with 8 m none
+        does, 10 m leaves a margin).
     depart_speed : float
-        Speed [m/s] at insertion, >= 0 (SUMO delays the insertion while it is unsafe).
+        Speed [m/s] at insertion (SUMO delays the insertion while it is unsafe).
     accel, decel : float
         SUMO vehicle-type limits [m/s^2] of PIRL vehicles, > 0; keep them above the MPC's bounds (3 and
         4 m/s^2) so that SUMO overrides a command only for safety or right of way.
     speed_factor : float
         SUMO speed factor of PIRL vehicles (their speed cap is speed limit x factor), > 0.
-    stop_speed, resume_speed : float
-        [m/s] Standstill hand-back of :class:`~.drivers.PirlDrivers`: a PIRL vehicle slower than
-        ``stop_speed`` is driven by SUMO until it is faster than ``resume_speed`` (its track is then flagged
-        ``interacted``), 0 <= stop_speed <= resume_speed.
+
+    The other attributes are :class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`'s.
     """
 
-    horizon: int = 30
-    n_iter: int = 1
-    n_qp_iter: int = 1
-    a_lat: float = DEFAULT_A_LAT
-    v_max: float = DEFAULT_V_MAX
-    smoothing: float = 2.0
     speed_smoothing: float = 10.0
-    depart_speed: float = DEFAULT_V_MAX
     accel: float = 3.5
     decel: float = 4.5
     speed_factor: float = 1.2
-    stop_speed: float = 0.5
-    resume_speed: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "n_iter", "n_qp_iter"):
-            object.__setattr__(self, name, _int_at_least(f"drivers.{name}", getattr(self, name), 1))
-        for name in ("a_lat", "v_max", "accel", "decel", "speed_factor"):
-            object.__setattr__(self, name, _positive(f"drivers.{name}", getattr(self, name)))
-        for name in ("smoothing", "speed_smoothing", "depart_speed", "stop_speed", "resume_speed"):
-            object.__setattr__(self, name, _positive(f"drivers.{name}", getattr(self, name), allow_zero=True))
-        if self.stop_speed > self.resume_speed:
-            raise ValueError(f"drivers.stop_speed = {self.stop_speed} m/s must not exceed drivers.resume_speed = "
-                             f"{self.resume_speed} m/s")
+        super().__post_init__()
+        for name in ("accel", "decel", "speed_factor"):
+            object.__setattr__(self, name, number(f"drivers.{name}", getattr(self, name), low=0.0,
+                                                  allow_equal=False))
 
 
 @dataclass(frozen=True)
@@ -245,25 +196,19 @@ class SumoScenarioConfig:
                     raise ValueError(f"route {rid!r} must be a non-empty list of edge ids, got {edges!r}")
                 cat[rid] = tuple(edges)
             object.__setattr__(self, "routes", dict(sorted(cat.items())))  # canonical order (draws use it)
-        known = self.route_catalogue()
+        known = list(self.route_catalogue())
         for name in ("pirl_routes", "background_routes"):
-            chosen = getattr(self, name)
-            if chosen is None:
-                continue
-            if isinstance(chosen, str) or not len(chosen):
-                raise ValueError(f"{name} must be a non-empty list of route ids, got {chosen!r}")
-            unknown = [r for r in chosen if r not in known]
-            if unknown:
-                raise ValueError(f"{name}: unknown route(s) {unknown}; routes: {', '.join(known)}")
-            object.__setattr__(self, name, tuple(chosen))
+            object.__setattr__(self, name, check_routes(name, getattr(self, name), known))
         sm = self.speed_mode
         if isinstance(sm, bool) or not isinstance(sm, (int, np.integer)) or not 0 <= sm < 128:
             raise ValueError(f"speed_mode must be an integer bitset in [0, 127], got {sm!r}")
         if self.collision_action not in COLLISION_ACTIONS:
             raise ValueError(f"collision_action must be one of {COLLISION_ACTIONS}, got {self.collision_action!r}")
-        object.__setattr__(self, "override_tol", _positive("override_tol", self.override_tol))
+        object.__setattr__(self, "override_tol", number("override_tol", self.override_tol, low=0.0,
+                                                         allow_equal=False))
         if self.max_duration is not None:
-            object.__setattr__(self, "max_duration", _positive("max_duration", self.max_duration))
+            object.__setattr__(self, "max_duration", number("max_duration", self.max_duration, low=0.0,
+                                                            allow_equal=False))
 
     def route_catalogue(self) -> dict[str, tuple[str, ...]]:
         """Route id -> edge ids of every route of the scenario (not yet checked against a built network)."""
@@ -293,85 +238,28 @@ class SumoScenarioConfig:
         return out
 
 
-_SCENARIO_KEYS = ("network", "population", "drivers", "routes", "pirl_routes", "background_routes",
-                  "speed_mode", "collision_action", "override_tol", "max_duration")
-
-
-def _table(label: str, data: Any, cls) -> Any:
-    valid = tuple(f.name for f in fields(cls) if f.init)
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{label} must be a table, got {data!r}")
-    unknown = [k for k in data if k not in valid]
-    if unknown:
-        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: {', '.join(valid)}")
-    kwargs = dict(data)
-    if cls is RoundaboutSpec and "center" in kwargs and isinstance(kwargs["center"], list):
-        kwargs["center"] = tuple(kwargs["center"])
-    try:
-        return cls(**kwargs)
-    except ValueError as exc:
-        raise ValueError(f"{label}: {exc}") from None
-
-
 def scenario_from_dict(data: Mapping[str, Any], *, source: str = "scenario",
                        population: PopulationConfig | None = None) -> SumoScenarioConfig:
-    """Build a :class:`SumoScenarioConfig` from plain data (a parsed TOML file).
-
-    Parameters
-    ----------
-    data : mapping
-        Top-level keys as the attributes of :class:`SumoScenarioConfig`; ``network`` and ``drivers`` are
-        tables of :class:`~.network.RoundaboutSpec` / :class:`DriverConfig` fields, ``population`` a table
-        as :func:`~pirl_sim.scenarios.population_config.population_from_dict` reads.
-    source : str
-        Named in error messages.
-    population : PopulationConfig, optional
-        Used instead of the ``population`` table (which must then be absent).
-
-    Raises
-    ------
-    ValueError
-        Unknown keys (listing the valid ones) and every invalid value.
+    """Build a :class:`SumoScenarioConfig` from plain data (a parsed TOML file): top-level keys are its
+    attributes, ``network`` and ``drivers`` tables of :class:`~.network.RoundaboutSpec` and
+    :class:`DriverConfig` fields, ``population`` a table as
+    :func:`~pirl_sim.scenarios.population_config.population_from_dict` reads or the given ``population``;
+    errors as :func:`~pirl_sim.scenarios.scenario_config.scenario_from_table` raises them (unknown keys
+    listing the valid ones, every invalid value, named by ``source``).
     """
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{source}: expected a table of settings, got {type(data).__name__}")
-    unknown = [k for k in data if k not in _SCENARIO_KEYS]
-    if unknown:
-        raise ValueError(f"{source}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: "
-                         f"{', '.join(_SCENARIO_KEYS)}")
-    kwargs: dict[str, Any] = {}
-    if "network" in data:
-        kwargs["network"] = _table(f"{source}: network", data["network"], RoundaboutSpec)
-    if "drivers" in data:
-        kwargs["drivers"] = _table(f"{source}: drivers", data["drivers"], DriverConfig)
-    if "population" in data:
-        if population is not None:
-            raise ValueError(f"{source}: has a population table and a population was given too")
-        kwargs["population"] = population_from_dict(data["population"], source=f"{source}: population")
-    elif population is not None:
-        kwargs["population"] = population
-    for k in ("routes", "speed_mode", "collision_action", "override_tol", "max_duration"):
-        if k in data:
-            kwargs[k] = data[k]
-    for k in ("pirl_routes", "background_routes"):
-        if k in data:
-            kwargs[k] = data[k] if isinstance(data[k], str) else tuple(data[k])
-    try:
-        return SumoScenarioConfig(**kwargs)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
+    return scenario_from_table(SumoScenarioConfig, data, source, population, {
+        "network": _network_from_table,
+        "drivers": lambda table, label: from_table(label, table, DriverConfig)})
+
+
+def _network_from_table(table, label: str) -> RoundaboutSpec:
+    center = table.get("center") if isinstance(table, Mapping) else None  # TOML has lists, not tuples
+    return from_table(label, table, RoundaboutSpec, **({"center": tuple(center)} if isinstance(center, list) else {}))
 
 
 def load_scenario(path, *, population: PopulationConfig | None = None) -> SumoScenarioConfig:
     """Read a scenario TOML file (see :func:`scenario_from_dict`)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"scenario config not found: {path}")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
-    return scenario_from_dict(data, source=str(path), population=population)
+    return scenario_from_dict(load_toml(path), source=str(path), population=population)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -463,10 +351,6 @@ class SumoScenarioResult:
         return recorded_demonstrations(self.recording, self.routes, **kwargs)
 
 
-#: ``progress(simulated time [s], vehicles finished, vehicles in all)``
-Progress = Callable[[float, int, int], None]
-
-
 def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *, out_dir=None,
                       backend: str = "libsumo", progress: Progress | None = None) -> SumoScenarioResult:
     """Plan, simulate and record one scenario (see the module docstring).
@@ -508,8 +392,7 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
         catalogue = config.route_catalogue()
         for rid, edges in catalogue.items():
             validate_route(net, edges, route_id=rid)
-        routes = RouteSet.from_network(net, catalogue, smoothing=drv.smoothing,
-                                       speed_smoothing=drv.speed_smoothing)
+        routes = route_set(net, catalogue, smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
         vtypes = Path(tmp) / "vtypes.add.xml"
         atomic_write_text(vtypes, vehicle_types_xml(drv))
         model = route_set_model(routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
@@ -650,88 +533,7 @@ def run_to_directory(config: SumoScenarioConfig | None, seed: int, out_dir, back
             "n_interacted": int(gt["interacted"].fillna(False).astype(bool).sum()), **dict(res.timing)}
 
 
-# ----------------------------------------------------------------------------------------------
-# back to demonstrations
-# ----------------------------------------------------------------------------------------------
-
-def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, dt: float = STEP_LENGTH,
-                            pirl_only: bool = True, non_interacting: bool = True, min_steps: int = 10,
-                            jerk_weight: float = 1e-2) -> list[Trajectory]:
-    """Recorded tracks as longitudinal demonstrations (s, v, a; jerk) on the routes' global axis.
-
-    Each track's positions are projected on its route's reference path
-    (:meth:`pirl_sim.paths.ReferencePath.to_frenet`), shifted to the route's place on the global axis,
-    sampled every ``dt`` and turned into states and controls consistent with the dynamics by
-    :func:`pirl_sim.driving.fit_longitudinal_states`.
-
-    Parameters
-    ----------
-    recording : ScenarioRecording
-    routes : RouteSet
-        Must hold every selected track's route.
-    dt : float
-        [s], a whole multiple of the 0.1 s frames.
-    pirl_only : bool
-        Only tracks driven by PIRL drivers.
-    non_interacting : bool
-        Leave out tracks that interacted, collided or were removed early.
-    min_steps : int
-        Leave out shorter tracks [steps of dt].
-    jerk_weight : float
-        Ridge on the jerks of the fit (see ``fit_longitudinal_states``).
-
-    Returns
-    -------
-    list of Trajectory
-        In track order; metadata ``track_id``, ``agent_id``, ``route_id``, ``is_pirl``, ``style``,
-        ``style_name``, ``theta`` (normalised weights, NaN for background), ``interacted``.
-    """
-    stride = round(dt / FRAME_DT_S)
-    if stride < 1 or not math.isclose(stride * FRAME_DT_S, dt, rel_tol=1e-9):
-        raise ValueError(f"dt must be a whole multiple of {FRAME_DT_S} s, got {dt!r}")
-    gt = recording.ground_truth
-    keep = np.ones(len(gt), dtype=bool)
-    if pirl_only:
-        keep &= gt["is_pirl"].to_numpy()
-    if non_interacting:
-        keep &= ~(gt["interacted"].fillna(False).to_numpy(dtype=bool) | gt["collided"].to_numpy()
-                  | gt["removed_early"].to_numpy())
-    dyn = longitudinal(dt)
-    by_track = {tid: g for tid, g in recording.tracks.groupby("track_id", sort=True)}
-    out = []
-    for row in gt[keep].itertuples(index=False):
-        g = by_track[row.track_id].sort_values("time_s", kind="stable")
-        frames = np.round(g["time_s"].to_numpy() / FRAME_DT_S).astype(np.int64)
-        if np.any(np.diff(frames) != 1):
-            raise ValueError(f"track {row.track_id} has gaps in its frames; cannot make one demonstration")
-        xy = g[["x", "y"]].to_numpy()[::stride]
-        if len(xy) - 1 < min_steps:
-            continue
-        r = routes.index(row.route_id)
-        s, _ = routes.paths[r].to_frenet(xy, extrapolate=True)
-        states, controls = fit_longitudinal_states(routes.offsets[r] + s, dyn, jerk_weight=jerk_weight)
-        theta = np.array([getattr(row, f"theta_{f}") for f in FEATURE_NAMES])
-        out.append(Trajectory(states, controls, dt, {
-            "track_id": int(row.track_id), "agent_id": row.agent_id, "route_id": row.route_id,
-            "is_pirl": bool(row.is_pirl), "style": int(row.style), "style_name": row.style_name,
-            "theta": theta, "interacted": None if pd.isna(row.interacted) else bool(row.interacted)}))
-    return out
-
-
-@dataclass(frozen=True, eq=False)
-class SumoRunData:
-    """A SUMO run read back from its directory (:func:`load_sumo_run`)."""
-
-    recording: ScenarioRecording
-    routes: RouteSet
-    model: RouteSetDriverModel
-
-    def demonstrations(self, **kwargs) -> list[Trajectory]:
-        """:func:`recorded_demonstrations` of this run."""
-        return recorded_demonstrations(self.recording, self.routes, **kwargs)
-
-
-def load_sumo_run(directory) -> SumoRunData:
+def load_sumo_run(directory) -> RecordedRun:
     """Read a run written by :func:`run_sumo_scenario`: recording, the routes' reference paths (from the
     network under ``network/`` and the route catalogue in ``run.json``) and the drivers' model."""
     d = Path(directory)
@@ -739,8 +541,9 @@ def load_sumo_run(directory) -> SumoRunData:
     info = rec.info
     if info.get("simulator") != "sumo":
         raise ValueError(f"{d}: not a SUMO recording (simulator {info.get('simulator')!r})")
-    drv = DriverConfig(**info["config"]["drivers"])
-    routes = RouteSet.from_network(d / info["network_file"], [(k, tuple(v)) for k, v in info["routes"]],
-                                   smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
+    config = scenario_from_dict(info["config"], source=f"{d}/{INFO_FILE}")
+    drv = config.drivers
+    routes = route_set(d / info["network_file"], [(k, tuple(v)) for k, v in info["routes"]],
+                       smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
     model = route_set_model(routes, dt=info["step_length_s"], a_lat=drv.a_lat, v_max=drv.v_max)
-    return SumoRunData(rec, routes, model)
+    return RecordedRun(rec, config, routes, model)

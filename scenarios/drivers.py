@@ -1,4 +1,5 @@
-"""PIRL drivers in SUMO: the roundabout driver model on many routes at once, and the controller that drives them.
+"""PIRL drivers in any simulator: the roundabout driver model on many routes at once, and the controller that
+drives them (used by the SUMO and the highway-env scenarios).
 
 One arc-length axis for all routes. Every PIRL vehicle follows the paper's longitudinal model
 (:mod:`pirl_sim.driving`: state s [m], v [m/s], a [m/s^2], control jerk [m/s^3], features speed_dev,
@@ -19,10 +20,10 @@ foot-point condition of the path's own interpolated frame (the same equation as
 :meth:`pirl_sim.paths.ReferencePath.to_frenet`, to 1e-7 m), vectorised over the vehicles of all routes and
 started from where the vehicle's previous plan put it; a vehicle's first position uses ``to_frenet``.
 
-Controller. :class:`PirlDrivers` is a batch controller for :class:`~.runner.SumoRun`: every step, for
-every PIRL vehicle in the network, the start state is (s of the vehicle's centre, SUMO's speed, the
-acceleration the driver's own previous plan reached if SUMO carried that command out, else SUMO's
-measured acceleration), its MPC (:class:`pirl_sim.mpc.SequentialMPC`, horizon 30 steps of 0.1 s by
+Controller. :class:`PirlDrivers` is a batch controller (for :class:`~.sumo.runner.SumoRun` and
+:class:`~.highway.traffic.RoundaboutTraffic`): every step, for every PIRL vehicle on the road, the start
+state is (s of the vehicle's centre, the simulator's speed, the acceleration the driver's own previous plan
+reached if the simulator carried that command out, else the simulator's measured acceleration), its MPC (:class:`pirl_sim.mpc.SequentialMPC`, horizon 30 steps of 0.1 s by
 default, warm-started with its previous plan shifted by a step) plans under the driver's weights, and the
 commanded speed is the planned speed one step ahead. ``n_iter`` / ``n_qp_iter`` bound the Newton steps and
 bounded QPs per re-plan. With warm starts one of each (a real-time iteration, the scenarios' default) costs
@@ -35,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -46,9 +47,7 @@ from pirl_sim.driving import DEFAULT_BOUNDS, roundabout_features
 from pirl_sim.dynamics import longitudinal
 from pirl_sim.model import DriverModel
 from pirl_sim.mpc import Bounds, SequentialMPC
-from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_SMOOTHING, DEFAULT_V_MAX, ReferencePath
-
-from .network import route_centerline
+from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX, ReferencePath
 
 __all__ = [
     "ROUTE_SPACING",
@@ -124,36 +123,6 @@ class RouteSet:
         object.__setattr__(self, "paths", paths)
         object.__setattr__(self, "spacing", float(self.spacing))
         object.__setattr__(self, "speed_smoothing", float(ell))
-
-    @classmethod
-    def from_network(cls, net, routes: Iterable[tuple[str, Iterable[str]]] | Mapping[str, Iterable[str]], *,
-                     smoothing: float = DEFAULT_SMOOTHING, speed_smoothing: float = 0.0,
-                     spacing: float = ROUTE_SPACING) -> RouteSet:
-        """Reference paths along routes of a SUMO network (:func:`~.network.route_centerline`, smoothed).
-
-        Parameters
-        ----------
-        net : str, os.PathLike, NetworkFiles or sumolib.net.Net
-        routes : mapping or iterable of (route_id, edges)
-        smoothing : float
-            Smoothing length [m] of the paths' geometry (:meth:`pirl_sim.paths.ReferencePath.from_polyline`).
-        speed_smoothing : float
-            Further smoothing length [m] of their curvature for the desired speed (see the class).
-        spacing : float
-            [m]
-
-        Raises
-        ------
-        ValueError
-            If a route is not drivable in ``net`` (see :func:`~.network.validate_route`).
-        """
-        items = list(routes.items()) if isinstance(routes, Mapping) else list(routes)
-        ids, paths = [], []
-        for rid, edges in items:
-            line = route_centerline(net, list(edges), route_id=rid)
-            ids.append(rid)
-            paths.append(ReferencePath.from_polyline(line, smoothing=smoothing))
-        return cls(tuple(ids), tuple(paths), spacing, speed_smoothing)
 
     # -- indexing -----------------------------------------------------------------------------------
 
@@ -474,7 +443,7 @@ def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT
 class _DriverState:
     route: int
     theta: np.ndarray
-    handed_back: bool = False  # SUMO drives the vehicle until it is faster than resume_speed
+    handed_back: bool = False  # the simulator drives the vehicle until it is faster than resume_speed
     n_handbacks: int = 0
     s_next: float = math.nan  # [m] local arc length the last plan reaches one step on
     a_next: float = 0.0  # [m/s^2] acceleration the last plan reaches one step on
@@ -484,7 +453,7 @@ class _DriverState:
 
 @dataclass
 class PirlDrivers:
-    """Batch controller for :class:`~.runner.SumoRun`: every PIRL vehicle re-plans with its MPC every step.
+    """Batch controller of a simulator's PIRL vehicles: every one re-plans with its MPC every step.
 
     Parameters
     ----------
@@ -499,11 +468,11 @@ class PirlDrivers:
     rng : numpy.random.Generator, optional
         Required when ``control_noise > 0``.
     override_tol : float
-        [m/s] SUMO carried a command out when its speed is within this of the command; then the driver's
-        own planned acceleration is its next start acceleration, otherwise SUMO's measured one.
+        [m/s] The simulator carried a command out when its speed is within this of the command; then the
+        driver's own planned acceleration is its next start acceleration, otherwise the measured one.
     stop_speed, resume_speed : float
-        [m/s] Standstill hand-back: a vehicle slower than ``stop_speed`` (SUMO stopped it, e.g. to yield at
-        an entry) is handed back to SUMO's car-following model (command None) until it drives faster than
+        [m/s] Standstill hand-back: a vehicle slower than ``stop_speed`` (the simulator stopped it, e.g. to
+        yield at an entry) is handed back to the simulator's car-following model (command None) until it drives faster than
         ``resume_speed``, then its MPC re-plans from a cold start. Why: the driver model has no reason to
         start from a standstill where the desired speed rises ahead. Its cost, mean (v - v_des(s))^2 plus
         acceleration and jerk terms, is lowest at low speed where v_des is low, so from v = 0 every plan
@@ -521,7 +490,7 @@ class PirlDrivers:
     control_time_s : float
         Wall time [s] spent in :meth:`commands` (projection, MPC, bookkeeping).
     handbacks : dict
-        vehicle id -> how often it was handed back to SUMO at a standstill (vehicles handed back at least
+        vehicle id -> how often it was handed back to the simulator at a standstill (vehicles handed back at least
         once).
     """
 
@@ -566,7 +535,7 @@ class PirlDrivers:
         self._mpc = self.model.predictor()
 
     def __call__(self, time: float, vehicle_id: str, observation) -> float:
-        """Single-vehicle :data:`~.runner.Controller` form (plans only this vehicle)."""
+        """Single-vehicle :data:`~.sumo.runner.Controller` form (plans only this vehicle)."""
         return self._plan(time, {vehicle_id: observation}, prune=False)[vehicle_id]
 
     def commands(self, time: float, observations: Mapping) -> dict[str, float | None]:
@@ -582,7 +551,7 @@ class PirlDrivers:
         -------
         dict
             vehicle id -> speed [m/s] one step ahead in the vehicle's plan (>= 0), or None for a vehicle
-            handed back to SUMO at a standstill.
+            handed back to the simulator at a standstill.
         """
         return self._plan(time, observations, prune=True)
 

@@ -1,0 +1,151 @@
+"""Pieces every simulator's scenario configuration shares (simulator-neutral).
+
+- :class:`MpcDriverConfig`: the PIRL drivers' model and MPC settings (each simulator's ``DriverConfig``
+  adds its own fields to it);
+- :func:`config_table` / :func:`from_table`: a TOML table into a frozen config dataclass, unknown keys
+  rejected with the list of valid ones;
+- :func:`scenario_from_table` and :func:`load_toml`: a whole scenario configuration from a TOML file;
+- :data:`Progress`: the progress callback every ``run_*_scenario`` takes.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
+from pirl_sim.validation import check_keys, int_at_least, number
+
+from .population_config import PopulationConfig, population_from_dict
+
+__all__ = ["Progress", "MpcDriverConfig", "config_table", "from_table", "scenario_from_table",
+           "load_toml"]
+
+#: ``progress(simulated time [s], vehicles finished, vehicles in all)``
+Progress = Callable[[float, int, int], None]
+
+
+@dataclass(frozen=True)
+class MpcDriverConfig:
+    """The PIRL drivers' model and MPC (validated on construction), as every simulator runs them.
+
+    Attributes
+    ----------
+    horizon : int
+        MPC horizon [steps of 0.1 s], >= 1.
+    n_iter, n_qp_iter : int
+        Newton iterations and bounded QPs per re-plan (warm-started: 1 each is a real-time iteration), >= 1.
+    a_lat, v_max : float
+        Desired speed: comfortable lateral acceleration [m/s^2] and speed cap [m/s], > 0.
+    smoothing : float
+        Smoothing length [m], >= 0, of the routes' reference paths (their geometry, on which recorded
+        positions are projected): 2 m keeps the paths within 0.2 m of the lanes' centre lines.
+    speed_smoothing : float
+        Further smoothing length [m], >= 0, of the paths' curvature for the desired speed (see
+        :class:`~pirl_sim.scenarios.drivers.RouteSet`; each simulator's default is set for its network).
+    depart_speed : float
+        Speed [m/s] at insertion, >= 0.
+    stop_speed, resume_speed : float
+        [m/s] Standstill hand-back of :class:`~pirl_sim.scenarios.drivers.PirlDrivers`: a PIRL vehicle slower
+        than ``stop_speed`` is driven by the simulator's car-following model until it is faster than
+        ``resume_speed`` (its track is then flagged ``interacted``), 0 <= stop_speed <= resume_speed.
+    """
+
+    horizon: int = 30
+    n_iter: int = 1
+    n_qp_iter: int = 1
+    a_lat: float = DEFAULT_A_LAT
+    v_max: float = DEFAULT_V_MAX
+    smoothing: float = 2.0
+    speed_smoothing: float = 10.0
+    depart_speed: float = DEFAULT_V_MAX
+    stop_speed: float = 0.5
+    resume_speed: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "n_iter", "n_qp_iter"):
+            object.__setattr__(self, name, int_at_least(f"drivers.{name}", getattr(self, name), 1))
+        for name in ("a_lat", "v_max"):
+            object.__setattr__(self, name, number(f"drivers.{name}", getattr(self, name), allow_equal=False))
+        for name in ("smoothing", "speed_smoothing", "depart_speed", "stop_speed", "resume_speed"):
+            object.__setattr__(self, name, number(f"drivers.{name}", getattr(self, name)))
+        if self.stop_speed > self.resume_speed:
+            raise ValueError(f"drivers.stop_speed = {self.stop_speed} m/s must not exceed drivers.resume_speed = "
+                             f"{self.resume_speed} m/s")
+
+
+def config_table(label: str, data: Any, cls, extra: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The keyword arguments of ``cls`` (a dataclass) in the TOML table ``data``.
+
+    Raises
+    ------
+    ValueError
+        ``data`` is not a table, or has keys that are neither fields of ``cls`` nor in ``extra`` (the message
+        lists the valid ones).
+    """
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{label} must be a table, got {data!r}")
+    check_keys(label, data, tuple(f.name for f in fields(cls) if f.init) + tuple(extra))
+    return dict(data)
+
+
+def from_table(label: str, data: Any, cls, **overrides):
+    """``cls(**config_table(label, data, cls), **overrides)`` with every error prefixed by ``label``."""
+    kwargs = {**config_table(label, data, cls), **overrides}
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{label}: {exc}") from None
+
+
+def scenario_from_table(cls, data: Any, source: str, population: PopulationConfig | None,
+                        tables: Mapping[str, Callable[[Any, str], Any]]):
+    """A simulator's scenario configuration ``cls`` from a parsed TOML file.
+
+    Parameters
+    ----------
+    cls : type
+        The configuration (a frozen dataclass with a ``population`` field); the top-level keys of ``data``
+        are its fields.
+    data : mapping
+    source : str
+        Named in error messages.
+    population : PopulationConfig or None
+        Used instead of the ``population`` table of ``data`` (which must then be absent).
+    tables : mapping field name -> callable
+        ``parse(table, label)`` turns the sub-table of a field into its value (e.g. :func:`from_table`).
+
+    Raises
+    ------
+    ValueError
+        Unknown keys (listing the valid ones) and every invalid value, prefixed by ``source``.
+    """
+    kwargs = config_table(source, data, cls)
+    for name, parse in tables.items():
+        if name in kwargs:
+            kwargs[name] = parse(kwargs[name], f"{source}: {name}")
+    if "population" in kwargs:
+        if population is not None:
+            raise ValueError(f"{source}: has a population table and a population was given too")
+        kwargs["population"] = population_from_dict(kwargs["population"], source=f"{source}: population")
+    elif population is not None:
+        kwargs["population"] = population
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def load_toml(path) -> dict[str, Any]:
+    """A TOML file's contents; ``FileNotFoundError`` / ``ValueError`` (naming the file) when missing or
+    invalid."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"scenario config not found: {path}")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: {exc}") from None
