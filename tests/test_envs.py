@@ -135,8 +135,16 @@ def test_actions_map_to_the_acceleration_range():
     assert env.vehicle.speed == pytest.approx(v0 + 0.3)
 
 
-def test_info_carries_the_neighbours_ground_truth_aligned_with_the_observation():
-    env = make(initial_vehicles=15).unwrapped
+def _default_observation() -> dict:
+    from pirl_sim.envs.roundabout import PirlRoundaboutEnv
+
+    return dict(PirlRoundaboutEnv.default_config()["observation"])
+
+
+@pytest.mark.parametrize("order", ["sorted", "shuffled"])
+def test_info_carries_the_neighbours_ground_truth_aligned_with_the_observation(order):
+    observation = {**_default_observation(), "order": order}
+    env = make(initial_vehicles=15, observation=observation).unwrapped
     obs, info = env.reset(seed=2)
     for _ in range(5):
         obs, _, _, _, info = env.step(np.zeros(1, dtype=np.float32))
@@ -159,6 +167,35 @@ def test_info_carries_the_neighbours_ground_truth_aligned_with_the_observation()
     for row, vid in zip(obs[1:][present], ids[present]):
         rel = (by_id[vid].position - ego.position) / 100.0
         np.testing.assert_allclose(row[1:3], np.clip(rel, -1, 1), atol=1e-5)
+
+
+@pytest.mark.parametrize("overrides", [
+    {},  # the env's default
+    {"order": "shuffled"},
+    {"absolute": True, "see_behind": False, "vehicles_count": 5},
+    {"features": ["presence", "x", "vx", "heading", "long_off", "lat_off", "cos_d"], "clip": False},  # to_dict
+    {"features_range": None},  # highway-env's default ranges
+    {"normalize": False},
+])
+def test_kinematics_observation_equals_highway_envs(overrides):
+    """The env's pandas-free Kinematics observation gives highway-env's KinematicObservation's values, rows
+    and (shuffled) permutation on the same states."""
+    from highway_env.envs.common.observation import KinematicObservation
+
+    observation = {**_default_observation(), **overrides}
+    env = make(initial_vehicles=15, observation=observation).unwrapped
+    env.reset(seed=4)
+    ours = env.observation_type
+    params = {k: v for k, v in observation.items() if k != "type"}
+    theirs = KinematicObservation(env, **params)
+    for _ in range(6):
+        env.step(np.array([0.3], dtype=np.float32))
+        state = env.np_random.bit_generator.state
+        a = ours.observe()
+        env.np_random.bit_generator.state = state  # the same shuffle draw for both
+        b = theirs.observe()
+        assert a.dtype == b.dtype == np.float32 and a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
 
 
 def test_theta_reward_is_minus_the_styles_cost_of_the_egos_step():

@@ -85,6 +85,29 @@ def test_vehicles_move_by_the_mean_speed_of_the_step_and_never_reverse(road):
     assert v.applied_acceleration == pytest.approx(-2.0)
 
 
+def test_steering_is_highway_envs_lane_following(road):
+    """The vehicles' scalar steering equals highway-env's ControlledVehicle.steering_control on every
+    route lane, off-centre, misaligned, slow (not_zero), and towards the next lane."""
+    from highway_env.vehicle.controller import ControlledVehicle
+
+    traffic = make_traffic(road)
+    rng = np.random.default_rng(3)
+    n = 0
+    for rid in ROUTE_IDS:
+        route = traffic.routes[rid]
+        for s in np.linspace(1.0, route.length - 1.0, 15):
+            v = traffic.add_vehicle("background", f"v{n}", rid, float(s), float(rng.uniform(0.0, 15.0)))
+            v.position = v.position + rng.normal(0.0, 0.8, 2)
+            v.heading += float(rng.normal(0.0, 0.3))
+            if n % 7 == 0:
+                v.speed = float(rng.uniform(-0.01, 0.01))
+            v.on_state_update()
+            for target in {v.lane_index, route.lanes[min(v.route_pos + 1, len(route.lanes) - 1)]}:
+                assert v.steering_control(target) == pytest.approx(
+                    ControlledVehicle.steering_control(v, target), abs=1e-12)
+            n += 1
+
+
 def test_a_leader_is_found_across_ring_lane_segments(road):
     traffic = make_traffic(road)
     route = traffic.routes["arm0_to_arm2"]

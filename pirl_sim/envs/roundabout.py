@@ -16,7 +16,9 @@ Spaces
   default ``[-4, 3]`` m/s^2, the driver model's bounds: 0 is 0 m/s^2). Steering is highway-env's lane
   following along the ego's route; the ego never reverses.
 - **Observation**: any highway-env observation (``observation`` config, keys checked against the type's
-  parameters). Default: ``Kinematics`` of the ego and its 7 nearest vehicles (behind too), rows
+  parameters); ``Kinematics`` is highway-env's computed without pandas (the same values,
+  :class:`~pirl_sim.envs.observation.RoundaboutKinematics`). Default: ``Kinematics`` of the ego and its 7
+  nearest vehicles (behind too), rows
   ``[presence, x, y, vx, vy, cos_h, sin_h]``; the ego's row absolute, the others relative to it; x, y
   scaled from [-100, 100] m and vx, vy from [-15, 15] m/s to [-1, 1] and clipped; empty rows are zero.
   Shape (8, 7), float32, in ``[-1, 1]`` (the space says so when every feature is bounded).
@@ -44,11 +46,11 @@ Info
 ----
 ``speed`` [m/s], ``crashed``, ``arrived``, ``progress`` [m] (route coordinate), ``features`` (3,) of the
 step, ``rewards``, ``n_vehicles`` on the road, and, aligned with the observation's rows 1..V-1 (the
-neighbours, in the order highway-env's ``Kinematics`` observation lists them): ``neighbour_ids`` (vehicle
-ids, ``""`` for empty rows), ``neighbour_is_pirl`` (bool), ``neighbour_styles`` (style index, -1 for
-background traffic, -2 for empty rows), ``neighbour_theta`` (V-1, 3) normalised weights (0 where not a
-PIRL driver: background drivers' weights are unknown); ``style_names`` and ``feature_names`` name the
-indices.
+neighbours, in the order the ``Kinematics`` observation lists them, also with ``order = "shuffled"``):
+``neighbour_ids`` (vehicle ids, ``""`` for empty rows), ``neighbour_is_pirl`` (bool), ``neighbour_styles``
+(style index, -1 for background traffic, -2 for empty rows), ``neighbour_theta`` (V-1, 3) normalised
+weights (0 where not a PIRL driver: background drivers' weights are unknown); ``style_names`` and
+``feature_names`` name the indices.
 
 Configuration
 -------------
@@ -72,6 +74,7 @@ from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import ActionType
 from highway_env.envs.common import observation as _obs
 
+from pirl_sim.envs.observation import RoundaboutKinematics
 from pirl_sim.scenarios.highway.network import (
     RoundaboutGeometry,
     build_network,
@@ -321,7 +324,10 @@ class PirlRoundaboutEnv(AbstractEnv):
 
     def define_spaces(self) -> None:
         obs = dict(self.config["observation"])
-        self.observation_type = _obs.observation_factory(self, obs)
+        if obs["type"] == "Kinematics":  # highway-env's, pandas-free, remembering its rows (for info)
+            self.observation_type = RoundaboutKinematics(self, **{k: v for k, v in obs.items() if k != "type"})
+        else:
+            self.observation_type = _obs.observation_factory(self, obs)
         self.action_type = LongitudinalAction(self, **{k: v for k, v in self.config["action"].items()
                                                        if k != "type"})
         self.observation_space = self.observation_type.space()
@@ -449,6 +455,8 @@ class PirlRoundaboutEnv(AbstractEnv):
     def _neighbours(self) -> list:
         """The vehicles of the observation's rows 1..V-1 (highway-env's Kinematics order)."""
         o = self.observation_type
+        if isinstance(o, RoundaboutKinematics):
+            return list(o.rows)
         if isinstance(o, _obs.KinematicObservation):
             count, see_behind, sort, only = o.vehicles_count, o.see_behind, o.order == "sorted", \
                 not o.include_obstacles

@@ -40,6 +40,9 @@ BACKGROUND = "background"  #: ``kind`` of background traffic (highway-env's IDM)
 EGO = "ego"  #: ``kind`` of the agent's vehicle
 
 #: colours (RGB) of PIRL vehicles by style index, for rendering
+_NOT_ZERO = 1e-2  # highway_env.utils.not_zero's eps
+_QUARTER_PI = 0.25 * math.pi
+
 STYLE_COLORS = ((100, 200, 255), (255, 150, 50), (200, 100, 255), (255, 220, 80), (120, 230, 120))
 
 
@@ -123,12 +126,31 @@ class RouteFollowing:
             k += 1
         return self.route_lanes.lanes[k]
 
+    def steering_control(self, target_lane_index) -> float:
+        """highway-env's lane-following steering (``ControlledVehicle.steering_control``: lateral offset ->
+        lateral speed -> heading -> heading rate -> steering angle [rad]) towards the route lane
+        ``target_lane_index``, in scalar arithmetic on the lane coordinates the vehicle already has (the same
+        numbers as highway-env's, ~10x faster; tested against it)."""
+        if target_lane_index == self.lane_index:
+            lane, s, lat = self.lane, self.lane_s, self.lane_lat
+        else:
+            lane = self._route_lane_objects[self.route_lanes.position_of[target_lane_index[:2]]]
+            s, lat = lane.local_coordinates(self.position)
+        speed = self.speed
+        v = speed if abs(speed) > _NOT_ZERO else (_NOT_ZERO if speed >= 0 else -_NOT_ZERO)  # utils.not_zero
+        future_heading = lane.heading_at(s + speed * self.TAU_PURSUIT)
+        heading_command = math.asin(min(max(-self.KP_LATERAL * lat / v, -1.0), 1.0))
+        heading_ref = future_heading + min(max(heading_command, -_QUARTER_PI), _QUARTER_PI)
+        heading_rate = self.KP_HEADING * (((heading_ref - self.heading + math.pi) % (2.0 * math.pi)) - math.pi)
+        slip = math.asin(min(max(0.5 * self.LENGTH / v * heading_rate, -1.0), 1.0))
+        steering = math.atan(2.0 * math.tan(slip))
+        return float(min(max(steering, -self.MAX_STEERING_ANGLE), self.MAX_STEERING_ANGLE))
+
     def act(self, action=None) -> None:
         """Steer along the route; accelerate by ``command_acceleration`` (crashed vehicles keep braking)."""
         if self.crashed:
             return
-        steering = float(np.clip(self.steering_control(self.target_lane()), -self.MAX_STEERING_ANGLE,
-                                 self.MAX_STEERING_ANGLE))
+        steering = self.steering_control(self.target_lane())
         Vehicle.act(self, {"steering": steering, "acceleration": float(self.command_acceleration)})
 
     def step(self, dt: float) -> None:
