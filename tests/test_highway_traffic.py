@@ -121,6 +121,47 @@ def test_a_leader_is_found_across_ring_lane_segments(road):
     assert v_lead == 0.0
 
 
+def _leader_by_brute_force(traffic, v, others):
+    """The leader definition, checked against every other vehicle (the reference of the indexed search)."""
+    route, best_d, best = v.route_lanes, traffic.rules.lookahead, None
+    for o in others:
+        if o is v:
+            continue
+        m = route.position_of.get(o.lane_index[:2])
+        if m is not None and m >= v.route_pos:
+            d = route.offsets[m] + o.lane_s - v.route_s
+            if 0.0 < d < best_d:
+                best_d, best = d, o
+        if o.committed and o.entering:
+            m = route.start_pos.get(o.route_lanes.merge_node)
+            if m is not None and m > v.route_pos:
+                d = route.offsets[m] - o.merge_distance - v.route_s
+                if 0.0 < d < best_d:
+                    best_d, best = d, o
+    return (None, 0.0) if best is None else (best_d - 0.5 * (v.LENGTH + best.LENGTH), best.speed)
+
+
+def test_leader_search_equals_checking_every_vehicle(road):
+    population = population_from_dict({**DEFAULT_POPULATION.to_dict(), "n_vehicles": 40, "depart_interval": 1.0})
+    net, catalogue, routes = road
+    traffic = RoundaboutTraffic(net, catalogue, routes, plan_population(population, ROUTE_IDS, 5),
+                                drivers=DriverConfig(), rules=TrafficRules(), noise_rng=np.random.default_rng(5),
+                                behaviour_rng=np.random.default_rng(5))
+    traffic.insert_due()
+    n_checked = n_led = 0
+    for _ in range(300):
+        traffic.act()
+        traffic.step(STEP_LENGTH)
+        others = traffic.vehicles
+        occupancy = traffic._occupancy(others)
+        for v in others:
+            expected = _leader_by_brute_force(traffic, v, others)
+            assert traffic._leader(v, others, occupancy) == pytest.approx(expected)
+            n_checked += 1
+            n_led += expected[0] is not None
+    assert n_checked > 1000 and n_led > 300  # busy enough to mean something
+
+
 def test_stop_line_keeps_a_waiting_vehicle_clear_of_the_ring(road):
     traffic = make_traffic(road)
     net = road[0]

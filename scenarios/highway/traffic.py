@@ -55,7 +55,7 @@ import math
 import time as _time
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -245,6 +245,14 @@ class _EgoState:  # what PirlDrivers reads of a vehicle (duck-typed like SUMO's 
 @dataclass(frozen=True)
 class _Observation:
     ego: _EgoState
+
+
+class _Occupancy(NamedTuple):
+    """Vehicles by lane (``(from, to)`` -> [(lane coordinate [m], vehicle)] sorted by the coordinate) and the
+    committed entering vehicles (leaders at their merge nodes) of one step."""
+
+    on_lane: dict
+    merging: list
 
 
 @dataclass
@@ -537,32 +545,47 @@ class RoundaboutTraffic(Road):
 
     # -- one step -----------------------------------------------------------------------------------
 
-    def _leader(self, v: RouteFollowing, others: list) -> tuple[float | None, float]:
-        """(bumper gap [m], speed [m/s]) of the nearest vehicle ahead on ``v``'s route, None if none within
-        ``lookahead``; committed entering vehicles count at their distance to their merge node."""
-        route = v.route_lanes
-        pos_of = route.position_of
-        k, s = v.route_pos, v.route_s
-        best_d, best_v, best_len = self.rules.lookahead, 0.0, 0.0
-        found = False
+    @staticmethod
+    def _occupancy(others: list) -> _Occupancy:
+        """Where every vehicle is, for the leader searches of one step (see :class:`_Occupancy`)."""
+        on_lane: dict[tuple[str, str], list] = {}
         for o in others:
+            s_lane = o.lane_s if isinstance(o, RouteFollowing) else o.lane.local_coordinates(o.position)[0]
+            on_lane.setdefault(o.lane_index[:2], []).append((s_lane, o))
+        for rows in on_lane.values():
+            rows.sort(key=lambda row: row[0])
+        merging = [o for o in others if isinstance(o, RouteFollowing) and o.committed and o.entering]
+        return _Occupancy(on_lane, merging)
+
+    def _leader(self, v: RouteFollowing, others: list, occupancy: _Occupancy | None = None
+                ) -> tuple[float | None, float]:
+        """(bumper gap [m], speed [m/s]) of the nearest vehicle ahead on ``v``'s route, None if none within
+        ``lookahead``; committed entering vehicles count at their distance to their merge node.
+
+        ``occupancy`` (:meth:`_occupancy` of ``others``) saves building it again for every vehicle."""
+        on_lane, merging = occupancy if occupancy is not None else self._occupancy(others)
+        route = v.route_lanes
+        k, s = v.route_pos, v.route_s
+        best_d, best = self.rules.lookahead, None
+        for m in range(k, len(route.lanes)):  # lanes of the route from v's own on, vehicles by lane coordinate
+            base = route.offsets[m] - s
+            for s_lane, o in on_lane.get(route.lanes[m][:2], ()):
+                d = base + s_lane
+                if o is not v and 0.0 < d:
+                    if d < best_d:
+                        best_d, best = d, o
+                    break  # the nearest one ahead on this lane
+        for o in merging:
             if o is v:
                 continue
-            m = pos_of.get(o.lane_index[:2])
-            if m is not None and m >= k:
-                d = route.offsets[m] + (o.lane_s if isinstance(o, RouteFollowing)
-                                        else o.lane.local_coordinates(o.position)[0]) - s
+            m = route.start_pos.get(o.route_lanes.merge_node)
+            if m is not None and m > k:  # the node is ahead of v on its route
+                d = route.offsets[m] - o.merge_distance - s
                 if 0.0 < d < best_d:
-                    best_d, best_v, best_len, found = d, o.speed, o.LENGTH, True
-            if isinstance(o, RouteFollowing) and o.committed and o.entering:
-                m = route.start_pos.get(o.route_lanes.merge_node)
-                if m is not None:
-                    d = route.offsets[m] - o.merge_distance - s
-                    if m > k and 0.0 < d < best_d:  # the node is ahead of v on its route
-                        best_d, best_v, best_len, found = d, o.speed, o.LENGTH, True
-        if not found:
+                    best_d, best = d, o
+        if best is None:
             return None, 0.0
-        return best_d - 0.5 * (v.LENGTH + best_len), best_v
+        return best_d - 0.5 * (v.LENGTH + best.LENGTH), best.speed
 
     def _must_yield(self, v: RouteFollowing, others: list) -> bool:
         """Gap acceptance at ``v``'s merge node (see the module docstring); updates ``v.committed``."""
@@ -603,11 +626,14 @@ class RoundaboutTraffic(Road):
             return False
         return conflict
 
-    def _limit(self, v: RouteFollowing, others: list, *, free_v0: float | None, delta: float) -> float:
+    def _limit(self, v: RouteFollowing, others: list, occupancy: _Occupancy, *, free_v0: float | None,
+               delta: float) -> float:
         """IDM acceleration of ``v`` with its leader and, when yielding, the stop line; ``free_v0`` None:
         without the free-road term (the limit others impose on a PIRL driver)."""
-        gap, v_lead = self._leader(v, others)
+        gap, v_lead = self._leader(v, others, occupancy)
         v.yielding = self._must_yield(v, others)
+        if v.committed and v.entering and v not in occupancy.merging:  # committed just now
+            occupancy.merging.append(v)
         free = free_v0 is not None
         v0 = free_v0 if free else 1.0
         a = idm_acceleration(v.speed, v0, gap, v_lead, delta=delta, free=free) if gap is not None \
@@ -631,20 +657,21 @@ class RoundaboutTraffic(Road):
         idm = [v for v in others if isinstance(v, RouteFollowing) and not v.crashed
                and (v.kind == BACKGROUND or (v.kind == PIRL and commands.get(v.vehicle_id) is None))]
         v_des = dict(zip(map(id, idm), self.v_des_many(idm)))  # one profile evaluation for all IDM drivers
+        occupancy = self._occupancy(others)
         for v in others:
             if v.crashed or not isinstance(v, RouteFollowing) or v.kind == EGO:
                 continue
             track = self.tracks[v.vehicle_id]
             if v.kind == BACKGROUND:
-                a = self._limit(v, others, free_v0=v.speed_factor * v_des[id(v)], delta=v.DELTA)
+                a = self._limit(v, others, occupancy, free_v0=v.speed_factor * v_des[id(v)], delta=v.DELTA)
             else:
                 cmd = commands.get(v.vehicle_id)
                 if cmd is None:  # handed back at a standstill: highway-env's IDM towards the desired speed
                     track.handed_back = True
-                    a = self._limit(v, others, free_v0=v_des[id(v)], delta=v.DELTA)
+                    a = self._limit(v, others, occupancy, free_v0=v_des[id(v)], delta=v.DELTA)
                 else:
                     a_cmd = (cmd - v.speed) / STEP_LENGTH
-                    a = min(a_cmd, self._limit(v, others, free_v0=None, delta=v.DELTA))
+                    a = min(a_cmd, self._limit(v, others, occupancy, free_v0=None, delta=v.DELTA))
                     self._commands[v.vehicle_id] = a_cmd
                     track.n_commands += 1
                     if a < a_cmd - tol:
