@@ -383,7 +383,8 @@ class SequentialMPC:
         return np.einsum("mk,mk->m", theta, self.features.values(self.dynamics.rollout(x0, U), U))
 
     def _model(self, x0, U, theta):
-        """Newton model at U: A (M, d, d) positive definite and b with the model 1/2 U'AU + b'U.
+        """Newton model at U: A (M, d, d) positive definite and b with the model 1/2 U'AU + b'U, and the cost
+        (M,) at U.
 
         The exact Hessian where it is safely positive definite (quadratic convergence), the Gauss-Newton one
         elsewhere (positive semi-definite, and definite as soon as the control-effort feature has weight).
@@ -404,7 +405,7 @@ class SequentialMPC:
             gn = self.features.derivatives(self.dynamics, X[bad], U[bad], gauss_newton=True)
             A[bad] = np.einsum("mk,mkij->mij", theta[bad], gn.hess)
         u = U.reshape(U.shape[0], -1)
-        return A, g - np.einsum("mij,mj->mi", A, u)
+        return A, g - np.einsum("mij,mj->mi", A, u), np.einsum("mk,mk->m", theta, der.values)
 
     def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int, init: np.ndarray | None = None) -> np.ndarray:
         """Controls (M, N, n_u) minimising theta . f from each start x0 (M, n_x).
@@ -432,11 +433,24 @@ class SequentialMPC:
             # a warm start that sits on a bound keeps its active set: straight to the bounded QPs
             on_bounds = self._qp.touches(x0, U)
             todo = todo[~on_bounds]
-        cost = self._cost(x0, U, theta)
+        # Newton models at the current controls, kept per start until its controls change: the first
+        # expansion serves the first Newton step and the bounded QPs of the starts that begin on a bound
+        d = n_steps * self.dynamics.n_u
+        A_at, b_at, cost = np.empty((M, d, d)), np.empty((M, d)), np.empty(M)
+        fresh = np.zeros(M, dtype=bool)
+
+        def model(rows):
+            stale = rows[~fresh[rows]]
+            if len(stale):
+                A_at[stale], b_at[stale], cost[stale] = self._model(x0[stale], U[stale], theta[stale])
+                fresh[stale] = True
+            return A_at[rows], b_at[rows]
+
+        model(np.arange(M))
         for _ in range(self.n_iter):
             if not len(todo):
                 break
-            A, b = self._model(x0[todo], U[todo], theta[todo])
+            A, b = model(todo)
             full = -np.linalg.solve(A, b[..., None])[..., 0].reshape((len(todo),) + U.shape[1:]) - U[todo]
             # backtracking: halve the Newton step where it does not lower the cost (at most 6 times)
             alpha = np.ones(len(todo))
@@ -450,6 +464,7 @@ class SequentialMPC:
             accept = ~worse
             step = np.where(accept, alpha * np.max(np.abs(full), axis=(1, 2)), 0.0)
             U[todo[accept]] = trial[accept]
+            fresh[todo[accept]] = False
             cost[todo[accept]] = trial_cost[accept]
             todo = todo[step > self.tol]
             if not len(todo):
@@ -460,7 +475,7 @@ class SequentialMPC:
         for _ in range(self.n_qp_iter):
             if not len(bad):
                 break
-            A, b = self._model(x0[bad], U[bad], theta[bad])  # one batched expansion for all of them
+            A, b = model(bad)  # one batched expansion for all of them
             moved = np.zeros(len(bad))
             for j, m in enumerate(bad):
                 try:
@@ -471,6 +486,7 @@ class SequentialMPC:
                     continue
                 moved[j] = np.max(np.abs(new - U[m]))
                 U[m] = new
+                fresh[m] = False
             bad = bad[moved > self.qp_tol]
         return U
 
