@@ -521,10 +521,13 @@ class RoundaboutTraffic(Road):
         inserted = 0
         blocked: set[str] = set()
         keep = []
-        for d in self._pending:
+        for i, d in enumerate(self._pending):
+            if d.depart > self.time + 1e-9:  # departures are in time order: none of the rest is due
+                keep += self._pending[i:]
+                break
             route = self.routes[d.route_id]
             first = route.lanes[0][:2]
-            if d.depart > self.time + 1e-9 or first in blocked:
+            if first in blocked:
                 keep.append(d)
                 continue
             speed = self._depart_speed(d.route_id, 0.0, PIRL if d.is_pirl else BACKGROUND)
