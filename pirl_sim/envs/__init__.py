@@ -1,7 +1,9 @@
 """Gymnasium environments of pirl_sim (optional extra ``pirl_sim[highway]``: highway-env and gymnasium).
 
-``pirl_sim/Roundabout-v0`` (:class:`~pirl_sim.envs.roundabout.PirlRoundaboutEnv`): drive through
-highway-env's roundabout among PIRL drivers of known, diverse weights. Importing this package registers it
+``pirl_sim/Roundabout-v0``: drive through a roundabout among PIRL drivers of known, diverse weights, on
+highway-env (:class:`~pirl_sim.envs.roundabout.PirlRoundaboutEnv`, the default) or, with
+``config={"backend": "sumo"}``, on SUMO (:class:`~pirl_sim.envs.sumo_roundabout.PirlRoundaboutSumoEnv`,
+extra ``pirl_sim[sumo]``); :func:`make_roundabout` picks the backend. Importing this package registers it
 (:func:`register_envs`, idempotent, a lazy string entry point: highway-env is imported only when an env is
 made), so with ``pirl_sim`` importing it::
 
@@ -15,12 +17,29 @@ gymnasium installed this package registers nothing.
 
 from __future__ import annotations
 
-__all__ = ["ENV_IDS", "register_envs", "PirlRoundaboutEnv"]
+__all__ = ["ENV_IDS", "BACKENDS", "register_envs", "make_roundabout", "PirlRoundaboutEnv"]
 
 #: registered environment ids -> entry points
 ENV_IDS: dict[str, str] = {
-    "pirl_sim/Roundabout-v0": "pirl_sim.envs.roundabout:PirlRoundaboutEnv",
+    "pirl_sim/Roundabout-v0": "pirl_sim.envs:make_roundabout",
 }
+BACKENDS = ("highway", "sumo")  #: values of the roundabout env's ``backend`` option
+
+
+def make_roundabout(config: dict | None = None, render_mode: str | None = None):
+    """``pirl_sim/Roundabout-v0`` on the backend that ``config["backend"]`` names (default ``"highway"``)."""
+    from collections.abc import Mapping
+
+    backend = config.get("backend", "highway") if isinstance(config, Mapping) else "highway"
+    if backend == "highway":
+        from .roundabout import PirlRoundaboutEnv
+
+        return PirlRoundaboutEnv(config=config, render_mode=render_mode)
+    if backend == "sumo":
+        from .sumo_roundabout import PirlRoundaboutSumoEnv
+
+        return PirlRoundaboutSumoEnv(config=config, render_mode=render_mode)
+    raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
 
 
 def register_envs() -> bool:

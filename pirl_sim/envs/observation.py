@@ -21,11 +21,66 @@ import numpy as np
 from highway_env.envs.common.observation import KinematicObservation
 from highway_env.vehicle.kinematics import Vehicle
 
-__all__ = ["RoundaboutKinematics"]
+__all__ = ["RoundaboutKinematics", "DIRECT_FEATURES", "kinematics_rows"]
 
-#: features computed without ``Vehicle.to_dict``
-_DIRECT = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h")
+#: features computed from (x, y, speed, heading) alone, without ``Vehicle.to_dict``
+DIRECT_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h")
 _RELATIVE = ("x", "y", "vx", "vy")  # relative to the observer unless absolute (as Vehicle.to_dict)
+
+
+def kinematics_rows(states: np.ndarray, features, *, absolute: bool = False, features_range=None,
+                    normalize: bool = True, clip: bool = True, vehicles_count: int | None = None) -> np.ndarray:
+    """highway-env's ``Kinematics`` rows from plain vehicle states.
+
+    Parameters
+    ----------
+    states : array, shape (n, 4)
+        ``x`` [m], ``y`` [m], ``speed`` [m/s], ``heading`` [rad] of the observer (row 0) and the observed
+        vehicles in row order.
+    features : sequence of str
+        Names in :data:`DIRECT_FEATURES`.
+    absolute : bool
+        False: ``x``, ``y``, ``vx``, ``vy`` of rows 1.. relative to the observer (as ``Vehicle.to_dict``).
+    features_range : mapping name -> [low, high], optional
+        Mapped linearly to [-1, 1] when ``normalize`` (highway-env's ``utils.lmap``), then clipped to
+        [-1, 1] when ``clip``.
+    vehicles_count : int, optional
+        Rows of the result; missing rows are zeros (default: n).
+
+    Returns
+    -------
+    numpy.ndarray, shape (vehicles_count, len(features)), float64
+    """
+    states = np.asarray(states, dtype=float).reshape(-1, 4)
+    unknown = [f for f in features if f not in DIRECT_FEATURES]
+    if unknown:
+        raise ValueError(f"features {unknown} need highway-env's Vehicle.to_dict; plain states give "
+                         f"{', '.join(DIRECT_FEATURES)}")
+    n = len(states)
+    heading = states[:, 3]
+    cos_h, sin_h = np.cos(heading), np.sin(heading)
+    cols = {"presence": np.ones(n), "x": states[:, 0], "y": states[:, 1], "vx": states[:, 2] * cos_h,
+            "vy": states[:, 2] * sin_h, "heading": heading, "cos_h": cos_h, "sin_h": sin_h}
+    if not absolute:
+        for f in _RELATIVE:
+            cols[f] = np.concatenate([cols[f][:1], cols[f][1:] - cols[f][0]])
+    values = np.column_stack([cols[f] for f in features]) if n else np.zeros((0, len(features)))
+    return _finished(values, features, features_range if normalize else None, clip,
+                     n if vehicles_count is None else vehicles_count)
+
+
+def _finished(values: np.ndarray, features, features_range, clip: bool, vehicles_count: int) -> np.ndarray:
+    """Rows normalised over ``features_range`` (None: as they are) and padded with zero rows."""
+    if features_range:
+        for j, f in enumerate(features):
+            if f in features_range:
+                lo, hi = features_range[f]
+                values[:, j] = -1 + (values[:, j] - lo) * 2 / (hi - lo)  # highway_env.utils.lmap
+                if clip:
+                    values[:, j] = np.clip(values[:, j], -1, 1)
+    out = np.zeros((vehicles_count, len(features)))
+    out[:len(values)] = values[:vehicles_count]
+    return out
 
 
 class RoundaboutKinematics(KinematicObservation):
@@ -49,25 +104,6 @@ class RoundaboutKinematics(KinematicObservation):
             see_behind=self.see_behind, sort=self.order == "sorted", vehicles_only=not self.include_obstacles)
         return list(close[-self.vehicles_count + 1:]) if self.vehicles_count > 1 else []
 
-    def _values(self, objects: list) -> np.ndarray:
-        """(len(objects), F) un-normalised feature values, row 0 the observer."""
-        feats = self.features
-        ego = self.observer_vehicle
-        if not all(f in _DIRECT for f in feats) or not all(isinstance(o, Vehicle) for o in objects):
-            dicts = [ego.to_dict()] + [o.to_dict(None if self.absolute else ego,
-                                                 observe_intentions=self.observe_intentions) for o in objects[1:]]
-            return np.array([[d[f] for f in feats] for d in dicts], dtype=float)
-        pos = np.array([o.position for o in objects], dtype=float)
-        heading = np.array([o.heading for o in objects], dtype=float)
-        speed = np.array([o.speed for o in objects], dtype=float)
-        cos_h, sin_h = np.cos(heading), np.sin(heading)
-        cols = {"presence": np.ones(len(objects)), "x": pos[:, 0], "y": pos[:, 1], "vx": speed * cos_h,
-                "vy": speed * sin_h, "heading": heading, "cos_h": cos_h, "sin_h": sin_h}
-        if not self.absolute:
-            for f in _RELATIVE:
-                cols[f] = np.concatenate([cols[f][:1], cols[f][1:] - cols[f][0]])
-        return np.column_stack([cols[f] for f in feats])
-
     def observe(self) -> np.ndarray:
         """(V, F) float32 rows: the observer, then its nearest vehicles (see highway-env's ``Kinematics``)."""
         if not self.env.road:
@@ -75,16 +111,19 @@ class RoundaboutKinematics(KinematicObservation):
         if self.normalize and not self.features_range:  # highway-env's default ranges (set on first use)
             self.normalize_obs({})
         close = self._close()
-        values = self._values([self.observer_vehicle] + close)
-        if self.normalize:
-            for j, f in enumerate(self.features):
-                if f in self.features_range:
-                    lo, hi = self.features_range[f]
-                    values[:, j] = -1 + (values[:, j] - lo) * 2 / (hi - lo)  # highway_env.utils.lmap
-                    if self.clip:
-                        values[:, j] = np.clip(values[:, j], -1, 1)
-        obs = np.zeros((self.vehicles_count, len(self.features)))
-        obs[:len(values)] = values
+        objects = [self.observer_vehicle] + close
+        options = {"features_range": self.features_range, "normalize": self.normalize, "clip": self.clip,
+                   "vehicles_count": self.vehicles_count}
+        if all(f in DIRECT_FEATURES for f in self.features) and all(isinstance(o, Vehicle) for o in objects):
+            states = np.array([[o.position[0], o.position[1], o.speed, o.heading] for o in objects], dtype=float)
+            obs = kinematics_rows(states, self.features, absolute=self.absolute, **options)
+        else:  # through Vehicle.to_dict, as highway-env
+            ego = self.observer_vehicle
+            dicts = [ego.to_dict()] + [o.to_dict(None if self.absolute else ego,
+                                                 observe_intentions=self.observe_intentions) for o in close]
+            values = np.array([[d[f] for f in self.features] for d in dicts], dtype=float)
+            obs = _finished(values, self.features, self.features_range if self.normalize else None, self.clip,
+                            self.vehicles_count)
         rows = close + [None] * (self.vehicles_count - 1 - len(close))
         if self.order == "shuffled":
             perm = np.arange(self.vehicles_count - 1)

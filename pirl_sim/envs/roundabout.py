@@ -198,6 +198,7 @@ class PirlRoundaboutEnv(AbstractEnv):
         config = super().default_config()
         del config["other_vehicles_type"]  # the traffic's vehicle classes are fixed
         config.update({
+            "backend": "highway",  # "sumo": the same task on SUMO (pirl_sim.envs.sumo_roundabout)
             "observation": {
                 "type": "Kinematics",
                 "vehicles_count": 8,
@@ -252,6 +253,9 @@ class PirlRoundaboutEnv(AbstractEnv):
     @staticmethod
     def _validate(c: dict) -> None:
         """Normalise and check a full configuration in place (raises ValueError)."""
+        if c["backend"] != "highway":
+            raise ValueError(f"backend must be 'highway' for this env, got {c['backend']!r} (make the env with "
+                             "config={'backend': 'sumo'} for SUMO)")
         if c["simulation_frequency"] != 10:
             raise ValueError(f"simulation_frequency must be 10 Hz (the driver model's step of {STEP_LENGTH} s), "
                              f"got {c['simulation_frequency']!r}")

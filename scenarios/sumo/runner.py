@@ -424,6 +424,14 @@ class SumoRun:
         Appended to the SUMO command line.
     collision_action : {"warn", "remove", "teleport", "none"}
         SUMO's ``--collision.action`` (see the module docstring).
+    speed_modes : mapping vehicle id -> int, optional
+        Speed modes of single controlled vehicles instead of ``speed_mode`` (e.g. an agent's vehicle that
+        may crash).
+
+    Attributes
+    ----------
+    colliding : frozenset of str
+        Vehicles SUMO reported in a collision in the last step.
 
     Raises
     ------
@@ -437,7 +445,7 @@ class SumoRun:
                  step_length: float = DEFAULT_STEP_LENGTH, backend: str = "libsumo",
                  speed_mode: int = SPEED_MODE_ALL_CHECKS, override_tol: float = DEFAULT_OVERRIDE_TOL,
                  leader_lookahead: float = DEFAULT_LEADER_LOOKAHEAD, extra_args: Sequence[str] = (),
-                 collision_action: str = "warn"):
+                 collision_action: str = "warn", speed_modes: Mapping[str, int] | None = None):
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         if collision_action not in COLLISION_ACTIONS:
@@ -449,9 +457,10 @@ class SumoRun:
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
                     or not math.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        if isinstance(speed_mode, bool) or not isinstance(speed_mode, (int, np.integer)) \
-                or not 0 <= speed_mode < 128:
-            raise ValueError(f"speed_mode must be an integer bitset in [0, 127], got {speed_mode!r}")
+        speed_modes = dict(speed_modes or {})
+        for label, mode in (("speed_mode", speed_mode), *((f"speed_modes[{k!r}]", m) for k, m in speed_modes.items())):
+            if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < 128:
+                raise ValueError(f"{label} must be an integer bitset in [0, 127], got {mode!r}")
         if isinstance(extra_args, str):
             raise ValueError(f"extra_args must be a sequence of arguments, got the string {extra_args!r}")
         if isinstance(net, NetworkFiles):
@@ -486,6 +495,9 @@ class SumoRun:
         unknown = sorted(self.pirl_ids - seen)
         if unknown:
             raise ValueError(f"pirl_ids name vehicles that are not in the run: {unknown}")
+        stray = sorted(set(speed_modes) - self.pirl_ids)
+        if stray:
+            raise ValueError(f"speed_modes name vehicles that are not controlled (pirl_ids): {stray}")
         if self.pirl_ids and controller is None:
             raise ValueError("pirl_ids are given but no controller drives them")
         if controller is not None and not callable(controller):
@@ -497,6 +509,8 @@ class SumoRun:
         self.step_length = float(step_length)
         self.backend = backend
         self.speed_mode = int(speed_mode)
+        self.speed_modes = {k: int(m) for k, m in speed_modes.items()}
+        self.colliding: frozenset[str] = frozenset()
         self.override_tol = float(override_tol)
         self.leader_lookahead = float(leader_lookahead)
         self.collision_action = collision_action
@@ -632,9 +646,10 @@ class SumoRun:
             rec.width = float(api.vehicle.getWidth(vid))
             rec.first_time = t
             if rec.pirl:
-                api.vehicle.setSpeedMode(vid, self.speed_mode)
+                api.vehicle.setSpeedMode(vid, self.speed_modes.get(vid, self.speed_mode))
         cols = self._cols
         colliding = set(api.simulation.getCollidingVehiclesIDList())
+        self.colliding = frozenset(colliding)
         results = api.vehicle.getAllSubscriptionResults()
         ids = sorted(results, key=self._order.__getitem__)
         # vehicles gone since the last step: arrived when SUMO says so at the end of their route, else
@@ -715,6 +730,21 @@ class SumoRun:
                 cols["commanded_speed"][rec.last_row] = cmd
                 self._pending[vid] = (rec.last_row, cmd)
         self._wall += _time.perf_counter() - t0
+
+    def set_command(self, vehicle_id: str, speed: float) -> None:
+        """Replace the commanded speed [m/s] of a controlled vehicle in the network for the next step (what
+        the controller returned for it at the end of the last step)."""
+        self._require_running()
+        rec = self._veh.get(vehicle_id)
+        if rec is None or not rec.pirl or vehicle_id not in self._present:
+            raise ValueError(f"{vehicle_id!r} is not a controlled vehicle in the network")
+        if isinstance(speed, bool) or not isinstance(speed, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(speed) or speed < 0:
+            raise ValueError(f"speed must be a finite speed >= 0 m/s, got {speed!r}")
+        self._api.vehicle.setSpeed(vehicle_id, float(speed))
+        rec.commanded = True
+        self._cols["commanded_speed"][rec.last_row] = float(speed)
+        self._pending[vehicle_id] = (rec.last_row, float(speed))
 
     def _state(self, vid: str, r: Mapping[int, Any]) -> VehicleState:
         rec = self._veh[vid]

@@ -1,0 +1,184 @@
+"""What both backends of ``pirl_sim/Roundabout-v0`` share: the ego's reward, the neighbours' info, checks.
+
+- :class:`EgoReward`: the ego's features along its route's reference path, frame by frame, and the reward
+  terms of an agent step (``"task"``: progress, comfort, collision, arrival; ``"theta"``: minus the cost of
+  a chosen style, with the crash's cost-to-go); the env's module docstring states the formulas.
+- :func:`neighbour_info`: the neighbours' ground truth (ids, PIRL or not, style, weights) of the
+  observation's rows.
+- :func:`check_common` / :func:`reward_weights`: the configuration keys both backends have.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from pirl_sim.scenarios.population_config import (
+    FEATURE_NAMES,
+    FREE_FEATURES,
+    REFERENCE_FEATURE,
+    PopulationConfig,
+    population_from_dict,
+)
+from pirl_sim.validation import check_keys, number
+
+__all__ = ["REWARDS", "EGO_ID", "ACC_REF", "JERK_REF", "EMPTY_ROW_STYLE", "EgoReward", "neighbour_info",
+           "check_common", "reward_weights"]
+
+REWARDS = ("task", "theta")  #: values of the ``reward`` option
+EGO_ID = "ego"  #: the ego's vehicle id (and ``agent_id`` in recordings)
+ACC_REF, JERK_REF = 3.0, 8.0  #: [m/s^2], [m/s^3] comfort-term scales (the driver model's bounds)
+EMPTY_ROW_STYLE = -2  #: ``neighbour_styles`` of an empty observation row
+FRAME_DT = 0.1  # [s] simulation frame = driver-model step
+
+
+def reward_weights(theta: Mapping[str, float]) -> np.ndarray:
+    """Normalised weights (3,) of the ``"theta"`` reward over :data:`FEATURE_NAMES` (``jerk_sq`` = 1)."""
+    return np.array([float(theta.get(f, 1.0)) for f in FEATURE_NAMES])
+
+
+class EgoReward:
+    """The ego's cost features frame by frame and the reward terms of each agent step.
+
+    Parameters
+    ----------
+    config : mapping
+        The env's configuration (``reward``, ``reward_theta``, the reward scales, ``duration``,
+        ``policy_frequency``; ``drivers.v_max`` scales the progress).
+    routes : RouteSet
+        Reference paths of the routes (:class:`~pirl_sim.scenarios.drivers.RouteSet`).
+    profile : callable
+        Desired speed along the routes' global axis, ``profile(s) -> (v_des, dv_des, d2v_des)``.
+    route : str
+        The ego's route id.
+    xy : array, shape (2,)
+        The ego's position [m] at the start.
+    """
+
+    def __init__(self, config: Mapping, routes, profile, route: str, xy) -> None:
+        self.config = config
+        self.weights = reward_weights(config["reward_theta"])
+        self.routes, self.profile = routes, profile
+        self.route = routes.index(route)
+        self.s_path = float(routes.project([self.route], np.asarray(xy, dtype=float)[None, :])[0])
+        self.v_des = self._desired_speed()
+        self._prev_acc = 0.0
+        self._frames: list[tuple[float, float, float]] = []  # ((v - v_des)^2, a, jerk) per frame of the step
+        self._crash_charged = False
+        self.features = np.zeros(len(FEATURE_NAMES))
+        self.terms = self.step_terms(progress=0.0, crashed=False, arrived=False, time=0.0)
+
+    def _desired_speed(self) -> float:
+        return float(self.profile(self.routes.offsets[self.route] + np.array([self.s_path]))[0][0])
+
+    def log_frame(self, xy, speed: float, accel: float) -> None:
+        """After each simulation frame: the ego's position [m], speed [m/s] and applied acceleration [m/s^2]."""
+        q = np.asarray(xy, dtype=float)[None, :]
+        try:
+            self.s_path = float(self.routes.project([self.route], q, [self.s_path])[0])
+        except ValueError:  # the warm start lost the ego (e.g. pushed by a crash): project from scratch
+            self.s_path = float(self.routes.project([self.route], q)[0])
+        self.v_des = self._desired_speed()
+        self._frames.append(((speed - self.v_des) ** 2, accel, (accel - self._prev_acc) / FRAME_DT))
+        self._prev_acc = accel
+
+    def begin_step(self) -> None:
+        """Before the frames of an agent step."""
+        self._frames = []
+
+    def step_terms(self, *, progress: float, crashed: bool, arrived: bool, time: float) -> dict[str, float]:
+        """The reward terms of the step whose frames were logged (``progress`` [m] along the route, ``time``
+        [s] since the reset)."""
+        c = self.config
+        period = 1.0 / c["policy_frequency"]
+        f = np.array(self._frames) if self._frames else np.zeros((1, 3))
+        self.features = np.array([f[:, 0].mean(), (f[:, 1] ** 2).mean(), (f[:, 2] ** 2).mean()])
+        comfort = float(((f[:, 1] / ACC_REF) ** 2 + (f[:, 2] / JERK_REF) ** 2).mean()) if self._frames else 0.0
+        cost_to_go = 0.0
+        if crashed and not self._crash_charged:
+            # a crashed vehicle stands still: over the rest of the episode it would cost speed_dev = v_des^2
+            # per second (acc_sq and jerk_sq 0), so that a crash never ends the style cost early
+            self._crash_charged = True
+            cost_to_go = float(self.weights[0] * self.v_des**2 * max(c["duration"] - time, 0.0))
+        self.terms = {
+            "progress": progress / (c["drivers"].v_max * period),
+            "comfort": comfort,
+            "style_cost": float(self.weights @ self.features) * period,
+            "crash_cost_to_go": cost_to_go,
+            "collision": float(crashed),
+            "arrival": float(arrived),
+        }
+        return self.terms
+
+    def reward(self) -> float:
+        """The step's reward from its terms (``reward``: ``"task"`` or ``"theta"``)."""
+        c, t = self.config, self.terms
+        r = c["collision_reward"] * t["collision"] + c["arrival_reward"] * t["arrival"]
+        if c["reward"] == "task":
+            r += c["progress_reward"] * t["progress"] + c["comfort_reward"] * t["comfort"]
+        else:
+            r -= t["style_cost"] + t["crash_cost_to_go"]
+        return float(r)
+
+
+def neighbour_info(rows: Sequence) -> dict:
+    """``neighbour_ids``, ``neighbour_is_pirl``, ``neighbour_styles``, ``neighbour_theta`` of observation rows
+    1..V-1 (vehicles with ``vehicle_id``, ``kind``, ``style``, ``theta``; None for empty rows)."""
+    k = len(FEATURE_NAMES)
+    ids, pirl, styles, theta = [], [], [], np.zeros((len(rows), k))
+    for i, v in enumerate(rows):
+        if v is None:
+            ids.append("")
+            pirl.append(False)
+            styles.append(EMPTY_ROW_STYLE)
+            continue
+        ids.append(getattr(v, "vehicle_id", ""))
+        is_pirl = getattr(v, "kind", None) == "pirl"
+        pirl.append(is_pirl)
+        styles.append(int(v.style) if is_pirl else -1)
+        if is_pirl:
+            theta[i] = v.theta
+    return {"neighbour_ids": tuple(ids), "neighbour_is_pirl": np.array(pirl, dtype=bool),
+            "neighbour_styles": np.array(styles, dtype=np.int64), "neighbour_theta": theta}
+
+
+def check_common(c: dict) -> None:
+    """Check (and normalise in place) the configuration keys both backends share; ``ValueError`` naming the
+    bad value and what is allowed."""
+    pf = c["policy_frequency"]
+    if isinstance(pf, bool) or not isinstance(pf, (int, np.integer)) or pf < 1 or 10 % pf:
+        raise ValueError(f"policy_frequency must divide 10 Hz (1, 2, 5 or 10), got {pf!r}")
+    act = c["action"]
+    if not isinstance(act, Mapping) or act.get("type") != "LongitudinalAcceleration":
+        raise ValueError("action must be {'type': 'LongitudinalAcceleration', 'acceleration_range': "
+                         f"[a_min, a_max]}}, got {act!r}")
+    check_keys("action", act, ("type", "acceleration_range"))
+    rng = act.get("acceleration_range", (-4.0, 3.0))
+    if len(rng) != 2 or not number("action acceleration_range[0]", rng[0]) < 0 < \
+            number("action acceleration_range[1]", rng[1]):
+        raise ValueError(f"action acceleration_range must be [a_min < 0, a_max > 0] m/s^2, got {rng!r}")
+    number("duration", c["duration"], low=0.0, allow_equal=False)
+    pop = c["population"]
+    if isinstance(pop, Mapping):
+        c["population"] = population_from_dict(pop, source="config population")
+    elif not isinstance(pop, PopulationConfig):
+        raise ValueError(f"population must be a PopulationConfig or a mapping, got {type(pop).__name__}")
+    number("ego_speed", c["ego_speed"], low=0.0)
+    if c["reward"] not in REWARDS:
+        raise ValueError(f"reward must be one of {REWARDS}, got {c['reward']!r}")
+    theta = c["reward_theta"]
+    if not isinstance(theta, Mapping):
+        raise ValueError(f"reward_theta must be a mapping feature -> weight, got {theta!r}")
+    check_keys("reward_theta", theta, (*FREE_FEATURES, REFERENCE_FEATURE))
+    missing = [f for f in FREE_FEATURES if f not in theta]
+    if missing:
+        raise ValueError(f"reward_theta misses {missing}; give {', '.join(FREE_FEATURES)}")
+    for f, w in theta.items():
+        number(f"reward_theta[{f!r}]", w, low=0.0, allow_equal=False)
+    if theta.get(REFERENCE_FEATURE, 1.0) != 1.0:
+        raise ValueError(f"reward_theta[{REFERENCE_FEATURE!r}] is the reference weight, fixed at 1")
+    for name in ("progress_reward", "comfort_reward", "collision_reward", "arrival_reward"):
+        number(name, c[name])
+    if not isinstance(c["record_tracks"], bool):
+        raise ValueError(f"record_tracks must be true or false, got {c['record_tracks']!r}")

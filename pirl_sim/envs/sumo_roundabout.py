@@ -1,0 +1,389 @@
+"""``pirl_sim/Roundabout-v0`` with ``backend="sumo"``: the same task on a SUMO roundabout (libsumo).
+
+The ego drives its route of the SUMO scenario's roundabout (:data:`~pirl_sim.scenarios.sumo.scenario.DEFAULT_NETWORK`
+by default) among the SUMO scenario's traffic: the population plan of
+:func:`~pirl_sim.scenarios.planning.plan_population` (the same draws as the highway-env backend and the
+SUMO scenario for a seed), PIRL drivers re-planning every 0.1 s in one batched MPC call
+(:class:`~pirl_sim.scenarios.drivers.PirlDrivers`, SUMO keeping right of way and safe gaps for them, speed
+mode 31) and SUMO's Krauss drivers as background, run by :class:`~pirl_sim.scenarios.sumo.runner.SumoRun`.
+It shares with the highway-env backend the action, the reward (:class:`~pirl_sim.envs.common.EgoReward`),
+the info (:func:`~pirl_sim.envs.common.neighbour_info`) and the ``Kinematics`` rows
+(:func:`~pirl_sim.envs.observation.kinematics_rows`); what differs:
+
+- **Start.** A reset runs the traffic for ``warmup`` seconds (no ego), then inserts the ego at the start of
+  ``ego_route`` at ``ego_speed`` (SUMO waits until the entry has room) and hands it to the agent.
+- **The ego** follows the agent's acceleration exactly (commanded speed ``v + a dt`` every 0.1 s frame,
+  ``ego_speed_mode`` 0 by default: no SUMO checks, so it can run into others or enter without yielding);
+  steering is SUMO's lane following. A collision SUMO reports ends the episode (crashed vehicles are taken
+  out, ``--collision.action remove``); leaving the network at the route's end is arriving.
+- **Observation.** ``Kinematics`` only, from SUMO's vehicle states (centre of the box, heading, speed):
+  neighbours within 200 m (highway-env's perception distance), nearest first by straight-line distance
+  (highway-env sorts by distance along lanes), behind the ego only with ``see_behind`` (``Kinematics``'
+  default: no; "behind" = more than two vehicle lengths back along the ego's heading). Features: those of
+  :data:`~pirl_sim.envs.observation.DIRECT_FEATURES`.
+- No rendering, no recording (``record_tracks``): run the SUMO scenario (``pirl-sim simulate sumo``) for
+  recordings. libsumo holds one simulation per process: a second env of this backend in the same process
+  needs ``sumo_binding = "traci"``.
+"""
+
+from __future__ import annotations
+
+import copy
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.scenarios.drivers import PirlDrivers, RouteSetProfile, route_set_model
+from pirl_sim.scenarios.planning import plan_population, random_streams
+from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, FEATURE_NAMES
+from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, load_net, route_set, routes
+from pirl_sim.scenarios.sumo.runner import BACKENDS, SPEED_MODE_ALL_CHECKS, SumoRun, VehicleSpec
+from pirl_sim.scenarios.sumo.scenario import (
+    BACKGROUND_VTYPE,
+    DEFAULT_NETWORK,
+    PIRL_VTYPE,
+    DriverConfig,
+    scenario_from_dict,
+    vehicle_types_xml,
+)
+from pirl_sim.validation import check_keys, number
+
+from .common import EGO_ID, EgoReward, check_common, neighbour_info
+from .observation import DIRECT_FEATURES, kinematics_rows
+
+__all__ = ["PirlRoundaboutSumoEnv"]
+
+STEP = 0.1  # [s] SUMO step = driver-model step
+PERCEPTION_DISTANCE = 200.0  # [m] highway-env's AbstractEnv.PERCEPTION_DISTANCE (5 x Vehicle.MAX_SPEED)
+_MAX_WAIT = 60.0  # [s] longest wait for the ego's insertion after the warm-up
+_KINEMATICS_KEYS = ("type", "features", "vehicles_count", "features_range", "absolute", "normalize", "clip",
+                    "see_behind", "order")
+_BOUNDED = {"presence", "cos_h", "sin_h"}
+
+# network files and reference paths of a network spec and path smoothing, built once per process
+_NETWORKS: dict[tuple, tuple] = {}
+
+
+def _network(spec: RoundaboutSpec, smoothing: float, speed_smoothing: float):
+    key = (spec, smoothing, speed_smoothing)
+    if key not in _NETWORKS:
+        tmp = tempfile.TemporaryDirectory(prefix="pirl_env_sumo_")
+        files = build_network(spec, tmp.name)
+        catalogue = {rid: tuple(edges) for rid, edges in routes(spec)}
+        paths = route_set(load_net(files.net), catalogue, smoothing=smoothing, speed_smoothing=speed_smoothing)
+        _NETWORKS[key] = (tmp, files, catalogue, paths)  # the TemporaryDirectory lives as long as the entry
+    return _NETWORKS[key][1:]
+
+
+@dataclass(frozen=True)
+class _Neighbour:  # what neighbour_info reads of a vehicle
+    vehicle_id: str
+    kind: str
+    style: int
+    theta: np.ndarray
+
+
+class _Controller:
+    """The run's batch controller: PIRL drivers' MPC, and the agent's acceleration for the ego."""
+
+    def __init__(self, drivers: PirlDrivers) -> None:
+        self.drivers = drivers
+        self.acceleration = 0.0  # [m/s^2] the agent's current command
+        self.ego = None  # the ego's last Observation (None before insertion and after it left)
+
+    def __call__(self, time, vehicle_id, observation):  # the runner's single-vehicle form (unused)
+        return self.commands(time, {vehicle_id: observation}).get(vehicle_id)
+
+    def commands(self, time, observations):
+        ego = observations.get(EGO_ID)
+        self.ego = ego
+        pirl = {k: o for k, o in observations.items() if k != EGO_ID}
+        out = dict(self.drivers.commands(time, pirl)) if pirl else {}
+        if ego is not None:
+            out[EGO_ID] = max(ego.ego.speed + self.acceleration * STEP, 0.0)
+        return out
+
+
+class PirlRoundaboutSumoEnv(gym.Env):
+    """``pirl_sim/Roundabout-v0`` on SUMO (see the module docstring and :mod:`pirl_sim.envs.roundabout`).
+
+    Parameters
+    ----------
+    config : dict, optional
+        Overrides of :meth:`default_config` (unknown keys raise ``ValueError`` listing the valid ones).
+    render_mode : None
+        This backend does not render.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
+        super().__init__()
+        if render_mode is not None:
+            raise ValueError(f"the sumo backend does not render: render_mode must be None, got {render_mode!r}")
+        self.render_mode = None
+        self.config = self.default_config()
+        self.configure(config)
+        self._run: SumoRun | None = None
+        self.time = 0.0
+        self._define_spaces()
+
+    @classmethod
+    def default_config(cls) -> dict:
+        """Every configuration key with its default (the valid keys)."""
+        return {
+            "backend": "sumo",
+            "observation": {"type": "Kinematics", "vehicles_count": 8,
+                            "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],
+                            "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-15, 15],
+                                               "vy": [-15, 15]},
+                            "absolute": False, "normalize": True, "clip": True, "see_behind": True,
+                            "order": "sorted"},
+            "action": {"type": "LongitudinalAcceleration", "acceleration_range": [-4.0, 3.0]},
+            "policy_frequency": 5,  # [Hz]
+            "duration": 40.0,  # [s]
+            "network": DEFAULT_NETWORK,
+            "population": DEFAULT_POPULATION,
+            "drivers": DriverConfig(),
+            "warmup": 30.0,  # [s] of traffic before the ego enters
+            "ego_route": "arm0_to_arm2",
+            "ego_speed": 8.0,  # [m/s] at insertion
+            "ego_speed_mode": 0,
+            "sumo_binding": "libsumo",
+            "reward": "task",
+            "reward_theta": {"speed_dev": 1.0, "acc_sq": 1.0},
+            "progress_reward": 1.0,
+            "comfort_reward": -0.1,
+            "collision_reward": -10.0,
+            "arrival_reward": 1.0,
+            "record_tracks": False,
+        }
+
+    def configure(self, config: dict | None) -> None:
+        """Check ``config`` (keys and values) and merge it into the current configuration."""
+        if not config:
+            return
+        if not isinstance(config, Mapping):
+            raise ValueError(f"config must be a mapping, got {type(config).__name__}")
+        check_keys("config", config, tuple(self.default_config()))
+        merged = dict(self.config)
+        merged.update(copy.deepcopy(dict(config)))
+        self._validate(merged)
+        self.config = merged
+
+    @staticmethod
+    def _validate(c: dict) -> None:
+        if c["backend"] != "sumo":
+            raise ValueError(f"backend must be 'sumo' for this env, got {c['backend']!r}")
+        check_common(c)
+        obs = c["observation"]
+        if not isinstance(obs, Mapping) or obs.get("type") != "Kinematics":
+            raise ValueError(f"the sumo backend observes 'Kinematics' only, got {obs!r}")
+        check_keys("observation (Kinematics, sumo backend)", obs, _KINEMATICS_KEYS)
+        unknown = [f for f in obs.get("features", ()) if f not in DIRECT_FEATURES]
+        if unknown:
+            raise ValueError(f"observation features {unknown} are not available with the sumo backend; "
+                             f"valid: {', '.join(DIRECT_FEATURES)}")
+        if obs.get("order", "sorted") not in ("sorted", "shuffled"):
+            raise ValueError(f"observation order must be 'sorted' or 'shuffled', got {obs['order']!r}")
+        n = obs.get("vehicles_count", 5)
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"observation vehicles_count must be an integer >= 1, got {n!r}")
+        # network and drivers: objects, or tables as the SUMO scenario's config reads them
+        tables = {k: c[k] for k in ("network", "drivers") if isinstance(c[k], Mapping)}
+        if tables:
+            c.update({k: getattr(scenario_from_dict(tables, source="config"), k) for k in tables})
+        for name, cls in (("network", RoundaboutSpec), ("drivers", DriverConfig)):
+            if not isinstance(c[name], cls):
+                raise ValueError(f"{name} must be a {cls.__name__} or a table of its fields, got "
+                                 f"{type(c[name]).__name__}")
+        number("warmup", c["warmup"], low=0.0)
+        catalogue = [rid for rid, _ in routes(c["network"])]
+        if c["ego_route"] not in catalogue:
+            raise ValueError(f"ego_route must be one of {', '.join(catalogue)}, got {c['ego_route']!r}")
+        m = c["ego_speed_mode"]
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 0 <= m < 128:
+            raise ValueError(f"ego_speed_mode must be an integer bitset in [0, 127], got {m!r}")
+        if c["sumo_binding"] not in BACKENDS:
+            raise ValueError(f"sumo_binding must be one of {BACKENDS}, got {c['sumo_binding']!r}")
+        if c["record_tracks"]:
+            raise ValueError("record_tracks is not available with the sumo backend; record with "
+                             "`pirl-sim simulate sumo` (the SUMO scenario) instead")
+
+    # -- spaces -------------------------------------------------------------------------------------
+
+    def _define_spaces(self) -> None:
+        obs = self.config["observation"]
+        self._features = list(obs.get("features", ["presence", "x", "y", "vx", "vy"]))
+        self._count = int(obs.get("vehicles_count", 5))
+        ranged = set(obs.get("features_range") or {})
+        bounded = obs.get("normalize", True) and obs.get("clip", True) and all(
+            f in _BOUNDED or f in ranged for f in self._features)
+        lim = 1.0 if bounded else np.inf
+        self.observation_space = spaces.Box(-lim, lim, shape=(self._count, len(self._features)), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+    def _acceleration(self, action) -> float:
+        x = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1.0, 1.0))
+        lo, hi = self.config["action"].get("acceleration_range", (-4.0, 3.0))
+        return x * hi if x >= 0 else -x * lo
+
+    # -- episodes -----------------------------------------------------------------------------------
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Reset (see :class:`gymnasium.Env`); ``options`` may hold ``"config"`` (checked as at construction)."""
+        super().reset(seed=seed)
+        if options is not None:
+            if not isinstance(options, Mapping):
+                raise ValueError(f"options must be a mapping, got {type(options).__name__}")
+            check_keys("options", options, ("config",))
+            if "config" in options:
+                self.configure(options["config"])
+                self._define_spaces()
+        self.close()
+        c = self.config
+        drv: DriverConfig = c["drivers"]
+        files, catalogue, paths = _network(c["network"], drv.smoothing, drv.speed_smoothing)
+        plan_seed = int(self.np_random.integers(2**31))
+        plan = plan_population(c["population"], list(catalogue), plan_seed)
+        _, noise_rng, _ = random_streams(plan_seed)
+        model = route_set_model(paths, dt=STEP, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
+                                n_qp_iter=drv.n_qp_iter)
+        pirl = plan[plan["is_pirl"]]
+        theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
+        drivers = PirlDrivers(model, {r.vehicle_id: (r.route_id, np.array([getattr(r, t) for t in theta_cols]))
+                                      for r in pirl.itertuples(index=False)},
+                              horizon=drv.horizon, control_noise=c["population"].control_noise, rng=noise_rng,
+                              stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
+        self._controller = _Controller(drivers)
+        self._who = {r.vehicle_id: _Neighbour(r.vehicle_id, "pirl" if r.is_pirl else "background", int(r.style),
+                                              np.array([getattr(r, t) for t in theta_cols]))
+                     for r in plan.itertuples(index=False)}
+        warmup = float(c["warmup"])
+        specs = [VehicleSpec(r.vehicle_id, r.route_id, float(r.depart),
+                             depart_speed=drv.depart_speed if r.is_pirl else "max",
+                             type_id=PIRL_VTYPE if r.is_pirl else BACKGROUND_VTYPE)
+                 for r in plan.itertuples(index=False)]
+        specs.append(VehicleSpec(EGO_ID, c["ego_route"], warmup, depart_speed=float(c["ego_speed"]),
+                                 type_id=PIRL_VTYPE))
+        vtypes = Path(files.net).with_name("vtypes.add.xml")
+        atomic_write_text(vtypes, vehicle_types_xml(drv))
+        self._run = SumoRun(files.net, catalogue, specs, pirl_ids={*pirl["vehicle_id"], EGO_ID},
+                            controller=self._controller, seed=plan_seed, step_length=STEP,
+                            backend=c["sumo_binding"], speed_mode=SPEED_MODE_ALL_CHECKS,
+                            speed_modes={EGO_ID: int(c["ego_speed_mode"])}, collision_action="remove",
+                            extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true"))
+        self._run.start()
+        while self._controller.ego is None:  # the traffic's warm-up, then the ego's insertion
+            self._sumo_step()
+            if self._run.time > warmup + _MAX_WAIT:
+                self.close()
+                raise RuntimeError(f"the ego could not enter {c['ego_route']!r} within {_MAX_WAIT:.0f} s after the "
+                                   "warm-up (its entry stayed blocked)")
+        self._t0 = self._run.time
+        self.time = 0.0
+        self._controller.acceleration = 0.0
+        ego = self._controller.ego.ego
+        self._reward = EgoReward(c, paths, RouteSetProfile(paths, drv.a_lat, drv.v_max), c["ego_route"],
+                                 (ego.x, ego.y))
+        self._crashed = self._arrived = False
+        self._last_ego = ego
+        obs = self._observe()
+        return obs, self._info()
+
+    def step(self, action):
+        if self._run is None:
+            raise RuntimeError("call reset() before step()")
+        if self._crashed or self._arrived:
+            raise RuntimeError("the episode has ended: call reset()")
+        c = self.config
+        a = self._acceleration(action)
+        self._controller.acceleration = a
+        ego = self._controller.ego.ego
+        self._run.set_command(EGO_ID, max(ego.speed + a * STEP, 0.0))  # the new action from this frame on
+        s0 = self._reward.s_path
+        self._reward.begin_step()
+        for _ in range(round(10 / c["policy_frequency"])):
+            self._sumo_step()
+            if EGO_ID in self._run.colliding:
+                self._crashed = True
+            now = self._controller.ego
+            if now is None:  # left the network: at its route's end unless taken out by a crash
+                self._arrived = not self._crashed
+                break
+            self._last_ego = now.ego
+            self._reward.log_frame((now.ego.x, now.ego.y), now.ego.speed, now.ego.accel)
+            if self._crashed:
+                break
+        self.time = round(self._run.time - self._t0, 9)
+        self._reward.step_terms(progress=self._reward.s_path - s0, crashed=self._crashed, arrived=self._arrived,
+                                time=self.time)
+        terminated = self._crashed or self._arrived
+        truncated = not terminated and self.time >= c["duration"] - 1e-9
+        obs = self._observe()
+        return obs, self._reward.reward(), terminated, truncated, self._info()
+
+    def _sumo_step(self) -> None:
+        # the controller sees the ego only in steps it is asked (some controlled vehicle in the network)
+        self._controller.ego = None
+        self._run.step()
+
+    # -- observation and info -----------------------------------------------------------------------
+
+    def _observe(self) -> np.ndarray:
+        o = self.config["observation"]
+        ego = self._last_ego
+        now = self._controller.ego
+        others = now.others if now is not None else {}
+        heading = np.array([np.cos(ego.psi_rad), np.sin(ego.psi_rad)])
+        near = []
+        for vid, st in others.items():
+            delta = np.array([st.x - ego.x, st.y - ego.y])
+            dist = float(np.hypot(*delta))
+            if dist < PERCEPTION_DISTANCE and (o.get("see_behind", False) or delta @ heading > -2 * ego.length):
+                near.append((dist, vid, st))
+        if o.get("order", "sorted") == "sorted":
+            near.sort(key=lambda item: (item[0], item[1]))
+        near = near[:self._count - 1]
+        states = np.array([[ego.x, ego.y, ego.speed, ego.psi_rad]] +
+                          [[st.x, st.y, st.speed, st.psi_rad] for _, _, st in near], dtype=float)
+        obs = kinematics_rows(states, self._features, absolute=o.get("absolute", False),
+                              features_range=o.get("features_range"), normalize=o.get("normalize", True),
+                              clip=o.get("clip", True), vehicles_count=self._count)
+        rows = [self._who.get(vid, _Neighbour(vid, "", -1, np.zeros(len(FEATURE_NAMES)))) for _, vid, _ in near]
+        rows += [None] * (self._count - 1 - len(rows))
+        if o.get("order", "sorted") == "shuffled":
+            perm = np.arange(self._count - 1)
+            self.np_random.shuffle(perm)
+            obs[1:] = obs[1:][perm]
+            rows = [rows[i] for i in perm]
+        self._rows = rows
+        return obs.astype(np.float32)
+
+    def _info(self) -> dict:
+        now = self._controller.ego
+        return {
+            "speed": float(self._last_ego.speed),
+            "crashed": bool(self._crashed),
+            "arrived": bool(self._arrived),
+            "progress": float(self._reward.s_path),
+            "features": self._reward.features.copy(),
+            "rewards": dict(self._reward.terms),
+            "n_vehicles": (len(now.others) + 1) if now is not None else self._run.n_present,
+            **neighbour_info(self._rows),
+            "style_names": self.config["population"].style_names,
+            "feature_names": FEATURE_NAMES,
+        }
+
+    def close(self) -> None:
+        """End the SUMO run (also at every reset)."""
+        if self._run is not None:
+            self._run.close()
+            self._run = None
+

@@ -1,0 +1,136 @@
+"""``pirl_sim/Roundabout-v0`` with ``backend="sumo"``: checker, determinism, info, rewards, config, libsumo."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+pytest.importorskip("libsumo")
+
+import pirl_sim.envs  # noqa: E402,F401  (registers the env ids)
+from gymnasium.utils.env_checker import check_env, data_equivalence  # noqa: E402
+
+ENV_ID = "pirl_sim/Roundabout-v0"
+FAST = {"backend": "sumo", "warmup": 12.0}  # a shorter warm-up keeps resets quick
+
+
+def make(**config):
+    return gym.make(ENV_ID, config={**FAST, **config})
+
+
+def test_the_backend_option_picks_the_sumo_env_and_check_env_passes():
+    env = make()
+    from pirl_sim.envs.sumo_roundabout import PirlRoundaboutSumoEnv
+
+    assert isinstance(env.unwrapped, PirlRoundaboutSumoEnv)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    assert not [str(w.message) for w in caught]
+    env.close()
+
+
+def rollout(env, seed, n=15):
+    out = [env.reset(seed=seed)]
+    for a in np.sin(np.arange(n))[:, None].astype(np.float32):
+        step = env.step(a)
+        out.append(step)
+        if step[2] or step[3]:
+            break
+    return out
+
+
+def test_seeded_resets_are_deterministic():
+    env = make()
+    first, second = rollout(env, 3), rollout(env, 3)
+    assert data_equivalence(first, second)
+    assert not data_equivalence(first[0][0], rollout(env, 4)[0][0])
+    env.close()
+
+
+@pytest.mark.parametrize("order", ["sorted", "shuffled"])
+def test_info_names_the_vehicle_of_each_observation_row(order):
+    from pirl_sim.envs.sumo_roundabout import PirlRoundaboutSumoEnv
+
+    observation = {**PirlRoundaboutSumoEnv.default_config()["observation"], "order": order}
+    env = make(observation=observation).unwrapped
+    env.reset(seed=1)
+    for _ in range(4):
+        obs, _, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+    assert not (terminated or truncated)
+    present = obs[1:, 0] > 0
+    ids = np.array(info["neighbour_ids"])
+    assert ((ids != "") == present).all() and present.sum() >= 2
+    ego = env._controller.ego
+    states = ego.others
+    for row, vid, is_pirl, style, theta in zip(obs[1:], ids, info["neighbour_is_pirl"], info["neighbour_styles"],
+                                               info["neighbour_theta"]):
+        if vid == "":
+            assert style == -2 and not theta.any()
+            continue
+        rel = np.array([states[vid].x - ego.ego.x, states[vid].y - ego.ego.y]) / 100.0
+        np.testing.assert_allclose(row[1:3], np.clip(rel, -1, 1), atol=1e-5)
+        who = env._who[vid]
+        assert is_pirl == (who.kind == "pirl")
+        if is_pirl:
+            np.testing.assert_array_equal(theta, who.theta)
+            assert 0 <= style < len(info["style_names"])
+    env.close()
+
+
+def test_theta_reward_is_minus_the_styles_cost_and_a_crash_ends_the_episode():
+    env = make(reward="theta", reward_theta={"speed_dev": 2.0, "acc_sq": 0.5}, collision_reward=-5.0).unwrapped
+    env.reset(seed=2)
+    w = np.array([2.0, 0.5, 1.0])
+    for _ in range(200):  # full throttle: the ego runs into traffic it does not yield to, or arrives
+        obs, reward, terminated, truncated, info = env.step(np.ones(1, dtype=np.float32))
+        t = info["rewards"]
+        assert t["style_cost"] == pytest.approx(float(w @ info["features"]) * 0.2)
+        assert reward == pytest.approx(-5.0 * t["collision"] + t["arrival"] - t["style_cost"]
+                                       - t["crash_cost_to_go"])
+        if terminated or truncated:
+            break
+    assert terminated and (info["crashed"] or info["arrived"])
+    if info["crashed"]:
+        assert info["rewards"]["crash_cost_to_go"] > 0
+    env.close()
+
+
+@pytest.mark.parametrize("config, match", [
+    ({"initial_vehicles": 3}, r"unknown key\(s\) 'initial_vehicles'; valid keys: backend"),
+    ({"observation": {"type": "OccupancyGrid"}}, r"observes 'Kinematics' only"),
+    ({"observation": {"type": "Kinematics", "features": ["x", "lat_off"]}}, r"\['lat_off'\] are not available"),
+    ({"record_tracks": True}, r"record_tracks is not available with the sumo backend"),
+    ({"network": {"radius": -1.0}}, r"config: network: radius"),
+    ({"drivers": {"horizn": 3}}, r"drivers: unknown key\(s\) 'horizn'"),
+    ({"ego_route": "arm0_to_arm9"}, r"ego_route must be one of arm0_to_arm1"),
+    ({"sumo_binding": "pipe"}, r"sumo_binding must be one of"),
+    ({"warmup": -2}, r"warmup must be a finite number >= 0"),
+])
+def test_bad_config_is_rejected_with_what_is_allowed(config, match):
+    with pytest.raises(ValueError, match=match):
+        make(**config)
+
+
+def test_unknown_backend_and_render_mode_are_rejected():
+    with pytest.raises(ValueError, match=r"backend must be one of \('highway', 'sumo'\)"):
+        gym.make(ENV_ID, config={"backend": "carla"})
+    with pytest.raises(ValueError, match="does not render"):
+        gym.make(ENV_ID, config=FAST, render_mode="rgb_array")
+    with pytest.raises(ValueError, match="backend must be 'highway' for this env"):
+        gym.make(ENV_ID).unwrapped.configure({"backend": "sumo"})
+
+
+def test_a_second_libsumo_env_in_one_process_is_refused_and_traci_works_beside_it():
+    a = make()
+    a.reset(seed=0)
+    b = make()
+    with pytest.raises(RuntimeError, match="traci"):
+        b.reset(seed=0)
+    c = make(sumo_binding="traci")
+    obs_c, _ = c.reset(seed=0)
+    obs_a, _ = a.reset(seed=0)
+    np.testing.assert_array_equal(obs_a, obs_c)  # the same simulation through either binding
+    for env in (a, b, c):
+        env.close()
