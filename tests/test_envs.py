@@ -251,7 +251,7 @@ def test_a_crash_terminates_the_episode_and_the_recording_says_so():
             break
     assert crashed and terminated and reward <= env.config["collision_reward"] + 1.0
     # in the "theta" reward a crash also costs what the stopped ego would have cost until the time limit
-    expected = env.reward_weights[0] * env._v_des**2 * (env.config["duration"] - env.time)
+    expected = env.reward_weights[0] * env._ego_cost.v_des**2 * (env.config["duration"] - env.time)
     assert info["rewards"]["crash_cost_to_go"] == pytest.approx(expected) and expected > 0
     rec = env.recording()
     gt = rec.ground_truth.set_index("agent_id")

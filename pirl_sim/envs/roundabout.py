@@ -9,6 +9,10 @@ highway-env IDM background traffic; vehicles yield at entries, leave at exits, a
 removed after ``rules.crash_removal_delay``. ``initial_vehicles`` of the plan are on the road at reset, the
 others arrive at the entries at their planned departure times (counted from the reset).
 
+This is the default backend (``backend = "highway"``); ``config={"backend": "sumo"}`` makes the same task
+on a SUMO roundabout (:mod:`pirl_sim.envs.sumo_roundabout`), with the same action, reward and info
+(:mod:`pirl_sim.envs.common`).
+
 Spaces
 ------
 - **Action**: ``Box(-1, 1, (1,), float32)``, the ego's longitudinal acceleration, mapped linearly to
@@ -65,7 +69,6 @@ from __future__ import annotations
 
 import copy
 import inspect
-import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -74,6 +77,7 @@ from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import ActionType
 from highway_env.envs.common import observation as _obs
 
+from pirl_sim.envs.common import EGO_ID, REWARDS, EgoReward, check_common, neighbour_info, reward_weights
 from pirl_sim.envs.observation import RoundaboutKinematics
 from pirl_sim.scenarios.highway.network import (
     RoundaboutGeometry,
@@ -85,22 +89,12 @@ from pirl_sim.scenarios.highway.network import (
 from pirl_sim.scenarios.planning import plan_population, random_streams
 from pirl_sim.scenarios.highway.scenario import ROUTE_IDS, drivers_from_dict, rules_from_dict
 from pirl_sim.scenarios.highway.traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
-from pirl_sim.scenarios.highway.vehicles import EGO, PIRL, EgoVehicle
-from pirl_sim.scenarios.population_config import (
-    DEFAULT_POPULATION,
-    FEATURE_NAMES,
-    FREE_FEATURES,
-    REFERENCE_FEATURE,
-    PopulationConfig,
-    population_from_dict,
-)
+from pirl_sim.scenarios.highway.vehicles import EGO, EgoVehicle
+from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, FEATURE_NAMES, PopulationConfig
+from pirl_sim.validation import check_keys, number
 
 __all__ = ["PirlRoundaboutEnv", "LongitudinalAction", "REWARDS", "EGO_ID"]
 
-REWARDS = ("task", "theta")  #: values of the ``reward`` option
-EGO_ID = "ego"  #: the ego's vehicle id (and ``agent_id`` in recordings)
-_ACC_REF, _JERK_REF = 3.0, 8.0  # [m/s^2], [m/s^3] comfort-term scales (the driver model's bounds)
-_EMPTY_ROW_STYLE = -2
 _EGO_COLOR = (50, 200, 0)
 
 #: highway-env's observation types by config name (``observation_factory``'s list)
@@ -163,21 +157,6 @@ class LongitudinalAction(ActionType):
     def act(self, action) -> None:
         self.last_action = np.asarray(action, dtype=np.float32).reshape(1)
         self.controlled_vehicle.command_acceleration = self.acceleration(action)
-
-
-def _keys_error(label: str, given, valid) -> None:
-    unknown = [k for k in given if k not in valid]
-    if unknown:
-        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: "
-                         f"{', '.join(valid)}")
-
-
-def _finite(label: str, v, *, low: float | None = None, strict: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-        raise ValueError(f"{label} must be a finite number, got {v!r}")
-    if low is not None and (v < low or (strict and v == low)):
-        raise ValueError(f"{label} must be {'>' if strict else '>='} {low:g}, got {v!r}")
-    return float(v)
 
 
 class PirlRoundaboutEnv(AbstractEnv):
@@ -243,7 +222,7 @@ class PirlRoundaboutEnv(AbstractEnv):
             if not isinstance(config, Mapping):
                 raise ValueError(f"config must be a mapping, got {type(config).__name__}")
             valid = tuple(self.default_config())
-            _keys_error("config", config, valid)
+            check_keys("config", config, valid)
             merged = dict(self.config)
             merged.update(copy.deepcopy(dict(config)))
             self._validate(merged)
@@ -259,31 +238,14 @@ class PirlRoundaboutEnv(AbstractEnv):
         if c["simulation_frequency"] != 10:
             raise ValueError(f"simulation_frequency must be 10 Hz (the driver model's step of {STEP_LENGTH} s), "
                              f"got {c['simulation_frequency']!r}")
-        pf = c["policy_frequency"]
-        if isinstance(pf, bool) or not isinstance(pf, (int, np.integer)) or pf < 1 or 10 % pf:
-            raise ValueError(f"policy_frequency must divide 10 Hz (1, 2, 5 or 10), got {pf!r}")
+        check_common(c)
         obs = c["observation"]
         if not isinstance(obs, Mapping) or obs.get("type") not in _OBSERVATIONS:
             raise ValueError(f"observation must be a mapping with a type in {sorted(_OBSERVATIONS)}, got {obs!r}")
         params = [p for p in inspect.signature(_OBSERVATIONS[obs["type"]].__init__).parameters
                   if p not in ("self", "env", "kwargs")]
-        _keys_error(f"observation ({obs['type']})", obs, ("type", *params))
-        act = c["action"]
-        if not isinstance(act, Mapping) or act.get("type") != LongitudinalAction.TYPE:
-            raise ValueError(f"action must be {{'type': {LongitudinalAction.TYPE!r}, 'acceleration_range': "
-                             f"[a_min, a_max]}}, got {act!r}")
-        _keys_error("action", act, ("type", "acceleration_range"))
-        rng = act.get("acceleration_range", (-4.0, 3.0))
-        if len(rng) != 2 or not _finite("action acceleration_range[0]", rng[0]) < 0 < \
-                _finite("action acceleration_range[1]", rng[1]):
-            raise ValueError(f"action acceleration_range must be [a_min < 0, a_max > 0] m/s^2, got {rng!r}")
-        _finite("duration", c["duration"], low=0.0, strict=True)
+        check_keys(f"observation ({obs['type']})", obs, ("type", *params))
         c["roundabout_radius"] = RoundaboutGeometry(c["roundabout_radius"]).radius
-        pop = c["population"]
-        if isinstance(pop, Mapping):
-            c["population"] = population_from_dict(pop, source="config population")
-        elif not isinstance(pop, PopulationConfig):
-            raise ValueError(f"population must be a PopulationConfig or a mapping, got {type(pop).__name__}")
         if isinstance(c["drivers"], Mapping):
             c["drivers"] = drivers_from_dict(c["drivers"], source="config drivers")
         elif not isinstance(c["drivers"], DriverConfig):
@@ -300,31 +262,12 @@ class PirlRoundaboutEnv(AbstractEnv):
                              f"{c['population'].n_vehicles}")
         if c["ego_route"] not in ROUTE_IDS:
             raise ValueError(f"ego_route must be one of {', '.join(ROUTE_IDS)}, got {c['ego_route']!r}")
-        _finite("ego_start", c["ego_start"], low=0.0)
-        _finite("ego_speed", c["ego_speed"], low=0.0)
-        if c["reward"] not in REWARDS:
-            raise ValueError(f"reward must be one of {REWARDS}, got {c['reward']!r}")
-        theta = c["reward_theta"]
-        if not isinstance(theta, Mapping):
-            raise ValueError(f"reward_theta must be a mapping feature -> weight, got {theta!r}")
-        _keys_error("reward_theta", theta, (*FREE_FEATURES, REFERENCE_FEATURE))
-        missing = [f for f in FREE_FEATURES if f not in theta]
-        if missing:
-            raise ValueError(f"reward_theta misses {missing}; give {', '.join(FREE_FEATURES)}")
-        for f, w in theta.items():
-            _finite(f"reward_theta[{f!r}]", w, low=0.0, strict=True)
-        if theta.get(REFERENCE_FEATURE, 1.0) != 1.0:
-            raise ValueError(f"reward_theta[{REFERENCE_FEATURE!r}] is the reference weight, fixed at 1")
-        for name in ("progress_reward", "comfort_reward", "collision_reward", "arrival_reward"):
-            _finite(name, c[name])
-        if not isinstance(c["record_tracks"], bool):
-            raise ValueError(f"record_tracks must be true or false, got {c['record_tracks']!r}")
+        number("ego_start", c["ego_start"], low=0.0)
 
     @property
     def reward_weights(self) -> np.ndarray:
         """Normalised weights (3,) of the ``"theta"`` reward over :data:`FEATURE_NAMES`."""
-        theta = self.config["reward_theta"]
-        return np.array([float(theta.get(f, 1.0)) for f in FEATURE_NAMES])
+        return reward_weights(self.config["reward_theta"])
 
     def define_spaces(self) -> None:
         obs = dict(self.config["observation"])
@@ -348,7 +291,7 @@ class PirlRoundaboutEnv(AbstractEnv):
         if options is not None:
             if not isinstance(options, Mapping):
                 raise ValueError(f"options must be a mapping, got {type(options).__name__}")
-            _keys_error("options", options, ("config",))
+            check_keys("options", options, ("config",))
         return super().reset(seed=seed, options=options)
 
     # -- scene ----------------------------------------------------------------------------------------
@@ -377,78 +320,31 @@ class PirlRoundaboutEnv(AbstractEnv):
         first = plan["depart"].iloc[n0] if n0 < len(plan) else 0.0
         traffic.shift_departures(float(first))
         traffic.insert_due()
-        self._route_index = routes.index(c["ego_route"])
-        self._routes = routes
-        self._frames: list[tuple[float, float, float]] = []  # (speed_dev, a, jerk) per frame of the step
-        self._s_path = float(routes.project([self._route_index], ego.position[None, :])[0])
-        self._prev_acc = 0.0
-        self._v_des = float(traffic.profile(routes.offsets[self._route_index] + np.array([self._s_path]))[0][0])
-        self._crash_charged = False
-        self._step_features = np.zeros(len(FEATURE_NAMES))
-        self._step_terms = self._terms(progress=0.0)
+        self._ego_cost = EgoReward(c, routes, traffic.profile, c["ego_route"], ego.position)
         traffic.step_callbacks.append(self._log_ego)
 
     def _log_ego(self, traffic: RoundaboutTraffic) -> None:
         ego = self.vehicle
-        r = self._route_index
-        try:
-            self._s_path = float(self._routes.project([r], ego.position[None, :], [self._s_path])[0])
-        except ValueError:  # the warm start lost the ego (e.g. pushed by a crash): project from scratch
-            self._s_path = float(self._routes.project([r], ego.position[None, :])[0])
-        v_des = float(traffic.profile(self._routes.offsets[r] + np.array([self._s_path]))[0][0])
-        a = ego.applied_acceleration
-        self._v_des = v_des
-        self._frames.append(((ego.speed - v_des) ** 2, a, (a - self._prev_acc) / STEP_LENGTH))
-        self._prev_acc = a
+        self._ego_cost.log_frame(ego.position, ego.speed, ego.applied_acceleration)
 
     # -- stepping -------------------------------------------------------------------------------------
 
     def _simulate(self, action=None) -> None:
         start = self.vehicle.route_s
-        self._frames = []
+        self._ego_cost.begin_step()
         super()._simulate(action)
-        f = np.array(self._frames) if self._frames else np.zeros((1, 3))
-        self._step_features = np.array([f[:, 0].mean(), (f[:, 1] ** 2).mean(), (f[:, 2] ** 2).mean()])
-        comfort = float(((f[:, 1] / _ACC_REF) ** 2 + (f[:, 2] / _JERK_REF) ** 2).mean())
-        self._step_terms = self._terms(progress=self.vehicle.route_s - start, comfort=comfort)
-
-    @property
-    def _period(self) -> float:
-        return 1.0 / self.config["policy_frequency"]
-
-    def _terms(self, *, progress: float, comfort: float = 0.0) -> dict[str, float]:
-        c = self.config
-        v_ref = c["drivers"].v_max
-        cost_to_go = 0.0
-        if self.vehicle.crashed and not self._crash_charged:
-            # a crashed vehicle stands still: over the rest of the episode it would cost speed_dev = v_des^2
-            # per second (acc_sq and jerk_sq 0), so that a crash never ends the style cost early
-            self._crash_charged = True
-            cost_to_go = float(self.reward_weights[0] * self._v_des**2 * max(c["duration"] - self.time, 0.0))
-        return {
-            "progress": progress / (v_ref * self._period),
-            "comfort": comfort,
-            "style_cost": float(self.reward_weights @ self._step_features) * self._period,
-            "crash_cost_to_go": cost_to_go,
-            "collision": float(self.vehicle.crashed),
-            "arrival": float(self._arrived),
-        }
+        self._ego_cost.step_terms(progress=self.vehicle.route_s - start, crashed=self.vehicle.crashed,
+                                arrived=self._arrived, time=self.time)
 
     @property
     def _arrived(self) -> bool:
         return self.vehicle is not None and self.vehicle.remaining <= 0.0
 
     def _rewards(self, action) -> dict[str, float]:
-        return dict(self._step_terms)
+        return dict(self._ego_cost.terms)
 
     def _reward(self, action) -> float:
-        c, t = self.config, self._step_terms
-        r = c["collision_reward"] * t["collision"] + c["arrival_reward"] * t["arrival"]
-        if c["reward"] == "task":
-            r += c["progress_reward"] * t["progress"] + c["comfort_reward"] * t["comfort"]
-        else:
-            r -= t["style_cost"] + t["crash_cost_to_go"]
-        return float(r)
+        return self._ego_cost.reward()
 
     def _is_terminated(self) -> bool:
         return bool(self.vehicle.crashed or self._arrived)
@@ -472,33 +368,15 @@ class PirlRoundaboutEnv(AbstractEnv):
         return list(rows) + [None] * (count - 1 - len(rows))
 
     def _info(self, obs, action=None) -> dict:
-        rows = self._neighbours()
-        k = len(FEATURE_NAMES)
-        ids, pirl, styles, theta = [], [], [], np.zeros((len(rows), k))
-        for i, v in enumerate(rows):
-            if v is None:
-                ids.append("")
-                pirl.append(False)
-                styles.append(_EMPTY_ROW_STYLE)
-                continue
-            ids.append(getattr(v, "vehicle_id", ""))
-            is_pirl = getattr(v, "kind", None) == PIRL
-            pirl.append(is_pirl)
-            styles.append(int(v.style) if is_pirl else -1)
-            if is_pirl:
-                theta[i] = v.theta
         return {
             "speed": float(self.vehicle.speed),
             "crashed": bool(self.vehicle.crashed),
             "arrived": bool(self._arrived),
             "progress": float(self.vehicle.route_s),
-            "features": self._step_features.copy(),
+            "features": self._ego_cost.features.copy(),
             "rewards": self._rewards(action),
             "n_vehicles": len(self.road.vehicles),
-            "neighbour_ids": tuple(ids),
-            "neighbour_is_pirl": np.array(pirl, dtype=bool),
-            "neighbour_styles": np.array(styles, dtype=np.int64),
-            "neighbour_theta": theta,
+            **neighbour_info(self._neighbours()),
             "style_names": self.config["population"].style_names,
             "feature_names": FEATURE_NAMES,
         }

@@ -290,7 +290,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self.time = 0.0
         self._controller.acceleration = 0.0
         ego = self._controller.ego.ego
-        self._reward = EgoReward(c, paths, RouteSetProfile(paths, drv.a_lat, drv.v_max), c["ego_route"],
+        self._ego_cost = EgoReward(c, paths, RouteSetProfile(paths, drv.a_lat, drv.v_max), c["ego_route"],
                                  (ego.x, ego.y))
         self._crashed = self._arrived = False
         self._last_ego = ego
@@ -307,8 +307,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self._controller.acceleration = a
         ego = self._controller.ego.ego
         self._run.set_command(EGO_ID, max(ego.speed + a * STEP, 0.0))  # the new action from this frame on
-        s0 = self._reward.s_path
-        self._reward.begin_step()
+        s0 = self._ego_cost.s_path
+        self._ego_cost.begin_step()
         for _ in range(round(10 / c["policy_frequency"])):
             self._sumo_step()
             if EGO_ID in self._run.colliding:
@@ -318,16 +318,16 @@ class PirlRoundaboutSumoEnv(gym.Env):
                 self._arrived = not self._crashed
                 break
             self._last_ego = now.ego
-            self._reward.log_frame((now.ego.x, now.ego.y), now.ego.speed, now.ego.accel)
+            self._ego_cost.log_frame((now.ego.x, now.ego.y), now.ego.speed, now.ego.accel)
             if self._crashed:
                 break
         self.time = round(self._run.time - self._t0, 9)
-        self._reward.step_terms(progress=self._reward.s_path - s0, crashed=self._crashed, arrived=self._arrived,
+        self._ego_cost.step_terms(progress=self._ego_cost.s_path - s0, crashed=self._crashed, arrived=self._arrived,
                                 time=self.time)
         terminated = self._crashed or self._arrived
         truncated = not terminated and self.time >= c["duration"] - 1e-9
         obs = self._observe()
-        return obs, self._reward.reward(), terminated, truncated, self._info()
+        return obs, self._ego_cost.reward(), terminated, truncated, self._info()
 
     def _sumo_step(self) -> None:
         # the controller sees the ego only in steps it is asked (some controlled vehicle in the network)
@@ -372,9 +372,9 @@ class PirlRoundaboutSumoEnv(gym.Env):
             "speed": float(self._last_ego.speed),
             "crashed": bool(self._crashed),
             "arrived": bool(self._arrived),
-            "progress": float(self._reward.s_path),
-            "features": self._reward.features.copy(),
-            "rewards": dict(self._reward.terms),
+            "progress": float(self._ego_cost.s_path),
+            "features": self._ego_cost.features.copy(),
+            "rewards": dict(self._ego_cost.terms),
             "n_vehicles": (len(now.others) + 1) if now is not None else self._run.n_present,
             **neighbour_info(self._rows),
             "style_names": self.config["population"].style_names,
