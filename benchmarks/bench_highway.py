@@ -8,6 +8,8 @@ of 0.1 s per step — the PIRL env's fixed 10 Hz — so that one env step is the
 - **PIRL**: ``pirl_sim/Roundabout-v0``, the paper's three styles only (no background traffic), 20 PIRL
   drivers on the road at reset and one arrival every 1.5 s (about 20 on the road throughout; the mean is
   printed), each re-planning with its MPC every frame (one batched call per frame), plus the ego.
+- **PIRL on SUMO**: the same env with ``backend = "sumo"`` (SUMO's roundabout, the same population after a
+  30 s warm-up; SUMO's Krauss model for no one: background share 0), for reference.
 - **baseline, 20 IDM**: highway-env's ``roundabout-generic-v0`` with ``vehicles_count = 20`` and one ring
   lane: the same road with 20 of highway-env's IDM drivers (plus the ego): the like-for-like baseline.
 - **baseline, roundabout-v0**: highway-env's ``roundabout-v0`` as shipped (4 IDM drivers plus the ego) but
@@ -40,9 +42,9 @@ def timed_steps(env, action, n_steps: int, seed: int) -> tuple[float, float]:
     k = 0
     while k < n_steps:
         t0 = time.perf_counter()
-        _, _, terminated, truncated, _ = env.step(action)
+        _, _, terminated, truncated, info = env.step(action)
         spent += time.perf_counter() - t0
-        counts.append(len(env.unwrapped.road.vehicles))
+        counts.append(info["n_vehicles"] if "n_vehicles" in info else len(env.unwrapped.road.vehicles))
         k += 1
         if terminated or truncated:
             env.reset()
@@ -68,6 +70,11 @@ def main() -> None:
             lambda: gym.make("pirl_sim/Roundabout-v0", config={
                 "population": population, "initial_vehicles": 20, "policy_frequency": 1, "duration": 1e6}),
             np.zeros(1, dtype=np.float32)),
+        "PIRL env on SUMO, ~20 PIRL drivers": (
+            lambda: gym.make("pirl_sim/Roundabout-v0", config={
+                "backend": "sumo", "population": population, "warmup": 30.0, "policy_frequency": 1,
+                "duration": 1e6}),
+            np.zeros(1, dtype=np.float32)),
         "baseline: roundabout-generic-v0, 20 IDM": (
             lambda: gym.make("roundabout-generic-v0", config={
                 "vehicles_count": 20, "roundabout_lanes": 1, "simulation_frequency": 10, "policy_frequency": 1,
@@ -91,9 +98,9 @@ def main() -> None:
     for name, env in envs.items():
         results[name] = (statistics.median(rates[name]), float(np.mean(counts[name])))
         extra = ""
-        road = env.unwrapped.road
-        if hasattr(road, "controller"):
-            ctrl = road.controller
+        ctrl = getattr(getattr(env.unwrapped, "road", None), "controller", None) or getattr(
+            getattr(env.unwrapped, "_controller", None), "drivers", None)
+        if ctrl is not None:
             extra = f"   (last episode: MPC {1e3 * ctrl.plan_time_s / max(ctrl.n_calls, 1):.2f} ms per batched call)"
         env.close()
         rate, count = results[name]
