@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from pirl_sim.scenarios.population_config import (
+    DEFAULT_POPULATION,
     FEATURE_NAMES,
     FREE_FEATURES,
     REFERENCE_FEATURE,
@@ -24,7 +25,7 @@ from pirl_sim.scenarios.population_config import (
 from pirl_sim.validation import check_keys, number
 
 __all__ = ["REWARDS", "EGO_ID", "ACC_REF", "JERK_REF", "EMPTY_ROW_STYLE", "EgoReward", "neighbour_info",
-           "check_common", "reward_weights"]
+           "common_defaults", "check_common", "reward_weights"]
 
 REWARDS = ("task", "theta")  #: values of the ``reward`` option
 EGO_ID = "ego"  #: the ego's vehicle id (and ``agent_id`` in recordings)
@@ -141,6 +142,36 @@ def neighbour_info(rows: Sequence) -> dict:
             theta[i] = v.theta
     return {"neighbour_ids": tuple(ids), "neighbour_is_pirl": np.array(pirl, dtype=bool),
             "neighbour_styles": np.array(styles, dtype=np.int64), "neighbour_theta": theta}
+
+
+def common_defaults() -> dict:
+    """The configuration keys both backends share, with their defaults (a fresh dict)."""
+    return {
+        "observation": {
+            "type": "Kinematics",
+            "vehicles_count": 8,
+            "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],
+            "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-15, 15], "vy": [-15, 15]},
+            "absolute": False,
+            "normalize": True,
+            "clip": True,
+            "see_behind": True,
+            "order": "sorted",
+        },
+        "action": {"type": "LongitudinalAcceleration", "acceleration_range": [-4.0, 3.0]},
+        "policy_frequency": 5,  # [Hz]
+        "duration": 40.0,  # [s]
+        "population": DEFAULT_POPULATION,
+        "ego_route": "arm0_to_arm2",
+        "ego_speed": 8.0,  # [m/s]
+        "reward": "task",
+        "reward_theta": {"speed_dev": 1.0, "acc_sq": 1.0},
+        "progress_reward": 1.0,
+        "comfort_reward": -0.1,
+        "collision_reward": -10.0,
+        "arrival_reward": 1.0,
+        "record_tracks": False,
+    }
 
 
 def check_common(c: dict) -> None:

@@ -77,7 +77,15 @@ from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import ActionType
 from highway_env.envs.common import observation as _obs
 
-from pirl_sim.envs.common import EGO_ID, REWARDS, EgoReward, check_common, neighbour_info, reward_weights
+from pirl_sim.envs.common import (
+    EGO_ID,
+    REWARDS,
+    EgoReward,
+    check_common,
+    common_defaults,
+    neighbour_info,
+    reward_weights,
+)
 from pirl_sim.envs.observation import RoundaboutKinematics
 from pirl_sim.scenarios.highway.network import (
     RoundaboutGeometry,
@@ -90,7 +98,7 @@ from pirl_sim.scenarios.planning import plan_population, random_streams
 from pirl_sim.scenarios.highway.scenario import ROUTE_IDS, drivers_from_dict, rules_from_dict
 from pirl_sim.scenarios.highway.traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
 from pirl_sim.scenarios.highway.vehicles import EGO, EgoVehicle
-from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, FEATURE_NAMES, PopulationConfig
+from pirl_sim.scenarios.population_config import FEATURE_NAMES, PopulationConfig
 from pirl_sim.validation import check_keys, number
 
 __all__ = ["PirlRoundaboutEnv", "LongitudinalAction", "REWARDS", "EGO_ID"]
@@ -178,36 +186,13 @@ class PirlRoundaboutEnv(AbstractEnv):
         del config["other_vehicles_type"]  # the traffic's vehicle classes are fixed
         config.update({
             "backend": "highway",  # "sumo": the same task on SUMO (pirl_sim.envs.sumo_roundabout)
-            "observation": {
-                "type": "Kinematics",
-                "vehicles_count": 8,
-                "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],
-                "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-15, 15], "vy": [-15, 15]},
-                "absolute": False,
-                "normalize": True,
-                "clip": True,
-                "see_behind": True,
-                "order": "sorted",
-            },
-            "action": {"type": LongitudinalAction.TYPE, "acceleration_range": [-4.0, 3.0]},
+            **common_defaults(),
             "simulation_frequency": 10,  # [Hz] fixed: the driver model's step
-            "policy_frequency": 5,  # [Hz]
-            "duration": 40.0,  # [s]
             "roundabout_radius": 20.0,  # [m]
-            "population": DEFAULT_POPULATION,
             "initial_vehicles": 8,
             "drivers": DriverConfig(),
             "rules": TrafficRules(),
-            "ego_route": "arm0_to_arm2",
             "ego_start": 40.0,  # [m] route coordinate at reset
-            "ego_speed": 8.0,  # [m/s]
-            "reward": "task",
-            "reward_theta": {"speed_dev": 1.0, "acc_sq": 1.0},
-            "progress_reward": 1.0,
-            "comfort_reward": -0.1,
-            "collision_reward": -10.0,
-            "arrival_reward": 1.0,
-            "record_tracks": False,
             "screen_width": 600,  # [px]
             "screen_height": 600,  # [px]
             "centering_position": [0.5, 0.6],

@@ -41,7 +41,7 @@ from gymnasium import spaces
 from pirl_sim.io.atomic import atomic_write_text
 from pirl_sim.scenarios.drivers import PirlDrivers, RouteSetProfile, route_set_model
 from pirl_sim.scenarios.planning import plan_population, random_streams
-from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, FEATURE_NAMES
+from pirl_sim.scenarios.population_config import FEATURE_NAMES
 from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, load_net, route_set, routes
 from pirl_sim.scenarios.sumo.runner import BACKENDS, SPEED_MODE_ALL_CHECKS, SumoRun, VehicleSpec
 from pirl_sim.scenarios.sumo.scenario import (
@@ -54,7 +54,7 @@ from pirl_sim.scenarios.sumo.scenario import (
 )
 from pirl_sim.validation import check_keys, number
 
-from .common import EGO_ID, EgoReward, check_common, neighbour_info
+from .common import EGO_ID, EgoReward, check_common, common_defaults, neighbour_info
 from .observation import DIRECT_FEATURES, kinematics_rows
 
 __all__ = ["PirlRoundaboutSumoEnv"]
@@ -139,30 +139,12 @@ class PirlRoundaboutSumoEnv(gym.Env):
         """Every configuration key with its default (the valid keys)."""
         return {
             "backend": "sumo",
-            "observation": {"type": "Kinematics", "vehicles_count": 8,
-                            "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],
-                            "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-15, 15],
-                                               "vy": [-15, 15]},
-                            "absolute": False, "normalize": True, "clip": True, "see_behind": True,
-                            "order": "sorted"},
-            "action": {"type": "LongitudinalAcceleration", "acceleration_range": [-4.0, 3.0]},
-            "policy_frequency": 5,  # [Hz]
-            "duration": 40.0,  # [s]
+            **common_defaults(),
             "network": DEFAULT_NETWORK,
-            "population": DEFAULT_POPULATION,
             "drivers": DriverConfig(),
             "warmup": 30.0,  # [s] of traffic before the ego enters
-            "ego_route": "arm0_to_arm2",
-            "ego_speed": 8.0,  # [m/s] at insertion
             "ego_speed_mode": 0,
             "sumo_binding": "libsumo",
-            "reward": "task",
-            "reward_theta": {"speed_dev": 1.0, "acc_sq": 1.0},
-            "progress_reward": 1.0,
-            "comfort_reward": -0.1,
-            "collision_reward": -10.0,
-            "arrival_reward": 1.0,
-            "record_tracks": False,
         }
 
     def configure(self, config: dict | None) -> None:
