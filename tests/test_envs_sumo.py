@@ -134,3 +134,26 @@ def test_a_second_libsumo_env_in_one_process_is_refused_and_traci_works_beside_i
     np.testing.assert_array_equal(obs_a, obs_c)  # the same simulation through either binding
     for env in (a, b, c):
         env.close()
+
+
+@pytest.mark.slow
+def test_stable_baselines3_checks_and_trains_on_the_sumo_backend():
+    sb3 = pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.wrappers.FlattenObservation(make())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sb3_check_env(env, warn=True)
+    model = sb3.PPO("MlpPolicy", env, n_steps=256, batch_size=64, n_epochs=2, seed=0, verbose=0, device="cpu",
+                    policy_kwargs={"log_std_init": -1.5})
+    model.learn(total_timesteps=768)
+    obs, _ = env.reset(seed=7)
+    for _ in range(30):
+        action, _ = model.predict(obs, deterministic=True)
+        assert env.action_space.contains(action)
+        obs, reward, terminated, truncated, _ = env.step(action)
+        assert np.isfinite(reward) and env.observation_space.contains(obs)
+        if terminated or truncated:
+            break
+    env.close()
