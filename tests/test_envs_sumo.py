@@ -101,7 +101,7 @@ def test_theta_reward_is_minus_the_styles_cost_and_a_crash_ends_the_episode():
     ({"initial_vehicles": 3}, r"unknown key\(s\) 'initial_vehicles'; valid keys: backend"),
     ({"observation": {"type": "OccupancyGrid"}}, r"observes 'Kinematics' only"),
     ({"observation": {"type": "Kinematics", "features": ["x", "lat_off"]}}, r"\['lat_off'\] are not available"),
-    ({"record_tracks": True}, r"record_tracks is not available with the sumo backend"),
+    ({"record_tracks": 1}, r"record_tracks must be true or false"),
     ({"network": {"radius": -1.0}}, r"config: network: radius"),
     ({"drivers": {"horizn": 3}}, r"drivers: unknown key\(s\) 'horizn'"),
     ({"ego_route": "arm0_to_arm9"}, r"ego_route must be one of arm0_to_arm1"),
@@ -111,6 +111,32 @@ def test_theta_reward_is_minus_the_styles_cost_and_a_crash_ends_the_episode():
 def test_bad_config_is_rejected_with_what_is_allowed(config, match):
     with pytest.raises(ValueError, match=match):
         make(**config)
+
+
+def test_recording_holds_the_episode_with_the_ego_and_reads_back(tmp_path):
+    from pirl_sim.scenarios.recording import read_recording, write_recording
+
+    env = make(record_tracks=True).unwrapped
+    env.reset(seed=2)
+    for _ in range(200):  # full throttle until a crash or the end of the route
+        _, _, terminated, truncated, info = env.step(np.ones(1, dtype=np.float32))
+        if terminated or truncated:
+            break
+    env.close()  # the recording outlives the run
+    rec = env.recording()
+    gt = rec.ground_truth.set_index("agent_id")
+    assert not gt.loc["ego", "is_pirl"] and gt.loc["ego", "style_name"] == "ego"
+    assert gt.loc["ego", "collided"] == info["crashed"]
+    pirl = gt[gt["is_pirl"]]
+    assert len(pirl) >= 3
+    for vid, row in pirl.iterrows():
+        np.testing.assert_array_equal(row[["theta_speed_dev", "theta_acc_sq", "theta_jerk_sq"]].to_numpy(float),
+                                      env._who[vid].theta)
+    write_recording(rec, tmp_path)
+    back = read_recording(tmp_path)
+    assert len(back.ground_truth) == len(rec.ground_truth) and len(back.tracks) == len(rec.tracks)
+    with pytest.raises(ValueError, match="record_tracks=False"):
+        make().unwrapped.recording()
 
 
 def test_unknown_backend_and_render_mode_are_rejected():

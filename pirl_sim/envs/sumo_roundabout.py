@@ -21,9 +21,10 @@ the info (:func:`~pirl_sim.envs.common.neighbour_info`) and the ``Kinematics`` r
   (highway-env sorts by distance along lanes), behind the ego only with ``see_behind`` (``Kinematics``'
   default: no; "behind" = more than two vehicle lengths back along the ego's heading). Features: those of
   :data:`~pirl_sim.envs.observation.DIRECT_FEATURES`.
-- No rendering, no recording (``record_tracks``): run the SUMO scenario (``pirl-sim simulate sumo``) for
-  recordings. libsumo holds one simulation per process: a second env of this backend in the same process
-  needs ``sumo_binding = "traci"``.
+- No rendering. With ``record_tracks``, :meth:`PirlRoundaboutSumoEnv.recording` gives the episode's SUMO run
+  (warm-up included) as the SUMO scenario records it, the ego a non-PIRL track named "ego". libsumo holds
+  one simulation per process: a second env of this backend in the same process needs
+  ``sumo_binding = "traci"``.
 """
 
 from __future__ import annotations
@@ -36,13 +37,15 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pandas as pd
 from gymnasium import spaces
 
 from pirl_sim.io.atomic import atomic_write_text
 from pirl_sim.scenarios.drivers import PirlDrivers, RouteSetProfile, route_set_model
 from pirl_sim.scenarios.planning import plan_population, random_streams
 from pirl_sim.scenarios.population_config import FEATURE_NAMES
-from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, load_net, route_set, routes
+from pirl_sim.scenarios.recording import BACKGROUND_STYLE
+from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph, load_net, route_set, routes
 from pirl_sim.scenarios.sumo.runner import BACKENDS, SPEED_MODE_ALL_CHECKS, SumoRun, VehicleSpec
 from pirl_sim.scenarios.sumo.scenario import (
     BACKGROUND_VTYPE,
@@ -50,6 +53,7 @@ from pirl_sim.scenarios.sumo.scenario import (
     PIRL_VTYPE,
     DriverConfig,
     scenario_from_dict,
+    scenario_recording,
     vehicle_types_xml,
 )
 from pirl_sim.validation import check_keys, number
@@ -131,6 +135,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self.config = self.default_config()
         self.configure(config)
         self._run: SumoRun | None = None
+        self._last_run: SumoRun | None = None  # kept after close() for recording()
         self.time = 0.0
         self._define_spaces()
 
@@ -194,9 +199,6 @@ class PirlRoundaboutSumoEnv(gym.Env):
             raise ValueError(f"ego_speed_mode must be an integer bitset in [0, 127], got {m!r}")
         if c["sumo_binding"] not in BACKENDS:
             raise ValueError(f"sumo_binding must be one of {BACKENDS}, got {c['sumo_binding']!r}")
-        if c["record_tracks"]:
-            raise ValueError("record_tracks is not available with the sumo backend; record with "
-                             "`pirl-sim simulate sumo` (the SUMO scenario) instead")
 
     # -- spaces -------------------------------------------------------------------------------------
 
@@ -262,6 +264,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
                             speed_modes={EGO_ID: int(c["ego_speed_mode"])}, collision_action="remove",
                             extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true"))
         self._run.start()
+        self._last_run, self._plan, self._files = self._run, plan, files
         while self._controller.ego is None:  # the traffic's warm-up, then the ego's insertion
             self._sumo_step()
             if self._run.time > warmup + _MAX_WAIT:
@@ -362,6 +365,23 @@ class PirlRoundaboutSumoEnv(gym.Env):
             "style_names": self.config["population"].style_names,
             "feature_names": FEATURE_NAMES,
         }
+
+    def recording(self):
+        """The episode so far (warm-up included) as a :class:`~pirl_sim.scenarios.recording.ScenarioRecording`
+        (needs ``record_tracks=True``; the ego is a non-PIRL track with ``agent_id`` and style name "ego")."""
+        if not self.config["record_tracks"]:
+            raise ValueError("this env was made with record_tracks=False; set it to True to record")
+        if self._last_run is None:
+            raise RuntimeError("nothing to record: call reset() first")
+        ego = {"vehicle_id": EGO_ID, "depart": float(self.config["warmup"]), "route_id": self.config["ego_route"],
+               "is_pirl": False, "style": BACKGROUND_STYLE, "style_name": EGO_ID,
+               **{f"theta_{f}": np.nan for f in FEATURE_NAMES}}
+        plan = pd.concat([self._plan, pd.DataFrame([ego])], ignore_index=True)
+        lanes, successors = lane_graph(load_net(self._files.net))
+        info = {"simulator": "sumo (pirl_sim/Roundabout-v0)", "ego_route": self.config["ego_route"],
+                "step_length_s": STEP}
+        return scenario_recording(plan, self._last_run.recording(), lanes, successors, info,
+                                  set(self._controller.drivers.handbacks))
 
     def close(self) -> None:
         """End the SUMO run (also at every reset)."""

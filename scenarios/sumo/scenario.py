@@ -87,6 +87,7 @@ __all__ = [
     "vehicle_types_xml",
     "run_sumo_scenario",
     "run_to_directory",
+    "scenario_recording",
     "load_sumo_run",
 ]
 
@@ -439,7 +440,7 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
             "n_not_departed": int((sumo_rec.summary["status"] == "not_departed").sum()),
             "sim_time_s": round(sumo_rec.sim_time_s, 6),
         }
-        recording = _scenario_recording(plan, sumo_rec, lanes, successors, info, set(controller.handbacks))
+        recording = scenario_recording(plan, sumo_rec, lanes, successors, info, set(controller.handbacks))
         written = None
         if out_dir is not None:
             out = Path(out_dir)
@@ -475,7 +476,7 @@ def _without_generator_comment(xml: str) -> str:
     return xml if end < 0 else xml[:start] + xml[end + 3:].lstrip("\n")
 
 
-def _scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors, info,
+def scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors, info,
                         handed_back: set[str]) -> ScenarioRecording:
     """The simulator-neutral recording of a SUMO run (track ids 1, 2, ... in departure order).
 
