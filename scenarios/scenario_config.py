@@ -5,27 +5,49 @@
 - :func:`config_table` / :func:`from_table`: a TOML table into a frozen config dataclass, unknown keys
   rejected with the list of valid ones;
 - :func:`scenario_from_table` and :func:`load_toml`: a whole scenario configuration from a TOML file;
-- :data:`Progress`: the progress callback every ``run_*_scenario`` takes.
+- :data:`Progress`: the progress callback every ``run_*_scenario`` takes; :func:`run_timing`: the timing
+  summary every run returns.
 """
 
 from __future__ import annotations
 
+import math
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
 from pirl_sim.validation import check_keys, int_at_least, number
 
 from .population_config import PopulationConfig, population_from_dict
 
-__all__ = ["Progress", "MpcDriverConfig", "config_table", "from_table", "scenario_from_table",
+__all__ = ["Progress", "run_timing", "MpcDriverConfig", "config_table", "from_table", "scenario_from_table",
            "load_toml"]
 
 #: ``progress(simulated time [s], vehicles finished, vehicles in all)``
 Progress = Callable[[float, int, int], None]
+
+
+def run_timing(sim_time_s: float, wall_time_s: float, present, controller, **times: float) -> dict[str, float]:
+    """A run's timing: ``sim_time_s``, ``wall_time_s``, the simulator's own ``times`` [s], the PIRL drivers'
+    ``plan_time_s`` (MPC) and ``n_plans`` (:class:`~pirl_sim.scenarios.drivers.PirlDrivers` ``controller``),
+    ``n_steps``, ``mean_vehicles`` / ``max_vehicles`` on the road per step (``present``: counts per step)
+    and ``real_time_factor`` (simulated / wall seconds)."""
+    return {
+        "sim_time_s": sim_time_s,
+        "wall_time_s": wall_time_s,
+        **times,
+        "plan_time_s": controller.plan_time_s,
+        "n_steps": len(present),
+        "n_plans": controller.n_plans,
+        "mean_vehicles": float(np.mean(present)) if present else 0.0,
+        "max_vehicles": int(max(present, default=0)),
+        "real_time_factor": sim_time_s / wall_time_s if wall_time_s > 0 else math.inf,
+    }
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ import numpy as np
 from highway_env.envs.common.observation import KinematicObservation
 from highway_env.vehicle.kinematics import Vehicle
 
-__all__ = ["RoundaboutKinematics", "DIRECT_FEATURES", "kinematics_rows"]
+__all__ = ["RoundaboutKinematics", "DIRECT_FEATURES", "kinematics_rows", "shuffle_rows"]
 
 #: features computed from (x, y, speed, heading) alone, without ``Vehicle.to_dict``
 DIRECT_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h")
@@ -67,6 +67,15 @@ def kinematics_rows(states: np.ndarray, features, *, absolute: bool = False, fea
     values = np.column_stack([cols[f] for f in features]) if n else np.zeros((0, len(features)))
     return _finished(values, features, features_range if normalize else None, clip,
                      n if vehicles_count is None else vehicles_count)
+
+
+def shuffle_rows(obs: np.ndarray, rows: list, rng: np.random.Generator) -> list:
+    """Shuffle rows 1.. of ``obs`` in place with the draw highway-env makes for it (``rng.shuffle`` of V-1
+    items) and return ``rows`` (the vehicles of those rows) in the same new order."""
+    perm = np.arange(len(obs) - 1)
+    rng.shuffle(perm)
+    obs[1:] = obs[1:][perm]
+    return [rows[i] for i in perm]
 
 
 def _finished(values: np.ndarray, features, features_range, clip: bool, vehicles_count: int) -> np.ndarray:
@@ -126,9 +135,6 @@ class RoundaboutKinematics(KinematicObservation):
                             self.vehicles_count)
         rows = close + [None] * (self.vehicles_count - 1 - len(close))
         if self.order == "shuffled":
-            perm = np.arange(self.vehicles_count - 1)
-            self.env.np_random.shuffle(perm)  # the draw highway-env makes for shuffling obs[1:]
-            obs[1:] = obs[1:][perm]
-            rows = [rows[i] for i in perm]
+            rows = shuffle_rows(obs, rows, self.env.np_random)
         self.rows = rows
         return obs.astype(self.space().dtype)

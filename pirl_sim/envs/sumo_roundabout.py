@@ -59,7 +59,7 @@ from pirl_sim.scenarios.sumo.scenario import (
 from pirl_sim.validation import check_keys, number
 
 from .common import EGO_ID, EgoReward, check_common, common_defaults, neighbour_info
-from .observation import DIRECT_FEATURES, kinematics_rows
+from .observation import DIRECT_FEATURES, kinematics_rows, shuffle_rows
 
 __all__ = ["PirlRoundaboutSumoEnv"]
 
@@ -344,10 +344,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         rows = [self._who.get(vid, _Neighbour(vid, "", -1, np.zeros(len(FEATURE_NAMES)))) for _, vid, _ in near]
         rows += [None] * (self._count - 1 - len(rows))
         if o.get("order", "sorted") == "shuffled":
-            perm = np.arange(self._count - 1)
-            self.np_random.shuffle(perm)
-            obs[1:] = obs[1:][perm]
-            rows = [rows[i] for i in perm]
+            rows = shuffle_rows(obs, rows, self.np_random)
         self._rows = rows
         return obs.astype(np.float32)
 

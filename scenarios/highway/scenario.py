@@ -25,7 +25,6 @@ without interaction, collision or removal).
 
 from __future__ import annotations
 
-import math
 import time as _time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
@@ -43,7 +42,7 @@ from ..drivers import RouteSet, RouteSetDriverModel, route_set_model
 from ..planning import check_routes, check_seed, plan_population, random_streams, route_id
 from ..population_config import DEFAULT_POPULATION, PopulationConfig
 from ..recording import INFO_FILE, RecordingFiles, ScenarioRecording, read_recording, write_recording
-from ..scenario_config import Progress, config_table, from_table, load_toml, scenario_from_table
+from ..scenario_config import Progress, config_table, from_table, load_toml, run_timing, scenario_from_table
 from .network import ARMS, LANE_WIDTH, RoundaboutGeometry, build_network, lane_graph, route_catalogue, route_set
 from .traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
 
@@ -289,18 +288,7 @@ def run_highway_scenario(config: HighwayScenarioConfig | None = None, seed: int 
     }
     recording = traffic.recording(info, lanes, successors)
     files = write_recording(recording, out_dir, lane_width=LANE_WIDTH) if out_dir is not None else None
-    ctrl = traffic.controller
-    timing = {
-        "sim_time_s": traffic.time,
-        "wall_time_s": wall,
-        "act_time_s": traffic.act_time_s,
-        "plan_time_s": ctrl.plan_time_s,
-        "n_steps": len(present),
-        "n_plans": ctrl.n_plans,
-        "mean_vehicles": float(np.mean(present)) if present else 0.0,
-        "max_vehicles": int(max(present, default=0)),
-        "real_time_factor": traffic.time / wall if wall > 0 else math.inf,
-    }
+    timing = run_timing(traffic.time, wall, present, traffic.controller, act_time_s=traffic.act_time_s)
     model = route_set_model(routes, dt=STEP_LENGTH, a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
     return HighwayScenarioResult(config, seed, plan, traffic.summary(), recording, routes, model, timing, files)
 

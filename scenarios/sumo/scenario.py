@@ -39,7 +39,6 @@ that are not flagged are what :func:`~pirl_sim.scenarios.demonstrations.recorded
 
 from __future__ import annotations
 
-import math
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -68,7 +67,7 @@ from ..recording import (
     read_recording,
     write_recording,
 )
-from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, scenario_from_table
+from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, run_timing, scenario_from_table
 from .network import RoundaboutSpec, build_network, lane_graph, load_net, route_set, routes as network_routes, \
     validate_route
 from .runner import BACKENDS, COLLISION_ACTIONS, SPEED_MODE_ALL_CHECKS, SumoRecording, SumoRun, VehicleSpec
@@ -449,18 +448,8 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
             for p in (files.nodes, files.edges, files.connections, files.net, vtypes):
                 atomic_write_text(out / NETWORK_DIR / p.name, _without_generator_comment(p.read_text("utf-8")))
             written = write_recording(recording, out, lane_width=config.network.lane_width)
-    wall = sumo_rec.wall_time_s
-    timing = {
-        "sim_time_s": sumo_rec.sim_time_s,
-        "wall_time_s": wall,
-        "control_time_s": controller.control_time_s,
-        "plan_time_s": controller.plan_time_s,
-        "n_steps": len(present),
-        "n_plans": controller.n_plans,
-        "mean_vehicles": float(np.mean(present)) if present else 0.0,
-        "max_vehicles": int(max(present, default=0)),
-        "real_time_factor": sumo_rec.sim_time_s / wall if wall > 0 else math.inf,
-    }
+    timing = run_timing(sumo_rec.sim_time_s, sumo_rec.wall_time_s, present, controller,
+                        control_time_s=controller.control_time_s)
     learner_model = route_set_model(routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max)
     return SumoScenarioResult(config, seed, backend, plan, sumo_rec, recording, routes, learner_model, timing,
                               written)
