@@ -7,10 +7,11 @@ import io
 import numpy as np
 import pandas as pd
 
-__all__ = ["knn_vs_k", "feature_clusters", "s_t_predictions", "weight_tracking"]
+__all__ = ["knn_vs_k", "feature_clusters", "s_t_predictions", "weight_tracking", "pyplot", "png_bytes"]
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend (imported on first use)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -19,16 +20,17 @@ def _plt():
     return plt
 
 
-def _png(fig) -> bytes:
+def png_bytes(fig) -> bytes:
+    """The figure as PNG bytes without a time-stamped metadata field (same data, same bytes); closes it."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
-    _plt().close(fig)
+    pyplot().close(fig)
     return buf.getvalue()
 
 
 def knn_vs_k(ktable: pd.DataFrame, title: str) -> bytes:
     """MED of PIRL-kNN against k, one line per protocol (mean, bars: std over test trajectories)."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.6), dpi=100)
     for name, g in ktable.groupby("protocol", sort=False):
         ax.errorbar(g["k"], g["med"], yerr=g["med_std"], marker="o", capsize=3, label=name)
@@ -40,7 +42,7 @@ def knn_vs_k(ktable: pd.DataFrame, title: str) -> bytes:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=None, style_names=None) -> bytes:
@@ -48,7 +50,7 @@ def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=
 
     values (M, K) raw features; labels (M,) learned clusters; true_styles (M,) optional, drawn as markers.
     """
-    plt = _plt()
+    plt = pyplot()
     logv = np.log10(np.maximum(values, 1e-12))
     pairs = [(0, 1), (0, 2), (1, 2)] if values.shape[1] >= 3 else [(0, 1)]
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), dpi=100, squeeze=False)
@@ -74,7 +76,7 @@ def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=
     axes[0][-1].legend(handles=handles, fontsize=7, loc="best")
     fig.suptitle("Clusters in feature space (colour: learned cluster, marker: true style)")
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def s_t_predictions(t: np.ndarray, truth: np.ndarray, predictions: dict, history_steps: int) -> bytes:
@@ -82,7 +84,7 @@ def s_t_predictions(t: np.ndarray, truth: np.ndarray, predictions: dict, history
 
     t (T,) [s]; truth (n, T) [m]; predictions {learner: (n, T - history_steps) [m]}.
     """
-    plt = _plt()
+    plt = pyplot()
     n = truth.shape[0]
     fig, axes = plt.subplots(1, n, figsize=(3.3 * n, 3.2), dpi=100, squeeze=False, sharey=False)
     for i, ax in enumerate(axes[0]):
@@ -96,7 +98,7 @@ def s_t_predictions(t: np.ndarray, truth: np.ndarray, predictions: dict, history
     axes[0][0].legend(fontsize=7)
     fig.suptitle("S-T: recorded vs predicted after the observed history (dotted line)")
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def weight_tracking(t: np.ndarray, inferred: np.ndarray, true: np.ndarray, label: str, switch_time: float) -> bytes:
@@ -104,7 +106,7 @@ def weight_tracking(t: np.ndarray, inferred: np.ndarray, true: np.ndarray, label
 
     inferred (M, T) and true (T,) values of the plotted quantity.
     """
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.4), dpi=100)
     for m in range(inferred.shape[0]):
         ax.plot(t, inferred[m], color="C0", alpha=0.35, lw=1)
@@ -117,4 +119,4 @@ def weight_tracking(t: np.ndarray, inferred: np.ndarray, true: np.ndarray, label
     ax.grid(True, alpha=0.3)
     ax.set_title("Online inference follows a style switch")
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)

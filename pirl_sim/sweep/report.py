@@ -27,29 +27,13 @@ import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 
+from pirl_sim.harness.figures import png_bytes, pyplot
+
 from .run import read_table
 
 __all__ = ["write_report", "summary_table", "best_variants"]
 
 _K_IN_LABEL = re.compile(r"k=[^,)]+(, )?")
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _png(fig) -> bytes:
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    _plt().close(fig)
-    return buf.getvalue()
 
 
 def _base_label(label: str) -> str:
@@ -80,7 +64,7 @@ def best_variants(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def _grid(n: int, width: float = 4.6, height: float = 3.4):
-    plt = _plt()
+    plt = pyplot()
     ncols = min(3, n)
     nrows = math.ceil(n / ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(width * ncols, height * nrows), dpi=100, squeeze=False)
@@ -114,7 +98,7 @@ def med_vs_k(summary: pd.DataFrame) -> bytes | None:
         ax.legend(fontsize=6)
     fig.suptitle("MED vs k (mean over seeds)", fontsize=10)
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _variant(scenario_label: str, experiment: str) -> str:
@@ -171,7 +155,7 @@ def learners_side_by_side(best: pd.DataFrame) -> bytes:
         ax.legend(fontsize=6)
     fig.suptitle("Learners side by side (best k where several ran)", fontsize=10)
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None:
@@ -190,7 +174,7 @@ def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None
             panels.append((scen, proto, labels))
     if not panels:
         return None
-    plt = _plt()
+    plt = pyplot()
     ncols = max(len(p[2]) for p in panels)
     fig, axes = plt.subplots(len(panels), ncols, figsize=(2.9 * ncols, 2.9 * len(panels)), dpi=100, squeeze=False)
     for row, (scen, proto, labels) in enumerate(panels):
@@ -228,7 +212,7 @@ def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None
     fig.suptitle("Weight recovery on test histories (normalised weights; dotted: inferred = true; triangles: "
                  "beyond the axes)", fontsize=9)
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _fmt(x) -> str:
