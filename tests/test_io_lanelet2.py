@@ -255,12 +255,38 @@ def test_partly_off_map_track_counts_off_map_points(ring_map, rng):
     assert match.lanelet_ids[0] == ids["entry"]
 
 
-def test_unconnected_lanelets_raise(ring_map, rng):
-    lmap, _, _ = ring_map
+def test_a_break_in_the_graph_keeps_the_longer_part_of_the_track(ring_map, rng):
+    """From the ring back onto the entry no graph path leads: the 50 ring points are the route, the 20
+    entry points are marked unconnected (this raised and dropped the whole track)."""
+    lmap, ids, _ = ring_map
     track = ring_track(150, np.pi, rng)
-    xy = np.vstack([track[100:], track[:20]])  # from the ring back onto the entry: no graph path
-    with pytest.raises(ValueError, match="no route through the routing graph"):
-        match_route(lmap, xy)
+    xy = np.vstack([track[100:], track[:20]])
+    match = match_route(lmap, xy)
+    names = {v: k for k, v in ids.items()}
+    assert all(names[i].startswith("ring") for i in match.lanelet_ids)
+    np.testing.assert_array_equal(match.unconnected, np.arange(70) >= 50)
+    assert match.n_unconnected == 20 and match.n_off_map == 0
+    assert np.all(match.point_route_index[50:] == -1) and np.all(match.point_route_index[:50] >= 0)
+
+
+def test_one_unconnected_point_is_left_out_not_fatal(ring_map, rng):
+    """A single stray position on a lanelet no route reaches (here: the entry, mid-ring) is left out and
+    counted; the route is the one the other points drove."""
+    lmap, ids, _ = ring_map
+    xy = ring_track(150, np.pi * 0.9, rng, noise=0.05)
+    clean = match_route(lmap, xy)
+    stray = xy.copy()
+    stray[120] = [-20.0, -RING_RADIUS]  # on the entry, while the track is already on ring2 / ring3
+    match = match_route(lmap, stray)
+    assert match.lanelet_ids == clean.lanelet_ids
+    np.testing.assert_array_equal(np.flatnonzero(match.unconnected), [120])
+    assert match.n_unconnected == 1 and match.point_route_index[120] == -1
+    np.testing.assert_array_equal(np.delete(match.point_route_index, 120), np.delete(clean.point_route_index, 120))
+
+
+def test_a_clean_track_has_no_unconnected_points(ring_map, rng):
+    match = match_route(ring_map[0], ring_track(150, np.pi * 1.5, rng))
+    assert match.n_unconnected == 0 and not match.unconnected.any()
 
 
 @pytest.mark.parametrize(

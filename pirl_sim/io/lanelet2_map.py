@@ -46,6 +46,10 @@ JOINT_TOLERANCE = 0.01  #: [m] largest gap between a lane's end and its successo
 _COST_SUCCESSOR = 1.0  # entering a following lanelet
 _COST_LANE_CHANGE = 1.0  # changing to a left/right lanelet where the routing graph allows it
 _COST_ADJACENT = 3.0  # crossing to a neighbour where the markings forbid a lane change (drivers do it)
+# Leaving an on-map point out of the route: more than any point's own cost (at most ~3: 1 for the offset,
+# 2 for driving against the lanelet), so a point is only left out when its lanelets connect to the rest of
+# the route by no path, or only by a detour of some ten lanelet changes or more (a stray point).
+_COST_UNCONNECTED = 10.0
 _HEADING_WEIGHT = 2.0  # cost of driving against a lanelet's direction; (1 - cos angle) / 2 scaled by this
 _HEADING_WINDOW = 2  # [frames] either side of a point used to estimate its direction of motion
 _MIN_MOTION = 1.0  # [m] displacement over the window below which the direction of motion is not used
@@ -366,13 +370,18 @@ class RouteMatch:
         (P, 2) x, y [m]: the centerlines of the route concatenated, joint points once. Where the route
         changes lane it leaves one centerline and joins the next at the point where the track crossed.
     point_route_index : numpy.ndarray
-        (n,) int: for each track point, the position in ``lanelet_ids`` of its lanelet; -1 off-map.
+        (n,) int: for each track point, the position in ``lanelet_ids`` of its lanelet; -1 for a point
+        off-map or unconnected.
     offsets : numpy.ndarray
         (n,) distance [m] of each track point from ``centerline``.
     max_offset : float
         The ``max_offset`` [m] of the match.
     n_off_map : int
         Points farther than ``max_offset`` from every lanelet centerline and outside every lanelet.
+    unconnected : numpy.ndarray
+        (n,) bool: on-map points left out of the route because no path through the routing graph (or only
+        a long detour) joins their lanelets to the route's: a stray point, or the part of a track on the
+        far side of a break in the graph (the shorter part is left out).
     """
 
     lanelet_ids: tuple[int, ...]
@@ -383,6 +392,16 @@ class RouteMatch:
     offsets: np.ndarray = field(repr=False)
     max_offset: float
     n_off_map: int
+    unconnected: np.ndarray = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.unconnected is None:
+            object.__setattr__(self, "unconnected", np.zeros(len(self.point_route_index), dtype=bool))
+
+    @property
+    def n_unconnected(self) -> int:
+        """On-map points left out of the route (see ``unconnected``)."""
+        return int(np.count_nonzero(self.unconnected))
 
     @property
     def fraction_within(self) -> float:
@@ -401,11 +420,15 @@ def match_route(lmap: LaneletMap, xy, *, max_offset: float = 3.0, psi=None) -> R
       travel is known, 1 - cos(angle between it and the lanelet's direction) (0 along, 2 against), and
     - per change of lanelet between consecutive matched points, the cost of the cheapest path between
       them in the routing graph: 1 per successor or allowed lane change (left/right), 3 per crossing to
-      an adjacent lanelet where a lane change is not allowed; no path, no transition.
+      an adjacent lanelet where a lane change is not allowed; no path, no transition;
+    - per on-map point left out of the route (*unconnected*), 10.
 
     so among the routes the track is consistent with, the one with the fewest lanelet changes wins, and
     lanelets skipped between two points (short ones, or gaps of off-map points) are filled in from the
-    graph. Off-map points take no part in the search.
+    graph. Off-map points take no part in the search. A point whose lanelets no path joins to the rest of
+    the route (or only a detour of about ten lanelet changes) is left out instead of failing the whole
+    track; where the track crosses a real break in the graph, the part with more points is kept as the route
+    and the other part is marked unconnected (``RouteMatch.unconnected``).
 
     Parameters
     ----------
@@ -426,9 +449,8 @@ def match_route(lmap: LaneletMap, xy, *, max_offset: float = 3.0, psi=None) -> R
     Raises
     ------
     ValueError
-        If ``xy`` or ``psi`` is malformed, ``max_offset`` is not positive, every point is off-map (the
-        message gives how many points), or no path through the routing graph connects the lanelets
-        under two consecutive on-map points.
+        If ``xy`` or ``psi`` is malformed, ``max_offset`` is not positive, or every point is off-map (the
+        message gives how many points).
 
     Examples
     --------
@@ -484,30 +506,12 @@ def match_route(lmap: LaneletMap, xy, *, max_offset: float = 3.0, psi=None) -> R
     sources = np.unique(np.concatenate(cands))
     dist, pred = dijkstra(idx.graph, directed=True, indices=sources, return_predecessors=True)
     row = {int(s): r for r, s in enumerate(sources)}
-
-    # Viterbi over on-map points
-    cost = emission[on_map[0], cands[0]]
-    back: list[np.ndarray] = []
-    for step in range(1, len(on_map)):
-        prev, cur = cands[step - 1], cands[step]
-        trans = dist[[row[int(p)] for p in prev]][:, cur]  # (|prev|, |cur|), 0 on the diagonal
-        total = cost[:, None] + trans
-        best = np.argmin(total, axis=0)
-        best_cost = total[best, np.arange(len(cur))]
-        if not np.isfinite(best_cost).any():
-            before = sorted({idx.nodes[int(i)][0] for i in prev})
-            after = sorted({idx.nodes[int(i)][0] for i in cur})
-            raise ValueError(
-                f"no route through the routing graph leads from lanelet(s) {before} at point "
-                f"{on_map[step - 1]} to lanelet(s) {after} at point {on_map[step]}"
-            )
-        back.append(best)
-        cost = best_cost + emission[on_map[step], cur]
-    state = [int(np.argmin(cost))]
-    for best in reversed(back):
-        state.append(int(best[state[-1]]))
-    state.reverse()
-    path_nodes = [int(cands[step][s]) for step, s in enumerate(state)]
+    matched = _viterbi_with_skips(emission[on_map][:, sources], dist[:, sources], _COST_UNCONNECTED)
+    keep = matched >= 0
+    unconnected = np.zeros(n, dtype=bool)
+    unconnected[on_map[~keep]] = True
+    on_map = on_map[keep]
+    path_nodes = [int(sources[m]) for m in matched[keep]]
 
     # expand into the route, filling in lanelets between consecutive points from the graph
     route = [path_nodes[0]]
@@ -542,7 +546,57 @@ def match_route(lmap: LaneletMap, xy, *, max_offset: float = 3.0, psi=None) -> R
         offsets=offsets,
         max_offset=float(max_offset),
         n_off_map=int(n_off),
+        unconnected=unconnected,
     )
+
+
+def _viterbi_with_skips(emission: np.ndarray, dist: np.ndarray, skip_cost: float) -> np.ndarray:
+    """The cheapest assignment of points to nodes, where a point may also be left out.
+
+    Parameters
+    ----------
+    emission : array (T, S)   cost of point t on node j; inf where j is not a candidate of t
+    dist : array (S, S)       cost of moving from node i to node j (0 on the diagonal, inf without a path)
+    skip_cost : float         cost of leaving one point out
+
+    Returns
+    -------
+    array (T,) int: the node of each point, -1 where it was left out. At least one point is matched when any
+    point has a candidate.
+
+    The state after point t is the node of the last matched point (or "none yet"), so a left-out point does
+    not break the chain: the next matched point is joined to the last matched one. Minimises the sum of the
+    matched points' emissions, the moves between consecutive matched points and skip_cost per left-out point.
+    """
+    T, S = emission.shape
+    none = S  # state: no point matched yet
+    cost = np.full(S + 1, np.inf)
+    cost[none] = 0.0
+    back = np.full((T, S + 1), -1, dtype=np.int64)  # matched from this state; -1: point t left out
+    for t in range(T):
+        cand = np.flatnonzero(np.isfinite(emission[t]))
+        skipped = cost + skip_cost
+        new = skipped.copy()
+        if len(cand):
+            trans = np.vstack([cost[:S, None] + dist[:, cand], np.full((1, len(cand)), cost[none])])
+            best = np.argmin(trans, axis=0)
+            matched = trans[best, np.arange(len(cand))] + emission[t, cand]
+            take = matched <= skipped[cand]
+            new[cand[take]] = matched[take]
+            back[t, cand[take]] = best[take]
+        cost = new
+    out = np.full(T, -1, dtype=np.int64)
+    if not np.isfinite(cost[:S]).any():
+        return out
+    state = int(np.argmin(cost[:S]))
+    for t in range(T - 1, -1, -1):
+        if state == none:
+            break
+        prev = int(back[t, state])
+        if prev >= 0:
+            out[t] = state
+            state = prev
+    return out
 
 
 def _directions(xy: np.ndarray, psi) -> np.ndarray:
