@@ -122,7 +122,8 @@ def _replay(args) -> int:
                                seeds=tuple(range(args.seeds)))
         say(f"[1/3] reading {len(files)} track files and {args.map}")
         scene = load_replay(files, args.map, dt=dt)
-        say(f"[2/3] {len(scene.trajectories)} tracks converted, {len(scene.selected)} not interacting; skipped {scene.skipped}")
+        say(f"[2/3] {scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), "
+            f"{scene.n_selected_tracks} not interacting; skipped {scene.skipped}; route repairs {scene.repairs}")
         result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"))
     except (ValueError, FileNotFoundError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)

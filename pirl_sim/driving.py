@@ -79,10 +79,16 @@ class CompositePath:
     metres of zero curvature (the desired speed there is the speed limit), which is also what a prediction
     running past the end of its path sees (the straight-line extension of `ReferencePath`).
 
+    Each gap is split at its middle: its first half belongs to the path before it (a track or prediction
+    running past that path's end), its second half to the path after it (a track that starts before its
+    path's first point, at a negative local arc length). Path k thus owns composite arc lengths
+    ``[offset_k - gap/2, offset_k + length_k + gap/2)`` (the first path everything below, the last everything
+    above), and a point there is placed on path k, extrapolated straight beyond its ends.
+
     Parameters
     ----------
     segments : tuple of ReferencePath (open paths)
-    gap : float  [m], longer than any prediction overruns a path's end
+    gap : float  [m], more than twice as long as any track or prediction runs beyond a path's ends
     """
 
     segments: tuple
@@ -123,15 +129,36 @@ class CompositePath:
         return float(self.s[-1])
 
     def segment_of(self, s: np.ndarray) -> np.ndarray:
-        """Index of the path that arc length s belongs to (its gap counts with it)."""
-        return np.clip(np.searchsorted(self.offsets, np.asarray(s, dtype=float), side="right") - 1, 0, None)
+        """Index of the path that composite arc length s [m] belongs to: the path whose range, extended by
+        half a gap at either end, holds s (see class doc)."""
+        starts = self.offsets - 0.5 * self.gap  # where each path's share of the gap before it begins
+        return np.clip(np.searchsorted(starts, np.asarray(s, dtype=float), side="right") - 1, 0, None)
 
-    def to_cartesian(self, s, d, *, extrapolate: bool = True) -> np.ndarray:
-        """Point at composite arc length s [m] and lateral offset d [m], shape (..., 2)."""
+    def local_range(self, segment: int) -> tuple[float, float]:
+        """Local arc lengths [m] of path ``segment`` that `segment_of` maps back to it: (low, high), the
+        path's own [0, length] extended by half a gap at either end (unbounded at the composite's ends)."""
+        k = int(segment)
+        if not 0 <= k < len(self.segments):
+            raise IndexError(f"segment {k} out of range for {len(self.segments)} paths")
+        low = -np.inf if k == 0 else -0.5 * self.gap
+        high = np.inf if k == len(self.segments) - 1 else self.segments[k].length + 0.5 * self.gap
+        return float(low), float(high)
+
+    def to_cartesian(self, s, d, *, extrapolate: bool = True, segment=None) -> np.ndarray:
+        """Point at composite arc length s [m] and lateral offset d [m], shape (..., 2).
+
+        ``segment`` (int or int array broadcastable to s), when given, names the path to place each point
+        on instead of `segment_of` (s): a point beyond that path's ends is extrapolated straight."""
         s = np.asarray(s, dtype=float)
         d = np.broadcast_to(np.asarray(d, dtype=float), s.shape)
         out = np.empty(s.shape + (2,))
-        seg = self.segment_of(s)
+        if segment is None:
+            seg = self.segment_of(s)
+        else:
+            seg = np.broadcast_to(np.asarray(segment), s.shape)
+            n_seg = len(self.segments)
+            if not np.issubdtype(seg.dtype, np.integer) or (seg.size and not 0 <= seg.min() <= seg.max() < n_seg):
+                raise ValueError(f"segment must be integer path indices in [0, {n_seg}), got {segment!r}")
         for k in np.unique(seg):
             sel = seg == k
             out[sel] = self.segments[k].to_cartesian(s[sel] - self.offsets[k], d[sel], extrapolate=True)

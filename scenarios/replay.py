@@ -12,6 +12,12 @@ when, at any of its frames, another vehicle was ahead of it (within 90 degrees o
 Interacting tracks are kept but flagged; experiments use the others. Every track or file that cannot be used
 is counted with its reason in ``skipped`` and logged; it never stops the others.
 
+Route matching leaves out positions that no path through the routing graph joins to the rest of the route
+(`RouteMatch.unconnected`). A run of at most ``MAX_BRIDGE`` such frames inside a track is bridged: its
+Frenet (s, d) are interpolated between the frames either side (the recorded x, y stay as they are). Longer
+runs cut the track there, and its longest connected part is kept (if it is still long enough); leading and
+trailing runs are cut off. The counts are in ``ReplayScene.repairs``.
+
 Simulated scenes written by pirl_sim carry a ``ground_truth.csv`` sidecar beside the tracks (track_id,
 style, theta_<feature> ...); its values go into each trajectory's metadata.
 """
@@ -32,11 +38,12 @@ from pirl_sim.paths import ReferencePath
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["SelectionRule", "ReplayScene", "load_replay", "interaction_flags", "FRAME_DT"]
+__all__ = ["SelectionRule", "ReplayScene", "load_replay", "interaction_flags", "track_key", "FRAME_DT", "MAX_BRIDGE"]
 
 log = logging.getLogger(__name__)
 
 FRAME_DT = 0.1  #: [s] INTERACTION frame period
+MAX_BRIDGE = 5  #: [frames] longest run of unconnected positions inside a track that is bridged (0.5 s)
 
 
 @dataclass(frozen=True)
@@ -76,19 +83,58 @@ class ReplayScene:
         (s, v, a) states with metadata ``track_id``, ``file``, ``route`` (lanelet ids), ``segment``,
         ``d`` (n + 1,) lateral offsets [m], ``xy`` (n + 1, 2) recorded positions [m] at the model's dt,
         ``interacted`` and, from a sidecar, ``theta`` (normalised) and ``style``.
-    skipped : dict {reason: count}
+        Long tracks are cut into several trajectories (``piece`` 0, 1, ... in metadata): there are more
+        trajectories than tracks.
+    skipped : dict {reason: number of tracks}
     n_tracks : int                tracks read (of the replayed agent types)
+    repairs : dict {what: count}  route-matching repairs of kept tracks (see module doc)
     """
 
     model: PathDriverModel
     trajectories: list[Trajectory]
     skipped: dict = field(default_factory=dict)
     n_tracks: int = 0
+    repairs: dict = field(default_factory=dict)
 
     @property
     def selected(self) -> list[Trajectory]:
-        """Tracks that did not interact (the paper's selection)."""
+        """Pieces of tracks that did not interact (the paper's selection)."""
         return [t for t in self.trajectories if not t.metadata["interacted"]]
+
+    @property
+    def n_converted(self) -> int:
+        """Tracks converted into trajectories (each one or more pieces)."""
+        return len({track_key(t) for t in self.trajectories})
+
+    @property
+    def n_selected_tracks(self) -> int:
+        """Tracks that did not interact."""
+        return len({track_key(t) for t in self.selected})
+
+
+def track_key(trajectory: Trajectory) -> tuple:
+    """(file, track_id) of the recorded track a trajectory (piece) comes from."""
+    return (trajectory.metadata.get("file"), trajectory.metadata.get("track_id"))
+
+
+def _connected_frames(unconnected: np.ndarray, max_bridge: int) -> tuple[slice, np.ndarray]:
+    """The longest run of frames whose unconnected points come in interior runs of <= max_bridge frames.
+
+    Returns (slice of the kept frames, bool mask over the kept frames of the points to bridge).
+    """
+    n = len(unconnected)
+    good = np.flatnonzero(~unconnected)
+    if len(good) == 0:
+        return slice(0, 0), np.zeros(0, dtype=bool)
+    # consecutive connected frames separated by a run of more than max_bridge unconnected ones start a new part
+    breaks = np.flatnonzero(np.diff(good) > max_bridge + 1)
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks, [len(good) - 1]])
+    spans = good[ends] - good[starts]
+    best = int(np.argmax(spans))
+    a, b = int(good[starts[best]]), int(good[ends[best]]) + 1
+    assert 0 <= a < b <= n
+    return slice(a, b), unconnected[a:b].copy()
 
 
 def interaction_flags(df: pd.DataFrame, rule: SelectionRule) -> dict[int, bool]:
@@ -184,6 +230,7 @@ def load_replay(
         raise ValueError(f"dt must be a positive multiple of the {FRAME_DT} s frames, got {dt!r}")
     lmap = load_map(map_path)  # a map that fails to load is an error for the whole scene
     skipped: Counter = Counter()
+    repairs: Counter = Counter()
     paths: dict[tuple[int, ...], int] = {}
     path_list: list[ReferencePath] = []
     pending = []  # (segment, s_local (n,), d (n,), xy (n, 2), meta)
@@ -220,16 +267,37 @@ def load_replay(
             xy = track[["x", "y"]].to_numpy()
             try:
                 match = match_route(lmap, xy, max_offset=max_offset, psi=track["psi_rad"].to_numpy())
-                key = tuple(match.lanelet_ids)
-                if key not in paths:
-                    paths[key] = len(path_list)
-                    path_list.append(ReferencePath.from_polyline(match.centerline))
-                path = path_list[paths[key]]
-                s_local, d = path.to_frenet(xy, extrapolate=True)
             except ValueError as exc:
                 skipped["no route on the map"] += 1
                 log.info("track %s of %s skipped: %s", track_id, file.name, exc)
                 continue
+            keep, bridge = _connected_frames(match.unconnected, MAX_BRIDGE)
+            if match.n_unconnected:
+                cut = match.n_unconnected - int(bridge.sum())
+                repairs["unconnected positions bridged"] += int(bridge.sum())
+                if cut:
+                    repairs["unconnected positions cut off"] += cut
+                    repairs["tracks cut at a break in the route"] += 1
+                log.info("track %s of %s: %d positions unconnected to its route (%d bridged)", track_id,
+                         file.name, match.n_unconnected, int(bridge.sum()))
+            if (keep.stop - keep.start - 1) * FRAME_DT < rule.min_duration:
+                skipped["shorter than min_duration after cutting at a break in the route"] += 1
+                continue
+            xy = xy[keep]
+            key = tuple(match.lanelet_ids)
+            if key not in paths:
+                paths[key] = len(path_list)
+                path_list.append(ReferencePath.from_polyline(match.centerline))
+            try:
+                s_local, d = path_list[paths[key]].to_frenet(xy, extrapolate=True)
+            except ValueError as exc:
+                skipped["no route on the map"] += 1
+                log.info("track %s of %s skipped: %s", track_id, file.name, exc)
+                continue
+            if bridge.any():
+                frames_k = np.arange(len(xy))
+                s_local = np.interp(frames_k, frames_k[~bridge], s_local[~bridge])
+                d = np.interp(frames_k, frames_k[~bridge], d[~bridge])
             sel = slice(0, None, stride)
             meta = {"track_id": int(track_id), "file": str(file), "route": key, "interacted": flags[int(track_id)]}
             if truth is not None and int(track_id) in truth.index:
@@ -239,6 +307,18 @@ def load_replay(
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
     composite = CompositePath(tuple(path_list))
+    placed = []
+    for segment, s_local, d, xy, meta in pending:
+        low, high = composite.local_range(segment)
+        if s_local.min() < low or s_local.max() > high:  # would fall onto a neighbouring route's share
+            skipped["runs more than half a route gap beyond its route's ends"] += 1
+            log.info("track %s of %s skipped: local arc lengths [%.0f, %.0f] m outside [%.0f, %.0f] m",
+                     meta["track_id"], Path(meta["file"]).name, s_local.min(), s_local.max(), low, high)
+            continue
+        placed.append((segment, s_local, d, xy, meta))
+    pending = placed
+    if not pending:
+        raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
     model = roundabout_model(composite, dt=dt)
     names = model.features.names
     trajectories = []
@@ -268,4 +348,6 @@ def load_replay(
         trajectories.append(Trajectory(states, controls, dt, meta))
     for reason, count in skipped.items():
         log.warning("%d tracks skipped: %s", count, reason)
-    return ReplayScene(model, trajectories, dict(skipped), n_tracks)
+    for what, count in repairs.items():
+        log.warning("route matching: %d %s", count, what)
+    return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs))

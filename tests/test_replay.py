@@ -116,9 +116,220 @@ def test_replay_cli_end_to_end(scene_dir, tmp_path, capsys):
                  "--learners", "tirl,pirl-knn", "--knn-k", "3,10", "--out", str(res), "--quiet"]) == 0
     summary = pd.read_csv(res / "summary.csv")
     assert {"TIRL", "PIRL-kNN (k=3)", "PIRL-kNN (k=10)", "CV (path)", "CA (path)", "CV (x, y)"} <= set(summary["method"])
+    conv = summary.set_index("method")["irl_converged"]
+    assert conv["TIRL"].endswith(" / 2")  # one group per fit, two split seeds
+    assert conv["PIRL-kNN (k=3)"] == conv["PIRL-kNN (k=10)"]  # one shared fit per split
+    assert "irl_converged" in (res / "README.md").read_text()
     for name in ("clusters.png", "s_t.png", "knn_k.png"):
         assert (res / name).stat().st_size > 0
     assert (res / "README.md").read_text().count("Tracks read: 160") == 1
     assert main(["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--learners", "svm",
                  "--out", str(res)]) == 2
     assert "unknown learners ['svm']" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------------
+# regressions from replaying real INTERACTION roundabout recordings
+# ----------------------------------------------------------------------------------------------
+
+LANE_LENGTH = 500.0  # [m]
+LANE_Y = {"A": 0.0, "B": 60.0}  # two parallel straight lanes, both +x, no routing-graph link between them
+
+
+def _track_rows(track_id, first_frame, x0, n, y, speed=10.0):
+    frames = np.arange(first_frame, first_frame + n)
+    x = x0 + speed * 0.1 * np.arange(n)
+    yy = np.broadcast_to(np.asarray(y, dtype=float), (n,))
+    return pd.DataFrame({"track_id": track_id, "frame_id": frames, "timestamp_ms": 100 * frames, "agent_type": "car",
+                         "x": x, "y": yy, "vx": speed, "vy": 0.0, "psi_rad": 0.0, "length": 4.5, "width": 1.8})
+
+
+def _straight_scene(tmp_path, tracks):
+    """A map of the two lanes and one track file; tracks: list of (lane, x0 [m], frames, y override or None),
+    each in its own frames (no two tracks share a frame: nobody interacts)."""
+    from pirl_sim.io.interaction import write_tracks
+    from pirl_sim.io.lanelet2_map import write_map
+
+    x = np.linspace(0.0, LANE_LENGTH, 41)
+    write_map({k: np.column_stack([x, np.full_like(x, y)]) for k, y in LANE_Y.items()}, {}, tmp_path / "map.osm")
+    rows, frame = [], 1
+    for i, (lane, x0, n, y) in enumerate(tracks):
+        rows.append(_track_rows(i + 1, frame, x0, n, LANE_Y[lane] if y is None else y))
+        frame += n + 10
+    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
+    return tmp_path / "vehicle_tracks_000.csv", tmp_path / "map.osm"
+
+
+def test_composite_path_keeps_points_before_a_path_on_that_path():
+    from pirl_sim.driving import CompositePath
+    from pirl_sim.paths import ReferencePath
+
+    x = np.linspace(0.0, 100.0, 11)
+    a = ReferencePath.from_polyline(np.column_stack([x, np.zeros_like(x)]))
+    b = ReferencePath.from_polyline(np.column_stack([x, np.full_like(x, 50.0)]))
+    comp = CompositePath((a, b), gap=300.0)
+    off = comp.offsets[1]
+    s = np.array([off - 20.0, off - 149.0, a.length + 20.0, a.length + 149.0, -5.0, off + b.length + 400.0])
+    np.testing.assert_array_equal(comp.segment_of(s), [1, 1, 0, 0, 0, 1])
+    xy = comp.to_cartesian(s, np.zeros_like(s))
+    expected = [[-20.0, 50.0], [-149.0, 50.0], [120.0, 0.0], [249.0, 0.0], [-5.0, 0.0], [500.0, 50.0]]
+    np.testing.assert_allclose(xy, expected, atol=1e-6)  # each extrapolated straight from its own path
+    # an explicit segment wins over the arc length
+    np.testing.assert_allclose(comp.to_cartesian(off - 200.0, 0.0, segment=1), [-200.0, 50.0], atol=1e-6)
+    assert comp.local_range(0) == (-np.inf, a.length + 150.0) and comp.local_range(1) == (-150.0, np.inf)
+    with pytest.raises(ValueError, match="segment must be integer path indices"):
+        comp.to_cartesian(0.0, 0.0, segment=2)
+
+
+def test_track_starting_before_its_route_stays_on_its_route(tmp_path):
+    """Track 2 starts 20 m before lane B (its first 2 s off-map, at negative arc lengths of its route, the
+    second path of the composite). Those steps were placed on lane A's extension, 300-400 m away."""
+    tracks, osm = _straight_scene(tmp_path, [("A", 5.0, 150, None), ("B", -20.0, 150, None)])
+    scene = load_replay([tracks], osm, max_steps=None)
+    t = {tr.metadata["track_id"]: tr for tr in scene.trajectories}[2]
+    assert t.metadata["segment"] == 1 and t.states[0, 0] < scene.model.path.offsets[1]
+    xy = scene.model.positions(t.states, t.metadata["d"])
+    assert np.abs(xy - t.metadata["xy"]).max() < 0.1
+    # the replay scores on the same axis: CV along the path from the first window is exact on this track
+    from pirl_sim.harness.replay import _errors
+
+    proto = ReplayProtocol(history=2, horizon=10, fde_steps=(10,))
+    x0 = t.states[2]
+    s_pred = x0[0] + x0[1] * 0.2 * np.arange(1, 11)
+    assert _errors(scene.model, [t], [(0, 2)], s_pred[None], proto).max() < 0.1
+
+
+def test_counts_are_tracks_and_pieces_separately(tmp_path):
+    """Long tracks are cut into 20 s pieces: the scene and the replay count tracks, pieces separately."""
+    spec = [("A" if i % 2 else "B", 1.0, 450, None) for i in range(8)]  # 45 s each: 3 pieces of <= 20 s
+    tracks, osm = _straight_scene(tmp_path, spec)
+    scene = load_replay([tracks], osm)
+    assert scene.n_converted == 8 and len(scene.trajectories) == 24 and scene.n_selected_tracks == 8
+    result = run_replay(scene, [("TIRL", "tirl", {})], ReplayProtocol(seeds=(0,)))
+    rows = result["rows"]
+    assert set(rows["n_train"]) == {6} and set(rows["n_test"]) == {2}
+    # the last piece of each track (24 steps) is shorter than history + horizon (25 steps): 2 pieces per track
+    assert set(rows["n_train_pieces"]) == {12} and set(rows["n_test_pieces"]) == {4}
+    assert result["selected"] == 8 and result["selected_pieces"] == 16
+    from pirl_sim.harness.replay import write_replay_results
+
+    write_replay_results(result, scene, tmp_path / "res", "test")
+    text = (tmp_path / "res" / "README.md").read_text()
+    assert "converted: 8 (in 24 pieces)" in text and "used (not interacting, long enough): 8 (in 16 pieces)" in text
+
+
+def test_ca_baseline_never_reverses():
+    from pirl_sim.harness.replay import _baseline_s
+
+    x0 = np.array([
+        [10.0, -0.5, -1.0],  # reversing estimate, braking: stays
+        [10.0, 0.0, -2.0],   # stopped, braking: stays
+        [10.0, -0.2, 0.0],   # reversing estimate, no acceleration: stays
+        [10.0, 2.0, -1.0],   # braking: stops after 2 s at 12 m
+        [10.0, -0.2, 1.0],   # starting from standstill
+        [10.0, 5.0, 0.5],    # accelerating
+    ])
+    s = _baseline_s("CA (path)", x0, 15, 0.2)
+    t = 0.2 * np.arange(1, 16)
+    np.testing.assert_allclose(s[0], 10.0)
+    np.testing.assert_allclose(s[1], 10.0)
+    np.testing.assert_allclose(s[2], 10.0)
+    np.testing.assert_allclose(s[3], 10.0 + 2.0 * np.minimum(t, 2.0) - 0.5 * np.minimum(t, 2.0) ** 2)
+    np.testing.assert_allclose(s[4], 10.0 + 0.5 * t**2)
+    np.testing.assert_allclose(s[5], 10.0 + 5.0 * t + 0.25 * t**2)
+    assert np.all(np.diff(np.column_stack([x0[:, :1], s]), axis=1) >= 0)
+
+
+def _small_scene(scene_dir, n=48):
+    from pirl_sim.scenarios.replay import ReplayScene
+
+    out, _ = scene_dir
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
+    return ReplayScene(scene.model, scene.trajectories[:n], scene.skipped, n)
+
+
+def test_knn_with_another_k_equals_refitting(scene_dir):
+    from pirl_sim.harness.replay import knn_with_neighbors
+    from pirl_sim.learners import PIRLKNN
+
+    scene = _small_scene(scene_dir)
+    train, test = scene.trajectories[:36], scene.trajectories[36:]
+    histories = [t.window(10, 20) for t in test]
+    params = dict(model=scene.model, window=10, prior="population", stride=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        base = PIRLKNN(n_neighbors=1, **params).fit(train)
+        for k in (3, 10):
+            refit = PIRLKNN(n_neighbors=k, **params).fit(train)
+            derived = knn_with_neighbors(base, k)
+            assert derived.get_params()["n_neighbors"] == k and base.n_neighbors == 1
+            np.testing.assert_array_equal(derived.infer_weights(histories), refit.infer_weights(histories))
+    with pytest.raises(ValueError, match="larger than the number of training samples"):
+        knn_with_neighbors(base, 10_000)
+
+
+def test_replay_fits_knn_once_per_split_for_all_k(scene_dir, monkeypatch):
+    from pirl_sim.learners import PIRLKNN
+
+    scene = _small_scene(scene_dir)
+    proto = ReplayProtocol(seeds=(0, 1))
+    specs = [(f"PIRL-kNN (k={k})", "pirl-knn", {"n_neighbors": k, "prior": "population", "stride": 2})
+             for k in (10, 3)]
+    alone = run_replay(scene, [specs[0]], proto)["rows"].set_index(["seed", "method"])
+    calls = []
+    original = PIRLKNN._fit
+    monkeypatch.setattr(PIRLKNN, "_fit", lambda self, *a: calls.append(self.n_neighbors) or original(self, *a))
+    rows = run_replay(scene, specs, proto)["rows"]
+    assert calls == [3, 3]  # one IRL per split, with the smallest k; k=10 reuses it
+    assert list(rows["method"].unique()) == ["CV (path)", "CA (path)", "PIRL-kNN (k=10)", "PIRL-kNN (k=3)",
+                                             "CV (x, y)"]
+    both = rows.set_index(["seed", "method"])
+    for seed in proto.seeds:
+        key = (seed, "PIRL-kNN (k=10)")
+        assert both.loc[key, "med"] == alone.loc[key, "med"]  # identical to refitting with k=10
+        assert both.loc[key, "irl_from"] == "PIRL-kNN (k=3)"
+        assert both.loc[key, "irl_converged"] == alone.loc[key, "irl_converged"]
+
+
+def test_replay_reports_irl_convergence_and_passes_other_warnings_on(scene_dir, monkeypatch):
+    from pirl_sim.harness.replay import summarize
+    from pirl_sim.irl import IRLConvergenceWarning
+    from pirl_sim.learners import TIRL
+
+    scene = _small_scene(scene_dir)
+    original = TIRL._fit
+
+    def noisy_fit(self, *args):
+        original(self, *args)
+        warnings.warn("not an IRL diagnostic", UserWarning)
+        warnings.warn("stand-in for a non-converged group", IRLConvergenceWarning)
+
+    monkeypatch.setattr(TIRL, "_fit", noisy_fit)
+    with pytest.warns(UserWarning, match="not an IRL diagnostic"):  # was silenced by a blanket filter
+        result = run_replay(scene, [("TIRL", "tirl", {})], ReplayProtocol(seeds=(0, 1)))
+    tirl = result["rows"].query("method == 'TIRL'")
+    assert list(tirl["irl_convergence_warnings"]) == [1, 1] and list(tirl["irl_groups"]) == [1, 1]
+    summary = summarize(result).set_index("method")
+    n_conv = int(tirl["irl_converged"].sum())
+    assert summary.loc["TIRL", "irl_converged"] == f"{n_conv} / 2"
+    assert summary.loc["TIRL", "irl_convergence_warnings"] == 2
+    assert summary.loc["CV (path)", "irl_converged"] == ""
+
+
+def test_unconnected_positions_are_bridged_or_cut_not_fatal(tmp_path):
+    """Lanes A and B have no routing-graph link. Track 1 drives A with one frame recorded on B (a stray
+    position); track 2 drives A for 8 s, then B for 3 s (a break). Each was dropped as 'no route on the map'."""
+    stray = np.zeros(150)
+    stray[70] = LANE_Y["B"]
+    jump = np.where(np.arange(110) < 80, LANE_Y["A"], LANE_Y["B"])
+    tracks, osm = _straight_scene(tmp_path, [("A", 5.0, 150, stray), ("A", 5.0, 110, jump), ("B", 5.0, 100, None)])
+    scene = load_replay([tracks], osm, max_steps=None)
+    assert not scene.skipped
+    by_id = {t.metadata["track_id"]: t for t in scene.trajectories}
+    assert set(by_id) == {1, 2, 3}
+    assert scene.repairs == {"unconnected positions bridged": 1, "unconnected positions cut off": 30,
+                             "tracks cut at a break in the route": 1}
+    t1, t2 = by_id[1], by_id[2]
+    assert t1.n_steps == 74 and t2.n_steps == 39  # 150 frames -> 75 samples; the 80 frames on A -> 40
+    np.testing.assert_allclose(t1.states[:, 1], 10.0, atol=0.05)  # the bridged frame does not disturb the speed
+    assert np.all(t2.metadata["xy"][:, 1] == LANE_Y["A"])

@@ -6,18 +6,30 @@ last ``history`` steps and the MPC predicts the next ``horizon`` steps from the 
 prediction is mapped to Cartesian metres on the track's own path at its last observed lateral offset and
 compared with the recorded positions. Baselines use the same windows:
 
-- ``CV (path)``: constant speed along the path, ``CA (path)``: constant acceleration along the path (speed
-  kept >= 0), both from the estimated state at t;
+- ``CV (path)``: constant speed along the path, ``CA (path)``: constant acceleration along the path, both
+  from the estimated state at t; CA is physical: a car braking stops at v = 0 and stays there, a car with
+  v <= 0 and a <= 0 stays where it is, one with v <= 0 and a > 0 starts from standstill (the start-state rule
+  of `PathDriverModel.predict_states`);
 - ``CV (x, y)``: constant velocity in the plane from the last two recorded positions.
 
 Scores per (seed, method): MED [m] (mean over windows of the mean distance over the horizon) and
-displacement errors at fixed horizons. Differences between methods are paired by window, averaged per seed,
+displacement errors at fixed horizons. Counts are of recorded tracks (``n_train``, ``n_test``) and of the
+pieces long tracks are cut into (``n_train_pieces``, ``n_test_pieces``).
+
+PIRL-kNN learners that differ only in k share one fit per split: the per-demonstration IRL, the look-up
+samples and their feature space do not depend on k, so the learner with the smallest k is fitted and the
+others are copies of it with only their nearest-neighbour index rebuilt (`knn_with_neighbors`; identical to
+refitting). Warnings raised while fitting are not silenced: the IRL's own diagnostics
+(`pirl_sim.irl.IRLConvergenceWarning`, `HessianRegularizationWarning`) are counted per fit, together with
+the learner's converged IRL groups (``irl_result_.converged``), and reported in the rows and the summary;
+any other warning is passed on. Differences between methods are paired by window, averaged per seed,
 and reported with their standard error over the seeds: on ~60 real test tracks the gaps between methods
 were as large as the split-to-split noise, so a single split proves nothing.
 """
 
 from __future__ import annotations
 
+import copy
 import time
 import warnings
 from dataclasses import dataclass
@@ -25,10 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["ReplayProtocol", "run_replay", "paired_differences", "BASELINES"]
+__all__ = ["ReplayProtocol", "run_replay", "paired_differences", "knn_with_neighbors", "BASELINES"]
 
 BASELINES = ("CV (path)", "CA (path)", "CV (x, y)")
 
@@ -76,11 +89,16 @@ def _windows(test, proto: ReplayProtocol):
 
 
 def _errors(model, test, windows, s_pred, proto) -> np.ndarray:
-    """Distances (W, horizon) between predicted arc lengths mapped to x, y and the recorded positions."""
+    """Distances (W, horizon) between predicted arc lengths mapped to x, y and the recorded positions (on the
+    track's own route of a `CompositePath`, even where a prediction runs beyond that route's ends)."""
+    from pirl_sim.driving import CompositePath
+
     err = np.empty((len(windows), proto.horizon))
+    composite = isinstance(model.path, CompositePath)
     for w, (i, step) in enumerate(windows):
         t = test[i]
-        xy = model.path.to_cartesian(s_pred[w], np.full(proto.horizon, t.metadata["d"][step]))
+        on = {"segment": int(t.metadata["segment"])} if composite and "segment" in t.metadata else {}
+        xy = model.path.to_cartesian(s_pred[w], np.full(proto.horizon, t.metadata["d"][step]), **on)
         err[w] = np.linalg.norm(xy - t.metadata["xy"][step + 1 : step + 1 + proto.horizon], axis=1)
     return err
 
@@ -90,10 +108,85 @@ def _baseline_s(kind: str, x0: np.ndarray, horizon: int, dt: float) -> np.ndarra
     s0, v0, a0 = x0[:, :1], x0[:, 1:2], x0[:, 2:3]
     if kind == "CV (path)":
         return s0 + v0 * tt
-    # constant acceleration, stopping rather than reversing
-    t_stop = np.where(a0 < 0, np.minimum(-v0 / np.minimum(a0, -1e-12), tt[-1]), tt[-1])
+    # constant acceleration from a non-negative speed, stopping at v = 0 rather than reversing
+    v0 = np.maximum(v0, 0.0)
+    braking = a0 < 0
+    t_stop = np.full(a0.shape, np.inf)
+    t_stop[braking] = v0[braking] / -a0[braking]  # 0 for a car that is already stopped
     tc = np.minimum(tt, t_stop)
     return s0 + v0 * tc + 0.5 * a0 * tc**2
+
+
+_IRL_WARNINGS = {IRLConvergenceWarning: "irl_convergence_warnings",
+                 HessianRegularizationWarning: "hessian_regularization_warnings"}
+
+
+def _fit_with_diagnostics(fit) -> dict:
+    """Run ``fit()`` (returns the fitted learner); count the IRL's warnings, pass every other warning on.
+
+    Returns {"learner", "irl_converged", "irl_groups", "irl_convergence_warnings",
+    "hessian_regularization_warnings"}.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        learner = fit()
+    out = {"learner": learner, **{name: 0 for name in _IRL_WARNINGS.values()}}
+    for w in caught:
+        name = next((n for c, n in _IRL_WARNINGS.items() if issubclass(w.category, c)), None)
+        if name is not None:
+            out[name] += 1
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+    res = getattr(learner, "irl_result_", None)
+    converged = np.asarray(res.converged, dtype=bool) if res is not None else np.zeros(0, dtype=bool)
+    out["irl_converged"], out["irl_groups"] = int(converged.sum()), int(converged.size)
+    return out
+
+
+def knn_with_neighbors(fitted, n_neighbors: int):
+    """A fitted PIRL-kNN learner with another number of neighbours, without refitting its IRL.
+
+    Everything PIRL-kNN learns except its nearest-neighbour index is independent of k (per-demonstration
+    weights, look-up samples, feature scaling): the copy shares those and gets a new index over the same
+    samples, built as the learner builds it. Predictions are identical to fitting with ``n_neighbors``.
+
+    Parameters
+    ----------
+    fitted : PIRLKNN, fitted
+    n_neighbors : int, at most the number of look-up samples
+
+    Returns
+    -------
+    PIRLKNN (a shallow copy; ``fitted`` is not changed)
+    """
+    from sklearn.base import clone
+    from sklearn.utils.validation import check_is_fitted
+
+    check_is_fitted(fitted, "neighbors_")
+    if not is_positive_int(n_neighbors):
+        raise ValueError(f"n_neighbors must be a positive integer, got {n_neighbors!r}")
+    Z = fitted.neighbors_._fit_X  # the look-up samples in the learner's feature space
+    if n_neighbors > len(Z):
+        raise ValueError(f"n_neighbors={n_neighbors} is larger than the number of training samples ({len(Z)})")
+    out = copy.copy(fitted)
+    out.n_neighbors = n_neighbors
+    out.neighbors_ = clone(fitted.neighbors_).set_params(n_neighbors=int(n_neighbors)).fit(Z)
+    return out
+
+
+def _shared_knn_fits(learner_specs) -> dict[int, int]:
+    """{spec index: index of the spec whose fit it reuses} for PIRL-kNN specs that differ only in k (each
+    group reuses the fit of its smallest k, the one whose fit succeeds whenever any does)."""
+    groups: dict[str, list[int]] = {}
+    for i, (_, key, params) in enumerate(learner_specs):
+        if key == "pirl-knn":
+            rest = {k: v for k, v in params.items() if k != "n_neighbors"}
+            groups.setdefault(repr(sorted(rest.items())), []).append(i)
+    out = {}
+    for members in groups.values():
+        base = min(members, key=lambda i: learner_specs[i][2].get("n_neighbors", 1))
+        out.update({i: base for i in members if i != base})
+    return out
 
 
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None) -> dict:
@@ -110,28 +203,35 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     -------
     dict with ``rows`` (tidy DataFrame: seed, method, med, fde@k, n_windows, fit_s, predict_s, and for
     scenes with ground truth ari / weight_error), ``paired`` (DataFrame of paired differences against TIRL),
-    ``errors`` {(seed, method): per-window MED (W,)} and ``selected`` (number of tracks used).
+    ``errors`` {(seed, method): per-window MED (W,)}, ``selected`` (number of tracks used) and
+    ``selected_pieces`` (number of pieces of them). Rows of learners carry their fit diagnostics:
+    ``irl_converged`` / ``irl_groups`` (IRL groups that converged / all), ``irl_convergence_warnings``,
+    ``hessian_regularization_warnings`` (warnings raised during the fit) and ``irl_from`` (the method whose
+    fit a PIRL-kNN learner reused, else empty).
     """
     from pirl_sim.learners import make_learner
 
     say = progress or (lambda msg: None)
     tracks = [t for t in scene.selected if t.n_steps >= proto.history + proto.horizon]
-    if len(tracks) < 4:
+    # split by track: pieces of one long track never sit on both sides
+    keys = [(t.metadata.get("file"), t.metadata.get("track_id", i)) for i, t in enumerate(tracks)]
+    unique = sorted(set(keys), key=str)
+    if len(unique) < 4:
         raise ValueError(
-            f"only {len(tracks)} selected tracks have {proto.history + proto.horizon} steps; need at least 4"
+            f"only {len(unique)} selected tracks have {proto.history + proto.horizon} steps; need at least 4"
         )
     model = scene.model
     dt = model.dynamics.dt
     rows, errors, examples = [], {}, {}
-    # split by track: pieces of one long track never sit on both sides
-    keys = [(t.metadata.get("file"), t.metadata.get("track_id", i)) for i, t in enumerate(tracks)]
-    unique = sorted(set(keys), key=str)
+    reuse = _shared_knn_fits(learner_specs)
     for seed in proto.seeds:
         order = np.random.default_rng(seed).permutation(len(unique))
         n_test = max(1, int(round(proto.test_fraction * len(unique))))
         test_keys = {unique[i] for i in order[:n_test]}
         test = [t for t, k in zip(tracks, keys) if k in test_keys]
         train = [t for t, k in zip(tracks, keys) if k not in test_keys]
+        counts = {"n_train": len(unique) - n_test, "n_test": n_test,
+                  "n_train_pieces": len(train), "n_test_pieces": len(test)}
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
@@ -140,19 +240,31 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         methods = {}
         for kind in BASELINES[:2]:
             methods[kind] = (_baseline_s(kind, x0, proto.horizon, dt), 0.0, 0.0, {})
-        for name, key, params in learner_specs:
-            learner = make_learner(key, model=model, window=proto.history, windows="sliding", **params)
+        fitted = {}  # spec index -> (learner, fit diagnostics), for reuse by PIRL-kNN with another k
+        order = sorted(range(len(learner_specs)), key=lambda i: i in reuse)  # shared fits first
+        for i in order:
+            name, key, params = learner_specs[i]
             t0 = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                learner.fit(train)
+            if i in reuse:
+                base, diag = fitted[reuse[i]]
+                learner = knn_with_neighbors(base, params.get("n_neighbors", 1))
+                diag = dict(diag, irl_from=learner_specs[reuse[i]][0])
+            else:
+                learner = make_learner(key, model=model, window=proto.history, windows="sliding", **params)
+                diag = _fit_with_diagnostics(lambda: learner.fit(train))
+                del diag["learner"]
+                diag["irl_from"] = ""
+            fitted[i] = (learner, diag)
             fit_s = time.perf_counter() - t0
             t0 = time.perf_counter()
             theta = learner.infer_weights(histories)
             s_pred = model.predict_states(x0, theta, proto.horizon)[:, 1:, 0]
-            extra = _truth_scores(learner, train, test, windows, theta, model)
+            extra = {**_truth_scores(learner, train, test, windows, theta, model), **diag}
             methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
-            say(f"seed {seed}: {name} fitted in {fit_s:.1f} s")
+            how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
+            say(f"seed {seed}: {name} {how} in {fit_s:.1f} s; IRL converged for {diag['irl_converged']} of "
+                f"{diag['irl_groups']} groups")
+        methods = {name: methods[name] for name in [*BASELINES[:2], *(sp[0] for sp in learner_specs)]}
         if seed == proto.seeds[0]:  # a few windows for the S-T figure
             shown = np.linspace(0, len(windows) - 1, min(4, len(windows))).astype(int)
             examples = {
@@ -165,7 +277,7 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             err = _errors(model, test, windows, s_pred, proto)
             errors[(seed, name)] = err.mean(axis=1)
             row = {"seed": seed, "method": name, "med": float(err.mean()), "n_windows": len(windows),
-                   "n_train": len(train), "n_test": len(test), "fit_s": fit_s, "predict_s": pred_s, **extra}
+                   **counts, "fit_s": fit_s, "predict_s": pred_s, **extra}
             for k in proto.fde_steps:
                 row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
             rows.append(row)
@@ -178,13 +290,13 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             err[w] = np.linalg.norm(pred - xy[step + 1 : step + 1 + proto.horizon], axis=1)
         errors[(seed, "CV (x, y)")] = err.mean(axis=1)
         row = {"seed": seed, "method": "CV (x, y)", "med": float(err.mean()), "n_windows": len(windows),
-               "n_train": len(train), "n_test": len(test), "fit_s": 0.0, "predict_s": 0.0}
+               **counts, "fit_s": 0.0, "predict_s": 0.0}
         for k in proto.fde_steps:
             row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
         rows.append(row)
     rows = pd.DataFrame(rows)
-    return {"rows": rows, "paired": paired_differences(errors, "TIRL"), "errors": errors, "selected": len(tracks),
-            "examples": examples, "history": proto.history}
+    return {"rows": rows, "paired": paired_differences(errors, "TIRL"), "errors": errors, "selected": len(unique),
+            "selected_pieces": len(tracks), "examples": examples, "history": proto.history}
 
 
 def _truth_scores(learner, train, test, windows, theta, model) -> dict:
@@ -216,12 +328,22 @@ def paired_differences(errors: dict, reference: str) -> pd.DataFrame:
 
 
 def summarize(result: dict) -> pd.DataFrame:
-    """Mean and standard deviation over seeds of every score, one row per method (sorted by MED)."""
+    """Mean and standard deviation over seeds of every score, one row per method (sorted by MED); for
+    learners also ``irl_converged`` ("converged groups / groups", summed over seeds) and the numbers of IRL
+    warnings raised while fitting (summed over seeds)."""
     rows = result["rows"]
     scores = [c for c in rows.columns if c == "med" or c.startswith("de@") or c in ("ari", "weight_error")]
     agg = rows.groupby("method")[scores].agg(["mean", "std"])
     agg.columns = [f"{a}_{b}" for a, b in agg.columns]
-    return agg.sort_values("med_mean").reset_index()
+    out = agg.sort_values("med_mean").reset_index()
+    if "irl_groups" in rows:
+        fits = rows[rows["irl_groups"].notna()].groupby("method")
+        totals = fits[["irl_converged", "irl_groups", *_IRL_WARNINGS.values()]].sum().astype(int)
+        conv = {m: f"{r.irl_converged} / {r.irl_groups}" for m, r in totals.iterrows()}
+        out["irl_converged"] = out["method"].map(conv).fillna("")
+        for col in _IRL_WARNINGS.values():
+            out[col] = out["method"].map(totals[col]).astype(float)  # NaN (empty) for baselines
+    return out
 
 
 def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
@@ -237,14 +359,22 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     atomic_write_text(out / "summary.csv", summary.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "paired.csv", result["paired"].to_csv(index=False, float_format="%.6g"))
     _write_figures(result, scene, out)
-    n_inter = sum(t.metadata["interacted"] for t in scene.trajectories)
+    from pirl_sim.scenarios.replay import track_key
+
+    n_inter = len({track_key(t) for t in scene.trajectories if t.metadata["interacted"]})
     lines = [
         "# Replay experiment",
         "",
         f"Made by `{command}`.",
         "",
-        f"Tracks read: {scene.n_tracks}; converted: {len(scene.trajectories)}; flagged as interacting: {n_inter}; "
-        f"used (not interacting, long enough): {result['selected']}. Skipped: {scene.skipped or 'none'}.",
+        f"Tracks read: {scene.n_tracks}; converted: {scene.n_converted} (in {len(scene.trajectories)} pieces); "
+        f"flagged as interacting: {n_inter}; used (not interacting, long enough): {result['selected']} "
+        f"(in {result['selected_pieces']} pieces). Skipped: {scene.skipped or 'none'}. "
+        f"Route-matching repairs: {getattr(scene, 'repairs', None) or 'none'}.",
+        "",
+        "Counts of train and test tracks per split are in rows.csv (n_train, n_test; their pieces in "
+        "n_train_pieces, n_test_pieces). irl_converged: IRL groups whose Newton iteration converged / all groups, "
+        "summed over the split seeds (PIRL-kNN learners that differ only in k share one fit per split).",
         "",
         "## Scores (mean and std over split seeds)",
         "",
@@ -270,8 +400,9 @@ def _write_figures(result: dict, scene, out) -> None:
 
     tracks = scene.selected
     model = scene.model
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
+    with warnings.catch_warnings():  # an illustration: its IRL diagnostics are not reported
+        for category in _IRL_WARNINGS:
+            warnings.simplefilter("ignore", category)
         gmm = PIRLGMM(model, n_components=min(3, len(tracks)), random_state=0).fit(tracks)
     styles = np.array([t.metadata.get("style", -1) for t in tracks])
     atomic_write_bytes(out / "clusters.png", figures.feature_clusters(
