@@ -42,6 +42,7 @@ __all__ = [
     "PathDriverModel",
     "roundabout_model",
     "fit_longitudinal_states",
+    "estimate_longitudinal_states",
     "DEFAULT_BOUNDS",
 ]
 
@@ -301,7 +302,9 @@ def fit_longitudinal_states(
 
     Solves ``min_{x0, U} sum_k (s_k(x0, U) - s_obs_k)^2 + jerk_weight * sum_k u_k^2`` (ridge on the
     controls only), so speed and acceleration come out consistent with the dynamics instead of from noisy
-    finite differences — the start state of a prediction should be the last state of this fit.
+    finite differences — the start state of a prediction should be the last state of this fit. This is
+    :func:`estimate_longitudinal_states` from positions only with ``sigma_j = sigma_s / sqrt(jerk_weight)``
+    (the same normal equations); with observed speeds as well, use that function.
 
     Parameters
     ----------
@@ -313,23 +316,190 @@ def fit_longitudinal_states(
     -------
     states : array (n, n_x), controls : array (n - 1, n_u)
     """
-    s_obs = np.asarray(s_obs, dtype=float)
-    if s_obs.ndim != 1 or s_obs.size < 2:
-        raise ValueError(f"s_obs must be a 1-D array of at least 2 positions, got shape {s_obs.shape}")
-    if not np.all(np.isfinite(s_obs)):
-        raise ValueError("s_obs contains non-finite values")
+    s_obs = _observations("s_obs", s_obs)
     if not np.isfinite(jerk_weight) or jerk_weight <= 0:
         raise ValueError(f"jerk_weight must be > 0, got {jerk_weight!r}")
-    n = s_obs.size - 1
+    return _fit_through_dynamics(dynamics, [(0, s_obs, 1.0)], float(jerk_weight))
+
+
+#: Default noise model of :func:`estimate_longitudinal_states` (chosen by measurement, see there).
+ESTIMATE_SIGMA_S = 0.1  # [m]
+ESTIMATE_SIGMA_V = 0.001  # [m/s]
+ESTIMATE_SIGMA_J = 3.0  # [m/s^3]
+ESTIMATE_SIGMA_A = 0.01  # [m/s^2]
+
+
+def estimate_longitudinal_states(
+    s_obs: np.ndarray,
+    dynamics: LinearDynamics,
+    *,
+    v_obs: np.ndarray | None = None,
+    sigma_s: float = ESTIMATE_SIGMA_S,
+    sigma_v: float = ESTIMATE_SIGMA_V,
+    sigma_j: float = ESTIMATE_SIGMA_J,
+    a_obs: np.ndarray | None = None,
+    sigma_a: float = ESTIMATE_SIGMA_A,
+    step_mask: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """States and controls (x0, U) through the dynamics that best explain observed positions and speeds.
+
+    Model: the observed arc lengths are ``s_obs_k = s_k(x0, U) + e_k``, e_k iid N(0, sigma_s^2), the
+    observed speeds ``v_obs_k = v_k(x0, U) + f_k``, f_k iid N(0, sigma_v^2), the jerks have the prior
+    u_k iid N(0, sigma_j^2) and x0 a flat prior; states follow ``x_{k+1} = A x_k + B u_k`` exactly. The
+    estimate is the posterior mode (= mean), i.e. the weighted least squares
+
+        min_{x0, U}  sum_k (s_k - s_obs_k)^2 / sigma_s^2 + sum_k (v_k - v_obs_k)^2 / sigma_v^2
+                     + sum_k u_k^2 / sigma_j^2,
+
+    one linear solve of size n_x + (n - 1) n_u. Without ``v_obs`` only the positions enter (then only the
+    ratio sigma_s / sigma_j matters; :func:`fit_longitudinal_states` is this with
+    ``jerk_weight = (sigma_s / sigma_j)^2``).
+
+    Defaults (measured on ``simulate sumo --seed 0``, PIRL drivers' true MPC start states and applied jerks
+    logged inside the controller, 1-frame steps of 0.1 s): the data are not noisy but the model is not exact
+    there: ``s`` is the projection on the route's reference path, which lies up to ~0.2 m off the lane
+    centre, so ds/dt differs from the simulator's speed by up to ~1-2 % in curves. Speeds are therefore
+    trusted tightly (sigma_v = 0.01 m/s) and positions loosely (sigma_s = 0.1 m): see the measured errors
+    in the module's report in ``estimate_longitudinal_states.__doc__`` below.
+
+    Parameters
+    ----------
+    s_obs : array (n,)
+        Observed arc lengths [m] at the model's dt, n >= 2.
+    dynamics : LinearDynamics
+        Position as state 0 and speed as state 1 (e.g. :func:`pirl_sim.dynamics.longitudinal`).
+    v_obs : array (n,), optional
+        Observed speeds [m/s] at the same times (e.g. ``hypot(vx, vy)``).
+    sigma_s : float
+        Position noise [m], > 0.
+    sigma_v : float
+        Speed noise [m/s], > 0 (unused without ``v_obs``).
+    sigma_j : float
+        Prior standard deviation of the jerks [m/s^3], > 0.
+    a_obs : array (n,), optional
+        Observed accelerations [m/s^2] (state 2), NaN where not observed (e.g. only where a driver
+        re-started from a measured acceleration); noise N(0, sigma_a^2).
+    sigma_a : float
+        Acceleration noise [m/s^2], > 0 (unused without ``a_obs``).
+    step_mask : array (n - 1,) of bool, optional
+        Steps across which the dynamics hold (default: all). A False step breaks the track: each run of
+        frames joined by True steps is fitted on its own (its own x0), because there the simulator did not
+        carry out the driver's command and the driver re-started from a measured state (an acceleration that
+        jumps, which no jerk of the model explains; fitting across such a step rings into its neighbours).
+        A frame with no True step on either side takes its state from the fit of the whole track. A False
+        step's control is the jerk that carries the acceleration across, (a_{k+1} - a_k) / dt; its positions
+        and speeds do not follow the dynamics.
+
+    Returns
+    -------
+    states : array (n, n_x)
+        [m, m/s, m/s^2] for the longitudinal model.
+    controls : array (n - 1, n_u)
+        [m/s^3]. ``states[k + 1] = A states[k] + B controls[k]`` on every True step of ``step_mask``.
+
+    Raises
+    ------
+    ValueError
+        Non-finite or wrongly shaped ``s_obs`` / ``v_obs``, ``v_obs`` of another length, or a sigma that is
+        not a finite number > 0.
+    """
+    s_obs = _observations("s_obs", s_obs)
+    if v_obs is not None:
+        v_obs = _observations("v_obs", v_obs)
+        if v_obs.shape != s_obs.shape:
+            raise ValueError(f"v_obs must have one speed per position: got {v_obs.shape[0]} speeds for "
+                             f"{s_obs.shape[0]} positions")
+        if dynamics.n_x < 2:
+            raise ValueError(f"v_obs needs the speed as state 1, but the dynamics have {dynamics.n_x} state(s)")
+    if a_obs is not None:
+        a_obs = np.asarray(a_obs, dtype=float)
+        if a_obs.shape != s_obs.shape:
+            raise ValueError(f"a_obs must have one value (or NaN) per position: got shape {a_obs.shape} for "
+                             f"{s_obs.shape[0]} positions")
+        if np.isinf(a_obs).any():
+            raise ValueError(f"a_obs contains infinite values (at index {int(np.argmax(np.isinf(a_obs)))}); "
+                             "NaN marks an unobserved acceleration")
+        if dynamics.n_x < 3:
+            raise ValueError(f"a_obs needs the acceleration as state 2, but the dynamics have {dynamics.n_x} "
+                             "state(s)")
+    for name, value in (("sigma_s", sigma_s), ("sigma_v", sigma_v), ("sigma_j", sigma_j), ("sigma_a", sigma_a)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(value) or value <= 0:
+            raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    obs = [(0, s_obs, float(sigma_s) ** -2)]
+    if v_obs is not None:
+        obs.append((1, v_obs, float(sigma_v) ** -2))
+    if a_obs is not None and np.isfinite(a_obs).any():
+        obs.append((2, a_obs, float(sigma_a) ** -2))
+    w_u = float(sigma_j) ** -2
+    n = s_obs.size
+    mask = np.ones(n - 1, dtype=bool) if step_mask is None else np.asarray(step_mask)
+    if mask.shape != (n - 1,) or mask.dtype != bool:
+        raise ValueError(f"step_mask must be a boolean array of shape ({n - 1},) (one per step), got "
+                         f"{mask.dtype} {mask.shape}")
+    if mask.all():
+        return _fit_through_dynamics(dynamics, obs, w_u)
+    states, _ = _fit_through_dynamics(dynamics, obs, w_u)  # for frames that no run can determine alone
+    states = states.copy()
+    controls = np.empty((n - 1, dynamics.n_u))
+    padded = np.concatenate([[False], mask, [False]])
+    starts = np.flatnonzero(~padded[:-1] & padded[1:])  # run i: steps starts[i] .. stops[i] - 1 all True,
+    stops = np.flatnonzero(padded[:-1] & ~padded[1:])  # frames starts[i] .. stops[i]
+    for a, b in zip(starts, stops):
+        part = [(i, values[a:b + 1], w) for i, values, w in obs]
+        n_obs = sum(int(np.isfinite(values).sum()) for _, values, _ in part)
+        if n_obs < dynamics.n_x:  # x0 not determined by this run alone (e.g. one step, positions only)
+            controls[a:b] = _carry(dynamics, states[a:b + 1])
+            continue
+        states[a:b + 1], controls[a:b] = _fit_through_dynamics(dynamics, part, w_u)
+    broken = np.flatnonzero(~mask)
+    controls[broken] = _carry(dynamics, np.stack([states[broken], states[broken + 1]], axis=1))
+    return states, controls
+
+
+def _carry(dynamics: LinearDynamics, pairs: np.ndarray) -> np.ndarray:
+    """The controls (k, n_u) that carry the last state component (the acceleration) from x_k to x_{k+1};
+    ``pairs`` (k, 2, n_x), or a run of states (k + 1, n_x)."""
+    if pairs.ndim == 2:
+        pairs = np.stack([pairs[:-1], pairs[1:]], axis=1)
+    B_last = dynamics.B[-1]
+    gap = pairs[:, 1, -1] - pairs[:, 0] @ dynamics.A[-1]
+    return np.outer(gap, B_last) / float(B_last @ B_last)
+
+
+def _observations(name: str, values) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim != 1 or arr.size < 2:
+        raise ValueError(f"{name} must be a 1-D array of at least 2 values, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        k = int(np.argmax(~np.isfinite(arr)))
+        raise ValueError(f"{name} contains non-finite values ({float(arr[k])!r} at index {k})")
+    return arr
+
+
+def _fit_through_dynamics(dynamics: LinearDynamics, obs, w_u: float) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares for z = (x0, U): ``obs`` is a list of (state index, values (n,) with NaN where
+    not observed, weight); ridge ``w_u`` on U."""
+    n = obs[0][1].size - 1
     phi, gamma = dynamics.condensed(n)
     n_x, n_u = dynamics.n_x, dynamics.n_u
-    # s_k = e0 . x_k for k = 0..n as a linear map of z = (x0, U)
-    rows = np.zeros((n + 1, n_x + n * n_u))
-    rows[0, :n_x] = np.eye(n_x)[0]
-    rows[1:, :n_x] = phi[:, 0, :]
-    rows[1:, n_x:] = gamma[:, 0, :, :].reshape(n, n * n_u)
-    reg = np.zeros(n_x + n * n_u)
-    reg[n_x:] = jerk_weight
-    z = np.linalg.solve(rows.T @ rows + np.diag(reg), rows.T @ s_obs)
+    lhs = np.zeros((n_x + n * n_u, n_x + n * n_u))
+    rhs = np.zeros(n_x + n * n_u)
+    for i, values, w in obs:  # state i at k = 0..n as a linear map of z = (x0, U)
+        rows = np.zeros((n + 1, n_x + n * n_u))
+        rows[0, :n_x] = np.eye(n_x)[i]
+        rows[1:, :n_x] = phi[:, i, :]
+        rows[1:, n_x:] = gamma[:, i, :, :].reshape(n, n * n_u)
+        seen = np.isfinite(values)
+        if not seen.all():
+            rows, values = rows[seen], values[seen]
+        if w == 1.0:  # the position-only fit exactly as it always was
+            lhs += rows.T @ rows
+            rhs += rows.T @ values
+        else:
+            lhs += w * (rows.T @ rows)
+            rhs += w * (rows.T @ values)
+    lhs[n_x:, n_x:] += w_u * np.eye(n * n_u)
+    z = np.linalg.solve(lhs, rhs)
     x0, U = z[:n_x], z[n_x:].reshape(n, n_u)
     return dynamics.rollout(x0, U), U

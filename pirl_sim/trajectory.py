@@ -101,7 +101,8 @@ class Trajectory:
         """The sub-trajectory of steps ``start .. stop - 1`` (states ``start .. stop``).
 
         Negative indices count from the end as in Python slicing; the result keeps the metadata and adds
-        ``window_start`` (absolute step index of its first state).
+        ``window_start`` (absolute step index of its first state). A per-step ``step_mask`` entry (an array
+        of one flag per step) is sliced with the steps.
         """
         n = self.n_steps
         stop = n if stop is None else stop
@@ -113,6 +114,11 @@ class Trajectory:
             )
         meta = dict(self.metadata)
         meta["window_start"] = int(meta.get("window_start", 0)) + start_i
+        if "step_mask" in meta:
+            mask = np.asarray(meta["step_mask"])
+            if mask.shape[:1] != (n,):
+                raise ValueError(f"metadata step_mask has shape {mask.shape}, expected one flag per step ({n},)")
+            meta["step_mask"] = mask[start_i:stop_i]
         return Trajectory(self.states[start_i : stop_i + 1], self.controls[start_i:stop_i], self.dt, meta)
 
     def with_metadata(self, **updates: Any) -> "Trajectory":

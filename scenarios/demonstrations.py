@@ -2,8 +2,11 @@
 
 :func:`recorded_demonstrations` turns the tracks of a :class:`~pirl_sim.scenarios.recording.ScenarioRecording`
 (any simulator's) into longitudinal demonstrations on the routes' global arc-length axis
-(:class:`~pirl_sim.scenarios.drivers.RouteSet`), by default only PIRL drivers' tracks without interaction;
-:class:`RecordedRun` is a run read back from its directory (each simulator's ``load_*_run``).
+(:class:`~pirl_sim.scenarios.drivers.RouteSet`): by default whole PIRL tracks without interaction
+(``selection="tracks"``), or every PIRL track with a per-step mask of the steps whose control is the
+driver's own (``selection="steps"``, needs the recording's ``driver_steps``); :func:`step_selection_summary`
+counts what each rule removes. :class:`RecordedRun` is a run read back from its directory (each simulator's
+``load_*_run``).
 """
 
 from __future__ import annotations
@@ -15,7 +18,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pirl_sim.driving import fit_longitudinal_states
+from pirl_sim.driving import (
+    DEFAULT_BOUNDS,
+    ESTIMATE_SIGMA_A,
+    ESTIMATE_SIGMA_J,
+    ESTIMATE_SIGMA_S,
+    ESTIMATE_SIGMA_V,
+    estimate_longitudinal_states,
+    fit_longitudinal_states,
+)
 from pirl_sim.dynamics import longitudinal
 from pirl_sim.trajectory import Trajectory
 
@@ -23,18 +34,63 @@ from .drivers import RouteSet, RouteSetDriverModel
 from .population_config import FEATURE_NAMES
 from .recording import FRAME_DT_S, ScenarioRecording
 
-__all__ = ["recorded_demonstrations", "RecordedRun"]
+__all__ = ["ESTIMATES", "SELECTIONS", "recorded_demonstrations", "step_selection_summary", "RecordedRun"]
+
+#: how states are estimated: from positions and speeds, or from positions only (the earlier default)
+ESTIMATES: tuple[str, ...] = ("speeds", "positions")
+#: which data are kept: whole tracks without interaction, or every PIRL track with a per-step mask
+SELECTIONS: tuple[str, ...] = ("tracks", "steps")
+_A_LO, _A_HI = DEFAULT_BOUNDS.state["a [m/s^2]"]  # [m/s^2] the drivers' MPC moves its start into these
+
+
+def _stride(dt: float) -> int:
+    stride = round(dt / FRAME_DT_S)
+    if stride < 1 or not math.isclose(stride * FRAME_DT_S, dt, rel_tol=1e-9):
+        raise ValueError(f"dt must be a whole multiple of {FRAME_DT_S} s, got {dt!r}")
+    return stride
+
+
+def _frame_flags(recording: ScenarioRecording) -> dict[int, pd.DataFrame]:
+    """track id -> driver steps indexed by frame, with ``usable`` (the frame's step k -> k + 1 carries the
+    driver's own command: commanded, not overridden, no collision at k or k + 1) and ``restart`` (the driver
+    re-started from a measured acceleration at k: its step k - 1 was not commanded or overridden)."""
+    steps = recording.driver_steps
+    out = {}
+    for tid, g in steps.groupby("track_id", sort=True):
+        g = g.set_index("frame_id")
+        own = g["commanded"].to_numpy() & ~g["overridden"].to_numpy()
+        col = g["collided"].to_numpy()
+        usable = own & ~col & ~np.concatenate([col[1:], [True]])  # the last frame has no step in the track
+        restart = np.concatenate([[False], ~own[:-1]])
+        out[int(tid)] = g.assign(usable=usable, restart=restart)
+    return out
+
+
+def _step_mask(usable: np.ndarray, stride: int, n_steps: int) -> np.ndarray:
+    """Per demonstration step (``stride`` frames each): usable only if all of its frames are."""
+    return usable[: n_steps * stride].reshape(n_steps, stride).all(axis=1)
 
 
 def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, dt: float = FRAME_DT_S,
                             pirl_only: bool = True, non_interacting: bool = True, min_steps: int = 10,
-                            jerk_weight: float = 1e-2) -> list[Trajectory]:
+                            selection: str = "tracks", estimate: str = "speeds",
+                            jerk_weight: float = 1e-2, sigma_s: float = ESTIMATE_SIGMA_S,
+                            sigma_v: float = ESTIMATE_SIGMA_V, sigma_j: float = ESTIMATE_SIGMA_J,
+                            sigma_a: float = ESTIMATE_SIGMA_A) -> list[Trajectory]:
     """Recorded tracks as longitudinal demonstrations (s, v, a; jerk) on the routes' global axis.
 
     Each track's positions are projected on its route's reference path
     (:meth:`pirl_sim.paths.ReferencePath.to_frenet`), shifted to the route's place on the global axis,
     sampled every ``dt`` and turned into states and controls consistent with the dynamics by
-    :func:`pirl_sim.driving.fit_longitudinal_states`.
+    :func:`pirl_sim.driving.estimate_longitudinal_states` (``estimate="speeds"``: positions and the recorded
+    speeds hypot(vx, vy)) or :func:`pirl_sim.driving.fit_longitudinal_states` (``"positions"``).
+
+    Where the recording has ``driver_steps``, every demonstration gets ``step_mask`` and the estimate
+    follows what the drivers did: the dynamics are fitted only across usable steps (a run of usable steps
+    is fitted on its own), and after a frame whose command was not the driver's own or was overridden the
+    driver re-started from the measured acceleration (v_k - v_{k-1}) / 0.1 s moved into the MPC's bounds
+    [-4, 3] m/s^2 (what :class:`~pirl_sim.scenarios.drivers.PirlDrivers` does), which enters as an
+    observed acceleration (``sigma_a``).
 
     Parameters
     ----------
@@ -44,30 +100,61 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
     dt : float
         [s], a whole multiple of the 0.1 s frames.
     pirl_only : bool
-        Only tracks driven by PIRL drivers.
+        Only tracks driven by PIRL drivers (``selection="steps"``: must be True).
     non_interacting : bool
-        Leave out tracks that interacted, collided or were removed early.
+        ``selection="tracks"``: leave out tracks that interacted, collided or were removed early.
     min_steps : int
-        Leave out shorter tracks [steps of dt].
+        Leave out shorter tracks [steps of dt]; with ``selection="steps"``, tracks with fewer usable steps.
+    selection : {"tracks", "steps"}
+        ``"tracks"``: whole tracks as selected by ``pirl_only`` / ``non_interacting`` (the default).
+        ``"steps"``: every PIRL track, with metadata ``step_mask`` (bool, (n_steps,)): True where step t's
+        control is the driver's own unaltered one (commanded at that frame, not overridden, no collision
+        at either end). With dt = 0.1 s a step is a frame; with a coarser dt a step is usable only if all
+        of its frames are (the driver still re-planned every 0.1 s, so the jerk of a coarser step is not
+        one of its commands). Needs ``recording.driver_steps``.
+    estimate : {"speeds", "positions"}
+        State estimate from positions and speeds (noise model ``sigma_s``, ``sigma_v``, ``sigma_j``,
+        ``sigma_a``: see :func:`~pirl_sim.driving.estimate_longitudinal_states`) or from positions only
+        (ridge ``jerk_weight``, as :func:`~pirl_sim.driving.fit_longitudinal_states`; with driver steps:
+        ``sigma_s = 1``, ``sigma_j = 1 / sqrt(jerk_weight)`` per run of usable steps).
     jerk_weight : float
-        Ridge on the jerks of the fit (see ``fit_longitudinal_states``).
+        Ridge on the jerks of the position-only fit.
+    sigma_s, sigma_v, sigma_j, sigma_a : float
+        Noise model of the speed-aware estimate [m, m/s, m/s^3, m/s^2].
 
     Returns
     -------
     list of Trajectory
         In track order; metadata ``track_id``, ``agent_id``, ``route_id``, ``is_pirl``, ``style``,
-        ``style_name``, ``theta`` (normalised weights, NaN for background), ``interacted``.
+        ``style_name``, ``theta`` (normalised weights, NaN for background), ``interacted``, ``first_frame``
+        (frame id of the first state) and, where the recording has driver steps, ``step_mask``.
+
+    Raises
+    ------
+    ValueError
+        A ``dt`` off the frame grid, an unknown ``selection`` or ``estimate``, ``selection="steps"``
+        without driver steps or with ``pirl_only=False``, or a track with gaps in its frames.
     """
-    stride = round(dt / FRAME_DT_S)
-    if stride < 1 or not math.isclose(stride * FRAME_DT_S, dt, rel_tol=1e-9):
-        raise ValueError(f"dt must be a whole multiple of {FRAME_DT_S} s, got {dt!r}")
+    stride = _stride(dt)
+    if selection not in SELECTIONS:
+        raise ValueError(f"selection must be one of {SELECTIONS}, got {selection!r}")
+    if estimate not in ESTIMATES:
+        raise ValueError(f"estimate must be one of {ESTIMATES}, got {estimate!r}")
+    if selection == "steps":
+        if recording.driver_steps is None:
+            raise ValueError("selection='steps' needs the recording's driver_steps (driver_steps.csv); this "
+                             "recording has none (recorded before they were written?)")
+        if not pirl_only:
+            raise ValueError("selection='steps' keeps PIRL tracks only (background traffic has no driver "
+                             "steps); pass pirl_only=True")
     gt = recording.ground_truth
     keep = np.ones(len(gt), dtype=bool)
     if pirl_only:
         keep &= gt["is_pirl"].to_numpy()
-    if non_interacting:
+    if non_interacting and selection == "tracks":
         keep &= ~(gt["interacted"].fillna(False).to_numpy(dtype=bool) | gt["collided"].to_numpy()
                   | gt["removed_early"].to_numpy())
+    flags = _frame_flags(recording) if recording.driver_steps is not None else {}
     dyn = longitudinal(dt)
     by_track = {tid: g for tid, g in recording.tracks.groupby("track_id", sort=True)}
     out = []
@@ -77,17 +164,104 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
         if np.any(np.diff(frames) != 1):
             raise ValueError(f"track {row.track_id} has gaps in its frames; cannot make one demonstration")
         xy = g[["x", "y"]].to_numpy()[::stride]
-        if len(xy) - 1 < min_steps:
+        n_steps = len(xy) - 1
+        if n_steps < min_steps:
             continue
+        f = flags.get(int(row.track_id))
+        mask = a_obs = None
+        if f is not None:
+            f = f.reindex(frames)
+            mask = _step_mask(f["usable"].to_numpy(dtype=bool), stride, n_steps)
+            if selection == "steps" and int(mask.sum()) < min_steps:
+                continue
         r = routes.index(row.route_id)
         s, _ = routes.paths[r].to_frenet(xy, extrapolate=True)
-        states, controls = fit_longitudinal_states(routes.offsets[r] + s, dyn, jerk_weight=jerk_weight)
+        s = routes.offsets[r] + s
+        if estimate == "speeds":
+            v_all = np.hypot(g["vx"].to_numpy(), g["vy"].to_numpy())
+            if f is not None:  # the driver's start acceleration after a step that was not its own
+                restart = f["restart"].to_numpy(dtype=bool, copy=True)
+                restart[0] = False
+                k = np.flatnonzero(restart)
+                a_meas = np.full(len(frames), np.nan)
+                a_meas[k] = np.clip((v_all[k] - v_all[k - 1]) / FRAME_DT_S, _A_LO, _A_HI)
+                a_meas[k[v_all[k] <= 0.0]] = np.maximum(a_meas[k[v_all[k] <= 0.0]], 0.0)
+                a_obs = a_meas[::stride]
+            states, controls = estimate_longitudinal_states(
+                s, dyn, v_obs=v_all[::stride], sigma_s=sigma_s, sigma_v=sigma_v, sigma_j=sigma_j,
+                a_obs=a_obs, sigma_a=sigma_a, step_mask=mask)
+        elif mask is None:
+            states, controls = fit_longitudinal_states(s, dyn, jerk_weight=jerk_weight)
+        else:
+            states, controls = estimate_longitudinal_states(s, dyn, sigma_s=1.0, sigma_j=jerk_weight ** -0.5,
+                                                            step_mask=mask)
         theta = np.array([getattr(row, f"theta_{f}") for f in FEATURE_NAMES])
-        out.append(Trajectory(states, controls, dt, {
+        meta: dict[str, Any] = {
             "track_id": int(row.track_id), "agent_id": row.agent_id, "route_id": row.route_id,
             "is_pirl": bool(row.is_pirl), "style": int(row.style), "style_name": row.style_name,
-            "theta": theta, "interacted": None if pd.isna(row.interacted) else bool(row.interacted)}))
+            "theta": theta, "interacted": None if pd.isna(row.interacted) else bool(row.interacted),
+            "first_frame": int(frames[0])}
+        if mask is not None:
+            meta["step_mask"] = mask
+        out.append(Trajectory(states, controls, dt, meta))
     return out
+
+
+def step_selection_summary(recording: ScenarioRecording, *, dt: float = FRAME_DT_S,
+                           min_steps: int = 10) -> pd.DataFrame:
+    """How many steps and tracks each selection rule removes, per style (PIRL tracks only).
+
+    Counts are in steps of ``dt`` (a step of several frames counts under a rule if any of its frames does);
+    the rules overlap, so the removed counts need not add up.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per style name (sorted) and a row ``"all"``; columns ``tracks``, ``steps`` (all steps of
+        the PIRL tracks long enough to give ``min_steps`` steps), ``not_commanded`` (the simulator drove:
+        handed back at a standstill, crashed), ``overridden``, ``collided``, ``usable`` (steps kept by the
+        mask), ``tracks_few_usable`` (tracks with fewer than ``min_steps`` usable steps: dropped by
+        ``selection="steps"``), ``steps_kept`` / ``tracks_kept`` (``selection="steps"``), and for
+        comparison ``tracks_interacted`` (dropped by ``selection="tracks"``) and ``steps_tracks_selection``
+        (steps ``selection="tracks"`` keeps).
+
+    Raises
+    ------
+    ValueError
+        Without driver steps, or a ``dt`` off the frame grid.
+    """
+    stride = _stride(dt)
+    if recording.driver_steps is None:
+        raise ValueError("the recording has no driver_steps: no per-step information to count")
+    gt = recording.ground_truth.set_index("track_id")
+    rows = []
+    for tid, f in _frame_flags(recording).items():
+        n_steps = (len(f) - 1) // stride
+        if n_steps < min_steps:
+            continue
+
+        def per_step(flag: np.ndarray) -> int:
+            return int(flag[: n_steps * stride].reshape(n_steps, stride).any(axis=1).sum())
+
+        col = f["collided"].to_numpy()
+        usable = int(_step_mask(f["usable"].to_numpy(), stride, n_steps).sum())
+        g = gt.loc[tid]
+        dropped = bool(g["interacted"]) or bool(g["collided"]) or bool(g["removed_early"])
+        rows.append({
+            "style_name": g["style_name"], "tracks": 1, "steps": n_steps,
+            "not_commanded": per_step(~f["commanded"].to_numpy()),
+            "overridden": per_step(f["overridden"].to_numpy()),
+            "collided": per_step(col | np.concatenate([col[1:], [False]])),
+            "usable": usable, "tracks_few_usable": int(usable < min_steps),
+            "steps_kept": usable if usable >= min_steps else 0, "tracks_kept": int(usable >= min_steps),
+            "tracks_interacted": int(dropped), "steps_tracks_selection": 0 if dropped else n_steps,
+        })
+    cols = ["tracks", "steps", "not_commanded", "overridden", "collided", "usable", "tracks_few_usable",
+            "steps_kept", "tracks_kept", "tracks_interacted", "steps_tracks_selection"]
+    df = pd.DataFrame(rows, columns=["style_name", *cols])
+    table = df.groupby("style_name", sort=True)[cols].sum()
+    table.loc["all"] = table.sum() if len(table) else 0
+    return table.astype(np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,7 +272,8 @@ class RecordedRun:
     ----------
     recording : ScenarioRecording
     config : object
-        The simulator's scenario configuration, rebuilt from ``run.json``.
+        The simulator's scenario configuration, rebuilt from ``run.json`` (``drivers.horizon``,
+        ``population.control_noise``, ...).
     routes : RouteSet
         The routes' reference paths, rebuilt from the configuration (or the network files of the run).
     model : RouteSetDriverModel
@@ -110,6 +285,25 @@ class RecordedRun:
     routes: RouteSet
     model: RouteSetDriverModel
 
+    @property
+    def horizon(self) -> int:
+        """The PIRL drivers' MPC horizon [steps of :attr:`dt`] (``drivers.horizon`` of the run)."""
+        return int(self.config.drivers.horizon)
+
+    @property
+    def dt(self) -> float:
+        """The drivers' re-planning step = the simulation step [s] (``step_length_s`` of the run)."""
+        return float(self.recording.info["step_length_s"])
+
+    @property
+    def control_noise(self) -> float:
+        """Standard deviation [m/s^3] of the Gaussian noise added to every applied jerk."""
+        return float(self.config.population.control_noise)
+
     def demonstrations(self, **kwargs) -> list[Trajectory]:
         """:func:`recorded_demonstrations` of this run (keyword arguments as there)."""
         return recorded_demonstrations(self.recording, self.routes, **kwargs)
+
+    def step_selection_summary(self, **kwargs) -> pd.DataFrame:
+        """:func:`step_selection_summary` of this run (keyword arguments as there)."""
+        return step_selection_summary(self.recording, **kwargs)

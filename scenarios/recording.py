@@ -17,6 +17,14 @@ run into a :class:`ScenarioRecording` and :func:`write_recording` writes it into
 - ``map.osm``: the lanes as a Lanelet2 map (:func:`pirl_sim.io.lanelet2_map.write_map`, one lanelet per
   lane, successors connected) that :func:`pirl_sim.io.lanelet2_map.load_map` reads with
   ``UtmProjector(Origin(0, 0))``;
+- ``driver_steps.csv`` (optional, when the simulator reports it): one row per PIRL track per frame, columns
+  :data:`DRIVER_STEP_COLUMNS`: ``commanded`` (the PIRL driver issued its own command at that frame, planned
+  from the state of that frame; False where the simulator drove the vehicle, e.g. handed back at a
+  standstill, crashed), ``overridden`` (the simulator then did not carry the command out: the speed one
+  frame later missed it by more than the run's ``override_tol``, or the traffic cut it; False where not
+  commanded, and at a track's last frame, whose command is never checked) and ``collided`` (the vehicle was
+  in a collision at that frame). Recordings without it (older ones) have no per-step information;
+  ``run.json`` lists it under ``files`` when it was written;
 - ``run.json``: the simulator, seed and configuration (``info``), written **last**.
 
 Every file is written atomically (a temporary file renamed over the target), so no file is ever half
@@ -50,6 +58,8 @@ __all__ = [
     "MAP_FILE",
     "INFO_FILE",
     "FORMAT_VERSION",
+    "DRIVER_STEPS_FILE",
+    "DRIVER_STEP_COLUMNS",
     "ScenarioRecording",
     "RecordingFiles",
     "interaction_tracks",
@@ -61,6 +71,7 @@ TRACKS_FILE = "vehicle_tracks_000.csv"
 GROUND_TRUTH_FILE = "ground_truth.csv"
 MAP_FILE = "map.osm"
 INFO_FILE = "run.json"
+DRIVER_STEPS_FILE = "driver_steps.csv"
 FORMAT_VERSION = 1
 FRAME_DT_S = FRAME_DT_MS / 1000.0  # [s]
 _GRID_TOL = 1e-6  # [frames] times must sit this close to the 100 ms grid
@@ -86,6 +97,8 @@ _GT_DTYPES = {
     "collided": "bool", "removed_early": "bool", "overridden_fraction": "float64", "status": "object",
     "n_frames": "int64",
 }
+#: columns of :attr:`ScenarioRecording.driver_steps` and ``driver_steps.csv``: one row per PIRL track per frame
+DRIVER_STEP_COLUMNS: tuple[str, ...] = ("track_id", "frame_id", "commanded", "overridden", "collided")
 BACKGROUND_STYLE = -1  #: ``style`` of background traffic
 BACKGROUND_STYLE_NAME = "background"  #: ``style_name`` of background traffic
 
@@ -112,12 +125,18 @@ class ScenarioRecording:
     info : mapping
         JSON-serialisable description of the run (simulator, seed, configuration); no wall-clock times,
         so that equal runs write equal bytes.
+    driver_steps : pandas.DataFrame or None
+        Per-step flags of the PIRL drivers (see the module docstring), columns :data:`DRIVER_STEP_COLUMNS`:
+        ``track_id``, ``frame_id`` (int, exactly the frames of every PIRL track, no other track), bool
+        ``commanded``, ``overridden`` (only where commanded), ``collided``; stored sorted by track, then
+        frame. None: not recorded.
 
     Raises
     ------
     ValueError
         Wrong or missing columns, times off the 100 ms grid, tracks without ground truth (or the reverse),
-        inconsistent PIRL/background rows, unknown statuses, or an ``info`` that JSON cannot encode.
+        inconsistent PIRL/background rows, unknown statuses, an ``info`` that JSON cannot encode, or
+        ``driver_steps`` that do not cover exactly the PIRL tracks' frames.
     """
 
     tracks: pd.DataFrame
@@ -125,6 +144,7 @@ class ScenarioRecording:
     lanes: Mapping[str, np.ndarray]
     successors: Mapping[str, Sequence[str]]
     info: Mapping[str, Any]
+    driver_steps: pd.DataFrame | None = None
 
     def __post_init__(self) -> None:
         tracks, gt = self.tracks, self.ground_truth
@@ -175,6 +195,10 @@ class ScenarioRecording:
             json.dumps(dict(self.info), allow_nan=False)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"info must be JSON-serialisable without NaN: {exc}") from None
+        if self.driver_steps is not None:
+            on_pirl = pirl[np.searchsorted(gt_ids, ids)]  # per track row
+            object.__setattr__(self, "driver_steps", _checked_driver_steps(self.driver_steps, ids[on_pirl],
+                                                                           frames[on_pirl]))
         object.__setattr__(self, "ground_truth", gt)
         object.__setattr__(self, "lanes", MappingProxyType(dict(self.lanes)))
         object.__setattr__(self, "successors", MappingProxyType({k: tuple(v) for k, v in self.successors.items()}))
@@ -185,6 +209,44 @@ class ScenarioRecording:
         """Track ids driven by PIRL drivers."""
         gt = self.ground_truth
         return gt.loc[gt["is_pirl"], "track_id"].to_numpy()
+
+
+def _checked_driver_steps(steps, track_ids: np.ndarray, frames: np.ndarray) -> pd.DataFrame:
+    """``steps`` validated against the PIRL tracks' (track id, frame) pairs, sorted, with exact dtypes."""
+    if not isinstance(steps, pd.DataFrame):
+        raise ValueError(f"driver_steps must be a pandas DataFrame or None, got {type(steps).__name__}")
+    if tuple(steps.columns) != DRIVER_STEP_COLUMNS:
+        raise ValueError(f"driver_steps must have the columns {', '.join(DRIVER_STEP_COLUMNS)} in this order, got "
+                         f"{', '.join(map(str, steps.columns))}")
+    out = {}
+    for c in ("track_id", "frame_id"):
+        col = steps[c].to_numpy()
+        if col.dtype.kind not in "iu":
+            raise ValueError(f"driver_steps.{c} must be integers, got {col.dtype}")
+        out[c] = col.astype(np.int64)
+    for c in ("commanded", "overridden", "collided"):
+        col = steps[c]
+        if col.isna().any() or col.to_numpy().dtype != bool:
+            raise ValueError(f"driver_steps.{c} must be booleans without missing values, got {col.dtype}")
+        out[c] = col.to_numpy(dtype=bool)
+    df = pd.DataFrame(out, columns=list(DRIVER_STEP_COLUMNS)).sort_values(["track_id", "frame_id"], kind="stable")
+    df = df.reset_index(drop=True)
+    have = pd.MultiIndex.from_arrays([df["track_id"], df["frame_id"]])
+    want = pd.MultiIndex.from_arrays([track_ids.astype(np.int64), frames.astype(np.int64)]).sort_values()
+    if have.has_duplicates:
+        raise ValueError("driver_steps repeats a (track_id, frame_id) pair")
+    if len(have) != len(want) or not (have == want).all():
+        extra = have.difference(want)
+        missing = want.difference(have)
+        raise ValueError(f"driver_steps must hold one row per frame of every PIRL track and nothing else; "
+                         f"{len(missing)} missing (e.g. {list(missing[:3])}), {len(extra)} not PIRL track frames "
+                         f"(e.g. {list(extra[:3])})")
+    bad = df["overridden"].to_numpy() & ~df["commanded"].to_numpy()
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValueError(f"driver_steps: track {int(df['track_id'].iloc[k])} frame {int(df['frame_id'].iloc[k])} is "
+                         "overridden but not commanded")
+    return df
 
 
 def _frames(time_s: np.ndarray) -> np.ndarray:
@@ -226,6 +288,7 @@ class RecordingFiles:
     ground_truth: Path
     map: Path
     info: Path
+    driver_steps: Path | None = None
 
 
 def _ground_truth_csv(gt: pd.DataFrame) -> str:
@@ -265,8 +328,16 @@ def write_recording(recording: ScenarioRecording, out_dir, *, lane_width: float 
     atomic_write_text(files.ground_truth, _ground_truth_csv(recording.ground_truth))
     write_map(dict(recording.lanes), {k: list(v) for k, v in recording.successors.items()}, files.map,
               lane_width=lane_width)
+    listed = {"tracks": TRACKS_FILE, "ground_truth": GROUND_TRUTH_FILE, "map": MAP_FILE}
+    steps_path = out / DRIVER_STEPS_FILE
+    if recording.driver_steps is not None:
+        atomic_write_text(steps_path, recording.driver_steps.to_csv(index=False, lineterminator="\n"))
+        listed["driver_steps"] = DRIVER_STEPS_FILE
+        files = RecordingFiles(out, files.tracks, files.ground_truth, files.map, files.info, steps_path)
+    else:
+        steps_path.unlink(missing_ok=True)  # not a leftover of a previous recording
     info = {"format": "pirl_sim scenario recording", "format_version": FORMAT_VERSION,
-            "files": {"tracks": TRACKS_FILE, "ground_truth": GROUND_TRUTH_FILE, "map": MAP_FILE},
+            "files": listed,
             "n_tracks": int(len(recording.ground_truth)),
             "n_pirl_tracks": int(recording.ground_truth["is_pirl"].sum()),
             **dict(recording.info)}
@@ -325,6 +396,14 @@ def read_recording(directory) -> ScenarioRecording:
         nxt = sorted(names[int(f.id)] for f in lmap.routing_graph.following(ll))
         if nxt:
             successors[names[int(ll.id)]] = nxt
+    steps = None
+    steps_name = info.get("files", {}).get("driver_steps")
+    if steps_name is not None:
+        steps_path = d / steps_name
+        if not steps_path.is_file():
+            raise FileNotFoundError(f"driver steps listed in {INFO_FILE} not found: {steps_path}")
+        steps = pd.read_csv(steps_path, dtype={"track_id": np.int64, "frame_id": np.int64, "commanded": bool,
+                                               "overridden": bool, "collided": bool})
     keep = {k: v for k, v in info.items() if k not in ("format", "format_version", "files", "n_tracks",
                                                        "n_pirl_tracks")}
-    return ScenarioRecording(tracks, gt, lanes, dict(sorted(successors.items())), keep)
+    return ScenarioRecording(tracks, gt, lanes, dict(sorted(successors.items())), keep, steps)

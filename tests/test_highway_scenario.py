@@ -18,7 +18,14 @@ from pirl_sim.scenarios.highway.scenario import (  # noqa: E402
     scenario_from_dict,
 )
 from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, population_from_dict  # noqa: E402
-from pirl_sim.scenarios.recording import GROUND_TRUTH_FILE, INFO_FILE, MAP_FILE, TRACKS_FILE, read_recording  # noqa: E402
+from pirl_sim.scenarios.recording import (  # noqa: E402
+    DRIVER_STEPS_FILE,
+    GROUND_TRUTH_FILE,
+    INFO_FILE,
+    MAP_FILE,
+    TRACKS_FILE,
+    read_recording,
+)
 
 SMALL = population_from_dict({**DEFAULT_POPULATION.to_dict(), "n_vehicles": 16, "depart_interval": 3.0})
 
@@ -88,7 +95,7 @@ def test_same_seed_byte_identical_files_different_seed_different(small_run, tmp_
     _, out = small_run
     again = tmp_path / "again"
     run_highway_scenario(HighwayScenarioConfig(population=SMALL), seed=3, out_dir=again)
-    for name in (TRACKS_FILE, GROUND_TRUTH_FILE, MAP_FILE, INFO_FILE):
+    for name in (TRACKS_FILE, GROUND_TRUTH_FILE, MAP_FILE, INFO_FILE, DRIVER_STEPS_FILE):
         assert filecmp.cmp(out / name, again / name, shallow=False), name
     other = tmp_path / "other"
     run_highway_scenario(HighwayScenarioConfig(population=SMALL), seed=4, out_dir=other)

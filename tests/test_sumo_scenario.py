@@ -33,7 +33,8 @@ from pirl_sim.scenarios.simulate_cli import add_simulate_parser  # noqa: E402
 from pirl_sim.scenarios.sumo.cli import add_sumo_parser, run_simulate_sumo  # noqa: E402
 
 SMALL = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=16)
-FILES = ("vehicle_tracks_000.csv", "ground_truth.csv", "map.osm", "run.json", "network/roundabout.net.xml")
+FILES = ("vehicle_tracks_000.csv", "ground_truth.csv", "map.osm", "run.json", "network/roundabout.net.xml",
+         "driver_steps.csv")
 
 
 @pytest.fixture(scope="module")

@@ -66,6 +66,7 @@ from pirl_sim.validation import number
 
 from ..population_config import FEATURE_NAMES
 from ..recording import (
+    DRIVER_STEP_COLUMNS,
     BACKGROUND_STYLE,
     BACKGROUND_STYLE_NAME,
     GROUND_TRUTH_COLUMNS,
@@ -360,6 +361,8 @@ class RoundaboutTraffic(Road):
         self.act_time_s = 0.0
         self.tracks: dict[str, _Track] = {}
         self._rows: list[tuple] = []
+        self._pirl_frames: list[tuple] = []  # (track id, frame, crashed) of every recorded PIRL frame
+        self._pirl_commands: dict[tuple[int, int], bool] = {}  # (track id, frame) -> overridden
         self._commands: dict[str, float] = {}  # PIRL vehicle id -> commanded acceleration this step
         self._upstream = self._upstream_ring_lanes()
         self._stop_offset = self._stop_offsets()
@@ -679,6 +682,8 @@ class RoundaboutTraffic(Road):
                     track.n_commands += 1
                     if a < a_cmd - tol:
                         track.n_overridden += 1
+                    if self.record:
+                        self._pirl_commands[(track.track_id, self.frame)] = bool(a < a_cmd - tol)
             v.command_acceleration = float(min(max(a, -IDM_ACC_LIMIT), IDM_ACC_LIMIT))
         for v in others:
             v.act()
@@ -738,6 +743,8 @@ class RoundaboutTraffic(Road):
                 c, s = math.cos(v.heading), math.sin(v.heading)
                 self._rows.append((track.track_id, self.time, float(v.position[0]), float(v.position[1]),
                                    v.speed * c, v.speed * s, float(v.heading), v.LENGTH, v.WIDTH))
+                if track.kind == PIRL:
+                    self._pirl_frames.append((track.track_id, self.frame, bool(v.crashed)))
         self.insert_due()
         for callback in self.step_callbacks:
             callback(self)
@@ -762,7 +769,11 @@ class RoundaboutTraffic(Road):
 
         Track ids in insertion order (1, 2, ...); vehicles never recorded (inserted in the last step) are
         left out. ``interacted`` (PIRL tracks): a command was overridden, the vehicle was handed back at a
-        standstill, or it collided; the ego is a non-PIRL track with style name ``"ego"``.
+        standstill, or it collided; the ego is a non-PIRL track with style name ``"ego"``. ``driver_steps``
+        (PIRL tracks, every recorded frame): ``commanded`` where the driver's MPC gave the command at that
+        frame (not when handed back at a standstill or crashed, nor at a track's last frame), ``overridden``
+        where the traffic cut that command (the rule of ``interacted``), ``collided`` where the vehicle had
+        crashed.
         """
         if not self.record:
             raise ValueError("this traffic was created with record=False")
@@ -792,4 +803,14 @@ class RoundaboutTraffic(Road):
             "status": [t.status for t in recorded],
             "n_frames": np.array([t.n_frames for t in recorded], dtype=np.int64),
         }, columns=list(GROUND_TRUTH_COLUMNS))
-        return ScenarioRecording(tracks, gt, lanes, successors, info)
+        frames = pd.DataFrame(self._pirl_frames, columns=["track_id", "frame_id", "collided"])
+        keys = list(zip(frames["track_id"], frames["frame_id"]))
+        overridden = [self._pirl_commands.get(k) for k in keys]
+        steps = pd.DataFrame({
+            "track_id": frames["track_id"].map(renumber).to_numpy(dtype=np.int64),
+            "frame_id": frames["frame_id"].to_numpy(dtype=np.int64),
+            "commanded": np.array([o is not None for o in overridden], dtype=bool),
+            "overridden": np.array([bool(o) for o in overridden], dtype=bool),
+            "collided": frames["collided"].to_numpy(dtype=bool),
+        }, columns=list(DRIVER_STEP_COLUMNS))
+        return ScenarioRecording(tracks, gt, lanes, successors, info, steps)

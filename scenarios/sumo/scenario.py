@@ -58,6 +58,7 @@ from ..drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_mode
 from ..planning import check_routes, check_seed, plan_population, random_streams
 from ..population_config import DEFAULT_POPULATION, FEATURE_NAMES, PopulationConfig
 from ..recording import (
+    DRIVER_STEP_COLUMNS,
     FRAME_DT_S,
     GROUND_TRUTH_COLUMNS,
     INFO_FILE,
@@ -470,7 +471,10 @@ def scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors
     """The simulator-neutral recording of a SUMO run (track ids 1, 2, ... in departure order).
 
     ``interacted`` (PIRL tracks): SUMO overrode at least one command, the vehicle collided, or it was
-    handed back to SUMO at a standstill (``handed_back``).
+    handed back to SUMO at a standstill (``handed_back``). ``driver_steps`` (PIRL tracks, every frame): the
+    runner's per-step flags: ``commanded`` where the driver gave a speed at that frame, ``overridden`` where
+    SUMO's speed one step later missed it by more than ``override_tol`` (NA, a vehicle that left before the
+    check, is False), ``collided`` where SUMO reported the vehicle in a collision.
     """
     summary = rec.summary.set_index("vehicle_id")
     departed = [v for v in plan["vehicle_id"] if summary.loc[v, "n_steps"] > 0]
@@ -505,7 +509,15 @@ def scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors
         "status": s["status"].to_numpy(),
         "n_frames": s["n_steps"].to_numpy(dtype=np.int64),
     }, columns=list(GROUND_TRUTH_COLUMNS))
-    return ScenarioRecording(tracks, gt, lanes, successors, info)
+    on_pirl = frame["vehicle_id"].map(dict(zip(departed, pirl))).to_numpy(dtype=bool)  # PIRL drivers (not an ego)
+    steps = pd.DataFrame({
+        "track_id": tracks["track_id"].to_numpy()[on_pirl],
+        "frame_id": np.round(frame["time"].to_numpy(dtype=float)[on_pirl] / STEP_LENGTH).astype(np.int64),
+        "commanded": frame["commanded_speed"].notna().to_numpy()[on_pirl],
+        "overridden": frame["overridden"].fillna(False).to_numpy(dtype=bool)[on_pirl],
+        "collided": frame["collided"].to_numpy(dtype=bool)[on_pirl],
+    }, columns=list(DRIVER_STEP_COLUMNS))
+    return ScenarioRecording(tracks, gt, lanes, successors, info, steps)
 
 
 def run_to_directory(config: SumoScenarioConfig | None, seed: int, out_dir, backend: str = "libsumo") -> dict:
