@@ -349,18 +349,40 @@ def estimate_longitudinal_states(
     estimate is the posterior mode (= mean), i.e. the weighted least squares
 
         min_{x0, U}  sum_k (s_k - s_obs_k)^2 / sigma_s^2 + sum_k (v_k - v_obs_k)^2 / sigma_v^2
-                     + sum_k u_k^2 / sigma_j^2,
+                     + sum_{k observed} (a_k - a_obs_k)^2 / sigma_a^2 + sum_k u_k^2 / sigma_j^2,
 
     one linear solve of size n_x + (n - 1) n_u. Without ``v_obs`` only the positions enter (then only the
     ratio sigma_s / sigma_j matters; :func:`fit_longitudinal_states` is this with
     ``jerk_weight = (sigma_s / sigma_j)^2``).
 
-    Defaults (measured on ``simulate sumo --seed 0``, PIRL drivers' true MPC start states and applied jerks
-    logged inside the controller, 1-frame steps of 0.1 s): the data are not noisy but the model is not exact
-    there: ``s`` is the projection on the route's reference path, which lies up to ~0.2 m off the lane
-    centre, so ds/dt differs from the simulator's speed by up to ~1-2 % in curves. Speeds are therefore
-    trusted tightly (sigma_v = 0.01 m/s) and positions loosely (sigma_s = 0.1 m): see the measured errors
-    in the module's report in ``estimate_longitudinal_states.__doc__`` below.
+    Defaults (measured on ``simulate sumo --seed 0``: 64 PIRL tracks, the drivers' true MPC start states
+    and applied jerks logged inside :class:`~pirl_sim.scenarios.drivers.PirlDrivers`, compared on the 13,056
+    steps of 0.1 s whose command SUMO carried out; true jerk RMS 0.85 m/s^3). Simulator speeds are exact,
+    but the model is not: ``s`` is the projection on the route's reference path, which lies up to ~0.2 m
+    off the lane centre, so ds/dt differs from the simulator's speed by ~1 % in curves, and the positions
+    and speeds disagree by up to 5 cm over a track. Hence speeds are trusted tightly (sigma_v = 0.001 m/s)
+    and positions loosely (sigma_s = 0.1 m: any sigma_s >= 0.1 m gives the same states and jerks to 1e-4,
+    so the offset costs nothing but the 2-5 cm of s; sigma_s = 0.01 m pulls the speeds 1 mm/s off and
+    doubles the jerk error), sigma_j = 3 m/s^3, sigma_a = 0.01 m/s^2. Errors (RMS / max), estimate minus
+    truth:
+
+    ======================================== ============= ============= ============ ===========
+    data (driver steps of the recording)      s [m]         v [m/s]       a [m/s^2]    j [m/s^3]
+    ======================================== ============= ============= ============ ===========
+    39 tracks without interaction, positions  0.025 / 0.10  0.045 / 0.23  0.087 / 0.41 0.22 / 1.4
+    (``fit_longitudinal_states``, 1e-2)
+    same, positions and speeds (defaults)     0.024 / 0.05  3e-5 / 2e-4   6e-4 / 0.008 0.012 / 0.14
+    all 64 tracks, usable steps, positions    0.021 / 0.22  0.050 / 1.0   0.15 / 3.5   0.43 / 8.0
+    all 64, positions + speeds + restarts     0.022 / 0.06  3e-5 / 1e-3   0.005 / 0.17 0.13 / 2.3
+    (``step_mask`` breaks, ``a_obs``)
+    all 64, positions + speeds, one fit       0.026 / 0.08  4e-4 / 0.016  0.067 / 2.8  1.5 / 63
+    ======================================== ============= ============= ============ ===========
+
+    The remaining error on interacting tracks sits at the first steps of short runs between overrides (a
+    run's start acceleration is pinned only by its restart observation and a few speeds). With noisy
+    speeds the per-step jerk is sensitive: speed noise sigma adds ~2.8 sigma / dt^2 to it unless sigma_j is
+    lowered (1 mm/s of noise with sigma_j = 1 m/s^3: jerk RMS error 0.29 m/s^3; with sigma_j = 0.1:
+    0.04); raise sigma_v / lower sigma_j for measured data.
 
     Parameters
     ----------
