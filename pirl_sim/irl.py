@@ -147,7 +147,7 @@ class LaplaceBlock:
                     _, V = scipy.linalg.eigh(H_ref, np.eye(H_ref.shape[0]))
             except np.linalg.LinAlgError:
                 return cls(grad, hess, None)
-            D = np.einsum("ia,kij,jb->kab", V, H, V)
+            D = np.einsum("ia,kij,jb->kab", V, H, V, optimize=True)
             diag = np.einsum("kaa->ka", D)
             off = D - np.einsum("ka,ab->kab", diag, np.eye(D.shape[1]))
             scale = np.max(np.abs(diag), axis=1, keepdims=True) + 1e-300
@@ -244,7 +244,7 @@ def laplace_nll(theta: np.ndarray, block: LaplaceBlock, order: int = 1, eps: flo
     if order == 1:
         return nll, grad, None, n_reg, worst
     E = block.grad - Hk_h
-    term1 = np.einsum("mki,mij,mlj->mkl", E, Hinv, E)
+    term1 = np.einsum("mki,mij,mlj->mkl", E, Hinv, E, optimize=True)
     B = Hinv[:, None] @ hess_b
     term2 = 0.5 * np.einsum("mkij,mlji->mkl", B, B)
     return nll, grad, term1 + term2, n_reg, worst
@@ -274,7 +274,7 @@ def _diag_nll(theta, block, order, eps):
     if order == 1:
         return nll, grad, None, n_reg, worst
     E = block.grad - lam[None] * h[:, None, :]
-    hess = np.einsum("mkd,mld,md->mkl", E, E, 1.0 / D) + 0.5 * np.einsum("kd,ld,md->mkl", lam, lam, 1.0 / D**2)
+    hess = np.einsum("mkd,mld,md->mkl", E, E, 1.0 / D, optimize=True) + 0.5 * np.einsum("kd,ld,md->mkl", lam, lam, 1.0 / D**2)
     return nll, grad, hess, n_reg, worst
 
 
@@ -405,7 +405,7 @@ def fit_weights(
             gw = dphi @ P
         if order >= 2:
             Hphi = theta[:, :, None] * H * theta[:, None, :] + np.einsum("gk,kl->gkl", dphi, np.eye(K))
-            Hw = np.einsum("ka,gkl,lb->gab", P, Hphi, P)
+            Hw = np.einsum("ka,gkl,lb->gab", P, Hphi, P, optimize=True)
         if prior is not None:
             z = (w - prior.mean) / prior.std
             f = f + 0.5 * np.sum(z**2, axis=1)

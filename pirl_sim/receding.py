@@ -1,0 +1,660 @@
+"""Receding-horizon IRL: the weights of drivers who re-plan every step.
+
+The paper's likelihood (`pirl_sim.irl`) treats a whole demonstration as one open-loop optimum. A driver who
+re-plans every step over a horizon of H steps is not optimal for any cost over the whole track: what is
+optimal is each step's *first control* given the state at that step. This module scores exactly that:
+
+    u_t = pi_theta(x_t) + e_t,   e_t ~ N(0, sigma^2 I)   (independent over the recorded steps t),
+
+where ``pi_theta(x)`` is the first control of the converged (bounded) MPC over H steps from state x under the
+cost ``theta . f``. The negative log-likelihood of a group of steps with the noise scale profiled out is
+
+    NLL = n/2 (log(2 pi sigma^2) + 1),   sigma^2 = (1 / n) sum_t ||u_t - pi_theta(x_t)||^2,   n = n_t * n_u,
+
+so maximum likelihood is least squares on the residuals. The MPC is invariant to the scale of theta, so only
+the normalised weights (the reference feature's weight = 1) are identified; the fitted sigma is the
+"rationality" of this model (``beta = 1 / sigma^2`` in results, for code that expects a scale).
+
+Derivatives. At the MPC's solution U* the optimality conditions are ``grad_U C(U*, theta) + C_A^T lambda = 0``
+with the active bounds ``C_A U* = c_A``. Differentiating them in theta (implicit function theorem, as in
+differentiable MPC, Amos et al. 2018) gives
+
+    dU*/dtheta_k = -Z (Z^T H Z)^-1 Z^T grad f_k,     H = sum_k theta_k hess f_k,  Z a basis of null(C_A),
+
+and d pi / d theta is its first block. With no active bound Z = I, and one triangular solve per step serves
+every feature. The fit is batched Levenberg-Marquardt over groups of steps (one group per track for per-track
+weights, one for all, or one per cluster) in the log weights, every step of every group solved in one
+vectorised Newton iteration of the MPC, warm-started from the previous iterate's plans.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.linalg
+
+from .irl import shift_to_pd
+from .model import DriverModel
+from .mpc import BoxQP
+from .trajectory import Trajectory
+from .validation import is_positive_int
+
+__all__ = ["RecedingPolicy", "PolicySolution", "RecedingSteps", "RecedingResult", "receding_steps", "fit_receding",
+           "STEP_MASK"]
+
+#: metadata key of a trajectory's per-step mask (bool, shape (n_steps,)): False = the control at that step
+#: was not the driver's own (overridden by a simulator, handed back, ...) and is left out of the likelihood
+STEP_MASK = "step_mask"
+
+_CHUNK = 2048  # steps per vectorised expansion (bounds the memory of the (chunk, d, d) Hessians)
+
+
+@dataclass(frozen=True)
+class PolicySolution:
+    """Converged MPC plans from M starts, and d pi / d theta there.
+
+    Attributes
+    ----------
+    U : array (M, H, n_u)        plans; ``U[:, 0]`` is pi_theta(x0)
+    jac : array (M, n_u, K)      d pi / d theta (implicit differentiation, module doc)
+    bounded : array (M,) bool    the plan has at least one active bound
+    converged : array (M,) bool
+    n_indefinite : int           plans whose cost Hessian was not positive definite at the solution
+    """
+
+    U: np.ndarray
+    jac: np.ndarray
+    bounded: np.ndarray
+    converged: np.ndarray
+    n_indefinite: int
+
+    @property
+    def first(self) -> np.ndarray:
+        """pi_theta(x0), shape (M, n_u)."""
+        return self.U[:, 0]
+
+
+class RecedingPolicy:
+    """pi_theta(x): the first control of the converged bounded MPC over ``horizon`` steps, and d pi / d theta.
+
+    Newton's method on the exact cost with a backtracking line search (Gauss-Newton steps where the exact
+    Newton step is not a descent direction), batched over starts; starts whose unconstrained optimum breaks
+    a bound of ``model.bounds`` are re-solved by sequential bounded QPs (`pirl_sim.mpc.BoxQP`, DAQP) until
+    the plan moves less than ``tol``; a warm start that sits on a bound goes to the QPs directly. Starts
+    outside the state bounds are first moved inside them, as the simulated drivers do.
+
+    Parameters
+    ----------
+    model : DriverModel
+    horizon : int      H [steps], >= 1
+    tol : float        convergence: largest control change of a Newton / QP step [control units]
+    max_iter : int     Newton iterations (and, separately, bounded QPs) per solve
+    """
+
+    def __init__(self, model: DriverModel, horizon: int, *, tol: float = 1e-6, max_iter: int = 30):
+        if not isinstance(model, DriverModel):
+            raise TypeError(f"model must be a pirl_sim.DriverModel, got {type(model).__name__}")
+        if not is_positive_int(horizon):
+            raise ValueError(f"horizon must be a positive number of steps, got {horizon!r}")
+        if not is_positive_int(max_iter):
+            raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+        if not (math.isfinite(tol) and tol > 0):
+            raise ValueError(f"tol must be > 0, got {tol!r}")
+        self.model = model
+        self.horizon = int(horizon)
+        self.tol = float(tol)
+        self.max_iter = int(max_iter)
+        self._qp = BoxQP(model.dynamics, model.bounds) if model.bounds is not None else None
+        if self._qp is not None:
+            self._x_lo, self._x_hi, self._u_lo, self._u_hi = model.bounds.resolve(model.dynamics)
+        self.n_qp = 0
+        self._cond: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    # ------------------------------------------------------------------ pieces
+    def start_states(self, x0: np.ndarray) -> np.ndarray:
+        """Starts moved inside the state bounds (a stopped car does not decelerate further), (M, n_x)."""
+        x0 = np.array(np.atleast_2d(x0), dtype=float)
+        if self._qp is None:
+            return x0
+        x0 = self._qp.clip_start(x0)
+        names = self.model.dynamics.state_names
+        if "v [m/s]" in names and "a [m/s^2]" in names:
+            iv, ia = names.index("v [m/s]"), names.index("a [m/s^2]")
+            stopped = x0[:, iv] <= self._x_lo[iv]
+            x0[stopped, ia] = np.maximum(x0[stopped, ia], 0.0)
+        return x0
+
+    def _rollout(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """States (M, H + 1, n_x) from starts (M, n_x) and plans (M, H, n_u), by two matrix products."""
+        dyn = self.model.dynamics
+        H = U.shape[1]
+        if H not in self._cond:
+            phi, gamma = dyn.condensed(H)
+            self._cond[H] = (phi.reshape(H * dyn.n_x, dyn.n_x).T.copy(),
+                             gamma.reshape(H * dyn.n_x, H * dyn.n_u).T.copy())
+        phiT, gT = self._cond[H]
+        future = (x0 @ phiT + U.reshape(U.shape[0], -1) @ gT).reshape(U.shape[0], H, dyn.n_x)
+        return np.concatenate([x0[:, None, :], future], axis=1)
+
+    def _expand(self, x0, U, theta, gauss_newton: bool = False):
+        """Values (M, K), gradients (M, K, d) and the cost Hessian (M, d, d) at U, in chunks."""
+        dyn, feats = self.model.dynamics, self.model.features
+        M, d = U.shape[0], U.shape[1] * U.shape[2]
+        values = np.empty((M, feats.n_features))
+        grad = np.empty((M, feats.n_features, d))
+        hess = np.empty((M, d, d))
+        for lo in range(0, M, _CHUNK):
+            sl = slice(lo, lo + _CHUNK)
+            ex = feats.expansion(dyn, self._rollout(x0[sl], U[sl]), U[sl], theta[sl], gauss_newton=gauss_newton)
+            values[sl], grad[sl], hess[sl] = ex.values, ex.grad, ex.hess
+        return values, grad, hess
+
+    def _cost(self, x0, U, theta):
+        dyn, feats = self.model.dynamics, self.model.features
+        out = np.empty(U.shape[0])
+        for lo in range(0, U.shape[0], _CHUNK):
+            sl = slice(lo, lo + _CHUNK)
+            out[sl] = np.einsum("mk,mk->m", theta[sl], feats.values(self._rollout(x0[sl], U[sl]), U[sl]))
+        return out
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, x0: np.ndarray, theta: np.ndarray, init: np.ndarray | None = None) -> PolicySolution:
+        """Converged plans from starts x0 (M, n_x) under weights theta (K,) or (M, K), with d pi / d theta.
+
+        ``init`` (M, H, n_u) warm-starts Newton (default zeros).
+        """
+        dyn, feats = self.model.dynamics, self.model.features
+        x0 = self.start_states(x0)
+        if x0.ndim != 2 or x0.shape[1] != dyn.n_x or not np.all(np.isfinite(x0)):
+            raise ValueError(f"start states must be finite with shape (M, {dyn.n_x}), got {x0.shape}")
+        M, H, n_u, K = x0.shape[0], self.horizon, dyn.n_u, feats.n_features
+        theta = np.broadcast_to(feats.weights(theta), (M, K)).astype(float)
+        if np.any(theta < 0):
+            raise ValueError("weights must be >= 0 for the MPC")
+        U = np.zeros((M, H, n_u)) if init is None else np.array(init, dtype=float)
+        if U.shape != (M, H, n_u) or not np.all(np.isfinite(U)):
+            raise ValueError(f"init must be finite with shape {(M, H, n_u)}, got {U.shape}")
+        d = H * n_u
+        E0 = np.zeros((d, n_u))
+        E0[np.arange(n_u), np.arange(n_u)] = 1.0
+        values, grad, hess = self._expand(x0, U, theta)
+        cost = np.einsum("mk,mk->m", theta, values)
+        converged = np.zeros(M, dtype=bool)
+        jac = np.zeros((M, n_u, K))
+        n_indefinite = 0
+        # a warm start that sits on a bound keeps its active set: straight to the bounded QPs
+        on_bound = np.zeros(M, dtype=bool)
+        if self._qp is not None and init is not None:
+            on_bound = self._qp.touches(x0, U)
+        todo = np.flatnonzero(~on_bound)
+        for _ in range(self.max_iter):
+            if not len(todo):
+                break
+            g = np.einsum("mk,mkd->md", theta[todo], grad[todo])
+            # one factorisation per start: the Newton step and H^-1 E0 for d pi / d theta
+            rhs = np.concatenate([g[..., None], np.broadcast_to(E0, (len(todo), d, n_u))], axis=2)
+            sol = _solve_rows(hess[todo], rhs)
+            full, Y = -sol[..., 0], sol[..., 1:]
+            promised = -0.5 * np.einsum("md,md->m", g, full)
+            uphill = ~(promised >= 0) | ~np.all(np.isfinite(full), axis=1)
+            if uphill.any():  # not a descent direction: the exact Hessian is indefinite there
+                rows = todo[uphill]
+                gn = self._expand(x0[rows], U[rows], theta[rows], gauss_newton=True)[2]
+                _, gn_pd, _, _ = shift_to_pd(gn, 1e-9)
+                full[uphill] = -np.linalg.solve(gn_pd, g[uphill][..., None])[..., 0]
+                promised[uphill] = -0.5 * np.einsum("md,md->m", g[uphill], full[uphill])
+            full = full.reshape(len(todo), H, n_u)
+            # converged: the step is below tol, or the decrease it promises is below the floating-point
+            # resolution of the cost (a line search could not see it); derivatives are kept from before the
+            # step, which is smaller than tol
+            tiny = ((np.max(np.abs(full), axis=(1, 2)) <= self.tol) | (promised <= 1e-13 * np.abs(cost[todo]))) \
+                & ~uphill
+            if tiny.any():
+                rows = todo[tiny]
+                U[rows] += full[tiny]
+                jac[rows] = -np.einsum("mdu,mkd->muk", Y[tiny], grad[rows])
+                converged[rows] = True
+                todo, full = todo[~tiny], full[~tiny]
+                if not len(todo):
+                    break
+            alpha = np.ones(len(todo))
+            for _half in range(20):
+                trial = U[todo] + alpha[:, None, None] * full
+                trial_cost = self._cost(x0[todo], trial, theta[todo])
+                worse = trial_cost > cost[todo] + 1e-13 * np.abs(cost[todo])
+                if not worse.any():
+                    break
+                alpha = np.where(worse, alpha / 2.0, alpha)
+            step = alpha * np.max(np.abs(full), axis=(1, 2))
+            ok = ~worse | (step <= self.tol)
+            rows = todo[ok]
+            U[rows] = trial[ok]
+            values[rows], grad[rows], hess[rows] = self._expand(x0[rows], U[rows], theta[rows])
+            cost[rows] = np.einsum("mk,mk->m", theta[rows], values[rows])
+            todo = todo[ok]  # a start whose line search failed stays unconverged
+        left = np.flatnonzero(~converged & ~on_bound)
+        if len(left):  # unconverged: derivatives at the last plan
+            jac[left] = self._implicit(x0[left], U[left], grad[left], hess[left])
+        bounded = np.zeros(M, dtype=bool)
+        if self._qp is not None:
+            bad = np.flatnonzero((self._qp.violation(x0, U) > 1e-9) | on_bound)
+            converged[bad] = False
+            qp_tol = max(self.tol, 1e-8)
+            for _ in range(self.max_iter):  # sequential bounded QPs, one batched expansion per round
+                if not len(bad):
+                    break
+                g = np.einsum("mk,mkd->md", theta[bad], grad[bad])
+                _, A, _, _ = shift_to_pd(hess[bad], 1e-9)
+                b = g - np.einsum("mij,mj->mi", A, U[bad].reshape(len(bad), -1))
+                moved = np.full(len(bad), -1.0)
+                for j, m in enumerate(bad):
+                    try:
+                        new = self._qp.solve(A[j], b[j], x0[m], H).reshape(H, n_u)
+                    except RuntimeError:  # infeasible from this start: keep the plan, unconverged
+                        continue
+                    self.n_qp += 1
+                    moved[j] = np.max(np.abs(new - U[m]))
+                    U[m] = new
+                solved = moved >= 0
+                rows = bad[solved]
+                values[rows], grad[rows], hess[rows] = self._expand(x0[rows], U[rows], theta[rows])
+                done = solved & (moved <= qp_tol)
+                converged[bad[done]] = True
+                bad = bad[solved & ~done]
+            bounded = self._qp.touches(x0, U)
+            rows = np.flatnonzero(bounded)
+            if len(rows):
+                jac[rows] = self._implicit(x0[rows], U[rows], grad[rows], hess[rows])
+        return PolicySolution(U, jac, bounded, converged, n_indefinite)
+
+    def _implicit(self, x0, U, grad, hess) -> np.ndarray:
+        """d pi / d theta (M, n_u, K) at plans U with their active bounds (module doc)."""
+        n_u = self.model.dynamics.n_u
+        M, K, d = grad.shape
+        _, hess, _, _ = shift_to_pd(hess, 1e-9)
+        out = np.empty((M, n_u, K))
+        for m in range(M):
+            C = self._active_matrix(x0[m], U[m]) if self._qp is not None else np.zeros((0, d))
+            Z = scipy.linalg.null_space(C) if len(C) else np.eye(d)
+            if Z.shape[1] == 0:  # every control pinned by a bound
+                out[m] = 0.0
+                continue
+            R = Z.T @ hess[m] @ Z
+            out[m] = (-Z @ np.linalg.solve(R, Z.T @ grad[m].T))[:n_u]
+        return out
+
+    def _active_matrix(self, x0: np.ndarray, U: np.ndarray, tol: float = 1e-7) -> np.ndarray:
+        """Rows (n_a, d) of the active bounds of one plan U (H, n_u) from x0 (n_x,)."""
+        dyn = self.model.dynamics
+        H, n_u = U.shape
+        _, gamma = dyn.condensed(H)
+        X = dyn.rollout(x0, U)[1:]
+        near = lambda v, lo, hi: (np.abs(v - lo) <= tol) | (np.abs(v - hi) <= tol)
+        rows = []
+        for k, i in zip(*np.nonzero(near(U, self._u_lo, self._u_hi))):
+            e = np.zeros(H * n_u)
+            e[k * n_u + i] = 1.0
+            rows.append(e)
+        for k, j in zip(*np.nonzero(near(X, self._x_lo, self._x_hi))):
+            rows.append(gamma[k, j].reshape(-1))
+        return np.array(rows).reshape(len(rows), H * n_u)
+
+
+def _solve_rows(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Batched solve of A (M, d, d) X = B (M, d, r); rows with a singular A give NaN instead of raising."""
+    try:
+        return np.linalg.solve(A, B)
+    except np.linalg.LinAlgError:
+        out = np.full(B.shape, np.nan)
+        for m in range(A.shape[0]):
+            try:
+                out[m] = np.linalg.solve(A[m], B[m])
+            except np.linalg.LinAlgError:
+                pass
+        return out
+
+
+# ---------------------------------------------------------------------------------------------- data
+@dataclass(frozen=True)
+class RecedingSteps:
+    """The recorded steps a receding-horizon likelihood scores.
+
+    Attributes
+    ----------
+    x : array (S, n_x)        state at each step
+    u : array (S, n_u)        control the driver applied there
+    init : array (S, H, n_u)  warm start: the recorded controls that followed (last one repeated)
+    owner : array (S,) int    index of the trajectory each step comes from
+    """
+
+    x: np.ndarray
+    u: np.ndarray
+    init: np.ndarray
+    owner: np.ndarray
+
+    @property
+    def n_steps(self) -> int:
+        return self.x.shape[0]
+
+
+def receding_steps(trajectories: Sequence[Trajectory], horizon: int, *, stride: int = 1) -> RecedingSteps:
+    """Every ``stride``-th step of each trajectory that its `STEP_MASK` metadata (if any) keeps.
+
+    Raises ValueError if a mask has the wrong shape or leaves no step at all.
+    """
+    if not is_positive_int(horizon):
+        raise ValueError(f"horizon must be a positive number of steps, got {horizon!r}")
+    if not is_positive_int(stride):
+        raise ValueError(f"stride must be a positive number of steps, got {stride!r}")
+    xs, us, inits, owners = [], [], [], []
+    for i, t in enumerate(trajectories):
+        keep = np.zeros(t.n_steps, dtype=bool)
+        keep[::stride] = True
+        mask = t.metadata.get(STEP_MASK)
+        if mask is not None:
+            mask = np.asarray(mask)
+            if mask.shape != (t.n_steps,) or mask.dtype != bool:
+                raise ValueError(f"trajectory {i}: {STEP_MASK!r} must be a bool array of shape ({t.n_steps},), "
+                                 f"got {mask.dtype} {mask.shape}")
+            keep &= mask
+        idx = np.flatnonzero(keep)
+        if not len(idx):
+            continue
+        padded = np.concatenate([t.controls, np.repeat(t.controls[-1:], horizon, axis=0)])
+        xs.append(t.states[idx])
+        us.append(t.controls[idx])
+        inits.append(np.stack([padded[j : j + horizon] for j in idx]))
+        owners.append(np.full(len(idx), i))
+    if not xs:
+        raise ValueError(f"no usable step: the step masks (metadata {STEP_MASK!r}) leave nothing of "
+                         f"{len(trajectories)} trajectories")
+    return RecedingSteps(np.concatenate(xs), np.concatenate(us), np.concatenate(inits), np.concatenate(owners))
+
+
+# ---------------------------------------------------------------------------------------------- fit
+@dataclass(frozen=True)
+class RecedingResult:
+    """Weights fitted per group by the receding-horizon likelihood (fields as `pirl_sim.irl.IRLResult`).
+
+    Attributes
+    ----------
+    theta, normalized : array (G, K)   normalised weights (reference feature = 1): the MPC ignores scale
+    beta : array (G,)                  1 / sigma^2, the residual precision [1 / control units^2]
+    sigma : array (G,)                 fitted residual standard deviation [control units]
+    neg_log_likelihood : array (G,)    with sigma profiled out (module doc)
+    n_steps : array (G,) int           steps scored per group
+    at_bound : array (G, K) bool       log weight at its bound (the reference entry: never)
+    converged : array (G,) bool
+    n_iter : int
+    n_regularized : int                plans whose MPC Hessian was not positive definite at the solution
+    n_bounded : int                    plans with an active bound at the solution
+    """
+
+    theta: np.ndarray
+    normalized: np.ndarray
+    beta: np.ndarray
+    sigma: np.ndarray
+    neg_log_likelihood: np.ndarray
+    n_steps: np.ndarray
+    at_bound: np.ndarray
+    converged: np.ndarray
+    n_iter: int
+    n_regularized: int
+    n_bounded: int
+
+
+LOSSES = ("cauchy", "gauss")
+_CAUCHY_C = 2.3849  # Cauchy scale per robust sigma: 95 % efficiency at Gaussian residuals
+_MAD_SIGMA = 1.4826  # sigma per median absolute residual for Gaussian residuals
+_GRID = (-2.0, 0.0, 2.0)  # start grid of each free log weight
+_GRID_STEPS = 12  # steps per group that score the start grid
+_CAUCHY_FLOOR = 0.01  # smallest Cauchy scale, per RMS of the recorded controls
+_MAX_STEP = 2.0  # largest Levenberg-Marquardt step in any log weight
+_COARSE_MIN = 2000  # steps from which a coarse pass comes first
+_COARSE_STRIDE = 8  # the first Levenberg-Marquardt pass uses every 8th step when there are many
+
+
+def fit_receding(
+    model: DriverModel,
+    trajectories: Sequence[Trajectory],
+    labels: np.ndarray | None = None,
+    *,
+    horizon: int,
+    n_groups: int | None = None,
+    stride: int = 1,
+    loss: str = "cauchy",
+    log_bounds: tuple[float, float] = (-20.0, 20.0),
+    init: np.ndarray | None = None,
+    max_iter: int = 50,
+    tol: float = 1e-4,
+) -> RecedingResult:
+    """Maximum-likelihood normalised weights per group of trajectories under the receding-horizon model.
+
+    Parameters
+    ----------
+    model : DriverModel
+        Dynamics, features and bounds of the drivers' MPC (its dt must be the trajectories' step).
+    trajectories : sequence of Trajectory
+        Each step t contributes (states[t], controls[t]) unless its `STEP_MASK` metadata is False there. A
+        horizon longer than a trajectory is fine: the driver's plans also ran past the recorded end.
+    labels : int array (M,), optional
+        Group of each trajectory (default: one group per trajectory).
+    horizon : int
+        The drivers' MPC horizon H [steps].
+    n_groups : int, optional
+        G; default ``max(labels) + 1``. A group without usable steps keeps its start weights, unconverged.
+    stride : int
+        Score every ``stride``-th step only (neighbouring steps carry nearly the same information).
+    loss : {"cauchy", "gauss"}
+        Residual noise model. "gauss": e_t ~ N(0, sigma^2), least squares. "cauchy" (default): heavy-tailed
+        e_t ~ Cauchy(0, c) with c = 2.385 sigma and sigma the residuals' robust scale (1.4826 x median |r|,
+        re-estimated every iteration), so that a few steps where the driver did something else (a re-plan
+        from a cold start, an unrecorded override) cannot pull the weights; sigma still estimates the
+        standard deviation of Gaussian control noise.
+    log_bounds : (low, high)
+        Box on the log normalised weights.
+    init : array (K,) or (G, K), optional
+        Start weights (normalised); default 1 for every feature.
+    max_iter, tol : Levenberg-Marquardt iterations; stop when no log weight moves more than ``tol``.
+
+    Returns
+    -------
+    RecedingResult
+    """
+    trajectories = model.check(trajectories)
+    feats = model.features
+    K, ref = feats.n_features, feats.reference_index
+    free = np.array([k for k in range(K) if k != ref], dtype=int)
+    M = len(trajectories)
+    labels = np.arange(M) if labels is None else np.asarray(labels)
+    if labels.shape != (M,) or labels.dtype.kind not in "iu" or (M and labels.min() < 0):
+        raise ValueError(f"labels must be {M} non-negative integers, got {labels!r}")
+    G = int(n_groups) if n_groups is not None else int(labels.max()) + 1
+    if G <= labels.max():
+        raise ValueError(f"n_groups={n_groups} is not more than the largest label {int(labels.max())}")
+    low, high = float(log_bounds[0]), float(log_bounds[1])
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise ValueError(f"log_bounds must be finite (low, high) with low < high, got {log_bounds!r}")
+    if not is_positive_int(max_iter):
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    steps = receding_steps(trajectories, horizon, stride=stride)
+    grp = labels[steps.owner]
+    w = np.zeros((G, K))
+    if init is not None:
+        th0 = feats.normalize(np.broadcast_to(feats.weights(init), (G, K)))
+        w = np.clip(np.log(th0), low, high)
+    w[:, ref] = 0.0
+    policy = RecedingPolicy(model, horizon)
+    fit = _LM(policy, steps, grp, G, free, low, high, loss)
+    if init is None and 0 < len(free) <= 3:
+        w = fit.grid_start(w)
+    if steps.n_steps >= _COARSE_MIN:  # a coarse pass on every 8th step finds the basin for a fraction of the cost
+        coarse = np.zeros(steps.n_steps, dtype=bool)
+        coarse[::_COARSE_STRIDE] = True
+        w, _, n_coarse = fit.run(w, coarse, max_iter, max(tol, 1e-2))
+    else:
+        n_coarse = 0
+    everything = np.ones(steps.n_steps, dtype=bool)
+    w, state, n_iter = fit.run(w, everything, max_iter, tol)
+    counts = np.bincount(grp, minlength=G)
+    has = counts > 0
+    sigma, nll = fit.scale_and_nll(state.resid, counts)
+    theta = np.exp(w)
+    at_bound = np.zeros((G, K), dtype=bool)
+    at_bound[:, free] = (w[:, free] <= low + 1e-9) | (w[:, free] >= high - 1e-9)
+    return RecedingResult(
+        theta=theta, normalized=theta.copy(), beta=1.0 / np.maximum(sigma, np.finfo(float).tiny) ** 2,
+        sigma=sigma, neg_log_likelihood=nll, n_steps=counts, at_bound=at_bound,
+        converged=state.converged & has, n_iter=n_coarse + n_iter, n_regularized=state.n_indefinite,
+        n_bounded=int(state.bounded.sum()),
+    )
+
+
+@dataclass
+class _LMState:
+    plans: np.ndarray
+    bounded: np.ndarray
+    resid: np.ndarray
+    jac: np.ndarray
+    converged: np.ndarray
+    n_indefinite: int
+
+
+class _LM:
+    """Batched Levenberg-Marquardt over groups of steps in the free log weights (see `fit_receding`)."""
+
+    def __init__(self, policy, steps, grp, G, free, low, high, loss):
+        self.policy, self.steps, self.grp, self.G = policy, steps, grp, G
+        self.free, self.low, self.high, self.loss = free, low, high, loss
+        self.n_u = steps.u.shape[1]
+
+    def _solve(self, w, rows, init):
+        theta = np.exp(w[self.grp[rows]])
+        sol = self.policy.solve(self.steps.x[rows], theta, init)
+        return sol, self.steps.u[rows] - sol.first, theta
+
+    def _jac(self, sol, theta):
+        return -sol.jac[:, :, self.free] * theta[:, None, self.free]  # d r / d w
+
+    def _scale(self, resid, grp_rows):
+        """Cauchy scale c per group (G,) from the residuals' robust sigma (unused for "gauss")."""
+        a = np.abs(resid).max(axis=1)
+        c = np.full(self.G, 1.0)
+        for g in np.unique(grp_rows):
+            c[g] = _CAUCHY_C * _MAD_SIGMA * np.median(a[grp_rows == g])
+        # floor: 1 % of the controls' RMS. Below it residuals count as exact (least squares), so nearly
+        # noise-free demonstrations keep a smooth objective instead of sum log |r|
+        scale_u = np.sqrt(np.mean(self.steps.u**2)) + 1e-12
+        return np.maximum(c, _CAUCHY_FLOOR * scale_u)
+
+    def _rho(self, resid, grp_rows, c):
+        """Per-group objective: sum of 1/2 r^2 (gauss) or c^2/2 log(1 + (r/c)^2) (cauchy), and the IRLS
+        weights per step (S, n_u)."""
+        if self.loss == "gauss":
+            per = 0.5 * resid**2
+            wts = np.ones_like(resid)
+        else:
+            cc = c[grp_rows][:, None]
+            z = (resid / cc) ** 2
+            per = 0.5 * cc**2 * np.log1p(z)
+            wts = 1.0 / (1.0 + z)
+        return np.bincount(grp_rows, weights=per.sum(axis=1), minlength=self.G), wts
+
+    def run(self, w, use, max_iter, tol):
+        """LM from log weights w (G, K) on the steps where ``use`` (S,): (w, state, iterations)."""
+        rows_all = np.flatnonzero(use)
+        grp = self.grp[rows_all]
+        G, free, low, high = self.G, self.free, self.low, self.high
+        has = np.bincount(grp, minlength=G) > 0
+        sol, r, theta = self._solve(w, rows_all, self.steps.init[rows_all])
+        st = _LMState(sol.U.copy(), sol.bounded.copy(), r, self._jac(sol, theta), ~has, sol.n_indefinite)
+        lam = np.full(G, 1e-3)
+        n_iter = 0
+        c = self._scale(st.resid, grp)  # the Cauchy scale is held during a run: one objective per run
+        self.last_scale = c
+        for n_iter in range(1, max_iter + 1):
+            active = ~st.converged
+            if not active.any():
+                break
+            f, wts = self._rho(st.resid, grp, c)
+            JtJ = np.zeros((G, len(free), len(free)))
+            Jtr = np.zeros((G, len(free)))
+            np.add.at(JtJ, grp, np.einsum("sui,su,suj->sij", st.jac, wts, st.jac, optimize=True))
+            np.add.at(Jtr, grp, np.einsum("sui,su,su->si", st.jac, wts, st.resid, optimize=True))
+            wf = w[:, free]
+            held = ((wf <= low + 1e-12) & (Jtr > 0)) | ((wf >= high - 1e-12) & (Jtr < 0))
+            diag = np.einsum("gii->gi", JtJ)
+            eye = np.eye(len(free))
+            A = JtJ + lam[:, None, None] * eye * (diag[:, :, None] + 1e-12 * (1.0 + diag.max()))
+            A = np.where(held[:, :, None] | held[:, None, :], eye[None], A)
+            delta = np.linalg.solve(A, np.where(held, 0.0, -Jtr)[..., None])[..., 0]
+            delta *= np.minimum(1.0, _MAX_STEP / np.maximum(np.abs(delta).max(axis=1, keepdims=True), 1e-300))
+            w_trial = w.copy()
+            w_trial[:, free] = np.where(active[:, None], np.clip(wf + delta, low, high), wf)
+            moved = np.max(np.abs(w_trial - w), axis=1)
+            sub = np.flatnonzero(active[grp])
+            rows = rows_all[sub]
+            sol_t, r_t, theta_t = self._solve(w_trial, rows, st.plans[sub])
+            f_t, _ = self._rho(r_t, grp[sub], c)
+            better = active & (f_t <= f * (1 + 1e-12))
+            small = moved <= tol
+            acc = better[grp[sub]]
+            a = sub[acc]
+            st.plans[a], st.bounded[a], st.resid[a] = sol_t.U[acc], sol_t.bounded[acc], r_t[acc]
+            st.jac[a] = self._jac(sol_t, theta_t)[acc]
+            w = np.where(better[:, None], w_trial, w)
+            lam = np.where(better, np.maximum(lam / 5.0, 1e-9), np.minimum(lam * 10.0, 1e9))
+            st.converged |= active & (small | (lam >= 1e9))
+            st.n_indefinite = sol_t.n_indefinite
+        if len(rows_all) < self.steps.n_steps:  # keep the last residuals of every step for the caller
+            st.converged &= has
+        return w, st, n_iter
+
+    def grid_start(self, w):
+        """Start weights per group: the best point of a grid over the free log weights (each in
+        `_GRID` = {-2, 0, 2}), scored by the median |residual| on up to `_GRID_STEPS` steps per group. The
+        receding-horizon objective is not convex in the weights; a start in the wrong basin can end at a
+        bound (measured on SUMO drivers who minimise acceleration)."""
+        import itertools
+
+        sub = []
+        for g in range(self.G):
+            rows = np.flatnonzero(self.grp == g)
+            if len(rows):
+                sub.append(rows[np.unique(np.linspace(0, len(rows) - 1, min(_GRID_STEPS, len(rows))).round()
+                                          .astype(int))])
+        sub = np.concatenate(sub)
+        grp = self.grp[sub]
+        best = np.full(self.G, np.inf)
+        out = w.copy()
+        for point in itertools.product(_GRID, repeat=len(self.free)):
+            trial = w.copy()
+            trial[:, self.free] = np.clip(point, self.low, self.high)
+            _, r, _ = self._solve(trial, sub, self.steps.init[sub])
+            a = np.abs(r).max(axis=1)
+            score = np.array([np.median(a[grp == g]) if np.any(grp == g) else np.inf for g in range(self.G)])
+            take = score < best
+            best = np.where(take, score, best)
+            out[take] = trial[take]
+        return out
+
+    def scale_and_nll(self, resid, counts):
+        """Fitted sigma (G,) and negative log-likelihood (G,) of the final residuals (module doc)."""
+        grp = self.grp
+        n = np.maximum(counts * self.n_u, 1)
+        has = counts > 0
+        if self.loss == "gauss":
+            sigma2 = np.maximum(np.bincount(grp, weights=np.sum(resid**2, axis=1), minlength=self.G) / n,
+                                np.finfo(float).tiny)
+            return np.sqrt(sigma2), np.where(has, 0.5 * n * (np.log(2 * np.pi * sigma2) + 1.0), 0.0)
+        c = self._scale(resid, grp)
+        a = np.abs(resid).max(axis=1)
+        sigma = np.array([_MAD_SIGMA * np.median(a[grp == g]) if counts[g] else 0.0 for g in range(self.G)])
+        nll = np.bincount(grp, weights=np.sum(np.log(np.pi * c[grp][:, None]) + np.log1p((resid / c[grp][:, None]) ** 2),
+                                              axis=1), minlength=self.G)
+        return sigma, np.where(has, nll, 0.0)
