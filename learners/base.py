@@ -23,12 +23,14 @@ from sklearn.utils.validation import check_is_fitted
 
 from pirl_sim.irl import IRLResult, LogNormalPrior, fit_weights
 from pirl_sim.model import DriverModel, synthetic_model
+from pirl_sim.receding import fit_receding
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
 __all__ = ["BaseLearner", "FEATURE_TRANSFORMS"]
 
 FEATURE_TRANSFORMS = ("log", "none")
+LIKELIHOODS = ("trajectory", "receding")
 WINDOW_MODES = ("sliding", "first")
 _LOG_FLOOR = 1e-12  # features are sums of squares: floor before the log so that exact zeros stay finite
 
@@ -51,6 +53,16 @@ class BaseLearner(BaseEstimator):
         Feature space for clustering and look-ups, always standardised afterwards.
     log_bounds : (float, float)
         Box on the IRL's log-weights (see `pirl_sim.irl`).
+    likelihood : {"trajectory", "receding"}
+        The IRL's model of a demonstration. "trajectory": the paper's, one open-loop optimum of a cost over
+        the whole demonstration (Laplace approximation, `pirl_sim.irl`). "receding": a driver who re-plans
+        every step, each step's control the first of the MPC's plan over ``horizon`` steps plus noise
+        (`pirl_sim.receding`; per-step masks in the ``step_mask`` metadata are honoured). Its fitted
+        ``irl_result_`` also has ``sigma`` (residual noise per group).
+    horizon : int or None
+        The drivers' MPC horizon [steps]; required with ``likelihood="receding"``.
+    step_stride : int
+        With ``likelihood="receding"``: score every ``step_stride``-th recorded step.
     """
 
     # ------------------------------------------------------------------ validation helpers
@@ -70,6 +82,13 @@ class BaseLearner(BaseEstimator):
             raise ValueError(f"windows must be one of {WINDOW_MODES}, got {self.windows!r}")
         if self.feature_transform not in FEATURE_TRANSFORMS:
             raise ValueError(f"feature_transform must be one of {FEATURE_TRANSFORMS}, got {self.feature_transform!r}")
+        if self.likelihood not in LIKELIHOODS:
+            raise ValueError(f"likelihood must be one of {LIKELIHOODS}, got {self.likelihood!r}")
+        if self.likelihood == "receding" and not is_positive_int(self.horizon):
+            raise ValueError(f"likelihood='receding' needs horizon, the drivers' MPC horizon as a positive number "
+                             f"of steps; got horizon={self.horizon!r}")
+        if not is_positive_int(self.step_stride):
+            raise ValueError(f"step_stride must be a positive number of steps, got {self.step_stride!r}")
 
     # ------------------------------------------------------------------ windows and feature space
     def _training_windows(self, trajectories: list[Trajectory]) -> tuple[list[Trajectory], np.ndarray]:
@@ -115,6 +134,11 @@ class BaseLearner(BaseEstimator):
     def _irl(
         self, model: DriverModel, samples: list[Trajectory], labels: np.ndarray, n_groups: int, prior=None
     ) -> IRLResult:
+        if self.likelihood == "receding":
+            if prior is not None:
+                raise ValueError("a prior on the weights is not available with likelihood='receding'")
+            return fit_receding(model, samples, labels, horizon=int(self.horizon), n_groups=n_groups,
+                                stride=int(self.step_stride), log_bounds=self.log_bounds)
         blocks = model.laplace_blocks(samples)
         return fit_weights(
             [b for b, _ in blocks],

@@ -132,6 +132,9 @@ class PIRLGMM(_MixtureLearner):
         windows="sliding",
         feature_transform="log",
         log_bounds=(-20.0, 20.0),
+        likelihood="trajectory",
+        horizon=None,
+        step_stride=1,
     ):
         self.model = model
         self.n_components = n_components
@@ -145,6 +148,9 @@ class PIRLGMM(_MixtureLearner):
         self.windows = windows
         self.feature_transform = feature_transform
         self.log_bounds = log_bounds
+        self.likelihood = likelihood
+        self.horizon = horizon
+        self.step_stride = step_stride
 
     def _make_mixture(self, Z):
         n = Z.shape[0]
@@ -204,6 +210,9 @@ class PIRLDPGMM(_MixtureLearner):
         windows="sliding",
         feature_transform="log",
         log_bounds=(-20.0, 20.0),
+        likelihood="trajectory",
+        horizon=None,
+        step_stride=1,
     ):
         self.model = model
         self.max_components = max_components
@@ -218,6 +227,9 @@ class PIRLDPGMM(_MixtureLearner):
         self.windows = windows
         self.feature_transform = feature_transform
         self.log_bounds = log_bounds
+        self.likelihood = likelihood
+        self.horizon = horizon
+        self.step_stride = step_stride
 
     def _make_mixture(self, Z):
         k = self.max_components

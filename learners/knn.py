@@ -56,6 +56,9 @@ class PIRLKNN(BaseLearner):
         windows="sliding",
         feature_transform="log",
         log_bounds=(-20.0, 20.0),
+        likelihood="trajectory",
+        horizon=None,
+        step_stride=1,
     ):
         self.model = model
         self.n_neighbors = n_neighbors
@@ -66,6 +69,9 @@ class PIRLKNN(BaseLearner):
         self.windows = windows
         self.feature_transform = feature_transform
         self.log_bounds = log_bounds
+        self.likelihood = likelihood
+        self.horizon = horizon
+        self.step_stride = step_stride
 
     def _fit(self, model, trajectories):
         k = self.n_neighbors

@@ -15,17 +15,23 @@ class TIRL(BaseLearner):
     Attributes
     ----------
     theta_ : array (K,)        normalised weights (reference feature = 1)
-    beta_ : float              fitted scale (rationality)
-    irl_result_ : IRLResult
+    beta_ : float              fitted scale (rationality; with ``likelihood="receding"``: 1 / sigma^2)
+    irl_result_ : IRLResult or RecedingResult
+
+    Parameters as `BaseLearner` (``likelihood="receding"`` with ``horizon`` for drivers who re-plan).
     """
 
-    def __init__(self, model=None, *, window=None, stride=1, windows="sliding", feature_transform="log", log_bounds=(-20.0, 20.0)):
+    def __init__(self, model=None, *, window=None, stride=1, windows="sliding", feature_transform="log",
+                 log_bounds=(-20.0, 20.0), likelihood="trajectory", horizon=None, step_stride=1):
         self.model = model
         self.window = window
         self.stride = stride
         self.windows = windows
         self.feature_transform = feature_transform
         self.log_bounds = log_bounds
+        self.likelihood = likelihood
+        self.horizon = horizon
+        self.step_stride = step_stride
 
     def _fit(self, model, trajectories):
         res = self._irl(model, trajectories, np.zeros(len(trajectories), dtype=int), 1)
