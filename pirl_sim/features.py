@@ -272,10 +272,17 @@ class FeatureSet:
             raise ValueError(f"theta must have shape {(M, self.n_features)}, got {theta.shape}")
         values = np.empty((M, self.n_features))
         grad = np.empty((M, self.n_features, d))
-        hess = np.zeros((M, d, d))
+        shared, own = [], []
         for k, value, g, Hk in self._terms(dynamics, states, controls, gauss_newton, factored=True):
             values[:, k], grad[:, k] = value, g
-            hess += theta[:, k, None, None] * Hk
+            (shared if Hk.shape[0] == 1 else own).append((k, Hk))
+        if shared:  # constant Hessians: one pass over the output
+            hess = np.einsum("mq,qij->mij", theta[:, [k for k, _ in shared]], np.concatenate([H for _, H in shared]))
+        else:
+            hess = np.zeros((M, d, d))
+        for k, Hk in own:
+            Hk *= theta[:, k, None, None]
+            hess += Hk
         return FeatureDerivatives(values, grad, hess)
 
     def _terms(

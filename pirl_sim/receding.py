@@ -59,14 +59,14 @@ class PolicySolution:
     Attributes
     ----------
     U : array (M, H, n_u)        plans; ``U[:, 0]`` is pi_theta(x0)
-    jac : array (M, n_u, K)      d pi / d theta (implicit differentiation, module doc)
+    dU : array (M, H, n_u, K)    d U / d theta (implicit differentiation, module doc)
     bounded : array (M,) bool    the plan has at least one active bound
     converged : array (M,) bool
     n_indefinite : int           plans whose cost Hessian was not positive definite at the solution
     """
 
     U: np.ndarray
-    jac: np.ndarray
+    dU: np.ndarray
     bounded: np.ndarray
     converged: np.ndarray
     n_indefinite: int
@@ -75,6 +75,15 @@ class PolicySolution:
     def first(self) -> np.ndarray:
         """pi_theta(x0), shape (M, n_u)."""
         return self.U[:, 0]
+
+    @property
+    def jac(self) -> np.ndarray:
+        """d pi / d theta, shape (M, n_u, K)."""
+        return self.dU[:, 0]
+
+    def predicted(self, theta_new: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """First-order prediction of the plans under other weights (M, K): a warm start, (M, H, n_u)."""
+        return self.U + np.einsum("mhuk,mk->mhu", self.dU, theta_new - theta)
 
 
 class RecedingPolicy:
@@ -178,12 +187,10 @@ class RecedingPolicy:
         if U.shape != (M, H, n_u) or not np.all(np.isfinite(U)):
             raise ValueError(f"init must be finite with shape {(M, H, n_u)}, got {U.shape}")
         d = H * n_u
-        E0 = np.zeros((d, n_u))
-        E0[np.arange(n_u), np.arange(n_u)] = 1.0
         values, grad, hess = self._expand(x0, U, theta)
         cost = np.einsum("mk,mk->m", theta, values)
         converged = np.zeros(M, dtype=bool)
-        jac = np.zeros((M, n_u, K))
+        dU = np.zeros((M, d, K))  # d U* / d theta
         n_indefinite = 0
         # a warm start that sits on a bound keeps its active set: straight to the bounded QPs
         on_bound = np.zeros(M, dtype=bool)
@@ -194,10 +201,10 @@ class RecedingPolicy:
             if not len(todo):
                 break
             g = np.einsum("mk,mkd->md", theta[todo], grad[todo])
-            # one factorisation per start: the Newton step and H^-1 E0 for d pi / d theta
-            rhs = np.concatenate([g[..., None], np.broadcast_to(E0, (len(todo), d, n_u))], axis=2)
+            # one factorisation per start: the Newton step and H^-1 grad f_k for d U* / d theta
+            rhs = np.concatenate([g[..., None], np.swapaxes(grad[todo], 1, 2)], axis=2)
             sol = _solve_rows(hess[todo], rhs)
-            full, Y = -sol[..., 0], sol[..., 1:]
+            full, Y = -sol[..., 0], -sol[..., 1:]
             promised = -0.5 * np.einsum("md,md->m", g, full)
             uphill = ~(promised >= 0) | ~np.all(np.isfinite(full), axis=1)
             if uphill.any():  # not a descent direction: the exact Hessian is indefinite there
@@ -215,7 +222,7 @@ class RecedingPolicy:
             if tiny.any():
                 rows = todo[tiny]
                 U[rows] += full[tiny]
-                jac[rows] = -np.einsum("mdu,mkd->muk", Y[tiny], grad[rows])
+                dU[rows] = Y[tiny]
                 converged[rows] = True
                 todo, full = todo[~tiny], full[~tiny]
                 if not len(todo):
@@ -237,7 +244,7 @@ class RecedingPolicy:
             todo = todo[ok]  # a start whose line search failed stays unconverged
         left = np.flatnonzero(~converged & ~on_bound)
         if len(left):  # unconverged: derivatives at the last plan
-            jac[left] = self._implicit(x0[left], U[left], grad[left], hess[left])
+            dU[left] = self._implicit(x0[left], U[left], grad[left], hess[left])
         bounded = np.zeros(M, dtype=bool)
         if self._qp is not None:
             bad = np.flatnonzero((self._qp.violation(x0, U) > 1e-9) | on_bound)
@@ -267,15 +274,14 @@ class RecedingPolicy:
             bounded = self._qp.touches(x0, U)
             rows = np.flatnonzero(bounded)
             if len(rows):
-                jac[rows] = self._implicit(x0[rows], U[rows], grad[rows], hess[rows])
-        return PolicySolution(U, jac, bounded, converged, n_indefinite)
+                dU[rows] = self._implicit(x0[rows], U[rows], grad[rows], hess[rows])
+        return PolicySolution(U, dU.reshape(M, H, n_u, K), bounded, converged, n_indefinite)
 
     def _implicit(self, x0, U, grad, hess) -> np.ndarray:
-        """d pi / d theta (M, n_u, K) at plans U with their active bounds (module doc)."""
-        n_u = self.model.dynamics.n_u
+        """d U* / d theta (M, d, K) at plans U with their active bounds (module doc)."""
         M, K, d = grad.shape
         _, hess, _, _ = shift_to_pd(hess, 1e-9)
-        out = np.empty((M, n_u, K))
+        out = np.empty((M, d, K))
         for m in range(M):
             C = self._active_matrix(x0[m], U[m]) if self._qp is not None else np.zeros((0, d))
             Z = scipy.linalg.null_space(C) if len(C) else np.eye(d)
@@ -283,7 +289,7 @@ class RecedingPolicy:
                 out[m] = 0.0
                 continue
             R = Z.T @ hess[m] @ Z
-            out[m] = (-Z @ np.linalg.solve(R, Z.T @ grad[m].T))[:n_u]
+            out[m] = -Z @ np.linalg.solve(R, Z.T @ grad[m].T)
         return out
 
     def _active_matrix(self, x0: np.ndarray, U: np.ndarray, tol: float = 1e-7) -> np.ndarray:
@@ -413,6 +419,7 @@ _GRID = (-2.0, 0.0, 2.0)  # start grid of each free log weight
 _GRID_STEPS = 12  # steps per group that score the start grid
 _CAUCHY_FLOOR = 0.01  # smallest Cauchy scale, per RMS of the recorded controls
 _MAX_STEP = 2.0  # largest Levenberg-Marquardt step in any log weight
+_RESCALE_ROUNDS = 3  # refits with a smaller Cauchy scale once the residuals shrank
 _COARSE_MIN = 2000  # steps from which a coarse pass comes first
 _COARSE_STRIDE = 8  # the first Levenberg-Marquardt pass uses every 8th step when there are many
 
@@ -501,6 +508,12 @@ def fit_receding(
         n_coarse = 0
     everything = np.ones(steps.n_steps, dtype=bool)
     w, state, n_iter = fit.run(w, everything, max_iter, tol)
+    for _ in range(_RESCALE_ROUNDS):  # again where the residuals' robust scale fell by more than half
+        shrunk = fit._scale(state.resid, grp) < 0.5 * fit.last_scale
+        if loss == "gauss" or not shrunk.any():
+            break
+        w, state, more = fit.run(w, everything, max_iter, tol, groups=shrunk, state=state)
+        n_iter += more
     counts = np.bincount(grp, minlength=G)
     has = counts > 0
     sigma, nll = fit.scale_and_nll(state.resid, counts)
@@ -518,6 +531,8 @@ def fit_receding(
 @dataclass
 class _LMState:
     plans: np.ndarray
+    dplans: np.ndarray
+    theta: np.ndarray
     bounded: np.ndarray
     resid: np.ndarray
     jac: np.ndarray
@@ -565,18 +580,28 @@ class _LM:
             wts = 1.0 / (1.0 + z)
         return np.bincount(grp_rows, weights=per.sum(axis=1), minlength=self.G), wts
 
-    def run(self, w, use, max_iter, tol):
-        """LM from log weights w (G, K) on the steps where ``use`` (S,): (w, state, iterations)."""
+    def run(self, w, use, max_iter, tol, groups=None, state=None):
+        """LM from log weights w (G, K) on the steps where ``use`` (S,): (w, state, iterations).
+
+        ``groups`` (G,) bool: fit only these (the others keep w); ``state``: the state of a previous run on
+        the same steps and weights, to start from instead of solving again."""
         rows_all = np.flatnonzero(use)
         grp = self.grp[rows_all]
         G, free, low, high = self.G, self.free, self.low, self.high
         has = np.bincount(grp, minlength=G) > 0
-        sol, r, theta = self._solve(w, rows_all, self.steps.init[rows_all])
-        st = _LMState(sol.U.copy(), sol.bounded.copy(), r, self._jac(sol, theta), ~has, sol.n_indefinite)
+        if groups is not None:
+            has &= groups
+        if state is None:
+            sol, r, theta = self._solve(w, rows_all, self.steps.init[rows_all])
+            st = _LMState(sol.U.copy(), sol.dU.copy(), theta, sol.bounded.copy(), r, self._jac(sol, theta), ~has,
+                          sol.n_indefinite)
+        else:
+            st = state
+            st.converged = st.converged & ~has
         lam = np.full(G, 1e-3)
         n_iter = 0
         c = self._scale(st.resid, grp)  # the Cauchy scale is held during a run: one objective per run
-        self.last_scale = c
+        self.last_scale = c if groups is None else np.where(groups, c, self.last_scale)
         for n_iter in range(1, max_iter + 1):
             active = ~st.converged
             if not active.any():
@@ -599,13 +624,16 @@ class _LM:
             moved = np.max(np.abs(w_trial - w), axis=1)
             sub = np.flatnonzero(active[grp])
             rows = rows_all[sub]
-            sol_t, r_t, theta_t = self._solve(w_trial, rows, st.plans[sub])
+            guess = st.plans[sub] + np.einsum("shuk,sk->shu", st.dplans[sub],
+                                              np.exp(w_trial[self.grp[rows]]) - st.theta[sub])
+            sol_t, r_t, theta_t = self._solve(w_trial, rows, guess)
             f_t, _ = self._rho(r_t, grp[sub], c)
             better = active & (f_t <= f * (1 + 1e-12))
             small = moved <= tol
             acc = better[grp[sub]]
             a = sub[acc]
             st.plans[a], st.bounded[a], st.resid[a] = sol_t.U[acc], sol_t.bounded[acc], r_t[acc]
+            st.dplans[a], st.theta[a] = sol_t.dU[acc], theta_t[acc]
             st.jac[a] = self._jac(sol_t, theta_t)[acc]
             w = np.where(better[:, None], w_trial, w)
             lam = np.where(better, np.maximum(lam / 5.0, 1e-9), np.minimum(lam * 10.0, 1e9))
