@@ -60,83 +60,28 @@ def build_parser() -> argparse.ArgumentParser:
     add_sumo_parser(simulators)
     add_highway_parser(simulators)
     add_sweep_parsers(sub)
+    from pirl_sim.harness.recovery import add_recover_parser
 
-    rp = sub.add_parser(
-        "replay",
-        help="learn from recorded tracks (INTERACTION format) and score predictions against them",
-        description="Replay INTERACTION-format track files on their Lanelet2 map: select non-interacting drivers, "
-        "fit the learners, predict each test track from a history window, score MED/ADE/FDE in metres against "
-        "baselines over several split seeds.",
-    )
-    rp.add_argument("--tracks", type=Path, required=True, help="a vehicle_tracks_*.csv file or a directory of them")
-    rp.add_argument("--map", type=Path, required=True, help="the Lanelet2 OSM map of the recording")
-    rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
-                    help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
-    rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
-    rp.add_argument("--knn-k", default="10",
-                    help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
-                         "(default 10)")
-    rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
-    rp.add_argument("--history", type=float, default=2.0, help="observed history [s] (default 2)")
-    rp.add_argument("--horizon", type=float, default=3.0, help="predicted horizon [s] (default 3)")
-    rp.add_argument("--out", type=Path, default=Path("results") / "replay", help="output directory")
-    rp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_recover_parser(sub)
+
+    from pirl_sim.harness.replay_cli import add_replay_parser
+
+    add_replay_parser(sub)
     return parser
 
 
 def _replay(args) -> int:
-    from pirl_sim.harness.replay import ReplayProtocol, run_replay, summarize, write_replay_results
-    from pirl_sim.io.interaction import find_track_files
-    from pirl_sim.scenarios.replay import load_replay
+    from pirl_sim.harness.replay_cli import run_replay_command
 
-    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-    known = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
-    try:
-        keys = [k.strip() for k in args.learners.split(",") if k.strip()]
-        unknown = [k for k in keys if k not in known]
-        if unknown or not keys:
-            raise ValueError(f"unknown learners {unknown or keys}; choose from {sorted(known)}")
-        try:
-            knn_ks = [int(k) for k in str(args.knn_k).split(",")]
-        except ValueError:
-            raise ValueError(f"--knn-k must be positive integers separated by commas, got {args.knn_k!r}") from None
-        if any(k < 1 for k in knn_ks):
-            raise ValueError(f"--knn-k must be positive integers, got {args.knn_k!r}")
-        if "tirl" not in keys:
-            keys.insert(0, "tirl")  # the reference of the paired differences
-        specs = []
-        for k in keys:
-            if k == "tirl":
-                specs.append(("TIRL", k, {}))
-            elif k == "pirl-gmm":
-                specs.append((f"PIRL-GMM (k={args.gmm_k})", k, {"n_components": args.gmm_k, "random_state": 0}))
-            elif k == "pirl-dpgmm":
-                specs.append(("PIRL-DPGMM", k, {"random_state": 0}))
-            else:
-                specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, "prior": "population", "stride": 2}) for n in knn_ks]
-        files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
-        dt = 0.2
-        proto = ReplayProtocol(history=max(1, int(round(args.history / dt))), horizon=max(1, int(round(args.horizon / dt))),
-                               fde_steps=tuple(sorted({max(1, int(round(x / dt))) for x in (1.0, 2.0, args.horizon)
-                                                       if x <= args.horizon})),
-                               seeds=tuple(range(args.seeds)))
-        say(f"[1/3] reading {len(files)} track files and {args.map}")
-        scene = load_replay(files, args.map, dt=dt)
-        say(f"[2/3] {scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), "
-            f"{scene.n_selected_tracks} not interacting; skipped {scene.skipped}; route repairs {scene.repairs}")
-        result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"))
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"pirl-sim: error: {exc}", file=sys.stderr)
-        return 2
-    command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
-    write_replay_results(result, scene, args.out, command)
-    print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-    print(f"wrote {args.out}/")
-    return 0
+    return run_replay_command(args)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "recover":
+        from pirl_sim.harness.recovery import run_recover_command
+
+        return run_recover_command(args)
     if args.command == "replay":
         return _replay(args)
     if args.command in ("sweep", "report"):
