@@ -421,6 +421,7 @@ _CAUCHY_FLOOR = 0.01  # smallest Cauchy scale, per RMS of the recorded controls
 _MAX_STEP = 2.0  # largest Levenberg-Marquardt step in any log weight
 _RESCALE_ROUNDS = 3  # refits with a smaller Cauchy scale once the residuals shrank
 _COARSE_MIN = 2000  # steps from which a coarse pass comes first
+_COARSE_KEEP = 40  # steps of a group that the coarse pass keeps at least (all if fewer)
 _COARSE_STRIDE = 8  # the first Levenberg-Marquardt pass uses every 8th step when there are many
 
 
@@ -502,7 +503,9 @@ def fit_receding(
         w = fit.grid_start(w)
     if steps.n_steps >= _COARSE_MIN:  # a coarse pass on every 8th step finds the basin for a fraction of the cost
         coarse = np.zeros(steps.n_steps, dtype=bool)
-        coarse[::_COARSE_STRIDE] = True
+        for g in range(G):  # but keeps at least _COARSE_KEEP steps of every group
+            rows = np.flatnonzero(grp == g)
+            coarse[rows[:: max(1, min(_COARSE_STRIDE, len(rows) // _COARSE_KEEP))]] = True
         w, _, n_coarse = fit.run(w, coarse, max_iter, max(tol, 1e-2))
     else:
         n_coarse = 0
@@ -645,7 +648,8 @@ class _LM:
 
     def grid_start(self, w):
         """Start weights per group: the best point of a grid over the free log weights (each in
-        `_GRID` = {-2, 0, 2}), scored by the median |residual| on up to `_GRID_STEPS` steps per group. The
+        `_GRID` = {-2, 0, 2}), scored by the sum of |residual| on up to `_GRID_STEPS` steps per group (a median would let the steps that
+        every cost explains alike, e.g. cruising at the speed limit, decide). The
         receding-horizon objective is not convex in the weights; a start in the wrong basin can end at a
         bound (measured on SUMO drivers who minimise acceleration)."""
         import itertools
@@ -665,7 +669,7 @@ class _LM:
             trial[:, self.free] = np.clip(point, self.low, self.high)
             _, r, _ = self._solve(trial, sub, self.steps.init[sub])
             a = np.abs(r).max(axis=1)
-            score = np.array([np.median(a[grp == g]) if np.any(grp == g) else np.inf for g in range(self.G)])
+            score = np.bincount(grp, weights=a, minlength=self.G)  # L1: robust, and every step counts
             take = score < best
             best = np.where(take, score, best)
             out[take] = trial[take]
