@@ -20,10 +20,27 @@ trailing runs are cut off. The counts are in ``ReplayScene.repairs``.
 
 Simulated scenes written by pirl_sim carry a ``ground_truth.csv`` sidecar beside the tracks (track_id,
 style, theta_<feature> ...); its values go into each trajectory's metadata.
+
+State estimate (``estimate``). ``"positions"``: least squares through the dynamics on the arc lengths only
+(`fit_longitudinal_states`, ridge ``jerk_weight``). ``"speeds"``: `estimate_longitudinal_states` on the arc
+lengths and the recorded speeds hypot(vx, vy) with the noise model ``sigma_s`` (positions), ``sigma_v``
+(speeds), ``sigma_j`` (jerk prior) [m, m/s, m/s^3]. Measured data have noisy speeds: the defaults
+(`MEASURED_NOISE`: 0.1 m, 0.1 m/s, 1 m/s^3) trust them loosely and damp the jerks; the speeds of a
+pirl_sim recording are exact (`SIMULATED_NOISE`: the defaults of `estimate_longitudinal_states`).
+
+Per-step masks (``selection="steps"``). A pirl_sim recording has ``driver_steps.csv`` beside its tracks (per
+PIRL track and frame: commanded / overridden / collided). Then every PIRL track is kept, interacting or not,
+with metadata ``step_mask`` (bool, (n_steps,)): a step of ``dt`` is the driver's own when all its frames are
+(commanded, not overridden, no collision at either end), as `pirl_sim.scenarios.demonstrations` does; the
+estimate is fitted per run of usable steps, with the measured acceleration where a driver re-started after
+an override. Tracks without driver steps (background traffic) are skipped under ``selection="steps"``.
+``selection="tracks"`` (the paper's, and the only one for real data) keeps whole tracks and flags interacting
+ones by the geometric rule.
 """
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
@@ -33,17 +50,117 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from pirl_sim.driving import CompositePath, PathDriverModel, fit_longitudinal_states, roundabout_model
-from pirl_sim.paths import ReferencePath
+from pirl_sim.driving import (
+    DEFAULT_BOUNDS,
+    ESTIMATE_SIGMA_A,
+    ESTIMATE_SIGMA_J,
+    ESTIMATE_SIGMA_S,
+    ESTIMATE_SIGMA_V,
+    CompositePath,
+    PathDriverModel,
+    SpeedProfile,
+    estimate_longitudinal_states,
+    fit_longitudinal_states,
+    roundabout_features,
+)
+from pirl_sim.dynamics import longitudinal
+from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_SMOOTHING, DEFAULT_V_MAX, ReferencePath
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["SelectionRule", "ReplayScene", "load_replay", "interaction_flags", "track_key", "FRAME_DT", "MAX_BRIDGE"]
+__all__ = ["SelectionRule", "ReplayScene", "EstimateNoise", "DriverSettings", "load_replay", "interaction_flags",
+           "track_key", "recording_settings", "is_recording", "FRAME_DT", "MAX_BRIDGE", "MEASURED_NOISE", "SIMULATED_NOISE",
+           "ESTIMATES", "SELECTIONS"]
 
 log = logging.getLogger(__name__)
 
 FRAME_DT = 0.1  #: [s] INTERACTION frame period
 MAX_BRIDGE = 5  #: [frames] longest run of unconnected positions inside a track that is bridged (0.5 s)
+ESTIMATES = ("positions", "speeds")  #: state estimate from positions only, or positions and recorded speeds
+SELECTIONS = ("tracks", "steps")  #: whole non-interacting tracks, or every PIRL track with per-step masks
+DRIVER_STEPS_FILE = "driver_steps.csv"  #: per-step driver flags of a pirl_sim recording, beside the tracks
+RUN_INFO_FILE = "run.json"  #: a pirl_sim recording's run information (drivers' horizon, step, ...)
+
+
+@dataclass(frozen=True)
+class EstimateNoise:
+    """Noise model of the speed-aware state estimate (see `pirl_sim.driving.estimate_longitudinal_states`).
+
+    Attributes
+    ----------
+    sigma_s : float [m]        position noise
+    sigma_v : float [m/s]      speed noise
+    sigma_j : float [m/s^3]    prior standard deviation of the jerks
+    sigma_a : float [m/s^2]    noise of a measured restart acceleration (recordings with driver steps)
+    """
+
+    sigma_s: float
+    sigma_v: float
+    sigma_j: float
+    sigma_a: float = ESTIMATE_SIGMA_A
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_s", "sigma_v", "sigma_j", "sigma_a"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+
+
+#: measured tracks (INTERACTION: drone video, speeds from the tracker): speeds trusted loosely, jerks damped
+MEASURED_NOISE = EstimateNoise(sigma_s=0.1, sigma_v=0.1, sigma_j=1.0)
+#: pirl_sim recordings: exact simulator speeds (the measured defaults of `estimate_longitudinal_states`)
+SIMULATED_NOISE = EstimateNoise(ESTIMATE_SIGMA_S, ESTIMATE_SIGMA_V, ESTIMATE_SIGMA_J, ESTIMATE_SIGMA_A)
+
+
+@dataclass(frozen=True)
+class DriverSettings:
+    """The model settings of the drivers of a pirl_sim recording (``run.json``), for a replay that learns with
+    the drivers' own model class.
+
+    Attributes
+    ----------
+    horizon : int          MPC horizon [steps of ``dt``]
+    dt : float [s]         re-planning step
+    smoothing : float [m]  smoothing length of the reference paths' geometry
+    speed_smoothing : float [m]  further smoothing of the curvature for the desired speed
+    a_lat : float [m/s^2], v_max : float [m/s]   desired-speed parameters
+    """
+
+    horizon: int
+    dt: float
+    smoothing: float
+    speed_smoothing: float
+    a_lat: float
+    v_max: float
+
+
+def _run_info(tracks: str | Path) -> dict | None:
+    import json
+
+    path = Path(tracks)
+    info = (path if path.is_dir() else path.parent) / RUN_INFO_FILE
+    if not info.is_file():
+        return None
+    data = json.loads(info.read_text(encoding="utf-8"))
+    return data if data.get("format") == "pirl_sim scenario recording" else None
+
+
+def is_recording(tracks: str | Path) -> bool:
+    """Whether a track file (or a tracks directory) is a pirl_sim recording (a pirl_sim ``run.json`` beside it)."""
+    return _run_info(tracks) is not None
+
+
+def recording_settings(tracks: str | Path) -> DriverSettings | None:
+    """`DriverSettings` from the ``run.json`` beside a track file (or in a tracks directory) when it is a
+    recording of receding-horizon MPC drivers (SUMO, highway-env); None otherwise (real data, or scenes
+    without such drivers)."""
+    data = _run_info(tracks)
+    if data is None or "drivers" not in data.get("config", {}) or "step_length_s" not in data:
+        return None
+    drv = data["config"]["drivers"]
+    return DriverSettings(horizon=int(drv["horizon"]), dt=float(data["step_length_s"]),
+                          smoothing=float(drv["smoothing"]), speed_smoothing=float(drv["speed_smoothing"]),
+                          a_lat=float(drv["a_lat"]), v_max=float(drv["v_max"]))
 
 
 @dataclass(frozen=True)
@@ -82,12 +199,15 @@ class ReplayScene:
     trajectories : list of Trajectory
         (s, v, a) states with metadata ``track_id``, ``file``, ``route`` (lanelet ids), ``segment``,
         ``d`` (n + 1,) lateral offsets [m], ``xy`` (n + 1, 2) recorded positions [m] at the model's dt,
-        ``interacted`` and, from a sidecar, ``theta`` (normalised) and ``style``.
+        ``interacted`` and, from a sidecar, ``theta`` (normalised) and ``style``; with
+        ``selection="steps"`` also ``step_mask`` (bool, (n,)).
         Long tracks are cut into several trajectories (``piece`` 0, 1, ... in metadata): there are more
         trajectories than tracks.
     skipped : dict {reason: number of tracks}
     n_tracks : int                tracks read (of the replayed agent types)
     repairs : dict {what: count}  route-matching repairs of kept tracks (see module doc)
+    selection : {"tracks", "steps"}  how `selected` chooses (module doc)
+    steps : dict {what: count}   with ``selection="steps"``: steps of dt kept and left out by the masks
     """
 
     model: PathDriverModel
@@ -95,10 +215,15 @@ class ReplayScene:
     skipped: dict = field(default_factory=dict)
     n_tracks: int = 0
     repairs: dict = field(default_factory=dict)
+    selection: str = "tracks"
+    steps: dict = field(default_factory=dict)
 
     @property
     def selected(self) -> list[Trajectory]:
-        """Pieces of tracks that did not interact (the paper's selection)."""
+        """``selection="tracks"``: pieces of tracks that did not interact (the paper's selection);
+        ``"steps"``: every piece (PIRL tracks only, each with its ``step_mask``)."""
+        if self.selection == "steps":
+            return list(self.trajectories)
         return [t for t in self.trajectories if not t.metadata["interacted"]]
 
     @property
@@ -206,6 +331,14 @@ def load_replay(
     max_offset: float = 3.0,
     jerk_weight: float = 1e-2,
     max_steps: int | None = 100,
+    estimate: str = "positions",
+    noise: EstimateNoise = MEASURED_NOISE,
+    selection: str = "tracks",
+    min_usable_steps: int = 10,
+    smoothing: float = DEFAULT_SMOOTHING,
+    speed_smoothing: float = 0.0,
+    a_lat: float = DEFAULT_A_LAT,
+    v_max: float = DEFAULT_V_MAX,
 ) -> ReplayScene:
     """Read track files recorded on one map into a `ReplayScene`.
 
@@ -216,12 +349,39 @@ def load_replay(
     dt : float [s]        model step, a multiple of the 0.1 s frames
     rule : SelectionRule
     max_offset : float [m]  route matching tolerance
-    jerk_weight : float   smoothing of the state estimate (see `fit_longitudinal_states`)
+    jerk_weight : float   smoothing of the position-only state estimate (see `fit_longitudinal_states`)
     max_steps : int or None
         Longer tracks are cut into consecutive pieces of at most this many steps (metadata ``piece``); the
         per-demonstration IRL costs O(steps^3), and a 20 s piece holds a whole roundabout passage.
         Experiments split train and test by track, never by piece.
+    estimate : {"positions", "speeds"}
+        State estimate from the positions only, or from positions and recorded speeds (module doc).
+    noise : EstimateNoise
+        Noise model of ``estimate="speeds"`` (default `MEASURED_NOISE`; `SIMULATED_NOISE` for simulators'
+        exact speeds).
+    selection : {"tracks", "steps"}
+        ``"steps"`` needs ``driver_steps.csv`` beside every track file (module doc).
+    min_usable_steps : int
+        ``selection="steps"``: a track (piece) with fewer usable steps of dt is skipped.
+    smoothing : float [m]
+        Smoothing length of the routes' reference paths (`ReferencePath.from_polyline`).
+    speed_smoothing : float [m]
+        Further smoothing of the paths' curvature for the desired speed, as the simulated drivers'
+        `pirl_sim.scenarios.drivers.RouteSet` does (0: none).
+    a_lat, v_max : float
+        Desired-speed parameters [m/s^2, m/s] (`pirl_sim.driving.SpeedProfile`).
     """
+    if estimate not in ESTIMATES:
+        raise ValueError(f"estimate must be one of {ESTIMATES}, got {estimate!r}")
+    if selection not in SELECTIONS:
+        raise ValueError(f"selection must be one of {SELECTIONS}, got {selection!r}")
+    if not isinstance(noise, EstimateNoise):
+        raise TypeError(f"noise must be an EstimateNoise, got {type(noise).__name__}")
+    if not is_positive_int(min_usable_steps):
+        raise ValueError(f"min_usable_steps must be a positive integer, got {min_usable_steps!r}")
+    for name, value in (("smoothing", smoothing), ("speed_smoothing", speed_smoothing)):
+        if not np.isfinite(value) or value < 0:
+            raise ValueError(f"{name} must be >= 0 m, got {value!r}")
     from pirl_sim.io.interaction import read_tracks
     from pirl_sim.io.lanelet2_map import load_map, match_route
 
@@ -235,7 +395,11 @@ def load_replay(
     path_list: list[ReferencePath] = []
     pending = []  # (segment, s_local (n,), d (n,), xy (n, 2), meta)
     n_tracks = 0
+    n_steps_counts: Counter = Counter()
     for file in (Path(f) for f in track_files):
+        steps_flags = None
+        if selection == "steps":
+            steps_flags = _driver_steps(file)
         try:
             truth = _sidecar(file)
             df = read_tracks(file)
@@ -264,6 +428,9 @@ def load_replay(
             if np.any(np.diff(frames) != 1):
                 skipped["gap in frames"] += 1
                 continue
+            if steps_flags is not None and int(track_id) not in steps_flags:
+                skipped["no driver steps (not a PIRL driver)"] += 1
+                continue
             xy = track[["x", "y"]].to_numpy()
             try:
                 match = match_route(lmap, xy, max_offset=max_offset, psi=track["psi_rad"].to_numpy())
@@ -284,10 +451,16 @@ def load_replay(
                 skipped["shorter than min_duration after cutting at a break in the route"] += 1
                 continue
             xy = xy[keep]
+            speed = np.hypot(track["vx"].to_numpy(), track["vy"].to_numpy())[keep]
+            usable = restart = None
+            if steps_flags is not None:
+                f = steps_flags[int(track_id)].reindex(frames[keep])
+                usable = f["usable"].fillna(False).to_numpy(dtype=bool)
+                restart = f["restart"].fillna(False).to_numpy(dtype=bool)
             key = tuple(match.lanelet_ids)
             if key not in paths:
                 paths[key] = len(path_list)
-                path_list.append(ReferencePath.from_polyline(match.centerline))
+                path_list.append(ReferencePath.from_polyline(match.centerline, smoothing=smoothing))
             try:
                 s_local, d = path_list[paths[key]].to_frenet(xy, extrapolate=True)
             except ValueError as exc:
@@ -303,7 +476,10 @@ def load_replay(
             if truth is not None and int(track_id) in truth.index:
                 row = truth.loc[int(track_id)]
                 meta["truth"] = row.to_dict()
-            pending.append((paths[key], s_local[sel], d[sel], xy[sel], meta))
+            extra = {"v": speed[sel]}
+            if usable is not None:
+                extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)
+            pending.append((paths[key], s_local[sel], d[sel], xy[sel], dict(meta, _extra=extra)))
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
     composite = CompositePath(tuple(path_list))
@@ -319,7 +495,7 @@ def load_replay(
     pending = placed
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
-    model = roundabout_model(composite, dt=dt)
+    model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max)
     names = model.features.names
     trajectories = []
     if max_steps is not None and not is_positive_int(max_steps):
@@ -329,15 +505,29 @@ def load_replay(
         n = len(s_local) - 1
         size = n if max_steps is None else max_steps
         starts = list(range(0, max(n - 1, 1), size))
+        extra = meta.pop("_extra")
         for p, a in enumerate(starts):
             b = min(a + size, n)
             if b - a < 2:
                 continue
-            pieces.append((segment, s_local[a : b + 1], d[a : b + 1], xy[a : b + 1], dict(meta, piece=p)))
-    for segment, s_local, d, xy, meta in pieces:
+            cut = {k: v[a : b + 1] for k, v in extra.items() if k != "usable"}
+            if "usable" in extra:
+                cut["step_mask"] = extra["usable"][a:b]
+            pieces.append((segment, s_local[a : b + 1], d[a : b + 1], xy[a : b + 1], dict(meta, piece=p), cut))
+    for segment, s_local, d, xy, meta, cut in pieces:
+        mask = cut.get("step_mask")
+        if mask is not None:
+            n_steps_counts["steps"] += len(mask)
+            n_steps_counts["steps not the driver's own (masked)"] += int((~mask).sum())
+            if int(mask.sum()) < min_usable_steps:
+                skipped["pieces with fewer than min_usable_steps driver's own steps"] += 1
+                n_steps_counts["steps of pieces skipped for too few usable steps"] += len(mask)
+                continue
         s = s_local + composite.offsets[segment]
-        states, controls = fit_longitudinal_states(s, model.dynamics, jerk_weight=jerk_weight)
+        states, controls = _estimate(s, cut, mask, model, estimate, noise, jerk_weight)
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy))
+        if mask is not None:
+            meta["step_mask"] = mask
         truth = meta.pop("truth", None)
         if truth is not None and all(f"theta_{n}" in truth for n in names):
             theta = np.array([float(truth[f"theta_{n}"]) for n in names])
@@ -346,8 +536,76 @@ def load_replay(
             if "style" in truth and np.isfinite(truth["style"]):
                 meta["style"] = int(truth["style"])
         trajectories.append(Trajectory(states, controls, dt, meta))
+    if not trajectories:
+        raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
+    if selection == "steps":
+        n_steps_counts["steps kept (driver's own)"] = sum(int(t.metadata["step_mask"].sum()) for t in trajectories)
     for reason, count in skipped.items():
         log.warning("%d tracks skipped: %s", count, reason)
     for what, count in repairs.items():
         log.warning("route matching: %d %s", count, what)
-    return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs))
+    return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs), selection, dict(n_steps_counts))
+
+
+def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a_lat: float,
+                  v_max: float) -> PathDriverModel:
+    """The roundabout model on ``composite`` (`pirl_sim.driving.roundabout_model`), its desired speed from
+    the curvature smoothed per path by ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`)."""
+    profile_path = composite
+    if speed_smoothing > 0:
+        from .drivers import _smoothed
+
+        kappa = composite.kappa.copy()
+        for p, off in zip(composite.segments, composite.offsets):
+            on = (composite.s >= off - 1e-9) & (composite.s <= off + p.length + 1e-9)
+            kappa[on] = np.interp(composite.s[on] - off, p.s, _smoothed(p.s, p.kappa, speed_smoothing))
+        profile_path = copy.copy(composite)  # same geometry; only the speed profile sees the smoothed kappa
+        object.__setattr__(profile_path, "kappa", kappa)
+    features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max))
+    return PathDriverModel(longitudinal(dt), features, DEFAULT_BOUNDS, path=composite)
+
+
+def _driver_steps(track_file: Path) -> dict[int, pd.DataFrame]:
+    """{track_id: per-frame flags with ``usable`` and ``restart``} from the ``driver_steps.csv`` beside a
+    track file (as `pirl_sim.scenarios.demonstrations.recorded_demonstrations` reads them)."""
+    from types import SimpleNamespace
+
+    from .demonstrations import _frame_flags
+
+    path = track_file.parent / DRIVER_STEPS_FILE
+    if not path.is_file():
+        raise ValueError(f"selection='steps' needs per-step driver flags ({DRIVER_STEPS_FILE}) beside "
+                         f"{track_file}; real data have none: use selection='tracks'")
+    steps = pd.read_csv(path, dtype={"track_id": np.int64, "frame_id": np.int64, "commanded": bool,
+                                     "overridden": bool, "collided": bool})
+    return _frame_flags(SimpleNamespace(driver_steps=steps))
+
+
+def _frame_steps(usable: np.ndarray, restart: np.ndarray, speed: np.ndarray, stride: int):
+    """Per step of ``stride`` frames: usable (all its frames are) and the measured restart acceleration per
+    sampled frame (NaN where none), as `pirl_sim.scenarios.demonstrations.recorded_demonstrations`."""
+    from .demonstrations import _A_HI, _A_LO
+
+    n_steps = (len(usable) - 1) // stride
+    mask = usable[: n_steps * stride].reshape(n_steps, stride).all(axis=1)
+    restart = restart.copy()
+    restart[0] = False
+    k = np.flatnonzero(restart)
+    a = np.full(len(usable), np.nan)
+    a[k] = np.clip((speed[k] - speed[k - 1]) / FRAME_DT, _A_LO, _A_HI)
+    stopped = k[speed[k] <= 0.0]
+    a[stopped] = np.maximum(a[stopped], 0.0)
+    return mask, a[::stride]
+
+
+def _estimate(s, cut, mask, model, estimate, noise, jerk_weight):
+    """(states, controls) of one piece (module doc)."""
+    dyn = model.dynamics
+    if estimate == "speeds":
+        a_obs = cut.get("a_obs")
+        return estimate_longitudinal_states(s, dyn, v_obs=cut["v"], sigma_s=noise.sigma_s, sigma_v=noise.sigma_v,
+                                            sigma_j=noise.sigma_j, a_obs=a_obs, sigma_a=noise.sigma_a,
+                                            step_mask=mask)
+    if mask is None or mask.all():
+        return fit_longitudinal_states(s, dyn, jerk_weight=jerk_weight)
+    return estimate_longitudinal_states(s, dyn, sigma_s=1.0, sigma_j=jerk_weight ** -0.5, step_mask=mask)

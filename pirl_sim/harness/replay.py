@@ -12,6 +12,16 @@ compared with the recorded positions. Baselines use the same windows:
   of `PathDriverModel.predict_states`);
 - ``CV (x, y)``: constant velocity in the plane from the last two recorded positions.
 
+Rollouts (``ReplayProtocol.rollout``). ``"open"``: one MPC plan from the state at t under the inferred weights
+over ``max(horizon, mpc_horizon)`` steps, its first ``horizon`` steps (the paper's prediction). ``"closed"``:
+what a receding-horizon driver does: plan over ``mpc_horizon`` steps, apply the first control, re-plan from the
+new state, ... for ``horizon`` steps (`pirl_sim.simulate.simulate_receding_horizon`). Learners fitted with the
+receding-horizon likelihood predict closed-loop with the drivers' horizon by default (see the CLI).
+
+Per-step masks. When trajectories carry a ``step_mask`` (pirl_sim recordings replayed with
+``selection="steps"``), a test window is used only if every step of its history and horizon is the driver's
+own: the methods are scored on free driving, not on steps where the simulator overrode the driver.
+
 Scores per (seed, method): MED [m] (mean over windows of the mean distance over the horizon) and
 displacement errors at fixed horizons. Counts are of recorded tracks (``n_train``, ``n_test``) and of the
 pieces long tracks are cut into (``n_train_pieces``, ``n_test_pieces``).
@@ -41,9 +51,12 @@ from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["ReplayProtocol", "run_replay", "paired_differences", "knn_with_neighbors", "BASELINES"]
+__all__ = ["ReplayProtocol", "run_replay", "paired_differences", "knn_with_neighbors", "predict_path_states",
+           "split_by_track", "usable_tracks",
+           "BASELINES", "ROLLOUTS"]
 
 BASELINES = ("CV (path)", "CA (path)", "CV (x, y)")
+ROLLOUTS = ("open", "closed")
 
 
 @dataclass(frozen=True)
@@ -58,6 +71,9 @@ class ReplayProtocol:
     fde_steps : tuple of int  horizons at which displacement errors are reported
     test_fraction : float     share of tracks in the test set
     seeds : tuple of int      split seeds
+    rollout : {"open", "closed"}  how learners' weights become a prediction (module doc)
+    mpc_horizon : int or None     the MPC's planning horizon [steps]; required for ``rollout="closed"``
+                                  (None with "open": plan over ``horizon``)
     """
 
     history: int = 10
@@ -66,12 +82,20 @@ class ReplayProtocol:
     fde_steps: tuple[int, ...] = (5, 10, 15)
     test_fraction: float = 0.25
     seeds: tuple[int, ...] = (0, 1, 2)
+    rollout: str = "open"
+    mpc_horizon: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("history", "horizon", "stride"):
             v = getattr(self, name)
             if not is_positive_int(v):
                 raise ValueError(f"{name} must be a positive number of steps, got {v!r}")
+        if self.rollout not in ROLLOUTS:
+            raise ValueError(f"rollout must be one of {ROLLOUTS}, got {self.rollout!r}")
+        if self.mpc_horizon is not None and not is_positive_int(self.mpc_horizon):
+            raise ValueError(f"mpc_horizon must be a positive number of steps or None, got {self.mpc_horizon!r}")
+        if self.rollout == "closed" and self.mpc_horizon is None:
+            raise ValueError("rollout='closed' needs mpc_horizon, the drivers' planning horizon [steps]")
         if any(not 1 <= k <= self.horizon for k in self.fde_steps):
             raise ValueError(f"fde_steps must lie in [1, horizon={self.horizon}], got {self.fde_steps}")
         if not 0 < self.test_fraction < 1:
@@ -81,11 +105,69 @@ class ReplayProtocol:
 
 
 def _windows(test, proto: ReplayProtocol):
+    """(test index, step) of every prediction; with a ``step_mask``, only windows whose history and horizon
+    are all the driver's own steps (module doc)."""
     out = []
     for i, t in enumerate(test):
+        mask = t.metadata.get("step_mask")
         for step in range(proto.history, t.n_steps - proto.horizon + 1, proto.stride):
-            out.append((i, step))
+            if mask is None or mask[step - proto.history : step + proto.horizon].all():
+                out.append((i, step))
     return out
+
+
+def _track_keys(tracks) -> tuple[list, list]:
+    keys = [(t.metadata.get("file"), t.metadata.get("track_id", i)) for i, t in enumerate(tracks)]
+    return keys, sorted(set(keys), key=str)
+
+
+def usable_tracks(scene, proto: ReplayProtocol) -> list:
+    """The scene's selected pieces long enough for one window of ``proto``; raises ValueError with fewer than
+    4 tracks."""
+    tracks = [t for t in scene.selected if t.n_steps >= proto.history + proto.horizon]
+    n = len(_track_keys(tracks)[1])
+    if n < 4:
+        raise ValueError(f"only {n} selected tracks have {proto.history + proto.horizon} steps; need at least 4")
+    return tracks
+
+
+def split_by_track(tracks, seed: int, test_fraction: float) -> tuple[list, list, dict]:
+    """(train, test, counts) for one split seed: by recorded track, so that pieces of one long track never sit
+    on both sides; counts ``n_train``, ``n_test`` (tracks), ``n_train_pieces``, ``n_test_pieces``."""
+    keys, unique = _track_keys(tracks)
+    order = np.random.default_rng(seed).permutation(len(unique))
+    n_test = max(1, int(round(test_fraction * len(unique))))
+    test_keys = {unique[i] for i in order[:n_test]}
+    test = [t for t, k in zip(tracks, keys) if k in test_keys]
+    train = [t for t, k in zip(tracks, keys) if k not in test_keys]
+    counts = {"n_train": len(unique) - n_test, "n_test": n_test, "n_train_pieces": len(train),
+              "n_test_pieces": len(test)}
+    return train, test, counts
+
+
+def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, *, rollout: str = "open",
+                        mpc_horizon: int | None = None) -> np.ndarray:
+    """Predicted states (M, horizon + 1, n_x) from starts x0 (M, n_x) under normalised weights theta (M, K).
+
+    ``rollout="open"``: the MPC's plan over ``max(horizon, mpc_horizon)`` steps, cut to ``horizon``.
+    ``"closed"``: a receding-horizon rollout with the MPC over ``mpc_horizon`` steps (module doc). Starts
+    with v <= 0 are made physical as in `pirl_sim.driving.PathDriverModel.predict_states`.
+    """
+    if rollout not in ROLLOUTS:
+        raise ValueError(f"rollout must be one of {ROLLOUTS}, got {rollout!r}")
+    if rollout == "open":
+        plan = horizon if mpc_horizon is None else max(horizon, int(mpc_horizon))
+        return model.predict_states(x0, theta, plan)[:, : horizon + 1]
+    if not is_positive_int(mpc_horizon):
+        raise ValueError(f"rollout='closed' needs mpc_horizon, a positive number of steps, got {mpc_horizon!r}")
+    from pirl_sim.simulate import simulate_receding_horizon
+
+    x0 = np.array(np.atleast_2d(x0), dtype=float)
+    stopped = x0[:, 1] <= 0.0
+    x0[stopped, 1] = 0.0
+    x0[stopped, 2] = np.maximum(x0[stopped, 2], 0.0)
+    trajs = simulate_receding_horizon(model, x0, theta, horizon, int(mpc_horizon))
+    return np.stack([t.states for t in trajs])
 
 
 def _errors(model, test, windows, s_pred, proto) -> np.ndarray:
@@ -207,31 +289,21 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     ``selected_pieces`` (number of pieces of them). Rows of learners carry their fit diagnostics:
     ``irl_converged`` / ``irl_groups`` (IRL groups that converged / all), ``irl_convergence_warnings``,
     ``hessian_regularization_warnings`` (warnings raised during the fit) and ``irl_from`` (the method whose
-    fit a PIRL-kNN learner reused, else empty).
+    fit a PIRL-kNN learner reused, else empty); with ground truth also ``irl_weight_error`` (median over the
+    training trajectories of the weights the fit gives each, see `_training_weights`). ``paired_ca``: paired
+    differences against ``CA (path)``.
     """
     from pirl_sim.learners import make_learner
 
     say = progress or (lambda msg: None)
-    tracks = [t for t in scene.selected if t.n_steps >= proto.history + proto.horizon]
-    # split by track: pieces of one long track never sit on both sides
-    keys = [(t.metadata.get("file"), t.metadata.get("track_id", i)) for i, t in enumerate(tracks)]
-    unique = sorted(set(keys), key=str)
-    if len(unique) < 4:
-        raise ValueError(
-            f"only {len(unique)} selected tracks have {proto.history + proto.horizon} steps; need at least 4"
-        )
+    tracks = usable_tracks(scene, proto)
+    unique = _track_keys(tracks)[1]
     model = scene.model
     dt = model.dynamics.dt
     rows, errors, examples = [], {}, {}
     reuse = _shared_knn_fits(learner_specs)
     for seed in proto.seeds:
-        order = np.random.default_rng(seed).permutation(len(unique))
-        n_test = max(1, int(round(proto.test_fraction * len(unique))))
-        test_keys = {unique[i] for i in order[:n_test]}
-        test = [t for t, k in zip(tracks, keys) if k in test_keys]
-        train = [t for t, k in zip(tracks, keys) if k not in test_keys]
-        counts = {"n_train": len(unique) - n_test, "n_test": n_test,
-                  "n_train_pieces": len(train), "n_test_pieces": len(test)}
+        train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
@@ -258,7 +330,8 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             fit_s = time.perf_counter() - t0
             t0 = time.perf_counter()
             theta = learner.infer_weights(histories)
-            s_pred = model.predict_states(x0, theta, proto.horizon)[:, 1:, 0]
+            s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
+                                         mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
             extra = {**_truth_scores(learner, train, test, windows, theta, model), **diag}
             methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
             how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
@@ -295,7 +368,8 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
         rows.append(row)
     rows = pd.DataFrame(rows)
-    return {"rows": rows, "paired": paired_differences(errors, "TIRL"), "errors": errors, "selected": len(unique),
+    return {"rows": rows, "paired": paired_differences(errors, "TIRL"),
+            "paired_ca": paired_differences(errors, "CA (path)"), "errors": errors, "selected": len(unique),
             "selected_pieces": len(tracks), "examples": examples, "history": proto.history}
 
 
@@ -305,10 +379,34 @@ def _truth_scores(learner, train, test, windows, theta, model) -> dict:
         truth = np.array([t.metadata["style"] for t in train])
         out["ari"] = adjusted_rand_index(truth, learner.labels_)
         out["matched_styles"] = len(match_styles(truth, learner.labels_))
+    ref = model.features.reference_index
     if all("theta" in test[i].metadata for i, _ in windows):
         true = np.stack([test[i].metadata["theta"] for i, _ in windows])
-        out["weight_error"] = float(np.median(weight_recovery_error(theta, true, model.features.reference_index)))
+        out["weight_error"] = float(np.median(weight_recovery_error(theta, true, ref)))
+    if all("theta" in t.metadata for t in train):  # the IRL's own recovery on the training tracks
+        true = np.stack([t.metadata["theta"] for t in train])
+        fitted = _training_weights(learner, len(train))
+        if fitted is not None:
+            out["irl_weight_error"] = float(np.median(weight_recovery_error(fitted, true, ref)))
     return out
+
+
+def _training_weights(learner, n_train: int) -> np.ndarray | None:
+    """The weights a fitted learner gives each training trajectory (n_train, K): per demonstration (kNN),
+    its cluster's (GMM, DPGMM) or the one shared (TIRL); None when it has none of these."""
+    demo = getattr(learner, "demo_theta_", None)
+    if demo is not None and len(demo) == n_train:
+        return np.asarray(demo)
+    theta = getattr(learner, "theta_", None)
+    if theta is None:
+        return None
+    theta = np.asarray(theta)
+    labels = getattr(learner, "labels_", None)
+    if theta.ndim == 1:
+        return np.broadcast_to(theta, (n_train, theta.size))
+    if labels is not None and len(labels) == n_train:
+        return theta[np.asarray(labels)]
+    return None
 
 
 def paired_differences(errors: dict, reference: str) -> pd.DataFrame:
@@ -332,7 +430,8 @@ def summarize(result: dict) -> pd.DataFrame:
     learners also ``irl_converged`` ("converged groups / groups", summed over seeds) and the numbers of IRL
     warnings raised while fitting (summed over seeds)."""
     rows = result["rows"]
-    scores = [c for c in rows.columns if c == "med" or c.startswith("de@") or c in ("ari", "weight_error")]
+    scores = [c for c in rows.columns
+              if c == "med" or c.startswith("de@") or c in ("ari", "weight_error", "irl_weight_error")]
     agg = rows.groupby("method")[scores].agg(["mean", "std"])
     agg.columns = [f"{a}_{b}" for a, b in agg.columns]
     out = agg.sort_values("med_mean").reset_index()
@@ -358,18 +457,25 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     atomic_write_text(out / "rows.csv", result["rows"].to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "summary.csv", summary.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "paired.csv", result["paired"].to_csv(index=False, float_format="%.6g"))
+    if "paired_ca" in result:
+        atomic_write_text(out / "paired_ca.csv", result["paired_ca"].to_csv(index=False, float_format="%.6g"))
     _write_figures(result, scene, out)
     from pirl_sim.scenarios.replay import track_key
 
     n_inter = len({track_key(t) for t in scene.trajectories if t.metadata["interacted"]})
+    selection = getattr(scene, "selection", "tracks")
+    if selection == "steps":
+        used = (f"kept with per-step masks (selection='steps', interacting tracks included): {result['selected']} "
+                f"(in {result['selected_pieces']} pieces); steps: {getattr(scene, 'steps', {})}")
+    else:
+        used = f"used (not interacting, long enough): {result['selected']} (in {result['selected_pieces']} pieces)"
     lines = [
         "# Replay experiment",
         "",
         f"Made by `{command}`.",
         "",
         f"Tracks read: {scene.n_tracks}; converted: {scene.n_converted} (in {len(scene.trajectories)} pieces); "
-        f"flagged as interacting: {n_inter}; used (not interacting, long enough): {result['selected']} "
-        f"(in {result['selected_pieces']} pieces). Skipped: {scene.skipped or 'none'}. "
+        f"flagged as interacting: {n_inter}; {used}. Skipped: {scene.skipped or 'none'}. "
         f"Route-matching repairs: {getattr(scene, 'repairs', None) or 'none'}.",
         "",
         "Counts of train and test tracks per split are in rows.csv (n_train, n_test; their pieces in "
@@ -384,6 +490,8 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "",
         _markdown(result["paired"]),
         "",
+        *(["## Paired differences against CA (path)", "", _markdown(result["paired_ca"]), ""]
+          if "paired_ca" in result else []),
         "![clusters](clusters.png) ![S-T](s_t.png)" + (" ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""),
     ]
     atomic_write_text(out / "README.md", "\n".join(lines) + "\n")

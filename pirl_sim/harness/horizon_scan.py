@@ -1,0 +1,172 @@
+"""Which MPC horizon H explains recorded driving best: held-out receding-horizon likelihood and MED per H.
+
+For each split seed (by track, as the replay) and each H: TIRL with the receding-horizon likelihood
+(`pirl_sim.receding.fit_receding`, one group, Cauchy residuals) is fitted on the training tracks; the test
+tracks' residuals u_t - pi_theta(x_t) at the fitted weights are scored under the *training* fit's residual
+model (Cauchy with the scale the fit ends with, `receding_nll`): the held-out negative log-likelihood per
+scored control. The same weights predict every test window closed-loop with that H (re-plan every step,
+`pirl_sim.harness.replay.predict_path_states`), scored as MED [m]. Per H the table gives means and standard
+errors over the split seeds, and the held-out NLL paired against the best H (per seed).
+
+`receding_residuals` scores given weights on given trajectories (the piece `pirl_sim.receding` does not
+expose on its own; a candidate to move into the core).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.receding import RecedingPolicy, fit_receding, receding_steps
+from pirl_sim.trajectory import Trajectory
+
+__all__ = ["receding_residuals", "receding_nll", "cauchy_scale", "scan_horizons", "summarize_scan", "write_scan"]
+
+
+def receding_residuals(model, trajectories: Sequence[Trajectory], theta: np.ndarray, horizon: int, *,
+                       stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals u_t - pi_theta(x_t) of every scored step (the steps `pirl_sim.receding.receding_steps` keeps:
+    every ``stride``-th step its ``step_mask`` allows).
+
+    Parameters
+    ----------
+    model : DriverModel
+    trajectories : sequence of Trajectory
+    theta : array (K,) or (M, K)     normalised weights, shared or one row per trajectory
+    horizon : int                    MPC horizon [steps]
+
+    Returns
+    -------
+    residuals : array (S, n_u) [control units]
+    owner : array (S,) int            trajectory index of each step
+    """
+    trajectories = model.check(trajectories)
+    steps = receding_steps(trajectories, horizon, stride=stride)
+    theta = np.asarray(model.features.weights(theta), dtype=float)
+    th = theta[steps.owner] if theta.ndim == 2 else np.broadcast_to(theta, (steps.n_steps, theta.size))
+    sol = RecedingPolicy(model, horizon).solve(steps.x, th, steps.init)
+    return steps.u - sol.first, steps.owner
+
+
+def cauchy_scale(sigma: float, controls: np.ndarray) -> float:
+    """The Cauchy scale c [control units] `pirl_sim.receding.fit_receding` uses for a robust residual sigma:
+    2.3849 sigma, floored at 1 % of the RMS of the recorded controls."""
+    from pirl_sim.receding import _CAUCHY_C, _CAUCHY_FLOOR
+
+    return float(max(_CAUCHY_C * sigma, _CAUCHY_FLOOR * (np.sqrt(np.mean(np.square(controls))) + 1e-12)))
+
+
+def receding_nll(residuals: np.ndarray, scale: float) -> float:
+    """Mean negative log-likelihood per scored control of residuals under Cauchy(0, scale) [nats]."""
+    z = np.asarray(residuals, dtype=float) / scale
+    return float(np.mean(np.log(np.pi * scale) + np.log1p(z**2)))
+
+
+def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1, progress=None) -> pd.DataFrame:
+    """Fit, score and predict per split seed and horizon (module doc).
+
+    Parameters
+    ----------
+    scene : pirl_sim.scenarios.replay.ReplayScene
+    horizons : sequence of int          MPC horizons H [steps of the scene's dt]
+    proto : pirl_sim.harness.replay.ReplayProtocol   split seeds, test fraction, prediction windows
+    step_stride : int                   score every ``step_stride``-th recorded step in the fit
+
+    Returns
+    -------
+    DataFrame, one row per (seed, horizon): ``horizon``, ``horizon_s``, ``train_nll``, ``test_nll`` (per
+    scored control, under the training fit's Cauchy scale), ``test_rms`` (RMS residual [m/s^3]), ``sigma``
+    (training fit), ``med`` (closed-loop, [m]), ``med_open`` (open-loop plan over max(H, prediction horizon)),
+    the fitted weights ``theta_<feature>``, step counts and ``fit_s``.
+    """
+    from pirl_sim.harness.replay import _errors, _windows, predict_path_states, split_by_track, usable_tracks
+
+    say = progress or (lambda msg: None)
+    horizons = [int(h) for h in horizons]
+    if not horizons or any(h < 1 for h in horizons):
+        raise ValueError(f"horizons must be positive numbers of steps, got {horizons!r}")
+    model = scene.model
+    names = model.features.names
+    tracks = usable_tracks(scene, proto)
+    rows = []
+    for seed in proto.seeds:
+        train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
+        windows = _windows(test, proto)
+        if not windows:
+            raise ValueError("no test window: tracks are too short for the protocol")
+        x0 = np.stack([test[i].states[step] for i, step in windows])
+        u_train = np.concatenate([t.controls for t in train])
+        for H in horizons:
+            t0 = time.perf_counter()
+            res = fit_receding(model, train, np.zeros(len(train), dtype=int), horizon=H, stride=step_stride)
+            fit_s = time.perf_counter() - t0
+            theta = res.normalized[0]
+            scale = cauchy_scale(float(res.sigma[0]), u_train)
+            r_train, _ = receding_residuals(model, train, theta, H, stride=step_stride)
+            r_test, _ = receding_residuals(model, test, theta, H)
+            th = np.broadcast_to(theta, (len(windows), theta.size))
+            med = {}
+            for rollout in ("closed", "open"):
+                s_pred = predict_path_states(model, x0, th, proto.horizon, rollout=rollout, mpc_horizon=H)[:, 1:, 0]
+                med[rollout] = float(_errors(model, test, windows, s_pred, proto).mean())
+            row = {"seed": seed, "horizon": H, "horizon_s": H * model.dynamics.dt,
+                   "train_nll": receding_nll(r_train, scale), "test_nll": receding_nll(r_test, scale),
+                   "test_rms": float(np.sqrt(np.mean(r_test**2))), "sigma": float(res.sigma[0]),
+                   "med": med["closed"], "med_open": med["open"], "converged": bool(res.converged[0]),
+                   "n_train_steps": int(r_train.shape[0]), "n_test_steps": int(r_test.shape[0]),
+                   "n_windows": len(windows), **counts, "fit_s": fit_s,
+                   **{f"theta_{n}": float(v) for n, v in zip(names, theta)}}
+            rows.append(row)
+            say(f"seed {seed}, H = {H}: held-out NLL {row['test_nll']:.4f} per step, MED {med['closed']:.3f} m "
+                f"(closed) / {med['open']:.3f} m (open), fitted in {fit_s:.1f} s")
+    return pd.DataFrame(rows)
+
+
+def summarize_scan(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per horizon: mean and standard error over seeds of the scores, and the held-out NLL minus that of the
+    best horizon (paired by seed)."""
+    seeds = rows["seed"].nunique()
+    se = (lambda x: x.std(ddof=1) / np.sqrt(len(x))) if seeds > 1 else (lambda x: np.nan)
+    cols = ["test_nll", "train_nll", "test_rms", "med", "med_open"]
+    g = rows.groupby("horizon")
+    out = g[["horizon_s"]].first()
+    for c in cols:
+        out[c] = g[c].mean()
+        out[f"{c}_se"] = g[c].agg(se)
+    best = out["test_nll"].idxmin()
+    base = rows[rows["horizon"] == best].set_index("seed")["test_nll"]
+    diff = rows.assign(d=rows["test_nll"].to_numpy() - base.loc[rows["seed"]].to_numpy()).groupby("horizon")["d"]
+    out["test_nll_minus_best"] = diff.mean()
+    out["test_nll_minus_best_se"] = diff.agg(se)
+    theta_cols = [c for c in rows.columns if c.startswith("theta_")]
+    for c in theta_cols:
+        out[c] = g[c].mean()
+    out["fit_s"] = g["fit_s"].mean()
+    out["n_seeds"] = seeds
+    return out.reset_index()
+
+
+def write_scan(rows: pd.DataFrame, out_dir, command: str) -> pd.DataFrame:
+    """horizon_scan_rows.csv, horizon_scan.csv and horizon_scan.md in ``out_dir``; returns the summary."""
+    from pathlib import Path
+
+    from pirl_sim.harness.reproduce import _markdown
+    from pirl_sim.io.atomic import atomic_write_text
+
+    out = Path(out_dir)
+    table = summarize_scan(rows)
+    atomic_write_text(out / "horizon_scan_rows.csv", rows.to_csv(index=False, float_format="%.6g"))
+    atomic_write_text(out / "horizon_scan.csv", table.to_csv(index=False, float_format="%.6g"))
+    best = int(table.loc[table["test_nll"].idxmin(), "horizon"])
+    lines = ["# MPC horizon scan", "", f"Made by `{command}`.", "",
+             "Per horizon H [steps]: TIRL with the receding-horizon likelihood fitted on the training tracks; "
+             "test_nll: held-out negative log-likelihood per scored control under the training fit's Cauchy "
+             "residual model [nats]; med: MED [m] of closed-loop predictions with the fitted weights and H "
+             "(med_open: one open-loop plan); means and standard errors (_se) over the split seeds; "
+             "test_nll_minus_best: paired by seed against the best H.", "",
+             f"Best held-out likelihood at H = {best}.", "", _markdown(table), ""]
+    atomic_write_text(out / "horizon_scan.md", "\n".join(lines))
+    return table

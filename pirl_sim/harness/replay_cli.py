@@ -1,0 +1,254 @@
+"""``pirl-sim replay``: its options and the command (kept out of `pirl_sim.cli` so that the replay can grow
+without touching the other commands).
+
+Defaults that depend on the data. A tracks directory with a pirl_sim ``run.json`` is a *pirl_sim recording*:
+its drivers' model settings (path smoothing, desired-speed smoothing, a_lat, v_max) are used for the learned
+model, the state estimate trusts its exact speeds (`pirl_sim.scenarios.replay.SIMULATED_NOISE`), and with
+``--likelihood receding`` the step ``--dt`` defaults to the drivers' re-planning step and ``--mpc-horizon`` to
+their MPC horizon; where it also has ``driver_steps.csv``, ``--selection`` defaults to ``steps``. Anything
+else is *real data*: ``--dt 0.2`` (the paper's step), measured-speed noise
+(`pirl_sim.scenarios.replay.MEASURED_NOISE`), ``--selection tracks``, and ``--likelihood receding`` needs
+``--mpc-horizon``. Times given in seconds (``--history``, ``--horizon``) keep their meaning in seconds
+whatever ``--dt``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from pirl_sim.validation import positive_int_arg
+
+__all__ = ["add_replay_parser", "run_replay_command", "replay_settings"]
+
+LEARNERS = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
+PIECE_DURATION = 20.0  # [s] longer tracks are cut into pieces of this duration (a whole roundabout passage)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def _horizon_arg(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--mpc-horizon must be a positive number of steps, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"--mpc-horizon must be a positive number of steps, got {text!r}")
+    return value
+
+
+def add_replay_parser(sub) -> argparse.ArgumentParser:
+    """The ``replay`` subcommand on an argparse subparsers object."""
+    rp = sub.add_parser(
+        "replay",
+        help="learn from recorded tracks (INTERACTION format) and score predictions against them",
+        description="Replay INTERACTION-format track files on their Lanelet2 map: select non-interacting drivers, "
+        "fit the learners, predict each test track from a history window, score MED/ADE/FDE in metres against "
+        "baselines over several split seeds.",
+    )
+    rp.add_argument("--tracks", type=Path, required=True, help="a vehicle_tracks_*.csv file or a directory of them")
+    rp.add_argument("--map", type=Path, required=True, help="the Lanelet2 OSM map of the recording")
+    rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
+                    help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
+    rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
+    rp.add_argument("--knn-k", default="10",
+                    help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
+                         "(default 10)")
+    rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
+    rp.add_argument("--history", type=float, default=2.0, help="observed history [s] (default 2)")
+    rp.add_argument("--horizon", type=float, default=3.0, help="predicted horizon [s] (default 3)")
+    rp.add_argument("--likelihood", choices=["trajectory", "receding"], default="trajectory",
+                    help="the IRL's model of a demonstration: 'trajectory' (the paper's: one open-loop optimum) or "
+                         "'receding' (each step's control is the first of an MPC plan over --mpc-horizon steps) "
+                         "(default trajectory)")
+    rp.add_argument("--mpc-horizon", type=_horizon_arg, default=None, metavar="H",
+                    help="the drivers' MPC horizon [steps of --dt] for --likelihood receding and closed-loop "
+                         "rollouts (default: drivers.horizon of a pirl_sim recording's run.json; required for "
+                         "real data)")
+    rp.add_argument("--dt", type=_positive_float, default=None,
+                    help="model step [s], a multiple of the 0.1 s frames (default 0.2, the paper's; with "
+                         "--likelihood receding on a pirl_sim recording its drivers' re-planning step)")
+    rp.add_argument("--estimate", choices=["positions", "speeds"], default=None,
+                    help="state estimate from positions only or from positions and recorded speeds (default: "
+                         "speeds with --likelihood receding, positions otherwise)")
+    rp.add_argument("--sigma-v", type=_positive_float, default=None,
+                    help="speed noise [m/s] of --estimate speeds (default 0.1 for real data, 0.001 for pirl_sim "
+                         "recordings)")
+    rp.add_argument("--sigma-j", type=_positive_float, default=None,
+                    help="jerk prior [m/s^3] of --estimate speeds (default 1 for real data, 3 for pirl_sim "
+                         "recordings)")
+    rp.add_argument("--selection", choices=["tracks", "steps"], default=None,
+                    help="'tracks': whole tracks without interaction (the paper's); 'steps': every PIRL track with "
+                         "a per-step mask from driver_steps.csv (pirl_sim recordings, --likelihood receding only). "
+                         "Default: steps where driver_steps.csv exists and the likelihood is receding, else tracks")
+    rp.add_argument("--rollout", choices=["open", "closed"], default=None,
+                    help="learners' predictions: 'open' (one MPC plan) or 'closed' (re-plan every step over "
+                         "--mpc-horizon steps, as the drivers) (default: closed with --likelihood receding, open "
+                         "otherwise)")
+    rp.add_argument("--scan-horizon", default=None, metavar="H1,H2,...",
+                    help="instead of the replay: for each MPC horizon [steps], fit TIRL with the receding likelihood "
+                         "on the training tracks and report the held-out residual NLL per step and MED "
+                         "(horizon_scan.csv/.md)")
+    rp.add_argument("--out", type=Path, default=Path("results") / "replay", help="output directory")
+    rp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    return rp
+
+
+def replay_settings(args) -> dict:
+    """Resolve the data-dependent defaults (module doc) into keyword arguments and protocol values.
+
+    Returns dict with ``load`` (keyword arguments of `load_replay` besides files and map), ``dt``,
+    ``mpc_horizon``, ``likelihood``, ``rollout``, ``recording`` (DriverSettings or None) and ``notes``.
+
+    Raises ValueError for combinations that cannot work (naming the option).
+    """
+    from pirl_sim.scenarios.replay import (
+        DRIVER_STEPS_FILE,
+        MEASURED_NOISE,
+        SIMULATED_NOISE,
+        EstimateNoise,
+        is_recording,
+        recording_settings,
+    )
+
+    rec = recording_settings(args.tracks)
+    receding = args.likelihood == "receding"
+    notes = []
+    if args.dt is not None:
+        dt = float(args.dt)
+    elif receding and rec is not None:
+        dt = rec.dt
+        notes.append(f"--dt {dt:g} s: the drivers' re-planning step (run.json)")
+    else:
+        dt = 0.2
+    horizon = args.mpc_horizon
+    if horizon is None and rec is not None:
+        if abs(dt - rec.dt) < 1e-9:
+            horizon = rec.horizon
+            notes.append(f"--mpc-horizon {horizon}: the drivers' drivers.horizon (run.json)")
+        elif receding:
+            raise ValueError(f"--dt {dt:g} s differs from the drivers' re-planning step {rec.dt:g} s, so their "
+                             f"horizon of {rec.horizon} steps does not apply: give --mpc-horizon in steps of --dt")
+    rollout = args.rollout or ("closed" if receding else "open")
+    if (receding or rollout == "closed") and horizon is None:
+        what = "--likelihood receding" if receding else "--rollout closed"
+        raise ValueError(f"{what} needs the drivers' MPC horizon: give --mpc-horizon H (steps of --dt = {dt:g} s); "
+                         f"{args.tracks} is not a pirl_sim recording with a run.json to take it from")
+    steps_file = (args.tracks if args.tracks.is_dir() else args.tracks.parent) / DRIVER_STEPS_FILE
+    selection = args.selection or ("steps" if receding and steps_file.is_file() else "tracks")
+    if selection == "steps" and not receding:
+        raise ValueError("--selection steps needs --likelihood receding: the trajectory likelihood scores whole "
+                         "trajectories and cannot leave the overridden steps out")
+    if selection == "steps" and not steps_file.is_file():
+        raise ValueError(f"--selection steps needs {DRIVER_STEPS_FILE} beside the tracks (pirl_sim recordings); "
+                         f"none in {steps_file.parent}")
+    estimate = args.estimate or ("speeds" if receding else "positions")
+    base = SIMULATED_NOISE if is_recording(args.tracks) else MEASURED_NOISE
+    noise = EstimateNoise(base.sigma_s, args.sigma_v or base.sigma_v, args.sigma_j or base.sigma_j, base.sigma_a)
+    load = {"dt": dt, "estimate": estimate, "noise": noise, "selection": selection,
+            "max_steps": max(1, int(round(PIECE_DURATION / dt)))}
+    if rec is not None:
+        load.update(smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max)
+        notes.append(f"model: the drivers' path smoothing {rec.smoothing:g} m, desired-speed smoothing "
+                     f"{rec.speed_smoothing:g} m, a_lat {rec.a_lat:g}, v_max {rec.v_max:g} (run.json)")
+    return {"load": load, "dt": dt, "mpc_horizon": horizon, "likelihood": args.likelihood, "rollout": rollout,
+            "recording": rec, "notes": notes}
+
+
+def _steps(seconds: float, dt: float) -> int:
+    return max(1, int(round(seconds / dt)))
+
+
+def _learner_specs(args, likelihood: str, mpc_horizon: int | None) -> list:
+    keys = [k.strip() for k in args.learners.split(",") if k.strip()]
+    unknown = [k for k in keys if k not in LEARNERS]
+    if unknown or not keys:
+        raise ValueError(f"unknown learners {unknown or keys}; choose from {sorted(LEARNERS)}")
+    try:
+        knn_ks = [int(k) for k in str(args.knn_k).split(",")]
+    except ValueError:
+        raise ValueError(f"--knn-k must be positive integers separated by commas, got {args.knn_k!r}") from None
+    if any(k < 1 for k in knn_ks):
+        raise ValueError(f"--knn-k must be positive integers, got {args.knn_k!r}")
+    if "tirl" not in keys:
+        keys.insert(0, "tirl")  # the reference of the paired differences
+    irl = {"likelihood": "receding", "horizon": int(mpc_horizon)} if likelihood == "receding" else {}
+    # the population prior of PIRL-kNN is a prior of the trajectory likelihood's Laplace fit
+    knn_prior = {} if likelihood == "receding" else {"prior": "population"}
+    specs = []
+    for k in keys:
+        if k == "tirl":
+            specs.append(("TIRL", k, dict(irl)))
+        elif k == "pirl-gmm":
+            specs.append((f"PIRL-GMM (k={args.gmm_k})", k, {"n_components": args.gmm_k, "random_state": 0, **irl}))
+        elif k == "pirl-dpgmm":
+            specs.append(("PIRL-DPGMM", k, {"random_state": 0, **irl}))
+        else:
+            specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, "stride": 2, **knn_prior, **irl}) for n in knn_ks]
+    return specs
+
+
+def run_replay_command(args) -> int:
+    """Run ``pirl-sim replay`` from parsed arguments; returns the exit status."""
+    from pirl_sim.harness.replay import ReplayProtocol, run_replay, summarize, write_replay_results
+    from pirl_sim.io.interaction import find_track_files
+    from pirl_sim.scenarios.replay import load_replay
+
+    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    try:
+        settings = replay_settings(args)
+        dt, horizon = settings["dt"], settings["mpc_horizon"]
+        files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
+        pred = _steps(args.horizon, dt)
+        proto = ReplayProtocol(history=_steps(args.history, dt), horizon=pred,
+                               fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
+                                                       if x <= args.horizon})),
+                               stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)),
+                               rollout=settings["rollout"], mpc_horizon=horizon)
+        scan = None
+        if args.scan_horizon is not None:
+            try:
+                scan = [int(h) for h in str(args.scan_horizon).split(",")]
+            except ValueError:
+                raise ValueError(f"--scan-horizon must be positive integers separated by commas, got "
+                                 f"{args.scan_horizon!r}") from None
+            if not scan or any(h < 1 for h in scan):
+                raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
+        else:
+            specs = _learner_specs(args, settings["likelihood"], horizon)
+        for note in settings["notes"]:
+            say(f"[0/3] {note}")
+        say(f"[1/3] reading {len(files)} track files and {args.map} (dt {dt:g} s, estimate "
+            f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
+        scene = load_replay(files, args.map, **settings["load"])
+        say(f"[2/3] {scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), "
+            f"{scene.n_selected_tracks} selected; skipped {scene.skipped}; route repairs {scene.repairs}"
+            + (f"; steps {scene.steps}" if scene.steps else ""))
+        if scan is not None:
+            from pirl_sim.harness.horizon_scan import scan_horizons, write_scan
+
+            rows = scan_horizons(scene, scan, proto, progress=lambda m: say(f"[3/3] {m}"))
+            command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
+            table = write_scan(rows, args.out, command)
+            print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+            print(f"wrote {args.out}/")
+            return 0
+        result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"))
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
+    command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
+    write_replay_results(result, scene, args.out, command)
+    print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    print(result["paired_ca"].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    print(f"wrote {args.out}/")
+    return 0
