@@ -394,11 +394,15 @@ class RecoveryResult:
 
     def times(self) -> pd.DataFrame:
         """Wall times per job (not deterministic: kept apart from the other tables)."""
-        return pd.DataFrame([{
-            "simulator": r.simulator, "control_noise": r.control_noise, "seed": r.seed,
-            "fitted_steps": int(r.tracks["fitted_steps"].sum()), "fit_time_s": r.fit_time_s,
-            "tirl_time_s": r.tirl_time_s, "simulated": s, "sim_time_s": t,
-        } for r, s, t in zip(self.reports, self.simulated, self.sim_time_s)])
+        rows, seen = [], set()
+        for r, s, t in zip(self.reports, self.simulated, self.sim_time_s):
+            if id(r) in seen:  # a noise level that is the main run's
+                continue
+            seen.add(id(r))
+            rows.append({"simulator": r.simulator, "control_noise": r.control_noise, "seed": r.seed,
+                         "fitted_steps": int(r.tracks["fitted_steps"].sum()), "fit_time_s": r.fit_time_s,
+                         "tirl_time_s": r.tirl_time_s, "simulated": s, "sim_time_s": t})
+        return pd.DataFrame(rows)
 
 
 def _run_dir(root: Path, simulator: str, seed: int, noise: float | None) -> Path:
@@ -438,21 +442,27 @@ def run_recovery(simulators: Sequence[str], seeds: Sequence[int], *, runs_dir, p
                 jobs.append(RecoveryJob(sim, int(seed), float(noise),
                                         os.fspath(_run_dir(root, sim, seed, float(noise))), pop, n_vehicles,
                                         min_steps, stride))
-    for j in jobs:
-        j.config()  # a bad population fails here, before anything runs
+    # a bad population fails here, before anything runs; a noise level equal to the population's own
+    # noise is the same run as the main job's: simulated and fitted once
+    keys = [(j.simulator, j.seed, json.dumps(j.config().to_dict(), sort_keys=True)) for j in jobs]
+    first = {}
+    for i, k in enumerate(keys):
+        first.setdefault(k, i)
+    todo = sorted(set(first.values()))
     say = progress or (lambda m: None)
     ctx = multiprocessing.get_context("spawn")
-    results: list[Any] = [None] * len(jobs)
+    done: dict[int, Any] = {}
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futures = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
+        futures = {pool.submit(run_job, jobs[i]): i for i in todo}
         for n, fut in enumerate(as_completed(futures), 1):
             i = futures[fut]
-            rep, simulated, sim_t = results[i] = fut.result()
+            rep, simulated, sim_t = done[i] = fut.result()
             j = jobs[i]
             noise = "" if j.control_noise is None else f", noise {j.control_noise:g}"
-            say(f"[{n}/{len(jobs)}] {j.simulator} seed {j.seed}{noise}: "
+            say(f"[{n}/{len(todo)}] {j.simulator} seed {j.seed}{noise}: "
                 f"{'simulated' if simulated else 'reused'} run, {len(rep.tracks)}/{rep.n_pirl_tracks} tracks "
                 f"fitted in {rep.fit_time_s:.1f} s")
+    results = [done[first[k]] for k in keys]
     return RecoveryResult(tuple(jobs), tuple(r[0] for r in results), tuple(r[1] for r in results),
                           tuple(r[2] for r in results), stride, min_steps, workers,
                           os.environ.get("OPENBLAS_NUM_THREADS", "default"))

@@ -1,0 +1,140 @@
+"""Receding-horizon IRL on the default SUMO run (seed 0): our batched fit against a per-track scipy loop.
+
+    OPENBLAS_NUM_THREADS=1 python3 benchmarks/bench_receding.py [--repeats 3] [--baseline-tracks 8] [--run DIR]
+
+Workload: every PIRL track of `pirl-sim simulate sumo --seed 0` (80 vehicles, default population) with at
+least 10 usable steps (``selection="steps"``), one weight vector per track, every usable step scored
+(stride 1). Target: < 10 s.
+
+Baseline: per track, ``scipy.optimize.least_squares`` (trf, box [-20, 20] on the free log weights, Cauchy
+loss with the scale our fit starts from, 2-point finite-difference Jacobian) on the same residuals,
+``u_t - RecedingPolicy(model, H).solve(x_t, theta(w), init_t).first`` over the track's usable steps
+(every step of the track solved in one batched call per residual evaluation), from the same start (the
+same grid over the free log weights scored by the sum of |residual| on 12 steps of the track). The loop is
+run on every ``n/baseline-tracks``-th track and its time scaled to all tracks. Target: >= 20x.
+
+Times of our fit are medians over ``--repeats``; the machine is shared, so read the ratio. The BLAS thread
+setting is printed; run it with OPENBLAS_NUM_THREADS=1 and without.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.optimize
+
+from pirl_sim.receding import RecedingPolicy, fit_receding, receding_steps
+
+_GRID = (-2.0, 0.0, 2.0)  # as pirl_sim.receding's start grid
+_GRID_STEPS = 12
+_CAUCHY_C, _MAD_SIGMA, _FLOOR = 2.3849, 1.4826, 0.01
+
+
+def _blas() -> str:
+    try:
+        from threadpoolctl import threadpool_info
+
+        pools = [f"{p['internal_api']} {p['num_threads']} thread(s)" for p in threadpool_info()
+                 if p.get("user_api") == "blas"]
+    except ImportError:  # pragma: no cover
+        pools = []
+    return f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}" + (
+        f" ({', '.join(pools)})" if pools else "")
+
+
+def _load_run(path: Path | None):
+    from pirl_sim.scenarios.sumo.scenario import load_sumo_run, run_sumo_scenario
+
+    if path is not None and (path / "run.json").is_file():
+        return load_sumo_run(path), None
+    tmp = tempfile.TemporaryDirectory(prefix="bench_receding_")
+    run_sumo_scenario(None, 0, out_dir=tmp.name)
+    return load_sumo_run(tmp.name), tmp
+
+
+def _baseline_track(model, horizon, traj, free, ref, K):
+    """One track: grid start, then least_squares with a finite-difference Jacobian; normalised weights."""
+    steps = receding_steps([traj], horizon)
+    policy = RecedingPolicy(model, horizon)
+
+    def theta_of(wf):
+        w = np.zeros(K)
+        w[free] = wf
+        return np.exp(w)
+
+    def resid(wf, rows=slice(None)):
+        sol = policy.solve(steps.x[rows], theta_of(wf), steps.init[rows])
+        return (steps.u[rows] - sol.first).ravel()
+
+    sub = np.unique(np.linspace(0, steps.n_steps - 1, min(_GRID_STEPS, steps.n_steps)).round().astype(int))
+    best, w0 = np.inf, None
+    for point in itertools.product(_GRID, repeat=len(free)):
+        score = np.sum(np.abs(resid(np.array(point), sub)))
+        if score < best:
+            best, w0 = score, np.array(point)
+    r0 = resid(w0)
+    scale = max(_CAUCHY_C * _MAD_SIGMA * np.median(np.abs(r0)), _FLOOR * np.sqrt(np.mean(steps.u**2)))
+    res = scipy.optimize.least_squares(resid, w0, jac="2-point", bounds=(-20.0, 20.0), method="trf",
+                                       loss="cauchy", f_scale=scale, xtol=1e-6, ftol=1e-10, max_nfev=200)
+    return theta_of(res.x), res.nfev
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3, help="runs of our fit (median), default 3")
+    ap.add_argument("--baseline-tracks", type=int, default=8, help="tracks the scipy loop runs on (default 8)")
+    ap.add_argument("--run", type=Path, default=Path("results/recovery/runs/sumo-seed0"),
+                    help="a recorded default SUMO run, seed 0 (simulated into a temporary directory if missing)")
+    args = ap.parse_args(argv)
+
+    run, tmp = _load_run(args.run)
+    demos = run.demonstrations(selection="steps", non_interacting=False, min_steps=10)
+    model, H = run.model, run.horizon
+    feats = model.features
+    K, ref = feats.n_features, feats.reference_index
+    free = np.array([k for k in range(K) if k != ref])
+    n_steps = sum(int(d.metadata["step_mask"].sum()) for d in demos)
+    print(f"receding-horizon IRL, default SUMO run seed 0: {len(demos)} PIRL tracks, {n_steps} usable steps, "
+          f"H = {H}; {_blas()}")
+
+    times, res = [], None
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        res = fit_receding(model, demos, horizon=H)
+        times.append(time.perf_counter() - t0)
+    ours = statistics.median(times)
+    truth = np.array([d.metadata["theta"] for d in demos])
+    err = np.abs(np.log(res.normalized[:, free] / truth[:, free]))
+    print(f"  fit_receding, all tracks          : {ours:8.2f} s (median of {args.repeats}: "
+          f"{', '.join(f'{t:.2f}' for t in times)})  target < 10 s; converged {int(res.converged.sum())}/"
+          f"{len(demos)}, median |log err| {np.median(err):.4f}")
+
+    pick = np.unique(np.linspace(0, len(demos) - 1, min(args.baseline_tracks, len(demos))).round().astype(int))
+    t0 = time.perf_counter()
+    base, nfev = [], 0
+    for i in pick:
+        th, n = _baseline_track(model, H, demos[i], free, ref, K)
+        base.append(feats.normalize(th))
+        nfev += n
+    t_sub = time.perf_counter() - t0
+    base = np.array(base)
+    scaled = t_sub * len(demos) / len(pick)
+    diff = np.abs(np.log(base[:, free] / res.normalized[pick][:, free]))
+    berr = np.abs(np.log(base[:, free] / truth[pick][:, free]))
+    print(f"  scipy least_squares loop, FD jac  : {t_sub:8.2f} s on {len(pick)} tracks ({nfev} residual "
+          f"evaluations) -> {scaled:.1f} s scaled to {len(demos)} tracks; median |log err| {np.median(berr):.4f}")
+    print(f"  max |log(ours / baseline)| on those tracks: {diff.max():.2e} (median {np.median(diff):.1e})")
+    print(f"  speed-up vs baseline: {scaled / ours:6.1f}x (target >= 20x)")
+    if tmp is not None:
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()
