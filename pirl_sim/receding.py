@@ -227,14 +227,20 @@ class RecedingPolicy:
                 todo, full = todo[~tiny], full[~tiny]
                 if not len(todo):
                     break
+            # backtracking: halve the step of the starts where it does not lower the cost (only those are
+            # evaluated again)
             alpha = np.ones(len(todo))
+            trial = U[todo] + full
+            trial_cost = self._cost(x0[todo], trial, theta[todo])
+            worse = trial_cost > cost[todo] + 1e-13 * np.abs(cost[todo])
             for _half in range(20):
-                trial = U[todo] + alpha[:, None, None] * full
-                trial_cost = self._cost(x0[todo], trial, theta[todo])
-                worse = trial_cost > cost[todo] + 1e-13 * np.abs(cost[todo])
                 if not worse.any():
                     break
-                alpha = np.where(worse, alpha / 2.0, alpha)
+                j = np.flatnonzero(worse)
+                alpha[j] /= 2.0
+                trial[j] = U[todo[j]] + alpha[j, None, None] * full[j]
+                trial_cost[j] = self._cost(x0[todo[j]], trial[j], theta[todo[j]])
+                worse[j] = trial_cost[j] > cost[todo[j]] + 1e-13 * np.abs(cost[todo[j]])
             step = alpha * np.max(np.abs(full), axis=(1, 2))
             ok = ~worse | (step <= self.tol)
             rows = todo[ok]
@@ -422,6 +428,7 @@ _MAX_STEP = 2.0  # largest Levenberg-Marquardt step in any log weight
 _RESCALE_ROUNDS = 3  # refits with a smaller Cauchy scale once the residuals shrank
 _COARSE_MIN = 2000  # steps from which a coarse pass comes first
 _COARSE_KEEP = 40  # steps of a group that the coarse pass keeps at least (all if fewer)
+_COARSE_TOL = 1e-2  # the coarse pass's tolerance on the log weights (it only finds the basin)
 _COARSE_STRIDE = 8  # the first Levenberg-Marquardt pass uses every 8th step when there are many
 
 
@@ -506,17 +513,10 @@ def fit_receding(
         for g in range(G):  # but keeps at least _COARSE_KEEP steps of every group
             rows = np.flatnonzero(grp == g)
             coarse[rows[:: max(1, min(_COARSE_STRIDE, len(rows) // _COARSE_KEEP))]] = True
-        w, _, n_coarse = fit.run(w, coarse, max_iter, max(tol, 1e-2))
+        w, _, n_coarse = fit.run(w, coarse, max_iter, max(tol, _COARSE_TOL))
     else:
         n_coarse = 0
-    everything = np.ones(steps.n_steps, dtype=bool)
-    w, state, n_iter = fit.run(w, everything, max_iter, tol)
-    for _ in range(_RESCALE_ROUNDS):  # again where the residuals' robust scale fell by more than half
-        shrunk = fit._scale(state.resid, grp) < 0.5 * fit.last_scale
-        if loss == "gauss" or not shrunk.any():
-            break
-        w, state, more = fit.run(w, everything, max_iter, tol, groups=shrunk, state=state)
-        n_iter += more
+    w, state, n_iter = fit.run_rescaled(w, np.ones(steps.n_steps, dtype=bool), max_iter, tol)
     counts = np.bincount(grp, minlength=G)
     has = counts > 0
     sigma, nll = fit.scale_and_nll(state.resid, counts)
@@ -644,6 +644,19 @@ class _LM:
             st.n_indefinite = sol_t.n_indefinite
         if len(rows_all) < self.steps.n_steps:  # keep the last residuals of every step for the caller
             st.converged &= has
+        return w, st, n_iter
+
+    def run_rescaled(self, w, use, max_iter, tol):
+        """`run`, then again for the groups whose residuals' robust scale fell by more than half (the Cauchy
+        scale of a run comes from its first residuals; the loss should fit the final ones)."""
+        w, st, n_iter = self.run(w, use, max_iter, tol)
+        grp = self.grp[use]
+        for _ in range(_RESCALE_ROUNDS):
+            shrunk = self._scale(st.resid, grp) < 0.5 * self.last_scale
+            if self.loss == "gauss" or not shrunk.any():
+                break
+            w, st, more = self.run(w, use, max_iter, tol, groups=shrunk, state=st)
+            n_iter += more
         return w, st, n_iter
 
     def grid_start(self, w):
