@@ -8,6 +8,11 @@ scored control. The same weights predict every test window closed-loop with that
 `pirl_sim.harness.replay.predict_path_states`), scored as MED [m]. Per H the table gives means and standard
 errors over the split seeds, and the held-out NLL paired against the best H (per seed).
 
+Shared weights mix the styles of a population, so their residuals are dominated by the style misfit and
+barely depend on H (measured on ``simulate sumo --seed 0``). The scan therefore also scores per-track weights:
+each test track's weights are fitted on the first half of its scored steps and its second half is scored
+under them (``own_nll``), which isolates how well H explains a driver's controls.
+
 `receding_residuals` scores given weights on given trajectories (the piece `pirl_sim.receding` does not
 expose on its own; a candidate to move into the core).
 """
@@ -107,6 +112,12 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
             scale = cauchy_scale(float(res.sigma[0]), u_train)
             r_train, _ = receding_residuals(model, train, theta, H, stride=step_stride)
             r_test, _ = receding_residuals(model, test, theta, H)
+            # per-track weights: each test track fitted on the first half of its steps, scored on the second
+            first, second = zip(*(_halves(t) for t in test))
+            own = fit_receding(model, list(first), horizon=H, stride=step_stride)
+            r_own_fit, _ = receding_residuals(model, list(first), own.normalized, H, stride=step_stride)
+            r_own, _ = receding_residuals(model, list(second), own.normalized, H)
+            own_scale = cauchy_scale(1.4826 * float(np.median(np.abs(r_own_fit))), u_train)
             th = np.broadcast_to(theta, (len(windows), theta.size))
             med = {}
             for rollout in ("closed", "open"):
@@ -115,14 +126,23 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
             row = {"seed": seed, "horizon": H, "horizon_s": H * model.dynamics.dt,
                    "train_nll": receding_nll(r_train, scale), "test_nll": receding_nll(r_test, scale),
                    "test_rms": float(np.sqrt(np.mean(r_test**2))), "sigma": float(res.sigma[0]),
+                   "own_nll": receding_nll(r_own, own_scale), "own_rms": float(np.sqrt(np.mean(r_own**2))),
                    "med": med["closed"], "med_open": med["open"], "converged": bool(res.converged[0]),
                    "n_train_steps": int(r_train.shape[0]), "n_test_steps": int(r_test.shape[0]),
                    "n_windows": len(windows), **counts, "fit_s": fit_s,
                    **{f"theta_{n}": float(v) for n, v in zip(names, theta)}}
             rows.append(row)
-            say(f"seed {seed}, H = {H}: held-out NLL {row['test_nll']:.4f} per step, MED {med['closed']:.3f} m "
+            say(f"seed {seed}, H = {H}: held-out NLL {row['test_nll']:.4f} (shared weights) / {row['own_nll']:.4f} "
+                f"(per-track weights) per step, MED {med['closed']:.3f} m "
                 f"(closed) / {med['open']:.3f} m (open), fitted in {fit_s:.1f} s")
     return pd.DataFrame(rows)
+
+
+def _halves(t: Trajectory) -> tuple[Trajectory, Trajectory]:
+    """The trajectory twice, its ``step_mask`` keeping the first / the second half of its steps."""
+    mask = np.asarray(t.metadata.get("step_mask", np.ones(t.n_steps, dtype=bool)), dtype=bool)
+    early = np.arange(t.n_steps) < t.n_steps // 2
+    return t.with_metadata(step_mask=mask & early), t.with_metadata(step_mask=mask & ~early)
 
 
 def summarize_scan(rows: pd.DataFrame) -> pd.DataFrame:
@@ -130,17 +150,18 @@ def summarize_scan(rows: pd.DataFrame) -> pd.DataFrame:
     best horizon (paired by seed)."""
     seeds = rows["seed"].nunique()
     se = (lambda x: x.std(ddof=1) / np.sqrt(len(x))) if seeds > 1 else (lambda x: np.nan)
-    cols = ["test_nll", "train_nll", "test_rms", "med", "med_open"]
+    cols = ["own_nll", "own_rms", "test_nll", "train_nll", "test_rms", "med", "med_open"]
     g = rows.groupby("horizon")
     out = g[["horizon_s"]].first()
     for c in cols:
         out[c] = g[c].mean()
         out[f"{c}_se"] = g[c].agg(se)
-    best = out["test_nll"].idxmin()
-    base = rows[rows["horizon"] == best].set_index("seed")["test_nll"]
-    diff = rows.assign(d=rows["test_nll"].to_numpy() - base.loc[rows["seed"]].to_numpy()).groupby("horizon")["d"]
-    out["test_nll_minus_best"] = diff.mean()
-    out["test_nll_minus_best_se"] = diff.agg(se)
+    for c in ("own_nll", "test_nll"):
+        best = out[c].idxmin()
+        base = rows[rows["horizon"] == best].set_index("seed")[c]
+        diff = rows.assign(d=rows[c].to_numpy() - base.loc[rows["seed"]].to_numpy()).groupby("horizon")["d"]
+        out[f"{c}_minus_best"] = diff.mean()
+        out[f"{c}_minus_best_se"] = diff.agg(se)
     theta_cols = [c for c in rows.columns if c.startswith("theta_")]
     for c in theta_cols:
         out[c] = g[c].mean()
@@ -160,13 +181,17 @@ def write_scan(rows: pd.DataFrame, out_dir, command: str) -> pd.DataFrame:
     table = summarize_scan(rows)
     atomic_write_text(out / "horizon_scan_rows.csv", rows.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "horizon_scan.csv", table.to_csv(index=False, float_format="%.6g"))
-    best = int(table.loc[table["test_nll"].idxmin(), "horizon"])
+    best = int(table.loc[table["own_nll"].idxmin(), "horizon"])
+    best_shared = int(table.loc[table["test_nll"].idxmin(), "horizon"])
     lines = ["# MPC horizon scan", "", f"Made by `{command}`.", "",
-             "Per horizon H [steps]: TIRL with the receding-horizon likelihood fitted on the training tracks; "
-             "test_nll: held-out negative log-likelihood per scored control under the training fit's Cauchy "
-             "residual model [nats]; med: MED [m] of closed-loop predictions with the fitted weights and H "
-             "(med_open: one open-loop plan); means and standard errors (_se) over the split seeds; "
-             "test_nll_minus_best: paired by seed against the best H.", "",
-             f"Best held-out likelihood at H = {best}.", "", _markdown(table), ""]
+             "Per horizon H [steps]: own_nll: per-track weights, each test track's fitted on the first half of "
+             "its steps, negative log-likelihood per scored control of the second half [nats] (Cauchy, scale from "
+             "the first halves' residuals); test_nll: TIRL (one shared weight vector) with the receding-horizon "
+             "likelihood fitted on the training tracks, scored on the test tracks under the training fit's "
+             "Cauchy scale; med: MED [m] of closed-loop predictions with the shared weights and H (med_open: one "
+             "open-loop plan); means and standard errors (_se) over the split seeds; *_minus_best: paired by "
+             "seed against the best H.", "",
+             f"Best held-out likelihood at H = {best} (per-track weights), H = {best_shared} (shared weights).",
+             "", _markdown(table), ""]
     atomic_write_text(out / "horizon_scan.md", "\n".join(lines))
     return table

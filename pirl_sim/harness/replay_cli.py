@@ -81,7 +81,7 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="state estimate from positions only or from positions and recorded speeds (default: "
                          "speeds with --likelihood receding, positions otherwise)")
     rp.add_argument("--sigma-v", type=_positive_float, default=None,
-                    help="speed noise [m/s] of --estimate speeds (default 0.1 for real data, 0.001 for pirl_sim "
+                    help="speed noise [m/s] of --estimate speeds (default 0.05 for real data, 0.001 for pirl_sim "
                          "recordings)")
     rp.add_argument("--sigma-j", type=_positive_float, default=None,
                     help="jerk prior [m/s^3] of --estimate speeds (default 1 for real data, 3 for pirl_sim "
@@ -156,6 +156,8 @@ def replay_settings(args) -> dict:
     noise = EstimateNoise(base.sigma_s, args.sigma_v or base.sigma_v, args.sigma_j or base.sigma_j, base.sigma_a)
     load = {"dt": dt, "estimate": estimate, "noise": noise, "selection": selection,
             "max_steps": max(1, int(round(PIECE_DURATION / dt)))}
+    if is_recording(args.tracks):  # simulated drivers plan from their projected positions
+        load["arc_length"] = "observed"
     if rec is not None:
         load.update(smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max)
         notes.append(f"model: the drivers' path smoothing {rec.smoothing:g} m, desired-speed smoothing "
