@@ -139,7 +139,7 @@ def replay_settings(args) -> dict:
             raise ValueError(f"--dt {dt:g} s differs from the drivers' re-planning step {rec.dt:g} s, so their "
                              f"horizon of {rec.horizon} steps does not apply: give --mpc-horizon in steps of --dt")
     rollout = args.rollout or ("closed" if receding else "open")
-    if (receding or rollout == "closed") and horizon is None:
+    if (receding or rollout == "closed") and horizon is None and args.scan_horizon is None:  # a scan gives H
         what = "--likelihood receding" if receding else "--rollout closed"
         raise ValueError(f"{what} needs the drivers' MPC horizon: give --mpc-horizon H (steps of --dt = {dt:g} s); "
                          f"{args.tracks} is not a pirl_sim recording with a run.json to take it from")
@@ -210,12 +210,6 @@ def run_replay_command(args) -> int:
         settings = replay_settings(args)
         dt, horizon = settings["dt"], settings["mpc_horizon"]
         files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
-        pred = _steps(args.horizon, dt)
-        proto = ReplayProtocol(history=_steps(args.history, dt), horizon=pred,
-                               fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
-                                                       if x <= args.horizon})),
-                               stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)),
-                               rollout=settings["rollout"], mpc_horizon=horizon)
         scan = None
         if args.scan_horizon is not None:
             try:
@@ -227,6 +221,12 @@ def run_replay_command(args) -> int:
                 raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
         else:
             specs = _learner_specs(args, settings["likelihood"], horizon)
+        pred = _steps(args.horizon, dt)
+        proto = ReplayProtocol(history=_steps(args.history, dt), horizon=pred,
+                               fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
+                                                       if x <= args.horizon})),
+                               stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)),
+                               rollout=settings["rollout"], mpc_horizon=horizon or (scan[0] if scan else None))
         for note in settings["notes"]:
             say(f"[0/3] {note}")
         say(f"[1/3] reading {len(files)} track files and {args.map} (dt {dt:g} s, estimate "
