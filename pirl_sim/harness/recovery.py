@@ -370,22 +370,31 @@ class RecoveryResult:
         jobs with an explicit ``control_noise``); empty without them."""
         return self._rows(noise_study=True)
 
+    def _unique(self) -> list[RecoveryReport]:
+        """Each report once (a noise level equal to the population's own shares the main job's report)."""
+        out, seen = [], set()
+        for r in self.reports:
+            if id(r) not in seen:
+                seen.add(id(r))
+                out.append(r)
+        return out
+
     def styles(self) -> pd.DataFrame:
         """Per-style TIRL rows of every job (simulator, control_noise, seed first)."""
         return pd.concat([r.styles.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
-                          for r in self.reports], ignore_index=True)[
+                          for r in self._unique()], ignore_index=True)[
             ["simulator", "control_noise", "seed", *self.reports[0].styles.columns]]
 
     def tracks(self) -> pd.DataFrame:
         """Per-track rows of every job (simulator, control_noise, seed first)."""
         return pd.concat([r.tracks.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
-                          for r in self.reports], ignore_index=True)[
+                          for r in self._unique()], ignore_index=True)[
             ["simulator", "control_noise", "seed", *self.reports[0].tracks.columns]]
 
     def selection(self) -> pd.DataFrame:
         """Step-selection counts per rule and style of every job."""
         frames = []
-        for r in self.reports:
+        for r in self._unique():
             s = r.selection.reset_index().rename(columns={"index": "style_name"})
             frames.append(s.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed))
         out = pd.concat(frames, ignore_index=True)
