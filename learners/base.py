@@ -21,7 +21,7 @@ from sklearn.base import BaseEstimator
 from sklearn.preprocessing import StandardScaler
 from sklearn.utils.validation import check_is_fitted
 
-from pirl_sim.irl import IRLResult, LogNormalPrior, fit_weights
+from pirl_sim.irl import IRLResult, LogNormalPrior, attach_gauss_newton, fit_weights
 from pirl_sim.model import DriverModel, synthetic_model
 from pirl_sim.receding import fit_receding
 from pirl_sim.trajectory import Trajectory
@@ -139,7 +139,10 @@ class BaseLearner(BaseEstimator):
                 raise ValueError("a prior on the weights is not available with likelihood='receding'")
             return fit_receding(model, samples, labels, horizon=int(self.horizon), n_groups=n_groups,
                                 stride=int(self.step_stride), log_bounds=self.log_bounds)
+        hessian = getattr(self, "irl_hessian", "auto")  # see pirl_sim.irl: exact, gauss_newton or auto
         blocks = model.laplace_blocks(samples)
+        if hessian != "exact":
+            blocks = attach_gauss_newton(blocks, model.features, model.dynamics, model.check(samples))
         return fit_weights(
             [b for b, _ in blocks],
             [labels[idx] for _, idx in blocks],
@@ -147,6 +150,7 @@ class BaseLearner(BaseEstimator):
             n_groups=n_groups,
             prior=prior,
             log_bounds=self.log_bounds,
+            hessian=hessian,
         )
 
     # ------------------------------------------------------------------ public API
