@@ -22,8 +22,10 @@ run into a :class:`ScenarioRecording` and :func:`write_recording` writes it into
   from the state of that frame; False where the simulator drove the vehicle, e.g. handed back at a
   standstill, crashed), ``overridden`` (the simulator then did not carry the command out: the speed one
   frame later missed it by more than the run's ``override_tol``, or the traffic cut it; False where not
-  commanded, and at a track's last frame, whose command is never checked) and ``collided`` (the vehicle was
-  in a collision at that frame). Recordings without it (older ones) have no per-step information;
+  commanded, and at a track's last frame, whose command is never checked), ``collided`` (the vehicle was
+  in a collision at that frame) and ``command_error`` [m/s] (how far the speed one frame later is from the
+  commanded one, also below ``override_tol``; empty where not commanded or not checked; absent in files
+  written before it existed, read as empty). Recordings without it (older ones) have no per-step information;
   ``run.json`` lists it under ``files`` when it was written;
 - ``run.json``: the simulator, seed and configuration (``info``), written **last**.
 
@@ -98,7 +100,8 @@ _GT_DTYPES = {
     "n_frames": "int64",
 }
 #: columns of :attr:`ScenarioRecording.driver_steps` and ``driver_steps.csv``: one row per PIRL track per frame
-DRIVER_STEP_COLUMNS: tuple[str, ...] = ("track_id", "frame_id", "commanded", "overridden", "collided")
+DRIVER_STEP_COLUMNS: tuple[str, ...] = ("track_id", "frame_id", "commanded", "overridden", "collided",
+                                        "command_error")
 BACKGROUND_STYLE = -1  #: ``style`` of background traffic
 BACKGROUND_STYLE_NAME = "background"  #: ``style_name`` of background traffic
 
@@ -229,6 +232,14 @@ def _checked_driver_steps(steps, track_ids: np.ndarray, frames: np.ndarray) -> p
         if col.isna().any() or col.to_numpy().dtype != bool:
             raise ValueError(f"driver_steps.{c} must be booleans without missing values, got {col.dtype}")
         out[c] = col.to_numpy(dtype=bool)
+    try:
+        err = steps["command_error"].to_numpy(dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"driver_steps.command_error must be numbers [m/s] (empty where unknown), got "
+                         f"{steps['command_error'].dtype}") from None
+    if np.any(err < 0) or np.any(np.isinf(err)) or np.any(~np.isnan(err) & ~out["commanded"]):
+        raise ValueError("driver_steps.command_error must be >= 0 and finite where commanded, empty elsewhere")
+    out["command_error"] = err
     df = pd.DataFrame(out, columns=list(DRIVER_STEP_COLUMNS)).sort_values(["track_id", "frame_id"], kind="stable")
     df = df.reset_index(drop=True)
     have = pd.MultiIndex.from_arrays([df["track_id"], df["frame_id"]])
@@ -403,7 +414,9 @@ def read_recording(directory) -> ScenarioRecording:
         if not steps_path.is_file():
             raise FileNotFoundError(f"driver steps listed in {INFO_FILE} not found: {steps_path}")
         steps = pd.read_csv(steps_path, dtype={"track_id": np.int64, "frame_id": np.int64, "commanded": bool,
-                                               "overridden": bool, "collided": bool})
+                                               "overridden": bool, "collided": bool, "command_error": float})
+        if "command_error" not in steps.columns:  # written before the column existed
+            steps["command_error"] = np.nan
     keep = {k: v for k, v in info.items() if k not in ("format", "format_version", "files", "n_tracks",
                                                        "n_pirl_tracks")}
     return ScenarioRecording(tracks, gt, lanes, dict(sorted(successors.items())), keep, steps)

@@ -9,7 +9,7 @@ import pytest
 from pirl_sim import Trajectory
 from pirl_sim.driving import estimate_longitudinal_states, fit_longitudinal_states
 from pirl_sim.dynamics import longitudinal
-from pirl_sim.scenarios.demonstrations import SETTLE_FRAMES, settled
+from pirl_sim.scenarios.demonstrations import EXACT_TOL, SETTLE_FRAMES, settled
 
 DT = 0.1
 
@@ -216,6 +216,8 @@ def test_sumo_steps_and_masks_follow_the_runner_flags(sumo_run):
     demos = run.demonstrations(selection="steps", min_steps=1)
     unsettled = {d.metadata["track_id"]: d for d in run.demonstrations(selection="steps", min_steps=1,
                                                                         settle_frames=0)}
+    loose = {d.metadata["track_id"]: d for d in run.demonstrations(selection="steps", min_steps=1,
+                                                                    settle_frames=0, exact_tol=1.0)}
     assert {d.metadata["track_id"] for d in demos} == set(run.recording.pirl_track_ids)
     n_masked = 0
     for d in demos:
@@ -224,8 +226,11 @@ def test_sumo_steps_and_masks_follow_the_runner_flags(sumo_run):
         own = (f["commanded_speed"].notna() & ~f["overridden"].fillna(False).astype(bool)
                & ~f["collided"]).to_numpy()
         expect = own[:-1] & ~f["collided"].to_numpy()[1:]
-        np.testing.assert_array_equal(d.metadata["step_mask"], settled(expect, SETTLE_FRAMES))
-        np.testing.assert_array_equal(unsettled[d.metadata["track_id"]].metadata["step_mask"], expect)
+        # carried out exactly: the speed one frame on is the command to EXACT_TOL
+        exact = ~(np.abs(f["speed"].to_numpy()[1:] - f["commanded_speed"].to_numpy()[:-1]) > EXACT_TOL)
+        np.testing.assert_array_equal(d.metadata["step_mask"], settled(expect & exact, SETTLE_FRAMES))
+        np.testing.assert_array_equal(unsettled[d.metadata["track_id"]].metadata["step_mask"], expect & exact)
+        assert loose[d.metadata["track_id"]].metadata["step_mask"].tolist() == expect.tolist()
         n_masked += int((~expect).sum())
         # usable steps: the recorded speed one step on is the command (SUMO carried it out) ...
         cmd = f["commanded_speed"].to_numpy()[:-1][expect]

@@ -362,7 +362,8 @@ class RoundaboutTraffic(Road):
         self.tracks: dict[str, _Track] = {}
         self._rows: list[tuple] = []
         self._pirl_frames: list[tuple] = []  # (track id, frame, crashed) of every recorded PIRL frame
-        self._pirl_commands: dict[tuple[int, int], bool] = {}  # (track id, frame) -> overridden
+        # (track id, frame) -> (overridden, speed error [m/s] of the applied command)
+        self._pirl_commands: dict[tuple[int, int], tuple[bool, float]] = {}
         self._commands: dict[str, float] = {}  # PIRL vehicle id -> commanded acceleration this step
         self._upstream = self._upstream_ring_lanes()
         self._stop_offset = self._stop_offsets()
@@ -682,9 +683,11 @@ class RoundaboutTraffic(Road):
                     track.n_commands += 1
                     if a < a_cmd - tol:
                         track.n_overridden += 1
-                    if self.record:
-                        self._pirl_commands[(track.track_id, self.frame)] = bool(a < a_cmd - tol)
             v.command_acceleration = float(min(max(a, -IDM_ACC_LIMIT), IDM_ACC_LIMIT))
+            if v.kind != BACKGROUND and cmd is not None and self.record:
+                # (overridden, speed error [m/s] of the applied acceleration one frame on)
+                self._pirl_commands[(track.track_id, self.frame)] = (
+                    bool(a < a_cmd - tol), abs(a_cmd - v.command_acceleration) * STEP_LENGTH)
         for v in others:
             v.act()
         self.act_time_s += _time.perf_counter() - t0
@@ -805,12 +808,13 @@ class RoundaboutTraffic(Road):
         }, columns=list(GROUND_TRUTH_COLUMNS))
         frames = pd.DataFrame(self._pirl_frames, columns=["track_id", "frame_id", "collided"])
         keys = list(zip(frames["track_id"], frames["frame_id"]))
-        overridden = [self._pirl_commands.get(k) for k in keys]
+        checked = [self._pirl_commands.get(k) for k in keys]
         steps = pd.DataFrame({
             "track_id": frames["track_id"].map(renumber).to_numpy(dtype=np.int64),
             "frame_id": frames["frame_id"].to_numpy(dtype=np.int64),
-            "commanded": np.array([o is not None for o in overridden], dtype=bool),
-            "overridden": np.array([bool(o) for o in overridden], dtype=bool),
+            "commanded": np.array([c is not None for c in checked], dtype=bool),
+            "overridden": np.array([c is not None and c[0] for c in checked], dtype=bool),
             "collided": frames["collided"].to_numpy(dtype=bool),
+            "command_error": np.array([np.nan if c is None else c[1] for c in checked], dtype=float),
         }, columns=list(DRIVER_STEP_COLUMNS))
         return ScenarioRecording(tracks, gt, lanes, successors, info, steps)

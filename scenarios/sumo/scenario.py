@@ -516,6 +516,8 @@ def scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors
         "commanded": frame["commanded_speed"].notna().to_numpy()[on_pirl],
         "overridden": frame["overridden"].fillna(False).to_numpy(dtype=bool)[on_pirl],
         "collided": frame["collided"].to_numpy(dtype=bool)[on_pirl],
+        "command_error": (frame.groupby("vehicle_id", sort=False)["speed"].shift(-1)
+                          - frame["commanded_speed"]).abs().to_numpy(dtype=float)[on_pirl],
     }, columns=list(DRIVER_STEP_COLUMNS))
     return ScenarioRecording(tracks, gt, lanes, successors, info, steps)
 
