@@ -524,7 +524,7 @@ def fit_receding(
     at_bound = np.zeros((G, K), dtype=bool)
     at_bound[:, free] = (w[:, free] <= low + 1e-9) | (w[:, free] >= high - 1e-9)
     return RecedingResult(
-        theta=theta, normalized=theta.copy(), beta=1.0 / np.maximum(sigma, np.finfo(float).tiny) ** 2,
+        theta=theta, normalized=theta.copy(), beta=1.0 / np.maximum(sigma**2, np.finfo(float).tiny),
         sigma=sigma, neg_log_likelihood=nll, n_steps=counts, at_bound=at_bound,
         converged=state.converged & has, n_iter=n_coarse + n_iter, n_regularized=state.n_indefinite,
         n_bounded=int(state.bounded.sum()),
