@@ -289,13 +289,25 @@ class RecoveryJob:
 
 
 def _recorded(run_dir: Path, config, seed: int) -> bool:
-    """True when ``run_dir`` holds a finished run (its ``run.json`` is written last) of this config and seed."""
-    info_path = run_dir / "run.json"
+    """True when ``run_dir`` holds a finished run (its ``run.json`` is written last) of this config and seed,
+    recorded with every per-step column the current recording writer writes (a run recorded before a
+    column was added is simulated again). Changes to the simulators themselves are not detected: delete
+    the runs after such changes."""
+    from pirl_sim.scenarios.recording import DRIVER_STEP_COLUMNS, DRIVER_STEPS_FILE, INFO_FILE
+
+    info_path = run_dir / INFO_FILE
     if not info_path.is_file():
         return False
     info = json.loads(info_path.read_text("utf-8"))
     wanted = json.loads(json.dumps(config.to_dict()))
-    return info.get("seed") == seed and info.get("config") == wanted
+    if info.get("seed") != seed or info.get("config") != wanted:
+        return False
+    steps = run_dir / DRIVER_STEPS_FILE
+    if not steps.is_file():
+        return False
+    with steps.open("r", encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+    return set(DRIVER_STEP_COLUMNS) <= set(header)
 
 
 def run_job(job: RecoveryJob) -> tuple[RecoveryReport, bool, float]:
@@ -533,7 +545,7 @@ def _targets_text(table: pd.DataFrame) -> str:
             lines.append(f"{sim}, seed {row['seed']}:")
             for col, op, limit, value, met in check_targets(row.to_dict(), sim):
                 lines.append(f"- {'met' if met else '**NOT met**'}: {col} = {value:.3g} (target {op} {limit:g})")
-        failing = [(r["seed"], col, value) for _, r in sub.iterrows()
+        failing = [(r["seed"], col, value) for _, r in sub[sub["seed"] != "pooled"].iterrows()
                    for col, _, _, value, met in check_targets(r.to_dict(), sim) if not met]
         if failing:
             lines.append(f"- single seeds missing a target: "
