@@ -31,6 +31,7 @@ __all__ = ["BaseLearner", "FEATURE_TRANSFORMS"]
 
 FEATURE_TRANSFORMS = ("log", "none")
 LIKELIHOODS = ("trajectory", "receding")
+IRL_HESSIANS = ("auto", "exact", "gauss_newton")
 WINDOW_MODES = ("sliding", "first")
 _LOG_FLOOR = 1e-12  # features are sums of squares: floor before the log so that exact zeros stay finite
 
@@ -63,6 +64,10 @@ class BaseLearner(BaseEstimator):
         The drivers' MPC horizon [steps]; required with ``likelihood="receding"``.
     step_stride : int
         With ``likelihood="receding"``: score every ``step_stride``-th recorded step.
+    irl_hessian : {"auto", "exact", "gauss_newton"}
+        With ``likelihood="trajectory"``: the cost Hessian inside the Laplace likelihood (`pirl_sim.irl.fit_weights`):
+        "auto" (default) fits with the exact one and refits with the Gauss-Newton one the groups whose exact
+        Hessian was indefinite at the solution or that did not converge.
     """
 
     # ------------------------------------------------------------------ validation helpers
@@ -87,6 +92,8 @@ class BaseLearner(BaseEstimator):
         if self.likelihood == "receding" and not is_positive_int(self.horizon):
             raise ValueError(f"likelihood='receding' needs horizon, the drivers' MPC horizon as a positive number "
                              f"of steps; got horizon={self.horizon!r}")
+        if self.irl_hessian not in IRL_HESSIANS:
+            raise ValueError(f"irl_hessian must be one of {IRL_HESSIANS}, got {self.irl_hessian!r}")
         if not is_positive_int(self.step_stride):
             raise ValueError(f"step_stride must be a positive number of steps, got {self.step_stride!r}")
 
@@ -139,7 +146,7 @@ class BaseLearner(BaseEstimator):
                 raise ValueError("a prior on the weights is not available with likelihood='receding'")
             return fit_receding(model, samples, labels, horizon=int(self.horizon), n_groups=n_groups,
                                 stride=int(self.step_stride), log_bounds=self.log_bounds)
-        hessian = getattr(self, "irl_hessian", "auto")  # see pirl_sim.irl: exact, gauss_newton or auto
+        hessian = self.irl_hessian
         blocks = model.laplace_blocks(samples)
         if hessian != "exact":
             blocks = attach_gauss_newton(blocks, model.features, model.dynamics, model.check(samples))

@@ -135,6 +135,7 @@ class PIRLGMM(_MixtureLearner):
         likelihood="trajectory",
         horizon=None,
         step_stride=1,
+        irl_hessian="auto",
     ):
         self.model = model
         self.n_components = n_components
@@ -151,6 +152,7 @@ class PIRLGMM(_MixtureLearner):
         self.likelihood = likelihood
         self.horizon = horizon
         self.step_stride = step_stride
+        self.irl_hessian = irl_hessian
 
     def _make_mixture(self, Z):
         n = Z.shape[0]
@@ -213,6 +215,7 @@ class PIRLDPGMM(_MixtureLearner):
         likelihood="trajectory",
         horizon=None,
         step_stride=1,
+        irl_hessian="auto",
     ):
         self.model = model
         self.max_components = max_components
@@ -230,6 +233,7 @@ class PIRLDPGMM(_MixtureLearner):
         self.likelihood = likelihood
         self.horizon = horizon
         self.step_stride = step_stride
+        self.irl_hessian = irl_hessian
 
     def _make_mixture(self, Z):
         k = self.max_components

@@ -59,6 +59,7 @@ class PIRLKNN(BaseLearner):
         likelihood="trajectory",
         horizon=None,
         step_stride=1,
+        irl_hessian="auto",
     ):
         self.model = model
         self.n_neighbors = n_neighbors
@@ -72,6 +73,7 @@ class PIRLKNN(BaseLearner):
         self.likelihood = likelihood
         self.horizon = horizon
         self.step_stride = step_stride
+        self.irl_hessian = irl_hessian
 
     def _fit(self, model, trajectories):
         k = self.n_neighbors
