@@ -15,6 +15,13 @@ run on every ``n/baseline-tracks``-th track and its time scaled to all tracks. T
 
 Times of our fit are medians over ``--repeats``; the machine is shared, so read the ratio. The BLAS thread
 setting is printed; run it with OPENBLAS_NUM_THREADS=1 and without.
+
+Measured (shared 2-core machine, 64 tracks, 12,698 steps): OPENBLAS_NUM_THREADS=1: ours 8.8-9.1 s (target
+< 10 s met), the loop 25.7-43.1 s scaled from 8 tracks (~7 residual evaluations per track): 2.9-4.7x (target
+>= 20x NOT met); default threads (2): ours 14.8 s, loop 29.8 s: 2.0x. The loop is cheap because each of its
+residual evaluations already solves all of a track's ~200 steps in one batched call and only 2 weights are
+free (a 2-point Jacobian costs 2 extra evaluations); the MPC solves dominate both. The loop stopped early on
+one of the 8 tracks (|log err| 0.074 vs ours 0.0017).
 """
 
 from __future__ import annotations
@@ -130,7 +137,10 @@ def main(argv=None) -> None:
     berr = np.abs(np.log(base[:, free] / truth[pick][:, free]))
     print(f"  scipy least_squares loop, FD jac  : {t_sub:8.2f} s on {len(pick)} tracks ({nfev} residual "
           f"evaluations) -> {scaled:.1f} s scaled to {len(demos)} tracks; median |log err| {np.median(berr):.4f}")
-    print(f"  max |log(ours / baseline)| on those tracks: {diff.max():.2e} (median {np.median(diff):.1e})")
+    worst = int(np.argmax(diff.max(axis=1)))
+    ours_err = np.abs(np.log(res.normalized[pick[worst]][free] / truth[pick[worst]][free]))
+    print(f"  max |log(ours / baseline)| on those tracks: {diff.max():.2e} (median {np.median(diff):.1e}); on that "
+          f"track |log err| ours {ours_err.max():.1e}, baseline {berr[worst].max():.1e}")
     print(f"  speed-up vs baseline: {scaled / ours:6.1f}x (target >= 20x)")
     if tmp is not None:
         tmp.cleanup()
