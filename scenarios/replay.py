@@ -6,11 +6,16 @@ smooth that route's centerline into a `ReferencePath`, project the track into Fr
 squares through the dynamics (`fit_longitudinal_states`) rather than from noisy finite differences. All routes
 share one arc-length axis (`CompositePath`), so one driver model serves the whole scene.
 
-Driver selection, as the paper ("drove independently without too much interaction"): a track *interacted*
-when, at any of its frames, another vehicle was ahead of it (within 90 degrees of its heading), closer than
-``standstill + time_gap * speed`` and driving in a similar direction (headings within ``max_heading_diff``).
-Interacting tracks are kept but flagged; experiments use the others. Every track or file that cannot be used
-is counted with its reason in ``skipped`` and logged; it never stops the others.
+Driver selection, as the paper ("drove independently without too much interaction"): a track has a *leader*
+at a frame when another vehicle is ahead of it (within 90 degrees of its heading), drives in a similar
+direction (headings within ``max_heading_diff``) and its bumper-to-bumper gap (centre distance minus half of
+both lengths) is less than ``standstill + time_gap * speed`` (`SelectionRule`, default 3 m + 1.5 s; the rule
+before, `CENTRE_RULE`, measured 5 m centre to centre + 2 s and missed standing queues). A track that ever had a
+leader *interacted*. ``selection="tracks"`` replays whole tracks that did not interact; ``selection="free"``
+replays every track cut into its free-flow runs: a step of ``dt`` is left out when any of its frames (both
+ends) had a leader, and each maximal run of the other steps (>= 2 steps) becomes a piece of its own (the state
+estimate is made on the whole piece first). `selection_counts` gives the usable tracks per rule. Every track
+or file that cannot be used is counted with its reason in ``skipped`` and logged; it never stops the others.
 
 Route matching leaves out positions that no path through the routing graph joins to the rest of the route
 (`RouteMatch.unconnected`). A run of at most ``MAX_BRIDGE`` such frames inside a track is bridged: its
@@ -70,7 +75,7 @@ from pirl_sim.validation import is_positive_int
 
 from .demonstrations import settled
 
-__all__ = ["SelectionRule", "ReplayScene", "EstimateNoise", "DriverSettings", "load_replay", "interaction_flags",
+__all__ = ["SelectionRule", "CENTRE_RULE", "GAPS", "leader_gaps", "leader_frames", "selection_counts", "ReplayScene", "EstimateNoise", "DriverSettings", "load_replay", "interaction_flags",
            "track_key", "recording_settings", "is_recording", "FRAME_DT", "MAX_BRIDGE", "MEASURED_NOISE", "SIMULATED_NOISE",
            "ESTIMATES", "SELECTIONS"]
 
@@ -79,7 +84,8 @@ log = logging.getLogger(__name__)
 FRAME_DT = 0.1  #: [s] INTERACTION frame period
 MAX_BRIDGE = 5  #: [frames] longest run of unconnected positions inside a track that is bridged (0.5 s)
 ESTIMATES = ("positions", "speeds")  #: state estimate from positions only, or positions and recorded speeds
-SELECTIONS = ("tracks", "steps")  #: whole non-interacting tracks, or every PIRL track with per-step masks
+SELECTIONS = ("tracks", "steps", "free")  #: whole non-interacting tracks, every PIRL track with per-step masks,
+#: or every track cut into its free-flow runs (steps without a leader)
 DRIVER_STEPS_FILE = "driver_steps.csv"  #: per-step driver flags of a pirl_sim recording, beside the tracks
 RUN_INFO_FILE = "run.json"  #: a pirl_sim recording's run information (drivers' horizon, step, ...)
 
@@ -168,30 +174,51 @@ def recording_settings(tracks: str | Path) -> DriverSettings | None:
                           a_lat=float(drv["a_lat"]), v_max=float(drv["v_max"]))
 
 
+GAPS = ("bumper", "centre")  #: distance to a leader: bumper to bumper (vehicle lengths), or centre to centre
+
+
 @dataclass(frozen=True)
 class SelectionRule:
-    """When a track counts as interacting with another vehicle (see module doc).
+    """When a vehicle ahead counts as a leader, and which tracks are replayed (see module doc).
+
+    A vehicle j is the leader of track i at a frame when it is ahead of i (within 90 degrees of its heading),
+    drives in a similar direction (headings within ``max_heading_diff_deg``) and its gap is less than
+    ``standstill + time_gap * v_i``. ``gap="bumper"``: the centre distance minus half of each vehicle's
+    length (the ``length`` column; a queue of 4.6 m cars standing 6-7.5 m apart centre to centre has
+    bumper gaps of 1.4-2.9 m); ``"centre"``: centre to centre (the rule before; `CENTRE_RULE`).
 
     Attributes
     ----------
     time_gap : float [s]            headway below which a vehicle ahead counts as a leader
-    standstill : float [m]          distance added to the headway
+    standstill : float [m]          gap added to the headway (bumper to bumper or centre to centre)
     max_heading_diff_deg : float    leaders drive within this angle of the track's heading
     min_duration : float [s]        shorter tracks are skipped
     agent_types : tuple of str      agent_type values that are replayed
+    gap : {"bumper", "centre"}      how the gap to a leader is measured
     """
 
-    time_gap: float = 2.0
-    standstill: float = 5.0
+    time_gap: float = 1.5
+    standstill: float = 3.0
     max_heading_diff_deg: float = 45.0
     min_duration: float = 4.0
     agent_types: tuple[str, ...] = ("car",)
+    gap: str = "bumper"
 
     def __post_init__(self) -> None:
         for name in ("time_gap", "standstill", "max_heading_diff_deg", "min_duration"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"{name} must be >= 0, got {v!r}")
+        if self.gap not in GAPS:
+            raise ValueError(f"gap must be one of {GAPS}, got {self.gap!r}")
+
+    def describe(self) -> str:
+        """A short name of the rule, e.g. ``bumper gap < 3 m + 2 s x v``."""
+        return f"{self.gap} gap < {self.standstill:g} m + {self.time_gap:g} s x v"
+
+
+#: the selection rule before bumper-to-bumper gaps: 5 m centre to centre + 2 s (counts are reported for it)
+CENTRE_RULE = SelectionRule(time_gap=2.0, standstill=5.0, gap="centre")
 
 
 @dataclass(frozen=True)
@@ -222,12 +249,30 @@ class ReplayScene:
     repairs: dict = field(default_factory=dict)
     selection: str = "tracks"
     steps: dict = field(default_factory=dict)
+    track_table: pd.DataFrame | None = None
+    rule: SelectionRule | None = None
+    profile_path: object = None
+    speed_smoothing: float = 0.0
+    a_lat: float = DEFAULT_A_LAT
+    v_max: float = DEFAULT_V_MAX
+
+    def with_desired_speed(self, a_lat: float, v_max: float) -> PathDriverModel:
+        """The scene's model with other desired-speed parameters [m/s^2, m/s] (same paths and dynamics)."""
+        path = self.profile_path if self.profile_path is not None else self.model.path
+        features = roundabout_features(SpeedProfile(path, float(a_lat), float(v_max)))
+        return PathDriverModel(self.model.dynamics, features, self.model.bounds, path=self.model.path)
+
+    def curvature(self, s: np.ndarray) -> np.ndarray:
+        """The curvature [1/m] the desired speed sees at composite arc lengths s (smoothed by
+        ``speed_smoothing``)."""
+        path = self.profile_path if self.profile_path is not None else self.model.path
+        return SpeedProfile(path, self.a_lat, self.v_max).curvature(np.asarray(s, dtype=float))[0]
 
     @property
     def selected(self) -> list[Trajectory]:
         """``selection="tracks"``: pieces of tracks that did not interact (the paper's selection);
         ``"steps"``: every piece (PIRL tracks only, each with its ``step_mask``)."""
-        if self.selection == "steps":
+        if self.selection in ("steps", "free"):
             return list(self.trajectories)
         return [t for t in self.trajectories if not t.metadata["interacted"]]
 
@@ -267,27 +312,53 @@ def _connected_frames(unconnected: np.ndarray, max_bridge: int) -> tuple[slice, 
     return slice(a, b), unconnected[a:b].copy()
 
 
-def interaction_flags(df: pd.DataFrame, rule: SelectionRule) -> dict[int, bool]:
-    """{track_id: interacted} for one track file (columns of the INTERACTION vehicle format)."""
-    flags = {int(t): False for t in df["track_id"].unique()}
+def leader_gaps(df: pd.DataFrame, rule: SelectionRule) -> np.ndarray:
+    """Per row of a track file (columns of the INTERACTION vehicle format): the gap [m] to the nearest vehicle
+    ahead in a similar direction (``rule.gap``: bumper to bumper or centre to centre; inf when none), at the
+    row's frame. Rows are in the order of ``df``."""
+    if rule.gap == "bumper" and "length" not in df:
+        raise ValueError("bumper-to-bumper gaps need the vehicles' length column; use SelectionRule(gap='centre')")
+    out = np.full(len(df), np.inf)
+    if not len(df):
+        return out
     cos_max = np.cos(np.deg2rad(rule.max_heading_diff_deg))
-    for _, frame in df.groupby("frame_id", sort=False):
-        if len(frame) < 2:
+    frames = df["frame_id"].to_numpy()
+    for rows in pd.Series(np.arange(len(df))).groupby(frames, sort=False).indices.values():
+        if len(rows) < 2:
             continue
-        ids = frame["track_id"].to_numpy()
-        xy = frame[["x", "y"]].to_numpy()
-        v = np.hypot(frame["vx"].to_numpy(), frame["vy"].to_numpy())
-        psi = frame["psi_rad"].to_numpy() if "psi_rad" in frame else np.arctan2(frame["vy"], frame["vx"]).to_numpy()
+        frame = df.iloc[rows]
+        xy = frame[["x", "y"]].to_numpy(dtype=float)
+        psi = (frame["psi_rad"].to_numpy(dtype=float) if "psi_rad" in frame
+               else np.arctan2(frame["vy"], frame["vx"]).to_numpy(dtype=float))
         head = np.column_stack([np.cos(psi), np.sin(psi)])
         rel = xy[None, :, :] - xy[:, None, :]  # rel[i, j] = j seen from i
-        dist = np.linalg.norm(rel, axis=-1)
+        gap = np.linalg.norm(rel, axis=-1)
+        if rule.gap == "bumper":
+            half = 0.5 * np.nan_to_num(frame["length"].to_numpy(dtype=float))
+            gap = gap - half[:, None] - half[None, :]
         ahead = np.einsum("ijk,ik->ij", rel, head) > 0
         same_dir = head @ head.T >= cos_max
-        close = dist < (rule.standstill + rule.time_gap * v)[:, None]
-        hit = ahead & same_dir & close
-        np.fill_diagonal(hit, False)
-        for i in np.flatnonzero(hit.any(axis=1)):
-            flags[int(ids[i])] = True
+        gap = np.where(ahead & same_dir, gap, np.inf)
+        np.fill_diagonal(gap, np.inf)
+        out[rows] = gap.min(axis=1)
+    return out
+
+
+def leader_frames(df: pd.DataFrame, rule: SelectionRule) -> np.ndarray:
+    """Per row of a track file: whether the track had a leader at that frame (bool, rows in the order of
+    ``df``): a vehicle ahead in a similar direction closer than ``rule.standstill + rule.time_gap * v``."""
+    v = np.hypot(df["vx"].to_numpy(dtype=float), df["vy"].to_numpy(dtype=float)) if len(df) else np.zeros(0)
+    return leader_gaps(df, rule) < rule.standstill + rule.time_gap * v
+
+
+def interaction_flags(df: pd.DataFrame, rule: SelectionRule) -> dict[int, bool]:
+    """{track_id: interacted} for one track file (columns of the INTERACTION vehicle format): whether the
+    track had a leader at any of its frames (`leader_frames`)."""
+    lead = leader_frames(df, rule)
+    ids = df["track_id"].to_numpy()
+    flags = {int(t): False for t in np.unique(ids)}
+    for t in np.unique(ids[lead]):
+        flags[int(t)] = True
     return flags
 
 
@@ -439,8 +510,12 @@ def load_replay(
                 if not n_bad:
                     skipped["unreadable file"] += 1
                 continue
-        df = df[df["agent_type"].isin(rule.agent_types)]
-        flags = interaction_flags(df, rule) if len(df) else {}
+        df = df[df["agent_type"].isin(rule.agent_types)].reset_index(drop=True)
+        lead = leader_frames(df, rule)
+        lead_centre = leader_frames(df, CENTRE_RULE)
+        ids = df["track_id"].to_numpy()
+        flags = {int(t): bool(lead[ids == t].any()) for t in np.unique(ids)}
+        flags_centre = {int(t): bool(lead_centre[ids == t].any()) for t in np.unique(ids)}
         for track_id, track in df.groupby("track_id", sort=True):
             n_tracks += 1
             track = track.sort_values("frame_id")
@@ -448,6 +523,7 @@ def load_replay(
                 skipped["shorter than min_duration"] += 1
                 continue
             frames = track["frame_id"].to_numpy()
+            lead_t = lead[track.index.to_numpy()]
             if np.any(np.diff(frames) != 1):
                 skipped["gap in frames"] += 1
                 continue
@@ -495,11 +571,12 @@ def load_replay(
                 s_local = np.interp(frames_k, frames_k[~bridge], s_local[~bridge])
                 d = np.interp(frames_k, frames_k[~bridge], d[~bridge])
             sel = slice(0, None, stride)
-            meta = {"track_id": int(track_id), "file": str(file), "route": key, "interacted": flags[int(track_id)]}
+            meta = {"track_id": int(track_id), "file": str(file), "route": key, "interacted": flags[int(track_id)],
+                    "interacted_centre": flags_centre[int(track_id)]}
             if truth is not None and int(track_id) in truth.index:
                 row = truth.loc[int(track_id)]
                 meta["truth"] = row.to_dict()
-            extra = {"v": speed[sel]}
+            extra = {"v": speed[sel], "free": _free_steps(lead_t[keep], stride)}
             if usable is not None:
                 extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)
                 extra["settled"] = _frame_steps(settled(usable, settle_frames), restart, speed, stride)[0]
@@ -522,6 +599,7 @@ def load_replay(
     model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max)
     names = model.features.names
     trajectories = []
+    track_rows = []
     if max_steps is not None and not is_positive_int(max_steps):
         raise ValueError(f"max_steps must be a positive integer or None, got {max_steps!r}")
     pieces = []
@@ -534,7 +612,8 @@ def load_replay(
             b = min(a + size, n)
             if b - a < 2:
                 continue
-            cut = {k: v[a : b + 1] for k, v in extra.items() if k not in ("usable", "settled")}
+            cut = {k: v[a : b + 1] for k, v in extra.items() if k not in ("usable", "settled", "free")}
+            cut["free"] = extra["free"][a:b]
             if "usable" in extra:
                 cut["estimate_mask"], cut["step_mask"] = extra["usable"][a:b], extra["settled"][a:b]
             pieces.append((segment, s_local[a : b + 1], d[a : b + 1], xy[a : b + 1], dict(meta, piece=p), cut))
@@ -564,6 +643,22 @@ def load_replay(
                 meta["theta"] = model.features.normalize(theta)
             if "style" in truth and np.isfinite(truth["style"]):
                 meta["style"] = int(truth["style"])
+        free = cut["free"]
+        track_rows.append({"file": meta["file"], "track_id": meta["track_id"], "piece": meta["piece"],
+                           "n_steps": len(free), "interacted": meta["interacted"],
+                           "interacted_centre": meta["interacted_centre"], "free_steps": int(free.sum()),
+                           "longest_free_run": max((b - a for a, b in _runs(free)), default=0)})
+        if selection == "free":
+            n_steps_counts["steps"] += len(free)
+            n_steps_counts["steps with a leader (left out)"] += int((~free).sum())
+            for r, (a, b) in enumerate(_runs(free)):
+                if b - a < 2:
+                    n_steps_counts["free steps in runs shorter than 2 steps (left out)"] += b - a
+                    continue
+                trajectories.append(Trajectory(states[a : b + 1], controls[a:b], dt,
+                                               dict(meta, d=meta["d"][a : b + 1], xy=meta["xy"][a : b + 1],
+                                                    free_run=r, free_start=a)))
+            continue
         trajectories.append(Trajectory(states, controls, dt, meta))
     if not trajectories:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
@@ -573,23 +668,72 @@ def load_replay(
         log.warning("%d tracks skipped: %s", count, reason)
     for what, count in repairs.items():
         log.warning("route matching: %d %s", count, what)
-    return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs), selection, dict(n_steps_counts))
+    if selection == "free":
+        n_steps_counts["steps kept (free flow)"] = sum(t.n_steps for t in trajectories)
+    return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs), selection, dict(n_steps_counts),
+                       pd.DataFrame(track_rows), rule, _profile_path(model.path, speed_smoothing), speed_smoothing,
+                       a_lat, v_max)
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of every maximal run of True in a bool array."""
+    f = np.concatenate([[False], np.asarray(flags, dtype=bool), [False]])
+    edges = np.flatnonzero(np.diff(f.astype(int)))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def _free_steps(lead: np.ndarray, stride: int) -> np.ndarray:
+    """Per step of ``stride`` frames: free flow (no leader at any of its frames, both ends included)."""
+    n_steps = (len(lead) - 1) // stride
+    idx = np.arange(n_steps)[:, None] * stride + np.arange(stride + 1)[None, :]
+    return ~lead[idx].any(axis=1)
+
+
+def selection_counts(scene: ReplayScene, min_steps: int) -> pd.DataFrame:
+    """Matched car tracks usable under each selection rule: one row per rule with ``usable`` tracks (at least
+    one piece of >= ``min_steps`` steps that the rule keeps: a whole piece without a leader, or a free-flow
+    run), ``matched`` (tracks whose states were estimated) and ``share``. Rules: `CENTRE_RULE` on whole
+    tracks (the rule before), the scene's rule on whole tracks, and the scene's rule on free-flow runs."""
+    t = scene.track_table
+    if t is None or t.empty:
+        return pd.DataFrame(columns=["rule", "selection", "usable", "matched", "share"])
+    rule = scene.rule or SelectionRule()
+    long_piece = t["n_steps"] >= min_steps
+    key = ["file", "track_id"]
+    matched = t[key].drop_duplicates().shape[0]
+    cases = [(CENTRE_RULE.describe(), "whole tracks without a leader (the rule before)",
+              long_piece & ~t["interacted_centre"]),
+             (rule.describe(), "whole tracks without a leader", long_piece & ~t["interacted"]),
+             (rule.describe(), "free-flow runs (steps with a leader left out)", t["longest_free_run"] >= min_steps)]
+    rows = []
+    for name, how, ok in cases:
+        usable = t.loc[ok, key].drop_duplicates().shape[0]
+        rows.append({"rule": name, "selection": how, "usable": usable, "matched": matched,
+                     "share": usable / matched if matched else np.nan})
+    return pd.DataFrame(rows)
+
+
+def _profile_path(composite, speed_smoothing: float):
+    """The path whose curvature the desired speed sees: ``composite`` with its curvature smoothed per path by
+    ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`), or ``composite`` itself."""
+    if speed_smoothing <= 0:
+        return composite
+    from .drivers import _smoothed
+
+    kappa = composite.kappa.copy()
+    for p, off in zip(composite.segments, composite.offsets):
+        on = (composite.s >= off - 1e-9) & (composite.s <= off + p.length + 1e-9)
+        kappa[on] = np.interp(composite.s[on] - off, p.s, _smoothed(p.s, p.kappa, speed_smoothing))
+    profile_path = copy.copy(composite)  # same geometry; only the speed profile sees the smoothed kappa
+    object.__setattr__(profile_path, "kappa", kappa)
+    return profile_path
 
 
 def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a_lat: float,
                   v_max: float) -> PathDriverModel:
     """The roundabout model on ``composite`` (`pirl_sim.driving.roundabout_model`), its desired speed from
     the curvature smoothed per path by ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`)."""
-    profile_path = composite
-    if speed_smoothing > 0:
-        from .drivers import _smoothed
-
-        kappa = composite.kappa.copy()
-        for p, off in zip(composite.segments, composite.offsets):
-            on = (composite.s >= off - 1e-9) & (composite.s <= off + p.length + 1e-9)
-            kappa[on] = np.interp(composite.s[on] - off, p.s, _smoothed(p.s, p.kappa, speed_smoothing))
-        profile_path = copy.copy(composite)  # same geometry; only the speed profile sees the smoothed kappa
-        object.__setattr__(profile_path, "kappa", kappa)
+    profile_path = _profile_path(composite, speed_smoothing)
     features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max))
     return PathDriverModel(longitudinal(dt), features, DEFAULT_BOUNDS, path=composite)
 

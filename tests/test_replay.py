@@ -13,7 +13,7 @@ from pirl_sim.io.interaction import read_tracks
 from pirl_sim.scenarios.passage import PassageConfig, generate, recording, write_scene
 from pirl_sim.scenarios.replay import SelectionRule, interaction_flags, load_replay
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
+SHARED = Path(__file__).resolve().parent / "data" / "interaction_format"  # the INTERACTION BSD-3 sample (tests/data)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,6 @@ def test_replay_orders_learners_as_the_paper(scene_dir):
     assert paired.loc["PIRL-kNN (k=10)", "mean_difference"] < 0
 
 
-@pytest.mark.skipif(not SHARED.exists(), reason="shared INTERACTION sample not found beside the repository")
 def test_shared_interaction_sample_loads_end_to_end():
     scene = load_replay(
         [SHARED / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"],
@@ -105,7 +104,7 @@ def test_interaction_rule_flags_a_close_follower():
         for tid, x0 in ((1, 0.0), (2, 8.0), (3, 200.0)):
             rows.append({"track_id": tid, "frame_id": frame, "x": x0 + frame, "y": 0.0, "vx": 10.0, "vy": 0.0,
                          "psi_rad": 0.0})
-    flags = interaction_flags(pd.DataFrame(rows), SelectionRule(time_gap=2.0, standstill=5.0))
+    flags = interaction_flags(pd.DataFrame(rows), SelectionRule(time_gap=2.0, standstill=5.0, gap="centre"))
     assert flags == {1: True, 2: False, 3: False}  # 1 follows 2 at 8 m < 5 m + 2 s * 10 m/s
 
 

@@ -122,9 +122,11 @@ def _track_keys(tracks) -> tuple[list, list]:
 
 
 def usable_tracks(scene, proto: ReplayProtocol) -> list:
-    """The scene's selected pieces long enough for one window of ``proto``; raises ValueError with fewer than
-    4 tracks."""
-    tracks = [t for t in scene.selected if t.n_steps >= proto.history + proto.horizon]
+    """The scene's selected pieces long enough for one window of ``proto`` (with ``selection="free"``: for one
+    training window of ``history`` steps; test windows come from the runs long enough for history and
+    horizon); raises ValueError with fewer than 4 tracks."""
+    min_steps = proto.history if getattr(scene, "selection", "tracks") == "free" else proto.history + proto.horizon
+    tracks = [t for t in scene.selected if t.n_steps >= min_steps]
     n = len(_track_keys(tracks)[1])
     if n < 4:
         raise ValueError(f"only {n} selected tracks have {proto.history + proto.horizon} steps; need at least 4")
@@ -271,7 +273,17 @@ def _shared_knn_fits(learner_specs) -> dict[int, int]:
     return out
 
 
-def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None) -> dict:
+def fit_scene_speed(scene, tracks, **kwargs):
+    """`pirl_sim.speed_fit.fit_desired_speed` on the (curvature, speed) of every state of ``tracks`` (pieces of
+    ``scene``)."""
+    from pirl_sim.speed_fit import fit_desired_speed
+
+    states = np.concatenate([t.states for t in tracks])
+    return fit_desired_speed(scene.curvature(states[:, 0]), states[:, 1], **kwargs)
+
+
+def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
+               desired_speed=None) -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene`.
 
     Parameters
@@ -292,6 +304,10 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     fit a PIRL-kNN learner reused, else empty); with ground truth also ``irl_weight_error`` (median over the
     training trajectories of the weights the fit gives each, see `_training_weights`). ``paired_ca``: paired
     differences against ``CA (path)``.
+
+    ``desired_speed``: None (the scene's model), ``"fit"`` (a_lat, v_max fitted per split seed on the training
+    tracks by `fit_scene_speed`) or (a_lat, v_max) [m/s^2, m/s] fixed. Every row carries the ``a_lat`` and
+    ``v_max`` its learners used.
     """
     from pirl_sim.learners import make_learner
 
@@ -301,9 +317,21 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     model = scene.model
     dt = model.dynamics.dt
     rows, errors, examples = [], {}, {}
+    speed = {"a_lat": getattr(scene, "a_lat", np.nan), "v_max": getattr(scene, "v_max", np.nan)}
+    if desired_speed is not None and desired_speed != "fit":
+        a_lat, v_max = (float(x) for x in desired_speed)
+        model = scene.with_desired_speed(a_lat, v_max)
+        speed = {"a_lat": a_lat, "v_max": v_max}
     reuse = _shared_knn_fits(learner_specs)
     for seed in proto.seeds:
         train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
+        if desired_speed == "fit":
+            fit = fit_scene_speed(scene, train)
+            model = scene.with_desired_speed(fit.a_lat, fit.v_max)
+            speed = {"a_lat": fit.a_lat, "v_max": fit.v_max}
+            say(f"seed {seed}: desired speed fitted on the training tracks: a_lat {fit.a_lat:.2f} m/s^2, "
+                f"v_max {fit.v_max:.2f} m/s{' (at a bound)' if fit.at_bound else ''}")
+        counts = {**counts, **speed}
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
@@ -370,7 +398,8 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     rows = pd.DataFrame(rows)
     return {"rows": rows, "paired": paired_differences(errors, "TIRL"),
             "paired_ca": paired_differences(errors, "CA (path)"), "errors": errors, "selected": len(unique),
-            "selected_pieces": len(tracks), "examples": examples, "history": proto.history}
+            "selected_pieces": len(tracks), "examples": examples, "history": proto.history,
+            "horizon": proto.horizon}
 
 
 def _truth_scores(learner, train, test, windows, theta, model) -> dict:
@@ -464,7 +493,11 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
 
     n_inter = len({track_key(t) for t in scene.trajectories if t.metadata["interacted"]})
     selection = getattr(scene, "selection", "tracks")
-    if selection == "steps":
+    if selection == "free":
+        used = (f"kept as free-flow runs (selection='free', steps with a leader left out, interacting tracks "
+                f"included): {result['selected']} (in {result['selected_pieces']} runs); steps: "
+                f"{getattr(scene, 'steps', {})}")
+    elif selection == "steps":
         used = (f"kept with per-step masks (selection='steps', interacting tracks included): {result['selected']} "
                 f"(in {result['selected_pieces']} pieces); steps: {getattr(scene, 'steps', {})}")
     else:
@@ -482,6 +515,8 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "n_train_pieces, n_test_pieces). irl_converged: IRL groups whose Newton iteration converged / all groups, "
         "summed over the split seeds (PIRL-kNN learners that differ only in k share one fit per split).",
         "",
+        *_speed_lines(result),
+        *_selection_lines(scene, result),
         "## Scores (mean and std over split seeds)",
         "",
         _markdown(summary),
@@ -495,6 +530,32 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "![clusters](clusters.png) ![S-T](s_t.png)" + (" ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""),
     ]
     atomic_write_text(out / "README.md", "\n".join(lines) + "\n")
+
+
+def _speed_lines(result: dict) -> list[str]:
+    rows = result["rows"]
+    if "a_lat" not in rows or rows["a_lat"].isna().all():
+        return []
+    per_seed = rows.groupby("seed")[["a_lat", "v_max"]].first()
+    seeds = "; ".join(f"seed {s}: {r.a_lat:.2f}, {r.v_max:.2f}" for s, r in per_seed.iterrows())
+    return [f"Desired speed (a_lat [m/s^2], v_max [m/s]) per split seed: {seeds}.", ""]
+
+
+def _selection_lines(scene, result: dict) -> list[str]:
+    from pirl_sim.harness.reproduce import _markdown
+    from pirl_sim.scenarios.replay import selection_counts
+
+    if getattr(scene, "track_table", None) is None:
+        return []
+    h = result["history"]
+    hz = result.get("horizon")
+    tables = [selection_counts(scene, h).assign(min_steps=h)]
+    if hz:
+        tables.append(selection_counts(scene, h + hz).assign(min_steps=h + hz))
+    table = pd.concat(tables, ignore_index=True)
+    return ["## Matched car tracks usable per selection rule", "",
+            "usable: tracks with at least one piece the rule keeps of >= min_steps steps (history: a training "
+            "window; history + horizon: a test window).", "", _markdown(table), ""]
 
 
 def _write_figures(result: dict, scene, out) -> None:

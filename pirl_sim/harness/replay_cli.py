@@ -23,6 +23,8 @@ from pirl_sim.validation import positive_int_arg
 __all__ = ["add_replay_parser", "run_replay_command", "replay_settings"]
 
 LEARNERS = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
+#: the development roundabouts of issue 12 (never DR_USA_Roundabout_SR, the held-out set)
+DEV_ROUNDABOUTS = ("DR_USA_Roundabout_EP", "DR_USA_Roundabout_FT", "DR_CHN_Roundabout_LN")
 PIECE_DURATION = 20.0  # [s] longer tracks are cut into pieces of this duration (a whole roundabout passage)
 
 
@@ -55,8 +57,25 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
         "fit the learners, predict each test track from a history window, score MED/ADE/FDE in metres against "
         "baselines over several split seeds.",
     )
-    rp.add_argument("--tracks", type=Path, required=True, help="a vehicle_tracks_*.csv file or a directory of them")
-    rp.add_argument("--map", type=Path, required=True, help="the Lanelet2 OSM map of the recording")
+    rp.add_argument("--tracks", type=Path, default=None, help="a vehicle_tracks_*.csv file or a directory of them")
+    rp.add_argument("--map", type=Path, default=None, help="the Lanelet2 OSM map of the recording")
+    rp.add_argument("--table", type=Path, default=None, metavar="ROOT",
+                    help="instead of --tracks/--map: run every roundabout of --roundabouts from an INTERACTION folder "
+                         "ROOT (ROOT/recorded_trackfiles/NAME/vehicle_tracks_*.csv, ROOT/maps/NAME.osm) and write "
+                         "one table (table.md/.csv) and each roundabout's results in --out/NAME")
+    rp.add_argument("--roundabouts", default=",".join(DEV_ROUNDABOUTS),
+                    help=f"names for --table (default {','.join(DEV_ROUNDABOUTS)})")
+    rp.add_argument("--files", type=positive_int_arg, default=None,
+                    help="use only the first N track files (sorted by name) of each recording (default all)")
+    rp.add_argument("--desired-speed", choices=["fit", "fixed"], default="fixed",
+                    help="the desired speed's a_lat and v_max: 'fit' on each split's training tracks (robust fit of "
+                         "speeds against curvature, pirl_sim.speed_fit) or 'fixed' (--a-lat, --v-max) "
+                         "(default fixed)")
+    rp.add_argument("--a-lat", type=_positive_float, default=None,
+                    help="lateral-acceleration limit [m/s^2] of the desired speed (default 1.8; a pirl_sim "
+                         "recording's drivers' value)")
+    rp.add_argument("--v-max", type=_positive_float, default=None,
+                    help="speed cap [m/s] of the desired speed (default 13.9; a pirl_sim recording's drivers' value)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
@@ -86,10 +105,13 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
     rp.add_argument("--sigma-j", type=_positive_float, default=None,
                     help="jerk prior [m/s^3] of --estimate speeds (default 1 for real data, 3 for pirl_sim "
                          "recordings)")
-    rp.add_argument("--selection", choices=["tracks", "steps"], default=None,
-                    help="'tracks': whole tracks without interaction (the paper's); 'steps': every PIRL track with "
+    rp.add_argument("--selection", choices=["tracks", "steps", "free"], default=None,
+                    help="'tracks': whole tracks without a leader (the paper's); 'free': every track cut into its "
+                         "free-flow runs (steps with a leader closer than 3 m bumper to bumper + 1.5 s x speed left "
+                         "out); 'steps': every PIRL track with "
                          "a per-step mask from driver_steps.csv (pirl_sim recordings, --likelihood receding only). "
-                         "Default: steps where driver_steps.csv exists and the likelihood is receding, else tracks")
+                         "Default: steps where driver_steps.csv exists and the likelihood is receding, free with "
+                         "--table, else tracks")
     rp.add_argument("--rollout", choices=["open", "closed"], default=None,
                     help="learners' predictions: 'open' (one MPC plan) or 'closed' (re-plan every step over "
                          "--mpc-horizon steps, as the drivers) (default: closed with --likelihood receding, open "
@@ -144,7 +166,8 @@ def replay_settings(args) -> dict:
         raise ValueError(f"{what} needs the drivers' MPC horizon: give --mpc-horizon H (steps of --dt = {dt:g} s); "
                          f"{args.tracks} is not a pirl_sim recording with a run.json to take it from")
     steps_file = (args.tracks if args.tracks.is_dir() else args.tracks.parent) / DRIVER_STEPS_FILE
-    selection = args.selection or ("steps" if receding and steps_file.is_file() else "tracks")
+    selection = args.selection or ("steps" if receding and steps_file.is_file() else
+                                   "free" if getattr(args, "table", None) is not None else "tracks")
     if selection == "steps" and not receding:
         raise ValueError("--selection steps needs --likelihood receding: the trajectory likelihood scores whole "
                          "trajectories and cannot leave the overridden steps out")
@@ -162,6 +185,9 @@ def replay_settings(args) -> dict:
         load.update(smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max)
         notes.append(f"model: the drivers' path smoothing {rec.smoothing:g} m, desired-speed smoothing "
                      f"{rec.speed_smoothing:g} m, a_lat {rec.a_lat:g}, v_max {rec.v_max:g} (run.json)")
+    for name in ("a_lat", "v_max"):
+        if getattr(args, name, None) is not None:
+            load[name] = float(getattr(args, name))
     return {"load": load, "dt": dt, "mpc_horizon": horizon, "likelihood": args.likelihood, "rollout": rollout,
             "recording": rec, "notes": notes}
 
@@ -206,10 +232,17 @@ def run_replay_command(args) -> int:
     from pirl_sim.scenarios.replay import load_replay
 
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    if args.table is not None:
+        return _run_table(args, say)
+    if args.tracks is None or args.map is None:
+        print("pirl-sim: error: replay needs --tracks and --map (or --table ROOT)", file=sys.stderr)
+        return 2
     try:
         settings = replay_settings(args)
         dt, horizon = settings["dt"], settings["mpc_horizon"]
         files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
+        if args.files is not None:
+            files = sorted(files, key=lambda f: Path(f).name)[: args.files]
         scan = None
         if args.scan_horizon is not None:
             try:
@@ -244,7 +277,8 @@ def run_replay_command(args) -> int:
             print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
             print(f"wrote {args.out}/")
             return 0
-        result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"))
+        result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"),
+                            desired_speed="fit" if args.desired_speed == "fit" else None)
     except (ValueError, FileNotFoundError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
@@ -252,5 +286,64 @@ def run_replay_command(args) -> int:
     write_replay_results(result, scene, args.out, command)
     print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(result["paired_ca"].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    print(f"wrote {args.out}/")
+    return 0
+
+
+def _protocol(args, settings, scan=None):
+    from pirl_sim.harness.replay import ReplayProtocol
+
+    dt, horizon = settings["dt"], settings["mpc_horizon"]
+    return ReplayProtocol(history=_steps(args.history, dt), horizon=_steps(args.horizon, dt),
+                          fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
+                                                  if x <= args.horizon})),
+                          stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)), rollout=settings["rollout"],
+                          mpc_horizon=horizon or (scan[0] if scan else None))
+
+
+def _run_table(args, say) -> int:
+    """``replay --table ROOT``: every roundabout of ``--roundabouts`` in turn, then the table
+    (`pirl_sim.harness.replay_table`)."""
+    import copy
+    import time
+
+    from pirl_sim.harness.replay import run_replay, write_replay_results
+    from pirl_sim.harness.replay_table import table_row, write_table
+    from pirl_sim.io.interaction import find_track_files
+    from pirl_sim.scenarios.replay import load_replay
+
+    names = [n.strip() for n in str(args.roundabouts).split(",") if n.strip()]
+    if "DR_USA_Roundabout_SR" in names:
+        print("pirl-sim: error: DR_USA_Roundabout_SR is the held-out evaluation set of issue 12", file=sys.stderr)
+        return 2
+    command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
+    rows = []
+    try:
+        for name in names:
+            t0 = time.perf_counter()
+            a = copy.copy(args)
+            a.tracks = args.table / "recorded_trackfiles" / name
+            a.map = args.table / "maps" / f"{name}.osm"
+            if not a.map.is_file():
+                raise FileNotFoundError(f"no map {a.map}")
+            settings = replay_settings(a)
+            files = sorted(find_track_files(a.tracks), key=lambda f: Path(f).name)
+            if args.files is not None:
+                files = files[: args.files]
+            specs = _learner_specs(a, settings["likelihood"], settings["mpc_horizon"])
+            proto = _protocol(a, settings)
+            say(f"{name}: reading {len(files)} track files")
+            scene = load_replay(files, a.map, **settings["load"])
+            result = run_replay(scene, specs, proto, progress=lambda m: say(f"{name}: {m}"),
+                                desired_speed="fit" if args.desired_speed == "fit" else None)
+            write_replay_results(result, scene, args.out / name, command)
+            elapsed = time.perf_counter() - t0
+            rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
+            say(f"{name}: done in {elapsed:.0f} s")
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
+    text = write_table(rows, args.out, command)
+    print(text)
     print(f"wrote {args.out}/")
     return 0
