@@ -444,7 +444,7 @@ def fit_receding(
     log_bounds: tuple[float, float] = (-20.0, 20.0),
     init: np.ndarray | None = None,
     max_iter: int = 50,
-    tol: float = 1e-4,
+    tol: float = 1e-3,
 ) -> RecedingResult:
     """Maximum-likelihood normalised weights per group of trajectories under the receding-horizon model.
 
