@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pirl_sim.validation import positive_int_arg
+from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
 
 __all__ = ["main", "build_parser"]
 
@@ -30,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="synthetic (the paper's LQR point mass) or passage (roundabout drivers of three known styles)",
     )
     rep.add_argument("--out", type=Path, default=None, help="output directory (default: results/<experiment>)")
-    rep.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    rep.add_argument("--seed", type=seed_arg, default=0, help="seed of every random draw, in [0, 2**31) (default 0)")
     rep.add_argument(
         "--n-trajectories", type=positive_int_arg, default=None,
         help="trajectories in all (default: synthetic 2000, the paper's; passage 600)",
@@ -107,6 +107,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"pirl-sim: error: {exc}", file=sys.stderr)
             return 2
         out = args.out if args.out is not None else Path("results") / "passage"
+        try:
+            check_output_dir(out)  # before the work, not after it
+        except ValueError as exc:
+            print(f"pirl-sim: error: {exc}", file=sys.stderr)
+            return 2
         table = reproduce_passage(out, config, history_steps=args.history_steps, progress=not args.quiet)
         print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
         print(f"wrote {out}/")
@@ -127,10 +132,10 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(
                     f"--history-steps must be less than the {config.n_steps} steps of a trajectory, got {args.history_steps}"
                 )
+            out = check_output_dir(args.out if args.out is not None else Path("results") / args.experiment)
         except (TypeError, ValueError) as exc:
             print(f"pirl-sim: error: {exc}", file=sys.stderr)
             return 2
-        out = args.out if args.out is not None else Path("results") / args.experiment
         table = reproduce_synthetic(out, config, history_steps=args.history_steps, progress=not args.quiet)
         print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
         for proto in table["protocol"].unique():

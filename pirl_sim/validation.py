@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 from collections.abc import Iterable, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["is_positive_int", "number", "int_at_least", "check_keys", "positive_int_arg", "seed_arg"]
+__all__ = ["is_positive_int", "number", "int_at_least", "check_keys", "positive_int_arg", "seed_arg",
+           "check_output_dir", "SEED_LIMIT"]
+
+SEED_LIMIT = 2**31  #: seeds are integers in [0, SEED_LIMIT): numpy and scikit-learn both take them
 
 
 def is_positive_int(value) -> bool:
@@ -63,6 +68,33 @@ def seed_arg(text: str) -> int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
-    if not 0 <= value < 2**31:
+    if not 0 <= value < SEED_LIMIT:
         raise argparse.ArgumentTypeError(f"the seed must be in [0, 2**31), got {value}")
     return value
+
+
+def check_output_dir(path, label: str = "--out") -> Path:
+    """Make sure results can be written to the directory ``path`` before any work is done: create it (and its
+    parents) if missing and write and remove a probe file in it.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    ValueError
+        Naming ``label``, the path and the reason: it (or a parent) is an existing file, or it cannot be
+        created or written to (permissions, a read-only file system, ...).
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{label} {path} is an existing file, not a directory; give a directory for the results")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path, prefix=".write-probe-"):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise ValueError(f"{label} {path} is not a writable directory ({reason}); give another directory") from None
+    return path

@@ -73,7 +73,13 @@ __all__ = [
     "load_population",
     "population_from_dict",
     "population_from_toml",
+    "MAX_VEHICLES",
+    "MAX_CONTROL_NOISE",
 ]
+
+MAX_VEHICLES = 100_000  #: largest n_vehicles (~4.6 simulated days at the default 4 s between departures)
+#: [m/s^3] largest control_noise: the driver model's jerk bound; noisier jerks throw vehicles off their paths
+MAX_CONTROL_NOISE = 8.0
 
 #: the roundabout driver model's features, in its order (:func:`pirl_sim.driving.roundabout_features`)
 FEATURE_NAMES: tuple[str, ...] = ("speed_dev", "acc_sq", "jerk_sq")
@@ -301,13 +307,14 @@ class PopulationConfig:
         Share in [0, 1] of vehicles driven by the simulator's own model (cost weights unknown). The number
         of background vehicles is ``round(background_share * n_vehicles)``.
     n_vehicles : int
-        Vehicles in the scenario, >= 1.
+        Vehicles in the scenario, 1 <= n_vehicles <= :data:`MAX_VEHICLES`.
     depart_interval : float
         Mean time between consecutive departures [s], > 0 (a rate of 3600 / depart_interval veh/h).
     arrivals : Arrivals or str
         ``"regular"`` (exactly ``depart_interval`` apart) or ``"poisson"`` (exponential gaps).
     control_noise : float
-        Standard deviation of Gaussian noise on each applied jerk [m/s^3], >= 0.
+        Standard deviation of Gaussian noise on each applied jerk [m/s^3], in [0, :data:`MAX_CONTROL_NOISE`]
+        (the driver model's jerk bound, 8 m/s^3).
     """
 
     styles: tuple[StyleConfig, ...] = field(default_factory=lambda: tuple(PRESET_STYLES.values()))
@@ -339,6 +346,8 @@ class PopulationConfig:
             raise ValueError(f"n_vehicles must be an integer, got {n!r}")
         if n < 1:
             raise ValueError(f"n_vehicles must be >= 1, got {n!r}")
+        if n > MAX_VEHICLES:
+            raise ValueError(f"n_vehicles must be >= 1 and <= {MAX_VEHICLES}, got {n!r}")
         interval = number("depart_interval", self.depart_interval)
         if interval <= 0:
             raise ValueError(f"depart_interval must be > 0 s, got {interval!r}")
@@ -347,8 +356,9 @@ class PopulationConfig:
         except ValueError:
             raise ValueError(f"arrivals must be one of {[a.value for a in Arrivals]}, got {self.arrivals!r}") from None
         noise = number("control_noise", self.control_noise)
-        if noise < 0:
-            raise ValueError(f"control_noise must be >= 0 m/s^3, got {noise!r}")
+        if not 0 <= noise <= MAX_CONTROL_NOISE:
+            raise ValueError(f"control_noise must be >= 0 and <= {MAX_CONTROL_NOISE:g} m/s^3 (the drivers' jerk "
+                             f"bound), got {noise!r}")
         object.__setattr__(self, "styles", styles)
         object.__setattr__(self, "background_share", share)
         object.__setattr__(self, "n_vehicles", int(n))
@@ -538,7 +548,20 @@ def load_population(path) -> PopulationConfig:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"population config not found: {path}")
-    return population_from_toml(path.read_text(encoding="utf-8"), source=str(path))
+    return population_from_toml(read_toml_text(path, "population config"), source=str(path))
+
+
+def read_toml_text(path: Path, what: str) -> str:
+    """The text of a TOML file; ``ValueError`` naming the file when it is not UTF-8 text (e.g. binary)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{what} {path}: cannot be read ({exc.strerror or type(exc).__name__})") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: the {what} is not UTF-8 text (byte {exc.start}: "
+                         f"{data[exc.start:exc.start + 1]!r})") from None
 
 
 #: the embedded default: the paper's three user-study styles in equal shares, 20 % background traffic

@@ -23,7 +23,7 @@ import numpy as np
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
 from pirl_sim.validation import check_keys, int_at_least, number
 
-from .population_config import PopulationConfig, population_from_dict
+from .population_config import PopulationConfig, population_from_dict, read_toml_text
 
 __all__ = ["Progress", "run_timing", "MpcDriverConfig", "config_table", "from_table", "scenario_from_table",
            "load_toml"]
@@ -168,6 +168,6 @@ def load_toml(path) -> dict[str, Any]:
     if not path.is_file():
         raise FileNotFoundError(f"scenario config not found: {path}")
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(read_toml_text(path, "scenario config"))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML: {exc}") from None

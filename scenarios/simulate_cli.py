@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pirl_sim.validation import positive_int_arg, seed_arg
+from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
 
 __all__ = ["add_simulate_parser", "add_simulator_parser", "run_simulator", "ProgressBar"]
 
@@ -129,6 +129,7 @@ def run_simulator(args: argparse.Namespace, *, default_config: Callable[..., Any
         if args.n_vehicles is not None:
             config = dataclasses.replace(
                 config, population=dataclasses.replace(config.population, n_vehicles=args.n_vehicles))
+        check_output_dir(args.out)  # before the run, not after it
         bar = None if args.quiet else ProgressBar()
         try:
             result = run(config, args.seed, out_dir=args.out, progress=bar)

@@ -1,7 +1,24 @@
+import os
+
 import numpy as np
 import pytest
 
 from pirl_sim.model import synthetic_model
+
+# Under CI (CI=true, as GitHub Actions and most CI services set it) every optional extra is installed
+# (pip install -e ".[test]"), so a test module's pytest.importorskip of one that fails to import is a broken
+# install: it fails the run instead of turning into silent skips. Locally a missing extra still skips.
+if os.environ.get("CI", "").strip().lower() in ("1", "true", "yes"):
+    _importorskip = pytest.importorskip
+
+    def _import_or_fail(modname, minversion=None, reason=None, **kwargs):
+        try:
+            return _importorskip(modname, minversion=minversion, reason=reason, **kwargs)
+        except pytest.skip.Exception as exc:
+            pytest.fail(f"CI=true: {modname!r} (an optional extra of the test install) cannot be imported: {exc}",
+                        pytrace=False)
+
+    pytest.importorskip = _import_or_fail
 
 
 @pytest.fixture

@@ -20,12 +20,9 @@ from pirl_sim.io.interaction import (
     write_tracks,
 )
 
-SAMPLE_DIR = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared" / "data" / "interaction_format" / "recorded_trackfiles" / "TestScenarioForScripts"
-)
+# the INTERACTION dataset's BSD-3 test scenario, shipped in tests/data (see its README.md and LICENSE)
+SAMPLE_DIR = Path(__file__).resolve().parent / "data" / "interaction_format" / "recorded_trackfiles" / "TestScenarioForScripts"
 SAMPLE = SAMPLE_DIR / "vehicle_tracks_000.csv"
-needs_sample = pytest.mark.skipif(not SAMPLE.is_file(), reason=f"shared INTERACTION sample not found at {SAMPLE}")
 
 VEHICLE_HEADER = ",".join(VEHICLE_COLUMNS)
 PEDESTRIAN_HEADER = ",".join(PEDESTRIAN_COLUMNS)
@@ -96,7 +93,6 @@ def assert_dtypes(df: pd.DataFrame) -> None:
 
 # ---------------------------------------------------------------------------------------- sample
 
-@needs_sample
 def test_read_shared_sample():
     df = read_tracks(SAMPLE)
     assert list(df.columns) == list(VEHICLE_COLUMNS)
@@ -107,7 +103,6 @@ def test_read_shared_sample():
     assert read_tracks(SAMPLE, kind="vehicle").equals(df)
 
 
-@needs_sample
 def test_sample_round_trip(tmp_path):
     df = read_tracks(SAMPLE)
     out = write_tracks(df, tmp_path / "vehicle_tracks_000.csv")
@@ -117,7 +112,6 @@ def test_sample_round_trip(tmp_path):
     assert out.read_text().splitlines()[0] == VEHICLE_HEADER
 
 
-@needs_sample
 def test_find_track_files_on_sample():
     assert find_track_files(SAMPLE_DIR) == [SAMPLE]
 

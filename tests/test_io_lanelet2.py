@@ -21,13 +21,10 @@ from pirl_sim.io.lanelet2_map import (  # noqa: E402
     write_map,
 )
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
+# the INTERACTION dataset's BSD-3 test scenario, shipped in tests/data (see its README.md and LICENSE)
+DATA = Path(__file__).resolve().parent / "data" / "interaction_format"
 SAMPLE_MAP = DATA / "maps" / "TestScenarioForScripts.osm"
 SAMPLE_TRACKS = DATA / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"
-needs_sample = pytest.mark.skipif(
-    not (SAMPLE_MAP.is_file() and SAMPLE_TRACKS.is_file()),
-    reason=f"shared INTERACTION sample not found under {DATA}",
-)
 
 RING_RADIUS = 20.0  # [m]
 ENTRY_LENGTH = 40.0  # [m]
@@ -74,8 +71,6 @@ def ring_map(tmp_path_factory) -> tuple[LaneletMap, dict[str, int], dict[str, np
 
 @pytest.fixture(scope="module")
 def sample_map() -> LaneletMap:
-    if not SAMPLE_MAP.is_file():
-        pytest.skip(f"shared INTERACTION sample map not found at {SAMPLE_MAP}")
     return load_map(SAMPLE_MAP)
 
 
@@ -83,7 +78,6 @@ def sample_map() -> LaneletMap:
 # loading
 # ----------------------------------------------------------------------------------------------
 
-@needs_sample
 def test_sample_map_loads_with_lanelets_and_centerlines(sample_map):
     assert sample_map.lanelet_ids == (20, 21)
     for lanelet_id, line in sample_map.centerlines.items():
@@ -96,7 +90,6 @@ def test_sample_map_loads_with_lanelets_and_centerlines(sample_map):
     np.testing.assert_allclose(sample_map.centerlines[21][[0, -1]], [[101, 5.5], [1, 5.5]], atol=1e-5)
 
 
-@needs_sample
 def test_bare_origin_gives_mercator_coordinates_off_by_centimetres(sample_map):
     """Why load_map uses UtmProjector: lanelet2.io.load(path, Origin) projects with Mercator instead."""
     mercator = lanelet2.io.load(str(SAMPLE_MAP), lanelet2.io.Origin(0.0, 0.0))
@@ -118,7 +111,6 @@ def test_missing_file_raises_file_not_found(tmp_path):
         load_map(missing)
 
 
-@needs_sample
 def test_truncated_osm_raises_value_error(tmp_path):
     text = SAMPLE_MAP.read_text()
     bad = tmp_path / "truncated.osm"
@@ -134,7 +126,6 @@ def test_map_without_lanelets_raises_value_error(tmp_path):
         load_map(empty)
 
 
-@needs_sample
 def test_lanelet2_parse_errors_raise(tmp_path):
     broken = tmp_path / "broken.osm"
     broken.write_text(SAMPLE_MAP.read_text().replace('<member type="way" ref="12" role="right" />',
@@ -162,7 +153,6 @@ def test_geometry_helpers_agree_with_lanelet2(ring_map):
 # route matching
 # ----------------------------------------------------------------------------------------------
 
-@needs_sample
 def test_sample_tracks_match_their_lanelets(sample_map):
     tracks = read_tracks(SAMPLE_TRACKS)
     expected = {1: 20, 2: 21}
@@ -179,7 +169,6 @@ def test_sample_tracks_match_their_lanelets(sample_map):
         assert psi_match.lanelet_ids == match.lanelet_ids
 
 
-@needs_sample
 def test_lane_change_uses_left_relation_and_cuts_centerline(tmp_path):
     """Both sample lanelets made to run +x: 21 is then left of 20 across a dashed line."""
     text = SAMPLE_MAP.read_text()
@@ -203,7 +192,6 @@ def test_lane_change_uses_left_relation_and_cuts_centerline(tmp_path):
     assert set(match.point_route_index) == {0, 1}
 
 
-@needs_sample
 def test_two_way_lanelet_is_matched_in_the_driven_direction(tmp_path):
     path = tmp_path / "two_way.osm"
     path.write_text(SAMPLE_MAP.read_text().replace('<tag k="one_way" v="yes" />', '<tag k="one_way" v="no" />'))

@@ -24,14 +24,80 @@ from pirl_sim.scenarios.population_config import (
 )
 from pirl_sim.validation import check_keys, number
 
-__all__ = ["REWARDS", "EGO_ID", "ACC_REF", "JERK_REF", "EMPTY_ROW_STYLE", "EgoReward", "neighbour_info",
-           "common_defaults", "check_common", "reward_weights"]
+__all__ = ["REWARDS", "EGO_ID", "ACC_REF", "JERK_REF", "EMPTY_ROW_STYLE", "MAX_EGO_SPEED", "ORDERS", "EgoReward",
+           "neighbour_info", "common_defaults", "check_common", "check_kinematics", "check_action", "acceleration",
+           "reward_weights", "StepGuard"]
 
 REWARDS = ("task", "theta")  #: values of the ``reward`` option
 EGO_ID = "ego"  #: the ego's vehicle id (and ``agent_id`` in recordings)
 ACC_REF, JERK_REF = 3.0, 8.0  #: [m/s^2], [m/s^3] comfort-term scales (the driver model's bounds)
 EMPTY_ROW_STYLE = -2  #: ``neighbour_styles`` of an empty observation row
 FRAME_DT = 0.1  # [s] simulation frame = driver-model step
+MAX_EGO_SPEED = 30.0  #: [m/s] largest ego_speed: the driver model's speed bound
+ORDERS = ("sorted", "shuffled")  #: values of the Kinematics observation's ``order``
+_ACTION_FORM = "a finite number, or an array of shape (1,) holding one, in [-1, 1]"
+
+
+def check_action(action) -> float:
+    """The agent's action as a float clipped to [-1, 1], the same check on both backends.
+
+    Accepts a real number or an array-like of shape ``()`` or ``(1,)`` holding one (``Box(-1, 1, (1,))``'s
+    samples); values outside [-1, 1] are clipped.
+
+    Raises
+    ------
+    TypeError
+        For ``None``, strings, bools and anything else that is not a real number (naming it and the allowed form).
+    ValueError
+        For another shape (e.g. ``(2,)``) or a NaN or infinite value.
+    """
+    if action is None or isinstance(action, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"action must be {_ACTION_FORM}, got {action!r}")
+    try:
+        arr = np.asarray(action)
+    except (TypeError, ValueError):  # ragged sequences
+        raise ValueError(f"action must be {_ACTION_FORM}, got {action!r}") from None
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"action must be {_ACTION_FORM}, got {action!r} (dtype {arr.dtype})")
+    if arr.shape not in ((), (1,)):
+        raise ValueError(f"action must be {_ACTION_FORM}, got shape {arr.shape}: {action!r}")
+    x = float(arr.reshape(-1)[0])
+    if not np.isfinite(x):
+        raise ValueError(f"action must be {_ACTION_FORM}, got {action!r}")
+    return min(max(x, -1.0), 1.0)
+
+
+def acceleration(action, acceleration_range) -> float:
+    """The ego's acceleration [m/s^2] of an action (checked by :func:`check_action`): positive values scale
+    ``a_max``, negative ones ``-a_min`` of ``acceleration_range = (a_min, a_max)``."""
+    x = check_action(action)
+    lo, hi = (float(a) for a in acceleration_range)
+    return x * hi if x >= 0 else -x * lo
+
+
+class StepGuard:
+    """Warns, as gymnasium's own envs do, when ``step()`` is called after the episode ended (terminated or
+    truncated) without a ``reset()``; once per episode."""
+
+    def __init__(self) -> None:
+        self.ended: str | None = None  # "terminated" / "truncated" once the episode returned it
+        self._warned = False
+
+    def reset(self) -> None:
+        self.ended, self._warned = None, False
+
+    def before_step(self) -> None:
+        if self.ended is not None and not self._warned:
+            from gymnasium import logger
+
+            self._warned = True
+            logger.warn(f"You are calling 'step()' even though this environment has already returned {self.ended} "
+                        f"= True. You should always call 'reset()' once you receive '{self.ended} = True' -- any "
+                        "further steps are undefined behavior.")
+
+    def after_step(self, terminated: bool, truncated: bool) -> None:
+        if self.ended is None and (terminated or truncated):
+            self.ended = "terminated" if terminated else "truncated"
 
 
 def reward_weights(theta: Mapping[str, float]) -> np.ndarray:
@@ -186,8 +252,8 @@ def check_common(c: dict) -> None:
                          f"[a_min, a_max]}}, got {act!r}")
     check_keys("action", act, ("type", "acceleration_range"))
     rng = act.get("acceleration_range", (-4.0, 3.0))
-    if len(rng) != 2 or not number("action acceleration_range[0]", rng[0]) < 0 < \
-            number("action acceleration_range[1]", rng[1]):
+    if not isinstance(rng, (list, tuple, np.ndarray)) or len(rng) != 2 or not \
+            number("action acceleration_range[0]", rng[0]) < 0 < number("action acceleration_range[1]", rng[1]):
         raise ValueError(f"action acceleration_range must be [a_min < 0, a_max > 0] m/s^2, got {rng!r}")
     number("duration", c["duration"], low=0.0, allow_equal=False)
     pop = c["population"]
@@ -195,7 +261,9 @@ def check_common(c: dict) -> None:
         c["population"] = population_from_dict(pop, source="config population")
     elif not isinstance(pop, PopulationConfig):
         raise ValueError(f"population must be a PopulationConfig or a mapping, got {type(pop).__name__}")
-    number("ego_speed", c["ego_speed"], low=0.0)
+    if number("ego_speed", c["ego_speed"], low=0.0) > MAX_EGO_SPEED:
+        raise ValueError(f"ego_speed must be in [0, {MAX_EGO_SPEED:g}] m/s (the driver model's speed bound), got "
+                         f"{c['ego_speed']!r}")
     if c["reward"] not in REWARDS:
         raise ValueError(f"reward must be one of {REWARDS}, got {c['reward']!r}")
     theta = c["reward_theta"]
@@ -213,3 +281,43 @@ def check_common(c: dict) -> None:
         number(name, c[name])
     if not isinstance(c["record_tracks"], bool):
         raise ValueError(f"record_tracks must be true or false, got {c['record_tracks']!r}")
+
+
+def check_kinematics(obs: Mapping, features_allowed, label: str) -> None:
+    """Check the values of a ``Kinematics`` observation config (its keys are checked by the caller):
+    ``features`` a non-empty list of distinct names in ``features_allowed``, ``vehicles_count`` an integer >= 1,
+    ``features_range`` None or a mapping of such a name to ``[low < high]``, ``order`` in :data:`ORDERS` and
+    the flags booleans; ``ValueError`` naming the key, the value and what is allowed."""
+    allowed = tuple(features_allowed)
+    if "features" in obs:
+        f = obs["features"]
+        if isinstance(f, (str, Mapping)) or not isinstance(f, (list, tuple)) or not f:
+            raise ValueError(f"{label} features must be a non-empty list of names out of {', '.join(allowed)}; "
+                             f"got {f!r}")
+        unknown = [x for x in f if not isinstance(x, str) or x not in allowed]
+        if unknown:
+            raise ValueError(f"{label} features: unknown name(s) {unknown}; valid: {', '.join(allowed)}")
+        if len(set(f)) != len(f):
+            raise ValueError(f"{label} features repeats a name: {list(f)}")
+    if "vehicles_count" in obs:
+        n = obs["vehicles_count"]
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"{label} vehicles_count must be an integer >= 1 (the ego's row and its neighbours'), "
+                             f"got {n!r}")
+    fr = obs.get("features_range")
+    if fr is not None:
+        if not isinstance(fr, Mapping):
+            raise ValueError(f"{label} features_range must be a mapping feature -> [low, high] or None, got {fr!r}")
+        for name, bounds in fr.items():
+            if name not in allowed:
+                raise ValueError(f"{label} features_range: unknown feature {name!r}; valid: {', '.join(allowed)}")
+            if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not \
+                    number(f"{label} features_range[{name!r}][0]", bounds[0]) < \
+                    number(f"{label} features_range[{name!r}][1]", bounds[1]):
+                raise ValueError(f"{label} features_range[{name!r}] must be [low, high] with low < high, got "
+                                 f"{bounds!r}")
+    if "order" in obs and obs["order"] not in ORDERS:
+        raise ValueError(f"{label} order must be one of {ORDERS}, got {obs['order']!r}")
+    for flag in ("absolute", "normalize", "clip", "see_behind", "observe_intentions", "include_obstacles"):
+        if flag in obs and not isinstance(obs[flag], bool):
+            raise ValueError(f"{label} {flag} must be true or false, got {obs[flag]!r}")

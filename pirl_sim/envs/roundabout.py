@@ -81,7 +81,11 @@ from pirl_sim.envs.common import (
     EGO_ID,
     REWARDS,
     EgoReward,
+    StepGuard,
+    acceleration,
+    check_action,
     check_common,
+    check_kinematics,
     common_defaults,
     neighbour_info,
     reward_weights,
@@ -117,6 +121,9 @@ _OBSERVATIONS = {
     "LidarObservation": _obs.LidarObservation,
     "ExitObservation": _obs.ExitObservation,
 }
+#: Kinematics features highway-env computes (``Vehicle.to_dict``)
+_KINEMATICS_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h", "cos_d", "sin_d", "long_off",
+                        "lat_off", "ang_off")
 #: Kinematics features that stay in [-1, 1] after normalisation and clipping
 _BOUNDED_FEATURES = {"presence", "cos_h", "sin_h", "cos_d", "sin_d"}
 
@@ -157,14 +164,13 @@ class LongitudinalAction(ActionType):
         return EgoVehicle
 
     def acceleration(self, action) -> float:
-        """The acceleration [m/s^2] of an action (clipped to [-1, 1] first)."""
-        x = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1.0, 1.0))
-        lo, hi = self.acceleration_range
-        return x * hi if x >= 0 else -x * lo
+        """The acceleration [m/s^2] of an action (checked and clipped to [-1, 1] by
+        :func:`~pirl_sim.envs.common.check_action` first)."""
+        return acceleration(action, self.acceleration_range)
 
     def act(self, action) -> None:
-        self.last_action = np.asarray(action, dtype=np.float32).reshape(1)
         self.controlled_vehicle.command_acceleration = self.acceleration(action)
+        self.last_action = np.array([check_action(action)], dtype=np.float32)
 
 
 class PirlRoundaboutEnv(AbstractEnv):
@@ -230,6 +236,8 @@ class PirlRoundaboutEnv(AbstractEnv):
         params = [p for p in inspect.signature(_OBSERVATIONS[obs["type"]].__init__).parameters
                   if p not in ("self", "env", "kwargs")]
         check_keys(f"observation ({obs['type']})", obs, ("type", *params))
+        if obs["type"] == "Kinematics":
+            check_kinematics(obs, _KINEMATICS_FEATURES, "observation (Kinematics)")
         c["roundabout_radius"] = RoundaboutGeometry(c["roundabout_radius"]).radius
         if isinstance(c["drivers"], Mapping):
             c["drivers"] = drivers_from_dict(c["drivers"], source="config drivers")
@@ -277,7 +285,20 @@ class PirlRoundaboutEnv(AbstractEnv):
             if not isinstance(options, Mapping):
                 raise ValueError(f"options must be a mapping, got {type(options).__name__}")
             check_keys("options", options, ("config",))
+        self._guard = StepGuard()
         return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        """One agent step (see :class:`gymnasium.Env`). The action is checked first
+        (:func:`~pirl_sim.envs.common.check_action`: ``None``, NaN or a wrong shape raise before anything moves);
+        stepping on after the episode ended warns as gymnasium's envs do."""
+        check_action(action)
+        guard = getattr(self, "_guard", None) or StepGuard()
+        self._guard = guard
+        guard.before_step()
+        obs, reward, terminated, truncated, info = super().step(action)
+        guard.after_step(terminated, truncated)
+        return obs, reward, terminated, truncated, info
 
     # -- scene ----------------------------------------------------------------------------------------
 

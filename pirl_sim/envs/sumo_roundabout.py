@@ -58,7 +58,16 @@ from pirl_sim.scenarios.sumo.scenario import (
 )
 from pirl_sim.validation import check_keys, number
 
-from .common import EGO_ID, EgoReward, check_common, common_defaults, neighbour_info
+from .common import (
+    EGO_ID,
+    EgoReward,
+    StepGuard,
+    acceleration,
+    check_common,
+    check_kinematics,
+    common_defaults,
+    neighbour_info,
+)
 from .observation import DIRECT_FEATURES, kinematics_rows, shuffle_rows
 
 __all__ = ["PirlRoundaboutSumoEnv"]
@@ -173,15 +182,12 @@ class PirlRoundaboutSumoEnv(gym.Env):
         if not isinstance(obs, Mapping) or obs.get("type") != "Kinematics":
             raise ValueError(f"the sumo backend observes 'Kinematics' only, got {obs!r}")
         check_keys("observation (Kinematics, sumo backend)", obs, _KINEMATICS_KEYS)
-        unknown = [f for f in obs.get("features", ()) if f not in DIRECT_FEATURES]
+        feats = obs.get("features", ())
+        unknown = [f for f in feats if f not in DIRECT_FEATURES] if isinstance(feats, (list, tuple)) else []
         if unknown:
             raise ValueError(f"observation features {unknown} are not available with the sumo backend; "
                              f"valid: {', '.join(DIRECT_FEATURES)}")
-        if obs.get("order", "sorted") not in ("sorted", "shuffled"):
-            raise ValueError(f"observation order must be 'sorted' or 'shuffled', got {obs['order']!r}")
-        n = obs.get("vehicles_count", 5)
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"observation vehicles_count must be an integer >= 1, got {n!r}")
+        check_kinematics(obs, DIRECT_FEATURES, "observation")
         # network and drivers: objects, or tables as the SUMO scenario's config reads them
         tables = {k: c[k] for k in ("network", "drivers") if isinstance(c[k], Mapping)}
         if tables:
@@ -214,9 +220,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
 
     def _acceleration(self, action) -> float:
-        x = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1.0, 1.0))
-        lo, hi = self.config["action"].get("acceleration_range", (-4.0, 3.0))
-        return x * hi if x >= 0 else -x * lo
+        return acceleration(action, self.config["action"].get("acceleration_range", (-4.0, 3.0)))
 
     # -- episodes -----------------------------------------------------------------------------------
 
@@ -278,6 +282,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self._ego_cost = EgoReward(c, paths, RouteSetProfile(paths, drv.a_lat, drv.v_max), c["ego_route"],
                                  (ego.x, ego.y))
         self._crashed = self._arrived = False
+        self._guard = StepGuard()
         self._last_ego = ego
         obs = self._observe()
         return obs, self._info()
@@ -288,7 +293,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
         if self._crashed or self._arrived:
             raise RuntimeError("the episode has ended: call reset()")
         c = self.config
-        a = self._acceleration(action)
+        a = self._acceleration(action)  # checked before anything moves
+        self._guard.before_step()
         self._controller.acceleration = a
         ego = self._controller.ego.ego
         self._run.set_command(EGO_ID, max(ego.speed + a * STEP, 0.0))  # the new action from this frame on
@@ -311,6 +317,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
                                 time=self.time)
         terminated = self._crashed or self._arrived
         truncated = not terminated and self.time >= c["duration"] - 1e-9
+        self._guard.after_step(terminated, truncated)
         obs = self._observe()
         return obs, self._ego_cost.reward(), terminated, truncated, self._info()
 

@@ -13,7 +13,6 @@ import sys
 import time
 import warnings
 from dataclasses import asdict, replace
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -21,6 +20,7 @@ import pandas as pd
 from pirl_sim.harness import figures
 from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate, style_agreement
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+from pirl_sim.validation import check_output_dir
 
 __all__ = ["PAPER_SYNTHETIC_MED", "reproduce_synthetic"]
 
@@ -80,7 +80,7 @@ def reproduce_synthetic(out_dir, config=None, *, history_steps: int = 10, knn_ks
     from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
 
     config = SyntheticConfig() if config is None else config
-    out = Path(out_dir)
+    out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
     knn_ks = tuple(k for k in knn_ks if k <= config.n_train)
     protocols = [PAPER_PROTOCOL, Protocol("online", history_steps)]
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda msg: None)
@@ -180,7 +180,7 @@ def reproduce_passage(out_dir, config=None, *, history_steps: int = 10, horizon:
     from pirl_sim.simulate import simulate_receding_horizon
 
     config = PassageConfig() if config is None else config
-    out = Path(out_dir)
+    out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda msg: None)
     protocols = [
         PAPER_PROTOCOL,

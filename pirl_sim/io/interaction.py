@@ -30,6 +30,7 @@ __all__ = [
     "PEDESTRIAN_COLUMNS",
     "FRAME_DT_MS",
     "read_tracks",
+    "read_tracks_lenient",
     "write_tracks",
     "split_tracks",
     "iter_track_arrays",
@@ -112,6 +113,102 @@ def read_tracks(path, *, kind: str = "auto") -> pd.DataFrame:
         raise ValueError(f"{path}: has no rows (header only)")
     raw = dict(zip(columns, (np.array(col) for col in zip(*rows))))
     return _validated_frame(raw, columns, str(path), lambda i: f"line {lines[i]}")
+
+
+def read_tracks_lenient(path) -> tuple[pd.DataFrame | None, int]:
+    """Read the valid tracks of a vehicle track file, dropping every track with a bad row.
+
+    The forgiving counterpart of :func:`read_tracks`, for files of which one broken row should not cost
+    the good tracks. A track is dropped, whole, when any of its rows
+
+    - has the wrong number of fields, or a value that is not what its column holds: an integer for
+      ``track_id``, ``frame_id``, ``timestamp_ms`` (``"1.5"`` is not read as 1), a finite number for the
+      float columns, a non-empty ``agent_type``;
+    - repeats a ``frame_id`` of the track, or its frames do not increase strictly in file order;
+    - has a ``timestamp_ms`` that is not ``100 ms * frame_id`` plus the file's offset (the offset most
+      rows have), e.g. timestamps running backwards.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``vehicle_tracks_NNN.csv`` file.
+
+    Returns
+    -------
+    frame : pandas.DataFrame or None
+        The rows of the kept tracks, in file order, as :func:`read_tracks` returns them (it passes
+        :func:`read_tracks`' checks); None when the file is unreadable (missing, not UTF-8, not CSV, not
+        the vehicle header) or no track is left.
+    n_dropped : int
+        Tracks dropped, plus one for each row whose ``track_id`` is not an integer (it belongs to no track
+        that could be named).
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            lines = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return None, 0
+    if not lines or [h.strip() for h in lines[0]] != list(VEHICLE_COLUMNS):
+        return None, 0
+    n = len(VEHICLE_COLUMNS)
+    unattributed = 0
+    bad: set[int] = set()
+    rows: list[list] = []
+    for row in lines[1:]:
+        if not row:
+            continue
+        try:
+            track_id = int(row[0])
+        except ValueError:
+            unattributed += 1
+            continue
+        parsed = _lenient_row(row, n)
+        if parsed is None:
+            bad.add(track_id)
+        else:
+            rows.append(parsed)
+    df = pd.DataFrame(rows, columns=list(VEHICLE_COLUMNS))
+    if len(df):
+        df = df.astype({c: np.int64 for c in _INT_COLUMNS})
+        bad |= set(df.loc[df.duplicated(["track_id", "frame_id"], keep=False), "track_id"].tolist())
+        previous = df.groupby("track_id", sort=False)["frame_id"].shift().to_numpy(dtype=np.float64)
+        bad |= set(df.loc[df["frame_id"].to_numpy() <= previous, "track_id"].tolist())
+        offset = df["timestamp_ms"] - FRAME_DT_MS * df["frame_id"]
+        bad |= set(df.loc[offset != offset.mode().min(), "track_id"].tolist())
+        df = df[~df["track_id"].isin(bad)].reset_index(drop=True)
+    if df.empty:
+        return None, len(bad) + unattributed
+    return df, len(bad) + unattributed
+
+
+def _lenient_row(row: list[str], n: int) -> list | None:
+    """A row's values in their types, or None when a field is missing, extra or not what its column holds."""
+    if len(row) != n:
+        return None
+    out: list = []
+    for name, text in zip(VEHICLE_COLUMNS, row):
+        if name in _INT_COLUMNS:
+            try:
+                value = int(text)
+            except ValueError:
+                return None
+            if not -2**63 <= value < 2**63:  # beyond int64
+                return None
+            out.append(value)
+        elif name in _STR_COLUMNS:
+            if not text.strip():
+                return None
+            out.append(text)
+        else:
+            try:
+                value = float(text)
+            except ValueError:
+                return None
+            if not np.isfinite(value):
+                return None
+            out.append(value)
+    return out
 
 
 def write_tracks(df: pd.DataFrame, path, *, kind: str = "auto") -> Path:

@@ -169,7 +169,8 @@ def load_map(path) -> LaneletMap:
     FileNotFoundError
         If ``path`` does not exist.
     ValueError
-        If the file cannot be parsed, lanelet2 reports any error while reading it (a broken reference,
+        If the file is not well-formed XML, a node's ``lat`` or ``lon`` is missing, not a number or out of
+        range (the message names the node; lanelet2 would read it as 0 silently), lanelet2 reports any error while reading it (a broken reference,
         a lanelet without exactly one left and right border, ...) or it has no lanelets; the message
         names the file and the reason. lanelet2 would return a partial map in the error case, whose
         broken lanelets crash the process (segmentation fault) when their centerline is computed, so it
@@ -181,6 +182,7 @@ def load_map(path) -> LaneletMap:
         raise FileNotFoundError(errno.ENOENT, "Lanelet2 map not found", str(path))
     if not path.is_file():
         raise ValueError(f"{path}: not a file")
+    _check_nodes(path)
     try:
         lmap, errors = lanelet2.io.loadRobust(str(path), projector())
     except Exception as exc:  # lanelet2 raises RuntimeError for XML it cannot parse
@@ -203,6 +205,40 @@ def load_map(path) -> LaneletMap:
         centerlines[int(ll.id)] = line
     return LaneletMap(path=path, map=lmap, routing_graph=graph, traffic_rules=rules,
                       centerlines=centerlines)
+
+
+def _check_nodes(path: Path) -> None:
+    """``ValueError`` naming the file and the node unless the file is XML whose every ``<node>`` has an integer
+    ``id`` and finite ``lat`` in [-90, 90] and ``lon`` in [-180, 180] degrees.
+
+    lanelet2 reads a coordinate that is not a number (``lat="abc"``) or is missing as 0 without a word, which
+    moves the node by metres to kilometres; this check runs first.
+    """
+    import xml.etree.ElementTree as ET
+
+    try:
+        for _, elem in ET.iterparse(path, events=("end",)):
+            if elem.tag == "node":
+                node_id = elem.get("id")
+                try:
+                    int(node_id)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{path}: a <node> has id {node_id!r}; ids must be integers") from None
+                for attr, bound in (("lat", 90.0), ("lon", 180.0)):
+                    text = elem.get(attr)
+                    if text is None:
+                        raise ValueError(f"{path}: node {node_id} has no {attr} attribute; nodes need lat and lon "
+                                         "in degrees")
+                    try:
+                        value = float(text)
+                    except ValueError:
+                        value = math.nan
+                    if not (math.isfinite(value) and -bound <= value <= bound):
+                        raise ValueError(f"{path}: node {node_id} has {attr}={text!r}; expected a number of "
+                                         f"degrees in [-{bound:g}, {bound:g}]")
+            elem.clear()
+    except ET.ParseError as exc:
+        raise ValueError(f"{path}: not a readable Lanelet2 map: not well-formed XML: {exc}") from None
 
 
 # ----------------------------------------------------------------------------------------------

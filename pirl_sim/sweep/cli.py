@@ -79,7 +79,8 @@ def run_sweep_command(args) -> int:
 
         version = code_version()
         keys = {c.key(version) for c in config.cells}
-        stored = keys & ResultStore(args.out).finished()
+        store = ResultStore(args.out)
+        stored = {k for k in keys & store.finished() if store.load(k) is not None}  # a damaged file runs again
         print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(keys)} distinct), "
               f"{len(stored)} already in {args.out}/, {len(keys) - len(stored)} to run (code {version})")
         return 0

@@ -49,6 +49,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from pirl_sim.validation import SEED_LIMIT
+
 from .scenarios import resolve_scenario_params, scenario_spec
 
 __all__ = [
@@ -93,15 +95,18 @@ def _check_keys(label: str, table: Mapping, valid: tuple[str, ...]) -> None:
 
 
 def _jsonable(label: str, value):
-    """TOML value -> JSON value (tuples as lists); dates and times are rejected."""
+    """TOML value -> JSON value (tuples as lists); dates, times and nan are rejected, naming the key (``label``
+    and the path to the value inside it)."""
     if isinstance(value, (bool, int, str)) or value is None:
         return value
     if isinstance(value, float):
+        if math.isnan(value):  # inf has uses (e.g. rationality = inf: exact optima); nan never does
+            raise ValueError(f"{label}: nan is not allowed; give a number")
         return value
     if isinstance(value, (list, tuple)):
-        return [_jsonable(label, v) for v in value]
+        return [_jsonable(f"{label}[{i}]", v) for i, v in enumerate(value)]
     if isinstance(value, Mapping):
-        return {str(k): _jsonable(label, v) for k, v in value.items()}
+        return {str(k): _jsonable(f"{label}.{k}", v) for k, v in value.items()}
     raise ValueError(f"{label}: unsupported value {value!r} ({type(value).__name__})")
 
 
@@ -122,8 +127,8 @@ def _seeds(label: str, value) -> tuple[int, ...]:
     if not value:
         raise ValueError(f"empty grid: {label} is an empty list")
     for s in value:
-        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
-            raise ValueError(f"{label} must hold integers >= 0, got {s!r}")
+        if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s < SEED_LIMIT:
+            raise ValueError(f"{label} must hold integers in [0, 2**31), got {s!r}")
     if len(set(value)) != len(value):
         raise ValueError(f"{label} repeats a seed: {list(value)}")
     return tuple(value)
@@ -153,9 +158,9 @@ class GridAxis:
     def parse(cls, label: str, name: str, value) -> "GridAxis":
         """A list of values (labelled by the values) or a table {variant label: value}."""
         if isinstance(value, Mapping):
-            choices = tuple(Choice(str(k), _jsonable(label, v)) for k, v in value.items())
+            choices = tuple(Choice(str(k), _jsonable(f"{label}.{name}.{k}", v)) for k, v in value.items())
         elif isinstance(value, (list, tuple)):
-            choices = tuple(Choice(_fmt(v), _jsonable(label, v)) for v in value)
+            choices = tuple(Choice(_fmt(v), _jsonable(f"{label}.{name}[{i}]", v)) for i, v in enumerate(value))
         else:
             raise ValueError(f"{label}.{name} must be a list of values or a table of named values, got {value!r}")
         if not choices:
@@ -224,7 +229,7 @@ class LearnerGrid:
         params = entry.get("params", {})
         if not isinstance(params, Mapping):
             raise ValueError(f"{label}.params must be a table, got {params!r}")
-        params = {str(k): _jsonable(label, v) for k, v in params.items()}
+        params = {str(k): _jsonable(f"{label}.params.{k}", v) for k, v in params.items()}
         display = entry.get("label", LEARNER_DISPLAY.get(name, str(name)))
         return cls(name, str(display), params, _parse_grid(f"{label}.grid", entry.get("grid"), params))
 
@@ -252,7 +257,7 @@ class ProtocolGrid:
         if isinstance(entry, str):
             entry = {"kind": entry}
         _check_keys(label, entry, PROTOCOL_KEYS)
-        fields = {k: _jsonable(label, v) for k, v in entry.items() if k != "grid"}
+        fields = {k: _jsonable(f"{label}.{k}", v) for k, v in entry.items() if k != "grid"}
         return cls(fields, _parse_grid(f"{label}.grid", entry.get("grid"), fields))
 
     def points(self) -> list[dict]:
@@ -307,7 +312,7 @@ class Experiment:
         params = entry.get("params", {})
         if not isinstance(params, Mapping):
             raise ValueError(f"{label}.params must be a table, got {params!r}")
-        params = {str(k): _jsonable(label, v) for k, v in params.items()}
+        params = {str(k): _jsonable(f"{label}.params.{k}", v) for k, v in params.items()}
         grid = _parse_grid(f"{label}.grid", entry.get("grid"), params)
         seeds = entry.get("seeds", default_seeds)
         if seeds is None:
@@ -420,6 +425,19 @@ def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) ->
                 f"{label}: k = {kname} = {k} is larger than the training set ({bound}{n} training {what} from "
                 f"{bound}{shape.n_train} trajectories)"
             )
+    if "log_bounds" in params:
+        lb = params["log_bounds"]
+        ok = isinstance(lb, (list, tuple)) and len(lb) == 2 and all(
+            not isinstance(b, bool) and isinstance(b, (int, float)) and math.isfinite(b) for b in lb) and lb[0] < lb[1]
+        if not ok:
+            raise ValueError(f"{label}: log_bounds must be [low, high], two finite numbers with low < high, got "
+                             f"{list(lb) if isinstance(lb, tuple) else lb!r}")
+    if "random_state" in params:
+        rs = params["random_state"]
+        if rs is not None and (isinstance(rs, bool) or not isinstance(rs, int) or not 0 <= rs < SEED_LIMIT):
+            raise ValueError(f"{label}: random_state must be an integer in [0, 2**31) or absent, got {rs!r}")
+    if grid.name in ("pirl-gmm", "pirl-dpgmm"):
+        _check_mixture(label, grid.name, params)
     if grid.name == "pirl-knn":
         from pirl_sim.learners.knn import AVERAGES, PRIORS
 
@@ -427,6 +445,31 @@ def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) ->
             raise ValueError(f"{label}: average must be one of {AVERAGES}, got {params['average']!r}")
         if params["prior"] not in PRIORS:
             raise ValueError(f"{label}: prior must be one of {PRIORS}, got {params['prior']!r}")
+
+
+def _check_mixture(label: str, name: str, params: dict) -> None:
+    """The scikit-learn mixture's own parameter check (``covariance_type``, ``n_init``, ``max_iter``, ...), run
+    on the parameters the learner passes to it, so that a bad value fails when the config is built."""
+    from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
+
+    if name == "pirl-gmm":
+        k = params.get("n_components", 2)
+        mixture = GaussianMixture(n_components=k if isinstance(k, int) else 1,
+                                  covariance_type=params.get("covariance_type", "full"),
+                                  n_init=params.get("n_init", 1), random_state=params.get("random_state"))
+    else:
+        mixture = BayesianGaussianMixture(
+            n_components=params.get("max_components", 1) if isinstance(params.get("max_components"), int) else 1,
+            weight_concentration_prior=params.get("weight_concentration_prior"),
+            covariance_type=params.get("covariance_type", "full"), n_init=params.get("n_init", 1),
+            max_iter=params.get("max_iter", 100), random_state=params.get("random_state"))
+    try:
+        mixture._validate_params()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{label}: {exc}") from None
+    for key in ("min_cluster_size",):
+        if key in params and (isinstance(params[key], bool) or not isinstance(params[key], int) or params[key] < 1):
+            raise ValueError(f"{label}: {key} must be a positive integer, got {params[key]!r}")
 
 
 def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
@@ -559,9 +602,16 @@ def load_config(path) -> SweepConfig:
         return default_config()
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except FileNotFoundError:
         raise ValueError(f"sweep config {str(path)!r} not found") from None
+    except OSError as exc:
+        raise ValueError(f"sweep config {str(path)!r} cannot be read ({exc.strerror or type(exc).__name__})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: the file is not UTF-8 text (byte {exc.start}: "
+                         f"{raw[exc.start:exc.start + 1]!r})") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -256,13 +256,14 @@ def write_report(results, out_dir=None) -> dict:
     -------
     dict {name: path} of the files written.
     """
+    from pirl_sim.validation import check_output_dir
+
     results = Path(results)
     table = read_table(results)
     if table.empty:
         raise ValueError(f"{results}: the table has no finished cell")
     res_dir = results if results.is_dir() else results.parent
-    out = Path(out_dir) if out_dir is not None else res_dir
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(Path(out_dir) if out_dir is not None else res_dir, "the report's directory")
     manifest = {}
     if (res_dir / "sweep.json").exists():
         manifest = json.loads((res_dir / "sweep.json").read_text(encoding="utf-8"))

@@ -292,8 +292,55 @@ def read_table(results) -> pd.DataFrame:
             raise ValueError(f"{results}: no table.parquet or table.csv (run pirl-sim sweep first)")
     if not path.exists():
         raise ValueError(f"{results}: no such file or directory")
-    if path.suffix == ".parquet":
-        return pd.read_parquet(path)
-    if path.suffix == ".csv":
-        return pd.read_csv(path)
-    raise ValueError(f"{results}: expected a results directory, table.parquet or table.csv")
+    if path.suffix not in (".parquet", ".csv"):
+        raise ValueError(f"{results}: expected a results directory, table.parquet or table.csv")
+    try:
+        table = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+    except (OSError, ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise ValueError(f"{path}: not a readable sweep table ({type(exc).__name__}: {exc}); run pirl-sim sweep "
+                         "again to rewrite it") from None
+    except Exception as exc:  # pyarrow's own errors for a damaged parquet file
+        if type(exc).__module__.startswith("pyarrow"):
+            raise ValueError(f"{path}: not a readable sweep table ({type(exc).__name__}: {exc}); run pirl-sim "
+                             "sweep again to rewrite it") from None
+        raise
+    _check_table(table, path)
+    return table
+
+
+#: columns every row of a finished cell has (a row cut short loses the last ones)
+_REQUIRED = ("key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "learner",
+             "learner_label", "seed", "cell_s", "scenario_params", "learner_params", "code_version")
+_TEXT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "learner",
+                 "learner_label", "scenario_params", "learner_params", "code_version")
+
+
+def _check_table(table: pd.DataFrame, path: Path) -> None:
+    """``ValueError`` naming the file and the first bad row unless ``table`` has every column of `TABLE_COLUMNS`,
+    the required ones filled in every row, text where text belongs and numbers in the score and timing columns."""
+    missing = [c for c in TABLE_COLUMNS if c not in table.columns]
+    if missing:
+        raise ValueError(f"{path}: not a sweep table: missing column(s) {', '.join(missing)} (expected "
+                         f"{', '.join(TABLE_COLUMNS)})")
+    line = 2 if path.suffix == ".csv" else None  # header = line 1 of a CSV file
+
+    def where(i: int) -> str:
+        return f"row {i}" + (f" (line {i + line})" if line else "")
+
+    for c in _REQUIRED:
+        empty = table[c].isna().to_numpy()
+        if empty.any():
+            i = int(empty.argmax())
+            raise ValueError(f"{path}: {where(i)} has no {c} (a truncated or damaged table?); run pirl-sim sweep "
+                             "again to rewrite it")
+    for c in _TEXT_COLUMNS:
+        wrong = [not isinstance(v, str) for v in table[c]]
+        if any(wrong):
+            i = wrong.index(True)
+            raise ValueError(f"{path}: {where(i)}, column {c!r}: expected text, found {table[c].iloc[i]!r}")
+    for c in (*_INT_COLUMNS, "med", "med_std", "fde", "weight_error", "ari", *TIMING_COLUMNS):
+        values = pd.to_numeric(table[c], errors="coerce")
+        wrong = (values.isna() & table[c].notna()).to_numpy()
+        if wrong.any():
+            i = int(wrong.argmax())
+            raise ValueError(f"{path}: {where(i)}, column {c!r}: expected a number, found {table[c].iloc[i]!r}")

@@ -486,13 +486,20 @@ def _build_replay(params: dict, seed: int) -> ScenarioData:
 
 
 def _shape_replay(params: dict) -> TrainShape:
-    """An upper bound from the files alone: every track of every file, the longest ones in the training set."""
-    import pandas as pd
+    """An upper bound from the files alone: every valid track of every file, the longest ones in the training set."""
+    from pirl_sim.io.interaction import read_tracks, read_tracks_lenient
 
     stride = int(round(params["dt"] / 0.1))
     lengths = []
     for f in _replay_files(params):
-        frames = pd.read_csv(f, usecols=["track_id"])["track_id"].value_counts()
+        try:
+            df = read_tracks(f, kind="vehicle")
+        except ValueError:  # the replay keeps a file's valid tracks: count those
+            df, _ = read_tracks_lenient(f)
+            if df is None:
+                raise ValueError(f"{f}: no valid track (not an INTERACTION vehicle track file, or every track has a "
+                                 "bad row)") from None
+        frames = df["track_id"].value_counts()
         lengths += [int((n - 1) // stride) for n in frames]
     n = len(lengths)
     n_train = n - max(1, int(round(params["test_fraction"] * n))) if n > 1 else n
