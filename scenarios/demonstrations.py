@@ -228,7 +228,11 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
         s, _ = routes.paths[r].to_frenet(xy, extrapolate=True)
         s = routes.offsets[r] + s
         if estimate == "speeds":
-            v_all = np.hypot(g["vx"].to_numpy(), g["vy"].to_numpy())
+            v_all = np.hypot(g["vx"].to_numpy(dtype=float), g["vy"].to_numpy(dtype=float))
+            if not np.all(np.isfinite(v_all)):
+                raise ValueError(f"track {row.track_id}: the recording has no usable speeds (vx, vy missing or not "
+                                 f"finite in {int(np.sum(~np.isfinite(v_all)))} frames); estimate='speeds' needs "
+                                 "them, estimate='positions' estimates the states from positions only")
             if f is not None:  # the driver's start acceleration after a step that was not its own
                 restart = f["restart"].to_numpy(dtype=bool, copy=True)
                 restart[0] = False

@@ -181,3 +181,26 @@ def test_learner_parameters_are_checked(lq_drivers):
         TIRL(model, likelihood="receding", horizon=15, step_stride=0).fit(trajs)
     with pytest.raises(ValueError, match="prior"):
         PIRLKNN(model, likelihood="receding", horizon=15, prior="population").fit(trajs)
+
+
+@pytest.mark.slow
+def test_recording_without_speeds_is_a_clear_error_with_a_fallback(tmp_path):
+    """estimate='speeds' on tracks whose vx, vy are not finite names the track and the fallback, which works."""
+    import dataclasses
+
+    from pirl_sim.scenarios.sumo import load_sumo_run, run_sumo_scenario
+    from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig
+
+    cfg = SumoScenarioConfig()
+    cfg = dataclasses.replace(cfg, population=dataclasses.replace(cfg.population, n_vehicles=6))
+    run_sumo_scenario(cfg, 0, out_dir=tmp_path)
+    run = load_sumo_run(tmp_path)
+    tracks = run.recording.tracks.copy()
+    tracks.loc[tracks.index[::7], "vx"] = np.nan
+    rec = dataclasses.replace(run.recording, tracks=tracks)
+    from pirl_sim.scenarios.demonstrations import recorded_demonstrations
+
+    with pytest.raises(ValueError, match="estimate='positions'"):
+        recorded_demonstrations(rec, run.routes, selection="steps")
+    demos = recorded_demonstrations(rec, run.routes, selection="steps", estimate="positions")
+    assert demos and all(np.all(np.isfinite(d.states)) for d in demos)
