@@ -17,9 +17,16 @@ from pirl_sim.cli import main
 from pirl_sim.io import interaction
 from pirl_sim.io.interaction import read_tracks
 
-DATA = Path(__file__).resolve().parent / "data" / "interaction_format"
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
 SAMPLE_MAP = DATA / "maps" / "TestScenarioForScripts.osm"
 SAMPLE_TRACKS = DATA / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"
+# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
+# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
+# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
+needs_sample = pytest.mark.skipif(
+    not (SAMPLE_MAP).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
+    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
+)
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -27,6 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.mark.parametrize("attr, value", [("lat", "abc"), ("lon", ""), ("lat", "nan"), ("lon", "inf"),
                                          ("lat", "91")])
+@needs_sample
 def test_map_node_with_bad_coordinate_is_an_error_naming_the_node(tmp_path, attr, value):
     pytest.importorskip("lanelet2")
     from pirl_sim.io.lanelet2_map import load_map
@@ -39,6 +47,7 @@ def test_map_node_with_bad_coordinate_is_an_error_naming_the_node(tmp_path, attr
         load_map(bad)
 
 
+@needs_sample
 def test_map_node_without_lat_and_non_xml_map_are_errors(tmp_path):
     pytest.importorskip("lanelet2")
     from pirl_sim.io.lanelet2_map import load_map
@@ -59,11 +68,13 @@ def _sample_lines() -> list[str]:
     return SAMPLE_TRACKS.read_text().splitlines()
 
 
+@needs_sample
 def test_lenient_reader_keeps_a_clean_file_whole():
     df, n_dropped = interaction.read_tracks_lenient(SAMPLE_TRACKS)
     assert n_dropped == 0 and df.equals(read_tracks(SAMPLE_TRACKS))
 
 
+@needs_sample
 def test_lenient_reader_does_not_truncate_a_fractional_track_id(tmp_path):
     lines = _sample_lines()
     fields = lines[5].split(",")
@@ -77,6 +88,7 @@ def test_lenient_reader_does_not_truncate_a_fractional_track_id(tmp_path):
     assert 5 not in set(df.loc[df["track_id"] == 1, "frame_id"])  # line 6 held frame 5 of track 1
 
 
+@needs_sample
 def test_lenient_reader_drops_a_track_whose_timestamps_run_backwards(tmp_path):
     lines = _sample_lines()
     rows = [i for i in range(1, len(lines)) if lines[i].split(",")[0] == "2"]
@@ -248,6 +260,7 @@ def test_sweep_seeds_beyond_two_to_the_31_are_rejected(tmp_path, capsys):
     assert "seeds must hold integers in [0, 2**31), got 4294967296" in capsys.readouterr().err
 
 
+@needs_sample
 def test_dry_run_rejects_an_unreadable_replay_csv(tmp_path, capsys):
     pytest.importorskip("lanelet2")
     tracks = tmp_path / "vehicle_tracks_000.csv"
@@ -390,12 +403,6 @@ def test_sumo_backend_rejects_bad_actions_and_warns_past_truncation():
 
 
 # ---------------------------------------------------------------------------------------------- item 14
-
-def test_the_interaction_sample_ships_with_its_licence():
-    assert SAMPLE_TRACKS.is_file() and SAMPLE_MAP.is_file()
-    licence = (DATA / "LICENSE").read_text()
-    assert "BSD 3-Clause License" in licence and "FZI" in licence
-
 
 @pytest.mark.parametrize("ci, outcome", [("true", "failed"), ("", "skipped")])
 def test_under_ci_a_missing_extra_fails_instead_of_skipping(tmp_path, ci, outcome):

@@ -8,6 +8,8 @@ import math
 import tomllib
 from pathlib import Path
 
+import os
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -18,9 +20,16 @@ from hypothesis import strategies as st  # noqa: E402
 
 from pirl_sim.io.interaction import VEHICLE_COLUMNS, read_tracks, read_tracks_lenient  # noqa: E402
 
-DATA = Path(__file__).resolve().parent / "data" / "interaction_format"
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
 SAMPLE_MAP = DATA / "maps" / "TestScenarioForScripts.osm"
 SAMPLE_TRACKS = DATA / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"
+# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
+# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
+# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
+needs_sample = pytest.mark.skipif(
+    not (SAMPLE_MAP).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
+    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
+)
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                        HealthCheck.too_slow])
 
@@ -84,8 +93,9 @@ def _check_tracks(df: pd.DataFrame) -> None:
         assert (np.diff(g["frame_id"].to_numpy()) > 0).all()
 
 
+@needs_sample
 @FUZZ
-@given(text=mutated_text(SAMPLE_TRACKS.read_text()))
+@given(text=mutated_text(SAMPLE_TRACKS.read_text() if SAMPLE_TRACKS.is_file() else ""))
 def test_fuzz_track_csv_readers(tmp_path_factory, text):
     path = tmp_path_factory.mktemp("csv") / "vehicle_tracks_000.csv"
     path.write_text(text)
@@ -145,6 +155,7 @@ def mutated_osm(draw):
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(text=mutated_osm())
+@needs_sample
 def test_fuzz_map_loader(tmp_path_factory, text):
     pytest.importorskip("lanelet2")
     import xml.etree.ElementTree as ET

@@ -20,9 +20,15 @@ from pirl_sim.io.interaction import (
     write_tracks,
 )
 
-# the INTERACTION dataset's BSD-3 test scenario, shipped in tests/data (see its README.md and LICENSE)
-SAMPLE_DIR = Path(__file__).resolve().parent / "data" / "interaction_format" / "recorded_trackfiles" / "TestScenarioForScripts"
+SAMPLE_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format" / "recorded_trackfiles" / "TestScenarioForScripts"
 SAMPLE = SAMPLE_DIR / "vehicle_tracks_000.csv"
+# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
+# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
+# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
+needs_sample = pytest.mark.skipif(
+    not (SAMPLE).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
+    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
+)
 
 VEHICLE_HEADER = ",".join(VEHICLE_COLUMNS)
 PEDESTRIAN_HEADER = ",".join(PEDESTRIAN_COLUMNS)
@@ -93,6 +99,7 @@ def assert_dtypes(df: pd.DataFrame) -> None:
 
 # ---------------------------------------------------------------------------------------- sample
 
+@needs_sample
 def test_read_shared_sample():
     df = read_tracks(SAMPLE)
     assert list(df.columns) == list(VEHICLE_COLUMNS)
@@ -103,6 +110,7 @@ def test_read_shared_sample():
     assert read_tracks(SAMPLE, kind="vehicle").equals(df)
 
 
+@needs_sample
 def test_sample_round_trip(tmp_path):
     df = read_tracks(SAMPLE)
     out = write_tracks(df, tmp_path / "vehicle_tracks_000.csv")
@@ -112,6 +120,7 @@ def test_sample_round_trip(tmp_path):
     assert out.read_text().splitlines()[0] == VEHICLE_HEADER
 
 
+@needs_sample
 def test_find_track_files_on_sample():
     assert find_track_files(SAMPLE_DIR) == [SAMPLE]
 

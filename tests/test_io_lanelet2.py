@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import os
+
 import numpy as np
 import pytest
 
@@ -21,10 +23,16 @@ from pirl_sim.io.lanelet2_map import (  # noqa: E402
     write_map,
 )
 
-# the INTERACTION dataset's BSD-3 test scenario, shipped in tests/data (see its README.md and LICENSE)
-DATA = Path(__file__).resolve().parent / "data" / "interaction_format"
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
 SAMPLE_MAP = DATA / "maps" / "TestScenarioForScripts.osm"
 SAMPLE_TRACKS = DATA / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"
+# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
+# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
+# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
+needs_sample = pytest.mark.skipif(
+    not (SAMPLE_MAP).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
+    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
+)
 
 RING_RADIUS = 20.0  # [m]
 ENTRY_LENGTH = 40.0  # [m]
@@ -78,6 +86,7 @@ def sample_map() -> LaneletMap:
 # loading
 # ----------------------------------------------------------------------------------------------
 
+@needs_sample
 def test_sample_map_loads_with_lanelets_and_centerlines(sample_map):
     assert sample_map.lanelet_ids == (20, 21)
     for lanelet_id, line in sample_map.centerlines.items():
@@ -90,6 +99,7 @@ def test_sample_map_loads_with_lanelets_and_centerlines(sample_map):
     np.testing.assert_allclose(sample_map.centerlines[21][[0, -1]], [[101, 5.5], [1, 5.5]], atol=1e-5)
 
 
+@needs_sample
 def test_bare_origin_gives_mercator_coordinates_off_by_centimetres(sample_map):
     """Why load_map uses UtmProjector: lanelet2.io.load(path, Origin) projects with Mercator instead."""
     mercator = lanelet2.io.load(str(SAMPLE_MAP), lanelet2.io.Origin(0.0, 0.0))
@@ -111,6 +121,7 @@ def test_missing_file_raises_file_not_found(tmp_path):
         load_map(missing)
 
 
+@needs_sample
 def test_truncated_osm_raises_value_error(tmp_path):
     text = SAMPLE_MAP.read_text()
     bad = tmp_path / "truncated.osm"
@@ -126,6 +137,7 @@ def test_map_without_lanelets_raises_value_error(tmp_path):
         load_map(empty)
 
 
+@needs_sample
 def test_lanelet2_parse_errors_raise(tmp_path):
     broken = tmp_path / "broken.osm"
     broken.write_text(SAMPLE_MAP.read_text().replace('<member type="way" ref="12" role="right" />',
@@ -153,6 +165,7 @@ def test_geometry_helpers_agree_with_lanelet2(ring_map):
 # route matching
 # ----------------------------------------------------------------------------------------------
 
+@needs_sample
 def test_sample_tracks_match_their_lanelets(sample_map):
     tracks = read_tracks(SAMPLE_TRACKS)
     expected = {1: 20, 2: 21}
@@ -169,6 +182,7 @@ def test_sample_tracks_match_their_lanelets(sample_map):
         assert psi_match.lanelet_ids == match.lanelet_ids
 
 
+@needs_sample
 def test_lane_change_uses_left_relation_and_cuts_centerline(tmp_path):
     """Both sample lanelets made to run +x: 21 is then left of 20 across a dashed line."""
     text = SAMPLE_MAP.read_text()
@@ -192,6 +206,7 @@ def test_lane_change_uses_left_relation_and_cuts_centerline(tmp_path):
     assert set(match.point_route_index) == {0, 1}
 
 
+@needs_sample
 def test_two_way_lanelet_is_matched_in_the_driven_direction(tmp_path):
     path = tmp_path / "two_way.osm"
     path.write_text(SAMPLE_MAP.read_text().replace('<tag k="one_way" v="yes" />', '<tag k="one_way" v="no" />'))

@@ -3,6 +3,8 @@
 import warnings
 from pathlib import Path
 
+import os
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -13,7 +15,14 @@ from pirl_sim.io.interaction import read_tracks
 from pirl_sim.scenarios.passage import PassageConfig, generate, recording, write_scene
 from pirl_sim.scenarios.replay import SelectionRule, interaction_flags, load_replay
 
-SHARED = Path(__file__).resolve().parent / "data" / "interaction_format"  # the INTERACTION BSD-3 sample (tests/data)
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
+# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
+# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
+# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
+needs_sample = pytest.mark.skipif(
+    not (SHARED / "maps" / "TestScenarioForScripts.osm").is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
+    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
+)
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +66,7 @@ def test_replay_orders_learners_as_the_paper(scene_dir):
     assert paired.loc["PIRL-kNN (k=10)", "mean_difference"] < 0
 
 
+@needs_sample
 def test_shared_interaction_sample_loads_end_to_end():
     scene = load_replay(
         [SHARED / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"],
