@@ -174,7 +174,7 @@ def write_scan(rows: pd.DataFrame, out_dir, command: str) -> pd.DataFrame:
     """horizon_scan_rows.csv, horizon_scan.csv and horizon_scan.md in ``out_dir``; returns the summary."""
     from pathlib import Path
 
-    from pirl_sim.harness.reproduce import _markdown
+    from pirl_sim.harness.tables import markdown
     from pirl_sim.io.atomic import atomic_write_text
 
     out = Path(out_dir)
@@ -192,6 +192,6 @@ def write_scan(rows: pd.DataFrame, out_dir, command: str) -> pd.DataFrame:
              "open-loop plan); means and standard errors (_se) over the split seeds; *_minus_best: paired by "
              "seed against the best H.", "",
              f"Best held-out likelihood at H = {best} (per-track weights), H = {best_shared} (shared weights).",
-             "", _markdown(table), ""]
+             "", markdown(table), ""]
     atomic_write_text(out / "horizon_scan.md", "\n".join(lines))
     return table

@@ -31,6 +31,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_text
 
 __all__ = ["SIMULATORS", "TARGETS", "RecoveryReport", "recovery_report", "summary_row", "check_targets",
@@ -490,22 +491,6 @@ def run_recovery(simulators: Sequence[str], seeds: Sequence[int], *, runs_dir, p
 
 
 # ---------------------------------------------------------------------------------------------- output
-def _fmt(x) -> str:
-    if isinstance(x, (bool, np.bool_)):
-        return str(bool(x))
-    if isinstance(x, (float, np.floating)):
-        return "" if np.isnan(x) else f"{x:.3g}"
-    return str(x)
-
-
-def _markdown(df: pd.DataFrame) -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, row in df.iterrows():
-        lines.append("| " + " | ".join(_fmt(row[c]) for c in cols) + " |")
-    return "\n".join(lines) + "\n"
-
-
 def _csv(df: pd.DataFrame) -> str:
     return df.to_csv(index=False, float_format=_FLOAT, lineterminator="\n")
 
@@ -561,7 +546,7 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
     noise = result.noise_table()
     files = {
         "table.csv": _csv(table),
-        "table.md": _markdown(_compact(table)),
+        "table.md": markdown(_compact(table)),
         "styles.csv": _csv(result.styles()),
         "tracks.csv": _csv(result.tracks()),
         "selection.csv": _csv(result.selection()),
@@ -569,7 +554,7 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
     }
     if len(noise):
         files["noise.csv"] = _csv(noise)
-        files["noise.md"] = _markdown(_compact(noise))
+        files["noise.md"] = markdown(_compact(noise))
     sel = result.selection()
     sel_all = sel[sel["style_name"] == "all"].drop(columns=["style_name"])
     styles = result.styles()
@@ -583,7 +568,7 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
         noise_part = (
             "## Control noise\n\nGaussian noise of standard deviation `control_noise` [m/s^3] on every applied "
             "jerk (population key `control_noise`); `sigma_median` is the median fitted residual scale of the "
-            "per-track fits. Per seed: `noise.csv` / `noise.md`.\n\n" + _markdown(nt[cols]) + "\n")
+            "per-track fits. Per seed: `noise.csv` / `noise.md`.\n\n" + markdown(nt[cols]) + "\n")
     readme = (
         "# Weight recovery of the receding-horizon IRL on simulated roundabouts\n\n"
         f"Made by `{command}` (per-track fit stride {result.stride}, tracks with at least {result.min_steps} "
@@ -599,12 +584,12 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
         "= converged / fitted groups, at bound = tracks with a log weight at its bound, sigma = median fitted "
         "residual scale [m/s^3].\n\n"
         "## Targets\n\n" + _targets_text(table) + "\n"
-        "## Recovery\n\n" + _markdown(_compact(table)) + "\n"
-        "## Per-style TIRL\n\n" + _markdown(styles.drop(columns=["fitted_steps"])) + "\n"
+        "## Recovery\n\n" + markdown(_compact(table)) + "\n"
+        "## Per-style TIRL\n\n" + markdown(styles.drop(columns=["fitted_steps"])) + "\n"
         + noise_part +
         "## Step selection\n\nSteps per rule, all styles (per style: `selection.csv`; the rules overlap). "
         "`usable`: steps the mask keeps; `tracks_few_usable`: tracks with fewer than "
-        f"{result.min_steps} usable steps (left out).\n\n" + _markdown(sel_all) + "\n"
+        f"{result.min_steps} usable steps (left out).\n\n" + markdown(sel_all) + "\n"
         "## Files\n\n`table.csv` (every column), `styles.csv` (per-style TIRL), `tracks.csv` (per-track "
         "weights), `selection.csv`, `noise.csv`, `times.csv` (wall times of this machine: "
         f"{result.workers} worker process(es), OPENBLAS_NUM_THREADS={result.blas_threads}). The simulated "

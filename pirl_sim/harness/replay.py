@@ -478,7 +478,7 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     """rows.csv, summary.csv/.md, paired.csv and README.md (with the selection counts) in ``out_dir``."""
     from pathlib import Path
 
-    from pirl_sim.harness.reproduce import _markdown
+    from pirl_sim.harness.tables import markdown
     from pirl_sim.io.atomic import atomic_write_text
 
     out = Path(out_dir)
@@ -519,13 +519,13 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         *_selection_lines(scene, result),
         "## Scores (mean and std over split seeds)",
         "",
-        _markdown(summary),
+        markdown(summary),
         "",
         "## Paired differences against TIRL (MED, per window; mean and standard error over seeds)",
         "",
-        _markdown(result["paired"]),
+        markdown(result["paired"]),
         "",
-        *(["## Paired differences against CA (path)", "", _markdown(result["paired_ca"]), ""]
+        *(["## Paired differences against CA (path)", "", markdown(result["paired_ca"]), ""]
           if "paired_ca" in result else []),
         "![clusters](clusters.png) ![S-T](s_t.png)" + (" ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""),
     ]
@@ -542,7 +542,7 @@ def _speed_lines(result: dict) -> list[str]:
 
 
 def _selection_lines(scene, result: dict) -> list[str]:
-    from pirl_sim.harness.reproduce import _markdown
+    from pirl_sim.harness.tables import markdown
     from pirl_sim.scenarios.replay import selection_counts
 
     if getattr(scene, "track_table", None) is None:
@@ -555,7 +555,7 @@ def _selection_lines(scene, result: dict) -> list[str]:
     table = pd.concat(tables, ignore_index=True)
     return ["## Matched car tracks usable per selection rule", "",
             "usable: tracks with at least one piece the rule keeps of >= min_steps steps (history: a training "
-            "window; history + horizon: a test window).", "", _markdown(table), ""]
+            "window; history + horizon: a test window).", "", markdown(table), ""]
 
 
 def _write_figures(result: dict, scene, out) -> None:

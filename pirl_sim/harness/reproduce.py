@@ -19,6 +19,7 @@ import pandas as pd
 
 from pirl_sim.harness import figures
 from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate, style_agreement
+from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.validation import check_output_dir
 
@@ -36,20 +37,6 @@ def _learner_specs(seed: int):
         ("PIRL-kNN (k=1)", "pirl-knn", {"n_neighbors": 1}),
         ("PIRL-DPGMM", "pirl-dpgmm", {"random_state": seed}),
     ]
-
-
-def _fmt(x) -> str:
-    if isinstance(x, float):
-        return "" if np.isnan(x) else f"{x:.3g}"
-    return str(x)
-
-
-def _markdown(df: pd.DataFrame) -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, row in df.iterrows():
-        lines.append("| " + " | ".join(_fmt(row[c]) for c in cols) + " |")
-    return "\n".join(lines) + "\n"
 
 
 def _learner_table(data, specs, protocols, say, stage: str) -> pd.DataFrame:
@@ -107,7 +94,7 @@ def reproduce_synthetic(out_dir, config=None, *, history_steps: int = 10, knn_ks
 
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
-    atomic_write_text(out / "table.md", _markdown(table))
+    atomic_write_text(out / "table.md", markdown(table))
     atomic_write_text(out / "knn_k.csv", ktable.to_csv(index=False, float_format="%.6g"))
     atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(ktable, "PIRL-kNN on synthetic data: MED vs k"))
     atomic_write_text(out / "README.md", _summary(table, ktable, config, history_steps))
@@ -131,7 +118,7 @@ def _summary(table, ktable, config, history_steps) -> str:
         "",
         "## MED [m]",
         "",
-        _markdown(table),
+        markdown(table),
         "",
     ]
     for proto in table["protocol"].unique():
@@ -230,7 +217,7 @@ def reproduce_passage(out_dir, config=None, *, history_steps: int = 10, horizon:
 
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
-    atomic_write_text(out / "table.md", _markdown(table))
+    atomic_write_text(out / "table.md", markdown(table))
     atomic_write_text(out / "knn_k.csv", ktable.to_csv(index=False, float_format="%.6g"))
     atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(ktable, "PIRL-kNN on the roundabout passage: MED vs k"))
     atomic_write_bytes(out / "clusters.png", clusters_png)
@@ -281,7 +268,7 @@ def _passage_summary(table, ktable, config, switch) -> str:
         "",
         "## MED [m] and style recovery",
         "",
-        _markdown(table),
+        markdown(table),
         "",
         "`weight_error`: median |log(inferred / true)| over the normalised weights (speed_dev, acc_sq).",
         "`ari`: adjusted Rand index of the training clusters against the three true styles.",
