@@ -17,16 +17,7 @@ from pirl_sim.cli import main
 from pirl_sim.io import interaction
 from pirl_sim.io.interaction import read_tracks
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
-SAMPLE_MAP = DATA / "maps" / "TestScenarioForScripts.osm"
-SAMPLE_TRACKS = DATA / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"
-# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
-# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
-# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
-needs_sample = pytest.mark.skipif(
-    not (SAMPLE_MAP).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
-    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
-)
+from shared_sample import SAMPLE_MAP, SAMPLE_TRACKS, needs_sample  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -8,8 +8,6 @@ import math
 import tomllib
 from pathlib import Path
 
-import os
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -20,16 +18,7 @@ from hypothesis import strategies as st  # noqa: E402
 
 from pirl_sim.io.interaction import VEHICLE_COLUMNS, read_tracks, read_tracks_lenient  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
-SAMPLE_MAP = DATA / "maps" / "TestScenarioForScripts.osm"
-SAMPLE_TRACKS = DATA / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"
-# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
-# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
-# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
-needs_sample = pytest.mark.skipif(
-    not (SAMPLE_MAP).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
-    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
-)
+from shared_sample import SAMPLE_MAP, SAMPLE_TRACKS, needs_sample  # noqa: E402
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                        HealthCheck.too_slow])
 

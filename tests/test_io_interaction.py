@@ -20,15 +20,8 @@ from pirl_sim.io.interaction import (
     write_tracks,
 )
 
-SAMPLE_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format" / "recorded_trackfiles" / "TestScenarioForScripts"
-SAMPLE = SAMPLE_DIR / "vehicle_tracks_000.csv"
-# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
-# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
-# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
-needs_sample = pytest.mark.skipif(
-    not (SAMPLE).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
-    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
-)
+from shared_sample import SAMPLE_DIR, needs_sample  # noqa: E402
+from shared_sample import SAMPLE_TRACKS as SAMPLE  # noqa: E402
 
 VEHICLE_HEADER = ",".join(VEHICLE_COLUMNS)
 PEDESTRIAN_HEADER = ",".join(PEDESTRIAN_COLUMNS)

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import os
-
 import numpy as np
 import pytest
 
@@ -23,16 +21,7 @@ from pirl_sim.io.lanelet2_map import (  # noqa: E402
     write_map,
 )
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
-SAMPLE_MAP = DATA / "maps" / "TestScenarioForScripts.osm"
-SAMPLE_TRACKS = DATA / "recorded_trackfiles" / "TestScenarioForScripts" / "vehicle_tracks_000.csv"
-# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
-# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
-# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
-needs_sample = pytest.mark.skipif(
-    not (SAMPLE_MAP).is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
-    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
-)
+from shared_sample import SAMPLE_MAP, SAMPLE_TRACKS, needs_sample  # noqa: E402
 
 RING_RADIUS = 20.0  # [m]
 ENTRY_LENGTH = 40.0  # [m]

@@ -3,8 +3,6 @@
 import warnings
 from pathlib import Path
 
-import os
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -15,14 +13,7 @@ from pirl_sim.io.interaction import read_tracks
 from pirl_sim.scenarios.passage import PassageConfig, generate, recording, write_scene
 from pirl_sim.scenarios.replay import SelectionRule, interaction_flags, load_replay
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "interaction_format"
-# the INTERACTION dataset's tiny BSD-3 format sample, read where the workplace keeps it (shared/data beside the
-# repository; its README asks that it not be copied into the project). Without it these tests skip, except under
-# CI (CI=true), where shared/ is always laid beside the clone and a missing sample must fail.
-needs_sample = pytest.mark.skipif(
-    not (SHARED / "maps" / "TestScenarioForScripts.osm").is_file() and os.environ.get("CI", "").strip().lower() not in ("1", "true", "yes"),
-    reason="the shared INTERACTION sample is not beside the repository (../shared/data/interaction_format)",
-)
+from shared_sample import DATA as SHARED, needs_sample  # noqa: E402
 
 
 @pytest.fixture(scope="module")
