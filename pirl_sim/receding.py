@@ -43,7 +43,7 @@ from .trajectory import Trajectory
 from .validation import is_positive_int
 
 __all__ = ["RecedingPolicy", "PolicySolution", "RecedingSteps", "RecedingResult", "receding_steps", "fit_receding",
-           "STEP_MASK"]
+           "receding_residuals", "cauchy_scale", "cauchy_nll", "STEP_MASK"]
 
 #: metadata key of a trajectory's per-step mask (bool, shape (n_steps,)): False = the control at that step
 #: was not the driver's own (overridden by a simulator, handed back, ...) and is left out of the likelihood
@@ -418,6 +418,46 @@ class RecedingResult:
     n_bounded: int
 
 
+def receding_residuals(model: DriverModel, trajectories: Sequence[Trajectory], theta: np.ndarray, horizon: int, *,
+                       stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals u_t - pi_theta(x_t) of every scored step (the steps `receding_steps` keeps: every ``stride``-th
+    step its `STEP_MASK` allows), e.g. to score fitted weights on held-out tracks.
+
+    Parameters
+    ----------
+    model : DriverModel
+    trajectories : sequence of Trajectory
+    theta : array (K,) or (M, K)     normalised weights, shared or one row per trajectory
+    horizon : int                    MPC horizon [steps]
+
+    Returns
+    -------
+    residuals : array (S, n_u) [control units]
+    owner : array (S,) int            trajectory index of each step
+    """
+    trajectories = model.check(trajectories)
+    steps = receding_steps(trajectories, horizon, stride=stride)
+    theta = np.asarray(model.features.weights(theta), dtype=float)
+    if theta.ndim == 2 and theta.shape[0] != len(trajectories):
+        raise ValueError(f"theta has {theta.shape[0]} rows for {len(trajectories)} trajectories")
+    th = theta[steps.owner] if theta.ndim == 2 else np.broadcast_to(theta, (steps.n_steps, theta.size))
+    sol = RecedingPolicy(model, horizon).solve(steps.x, th, steps.init)
+    return steps.u - sol.first, steps.owner
+
+
+def cauchy_scale(sigma, controls: np.ndarray):
+    """The Cauchy scale c [control units] of the ``loss="cauchy"`` residual model for a robust residual sigma
+    (scalar or array): 2.385 sigma, floored at 1 % of the RMS of the recorded ``controls``."""
+    floor = _CAUCHY_FLOOR * (np.sqrt(np.mean(np.square(controls))) + 1e-12)
+    return np.maximum(_CAUCHY_C * np.asarray(sigma, dtype=float), floor)
+
+
+def cauchy_nll(residuals: np.ndarray, scale: float) -> float:
+    """Mean negative log-likelihood per scored control of residuals under Cauchy(0, scale) [nats]."""
+    z = np.asarray(residuals, dtype=float) / scale
+    return float(np.mean(np.log(np.pi * scale) + np.log1p(z**2)))
+
+
 LOSSES = ("cauchy", "gauss")
 _CAUCHY_C = 2.3849  # Cauchy scale per robust sigma: 95 % efficiency at Gaussian residuals
 _MAD_SIGMA = 1.4826  # sigma per median absolute residual for Gaussian residuals
@@ -562,13 +602,12 @@ class _LM:
     def _scale(self, resid, grp_rows):
         """Cauchy scale c per group (G,) from the residuals' robust sigma (unused for "gauss")."""
         a = np.abs(resid).max(axis=1)
-        c = np.full(self.G, 1.0)
+        sigma = np.full(self.G, 1.0 / _CAUCHY_C)
         for g in np.unique(grp_rows):
-            c[g] = _CAUCHY_C * _MAD_SIGMA * np.median(a[grp_rows == g])
+            sigma[g] = _MAD_SIGMA * np.median(a[grp_rows == g])
         # floor: 1 % of the controls' RMS. Below it residuals count as exact (least squares), so nearly
         # noise-free demonstrations keep a smooth objective instead of sum log |r|
-        scale_u = np.sqrt(np.mean(self.steps.u**2)) + 1e-12
-        return np.maximum(c, _CAUCHY_FLOOR * scale_u)
+        return cauchy_scale(sigma, self.steps.u)
 
     def _rho(self, resid, grp_rows, c):
         """Per-group objective: sum of 1/2 r^2 (gauss) or c^2/2 log(1 + (r/c)^2) (cauchy), and the IRLS

@@ -204,3 +204,17 @@ def test_recording_without_speeds_is_a_clear_error_with_a_fallback(tmp_path):
         recorded_demonstrations(rec, run.routes, selection="steps")
     demos = recorded_demonstrations(rec, run.routes, selection="steps", estimate="positions")
     assert demos and all(np.all(np.isfinite(d.states)) for d in demos)
+
+
+def test_residuals_score_given_weights_on_held_out_tracks(lq_drivers):
+    from pirl_sim.receding import cauchy_nll, cauchy_scale, receding_residuals
+
+    model, trajs, theta = lq_drivers
+    r_true, owner = receding_residuals(model, trajs[:4], theta[:4], 15)
+    assert r_true.shape == (4 * 40, 1) and np.array_equal(np.bincount(owner), [40] * 4)
+    assert np.abs(r_true).max() < 1e-8
+    r_wrong, _ = receding_residuals(model, trajs[:4], np.array([1.0, 1.0]), 15)
+    scale = float(cauchy_scale(0.0, np.concatenate([t.controls for t in trajs[:4]])))
+    assert scale > 0 and cauchy_nll(r_true, scale) < cauchy_nll(r_wrong, scale)
+    with pytest.raises(ValueError, match="rows"):
+        receding_residuals(model, trajs[:4], theta[:3], 15)

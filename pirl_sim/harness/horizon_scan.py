@@ -3,7 +3,7 @@
 For each split seed (by track, as the replay) and each H: TIRL with the receding-horizon likelihood
 (`pirl_sim.receding.fit_receding`, one group, Cauchy residuals) is fitted on the training tracks; the test
 tracks' residuals u_t - pi_theta(x_t) at the fitted weights are scored under the *training* fit's residual
-model (Cauchy with the scale the fit ends with, `receding_nll`): the held-out negative log-likelihood per
+model (Cauchy with the scale the fit ends with, `pirl_sim.receding.cauchy_nll`): the held-out negative log-likelihood per
 scored control. The same weights predict every test window closed-loop with that H (re-plan every step,
 `pirl_sim.harness.replay.predict_path_states`), scored as MED [m]. Per H the table gives means and standard
 errors over the split seeds, and the held-out NLL paired against the best H (per seed).
@@ -13,8 +13,7 @@ barely depend on H (measured on ``simulate sumo --seed 0``). The scan therefore 
 each test track's weights are fitted on the first half of its scored steps and its second half is scored
 under them (``own_nll``), which isolates how well H explains a driver's controls.
 
-`receding_residuals` scores given weights on given trajectories (the piece `pirl_sim.receding` does not
-expose on its own; a candidate to move into the core).
+Scoring given weights on given trajectories is `pirl_sim.receding.receding_residuals` and `cauchy_nll`.
 """
 
 from __future__ import annotations
@@ -25,49 +24,10 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from pirl_sim.receding import RecedingPolicy, fit_receding, receding_steps
+from pirl_sim.receding import cauchy_nll, cauchy_scale, fit_receding, receding_residuals
 from pirl_sim.trajectory import Trajectory
 
-__all__ = ["receding_residuals", "receding_nll", "cauchy_scale", "scan_horizons", "summarize_scan", "write_scan"]
-
-
-def receding_residuals(model, trajectories: Sequence[Trajectory], theta: np.ndarray, horizon: int, *,
-                       stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals u_t - pi_theta(x_t) of every scored step (the steps `pirl_sim.receding.receding_steps` keeps:
-    every ``stride``-th step its ``step_mask`` allows).
-
-    Parameters
-    ----------
-    model : DriverModel
-    trajectories : sequence of Trajectory
-    theta : array (K,) or (M, K)     normalised weights, shared or one row per trajectory
-    horizon : int                    MPC horizon [steps]
-
-    Returns
-    -------
-    residuals : array (S, n_u) [control units]
-    owner : array (S,) int            trajectory index of each step
-    """
-    trajectories = model.check(trajectories)
-    steps = receding_steps(trajectories, horizon, stride=stride)
-    theta = np.asarray(model.features.weights(theta), dtype=float)
-    th = theta[steps.owner] if theta.ndim == 2 else np.broadcast_to(theta, (steps.n_steps, theta.size))
-    sol = RecedingPolicy(model, horizon).solve(steps.x, th, steps.init)
-    return steps.u - sol.first, steps.owner
-
-
-def cauchy_scale(sigma: float, controls: np.ndarray) -> float:
-    """The Cauchy scale c [control units] `pirl_sim.receding.fit_receding` uses for a robust residual sigma:
-    2.3849 sigma, floored at 1 % of the RMS of the recorded controls."""
-    from pirl_sim.receding import _CAUCHY_C, _CAUCHY_FLOOR
-
-    return float(max(_CAUCHY_C * sigma, _CAUCHY_FLOOR * (np.sqrt(np.mean(np.square(controls))) + 1e-12)))
-
-
-def receding_nll(residuals: np.ndarray, scale: float) -> float:
-    """Mean negative log-likelihood per scored control of residuals under Cauchy(0, scale) [nats]."""
-    z = np.asarray(residuals, dtype=float) / scale
-    return float(np.mean(np.log(np.pi * scale) + np.log1p(z**2)))
+__all__ = ["scan_horizons", "summarize_scan", "write_scan"]
 
 
 def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1, progress=None) -> pd.DataFrame:
@@ -109,7 +69,7 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
             res = fit_receding(model, train, np.zeros(len(train), dtype=int), horizon=H, stride=step_stride)
             fit_s = time.perf_counter() - t0
             theta = res.normalized[0]
-            scale = cauchy_scale(float(res.sigma[0]), u_train)
+            scale = float(cauchy_scale(float(res.sigma[0]), u_train))
             r_train, _ = receding_residuals(model, train, theta, H, stride=step_stride)
             r_test, _ = receding_residuals(model, test, theta, H)
             # per-track weights: each test track fitted on the first half of its steps, scored on the second
@@ -117,16 +77,16 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
             own = fit_receding(model, list(first), horizon=H, stride=step_stride)
             r_own_fit, _ = receding_residuals(model, list(first), own.normalized, H, stride=step_stride)
             r_own, _ = receding_residuals(model, list(second), own.normalized, H)
-            own_scale = cauchy_scale(1.4826 * float(np.median(np.abs(r_own_fit))), u_train)
+            own_scale = float(cauchy_scale(1.4826 * float(np.median(np.abs(r_own_fit))), u_train))
             th = np.broadcast_to(theta, (len(windows), theta.size))
             med = {}
             for rollout in ("closed", "open"):
                 s_pred = predict_path_states(model, x0, th, proto.horizon, rollout=rollout, mpc_horizon=H)[:, 1:, 0]
                 med[rollout] = float(_errors(model, test, windows, s_pred, proto).mean())
             row = {"seed": seed, "horizon": H, "horizon_s": H * model.dynamics.dt,
-                   "train_nll": receding_nll(r_train, scale), "test_nll": receding_nll(r_test, scale),
+                   "train_nll": cauchy_nll(r_train, scale), "test_nll": cauchy_nll(r_test, scale),
                    "test_rms": float(np.sqrt(np.mean(r_test**2))), "sigma": float(res.sigma[0]),
-                   "own_nll": receding_nll(r_own, own_scale), "own_rms": float(np.sqrt(np.mean(r_own**2))),
+                   "own_nll": cauchy_nll(r_own, own_scale), "own_rms": float(np.sqrt(np.mean(r_own**2))),
                    "med": med["closed"], "med_open": med["open"], "converged": bool(res.converged[0]),
                    "n_train_steps": int(r_train.shape[0]), "n_test_steps": int(r_test.shape[0]),
                    "n_windows": len(windows), **counts, "fit_s": fit_s,
