@@ -24,7 +24,13 @@ runs cut the track there, and its longest connected part is kept (if it is still
 trailing runs are cut off. The counts are in ``ReplayScene.repairs``.
 
 Simulated scenes written by pirl_sim carry a ``ground_truth.csv`` sidecar beside the tracks (track_id,
-style, theta_<feature> ...); its values go into each trajectory's metadata.
+style, theta_<feature> ...); its values go into each trajectory's metadata. A sidecar that is there but
+unusable (empty, not CSV, no ``track_id``, a ``track_id`` twice, a weight that is not a number) is a ValueError
+naming it: a replay never runs with wrong or silently missing truth.
+
+A track file that fails `pirl_sim.io.interaction.read_tracks` is read again with
+`pirl_sim.io.interaction.read_tracks_lenient`: its broken tracks (and rows whose ``track_id`` is not a whole
+number) are dropped and counted in ``skipped["invalid rows (track dropped)"]``, the rest are replayed.
 
 State estimate (``estimate``). ``"positions"``: least squares through the dynamics on the arc lengths only
 (`fit_longitudinal_states`, ridge ``jerk_weight``). ``"speeds"``: `estimate_longitudinal_states` on the arc
@@ -362,39 +368,40 @@ def interaction_flags(df: pd.DataFrame, rule: SelectionRule) -> dict[int, bool]:
     return flags
 
 
-def _lenient_tracks(file: Path) -> tuple[pd.DataFrame | None, int]:
-    """Rows that parse, grouped by track; tracks with any unparseable, non-finite or repeated frame are
-    dropped. Returns (frame or None when nothing is usable, number of dropped tracks)."""
-    from pirl_sim.io.interaction import VEHICLE_COLUMNS
-
-    try:
-        raw = pd.read_csv(file, on_bad_lines="skip", dtype=str)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError):
-        return None, 0
-    if list(raw.columns) != list(VEHICLE_COLUMNS):
-        return None, 0
-    numeric = [c for c in VEHICLE_COLUMNS if c != "agent_type"]
-    df = raw.copy()
-    df[numeric] = df[numeric].apply(pd.to_numeric, errors="coerce")
-    bad_rows = ~np.isfinite(df[numeric].to_numpy(dtype=float)).all(axis=1)
-    bad_ids = set(df.loc[bad_rows, "track_id"].dropna().astype(int))
-    df = df[~bad_rows]
-    df = df.astype({"track_id": int, "frame_id": int, "timestamp_ms": int})
-    dup = df.duplicated(["track_id", "frame_id"], keep=False)
-    bad_ids |= set(df.loc[dup, "track_id"])
-    df = df[~df["track_id"].isin(bad_ids)]
-    if df.empty:
-        return None, len(bad_ids)
-    return df, len(bad_ids)
+GROUND_TRUTH_FILE = "ground_truth.csv"  #: a pirl_sim recording's per-track truth, beside the tracks
 
 
 def _sidecar(track_file: Path) -> pd.DataFrame | None:
-    path = track_file.parent / "ground_truth.csv"
-    if not path.exists():
+    """The ``ground_truth.csv`` beside a track file, indexed by ``track_id``; None when there is none.
+
+    Raises ValueError naming the file when one is there but unusable (empty, not UTF-8 CSV, no
+    ``track_id`` column, a ``track_id`` that is not a whole number or appears twice, a ``style`` or
+    ``theta_<feature>`` that is not a number): its truth would otherwise be wrong or missing unnoticed.
+    """
+    path = track_file.parent / GROUND_TRUTH_FILE
+    if not path.is_file():
         return None
-    table = pd.read_csv(path)
+    try:
+        table = pd.read_csv(path, encoding="utf-8")
+    except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: unreadable ground-truth sidecar ({type(exc).__name__}: {exc}); a sidecar "
+                         f"is a CSV with a track_id column (delete it to replay without ground truth)") from None
     if "track_id" not in table:
         raise ValueError(f"{path}: a ground-truth sidecar needs a track_id column, got {list(table.columns)}")
+    ids = pd.to_numeric(table["track_id"], errors="coerce")
+    bad = ~np.isfinite(ids.to_numpy(dtype=float)) | (ids.to_numpy(dtype=float) % 1 != 0)
+    if bad.any():
+        raise ValueError(f"{path}: track_id must be whole numbers, got {table['track_id'][bad].tolist()[:5]!r}")
+    table["track_id"] = ids.astype(np.int64)
+    dup = table["track_id"][table["track_id"].duplicated()]
+    if len(dup):
+        raise ValueError(f"{path}: each track_id must appear once, got duplicates {sorted(set(dup.tolist()))[:5]}")
+    for col in [c for c in table.columns if c == "style" or str(c).startswith("theta_")]:
+        values = pd.to_numeric(table[col], errors="coerce")
+        wrong = values.isna() & table[col].notna()
+        if wrong.any():
+            raise ValueError(f"{path}: column {col} must hold numbers, got {table[col][wrong].tolist()[:5]!r}")
+        table[col] = values
     return table.set_index("track_id")
 
 
@@ -476,7 +483,7 @@ def load_replay(
     for name, value in (("smoothing", smoothing), ("speed_smoothing", speed_smoothing)):
         if not np.isfinite(value) or value < 0:
             raise ValueError(f"{name} must be >= 0 m, got {value!r}")
-    from pirl_sim.io.interaction import read_tracks
+    from pirl_sim.io.interaction import read_tracks, read_tracks_lenient
     from pirl_sim.io.lanelet2_map import load_map, match_route
 
     stride = int(round(dt / FRAME_DT))
@@ -494,8 +501,8 @@ def load_replay(
         steps_flags = None
         if selection == "steps":
             steps_flags = _driver_steps(file)
+        truth = _sidecar(file)  # before the tracks: an unusable sidecar is an error, never another file's truth
         try:
-            truth = _sidecar(file)
             df = read_tracks(file)
         except FileNotFoundError as exc:
             skipped["unreadable file"] += 1
@@ -504,7 +511,7 @@ def load_replay(
         except ValueError as exc:
             # a bad row should not cost the file's good tracks: read leniently, drop the broken tracks
             log.warning("%s failed validation (%s); keeping its valid tracks", file, exc)
-            df, n_bad = _lenient_tracks(file)
+            df, n_bad = read_tracks_lenient(file)
             skipped["invalid rows (track dropped)"] += n_bad
             if df is None:
                 if not n_bad:

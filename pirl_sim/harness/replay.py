@@ -323,6 +323,7 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         model = scene.with_desired_speed(a_lat, v_max)
         speed = {"a_lat": a_lat, "v_max": v_max}
     reuse = _shared_knn_fits(learner_specs)
+    has_truth = any("theta" in t.metadata for t in tracks)
     for seed in proto.seeds:
         train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
         if desired_speed == "fit":
@@ -360,7 +361,7 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             theta = learner.infer_weights(histories)
             s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
                                          mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
-            extra = {**_truth_scores(learner, train, test, windows, theta, model), **diag}
+            extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
             methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
             how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
             say(f"seed {seed}: {name} {how} in {fit_s:.1f} s; IRL converged for {diag['irl_converged']} of "
@@ -399,24 +400,42 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     return {"rows": rows, "paired": paired_differences(errors, "TIRL"),
             "paired_ca": paired_differences(errors, "CA (path)"), "errors": errors, "selected": len(unique),
             "selected_pieces": len(tracks), "examples": examples, "history": proto.history,
-            "horizon": proto.horizon}
+            "horizon": proto.horizon, "gmm_k": _gmm_k(learner_specs)}
 
 
-def _truth_scores(learner, train, test, windows, theta, model) -> dict:
+def _gmm_k(learner_specs) -> int:
+    """Clusters of the cluster figure: the first PIRL-GMM learner's ``n_components`` (3 without one)."""
+    return next((int(p.get("n_components", 3)) for _, key, p in learner_specs if key == "pirl-gmm"), 3)
+
+
+def _truth_scores(learner, train, test, windows, theta, model, has_truth: bool = False) -> dict:
+    """Scores against ground truth, on the tracks that have it: ``ari`` and ``matched_styles`` over the
+    training tracks with a style >= 0 (PIRL drivers; background traffic has style -1), ``weight_error`` over
+    the test windows with weights and ``irl_weight_error`` over the training tracks with weights. With
+    ``has_truth`` (the scene has weights for some tracks) both weight errors are reported, NaN when this split
+    has none: background tracks never make the columns disappear."""
     out = {}
-    if all("style" in t.metadata for t in train) and hasattr(learner, "labels_"):
-        truth = np.array([t.metadata["style"] for t in train])
-        out["ari"] = adjusted_rand_index(truth, learner.labels_)
-        out["matched_styles"] = len(match_styles(truth, learner.labels_))
+    styled = [j for j, t in enumerate(train) if t.metadata.get("style", -1) >= 0]
+    labels = getattr(learner, "labels_", None)
+    if len(styled) >= 2 and labels is not None and len(labels) == len(train):
+        truth = np.array([train[j].metadata["style"] for j in styled])
+        got = np.asarray(labels)[styled]
+        out["ari"] = adjusted_rand_index(truth, got)
+        out["matched_styles"] = len(match_styles(truth, got))
     ref = model.features.reference_index
-    if all("theta" in test[i].metadata for i, _ in windows):
-        true = np.stack([test[i].metadata["theta"] for i, _ in windows])
-        out["weight_error"] = float(np.median(weight_recovery_error(theta, true, ref)))
-    if all("theta" in t.metadata for t in train):  # the IRL's own recovery on the training tracks
-        true = np.stack([t.metadata["theta"] for t in train])
-        fitted = _training_weights(learner, len(train))
-        if fitted is not None:
-            out["irl_weight_error"] = float(np.median(weight_recovery_error(fitted, true, ref)))
+    known = [w for w, (i, _) in enumerate(windows) if "theta" in test[i].metadata]
+    if known:
+        true = np.stack([test[windows[w][0]].metadata["theta"] for w in known])
+        out["weight_error"] = float(np.median(weight_recovery_error(np.asarray(theta)[known], true, ref)))
+    elif has_truth:
+        out["weight_error"] = np.nan
+    known = [j for j, t in enumerate(train) if "theta" in t.metadata]
+    fitted = _training_weights(learner, len(train)) if known else None
+    if fitted is not None:  # the IRL's own recovery on the training tracks
+        true = np.stack([train[j].metadata["theta"] for j in known])
+        out["irl_weight_error"] = float(np.median(weight_recovery_error(np.asarray(fitted)[known], true, ref)))
+    elif has_truth:
+        out["irl_weight_error"] = np.nan
     return out
 
 
@@ -485,6 +504,8 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     summary = summarize(result)
     atomic_write_text(out / "rows.csv", result["rows"].to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "summary.csv", summary.to_csv(index=False, float_format="%.6g"))
+    atomic_write_text(out / "summary.md", f"# Replay scores\n\nMade by `{command}`. Mean and standard deviation "
+                      f"over split seeds; MED and de@ in metres.\n\n{markdown(summary)}\n")
     atomic_write_text(out / "paired.csv", result["paired"].to_csv(index=False, float_format="%.6g"))
     if "paired_ca" in result:
         atomic_write_text(out / "paired_ca.csv", result["paired_ca"].to_csv(index=False, float_format="%.6g"))
@@ -559,8 +580,9 @@ def _selection_lines(scene, result: dict) -> list[str]:
 
 
 def _write_figures(result: dict, scene, out) -> None:
-    """clusters.png (PIRL-GMM, k=3, whole tracks), s_t.png (a few predicted windows), knn_k.png (when several
-    kNN learners ran)."""
+    """clusters.png (PIRL-GMM with the replay's k, ``result["gmm_k"]``, default 3; the selected pieces; marker:
+    true style where a sidecar gives one, background traffic as its own marker), s_t.png (a few predicted
+    windows), knn_k.png (when several kNN learners ran)."""
     import re
 
     from pirl_sim.harness import figures
@@ -572,10 +594,13 @@ def _write_figures(result: dict, scene, out) -> None:
     with warnings.catch_warnings():  # an illustration: its IRL diagnostics are not reported
         for category in _IRL_WARNINGS:
             warnings.simplefilter("ignore", category)
-        gmm = PIRLGMM(model, n_components=min(3, len(tracks)), random_state=0).fit(tracks)
-    styles = np.array([t.metadata.get("style", -1) for t in tracks])
+        gmm = PIRLGMM(model, n_components=min(int(result.get("gmm_k", 3)), len(tracks)), random_state=0).fit(tracks)
+    styles = np.array([int(t.metadata.get("style", -1)) for t in tracks])
+    names = None
+    if np.any(styles >= 0):  # a sidecar gives styles: tracks without one (background traffic) get a marker too
+        names = {int(s): (f"style {s}" if s >= 0 else "background (no style)") for s in np.unique(styles)}
     atomic_write_bytes(out / "clusters.png", figures.feature_clusters(
-        model.feature_values(tracks), model.features.names, gmm.labels_, styles if np.all(styles >= 0) else None))
+        model.feature_values(tracks), model.features.names, gmm.labels_, styles if names else None, names))
     ex = result["examples"]
     if ex:
         h = result["history"]

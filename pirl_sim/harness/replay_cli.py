@@ -18,9 +18,11 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from pirl_sim.validation import positive_int_arg
 
-__all__ = ["add_replay_parser", "run_replay_command", "replay_settings"]
+__all__ = ["add_replay_parser", "run_replay_command", "replay_settings", "seconds_to_steps"]
 
 LEARNERS = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
 #: the development roundabouts of issue 12 (never DR_USA_Roundabout_SR, the held-out set)
@@ -36,6 +38,31 @@ def _positive_float(text: str) -> float:
     if not value > 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value
+
+
+def _seconds_arg(option: str):
+    """An argparse type for a duration option [s]: a finite number > 0, the error naming ``option``."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{option} must be a duration > 0 [s], got {text!r}") from None
+        if not value > 0 or value == float("inf"):
+            raise argparse.ArgumentTypeError(f"{option} must be a finite duration > 0 [s], got {text!r}")
+        return value
+
+    return parse
+
+
+def seconds_to_steps(seconds: float, dt: float, option: str) -> int:
+    """A duration option [s] as a number of model steps of ``dt`` [s] (rounded); ValueError naming ``option``
+    when it is not a finite number > 0 or shorter than half a step (it would round to no step at all)."""
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not np.isfinite(seconds) or seconds <= 0:
+        raise ValueError(f"{option} must be a finite duration > 0 [s], got {seconds!r}")
+    steps = int(round(seconds / dt))
+    if steps < 1:
+        raise ValueError(f"{option} {seconds:g} s is less than one model step (dt {dt:g} s): give at least {dt:g} s")
+    return steps
 
 
 def _horizon_arg(text: str) -> int:
@@ -83,8 +110,10 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
                          "(default 10)")
     rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
-    rp.add_argument("--history", type=float, default=2.0, help="observed history [s] (default 2)")
-    rp.add_argument("--horizon", type=float, default=3.0, help="predicted horizon [s] (default 3)")
+    rp.add_argument("--history", type=_seconds_arg("--history"), default=2.0,
+                    help="observed history [s], at least one step of --dt (default 2)")
+    rp.add_argument("--horizon", type=_seconds_arg("--horizon"), default=3.0,
+                    help="predicted horizon [s], at least one step of --dt (default 3)")
     rp.add_argument("--likelihood", choices=["trajectory", "receding"], default="trajectory",
                     help="the IRL's model of a demonstration: 'trajectory' (the paper's: one open-loop optimum) or "
                          "'receding' (each step's control is the first of an MPC plan over --mpc-horizon steps) "
@@ -254,8 +283,8 @@ def run_replay_command(args) -> int:
                 raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
         else:
             specs = _learner_specs(args, settings["likelihood"], horizon)
-        pred = _steps(args.horizon, dt)
-        proto = ReplayProtocol(history=_steps(args.history, dt), horizon=pred,
+        pred = seconds_to_steps(args.horizon, dt, "--horizon")
+        proto = ReplayProtocol(history=seconds_to_steps(args.history, dt, "--history"), horizon=pred,
                                fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
                                                        if x <= args.horizon})),
                                stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)),
@@ -294,7 +323,8 @@ def _protocol(args, settings, scan=None):
     from pirl_sim.harness.replay import ReplayProtocol
 
     dt, horizon = settings["dt"], settings["mpc_horizon"]
-    return ReplayProtocol(history=_steps(args.history, dt), horizon=_steps(args.horizon, dt),
+    return ReplayProtocol(history=seconds_to_steps(args.history, dt, "--history"),
+                          horizon=seconds_to_steps(args.horizon, dt, "--horizon"),
                           fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
                                                   if x <= args.horizon})),
                           stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)), rollout=settings["rollout"],
