@@ -74,7 +74,8 @@ def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=
             label = style_names[int(t)] if style_names is not None else f"style {t}"
             handles.append(plt.Line2D([], [], color="k", marker=markers[int(t) % len(markers)], ls="", label=label))
     axes[0][-1].legend(handles=handles, fontsize=7, loc="best")
-    fig.suptitle("Clusters in feature space (colour: learned cluster, marker: true style)")
+    fig.suptitle("Clusters in feature space (colour: learned cluster"
+                 + (", marker: true style)" if true_styles is not None else ")"))
     fig.tight_layout()
     return png_bytes(fig)
 
