@@ -31,27 +31,15 @@ PIECE_DURATION = 20.0  # [s] longer tracks are cut into pieces of this duration 
 
 
 def _positive_float(text: str) -> float:
+    """argparse type of the numeric options (durations [s], steps, speeds, noise): a finite number > 0 (argparse
+    names the option in its error)."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
     if not value > 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value
-
-
-def _seconds_arg(option: str):
-    """An argparse type for a duration option [s]: a finite number > 0, the error naming ``option``."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{option} must be a duration > 0 [s], got {text!r}") from None
-        if not value > 0 or value == float("inf"):
-            raise argparse.ArgumentTypeError(f"{option} must be a finite duration > 0 [s], got {text!r}")
-        return value
-
-    return parse
 
 
 def seconds_to_steps(seconds: float, dt: float, option: str) -> int:
@@ -110,9 +98,9 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
                          "(default 10)")
     rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
-    rp.add_argument("--history", type=_seconds_arg("--history"), default=2.0,
+    rp.add_argument("--history", type=_positive_float, default=2.0,
                     help="observed history [s], at least one step of --dt (default 2)")
-    rp.add_argument("--horizon", type=_seconds_arg("--horizon"), default=3.0,
+    rp.add_argument("--horizon", type=_positive_float, default=3.0,
                     help="predicted horizon [s], at least one step of --dt (default 3)")
     rp.add_argument("--likelihood", choices=["trajectory", "receding"], default="trajectory",
                     help="the IRL's model of a demonstration: 'trajectory' (the paper's: one open-loop optimum) or "

@@ -15,10 +15,11 @@ def cell(x) -> str:
     return str(x)
 
 
-def markdown(df: pd.DataFrame) -> str:
-    """A GitHub-flavoured Markdown table of ``df`` (its columns as the header, one line per row)."""
+def markdown(df: pd.DataFrame, fmt=cell) -> str:
+    """A GitHub-flavoured Markdown table of ``df`` (its columns as the header, one line per row), each value
+    written by ``fmt`` (default `cell`)."""
     cols = list(df.columns)
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, row in df.iterrows():
-        lines.append("| " + " | ".join(cell(row[c]) for c in cols) + " |")
+        lines.append("| " + " | ".join(fmt(row[c]) for c in cols) + " |")
     return "\n".join(lines) + "\n"

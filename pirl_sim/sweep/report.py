@@ -28,6 +28,7 @@ import pandas as pd
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 
 from pirl_sim.harness.figures import png_bytes, pyplot
+from pirl_sim.harness.tables import markdown
 
 from .run import read_table
 
@@ -223,14 +224,6 @@ def _fmt(x) -> str:
     return str(x)
 
 
-def _markdown(df: pd.DataFrame) -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, row in df.iterrows():
-        lines.append("| " + " | ".join(_fmt(row[c]) for c in cols) + " |")
-    return "\n".join(lines) + "\n"
-
-
 def _orderings(best: pd.DataFrame) -> list[str]:
     lines = []
     for (scen, proto), g in best.groupby(["scenario_label", "protocol"], sort=False):
@@ -314,7 +307,7 @@ def write_report(results, out_dir=None) -> dict:
             view = view.drop(columns=["MED std over seeds"])
         if view["scenario"].nunique() == 1:
             view = view.drop(columns=["scenario"])
-        lines += [_markdown(view), ""]
+        lines += [markdown(view, _fmt), ""]
         order = _orderings(best[best["experiment"] == exp])
         if order:
             lines += ["Orderings (best k of each learner):", "", *order, ""]
@@ -324,7 +317,7 @@ def write_report(results, out_dir=None) -> dict:
         if fname in written:
             lines += [f"![{captions[fname]}]({fname})", ""]
     timing = table.drop_duplicates("key").groupby("learner", sort=False)[["fit_s", "evaluate_s", "cell_s"]].sum()
-    lines += ["## Time per learner [s] (sums over cells)", "", _markdown(timing.reset_index()), ""]
+    lines += ["## Time per learner [s] (sums over cells)", "", markdown(timing.reset_index(), _fmt), ""]
     if manifest.get("config"):
         lines += ["## Configuration", "", "```toml", manifest["config"].rstrip(), "```", ""]
     written["README.md"] = atomic_write_text(out / "README.md", "\n".join(lines))
