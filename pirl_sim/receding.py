@@ -62,14 +62,15 @@ class PolicySolution:
     dU : array (M, H, n_u, K)    d U / d theta (implicit differentiation, module doc)
     bounded : array (M,) bool    the plan has at least one active bound
     converged : array (M,) bool
-    n_indefinite : int           plans whose cost Hessian was not positive definite at the solution
+    gauss_newton : array (M,) bool  the exact Newton step was not a descent direction somewhere on the way
+                                 (indefinite cost Hessian): Gauss-Newton steps were taken there
     """
 
     U: np.ndarray
     dU: np.ndarray
     bounded: np.ndarray
     converged: np.ndarray
-    n_indefinite: int
+    gauss_newton: np.ndarray
 
     @property
     def first(self) -> np.ndarray:
@@ -191,7 +192,7 @@ class RecedingPolicy:
         cost = np.einsum("mk,mk->m", theta, values)
         converged = np.zeros(M, dtype=bool)
         dU = np.zeros((M, d, K))  # d U* / d theta
-        n_indefinite = 0
+        gauss_newton = np.zeros(M, dtype=bool)
         # a warm start that sits on a bound keeps its active set: straight to the bounded QPs
         on_bound = np.zeros(M, dtype=bool)
         if self._qp is not None and init is not None:
@@ -209,6 +210,7 @@ class RecedingPolicy:
             uphill = ~(promised >= 0) | ~np.all(np.isfinite(full), axis=1)
             if uphill.any():  # not a descent direction: the exact Hessian is indefinite there
                 rows = todo[uphill]
+                gauss_newton[rows] = True
                 gn = self._expand(x0[rows], U[rows], theta[rows], gauss_newton=True)[2]
                 _, gn_pd, _, _ = shift_to_pd(gn, 1e-9)
                 full[uphill] = -np.linalg.solve(gn_pd, g[uphill][..., None])[..., 0]
@@ -281,7 +283,7 @@ class RecedingPolicy:
             rows = np.flatnonzero(bounded)
             if len(rows):
                 dU[rows] = self._implicit(x0[rows], U[rows], grad[rows], hess[rows])
-        return PolicySolution(U, dU.reshape(M, H, n_u, K), bounded, converged, n_indefinite)
+        return PolicySolution(U, dU.reshape(M, H, n_u, K), bounded, converged, gauss_newton)
 
     def _implicit(self, x0, U, grad, hess) -> np.ndarray:
         """d U* / d theta (M, d, K) at plans U with their active bounds (module doc)."""
@@ -401,7 +403,7 @@ class RecedingResult:
     at_bound : array (G, K) bool       log weight at its bound (the reference entry: never)
     converged : array (G,) bool
     n_iter : int
-    n_regularized : int                plans whose MPC Hessian was not positive definite at the solution
+    n_regularized : int                scored steps whose MPC took Gauss-Newton steps (indefinite cost Hessian)
     n_bounded : int                    plans with an active bound at the solution
     """
 
@@ -566,7 +568,7 @@ def fit_receding(
     return RecedingResult(
         theta=theta, normalized=theta.copy(), beta=1.0 / np.maximum(sigma**2, np.finfo(float).tiny),
         sigma=sigma, neg_log_likelihood=nll, n_steps=counts, at_bound=at_bound,
-        converged=state.converged & has, n_iter=n_coarse + n_iter, n_regularized=state.n_indefinite,
+        converged=state.converged & has, n_iter=n_coarse + n_iter, n_regularized=int(state.gauss_newton.sum()),
         n_bounded=int(state.bounded.sum()),
     )
 
@@ -580,7 +582,7 @@ class _LMState:
     resid: np.ndarray
     jac: np.ndarray
     converged: np.ndarray
-    n_indefinite: int
+    gauss_newton: np.ndarray
 
 
 class _LM:
@@ -636,7 +638,7 @@ class _LM:
         if state is None:
             sol, r, theta = self._solve(w, rows_all, self.steps.init[rows_all])
             st = _LMState(sol.U.copy(), sol.dU.copy(), theta, sol.bounded.copy(), r, self._jac(sol, theta), ~has,
-                          sol.n_indefinite)
+                          sol.gauss_newton.copy())
         else:
             st = state
             st.converged = st.converged & ~has
@@ -675,14 +677,11 @@ class _LM:
             acc = better[grp[sub]]
             a = sub[acc]
             st.plans[a], st.bounded[a], st.resid[a] = sol_t.U[acc], sol_t.bounded[acc], r_t[acc]
-            st.dplans[a], st.theta[a] = sol_t.dU[acc], theta_t[acc]
+            st.dplans[a], st.theta[a], st.gauss_newton[a] = sol_t.dU[acc], theta_t[acc], sol_t.gauss_newton[acc]
             st.jac[a] = self._jac(sol_t, theta_t)[acc]
             w = np.where(better[:, None], w_trial, w)
             lam = np.where(better, np.maximum(lam / 5.0, 1e-9), np.minimum(lam * 10.0, 1e9))
             st.converged |= active & (small | (lam >= 1e9))
-            st.n_indefinite = sol_t.n_indefinite
-        if len(rows_all) < self.steps.n_steps:  # keep the last residuals of every step for the caller
-            st.converged &= has
         return w, st, n_iter
 
     def run_rescaled(self, w, use, max_iter, tol):
