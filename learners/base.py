@@ -202,6 +202,21 @@ class BaseLearner(BaseEstimator):
         controls = self.model_.dynamics.controls_from_states(states)
         return Trajectory(states, controls, history.dt, {"theta": theta, "predicted_by": type(self).__name__})
 
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> "Path":
+        """Write the fitted learner to a versioned ``.npz`` file that needs no pickle to read
+        (`pirl_sim.learners.model_io`); returns the path written."""
+        from .model_io import save_learner
+
+        return save_learner(self, path)
+
+    @staticmethod
+    def load(path) -> "BaseLearner":
+        """A learner written by `save` (of any learner class); ValueError for a file of another format version."""
+        from .model_io import load_learner
+
+        return load_learner(path)
+
     # subclasses
     def _fit(self, model: DriverModel, trajectories: list[Trajectory]) -> None:  # pragma: no cover
         raise NotImplementedError

@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     from pirl_sim.harness.replay_cli import add_replay_parser
 
     add_replay_parser(sub)
+    from pirl_sim.harness.model_cli import add_model_parsers
+
+    add_model_parsers(sub)
     return parser
 
 
@@ -84,6 +87,10 @@ def main(argv: list[str] | None = None) -> int:
         return run_recover_command(args)
     if args.command == "replay":
         return _replay(args)
+    if args.command in ("fit-model", "predict"):
+        from pirl_sim.harness.model_cli import run_fit_model_command, run_predict_command
+
+        return run_fit_model_command(args) if args.command == "fit-model" else run_predict_command(args)
     if args.command in ("sweep", "report"):
         from pirl_sim.sweep.cli import run_report_command, run_sweep_command
 

@@ -38,6 +38,7 @@ __all__ = [
     "CompositePath",
     "smooth_desired_speed",
     "SpeedProfile",
+    "SpeedDeviationResidual",
     "roundabout_features",
     "PathDriverModel",
     "roundabout_model",
@@ -216,12 +217,25 @@ class SpeedProfile:
         return v, dv * dk, d2v * dk**2 + dv * d2k
 
 
-def speed_deviation_feature(profile: SpeedProfile, name: str = "speed_dev", reduction: str = "mean") -> Feature:
-    """mean_k (v_k - v_des(s_k))^2 with exact derivatives through the speed profile."""
+@dataclass(frozen=True, eq=False)
+class SpeedDeviationResidual:
+    """Residual ``v_k - v_des(s_k)`` of `speed_deviation_feature`, with its exact derivatives through the speed
+    profile (a module-level callable, not a closure, so that models and fitted learners pickle).
 
-    def residual(x: np.ndarray, u: np.ndarray) -> Residual:
+    Parameters
+    ----------
+    profile : SpeedProfile
+    """
+
+    profile: SpeedProfile
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.profile, SpeedProfile):
+            raise TypeError(f"profile must be a SpeedProfile, got {type(self.profile).__name__}")
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
         s, v = x[..., 0], x[..., 1]
-        vd, dvd, d2vd = profile(s)
+        vd, dvd, d2vd = self.profile(s)
         jx = np.zeros(x.shape[:2] + (1, x.shape[-1]))
         jx[..., 0, 0] = -dvd
         jx[..., 0, 1] = 1.0
@@ -229,7 +243,10 @@ def speed_deviation_feature(profile: SpeedProfile, name: str = "speed_dev", redu
         hx[..., 0, 0, 0] = -d2vd
         return Residual((v - vd)[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hx)
 
-    return Feature(name, residual, reduction=reduction, quadratic=False)
+
+def speed_deviation_feature(profile: SpeedProfile, name: str = "speed_dev", reduction: str = "mean") -> Feature:
+    """mean_k (v_k - v_des(s_k))^2 with exact derivatives through the speed profile."""
+    return Feature(name, SpeedDeviationResidual(profile), reduction=reduction, quadratic=False)
 
 
 def roundabout_features(profile: SpeedProfile) -> FeatureSet:

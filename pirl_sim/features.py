@@ -27,6 +27,8 @@ __all__ = [
     "FeatureDerivatives",
     "squared_state",
     "squared_control",
+    "SquaredStateResidual",
+    "SquaredControlResidual",
     "lqr_features",
 ]
 
@@ -129,6 +131,13 @@ class FeatureSet:
         if self.reference not in names:
             raise ValueError(f"reference feature {self.reference!r} is not one of {names}")
         object.__setattr__(self, "features", feats)
+
+    def __getstate__(self) -> dict:
+        """Pickled without the Hessian cache: its keys hold ``id(dynamics)`` of this process, which another
+        process could give to other dynamics."""
+        state = dict(self.__dict__)
+        state["_hessian_cache"] = {}
+        return state
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -423,29 +432,56 @@ def _group_by_length(trajectories: Sequence[Trajectory]) -> dict[int, np.ndarray
 
 
 # ---------------------------------------------------------------------- ready-made features
-def squared_state(name: str, index: Sequence[int] | None = None, *, reduction: str = "sum") -> Feature:
-    """reduce_k ||x_k[index]||^2 (all states if index is None)."""
+@dataclass(frozen=True)
+class SquaredStateResidual:
+    """Residual ``x_k[index]`` of `squared_state` (all states if ``index`` is None).
 
-    def residual(x: np.ndarray, u: np.ndarray) -> Residual:
+    A module-level callable (not a closure) so that features, models and fitted learners pickle; its fields are
+    its whole configuration (what `pirl_sim.learners.model_io` writes).
+
+    Parameters
+    ----------
+    name : str
+        The feature's name (named in the out-of-range error).
+    index : tuple of int or None
+        State entries that enter the residual.
+    """
+
+    name: str
+    index: tuple[int, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.index is not None:
+            object.__setattr__(self, "index", tuple(int(i) for i in np.atleast_1d(np.asarray(self.index, dtype=int))))
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
         n_x = x.shape[-1]
-        sel = np.arange(n_x) if index is None else np.asarray(index, dtype=int)
+        sel = np.arange(n_x) if self.index is None else np.asarray(self.index, dtype=int)
         if np.any((sel < 0) | (sel >= n_x)):
-            raise ValueError(f"feature {name!r}: state index {list(sel)} out of range for n_x={n_x}")
+            raise ValueError(f"feature {self.name!r}: state index {list(sel)} out of range for n_x={n_x}")
         jac_x = np.eye(n_x)[sel][None, None]
         jac_u = np.zeros((1, 1, len(sel), u.shape[-1]))
         return Residual(x[..., sel], jac_x, jac_u)
 
-    return Feature(name, residual, reduction=reduction, quadratic=True)
+
+@dataclass(frozen=True)
+class SquaredControlResidual:
+    """Residual ``u_{k-1}`` of `squared_control` (a module-level callable, see `SquaredStateResidual`)."""
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
+        n_u = u.shape[-1]
+        return Residual(u, np.zeros((1, 1, n_u, x.shape[-1])), np.eye(n_u)[None, None])
+
+
+def squared_state(name: str, index: Sequence[int] | None = None, *, reduction: str = "sum") -> Feature:
+    """reduce_k ||x_k[index]||^2 (all states if index is None)."""
+    return Feature(name, SquaredStateResidual(name, None if index is None else tuple(index)), reduction=reduction,
+                   quadratic=True)
 
 
 def squared_control(name: str, *, reduction: str = "sum") -> Feature:
     """reduce_k ||u_{k-1}||^2."""
-
-    def residual(x: np.ndarray, u: np.ndarray) -> Residual:
-        n_u = u.shape[-1]
-        return Residual(u, np.zeros((1, 1, n_u, x.shape[-1])), np.eye(n_u)[None, None])
-
-    return Feature(name, residual, reduction=reduction, quadratic=True)
+    return Feature(name, SquaredControlResidual(), reduction=reduction, quadratic=True)
 
 
 def lqr_features() -> FeatureSet:

@@ -72,6 +72,13 @@ class DriverModel:
         if not isinstance(self.features, FeatureSet):
             raise TypeError(f"features must be a FeatureSet, got {type(self.features).__name__}")
 
+    def __getstate__(self) -> dict:
+        """Pickled without the predictor cache (a constrained predictor holds its QP solver's module, which does
+        not pickle); the predictor is rebuilt on first use."""
+        state = dict(self.__dict__)
+        state["_predictors"] = {}
+        return state
+
     @property
     def feature_names(self) -> tuple[str, ...]:
         return self.features.names
