@@ -70,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     from pirl_sim.harness.model_cli import add_model_parsers
 
     add_model_parsers(sub)
+    from pirl_sim.threads import add_blas_threads_option
+
+    add_blas_threads_option(parser)  # every command: see pirl_sim/threads.py
     return parser
 
 
@@ -81,6 +84,13 @@ def _replay(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from pirl_sim.threads import apply_thread_policy
+
+    try:
+        apply_thread_policy(getattr(args, "blas_threads", None))  # 1 BLAS thread unless told otherwise
+    except ValueError as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
     if args.command == "recover":
         from pirl_sim.harness.recovery import run_recover_command
 

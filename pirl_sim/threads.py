@@ -1,0 +1,169 @@
+"""Thread policy of single-process commands: one BLAS/OpenMP thread unless the user says otherwise.
+
+pirl_sim's heavy work is many small dense solves (MPC Newton steps on 40x40 Hessians, per-demo IRL, QPs).
+For matrices that small a second BLAS thread buys nothing on a quiet machine and costs multiples on a loaded
+one: OpenBLAS's threads spin-wait for each other, and when another process holds a core they wait for the
+scheduler instead (issue 16: a per-demo IRL loop took 55 s with numpy's default 2 threads and 7.9 s with one,
+under the same load). Parallelism comes from processes instead (the sweep's workers, ``recover --workers``).
+
+The policy, applied by the ``pirl-sim`` command line to every command before it starts work:
+
+- default: **1 thread** per BLAS/OpenMP library in this process (through threadpoolctl), and the standard
+  thread variables (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ...) set to 1 for the child processes it
+  starts (a spawned worker reads them when it loads numpy);
+- ``--blas-threads N`` (any command, before or after the command's name) or the environment variable
+  ``PIRL_SIM_BLAS_THREADS=N``: N threads instead (the option wins over the variable);
+- ``auto`` as N: leave the libraries alone (their own defaults, which honour ``OPENBLAS_NUM_THREADS`` and
+  friends if you set them).
+
+Numbers do not depend on the setting beyond floating-point rounding (a multi-threaded BLAS may sum in another
+order). Library code (learners, the MPC, the envs) never changes threads itself: a program that imports
+pirl_sim decides, e.g. with :func:`blas_threads` as a context manager.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from contextlib import contextmanager
+from collections.abc import Iterator
+
+__all__ = ["ENV_VAR", "AUTO", "DEFAULT_THREADS", "THREAD_VARS", "parse_blas_threads", "blas_threads_arg",
+           "resolve_blas_threads", "apply_thread_policy", "blas_threads", "add_blas_threads_option",
+           "current_blas_threads"]
+
+ENV_VAR = "PIRL_SIM_BLAS_THREADS"  #: the environment variable of the policy (a positive integer or "auto")
+AUTO = "auto"  #: leave the libraries' own thread counts alone
+DEFAULT_THREADS = 1  #: BLAS/OpenMP threads per process unless the user says otherwise
+#: variables read by BLAS/OpenMP runtimes when they load (child processes inherit them)
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
+               "NUMEXPR_NUM_THREADS")
+
+
+def parse_blas_threads(value: str | int, label: str = ENV_VAR) -> int | None:
+    """A thread setting as given by a user: a positive integer, or ``"auto"`` (returned as None).
+
+    Raises
+    ------
+    ValueError
+        Naming ``label`` and the bad value, for anything else (0, negative numbers, other words).
+    """
+    if isinstance(value, str):
+        text = value.strip().lower()
+        if text == AUTO:
+            return None
+        try:
+            n = int(text)
+        except ValueError:
+            raise ValueError(f"{label} must be a positive integer or {AUTO!r}, got {value!r}") from None
+    elif isinstance(value, int) and not isinstance(value, bool):
+        n = value
+    else:
+        raise ValueError(f"{label} must be a positive integer or {AUTO!r}, got {value!r}")
+    if n < 1:
+        raise ValueError(f"{label} must be a positive integer or {AUTO!r}, got {value!r}")
+    return n
+
+
+def blas_threads_arg(text: str) -> str:
+    """argparse type of ``--blas-threads``: checks the value, keeps the text (``"auto"`` or an integer)."""
+    try:
+        parse_blas_threads(text, "--blas-threads")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def resolve_blas_threads(option: str | int | None = None, environ=None) -> int | None:
+    """The thread count the policy gives: ``option`` if given, else ``$PIRL_SIM_BLAS_THREADS`` if set, else
+    :data:`DEFAULT_THREADS`; None means ``auto`` (leave the libraries alone)."""
+    if option is not None:
+        return parse_blas_threads(option, "--blas-threads")
+    environ = os.environ if environ is None else environ
+    value = environ.get(ENV_VAR)
+    if value is not None and value.strip():
+        return parse_blas_threads(value, ENV_VAR)
+    return DEFAULT_THREADS
+
+
+def _load_runtimes() -> None:
+    """Import what loads the BLAS/OpenMP runtimes pirl_sim uses, so that threadpoolctl sees and limits them."""
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401
+    try:
+        import sklearn.utils  # noqa: F401  (its OpenMP runtime)
+    except ImportError:  # pragma: no cover - scikit-learn is a dependency
+        pass
+
+
+def apply_thread_policy(option: str | int | None = None) -> int | None:
+    """Apply the policy to this process from now on and to the child processes it starts.
+
+    Parameters
+    ----------
+    option : str or int, optional
+        ``--blas-threads`` as given (a positive integer or ``"auto"``); None: the environment variable, else 1.
+
+    Returns
+    -------
+    int or None
+        The thread count set, or None for ``auto`` (nothing changed).
+
+    Raises
+    ------
+    ValueError
+        For a bad option or environment value (named, with the value).
+    """
+    n = resolve_blas_threads(option)
+    if n is None:
+        return None
+    for var in THREAD_VARS:
+        os.environ[var] = str(n)  # runtimes loaded later, and spawned child processes
+    _load_runtimes()
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=n)
+    return n
+
+
+@contextmanager
+def blas_threads(n: int | None = DEFAULT_THREADS) -> Iterator[None]:
+    """Limit every loaded BLAS/OpenMP runtime to ``n`` threads inside the block (None: no change); for programs
+    and benchmarks that import pirl_sim. Restores the previous counts on exit; environment untouched."""
+    if n is None:
+        yield
+        return
+    n = parse_blas_threads(n, "n")
+    _load_runtimes()
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=n):
+        yield
+
+
+def current_blas_threads() -> dict[str, int]:
+    """``{internal_api: largest num_threads}`` over the loaded runtimes (e.g. ``{"openblas": 1, "openmp": 1}``)."""
+    from threadpoolctl import threadpool_info
+
+    out: dict[str, int] = {}
+    for lib in threadpool_info():
+        key = lib["internal_api"]
+        out[key] = max(out.get(key, 0), int(lib["num_threads"]))
+    return out
+
+
+_OPTION_HELP = (f"BLAS/OpenMP threads of this process (default {DEFAULT_THREADS}, or ${ENV_VAR} if set; "
+                f"'{AUTO}': the libraries' own defaults). Small solves run fastest on one thread, above all when "
+                "the machine is loaded; use processes (--workers) for parallelism")
+
+
+def add_blas_threads_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--blas-threads`` to ``parser`` and, recursively, to each of its subcommands' parsers (so it may
+    come before or after a command's name). Absent from the namespace unless given."""
+    if not any("--blas-threads" in a.option_strings for a in parser._actions):
+        parser.add_argument("--blas-threads", type=blas_threads_arg, default=argparse.SUPPRESS, metavar="N",
+                            help=_OPTION_HELP)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                add_blas_threads_option(sub)
