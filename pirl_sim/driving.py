@@ -40,6 +40,8 @@ __all__ = [
     "SpeedProfile",
     "SpeedDeviationResidual",
     "roundabout_features",
+    "SpeedTargetResidual",
+    "FEATURE_SETS",
     "PathDriverModel",
     "roundabout_model",
     "fit_longitudinal_states",
@@ -230,8 +232,8 @@ class SpeedDeviationResidual:
     profile: SpeedProfile
 
     def __post_init__(self) -> None:
-        if not isinstance(self.profile, SpeedProfile):
-            raise TypeError(f"profile must be a SpeedProfile, got {type(self.profile).__name__}")
+        if not callable(self.profile):  # a SpeedProfile, or another callable s -> (v_des, dv_des/ds, d2v_des/ds2)
+            raise TypeError(f"profile must be a SpeedProfile (or a callable like it), got {type(self.profile).__name__}")
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
         s, v = x[..., 0], x[..., 1]
@@ -249,16 +251,48 @@ def speed_deviation_feature(profile: SpeedProfile, name: str = "speed_dev", redu
     return Feature(name, SpeedDeviationResidual(profile), reduction=reduction, quadratic=False)
 
 
-def roundabout_features(profile: SpeedProfile) -> FeatureSet:
-    """The paper's features (speed_dev, acc_sq, jerk_sq), means over the steps; reference: jerk_sq."""
-    return FeatureSet(
-        (
-            speed_deviation_feature(profile),
-            squared_state("acc_sq", [2], reduction="mean"),
-            squared_control("jerk_sq", reduction="mean"),
-        ),
-        reference="jerk_sq",
-    )
+@dataclass(frozen=True)
+class SpeedTargetResidual:
+    """Residual ``v_k - v_target`` for a constant target speed [m/s] (feature ``speed_hi``)."""
+
+    v_target: float
+
+    def __post_init__(self) -> None:
+        if isinstance(self.v_target, bool) or not np.isfinite(self.v_target) or self.v_target <= 0:
+            raise ValueError(f"v_target must be a finite speed > 0 m/s, got {self.v_target!r}")
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
+        jx = np.zeros((1, 1, 1, x.shape[-1]))
+        jx[..., 0, 1] = 1.0
+        return Residual((x[..., 1] - self.v_target)[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])))
+
+
+#: target speed of the ``speed_hi`` feature [m/s] (72 km/h: above the speed of every roundabout)
+SPEED_HI = 20.0
+#: feature sets of `roundabout_features`
+FEATURE_SETS = ("paper", "speed-level")
+
+
+def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSet:
+    """The paper's features (speed_dev, acc_sq, jerk_sq), means over the steps; reference: jerk_sq.
+
+    ``kind="speed-level"`` adds two quadratic features that let each driver keep a speed level of their own
+    relative to the map's desired speed: ``speed_sq`` = mean v^2 (pulls towards standing still) and
+    ``speed_hi`` = mean (v - `SPEED_HI`)^2 (pulls up). With weights w (speed_dev), w_0, w_hi the preferred
+    speed is (w v_des(s) + w_hi v_hi) / (w + w_0 + w_hi): a driver-specific blend that still follows the
+    curvature through v_des.
+    """
+    if kind not in FEATURE_SETS:
+        raise ValueError(f"feature set must be one of {FEATURE_SETS}, got {kind!r}")
+    feats = [
+        speed_deviation_feature(profile),
+        squared_state("acc_sq", [2], reduction="mean"),
+        squared_control("jerk_sq", reduction="mean"),
+    ]
+    if kind == "speed-level":
+        feats += [squared_state("speed_sq", [1], reduction="mean"),
+                  Feature("speed_hi", SpeedTargetResidual(SPEED_HI), reduction="mean", quadratic=True)]
+    return FeatureSet(tuple(feats), reference="jerk_sq")
 
 
 @dataclass(frozen=True)

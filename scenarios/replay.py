@@ -67,6 +67,7 @@ from pirl_sim.driving import (
     ESTIMATE_SIGMA_J,
     ESTIMATE_SIGMA_S,
     ESTIMATE_SIGMA_V,
+    FEATURE_SETS,
     CompositePath,
     PathDriverModel,
     SpeedProfile,
@@ -246,6 +247,7 @@ class ReplayScene:
     repairs : dict {what: count}  route-matching repairs of kept tracks (see module doc)
     selection : {"tracks", "steps"}  how `selected` chooses (module doc)
     steps : dict {what: count}   with ``selection="steps"``: steps of dt kept and left out by the masks
+    features : {"paper", "speed-level"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
     """
 
     model: PathDriverModel
@@ -261,11 +263,13 @@ class ReplayScene:
     speed_smoothing: float = 0.0
     a_lat: float = DEFAULT_A_LAT
     v_max: float = DEFAULT_V_MAX
+    features: str = "paper"
 
     def with_desired_speed(self, a_lat: float, v_max: float) -> PathDriverModel:
-        """The scene's model with other desired-speed parameters [m/s^2, m/s] (same paths and dynamics)."""
+        """The scene's model with other desired-speed parameters [m/s^2, m/s] (same paths, dynamics and
+        feature set)."""
         path = self.profile_path if self.profile_path is not None else self.model.path
-        features = roundabout_features(SpeedProfile(path, float(a_lat), float(v_max)))
+        features = roundabout_features(SpeedProfile(path, float(a_lat), float(v_max)), self.features)
         return PathDriverModel(self.model.dynamics, features, self.model.bounds, path=self.model.path)
 
     def curvature(self, s: np.ndarray) -> np.ndarray:
@@ -424,6 +428,7 @@ def load_replay(
     v_max: float = DEFAULT_V_MAX,
     arc_length: str = "fit",
     settle_frames: int | None = None,
+    features: str = "paper",
 ) -> ReplayScene:
     """Read track files recorded on one map into a `ReplayScene`.
 
@@ -464,12 +469,16 @@ def load_replay(
         ``selection="steps"``: frames after each frame that was not the driver's own that also leave
         ``step_mask`` (not the estimate) while the drivers' real-time MPC re-converges; default
         `pirl_sim.scenarios.demonstrations.SETTLE_FRAMES`.
+    features : {"paper", "speed-level"}
+        The model's feature set (`pirl_sim.driving.roundabout_features`).
     """
     from .demonstrations import SETTLE_FRAMES
 
     settle_frames = SETTLE_FRAMES if settle_frames is None else settle_frames
     if isinstance(settle_frames, bool) or not isinstance(settle_frames, (int, np.integer)) or settle_frames < 0:
         raise ValueError(f"settle_frames must be a whole number of frames >= 0, got {settle_frames!r}")
+    if features not in FEATURE_SETS:
+        raise ValueError(f"features must be one of {FEATURE_SETS}, got {features!r}")
     if arc_length not in ("fit", "observed"):
         raise ValueError(f"arc_length must be one of ('fit', 'observed'), got {arc_length!r}")
     if estimate not in ESTIMATES:
@@ -603,7 +612,7 @@ def load_replay(
     pending = placed
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
-    model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max)
+    model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max, features)
     names = model.features.names
     trajectories = []
     track_rows = []
@@ -679,7 +688,7 @@ def load_replay(
         n_steps_counts["steps kept (free flow)"] = sum(t.n_steps for t in trajectories)
     return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs), selection, dict(n_steps_counts),
                        pd.DataFrame(track_rows), rule, _profile_path(model.path, speed_smoothing), speed_smoothing,
-                       a_lat, v_max)
+                       a_lat, v_max, features)
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -737,11 +746,11 @@ def _profile_path(composite, speed_smoothing: float):
 
 
 def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a_lat: float,
-                  v_max: float) -> PathDriverModel:
+                  v_max: float, features: str = "paper") -> PathDriverModel:
     """The roundabout model on ``composite`` (`pirl_sim.driving.roundabout_model`), its desired speed from
     the curvature smoothed per path by ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`)."""
     profile_path = _profile_path(composite, speed_smoothing)
-    features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max))
+    features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max), features)
     return PathDriverModel(longitudinal(dt), features, DEFAULT_BOUNDS, path=composite)
 
 

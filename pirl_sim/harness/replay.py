@@ -23,7 +23,11 @@ Per-step masks. When trajectories carry a ``step_mask`` (pirl_sim recordings rep
 own: the methods are scored on free driving, not on steps where the simulator overrode the driver.
 
 Scores per (seed, method): MED [m] (mean over windows of the mean distance over the horizon) and
-displacement errors at fixed horizons. Counts are of recorded tracks (``n_train``, ``n_test``) and of the
+displacement errors at fixed horizons. Lateral offsets of the path-based predictions come from
+``ReplayProtocol.lateral`` (`pirl_sim.lateral`: the last one held, or the training tracks' mean path), the same
+for baselines and learners; ``med_path`` places each prediction at the *recorded* future offsets, which leaves
+the error along the path only (what the cost models), and ``lateral_floor`` is the MED of the recorded future
+arc lengths under the protocol's lateral model: what a perfect prediction along the path would score. Counts are of recorded tracks (``n_train``, ``n_test``) and of the
 pieces long tracks are cut into (``n_train_pieces``, ``n_test_pieces``).
 
 PIRL-kNN learners that differ only in k share one fit per split: the per-demonstration IRL, the look-up
@@ -74,6 +78,8 @@ class ReplayProtocol:
     rollout : {"open", "closed"}  how learners' weights become a prediction (module doc)
     mpc_horizon : int or None     the MPC's planning horizon [steps]; required for ``rollout="closed"``
                                   (None with "open": plan over ``horizon``)
+    lateral : {"hold", "mean-path"}  lateral offsets of every path-based prediction (`pirl_sim.lateral`):
+                                  the last observed one held, or the training tracks' mean path per route
     """
 
     history: int = 10
@@ -84,8 +90,13 @@ class ReplayProtocol:
     seeds: tuple[int, ...] = (0, 1, 2)
     rollout: str = "open"
     mpc_horizon: int | None = None
+    lateral: str = "hold"
 
     def __post_init__(self) -> None:
+        from pirl_sim.lateral import LATERAL_MODELS
+
+        if self.lateral not in LATERAL_MODELS:
+            raise ValueError(f"lateral must be one of {LATERAL_MODELS}, got {self.lateral!r}")
         for name in ("history", "horizon", "stride"):
             v = getattr(self, name)
             if not is_positive_int(v):
@@ -172,19 +183,40 @@ def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, 
     return np.stack([t.states for t in trajs])
 
 
-def _errors(model, test, windows, s_pred, proto) -> np.ndarray:
+def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, profile=None) -> np.ndarray:
     """Distances (W, horizon) between predicted arc lengths mapped to x, y and the recorded positions (on the
-    track's own route of a `CompositePath`, even where a prediction runs beyond that route's ends)."""
-    from pirl_sim.driving import CompositePath
+    track's own route of a `CompositePath`, even where a prediction runs beyond that route's ends).
 
+    ``lateral``: the offsets the predicted arc lengths are placed at: the protocol's model (None:
+    ``proto.lateral``, with the fitted `pirl_sim.lateral.MeanOffsetProfile` ``profile`` for "mean-path"), or
+    ``"recorded"``: the recorded future offsets, which leaves the error along the path only."""
+    from pirl_sim.driving import CompositePath
+    from pirl_sim.lateral import predict_offsets
+
+    lateral = proto.lateral if lateral is None else lateral
     err = np.empty((len(windows), proto.horizon))
     composite = isinstance(model.path, CompositePath)
     for w, (i, step) in enumerate(windows):
         t = test[i]
-        on = {"segment": int(t.metadata["segment"])} if composite and "segment" in t.metadata else {}
-        xy = model.path.to_cartesian(s_pred[w], np.full(proto.horizon, t.metadata["d"][step]), **on)
+        seg = int(t.metadata.get("segment", 0))
+        on = {"segment": seg} if composite and "segment" in t.metadata else {}
+        if lateral == "recorded":
+            d = t.metadata["d"][step + 1 : step + 1 + proto.horizon]
+        else:
+            d = predict_offsets(lateral, t.metadata["d"][step], seg, t.states[step, 0], s_pred[w], profile)
+        xy = model.path.to_cartesian(s_pred[w], d, **on)
         err[w] = np.linalg.norm(xy - t.metadata["xy"][step + 1 : step + 1 + proto.horizon], axis=1)
     return err
+
+
+def fit_lateral_profile(train):
+    """`pirl_sim.lateral.MeanOffsetProfile` fitted on training pieces (route, arc length, recorded offset)."""
+    from pirl_sim.lateral import MeanOffsetProfile
+
+    segment = np.concatenate([np.full(t.n_steps + 1, int(t.metadata.get("segment", 0))) for t in train])
+    s = np.concatenate([t.states[:, 0] for t in train])
+    d = np.concatenate([np.asarray(t.metadata["d"], dtype=float) for t in train])
+    return MeanOffsetProfile().fit(segment, s, d)
 
 
 def _baseline_s(kind: str, x0: np.ndarray, horizon: int, dt: float) -> np.ndarray:
@@ -336,6 +368,9 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
+        profile = fit_lateral_profile(train) if proto.lateral == "mean-path" else None
+        recorded_s = np.stack([test[i].states[step + 1 : step + 1 + proto.horizon, 0] for i, step in windows])
+        counts["lateral_floor"] = float(_errors(model, test, windows, recorded_s, proto, profile=profile).mean())
         x0 = np.stack([test[i].states[step] for i, step in windows])
         histories = [test[i].window(step - proto.history, step) for i, step in windows]
         methods = {}
@@ -376,10 +411,11 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
                 "predictions": {name: m[0][shown] for name, m in methods.items()},
             }
         for name, (s_pred, fit_s, pred_s, extra) in methods.items():
-            err = _errors(model, test, windows, s_pred, proto)
+            err = _errors(model, test, windows, s_pred, proto, profile=profile)
             errors[(seed, name)] = err.mean(axis=1)
-            row = {"seed": seed, "method": name, "med": float(err.mean()), "n_windows": len(windows),
-                   **counts, "fit_s": fit_s, "predict_s": pred_s, **extra}
+            med_path = float(_errors(model, test, windows, s_pred, proto, "recorded").mean())
+            row = {"seed": seed, "method": name, "med": float(err.mean()), "med_path": med_path,
+                   "n_windows": len(windows), **counts, "fit_s": fit_s, "predict_s": pred_s, **extra}
             for k in proto.fde_steps:
                 row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
             rows.append(row)
@@ -479,7 +515,7 @@ def summarize(result: dict) -> pd.DataFrame:
     warnings raised while fitting (summed over seeds)."""
     rows = result["rows"]
     scores = [c for c in rows.columns
-              if c == "med" or c.startswith("de@") or c in ("ari", "weight_error", "irl_weight_error")]
+              if c in ("med", "med_path") or c.startswith("de@") or c in ("ari", "weight_error", "irl_weight_error")]
     agg = rows.groupby("method")[scores].agg(["mean", "std"])
     agg.columns = [f"{a}_{b}" for a, b in agg.columns]
     out = agg.sort_values("med_mean").reset_index()

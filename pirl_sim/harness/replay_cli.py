@@ -91,6 +91,14 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "recording's drivers' value)")
     rp.add_argument("--v-max", type=_positive_float, default=None,
                     help="speed cap [m/s] of the desired speed (default 13.9; a pirl_sim recording's drivers' value)")
+    rp.add_argument("--features", choices=["paper", "speed-level"], default="paper",
+                    help="the cost's features: 'paper' (speed_dev, acc_sq, jerk_sq) or 'speed-level' (also speed_sq "
+                         "and speed_hi: a speed level of each driver's own, pirl_sim.driving.roundabout_features) "
+                         "(default paper)")
+    rp.add_argument("--lateral", choices=["hold", "mean-path"], default="hold",
+                    help="lateral offsets of every path-based prediction (baselines and learners): 'hold' the last "
+                         "observed one, or follow the training tracks' 'mean-path' of the route (pirl_sim.lateral) "
+                         "(default hold)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
@@ -195,7 +203,7 @@ def replay_settings(args) -> dict:
     base = SIMULATED_NOISE if is_recording(args.tracks) else MEASURED_NOISE
     noise = EstimateNoise(base.sigma_s, args.sigma_v or base.sigma_v, args.sigma_j or base.sigma_j, base.sigma_a)
     load = {"dt": dt, "estimate": estimate, "noise": noise, "selection": selection,
-            "max_steps": max(1, int(round(PIECE_DURATION / dt)))}
+            "max_steps": max(1, int(round(PIECE_DURATION / dt))), "features": getattr(args, "features", "paper")}
     if is_recording(args.tracks):  # simulated drivers plan from their projected positions
         load["arc_length"] = "observed"
     if rec is not None:
@@ -316,7 +324,8 @@ def _protocol(args, settings, scan=None):
                           fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
                                                   if x <= args.horizon})),
                           stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)), rollout=settings["rollout"],
-                          mpc_horizon=horizon or (scan[0] if scan else None))
+                          mpc_horizon=horizon or (scan[0] if scan else None),
+                          lateral=getattr(args, "lateral", "hold"))
 
 
 def _run_table(args, say) -> int:

@@ -6,6 +6,9 @@ standard error over the split seeds; the best PIRL learner (lowest mean MED) pai
 convergence of every learner's fit per seed ("converged groups / groups", seeds in order); the share of matched
 car tracks usable under each selection rule (`pirl_sim.scenarios.replay.selection_counts`); the paper's
 ordering TIRL > PIRL-GMM > PIRL-kNN in MED as measured; the desired-speed parameters per seed; the wall time.
+Where the rows have them (`pirl_sim.harness.replay`): the ratio along the path (``med_path``: predictions at
+the recorded lateral offsets) and the lateral floor relative to CA (recorded arc lengths under the protocol's
+lateral model: the best ratio any prediction along the path could reach).
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
     for m, g in rows.groupby("method", sort=False):
         methods[m] = {"med": float(g["med"].mean()), "med_se": _se(g["med"]),
                       "fde": float(g[fde].mean()), "fde_se": _se(g[fde])}
+        if "med_path" in g and g["med_path"].notna().all():
+            methods[m]["med_path"] = float(g["med_path"].mean())
         if "irl_groups" in g and g["irl_groups"].notna().all():
             methods[m]["converged"] = ", ".join(f"{int(c)}/{int(n)}" for c, n in zip(g["irl_converged"],
                                                                                       g["irl_groups"]))
@@ -46,6 +51,14 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
         out["ratio"] = methods[best]["med"] / methods["CA (path)"]["med"]
         per_seed = rows.pivot(index="seed", columns="method", values="med")
         out["ratio_se"] = _se(per_seed[best] / per_seed["CA (path)"])
+        if "med_path" in methods[best] and "med_path" in methods["CA (path)"]:
+            path = rows.pivot(index="seed", columns="method", values="med_path")
+            out["ratio_path"] = methods[best]["med_path"] / methods["CA (path)"]["med_path"]
+            out["ratio_path_se"] = _se(path[best] / path["CA (path)"])
+        if "lateral_floor" in rows:
+            floor = rows.groupby("seed")["lateral_floor"].first()
+            out["floor_ratio"] = float(floor.mean()) / methods["CA (path)"]["med"]
+            out["floor_ratio_se"] = _se(floor / per_seed["CA (path)"])
     order = {}
     for key, prefix in (("TIRL", "TIRL"), ("PIRL-GMM", "PIRL-GMM"), ("PIRL-kNN", "PIRL-kNN")):
         cand = [m for m in methods if m.startswith(prefix)]
@@ -82,12 +95,15 @@ def table_markdown(rows: list[dict]) -> str:
             cells.append("" if v is None else f"{_pm(v['med'], v['med_se'])} ({_pm(v['fde'], v['fde_se'])})")
         lines.append(f"| {r['roundabout']} | " + " | ".join(cells) + " |")
     lines += ["", "| roundabout | files | seeds | windows | best PIRL | best − CA (path) [m] | MED_best / MED_CA | "
+              "along the path: best / CA | lateral floor / CA | "
               "ordering (MED, high to low) | paper's TIRL > GMM > kNN | a_lat / v_max per seed | time [s] |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['roundabout']} | {', '.join(r['files'])} | {r['seeds']} | {r['n_windows']} | {r['best']} | "
                      f"{_pm(r.get('best_minus_ca', np.nan), r.get('best_minus_ca_se', np.nan))} | "
-                     f"{_pm(r.get('ratio', np.nan), r.get('ratio_se', np.nan))} | {r['ordering']} | "
+                     f"{_pm(r.get('ratio', np.nan), r.get('ratio_se', np.nan))} | "
+                     f"{_pm(r.get('ratio_path', np.nan), r.get('ratio_path_se', np.nan))} | "
+                     f"{_pm(r.get('floor_ratio', np.nan), r.get('floor_ratio_se', np.nan))} | {r['ordering']} | "
                      f"{'yes' if r['paper_ordering_holds'] else 'no'} | {r.get('speed', '')} | {r['elapsed_s']:.0f} |")
     lines += ["", "IRL groups converged / fitted per split seed:", "",
               "| roundabout | " + " | ".join(m for m in methods if any("converged" in r["methods"].get(m, {})

@@ -1,0 +1,114 @@
+"""Lateral offsets of path predictions (pirl_sim.lateral), the replay's decomposition of the error into along
+the path and across it, and the speed-level features (issue 12)."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
+from pirl_sim.dynamics import longitudinal
+from pirl_sim.harness.replay import ReplayProtocol, run_replay
+from pirl_sim.lateral import MeanOffsetProfile, predict_offsets
+from pirl_sim.paths import ReferencePath
+from pirl_sim.scenarios.replay import load_replay
+
+
+def _profile():
+    s = np.concatenate([np.linspace(0, 100, 1001)] * 4)
+    seg = np.repeat([0, 0, 1, 1], 1001)
+    d = np.where(seg == 0, 0.5 * np.sin(s / 10.0), 1.0)
+    return MeanOffsetProfile().fit(seg, s, d)
+
+
+def test_mean_offset_profile_follows_each_routes_median_path():
+    prof = _profile()
+    s = np.array([5.0, 30.0, 77.0])
+    np.testing.assert_allclose(prof(0, s), 0.5 * np.sin(s / 10.0), atol=0.03)  # 1 m bins, 5 averaged
+    np.testing.assert_allclose(prof(1, s), 1.0)
+    assert np.isnan(prof(0, np.array([500.0]))).all() and np.isnan(prof(7, s)).all()  # no data there
+
+
+def test_predict_offsets_keeps_the_cars_own_deviation_and_holds_without_data():
+    prof = _profile()
+    s_pred = np.linspace(21.0, 40.0, 15)
+    d = predict_offsets("mean-path", 0.2, 0, 20.0, s_pred, prof)
+    np.testing.assert_allclose(d, prof(0, s_pred) + 0.2 - prof(0, np.array([20.0]))[0])
+    np.testing.assert_array_equal(predict_offsets("hold", 0.2, 0, 20.0, s_pred), 0.2)
+    np.testing.assert_array_equal(predict_offsets("mean-path", 0.2, 0, 20.0, s_pred + 500.0, prof), 0.2)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: MeanOffsetProfile(bin_width=0.0), "bin_width"),
+    (lambda: MeanOffsetProfile(min_count=0), "min_count"),
+    (lambda: MeanOffsetProfile(smooth=-1), "smooth"),
+    (lambda: MeanOffsetProfile()(0, np.zeros(2)), "not fitted"),
+    (lambda: MeanOffsetProfile().fit(np.zeros(3), np.zeros(3), np.zeros(2)), "one length"),
+    (lambda: MeanOffsetProfile().fit(np.zeros(2), np.array([0.0, np.nan]), np.zeros(2)), "finite"),
+    (lambda: predict_offsets("lane", 0.0, 0, 0.0, np.zeros(3)), "lateral model"),
+    (lambda: predict_offsets("mean-path", 0.0, 0, 0.0, np.zeros(3)), "MeanOffsetProfile"),
+    (lambda: ReplayProtocol(lateral="centre"), "lateral"),
+])
+def test_bad_lateral_inputs_name_the_value(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def _weaving_scene(tmp_path, n_tracks=12):
+    """Straight lane; every car weaves across it the same way along x (a route-consistent driven path)."""
+    from pirl_sim.io.interaction import write_tracks
+    from pirl_sim.io.lanelet2_map import write_map
+
+    x = np.linspace(0.0, 400.0, 41)
+    write_map({"A": np.column_stack([x, np.zeros_like(x)])}, {}, tmp_path / "map.osm")
+    rows, frame = [], 1
+    for i in range(n_tracks):
+        n = 200
+        frames = np.arange(frame, frame + n)
+        speed = 8.0 + 0.3 * i
+        xx = 10.0 + 3.0 * i + speed * 0.1 * np.arange(n)
+        y = 1.2 * np.sin(xx / 15.0) + 0.1 * (i % 3 - 1)
+        psi = np.arctan(1.2 / 15.0 * np.cos(xx / 15.0))
+        rows.append(pd.DataFrame({"track_id": i + 1, "frame_id": frames, "timestamp_ms": 100 * frames,
+                                  "agent_type": "car", "x": xx, "y": y, "vx": speed, "vy": 0.0, "psi_rad": psi,
+                                  "length": 4.5, "width": 1.8}))
+        frame += n + 10
+    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
+    return tmp_path / "vehicle_tracks_000.csv", tmp_path / "map.osm"
+
+
+def test_mean_path_lateral_model_and_the_error_decomposition(tmp_path):
+    tracks, osm = _weaving_scene(tmp_path)
+    scene = load_replay([tracks], osm, smoothing=0.0)
+    rows = {}
+    for lateral in ("hold", "mean-path"):
+        res = run_replay(scene, [], ReplayProtocol(seeds=(0, 1), test_fraction=0.34, lateral=lateral))
+        rows[lateral] = res["rows"].set_index(["seed", "method"])
+    hold, mean = rows["hold"], rows["mean-path"]
+    ca = "CA (path)"
+    for seed in (0, 1):
+        # the weave is the same for every car: following the training tracks' path beats holding the offset
+        assert mean.loc[(seed, ca), "med"] < 0.5 * hold.loc[(seed, ca), "med"]
+        # along the path (recorded offsets) nothing depends on the lateral model; the floor is below CA
+        assert mean.loc[(seed, ca), "med_path"] == pytest.approx(hold.loc[(seed, ca), "med_path"])
+        assert mean.loc[(seed, ca), "lateral_floor"] < hold.loc[(seed, ca), "lateral_floor"]
+        assert hold.loc[(seed, ca), "lateral_floor"] <= hold.loc[(seed, ca), "med"] + 1e-9
+        # constant speed: CA and CV along the path are almost exact
+        assert hold.loc[(seed, ca), "med_path"] < 0.1
+
+
+def test_speed_level_features_blend_the_desired_speed_with_the_drivers_level():
+    path = ReferencePath.from_polyline(np.column_stack([np.linspace(0, 400, 81), np.zeros(81)]))
+    feats = roundabout_features(SpeedProfile(path, 1.8, 10.0), "speed-level")
+    assert feats.names == ("speed_dev", "acc_sq", "jerk_sq", "speed_sq", "speed_hi")
+    model = PathDriverModel(longitudinal(0.2), feats, None, path=path)
+    x0 = np.array([[0.0, 8.0, 0.0]])
+    # preferred speed (w v_des + w_hi v_hi) / (w + w_0 + w_hi): 10 / 2 = 5 and (10 + 20) / 2 = 15 m/s
+    for theta, v_pref in (([1.0, 0.1, 0.1, 1.0, 1e-9], 5.0), ([1.0, 0.1, 0.1, 1e-9, 1.0], 15.0)):
+        states = model.predict_states(x0, np.array([theta]), 150)[0]
+        assert abs(states[100, 1] - v_pref) < 0.1
+    vals = feats.values(np.array([[[0, 8, 1.0], [1, 9, 2.0]]]), np.array([[[3.0]]]))
+    np.testing.assert_allclose(vals[0, 3:], [81.0, 121.0])
+    with pytest.raises(ValueError, match="feature set"):
+        roundabout_features(SpeedProfile(path), "lateral")
+    with pytest.raises(ValueError, match="features"):
+        load_replay([], "nowhere.osm", features="all")
