@@ -11,6 +11,11 @@ steps of 0.2 s, weights (speed_dev 3, acc_sq 0.3, jerk_sq 1), bounds 0 <= v <= 3
 Baseline: the same optimal-control problem written with casadi Opti (multiple shooting, the curvature as a
 casadi B-spline of the same table, the same smooth desired-speed formula) solved by IPOPT from the same starts.
 Target: >= 2,000 predictions/s and >= 10x faster than the baseline. Medians of --repeats.
+
+Cold starts are also timed with the Newton model assembled stage-wise through `FeatureSet.derivatives`
+(``SequentialMPC(assembly="stagewise")``, the path before issue 16), interleaved with the default
+(``assembly="outer"``), and the ratio printed; both plans are compared. BLAS threads: ``--blas-threads``
+(default 1, through threadpoolctl; printed).
 """
 
 from __future__ import annotations
@@ -21,7 +26,9 @@ import time
 
 import numpy as np
 
+from pirl_sim.mpc import SequentialMPC
 from pirl_sim.scenarios.passage import PassageConfig
+from pirl_sim.threads import blas_threads, current_blas_threads, parse_blas_threads
 from pirl_sim.simulate import simulate_receding_horizon
 
 THETA = np.array([3.0, 0.3, 1.0])
@@ -70,7 +77,13 @@ def main(argv=None):
     ap.add_argument("--starts", type=int, default=500)
     ap.add_argument("--ipopt-solves", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--blas-threads", default="1", help="BLAS threads (a positive integer or 'auto'; default 1)")
     args = ap.parse_args(argv)
+    with blas_threads(parse_blas_threads(args.blas_threads, "--blas-threads")):
+        run(args)
+
+
+def run(args):
 
     model = PassageConfig().model()
     rng = np.random.default_rng(0)
@@ -79,17 +92,27 @@ def main(argv=None):
     predictor = model.predictor()
     predictor.controls(x0[:5], THETA, N)  # build the QP solver once
 
+    stagewise = SequentialMPC(predictor.dynamics, predictor.features, predictor.bounds, n_iter=predictor.n_iter,
+                              n_qp_iter=predictor.n_qp_iter, tol=predictor.tol, qp_tol=predictor.qp_tol,
+                              assembly="stagewise")
+    stagewise.controls(x0[:5], THETA, N)
+
     def cold():
         return model.predict_states(x0, THETA, N)
 
-    times = []
-    for _ in range(args.repeats):
+    times, times_base = [], []
+    for _ in range(args.repeats):  # interleaved: the default, then the stage-wise baseline
         predictor.n_qp = 0
         t0 = time.perf_counter()
         ours = cold()
         times.append(time.perf_counter() - t0)
+        n_qp = predictor.n_qp
+        t0 = time.perf_counter()
+        base = stagewise.predict(x0, THETA, N)
+        times_base.append(time.perf_counter() - t0)
     t_cold = statistics.median(times) / M
-    n_qp = predictor.n_qp
+    t_base = statistics.median(times_base) / M
+    plan_gap = np.abs(base - ours).max()
 
     drivers, steps = 50, 100
     starts = np.column_stack([rng.uniform(0, 20, drivers), rng.uniform(8, 12, drivers), np.zeros(drivers)])
@@ -107,8 +130,12 @@ def main(argv=None):
     t_ipopt = (time.perf_counter() - t0) / k
     gap = np.abs(ref[:, :, 0] - ours[:k, :, 0]).max()
 
-    print(f"roundabout MPC, N={N}, bounds on v, a, j; {M} cold starts ({n_qp} bounded QPs needed):")
-    print(f"  cold starts          : {1 / t_cold:8.0f} predictions/s  ({t_cold * 1e3:.2f} ms each)")
+    threads = ", ".join(f"{k} {v}" for k, v in current_blas_threads().items())
+    print(f"roundabout MPC, N={N}, bounds on v, a, j; {M} cold starts ({n_qp} bounded QPs needed); BLAS threads: "
+          f"{threads}; medians of {args.repeats}:")
+    print(f"  cold starts          : {1 / t_cold:8.0f} predictions/s  ({t_cold * 1e3:.2f} ms each), target >= 2,000/s")
+    print(f"  cold, stage-wise model (before): {1 / t_base:8.0f} predictions/s; speed-up {t_base / t_cold:.2f}x; "
+          f"max |state difference| {plan_gap:.1e}")
     print(f"  warm, receding horizon: {1 / t_warm:8.0f} predictions/s  ({t_warm * 1e3:.2f} ms each), target >= 2,000/s")
     print(f"  casadi Opti + IPOPT  : {1 / t_ipopt:8.0f} predictions/s  ({t_ipopt * 1e3:.2f} ms each, {k} solves)")
     print(f"  speed-up vs IPOPT    : cold {t_ipopt / t_cold:6.1f}x, warm {t_ipopt / t_warm:6.1f}x (target >= 10x)")
