@@ -41,6 +41,7 @@ __all__ = [
     "SpeedDeviationResidual",
     "roundabout_features",
     "SpeedTargetResidual",
+    "HeadwayResidual",
     "FEATURE_SETS",
     "PathDriverModel",
     "roundabout_model",
@@ -267,10 +268,48 @@ class SpeedTargetResidual:
         return Residual((x[..., 1] - self.v_target)[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])))
 
 
+@dataclass(frozen=True)
+class HeadwayResidual:
+    """Residual of the ``headway`` feature: how far the gap to the vehicle ahead is below a safe gap,
+    ``r = w softplus((d_0 + T v - g) / w)`` [m] (about 0 beyond the safe gap, linear below it, smooth in
+    between); states of `pirl_sim.dynamics.following` (v at index 1, gap g at index 3).
+
+    Parameters
+    ----------
+    standstill : float [m]   d_0, safe gap at standstill
+    time_gap : float [s]     T, safe time gap
+    softness : float [m]     w, width of the smooth corner
+    """
+
+    standstill: float = 2.0
+    time_gap: float = 1.0
+    softness: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("standstill", "time_gap", "softness"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not np.isfinite(v) or v < 0 or (name == "softness" and v == 0):
+                raise ValueError(f"{name} must be a finite number {'> 0' if name == 'softness' else '>= 0'}, got {v!r}")
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
+        if x.shape[-1] < 5:
+            raise ValueError(f"the headway feature needs states of pirl_sim.dynamics.following (s, v, a, g, v_L), "
+                             f"got {x.shape[-1]} state entries")
+        w = self.softness
+        z = (self.standstill + self.time_gap * x[..., 1] - x[..., 3]) / w
+        r = w * np.logaddexp(0.0, z)
+        sig = 0.5 * (1.0 + np.tanh(0.5 * z))  # d r / d z / w, overflow-free
+        dz = np.zeros(x.shape[-1])
+        dz[1], dz[3] = self.time_gap / w, -1.0 / w
+        jx = (w * sig)[..., None, None] * dz  # (M, N, 1, n_x)
+        hx = (w * sig * (1.0 - sig))[..., None, None, None] * np.outer(dz, dz)
+        return Residual(r[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hx)
+
+
 #: target speed of the ``speed_hi`` feature [m/s] (72 km/h: above the speed of every roundabout)
 SPEED_HI = 20.0
 #: feature sets of `roundabout_features`
-FEATURE_SETS = ("paper", "speed-level")
+FEATURE_SETS = ("paper", "speed-level", "following")
 
 
 def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSet:
@@ -281,6 +320,9 @@ def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSe
     ``speed_hi`` = mean (v - `SPEED_HI`)^2 (pulls up). With weights w (speed_dev), w_0, w_hi the preferred
     speed is (w v_des(s) + w_hi v_hi) / (w + w_0 + w_hi): a driver-specific blend that still follows the
     curvature through v_des.
+
+    ``kind="following"`` adds to those ``headway`` (`HeadwayResidual`): the squared shortfall of the gap to the
+    vehicle ahead below 2 m + 1 s x v; it needs the states of `pirl_sim.dynamics.following`.
     """
     if kind not in FEATURE_SETS:
         raise ValueError(f"feature set must be one of {FEATURE_SETS}, got {kind!r}")
@@ -289,9 +331,11 @@ def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSe
         squared_state("acc_sq", [2], reduction="mean"),
         squared_control("jerk_sq", reduction="mean"),
     ]
-    if kind == "speed-level":
+    if kind in ("speed-level", "following"):
         feats += [squared_state("speed_sq", [1], reduction="mean"),
                   Feature("speed_hi", SpeedTargetResidual(SPEED_HI), reduction="mean", quadratic=True)]
+    if kind == "following":
+        feats.append(Feature("headway", HeadwayResidual(), reduction="mean", quadratic=False))
     return FeatureSet(tuple(feats), reference="jerk_sq")
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 
-__all__ = ["LinearDynamics", "point_mass", "longitudinal"]
+__all__ = ["LinearDynamics", "point_mass", "longitudinal", "following"]
 
 
 @dataclass(frozen=True)
@@ -162,3 +162,26 @@ def longitudinal(dt: float = 0.2) -> LinearDynamics:
         position_index=(0,),
     )
 
+
+
+def following(dt: float = 0.2) -> LinearDynamics:
+    """`longitudinal` motion behind a vehicle ahead: state (s [m], v [m/s], a [m/s^2], g [m], v_L [m/s]),
+    control jerk [m/s^3].
+
+    ``g`` is the bumper-to-bumper gap to the vehicle ahead and ``v_L`` its speed, which the dynamics hold
+    constant (the vehicle ahead drives on at constant velocity over a prediction; recorded trajectories carry
+    its recorded gap and speed instead). The gap shrinks by what the car drives:
+    ``g_{k+1} = g_k + dt v_L - (s_{k+1} - s_k)``, so the controls reach it exactly as they reach s.
+    """
+    lon = longitudinal(dt)
+    A = np.zeros((5, 5))
+    A[:3, :3] = lon.A
+    A[3, :3] = -(lon.A[0] - np.array([1.0, 0.0, 0.0]))  # minus the increment of s
+    A[3, 3] = 1.0
+    A[3, 4] = dt
+    A[4, 4] = 1.0
+    B = np.zeros((5, 1))
+    B[:3] = lon.B
+    B[3] = -lon.B[0]
+    return LinearDynamics(A=A, B=B, dt=dt, state_names=(*lon.state_names, "g [m]", "v_L [m/s]"),
+                          control_names=lon.control_names, position_index=(0,))

@@ -75,7 +75,7 @@ from pirl_sim.driving import (
     fit_longitudinal_states,
     roundabout_features,
 )
-from pirl_sim.dynamics import longitudinal
+from pirl_sim.dynamics import following, longitudinal
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_SMOOTHING, DEFAULT_V_MAX, ReferencePath
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
@@ -91,8 +91,9 @@ log = logging.getLogger(__name__)
 FRAME_DT = 0.1  #: [s] INTERACTION frame period
 MAX_BRIDGE = 5  #: [frames] longest run of unconnected positions inside a track that is bridged (0.5 s)
 ESTIMATES = ("positions", "speeds")  #: state estimate from positions only, or positions and recorded speeds
-SELECTIONS = ("tracks", "steps", "free")  #: whole non-interacting tracks, every PIRL track with per-step masks,
-#: or every track cut into its free-flow runs (steps without a leader)
+SELECTIONS = ("tracks", "steps", "free", "all")  #: whole non-interacting tracks, every PIRL track with per-step
+#: masks, every track cut into its free-flow runs (steps without a leader), or every track whole (leaders and
+#: all: for the ``following`` features, which see the vehicle ahead)
 DRIVER_STEPS_FILE = "driver_steps.csv"  #: per-step driver flags of a pirl_sim recording, beside the tracks
 RUN_INFO_FILE = "run.json"  #: a pirl_sim recording's run information (drivers' horizon, step, ...)
 
@@ -282,7 +283,7 @@ class ReplayScene:
     def selected(self) -> list[Trajectory]:
         """``selection="tracks"``: pieces of tracks that did not interact (the paper's selection);
         ``"steps"``: every piece (PIRL tracks only, each with its ``step_mask``)."""
-        if self.selection in ("steps", "free"):
+        if self.selection in ("steps", "free", "all"):
             return list(self.trajectories)
         return [t for t in self.trajectories if not t.metadata["interacted"]]
 
@@ -326,11 +327,21 @@ def leader_gaps(df: pd.DataFrame, rule: SelectionRule) -> np.ndarray:
     """Per row of a track file (columns of the INTERACTION vehicle format): the gap [m] to the nearest vehicle
     ahead in a similar direction (``rule.gap``: bumper to bumper or centre to centre; inf when none), at the
     row's frame. Rows are in the order of ``df``."""
+    return leader_gaps_and_speeds(df, rule)[0]
+
+
+def leader_gaps_and_speeds(df: pd.DataFrame, rule: SelectionRule,
+                           max_lateral: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`leader_gaps` and the speed [m/s] of that nearest vehicle ahead (NaN when none), per row of ``df``;
+    with ``max_lateral`` [m] only vehicles within that distance of the car's heading line count (a car in
+    the next lane is not in the way)."""
     if rule.gap == "bumper" and "length" not in df:
         raise ValueError("bumper-to-bumper gaps need the vehicles' length column; use SelectionRule(gap='centre')")
     out = np.full(len(df), np.inf)
+    speed_out = np.full(len(df), np.nan)
     if not len(df):
-        return out
+        return out, speed_out
+    speeds = np.hypot(df["vx"].to_numpy(dtype=float), df["vy"].to_numpy(dtype=float))
     cos_max = np.cos(np.deg2rad(rule.max_heading_diff_deg))
     frames = df["frame_id"].to_numpy()
     for rows in pd.Series(np.arange(len(df))).groupby(frames, sort=False).indices.values():
@@ -348,10 +359,15 @@ def leader_gaps(df: pd.DataFrame, rule: SelectionRule) -> np.ndarray:
             gap = gap - half[:, None] - half[None, :]
         ahead = np.einsum("ijk,ik->ij", rel, head) > 0
         same_dir = head @ head.T >= cos_max
+        if max_lateral is not None:
+            across = np.abs(rel[..., 1] * head[:, None, 0] - rel[..., 0] * head[:, None, 1])
+            same_dir = same_dir & (across <= max_lateral)
         gap = np.where(ahead & same_dir, gap, np.inf)
         np.fill_diagonal(gap, np.inf)
-        out[rows] = gap.min(axis=1)
-    return out
+        nearest = gap.argmin(axis=1)
+        out[rows] = gap[np.arange(len(rows)), nearest]
+        speed_out[rows] = np.where(np.isfinite(out[rows]), speeds[rows][nearest], np.nan)
+    return out, speed_out
 
 
 def leader_frames(df: pd.DataFrame, rule: SelectionRule) -> np.ndarray:
@@ -529,6 +545,8 @@ def load_replay(
         df = df[df["agent_type"].isin(rule.agent_types)].reset_index(drop=True)
         lead = leader_frames(df, rule)
         lead_centre = leader_frames(df, CENTRE_RULE)
+        if features == "following":
+            gaps_all, lead_speed_all = leader_gaps_and_speeds(df, SelectionRule(gap="bumper"), max_lateral=2.0)
         ids = df["track_id"].to_numpy()
         flags = {int(t): bool(lead[ids == t].any()) for t in np.unique(ids)}
         flags_centre = {int(t): bool(lead_centre[ids == t].any()) for t in np.unique(ids)}
@@ -593,6 +611,10 @@ def load_replay(
                 row = truth.loc[int(track_id)]
                 meta["truth"] = row.to_dict()
             extra = {"v": speed[sel], "free": _free_steps(lead_t[keep], stride)}
+            if features == "following":
+                rows_k = track.index.to_numpy()[keep]
+                extra["gap"], extra["v_lead"] = _obstacle(gaps_all[rows_k], lead_speed_all[rows_k], speed)
+                extra["gap"], extra["v_lead"] = extra["gap"][sel], extra["v_lead"][sel]
             if usable is not None:
                 extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)
                 extra["settled"] = _frame_steps(settled(usable, settle_frames), restart, speed, stride)[0]
@@ -649,6 +671,8 @@ def load_replay(
         if arc_length == "observed":
             states = states.copy()
             states[:, 0] = s
+        if features == "following":  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
+            states = np.column_stack([states, cut["gap"], cut["v_lead"]])
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy))
         if mask is not None:
             meta["step_mask"] = mask
@@ -720,7 +744,8 @@ def selection_counts(scene: ReplayScene, min_steps: int) -> pd.DataFrame:
     cases = [(CENTRE_RULE.describe(), "whole tracks without a leader (the rule before)",
               long_piece & ~t["interacted_centre"]),
              (rule.describe(), "whole tracks without a leader", long_piece & ~t["interacted"]),
-             (rule.describe(), "free-flow runs (steps with a leader left out)", t["longest_free_run"] >= min_steps)]
+             (rule.describe(), "free-flow runs (steps with a leader left out)", t["longest_free_run"] >= min_steps),
+             ("any", "whole tracks, leaders included (selection 'all')", long_piece)]
     rows = []
     for name, how, ok in cases:
         usable = t.loc[ok, key].drop_duplicates().shape[0]
@@ -750,8 +775,20 @@ def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a
     """The roundabout model on ``composite`` (`pirl_sim.driving.roundabout_model`), its desired speed from
     the curvature smoothed per path by ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`)."""
     profile_path = _profile_path(composite, speed_smoothing)
+    dynamics = following(dt) if features == "following" else longitudinal(dt)
     features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max), features)
-    return PathDriverModel(longitudinal(dt), features, DEFAULT_BOUNDS, path=composite)
+    return PathDriverModel(dynamics, features, DEFAULT_BOUNDS, path=composite)
+
+
+#: gap [m] standing in for "no vehicle ahead" in the states of `pirl_sim.dynamics.following`
+NO_LEADER_GAP = 100.0
+
+
+def _obstacle(gap: np.ndarray, v_lead: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame: the gap to the vehicle ahead, capped at `NO_LEADER_GAP` (also where there is none), and its
+    speed (the car's own where there is none, so that the capped gap stays put over a prediction)."""
+    none = ~np.isfinite(gap) | (gap > NO_LEADER_GAP)
+    return np.where(none, NO_LEADER_GAP, gap), np.where(none | ~np.isfinite(v_lead), speed, v_lead)
 
 
 def _driver_steps(track_file: Path) -> dict[int, pd.DataFrame]:
@@ -788,8 +825,8 @@ def _frame_steps(usable: np.ndarray, restart: np.ndarray, speed: np.ndarray, str
 
 
 def _estimate(s, cut, mask, model, estimate, noise, jerk_weight):
-    """(states, controls) of one piece (module doc)."""
-    dyn = model.dynamics
+    """(states, controls) of one piece (module doc): (s, v, a) whatever the model's further state entries."""
+    dyn = longitudinal(model.dynamics.dt) if model.dynamics.n_x != 3 else model.dynamics
     if estimate == "speeds":
         a_obs = cut.get("a_obs")
         return estimate_longitudinal_states(s, dyn, v_obs=cut["v"], sigma_s=noise.sigma_s, sigma_v=noise.sigma_v,

@@ -112,3 +112,68 @@ def test_speed_level_features_blend_the_desired_speed_with_the_drivers_level():
         roundabout_features(SpeedProfile(path), "lateral")
     with pytest.raises(ValueError, match="features"):
         load_replay([], "nowhere.osm", features="all")
+
+
+def test_following_dynamics_close_the_gap_by_what_the_car_drives():
+    from pirl_sim.dynamics import following
+
+    dyn = following(0.2)
+    x0 = np.array([3.0, 5.0, 1.0, 20.0, 4.0])
+    xs = dyn.rollout(x0, np.array([[2.0], [-1.0], [0.5]]))
+    lon = xs[:, :3]
+    np.testing.assert_allclose(xs[:, 3], 20.0 + 4.0 * 0.2 * np.arange(4) - (lon[:, 0] - 3.0))
+    np.testing.assert_allclose(xs[:, 4], 4.0)
+
+
+def test_headway_feature_derivatives_and_a_car_stopping_behind_a_standing_obstacle():
+    from pirl_sim.driving import HeadwayResidual
+    from pirl_sim.dynamics import following
+
+    res = HeadwayResidual()
+    x = np.array([[[0.0, 6.0, 0.5, 4.0, 2.0], [1.0, 7.0, 0.0, 80.0, 7.0]]])
+    out = res(x, np.zeros((1, 2, 1)))
+    eps = 1e-6
+    for i in (1, 3):
+        dx = np.zeros(5)
+        dx[i] = eps
+        fd = (res(x + dx, np.zeros((1, 2, 1))).r - res(x - dx, np.zeros((1, 2, 1))).r)[..., 0] / (2 * eps)
+        np.testing.assert_allclose(out.jac_x[..., 0, i], fd, rtol=1e-6, atol=1e-9)
+        fd2 = (res(x + dx, np.zeros((1, 2, 1))).jac_x - res(x - dx, np.zeros((1, 2, 1))).jac_x)[..., 0, :] / (2 * eps)
+        np.testing.assert_allclose(out.hess_x[..., 0, i, :], fd2, rtol=1e-5, atol=1e-8)
+    assert out.r[0, 0, 0] > 3.9 and out.r[0, 1, 0] < 1e-20  # 2 + 6 - 4 below the safe gap; far ahead: none
+    path = ReferencePath.from_polyline(np.column_stack([np.linspace(0, 400, 81), np.zeros(81)]))
+    model = PathDriverModel(following(0.2), roundabout_features(SpeedProfile(path, 1.8, 10.0), "following"),
+                            None, path=path)
+    x0 = np.array([[0.0, 8.0, 0.0, 40.0, 0.0]])  # a standing obstacle 40 m ahead
+    free, blocked = (model.predict_states(x0, np.array([[1.0, 1.0, 1.0, 1e-3, 1e-3, w]]), 60)[0]
+                     for w in (1e-6, 100.0))
+    assert free[-1, 0] > 100.0  # no care for the gap: drives through it
+    assert blocked[-1, 0] < 40.0 and blocked[-1, 1] < 1.0  # stops short of it
+    with pytest.raises(ValueError, match="following"):
+        res(np.zeros((1, 2, 3)), np.zeros((1, 2, 1)))
+    with pytest.raises(ValueError, match="softness"):
+        HeadwayResidual(softness=0.0)
+
+
+def test_replay_with_following_features_sees_the_recorded_vehicle_ahead(tmp_path):
+    from test_replay import LANE_Y, _track_rows
+
+    from pirl_sim.io.interaction import write_tracks
+    from pirl_sim.io.lanelet2_map import write_map
+    from pirl_sim.scenarios.replay import NO_LEADER_GAP
+
+    x = np.linspace(0.0, 500.0, 41)
+    write_map({"A": np.column_stack([x, np.full_like(x, LANE_Y["A"])])}, {}, tmp_path / "map.osm")
+    lead = _track_rows(1, 1, 30.0, 150, 0.0, speed=8.0)
+    follow = _track_rows(2, 1, 15.0, 150, 0.0, speed=8.0)  # 15 m behind, centre to centre: 10.5 m bumper gap
+    alone = _track_rows(3, 400, 0.0, 150, 0.0, speed=8.0)
+    write_tracks(pd.concat([lead, follow, alone], ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
+    scene = load_replay([tmp_path / "vehicle_tracks_000.csv"], tmp_path / "map.osm", features="following",
+                        selection="all")
+    assert scene.model.dynamics.n_x == 5 and scene.model.features.names[-1] == "headway"
+    by_id = {t.metadata["track_id"]: t for t in scene.selected}
+    assert set(by_id) == {1, 2, 3}  # the follower is kept: selection 'all'
+    np.testing.assert_allclose(by_id[2].states[:, 3], 10.5, atol=1e-6)
+    np.testing.assert_allclose(by_id[2].states[:, 4], 8.0)
+    np.testing.assert_allclose(by_id[3].states[:, 3], NO_LEADER_GAP)
+    np.testing.assert_allclose(by_id[3].states[:, 4], 8.0)  # alone: the car's own speed (the gap stays put)

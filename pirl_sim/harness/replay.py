@@ -554,6 +554,9 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         used = (f"kept as free-flow runs (selection='free', steps with a leader left out, interacting tracks "
                 f"included): {result['selected']} (in {result['selected_pieces']} runs); steps: "
                 f"{getattr(scene, 'steps', {})}")
+    elif selection == "all":
+        used = (f"every matched track whole, leaders included (selection='all'): {result['selected']} (in "
+                f"{result['selected_pieces']} pieces)")
     elif selection == "steps":
         used = (f"kept with per-step masks (selection='steps', interacting tracks included): {result['selected']} "
                 f"(in {result['selected_pieces']} pieces); steps: {getattr(scene, 'steps', {})}")

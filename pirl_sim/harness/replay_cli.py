@@ -91,9 +91,11 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "recording's drivers' value)")
     rp.add_argument("--v-max", type=_positive_float, default=None,
                     help="speed cap [m/s] of the desired speed (default 13.9; a pirl_sim recording's drivers' value)")
-    rp.add_argument("--features", choices=["paper", "speed-level"], default="paper",
-                    help="the cost's features: 'paper' (speed_dev, acc_sq, jerk_sq) or 'speed-level' (also speed_sq "
-                         "and speed_hi: a speed level of each driver's own, pirl_sim.driving.roundabout_features) "
+    rp.add_argument("--features", choices=["paper", "speed-level", "following"], default="paper",
+                    help="the cost's features: 'paper' (speed_dev, acc_sq, jerk_sq), 'speed-level' (also speed_sq "
+                         "and speed_hi: a speed level of each driver's own) or 'following' (speed-level and "
+                         "headway: the gap to the recorded vehicle ahead, held at constant velocity over a "
+                         "prediction; selection defaults to 'all') (pirl_sim.driving.roundabout_features) "
                          "(default paper)")
     rp.add_argument("--lateral", choices=["hold", "mean-path"], default="hold",
                     help="lateral offsets of every path-based prediction (baselines and learners): 'hold' the last "
@@ -130,13 +132,14 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
     rp.add_argument("--sigma-j", type=_positive_float, default=None,
                     help="jerk prior [m/s^3] of --estimate speeds (default 1 for real data, 3 for pirl_sim "
                          "recordings)")
-    rp.add_argument("--selection", choices=["tracks", "steps", "free"], default=None,
+    rp.add_argument("--selection", choices=["tracks", "steps", "free", "all"], default=None,
                     help="'tracks': whole tracks without a leader (the paper's); 'free': every track cut into its "
                          "free-flow runs (steps with a leader closer than 3 m bumper to bumper + 1.5 s x speed left "
                          "out); 'steps': every PIRL track with "
-                         "a per-step mask from driver_steps.csv (pirl_sim recordings, --likelihood receding only). "
-                         "Default: steps where driver_steps.csv exists and the likelihood is receding, free with "
-                         "--table, else tracks")
+                         "a per-step mask from driver_steps.csv (pirl_sim recordings, --likelihood receding only); "
+                         "'all': every track whole, leaders included (for --features following). "
+                         "Default: steps where driver_steps.csv exists and the likelihood is receding, all with "
+                         "--features following, free with --table, else tracks")
     rp.add_argument("--rollout", choices=["open", "closed"], default=None,
                     help="learners' predictions: 'open' (one MPC plan) or 'closed' (re-plan every step over "
                          "--mpc-horizon steps, as the drivers) (default: closed with --likelihood receding, open "
@@ -192,6 +195,7 @@ def replay_settings(args) -> dict:
                          f"{args.tracks} is not a pirl_sim recording with a run.json to take it from")
     steps_file = (args.tracks if args.tracks.is_dir() else args.tracks.parent) / DRIVER_STEPS_FILE
     selection = args.selection or ("steps" if receding and steps_file.is_file() else
+                                   "all" if getattr(args, "features", "paper") == "following" else
                                    "free" if getattr(args, "table", None) is not None else "tracks")
     if selection == "steps" and not receding:
         raise ValueError("--selection steps needs --likelihood receding: the trajectory likelihood scores whole "
