@@ -145,6 +145,8 @@ def run_simulator(args: argparse.Namespace, *, default_config: Callable[..., Any
     t = result.timing
     print(f"{len(gt)} tracks ({len(pirl)} PIRL, {len(gt) - len(pirl)} background), "
           f"{t['sim_time_s']:.1f} s simulated in {t['wall_time_s']:.1f} s ({t['real_time_factor']:.0f}x real time)")
+    if "mean_pirl" in t:
+        print(f"  PIRL drivers in the network at once: mean {t['mean_pirl']:.1f}, max {t['max_pirl']}")
     for name in config.population.style_names:
         n_style = int((pirl["style_name"] == name).sum())
         n_clean = int((clean["style_name"] == name).sum())

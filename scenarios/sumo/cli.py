@@ -19,7 +19,11 @@ config from.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 from pathlib import Path
+
+from pirl_sim.validation import positive_int_arg
 
 from ..simulate_cli import add_simulator_parser, run_simulator
 
@@ -46,7 +50,35 @@ def add_sumo_parser(simulators) -> argparse.ArgumentParser:
     )
     sumo.add_argument("--backend", choices=BACKENDS, default="libsumo",
                       help="libsumo (default, in-process) or traci (a SUMO process over a socket, slower)")
+    sumo.add_argument("--demand", type=_positive_float, default=None, metavar="VEH_PER_H",
+                      help="traffic demand [vehicles per hour per arm]: sets the time between departures "
+                           "(3600 / (demand * arms) s; overrides the population's depart_interval); with "
+                           "--n-vehicles it sets how long the demand lasts")
+    sumo.add_argument("--lanes", type=positive_int_arg, default=None, metavar="N",
+                      help="lanes of the ring and of every arm (default: the scenario's, 1); 2 for a two-lane "
+                           "roundabout")
     return sumo
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
+def _with_options(config, args: argparse.Namespace):
+    """``config`` with the command line's --demand and --lanes applied (ValueError for bad combinations)."""
+    changes = {}
+    if getattr(args, "lanes", None) is not None:
+        changes["network"] = dataclasses.replace(config.network, lanes=args.lanes)
+    if getattr(args, "demand", None) is not None:
+        changes["demand_per_arm"] = args.demand
+    return dataclasses.replace(config, **changes) if changes else config
 
 
 def run_simulate_sumo(args: argparse.Namespace) -> int:
@@ -56,4 +88,10 @@ def run_simulate_sumo(args: argparse.Namespace) -> int:
     def run(config, seed, **kwargs):
         return run_sumo_scenario(config, seed, backend=args.backend, **kwargs)
 
-    return run_simulator(args, default_config=SumoScenarioConfig, load_scenario=load_scenario, run=run)
+    def default_config(**kwargs):
+        return _with_options(SumoScenarioConfig(**kwargs), args)
+
+    def scenario(path, **kwargs):
+        return _with_options(load_scenario(path, **kwargs), args)
+
+    return run_simulator(args, default_config=default_config, load_scenario=scenario, run=run)

@@ -66,6 +66,7 @@ import time as _time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
 
@@ -158,8 +159,16 @@ def sumo_angle_to_psi(angle_deg):
     float or numpy.ndarray
         Heading [rad] counter-clockwise from +x, in (-pi, pi]: 0 deg -> pi/2, 90 deg -> 0, 270 deg -> pi.
     """
+    if isinstance(angle_deg, float):  # the runner's per-vehicle call: the same operations in scalar floats
+        return _angle_to_psi(angle_deg)
     psi = np.pi / 2 - np.radians(angle_deg)
     return np.pi - np.mod(np.pi - psi, 2 * np.pi)
+
+
+def _angle_to_psi(angle_deg: float) -> float:
+    """`sumo_angle_to_psi` of one float (bit-for-bit numpy's result: radians, then the floored modulo)."""
+    psi = math.pi / 2 - math.radians(angle_deg)
+    return math.pi - ((math.pi - psi) % (2 * math.pi))
 
 
 def sumo_command(net_path, *, seed: int = 0, step_length: float = DEFAULT_STEP_LENGTH,
@@ -274,7 +283,6 @@ class VehicleState:
     lane_pos: float
 
 
-@dataclass(frozen=True)
 class Observation:
     """What a controller is told about one controlled vehicle at one step.
 
@@ -285,21 +293,68 @@ class Observation:
     vehicle_id : str
     ego : VehicleState
     others : Mapping[str, VehicleState]
-        Every other vehicle in the network at this time (read-only).
+        Every other vehicle in the network at this time (read-only; the runner passes a view of one shared
+        table, so building it costs nothing per vehicle).
     leader : (str, float) or None
         SUMO's leader on the ego's route within the lookahead and the gap to it [m] (front bumper of ego
         to back of leader, minus ego's minGap), or None. Vehicles about to merge from an entry are not
-        leaders; look at ``others`` for them.
+        leaders; look at ``others`` for them. The runner asks SUMO for it on first access only (one call
+        per vehicle and step otherwise), so read it during the controller call: afterwards an observation
+        whose leader was never read raises ``RuntimeError`` on access.
     route_edges : tuple of str
         The ego's route.
     """
 
-    time: float
-    vehicle_id: str
-    ego: VehicleState
-    others: Mapping[str, VehicleState]
-    leader: tuple[str, float] | None
-    route_edges: tuple[str, ...]
+    __slots__ = ("time", "vehicle_id", "ego", "others", "route_edges", "_leader", "_leader_fn")
+
+    def __init__(self, time: float, vehicle_id: str, ego: VehicleState, others: Mapping[str, VehicleState],
+                 leader: tuple[str, float] | None = None, route_edges: tuple[str, ...] = (), *,
+                 leader_fn: Callable[[], tuple[str, float] | None] | None = None):
+        self.time, self.vehicle_id, self.ego, self.others = time, vehicle_id, ego, others
+        self.route_edges = route_edges
+        self._leader, self._leader_fn = leader, leader_fn
+
+    @property
+    def leader(self) -> tuple[str, float] | None:
+        if self._leader_fn is not None:
+            self._leader, self._leader_fn = self._leader_fn(), None
+        return self._leader
+
+    def _expire(self) -> None:
+        """The step is over: a leader not read so far can no longer be asked for."""
+        if self._leader_fn is not None:
+            self._leader_fn = _expired_leader
+
+    def __repr__(self) -> str:
+        return (f"Observation(time={self.time!r}, vehicle_id={self.vehicle_id!r}, ego={self.ego!r}, "
+                f"others=<{len(self.others)} vehicles>, route_edges={self.route_edges!r})")
+
+
+def _expired_leader():
+    raise RuntimeError("Observation.leader is read from SUMO during the step only; read it in the controller call")
+
+
+class _OthersView(Mapping):
+    """Read-only view of the step's vehicle states without one vehicle (Observation.others), O(1) to build."""
+
+    __slots__ = ("_states", "_ego")
+
+    def __init__(self, states: Mapping[str, VehicleState], ego: str):
+        self._states, self._ego = states, ego
+
+    def __getitem__(self, key: str) -> VehicleState:
+        if key == self._ego:
+            raise KeyError(key)
+        return self._states[key]
+
+    def __iter__(self):
+        return (k for k in self._states if k != self._ego)
+
+    def __len__(self) -> int:
+        return len(self._states) - (self._ego in self._states)
+
+    def __contains__(self, key) -> bool:
+        return key != self._ego and key in self._states
 
 
 #: ``controller(time [s], vehicle_id, observation) -> commanded speed [m/s] or None``
@@ -524,6 +579,7 @@ class SumoRun:
         self._cols: dict[str, list] = {c: [] for c in RECORD_COLUMNS}
         self._pending: dict[str, tuple[int, float]] = {}  # vehicle -> (row, commanded speed)
         self._present: set[str] = set()  # vehicles recorded in the last step
+        self._n_controlled = 0  # controlled vehicles among them
         self._step = 0
         self._wall = 0.0
         self._vars: tuple[int, ...] = ()
@@ -622,6 +678,11 @@ class SumoRun:
         return len(self._present)
 
     @property
+    def n_present_controlled(self) -> int:
+        """Controlled vehicles (``pirl_ids``) in the network after the last step."""
+        return self._n_controlled
+
+    @property
     def n_finished(self) -> int:
         """Vehicles that have left the network (arrived or vanished) so far."""
         return sum(rec.status in ("arrived", "vanished") for rec in self._veh.values())
@@ -664,6 +725,7 @@ class SumoRun:
                 cols["collided"][rec.last_row] = True
             self._pending.pop(vid, None)
         self._present = set(results)
+        self._n_controlled = sum(1 for vid in ids if self._veh[vid].pirl)
         for vid in ids:
             self._veh[vid].status = "running"  # also back from a teleport
         states = {vid: self._state(vid, results[vid]) for vid in ids}
@@ -674,22 +736,23 @@ class SumoRun:
                 cols["overridden"][row] = abs(st.speed - cmd) > self.override_tol
         self._pending.clear()
 
+        # one row per vehicle, column by column (bound appends: this loop runs for every vehicle and step)
+        (a_step, a_time, a_vid, a_route, a_pirl, a_x, a_y, a_xf, a_yf, a_psi, a_speed, a_vx, a_vy, a_accel,
+         a_length, a_width, a_edge, a_lane, a_lanepos, a_cmd, a_over, a_coll, a_arr, a_van) = (
+            cols[name].append for name in RECORD_COLUMNS)
+        row = len(cols["step"])
+        step_no, nan, cos, sin = self._step, math.nan, math.cos, math.sin
         for vid in ids:
             rec = self._veh[vid]
             st = states[vid]
-            row = len(cols["step"])
             rec.last_row, rec.last_time, rec.last_edge = row, t, st.edge_id
-            for name, value in (
-                ("step", self._step), ("time", t), ("vehicle_id", vid), ("route_id", rec.spec.route_id),
-                ("pirl", rec.pirl), ("x", st.x), ("y", st.y), ("x_front", st.x_front),
-                ("y_front", st.y_front), ("psi_rad", st.psi_rad), ("speed", st.speed),
-                ("vx", st.speed * math.cos(st.psi_rad)), ("vy", st.speed * math.sin(st.psi_rad)),
-                ("accel", st.accel), ("length", st.length), ("width", st.width), ("edge_id", st.edge_id),
-                ("lane_id", st.lane_id), ("lane_pos", st.lane_pos), ("commanded_speed", math.nan),
-                ("overridden", None), ("collided", vid in colliding), ("arrived", False),
-                ("vanished", False),
-            ):
-                cols[name].append(value)
+            row += 1
+            a_step(step_no), a_time(t), a_vid(vid), a_route(rec.spec.route_id), a_pirl(rec.pirl)
+            a_x(st.x), a_y(st.y), a_xf(st.x_front), a_yf(st.y_front), a_psi(st.psi_rad), a_speed(st.speed)
+            a_vx(st.speed * cos(st.psi_rad)), a_vy(st.speed * sin(st.psi_rad)), a_accel(st.accel)
+            a_length(st.length), a_width(st.width), a_edge(st.edge_id), a_lane(st.lane_id)
+            a_lanepos(st.lane_pos), a_cmd(nan), a_over(None), a_coll(vid in colliding), a_arr(False)
+            a_van(False)
 
         if self.pirl_ids:
             frozen_states = MappingProxyType(states)
@@ -698,10 +761,9 @@ class SumoRun:
                 rec = self._veh[vid]
                 if not rec.pirl:
                     continue
-                others = MappingProxyType({k: s for k, s in frozen_states.items() if k != vid})
-                observations[vid] = Observation(time=t, vehicle_id=vid, ego=states[vid], others=others,
-                                                leader=self._leader(vid),
-                                                route_edges=self.routes[rec.spec.route_id])
+                observations[vid] = Observation(t, vid, states[vid], _OthersView(frozen_states, vid),
+                                                route_edges=self.routes[rec.spec.route_id],
+                                                leader_fn=partial(self._leader, vid))
             batch = None
             if observations and self._batch:
                 batch = self.controller.commands(t, MappingProxyType(observations))
@@ -729,6 +791,8 @@ class SumoRun:
                 rec.commanded = True
                 cols["commanded_speed"][rec.last_row] = cmd
                 self._pending[vid] = (rec.last_row, cmd)
+            for obs in observations.values():
+                obs._expire()
         self._wall += _time.perf_counter() - t0
 
     def set_command(self, vehicle_id: str, speed: float) -> None:
@@ -749,7 +813,7 @@ class SumoRun:
     def _state(self, vid: str, r: Mapping[int, Any]) -> VehicleState:
         rec = self._veh[vid]
         xf, yf = r[self._vars[0]]
-        psi = float(sumo_angle_to_psi(r[self._vars[1]]))
+        psi = _angle_to_psi(float(r[self._vars[1]]))
         half = 0.5 * rec.length
         return VehicleState(
             x=xf - half * math.cos(psi), y=yf - half * math.sin(psi), x_front=float(xf), y_front=float(yf),

@@ -42,7 +42,7 @@ from __future__ import annotations
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -169,6 +169,15 @@ class SumoScenarioConfig:
     max_duration : float or None
         Longest simulated time [s], > 0; None: last departure + 300 s. The run stops earlier once every
         vehicle has left.
+    demand_per_arm : float or None
+        Traffic demand [vehicles per hour per arm], > 0: sets the population's ``depart_interval`` to
+        ``3600 / (demand_per_arm * network.n_arms)`` s (its ``arrivals``, regular or Poisson, and
+        ``n_vehicles`` stay). Every vehicle draws its route uniformly, and every arm is the entry of as many
+        routes of the default catalogue, so each arm gets this demand in expectation (not so with
+        ``pirl_routes`` / ``background_routes`` or a catalogue that favours some arms). Vehicles SUMO cannot
+        insert yet (an approach backed up to its start) wait and enter later: a demand above the
+        roundabout's capacity lengthens the run rather than filling it further. None: ``depart_interval``
+        as the population gives it.
     """
 
     network: RoundaboutSpec = DEFAULT_NETWORK
@@ -181,6 +190,7 @@ class SumoScenarioConfig:
     collision_action: str = "warn"
     override_tol: float = 0.01
     max_duration: float | None = None
+    demand_per_arm: float | None = None
 
     def __post_init__(self) -> None:
         for name, cls in (("network", RoundaboutSpec), ("population", PopulationConfig), ("drivers", DriverConfig)):
@@ -210,6 +220,11 @@ class SumoScenarioConfig:
         if self.max_duration is not None:
             object.__setattr__(self, "max_duration", number("max_duration", self.max_duration, low=0.0,
                                                             allow_equal=False))
+        if self.demand_per_arm is not None:
+            demand = number("demand_per_arm [veh/h per arm]", self.demand_per_arm, low=0.0, allow_equal=False)
+            object.__setattr__(self, "demand_per_arm", demand)
+            object.__setattr__(self, "population", replace(
+                self.population, depart_interval=3600.0 / (demand * self.network.n_arms)))
 
     def route_catalogue(self) -> dict[str, tuple[str, ...]]:
         """Route id -> edge ids of every route of the scenario (not yet checked against a built network)."""
@@ -236,6 +251,8 @@ class SumoScenarioConfig:
                 out[name] = list(getattr(self, name))
         if self.max_duration is not None:
             out["max_duration"] = self.max_duration
+        if self.demand_per_arm is not None:
+            out["demand_per_arm"] = self.demand_per_arm
         return out
 
 
@@ -331,7 +348,9 @@ class SumoScenarioResult:
     timing : dict
         ``sim_time_s``, ``wall_time_s`` (stepping, controller included), ``control_time_s``,
         ``plan_time_s`` (MPC), ``n_steps``, ``n_plans``, ``mean_vehicles`` and ``max_vehicles`` in the
-        network per step, ``real_time_factor`` (simulated / wall seconds).
+        network per step, ``mean_pirl`` and ``max_pirl`` (PIRL drivers in the network per step, whether
+        their MPC drives them or SUMO holds them at a standstill), ``real_time_factor`` (simulated / wall
+        seconds).
     files : RecordingFiles or None
         When written.
     """
@@ -411,7 +430,7 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
                  for r in plan.itertuples(index=False)]
         duration = config.max_duration or float(plan["depart"].max()) + _DEFAULT_EXTRA_TIME
         n_max = max(1, round(duration / STEP_LENGTH))
-        present = []
+        present, present_pirl = [], []
         with SumoRun(files.net, catalogue, specs, pirl_ids=set(pirl["vehicle_id"]), controller=controller,
                      seed=seed, step_length=STEP_LENGTH, backend=backend, speed_mode=config.speed_mode,
                      override_tol=config.override_tol, collision_action=config.collision_action,
@@ -419,6 +438,7 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
             for k in range(n_max):
                 run.step()
                 present.append(run.n_present)
+                present_pirl.append(run.n_present_controlled)
                 if progress is not None and (k + 1) % 10 == 0:
                     progress((k + 1) * STEP_LENGTH, run.n_finished, len(specs))
                 if run.expected() == 0:
@@ -451,6 +471,8 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
             written = write_recording(recording, out, lane_width=config.network.lane_width)
     timing = run_timing(sumo_rec.sim_time_s, sumo_rec.wall_time_s, present, controller,
                         control_time_s=controller.control_time_s)
+    timing = {**timing, "mean_pirl": float(np.mean(present_pirl)) if present_pirl else 0.0,
+              "max_pirl": int(max(present_pirl, default=0))}
     learner_model = route_set_model(routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max)
     return SumoScenarioResult(config, seed, backend, plan, sumo_rec, recording, routes, learner_model, timing,
                               written)
