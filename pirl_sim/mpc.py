@@ -328,6 +328,9 @@ class ConstrainedLQPredictor:
         return self.dynamics.rollout(x0, self.controls(x0, theta, n_steps))
 
 
+_BATCHED_HALVINGS_MAX_ROWS = 16  #: line search: up to this many rows get all six halvings in one call
+
+
 def _pd_rows(H: np.ndarray) -> np.ndarray:
     """Mask (M,) of the matrices of a stack (M, d, d) that are not positive definite (Cholesky fails).
 
@@ -639,20 +642,36 @@ class SequentialMPC:
                 break
             A, b = model(todo)
             full = -np.linalg.solve(A, b[..., None])[..., 0].reshape((len(todo),) + U.shape[1:]) - U[todo]
-            # backtracking: halve the Newton step where it does not lower the cost (at most 6 times); only
-            # the rows still worse are evaluated again
+            # backtracking: halve the Newton step where it does not lower the cost (at most 6 times). The full
+            # steps are evaluated first; where that is worse, the halvings are evaluated one at a time for the
+            # rows still worse, or, for a few rows (where each call's fixed cost dominates), all six in one
+            # batched call, taking the longest step that is not worse (the same choice)
             alpha = np.ones(len(todo))
             trial = U[todo] + full
             trial_cost = self._cost(x0[todo], trial, theta[todo])
             limit = cost[todo] + 1e-12 * np.abs(cost[todo])
-            for _half in range(6):
-                worse = np.flatnonzero(trial_cost > limit)
-                if not len(worse):
-                    break
-                alpha[worse] /= 2.0
+            worse = np.flatnonzero(trial_cost > limit)
+            if 0 < len(worse) <= _BATCHED_HALVINGS_MAX_ROWS:
+                halves = 0.5 ** np.arange(1, 7)  # (6,)
                 rows = todo[worse]
-                trial[worse] = U[rows] + alpha[worse, None, None] * full[worse]
-                trial_cost[worse] = self._cost(x0[rows], trial[worse], theta[rows])
+                cand = U[rows][:, None] + halves[None, :, None, None] * full[worse][:, None]  # (W, 6, N, n_u)
+                cand_cost = self._cost(np.repeat(x0[rows], 6, axis=0), cand.reshape((-1,) + U.shape[1:]),
+                                       np.repeat(theta[rows], 6, axis=0)).reshape(len(rows), 6)
+                ok = ~(cand_cost > limit[worse, None])
+                first = np.where(ok.any(axis=1), ok.argmax(axis=1), 5)  # the last halving when none is better
+                pick = np.arange(len(rows))
+                alpha[worse] = halves[first]
+                trial[worse] = cand[pick, first]
+                trial_cost[worse] = cand_cost[pick, first]
+            else:
+                for _half in range(6):
+                    if not len(worse):
+                        break
+                    alpha[worse] /= 2.0
+                    rows = todo[worse]
+                    trial[worse] = U[rows] + alpha[worse, None, None] * full[worse]
+                    trial_cost[worse] = self._cost(x0[rows], trial[worse], theta[rows])
+                    worse = worse[trial_cost[worse] > limit[worse]]
             accept = ~(trial_cost > limit)
             step = np.where(accept, alpha * np.max(np.abs(full), axis=(1, 2)), 0.0)
             U[todo[accept]] = trial[accept]
