@@ -394,6 +394,10 @@ def attach_gauss_newton(
     return out
 
 
+#: the Gauss-Newton refit of ``hessian="auto"`` may take this many times ``max_iter`` iterations
+GAUSS_NEWTON_ITER_FACTOR = 5
+
+
 def fit_weights(
     blocks: Sequence[LaplaceBlock] | LaplaceBlock,
     labels: Sequence[np.ndarray] | np.ndarray | None,
@@ -427,7 +431,8 @@ def fit_weights(
         The cost Hessian in the likelihood (module doc). "exact": the paper's, regularised where indefinite;
         "gauss_newton": the Gauss-Newton one for every group (blocks without attached Gauss-Newton Hessians
         use their own); "auto": exact, and Gauss-Newton for the groups where the exact fit needed a
-        regularisation at its solution or did not converge and Gauss-Newton Hessians are attached.
+        regularisation at its solution or did not converge and Gauss-Newton Hessians are attached (that refit
+        may take `GAUSS_NEWTON_ITER_FACTOR` x ``max_iter`` iterations).
 
     Returns
     -------
@@ -486,7 +491,10 @@ def fit_weights(
                 if sel.any():
                     sub_blocks.append(b.gauss_newton() if sel.all() else b.subset(sel).gauss_newton())
                     sub_labels.append(new_label[lab[sel]])
-            sub = _newton(sub_blocks, sub_labels, int(redo.sum()), n_demos[redo], gauss_newton=True, **settings)
+            # the Gauss-Newton refit gets a longer budget: along the flat directions of nearly collinear
+            # features (speed_sq / speed_hi of the speed-level set) damped Newton needs a few hundred steps
+            sub = _newton(sub_blocks, sub_labels, int(redo.sum()), n_demos[redo], gauss_newton=True,
+                          **dict(settings, max_iter=GAUSS_NEWTON_ITER_FACTOR * max_iter))
             for key in ("w", "f", "gw", "converged", "reg", "grad_norm"):
                 fit[key][redo] = sub[key]
             fit["n_iter"] += sub["n_iter"]
