@@ -84,13 +84,20 @@ def _replay(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from pirl_sim.threads import apply_thread_policy
+    from pirl_sim.threads import resolve_blas_threads, thread_policy
 
+    option = getattr(args, "blas_threads", None)
     try:
-        apply_thread_policy(getattr(args, "blas_threads", None))  # 1 BLAS thread unless told otherwise
+        resolve_blas_threads(option)  # a bad $PIRL_SIM_BLAS_THREADS stops the command before any work
     except ValueError as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
+    with thread_policy(option):  # 1 BLAS thread unless told otherwise; restored on return
+        return _run(args)
+
+
+def _run(args) -> int:
+    """Run the parsed command (inside the thread policy, see `main`)."""
     if args.command == "recover":
         from pirl_sim.harness.recovery import run_recover_command
 

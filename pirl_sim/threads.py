@@ -6,7 +6,8 @@ one: OpenBLAS's threads spin-wait for each other, and when another process holds
 scheduler instead (issue 16: a per-demo IRL loop took 55 s with numpy's default 2 threads and 7.9 s with one,
 under the same load). Parallelism comes from processes instead (the sweep's workers, ``recover --workers``).
 
-The policy, applied by the ``pirl-sim`` command line to every command before it starts work:
+The policy, applied by the ``pirl-sim`` command line to every command while it runs (:func:`thread_policy`;
+:func:`apply_thread_policy` applies it to the rest of a process, e.g. in a benchmark script):
 
 - default: **1 thread** per BLAS/OpenMP library in this process (through threadpoolctl), and the standard
   thread variables (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ...) set to 1 for the child processes it
@@ -29,7 +30,7 @@ from contextlib import contextmanager
 from collections.abc import Iterator
 
 __all__ = ["ENV_VAR", "AUTO", "DEFAULT_THREADS", "THREAD_VARS", "parse_blas_threads", "blas_threads_arg",
-           "resolve_blas_threads", "apply_thread_policy", "blas_threads", "add_blas_threads_option",
+           "resolve_blas_threads", "apply_thread_policy", "thread_policy", "blas_threads", "add_blas_threads_option",
            "current_blas_threads"]
 
 ENV_VAR = "PIRL_SIM_BLAS_THREADS"  #: the environment variable of the policy (a positive integer or "auto")
@@ -124,6 +125,38 @@ def apply_thread_policy(option: str | int | None = None) -> int | None:
 
     threadpool_limits(limits=n)
     return n
+
+
+@contextmanager
+def thread_policy(option: str | int | None = None) -> Iterator[int | None]:
+    """`apply_thread_policy` for the duration of a block: on exit the thread counts and the environment
+    variables are what they were (how ``pirl_sim.cli.main`` runs a command, so that calling it from Python,
+    e.g. in tests, leaves the calling process as it was). Yields the thread count set (None: ``auto``).
+
+    Raises
+    ------
+    ValueError
+        For a bad option or environment value, before anything is changed.
+    """
+    n = resolve_blas_threads(option)
+    if n is None:
+        yield None
+        return
+    saved = {var: os.environ.get(var) for var in THREAD_VARS}
+    _load_runtimes()
+    from threadpoolctl import threadpool_limits
+
+    try:
+        for var in THREAD_VARS:
+            os.environ[var] = str(n)  # for the child processes the command starts
+        with threadpool_limits(limits=n):
+            yield n
+    finally:
+        for var, value in saved.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
 
 
 @contextmanager
