@@ -7,6 +7,39 @@ weights of its most probable cluster. PIRL-DPGMM replaces the fixed k by a trunc
 
 Degenerate clusters: a component holding fewer than ``min_cluster_size`` training samples is dropped; its
 samples, and any later query, go to the most probable remaining component.
+
+Weight space (``space="weights"``, issue 14). Feature-space clusters lose the styles as soon as the features
+depend on more than the weights (e.g. spread start states). With ``space="weights"``:
+
+1. Every demonstration is fitted on its own, and its Laplace (trajectory likelihood) or Gauss-Newton (receding
+   likelihood) posterior over the log normalised weights is formed
+   (`pirl_sim.learners.weight_space.demo_posteriors`: a mean and a covariance per demonstration).
+   With the whole-trajectory likelihood, a demonstration whose normalised weight reached the box's bound (its
+   likelihood keeps rising beyond it, so no Gaussian there describes it) is refitted as MAP under a log-normal
+   prior fitted to the interior estimates (`pirl_sim.learners.base.population_prior`, as PIRL-kNN's
+   ``prior="population"``), and its posterior is the Laplace posterior of that fit (prior included;
+   ``n_demos_with_prior_`` counts them). On the roundabout passage (``reproduce passage``, seed 0) 50 of 500
+   demonstrations hit the bound (``acc_sq`` -> 0); without the refit their ``speed_dev`` estimate, conditional
+   on ``acc_sq`` = 0, put 10 of them in the wrong style (ARI 0.938; with it 0.988).
+2. The posteriors are clustered by extreme deconvolution (`pirl_sim.deconvolution`, Bovy, Hogg & Roweis 2011),
+   EM that weighs every demonstration by what its posterior really pins down. PIRL-GMM takes k fixed or by BIC;
+   PIRL-DPGMM starts from ``max_components`` and lets Figueiredo & Jain's (2002) minimum-message-length rule
+   remove the components that too few demonstrations support (a stand-in for the Dirichlet process in weight
+   space: it counts Gaussian components, so a skewed style may take two).
+3. Each cluster's weights are refitted jointly by IRL on its members.
+4. ``refine`` passes of hard EM over the IRL likelihoods (the alternative the issue names, after Babeș-Vroman
+   et al. 2011, "Apprenticeship learning about multiple intentions", ICML): every demonstration moves to its
+   most probable style under `predict_proba` (the style's likelihood of the whole demonstration, not its
+   Gaussian summary), the mixture weights become the styles' shares, and the styles are refitted; passes stop
+   when no label changes. On the passage the one default pass moves the 2 demonstrations that the
+   deconvolution left in the wrong style (posteriors too vague to decide: speed_dev -1.8 +- 0.4 between styles
+   at -2.3 and -1.2): ARI 0.988 -> 1.0, worst per-style weight error 0.30 -> 0.065.
+
+A history's style is then the most probable one under `predict_proba`.
+
+Style posterior (`predict_proba`, both spaces): p(style j | history) ∝ pi_j p(history | theta_j), each style's
+likelihood of the history under its fitted weights (the likelihood the IRL maximised,
+`pirl_sim.learners.weight_space.style_log_likelihoods`) times its mixture weight.
 """
 
 from __future__ import annotations
@@ -16,11 +49,31 @@ import warnings
 import numpy as np
 from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
 
+from pirl_sim.deconvolution import extreme_deconvolution
 from pirl_sim.validation import is_positive_int
 
-from .base import BaseLearner
+from .base import BaseLearner, population_prior
+from .weight_space import demo_posteriors, style_log_likelihoods
 
-__all__ = ["PIRLGMM", "PIRLDPGMM"]
+__all__ = ["PIRLGMM", "PIRLDPGMM", "SPACES"]
+
+SPACES = ("features", "weights")
+
+
+def _merge_rows(result, sub, rows: np.ndarray):
+    """``result`` (an IRLResult of one group per demonstration) with the groups ``rows`` replaced by ``sub``'s."""
+    from dataclasses import fields, replace
+
+    changes = {}
+    for f in fields(result):
+        a, b = getattr(result, f.name), getattr(sub, f.name)
+        if isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape[:1] == (len(a),) and a.ndim >= 1:
+            merged = a.copy()
+            merged[rows] = b
+            changes[f.name] = merged
+    changes["n_iter"] = result.n_iter + sub.n_iter
+    changes["n_regularized"] = result.n_regularized + sub.n_regularized
+    return replace(result, **changes)
 
 
 class _MixtureLearner(BaseLearner):
@@ -34,6 +87,10 @@ class _MixtureLearner(BaseLearner):
 
     def _fit(self, model, trajectories):
         self._check_min_size()
+        if self.space not in SPACES:
+            raise ValueError(f"space must be one of {SPACES}, got {self.space!r}")
+        if self.space == "weights":
+            return self._fit_weight_space(model, trajectories)
         samples, owners = self._training_windows(trajectories)
         Z = self._fit_space(model.feature_values(samples))
         mixture = self._make_mixture(Z)
@@ -71,23 +128,143 @@ class _MixtureLearner(BaseLearner):
         self.irl_result_ = res
         self.theta_ = res.normalized
         self.cluster_sizes_ = np.bincount(self.labels_, minlength=self.n_styles_)
+        self.style_weights_ = self.mixture_.weights_[self.components_] / self.mixture_.weights_[self.components_].sum()
+        self._set_noise_scale(trajectories)
+
+    # ------------------------------------------------------------------ weight space
+    def _xd(self, X, S, rng):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _fit_weight_space(self, model, trajectories):
+        M = len(trajectories)
+        demo = self._irl(model, trajectories, np.arange(M), M)
+        prior, redo = None, None
+        others = [k for k in range(model.features.n_features) if k != model.features.reference_index]
+        if self.likelihood == "trajectory" and others and demo.at_bound[:, others].any():
+            # a normalised weight at the box's bound: the likelihood's maximum lies beyond it and a Gaussian there
+            # says nothing; refit those demonstrations as MAP under the population's log-normal prior (module doc)
+            redo = np.any(demo.at_bound[:, others], axis=1)
+            prior = population_prior(demo, model.features.reference_index, self.log_bounds)
+            idx = np.flatnonzero(redo)
+            sub = self._irl(model, [trajectories[i] for i in idx], np.arange(len(idx)), len(idx), prior=prior)
+            demo = _merge_rows(demo, sub, idx)
+        X, S = demo_posteriors(model, trajectories, demo, likelihood=self.likelihood, log_bounds=self.log_bounds,
+                               horizon=self.horizon, step_stride=self.step_stride, prior=prior, prior_rows=redo)
+        self.n_demos_with_prior_ = 0 if redo is None else int(redo.sum())
+        self.demo_theta_ = demo.normalized
+        self.demo_log_weights_ = X
+        self.demo_log_covariances_ = S
+        rng = np.random.default_rng(self.random_state)
+        xd = self._xd(X, S, rng)
+        proba = xd.predict_proba(X, S)
+        keep = np.arange(xd.n_components)
+        for _ in range(xd.n_components):  # drop components with too few members; theirs go to the next best
+            labels = proba[:, keep].argmax(axis=1)
+            sizes = np.bincount(labels, minlength=len(keep))
+            ok = sizes >= min(self.min_cluster_size, sizes.max())
+            if ok.all():
+                break
+            keep = keep[ok]
+        dropped = xd.n_components - len(keep)
+        if dropped:
+            warnings.warn(
+                f"{type(self).__name__}: dropped {dropped} weight-space components with fewer than "
+                f"{self.min_cluster_size} demonstrations; their demonstrations join the most probable remaining one",
+                UserWarning,
+                stacklevel=3,
+            )
+        self.components_ = keep
+        self.n_styles_ = len(keep)
+        self.style_weights_ = xd.weights[keep] / xd.weights[keep].sum()
+        self.style_log_means_ = xd.means[keep]
+        self.style_log_covariances_ = xd.covariances[keep]
+        self.xd_log_likelihood_ = xd.log_likelihood
+        self.labels_ = labels
+        self.sample_labels_ = labels
+        res = self._irl(model, trajectories, labels, self.n_styles_)
+        self.irl_result_ = res
+        self.theta_ = res.normalized
+        self._set_noise_scale(trajectories)
+        self.n_refined_ = 0
+        refine = self.refine
+        if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
+            raise ValueError(f"refine must be a non-negative integer, got {refine!r}")
+        for _ in range(int(refine)):  # hard EM over the IRL likelihoods (module doc)
+            new = self._posterior(self._style_log_likelihood(trajectories)).argmax(axis=1)
+            sizes = np.bincount(new, minlength=self.n_styles_)
+            if np.array_equal(new, self.labels_) or sizes.min() < min(self.min_cluster_size, sizes.max()):
+                break
+            res = self._irl(model, trajectories, new, self.n_styles_)
+            self.labels_ = self.sample_labels_ = new
+            self.irl_result_, self.theta_ = res, res.normalized
+            self.style_weights_ = sizes / sizes.sum()
+            self.n_refined_ += 1
+        self.cluster_sizes_ = np.bincount(self.labels_, minlength=self.n_styles_)
+
+    def _set_noise_scale(self, trajectories):
+        """For `predict_proba`: the RMS of the training controls (floors the Cauchy scale of the receding
+        likelihood) and, when histories are the first ``window`` steps of episodes (``windows="first"``), the
+        episodes' length in steps (the shortest training trajectory)."""
+        self.control_rms_ = float(np.sqrt(np.mean(np.concatenate([np.square(t.controls).ravel()
+                                                                   for t in trajectories]))))
+        first = self.window is not None and self.windows == "first"
+        self.episode_steps_ = int(min(t.n_steps for t in trajectories)) if first else None
+
+    # ------------------------------------------------------------------ styles of histories
+    def style_log_likelihood(self, histories) -> np.ndarray:
+        """log p(history | style j) under each style's fitted weights, (M, n_styles_) or (n_styles_,) [nats]."""
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self)
+        histories, single = self._as_histories(histories)
+        self._query_windows(histories)  # same validation as the look-ups
+        out = self._style_log_likelihood(histories)
+        return out[0] if single else out
+
+    def _style_log_likelihood(self, histories) -> np.ndarray:
+        res = self.irl_result_
+        out = style_log_likelihoods(
+            self.model_, histories, likelihood=self.likelihood, theta=res.theta, normalized=res.normalized,
+            gauss_newton=getattr(res, "gauss_newton", None), sigma=getattr(res, "sigma", None),
+            noise_floor_controls=np.array([[self.control_rms_]]), horizon=self.horizon, step_stride=self.step_stride,
+            episode_steps=self.episode_steps_)
+        return out
+
+    def predict_proba(self, histories) -> np.ndarray:
+        """p(style | history) = pi_j p(history | theta_j) / sum_l pi_l p(history | theta_l): each style's likelihood
+        of the whole history (the IRL's own likelihood at the style's fitted weights) and its mixture weight
+        ``style_weights_``. Shape (M, n_styles_), or (n_styles_,) for one history; rows sum to 1."""
+        ll = self.style_log_likelihood(histories)
+        return self._posterior(ll)
+
+    def _posterior(self, ll: np.ndarray) -> np.ndarray:
+        lp = np.atleast_2d(ll) + np.log(self.style_weights_)[None]
+        lp -= lp.max(axis=1, keepdims=True)
+        p = np.exp(lp)
+        p /= p.sum(axis=1, keepdims=True)
+        return p[0] if np.ndim(ll) == 1 else p
 
     def _assign(self, Z: np.ndarray) -> np.ndarray:
         proba = self.mixture_.predict_proba(Z)[:, self.components_]
         return proba.argmax(axis=1)
 
     def predict_style(self, histories) -> np.ndarray:
-        """Index of the most probable style (row of ``theta_``) of each history, shape (M,) or scalar."""
+        """Index of the most probable style (row of ``theta_``) of each history, shape (M,) or scalar: by the
+        feature-space mixture (``space="features"``, the paper's) or by `predict_proba` (``space="weights"``)."""
         from sklearn.utils.validation import check_is_fitted
 
         check_is_fitted(self)
         histories, single = self._as_histories(histories)
-        labels = self._assign(self._to_space(self.model_.feature_values(self._query_windows(histories))))
+        labels = self._styles(histories)
         return labels[0] if single else labels
 
+    def _styles(self, histories):
+        if self.space == "weights":
+            return self.predict_proba(histories).argmax(axis=1)
+        return self._assign(self._to_space(self.model_.feature_values(self._query_windows(histories))))
+
     def _infer(self, histories):
-        labels = self._assign(self._to_space(self.model_.feature_values(self._query_windows(histories))))
-        return self.theta_[labels]
+        return self.theta_[self._styles(histories)]
 
 
 class PIRLGMM(_MixtureLearner):
@@ -107,14 +284,25 @@ class PIRLGMM(_MixtureLearner):
         EM restarts.
     random_state : int, Generator-seeded int or None
         Seed of the EM initialisation.
+    space : {"features", "weights"}
+        What is clustered: the (transformed, standardised) features, the paper's; or the per-demonstration
+        posteriors over the log normalised weights, by extreme deconvolution (module doc).
+    refine : int
+        (``space="weights"``) passes of hard EM over the IRL likelihoods after the deconvolution (module doc).
 
     Attributes
     ----------
     theta_ : array (n_styles_, K)   normalised weights per cluster
     labels_ : array (M,)            cluster of each training trajectory
     n_styles_ : int
-    mixture_ : GaussianMixture
+    style_weights_ : array (n_styles_,)  mixture weight of each style (sums to 1)
+    mixture_ : GaussianMixture      (``space="features"``)
     bic_ : dict {k: BIC} when n_components == "bic"
+    demo_theta_ : array (M, K)      (``space="weights"``) per-demonstration normalised weights
+    demo_log_weights_ : array (M, K-1), demo_log_covariances_ : array (M, K-1, K-1)
+                                    (``space="weights"``) their posteriors over the non-reference log weights
+    style_log_means_ : array (n_styles_, K-1), style_log_covariances_ : array (n_styles_, K-1, K-1)
+                                    (``space="weights"``) the deconvolved mixture's components
     """
 
     def __init__(
@@ -136,6 +324,8 @@ class PIRLGMM(_MixtureLearner):
         horizon=None,
         step_stride=1,
         irl_hessian="auto",
+        space="features",
+        refine=1,
     ):
         self.model = model
         self.n_components = n_components
@@ -153,6 +343,8 @@ class PIRLGMM(_MixtureLearner):
         self.horizon = horizon
         self.step_stride = step_stride
         self.irl_hessian = irl_hessian
+        self.space = space
+        self.refine = refine
 
     def _make_mixture(self, Z):
         n = Z.shape[0]
@@ -171,6 +363,25 @@ class PIRLGMM(_MixtureLearner):
             raise ValueError(f"n_components={k} is larger than the number of training samples ({n})")
         return self._gmm(int(k)).fit(Z)
 
+    def _xd(self, X, S, rng):
+        n = X.shape[0]
+        if self.n_components == "bic":
+            if not is_positive_int(self.max_components):
+                raise ValueError(f"max_components must be a positive integer, got {self.max_components!r}")
+            D = X.shape[1]
+            fits, self.bic_ = {}, {}
+            for k in range(1, min(int(self.max_components), n) + 1):
+                fits[k] = extreme_deconvolution(X, S, k, rng=rng, n_init=self.n_init)
+                n_params = (k - 1) + k * (D + D * (D + 1) // 2)
+                self.bic_[k] = float(-2.0 * fits[k].log_likelihood + n_params * np.log(n))
+            return fits[min(self.bic_, key=self.bic_.get)]
+        k = self.n_components
+        if not is_positive_int(k):
+            raise ValueError(f"n_components must be a positive integer or 'bic', got {k!r}")
+        if k > n:
+            raise ValueError(f"n_components={k} is larger than the number of training demonstrations ({n})")
+        return extreme_deconvolution(X, S, int(k), rng=rng, n_init=self.n_init)
+
     def _gmm(self, k):
         return GaussianMixture(
             n_components=k, covariance_type=self.covariance_type, n_init=self.n_init, random_state=self.random_state
@@ -188,12 +399,15 @@ class PIRLDPGMM(_MixtureLearner):
         Dirichlet-process concentration (smaller favours fewer styles); None = 1 / max_components.
     min_cluster_size : int
         Components with fewer training samples are not counted as styles (see module doc).
+    space : {"features", "weights"}
+        As `PIRLGMM`; in weight space the number of styles comes from minimum-message-length pruning of an
+        extreme-deconvolution mixture started with ``max_components`` (module doc).
     Other parameters as `PIRLGMM`.
 
     Attributes
     ----------
     n_styles_ : int   number of styles found
-    theta_, labels_, mixture_ : as `PIRLGMM`
+    theta_, labels_, mixture_, style_weights_, demo_*, style_log_* : as `PIRLGMM`
     """
 
     def __init__(
@@ -216,6 +430,8 @@ class PIRLDPGMM(_MixtureLearner):
         horizon=None,
         step_stride=1,
         irl_hessian="auto",
+        space="features",
+        refine=1,
     ):
         self.model = model
         self.max_components = max_components
@@ -234,6 +450,15 @@ class PIRLDPGMM(_MixtureLearner):
         self.horizon = horizon
         self.step_stride = step_stride
         self.irl_hessian = irl_hessian
+        self.space = space
+        self.refine = refine
+
+    def _xd(self, X, S, rng):
+        k = self.max_components
+        if not is_positive_int(k):
+            raise ValueError(f"max_components must be a positive integer, got {k!r}")
+        return extreme_deconvolution(X, S, min(int(k), X.shape[0]), rng=rng, n_init=self.n_init,
+                                     max_iter=self.max_iter, prune=True)
 
     def _make_mixture(self, Z):
         k = self.max_components

@@ -34,6 +34,8 @@ KINDS = [
     (PIRLGMM, {"n_components": "bic", "max_components": 3, "random_state": 0}),
     (PIRLDPGMM, {"random_state": 0}),
     (PIRLKNN, {"n_neighbors": 3, "prior": "population"}),
+    (PIRLGMM, {"n_components": 2, "random_state": 0, "space": "weights"}),
+    (PIRLDPGMM, {"random_state": 0, "space": "weights", "max_components": 4}),
 ]
 
 
@@ -60,6 +62,7 @@ def _same_predictions(a, b, test, horizon=6):
     np.testing.assert_array_equal(a.predict_states(test, horizon), b.predict_states(test, horizon))
     if hasattr(a, "predict_style"):
         np.testing.assert_array_equal(a.predict_style(test), b.predict_style(test))
+        np.testing.assert_array_equal(a.predict_proba(test), b.predict_proba(test))
 
 
 @pytest.mark.parametrize("cls,params", KINDS, ids=lambda v: getattr(v, "__name__", str(v)))
@@ -186,6 +189,12 @@ def test_fit_model_and_predict_commands(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "PIRLGMM: 3 weight vector(s) over ['speed_dev', 'acc_sq', 'jerk_sq']" in out
     assert (tmp_path / "gmm.npz").is_file()
+    assert main(["fit-model", "--tracks", str(scene), "--map", str(scene / "map.osm"), "--learner", "pirl-gmm",
+                 "--k", "3", "--space", "weights", "--out", str(tmp_path / "gmm_w"), "--quiet"]) == 0
+    assert "ARI of the styles against the recording's ground truth: 1.000" in capsys.readouterr().out
+    assert main(["fit-model", "--tracks", str(scene), "--map", str(scene / "map.osm"), "--learner", "pirl-knn",
+                 "--space", "weights", "--out", str(tmp_path / "knn_w"), "--quiet"]) == 2
+    assert "--space weights is an option of pirl-gmm and pirl-dpgmm, not pirl-knn" in capsys.readouterr().err
     assert main(["predict", "--model", str(tmp_path / "gmm.npz"), "--tracks", str(scene), "--map",
                  str(scene / "map.osm"), "--horizon", "2", "--out", str(tmp_path / "pred.csv"), "--quiet"]) == 0
     import pandas as pd

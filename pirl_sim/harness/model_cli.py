@@ -61,13 +61,19 @@ def add_model_parsers(sub) -> None:
     fm.add_argument("--learner", choices=LEARNER_KEYS, default="pirl-gmm", help="the learner (default pirl-gmm)")
     fm.add_argument("--k", type=positive_int_arg, default=3,
                     help="clusters of PIRL-GMM, neighbours of PIRL-kNN (default 3)")
+    fm.add_argument("--space", choices=["features", "weights"], default="features",
+                    help="pirl-gmm / pirl-dpgmm: cluster in feature space (the paper's) or the per-demonstration "
+                         "weight posteriors (issue 14; default features)")
     fm.add_argument("--window", type=_positive_float, default=2.0,
                     help="look-up window [s]: histories are described by their last WINDOW seconds (default 2)")
-    fm.add_argument("--dt", type=_positive_float, default=0.2, help="model step [s], a multiple of 0.1 s (default 0.2)")
+    fm.add_argument("--dt", type=_positive_float, default=None,
+                    help="model step [s], a multiple of 0.1 s (default 0.2; with --likelihood receding on a pirl_sim "
+                         "recording its drivers' re-planning step)")
     fm.add_argument("--likelihood", choices=["trajectory", "receding"], default="trajectory",
                     help="the IRL's model of a demonstration (default trajectory, the paper's)")
     fm.add_argument("--mpc-horizon", type=positive_int_arg, default=None, metavar="H",
-                    help="the drivers' MPC horizon [steps of --dt], needed with --likelihood receding")
+                    help="the drivers' MPC horizon [steps of --dt] for --likelihood receding (default: a pirl_sim "
+                         "recording's drivers.horizon; required for real data)")
     fm.add_argument("--seed", type=seed_arg, default=0, help="seed of the mixture's EM initialisation (default 0)")
     fm.add_argument("--out", type=Path, required=True, help="model file to write (.npz appended if missing)")
 
@@ -85,9 +91,12 @@ def add_model_parsers(sub) -> None:
     pr.add_argument("--out", type=Path, required=True, help="CSV file of the predictions")
 
 
-def _load_scene(args, dt: float, say):
+def _load_scene(args, dt: float, say, receding: bool = False):
+    """The selected tracks: whole tracks without interaction, or, with the receding likelihood on a recording
+    with per-step driver flags, every PIRL track with its step mask (as ``pirl-sim replay``)."""
     from pirl_sim.io.interaction import find_track_files
-    from pirl_sim.scenarios.replay import SIMULATED_NOISE, is_recording, load_replay, recording_settings
+    from pirl_sim.scenarios.replay import (DRIVER_STEPS_FILE, SIMULATED_NOISE, is_recording, load_replay,
+                                           recording_settings)
 
     files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
     if args.files is not None:
@@ -96,6 +105,10 @@ def _load_scene(args, dt: float, say):
     rec = recording_settings(args.tracks)
     if is_recording(args.tracks):
         load.update(arc_length="observed", noise=SIMULATED_NOISE)
+    if receding:
+        load["estimate"] = "speeds"
+        if ((args.tracks if args.tracks.is_dir() else args.tracks.parent) / DRIVER_STEPS_FILE).is_file():
+            load["selection"] = "steps"
     if rec is not None:
         load.update(smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max)
     say(f"reading {len(files)} track files and {args.map} (dt {dt:g} s)")
@@ -125,18 +138,32 @@ def run_fit_model_command(args) -> int:
 
     say = _say(args)
     try:
-        if args.likelihood == "receding" and args.mpc_horizon is None:
-            raise ValueError("--likelihood receding needs --mpc-horizon H, the drivers' MPC horizon in steps of --dt")
-        scene = _load_scene(args, args.dt, say)
-        params = {"model": scene.model, "window": _steps(args.window, args.dt, "--window"), "windows": "sliding"}
-        if args.likelihood == "receding":
-            params.update(likelihood="receding", horizon=args.mpc_horizon)
+        from pirl_sim.scenarios.replay import recording_settings
+
+        receding = args.likelihood == "receding"
+        rec = recording_settings(args.tracks)
+        dt = args.dt if args.dt is not None else (rec.dt if receding and rec is not None else 0.2)
+        horizon = args.mpc_horizon
+        if receding and horizon is None:
+            if rec is None or abs(rec.dt - dt) > 1e-9:
+                raise ValueError("--likelihood receding needs --mpc-horizon H, the drivers' MPC horizon in steps of "
+                                 f"--dt ({dt:g} s)" + ("" if rec is None else f"; the recording's drivers re-plan "
+                                                       f"every {rec.dt:g} s over {rec.horizon} steps"))
+            horizon = rec.horizon
+        if args.space == "weights" and args.learner not in ("pirl-gmm", "pirl-dpgmm"):
+            raise ValueError(f"--space weights is an option of pirl-gmm and pirl-dpgmm, not {args.learner}")
+        scene = _load_scene(args, dt, say, receding)
+        params = {"model": scene.model, "window": _steps(args.window, dt, "--window"), "windows": "sliding"}
+        if receding:
+            params.update(likelihood="receding", horizon=horizon)
         if args.learner == "pirl-gmm":
             params.update(n_components=args.k, random_state=args.seed)
         elif args.learner == "pirl-dpgmm":
             params.update(random_state=args.seed)
         elif args.learner == "pirl-knn":
             params.update(n_neighbors=args.k)
+        if args.space == "weights":
+            params["space"] = "weights"
         learner = make_learner(args.learner, **params)
         say(f"fitting {type(learner).__name__} on {len(scene.selected)} trajectories")
         with warnings.catch_warnings(record=True) as caught:
@@ -156,6 +183,12 @@ def run_fit_model_command(args) -> int:
         print(f"  {label} {i}: " + ", ".join(f"{n}={w:.4g}" for n, w in zip(names, row)))
     if theta.shape[0] > 10:
         print(f"  ... {theta.shape[0] - 10} more")
+    styles = [t.metadata.get("style") for t in scene.selected]
+    if hasattr(learner, "labels_") and all(x is not None for x in styles):  # ground truth known (a recording)
+        from pirl_sim.metrics import adjusted_rand_index
+
+        print(f"ARI of the styles against the recording's ground truth: "
+              f"{adjusted_rand_index(np.asarray(styles, dtype=int), learner.labels_):.3f} ({len(styles)} trajectories)")
     print(f"wrote {path}")
     return 0
 

@@ -1,0 +1,200 @@
+"""Feature-space against weight-space mixtures (issue 14 items 1-2): the measurements behind
+``results/weight_space/``.
+
+``python3 -m pirl_sim.harness.weight_space_study --out results/weight_space`` (≈2 min on one core) writes
+``table.csv`` / ``table.md`` (one row per experiment, protocol and learner) and ``README.md``. Same seed, same
+bytes (no timings in the files). Experiments:
+
+- ``synthetic-spread``: the paper's synthetic problem with start states spread over p in [2, 8] m and v in
+  [-1, 1] m/s (the README's ``reproduce synthetic --position-range 2 8 --velocity-range -1 1``: same
+  configuration, same data), 1,800 train / 200 test, protocols paper and online (first 10 steps).
+- ``synthetic``: the paper's single start (``reproduce synthetic``), weight-space learners beside the paper's.
+- ``lq-3-styles``: Boltzmann-rational (beta = 100) LQ drivers of three styles, normalised state weight
+  q ~ N(0.1, 0.01), N(1, 0.1), N(10, 1) (control weight 1), start states spread as above, 40 steps, 600 train /
+  200 test. Per-style weight error: |log q_hat / q_style| of each learned style against the mean of the true
+  style it is matched to (Hungarian on the training labels), worst over the styles.
+- ``passage``: the roundabout passage of ``reproduce passage`` (three user-study styles, beta = 100,
+  500 train / 100 test), protocols paper and online (first 10 steps = 2 s).
+- ``lq-receding``: LQ drivers of the three styles (weights spread 10 % in log) who re-plan every step over 15
+  steps with control noise 0.05 m/s^2 (`pirl_sim.simulate.simulate_receding_horizon`), 150 drivers of 30
+  steps, receding-horizon likelihood.
+
+Columns: ``ari`` of the training clusters against the true styles; ``style_accuracy`` of the most probable
+style of each test history under `PIRLGMM.predict_proba` (p(style | history) from each style's likelihood) and,
+for feature-space learners, ``feature_style_accuracy`` of the paper's feature look-up; ``style_error`` the
+worst per-style weight error; ``med`` [m], ``weight_error`` (median per test trajectory) as
+`pirl_sim.harness.experiment.evaluate`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate, style_agreement
+from pirl_sim.harness.tables import markdown
+from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.metrics import match_styles, weight_recovery_error
+from pirl_sim.validation import check_output_dir
+
+__all__ = ["run_study", "main", "lq_three_styles"]
+
+LQ_STYLE_Q = (0.1, 1.0, 10.0)  # normalised state_sq weight of each LQ style
+
+
+def lq_three_styles(n: int, rationality: float, seed: int, n_steps: int = 40):
+    """Boltzmann-rational LQ demonstrations of three styles from spread start states (module doc)."""
+    from pirl_sim.model import synthetic_model
+    from pirl_sim.population import Population, Style, generate_demonstrations
+
+    model = synthetic_model()
+    styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
+                   for name, q in zip(("calm", "normal", "eager"), LQ_STYLE_Q))
+    rng = np.random.default_rng(seed)
+    x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
+    return model, generate_demonstrations(model, Population(model.features, styles, rationality), x0, n_steps, rng)
+
+
+def _style_means(demos, n_styles: int, K: int) -> np.ndarray:
+    """Mean normalised weights of each true style over the demonstrations (n_styles, K)."""
+    theta = np.stack([d.metadata["theta"] for d in demos])
+    style = np.array([d.metadata["style"] for d in demos])
+    return np.stack([np.exp(np.log(theta[style == s]).mean(axis=0)) for s in range(n_styles)])
+
+
+def _row(experiment, protocol, name, learner, train, test, style_means=None) -> dict:
+    row = {"experiment": experiment, "protocol": protocol.name, "learner": name}
+    row.update({k: v for k, v in evaluate(learner, test, protocol).items() if k in ("med", "fde", "weight_error")})
+    ari = style_agreement(learner, train)
+    row["ari"] = np.nan if ari is None else ari
+    row["n_styles"] = getattr(learner, "n_styles_", 1)
+    row["style_accuracy"] = row["feature_style_accuracy"] = row["style_error"] = np.nan
+    if hasattr(learner, "predict_proba") and all("style" in t.metadata for t in test):
+        to_true = match_styles(np.array([t.metadata["style"] for t in train]), learner.labels_)
+        truth = np.array([t.metadata["style"] for t in test])
+        seen = test if protocol.kind == "paper" else [t.window(0, protocol.history_steps) for t in test]
+        guess = learner.predict_proba(seen).argmax(axis=1)
+        row["style_accuracy"] = float(np.mean([to_true.get(int(j), -1) == s for j, s in zip(guess, truth)]))
+        if learner.space == "features":
+            look = learner.predict_style(seen)
+            row["feature_style_accuracy"] = float(np.mean([to_true.get(int(j), -1) == s for j, s in zip(look, truth)]))
+        if style_means is not None:
+            ref = learner.model_.features.reference_index
+            row["style_error"] = float(max(weight_recovery_error(learner.theta_[j], style_means[s], ref)
+                                           for j, s in to_true.items()))
+    return row
+
+
+def _fit(key, params, train):
+    from pirl_sim.learners import make_learner
+
+    learner = make_learner(key, **params)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # dropped tiny components, IRL notes: counted in the table
+        return learner.fit(train)
+
+
+def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
+    """All experiments of the module doc; one row per (experiment, protocol, learner)."""
+    from pirl_sim.scenarios.passage import PassageConfig, generate as generate_passage
+    from pirl_sim.scenarios.synthetic import SyntheticConfig, generate as generate_synthetic
+    from pirl_sim.simulate import simulate_receding_horizon
+    from pirl_sim.trajectory import Trajectory
+
+    rows = []
+    online = Protocol("online", 10)
+    mixtures = lambda k: [  # noqa: E731 - the learners compared in every experiment
+        (f"PIRL-GMM (k={k}), features", "pirl-gmm", {"n_components": k, "random_state": seed}),
+        (f"PIRL-GMM (k={k}), weights", "pirl-gmm", {"n_components": k, "random_state": seed, "space": "weights"}),
+        ("PIRL-DPGMM, features", "pirl-dpgmm", {"random_state": seed}),
+        ("PIRL-DPGMM, weights", "pirl-dpgmm", {"random_state": seed, "space": "weights"}),
+    ]
+    # the paper's synthetic problem, spread starts and the single start
+    for experiment, ranges in (("synthetic-spread", {"position_range": (2.0, 8.0), "velocity_range": (-1.0, 1.0)}),
+                               ("synthetic", {})):
+        data = generate_synthetic(SyntheticConfig(seed=seed, **ranges))
+        specs = [("TIRL", "tirl", {}), ("PIRL-kNN (k=1)", "pirl-knn", {"n_neighbors": 1})] + mixtures(2)
+        for protocol in (PAPER_PROTOCOL, online):
+            for name, key, params in specs:
+                learner = _fit(key, {"model": data.model, **params, **protocol.learner_params()}, data.train)
+                rows.append(_row(experiment, protocol, name, learner, data.train, data.test))
+                say(f"{experiment} {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
+    # three LQ styles, Boltzmann-rational, spread starts
+    model, demos = lq_three_styles(800, 100.0, seed)
+    train, test = demos[:600], demos[600:]
+    means = _style_means(train, 3, model.features.n_features)
+    for protocol in (PAPER_PROTOCOL, online):
+        for name, key, params in [("TIRL", "tirl", {})] + mixtures(3):
+            learner = _fit(key, {"model": model, **params, **protocol.learner_params()}, train)
+            rows.append(_row("lq-3-styles", protocol, name, learner, train, test, means))
+            say(f"lq-3-styles {protocol.name} {name}: ARI {rows[-1]['ari']:.3g} "
+                f"style error {rows[-1]['style_error']:.3g}")
+    # the roundabout passage
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        passage = generate_passage(PassageConfig(seed=seed))
+    means = _style_means(passage.train, 3, passage.model.features.n_features)
+    for protocol in (PAPER_PROTOCOL, online):
+        for name, key, params in [("TIRL", "tirl", {})] + mixtures(3):
+            learner = _fit(key, {"model": passage.model, **params, **protocol.learner_params()}, passage.train)
+            rows.append(_row("passage", protocol, name, learner, passage.train, passage.test, means))
+            say(f"passage {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
+    # LQ drivers who re-plan, receding-horizon likelihood
+    rng = np.random.default_rng(seed)
+    style = np.repeat([0, 1, 2], 50)
+    q = np.asarray(LQ_STYLE_Q)[style] * np.exp(rng.normal(0.0, 0.1, style.size))
+    x0 = np.column_stack([rng.uniform(2.0, 8.0, style.size), rng.uniform(-1.0, 1.0, style.size)])
+    theta = np.column_stack([q, np.ones_like(q)])
+    drivers = [Trajectory(d.states, d.controls, d.dt, {**d.metadata, "style": int(s), "theta": th})
+               for d, s, th in zip(simulate_receding_horizon(model, x0, theta, 30, 15, rng=rng, control_noise=0.05),
+                                   style, theta)]
+    order = rng.permutation(style.size)
+    train, test = [drivers[i] for i in order[:120]], [drivers[i] for i in order[120:]]
+    means = np.array([[qs, 1.0] for qs in LQ_STYLE_Q])
+    for name, key, params in mixtures(3):
+        learner = _fit(key, {"model": model, "likelihood": "receding", "horizon": 15, **params}, train)
+        rows.append(_row("lq-receding", PAPER_PROTOCOL, name, learner, train, test, means))
+        say(f"lq-receding {name}: ARI {rows[-1]['ari']:.3g}")
+    cols = ["experiment", "protocol", "learner", "med", "fde", "weight_error", "ari", "n_styles", "style_accuracy",
+            "feature_style_accuracy", "style_error"]
+    return pd.DataFrame(rows)[cols]
+
+
+def _readme(table: pd.DataFrame, command: str) -> str:
+    return (
+        "# Mixtures in feature space and in weight space\n\n"
+        f"Written by `{command}` (pirl_sim/harness/weight_space_study.py; its docstring describes every experiment "
+        "and column).\n\n" + markdown(table)
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python3 -m pirl_sim.harness.weight_space_study",
+                                     description="Feature-space against weight-space mixtures (issue 14).")
+    parser.add_argument("--out", type=Path, default=Path("results") / "weight_space", help="output directory")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every draw (default 0)")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        out = check_output_dir(args.out)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    table = run_study(args.seed, say)
+    atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
+    atomic_write_text(out / "table.md", markdown(table))
+    command = "python3 -m pirl_sim.harness.weight_space_study" + (f" --seed {args.seed}" if args.seed else "")
+    atomic_write_text(out / "README.md", _readme(table, command))
+    print(markdown(table))
+    print(f"wrote {out}/")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

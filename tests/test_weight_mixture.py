@@ -1,0 +1,174 @@
+"""Mixtures in weight space (issue 14 item 1) and the style posterior of histories (item 2)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from pirl_sim.deconvolution import XDMixture, extreme_deconvolution
+from pirl_sim.learners import PIRLDPGMM, PIRLGMM
+from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
+from pirl_sim.model import synthetic_model
+from pirl_sim.population import Population, Style, generate_demonstrations
+from pirl_sim.simulate import simulate_receding_horizon
+
+STYLE_Q = np.array([0.1, 1.0, 10.0])  # normalised state_sq weight of each style (control_sq = 1)
+
+
+def _population(model, rationality):
+    styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
+                   for name, q in zip(("calm", "normal", "eager"), STYLE_Q))
+    return Population(model.features, styles, rationality)
+
+
+@pytest.fixture(scope="module")
+def three_styles():
+    """Boltzmann-rational LQ drivers of three styles from spread start states (train 300, test 60)."""
+    model = synthetic_model()
+    rng = np.random.default_rng(1)
+    n = 360
+    x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
+    demos = generate_demonstrations(model, _population(model, 100.0), x0, 40, rng)
+    return model, demos[:300], demos[300:]
+
+
+def _styles(demos):
+    return np.array([d.metadata["style"] for d in demos])
+
+
+# ---------------------------------------------------------------------------------------------- deconvolution
+def _noisy_mixture(rng, n=1000):
+    z = rng.integers(2, size=n)
+    means = np.array([[0.0, 0.0], [3.0, 1.0]])
+    covs = np.array([np.diag([0.1, 0.2]), [[0.3, 0.1], [0.1, 0.2]]])
+    v = np.stack([rng.multivariate_normal(means[k], covs[k]) for k in z])
+    sd = rng.uniform(0.1, 1.0, n)
+    S = np.einsum("n,ab->nab", sd**2, np.eye(2))
+    return v + rng.normal(size=(n, 2)) * sd[:, None], S, z, means, covs
+
+
+def test_extreme_deconvolution_recovers_the_noise_free_mixture():
+    X, S, z, means, covs = _noisy_mixture(np.random.default_rng(0))
+    fit = extreme_deconvolution(X, S, 2, rng=np.random.default_rng(0))
+    order = np.argsort(fit.means[:, 0])
+    np.testing.assert_allclose(fit.means[order], means, atol=0.1)
+    np.testing.assert_allclose(fit.covariances[order], covs, atol=0.08)  # the noise is deconvolved
+    naive = [np.cov(X[z == k].T) for k in range(2)]
+    assert all(np.trace(n) > np.trace(c) + 0.4 for n, c in zip(naive, covs))  # what a plain GMM would see
+    assert fit.converged and np.isclose(fit.weights.sum(), 1.0)
+    again = extreme_deconvolution(X, S, 2, rng=np.random.default_rng(0))
+    np.testing.assert_array_equal(again.means, fit.means)  # seeded: same result
+
+
+def test_pruning_finds_the_number_of_components():
+    rng = np.random.default_rng(3)
+    centres = np.array([[-4.0, 0.0], [0.0, 3.0], [4.0, 0.0]])
+    X = np.concatenate([c + 0.3 * rng.normal(size=(100, 2)) for c in centres])
+    S = np.broadcast_to(0.05 * np.eye(2), (len(X), 2, 2)).copy()
+    fit = extreme_deconvolution(X, S, 6, rng=np.random.default_rng(0), n_init=1, prune=True)
+    assert fit.n_components == 3
+
+
+@pytest.mark.parametrize("kwargs,error,match", [
+    ({"S": np.zeros((5, 2, 2))}, ValueError, r"measurement covariances must have shape \(10, 2, 2\)"),
+    ({"n_components": 11}, ValueError, "n_components=11 is more than the 10 points"),
+    ({"n_components": 0}, ValueError, "n_components must be a positive integer"),
+    ({"rng": 0}, TypeError, "rng must be a numpy.random.Generator"),
+    ({"reg_covar": 0.0}, ValueError, "reg_covar must be > 0"),
+])
+def test_deconvolution_rejects_bad_input(kwargs, error, match):
+    args = {"X": np.zeros((10, 2)), "S": np.zeros((10, 2, 2)), "n_components": 2, "rng": np.random.default_rng(0)}
+    args.update(kwargs)
+    with pytest.raises(error, match=match):
+        extreme_deconvolution(args.pop("X"), args.pop("S"), args.pop("n_components"), **args)
+    with pytest.raises(ValueError, match="weights must be >= 0 and sum to 1"):
+        XDMixture(np.array([0.5, 0.6]), np.zeros((2, 1)), np.ones((2, 1, 1)), 0.0, 1, True)
+
+
+# ---------------------------------------------------------------------------------------------- learners
+def test_weight_space_recovers_three_styles_that_feature_space_loses(three_styles):
+    model, train, _ = three_styles
+    truth = _styles(train)
+    feat = PIRLGMM(model, n_components=3, random_state=0).fit(train)
+    assert adjusted_rand_index(truth, feat.labels_) < 0.6  # the start states dominate the features
+    gmm = PIRLGMM(model, n_components=3, random_state=0, space="weights").fit(train)
+    assert adjusted_rand_index(truth, gmm.labels_) >= 0.95
+    pairs = match_styles(truth, gmm.labels_)
+    errors = [float(weight_recovery_error(gmm.theta_[j], np.array([STYLE_Q[s], 1.0]), 1)) for j, s in pairs.items()]
+    assert len(errors) == 3 and max(errors) <= 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        dp = PIRLDPGMM(model, random_state=0, space="weights").fit(train)
+    assert dp.n_styles_ == 3 and adjusted_rand_index(truth, dp.labels_) >= 0.95
+    assert gmm.demo_log_weights_.shape == (300, 1) and gmm.demo_log_covariances_.shape == (300, 1, 1)
+    assert np.isclose(gmm.style_weights_.sum(), 1.0)
+
+
+def test_per_demonstration_posteriors_are_calibrated(three_styles):
+    """The Laplace posterior's standard deviations match the actual errors of the per-demo log weights."""
+    model, train, _ = three_styles
+    gmm = PIRLGMM(model, n_components=3, random_state=0, space="weights").fit(train)
+    true = np.log([d.metadata["theta"][0] for d in train])
+    z = (gmm.demo_log_weights_[:, 0] - true) / np.sqrt(gmm.demo_log_covariances_[:, 0, 0])
+    assert 0.8 < z.std() < 1.25 and 0.5 < np.median(np.abs(z)) < 0.85  # N(0, 1): 1 and 0.674
+
+
+def test_style_posterior_of_whole_trajectories_and_of_first_steps(three_styles):
+    model, train, test = three_styles
+    truth = _styles(test)
+    for params, histories in (({}, test), ({"window": 10, "windows": "first"}, [t.window(0, 10) for t in test])):
+        gmm = PIRLGMM(model, n_components=3, random_state=0, space="weights", **params).fit(train)
+        to_true = match_styles(_styles(train), gmm.labels_)
+        proba = gmm.predict_proba(histories)
+        assert proba.shape == (len(test), 3)
+        np.testing.assert_allclose(proba.sum(axis=1), 1.0)
+        np.testing.assert_array_equal(gmm.predict_style(histories), proba.argmax(axis=1))
+        accuracy = np.mean([to_true[j] == s for j, s in zip(proba.argmax(axis=1), truth)])
+        assert accuracy >= 0.95, (params, accuracy)
+        np.testing.assert_array_equal(gmm.infer_weights(histories), gmm.theta_[proba.argmax(axis=1)])
+        one = gmm.predict_proba(histories[0])
+        assert one.shape == (3,)
+    # the feature-space learner has the same style posterior (its own styles and mixture weights)
+    feat = PIRLGMM(model, n_components=3, random_state=0).fit(train)
+    np.testing.assert_allclose(feat.predict_proba(test).sum(axis=1), 1.0)
+
+
+def test_receding_likelihood_in_weight_space():
+    model = synthetic_model()
+    rng = np.random.default_rng(2)
+    style = np.repeat([0, 1, 2], 20)
+    q = STYLE_Q[style] * np.exp(rng.normal(0.0, 0.1, style.size))
+    x0 = np.column_stack([rng.uniform(2.0, 8.0, style.size), rng.uniform(-1.0, 1.0, style.size)])
+    drivers = simulate_receding_horizon(model, x0, np.column_stack([q, np.ones_like(q)]), 30, 15, rng=rng,
+                                        control_noise=0.05)
+    gmm = PIRLGMM(model, n_components=3, random_state=0, space="weights", likelihood="receding",
+                  horizon=15).fit(drivers)
+    assert adjusted_rand_index(style, gmm.labels_) >= 0.95
+    z = (gmm.demo_log_weights_[:, 0] - np.log(q)) / np.sqrt(gmm.demo_log_covariances_[:, 0, 0])
+    assert 0.6 < z.std() < 1.6  # calibrated, 60 drivers
+    to_true = match_styles(style, gmm.labels_)
+    assert np.mean([to_true[j] == s for j, s in zip(gmm.predict_style(drivers), style)]) >= 0.95
+
+
+def test_refinement_by_the_style_likelihoods(three_styles):
+    """Hard EM over the IRL likelihoods after the deconvolution: it stops when no label moves, and refine=0 keeps
+    the deconvolution's partition and mixture weights."""
+    model, train, _ = three_styles
+    plain = PIRLGMM(model, n_components=3, random_state=0, space="weights", refine=0).fit(train)
+    assert plain.n_refined_ == 0
+    refined = PIRLGMM(model, n_components=3, random_state=0, space="weights", refine=3).fit(train)
+    assert refined.n_refined_ <= 1  # separable styles: at most one pass moves anything
+    again = refined.predict_proba(train).argmax(axis=1)
+    if refined.n_refined_:
+        np.testing.assert_allclose(refined.style_weights_, np.bincount(refined.labels_) / len(train))
+    assert adjusted_rand_index(again, refined.labels_) > 0.99
+    with pytest.raises(ValueError, match="refine must be a non-negative integer, got -1"):
+        PIRLGMM(model, space="weights", refine=-1).fit(train)
+
+
+def test_space_is_checked(three_styles):
+    model, train, _ = three_styles
+    with pytest.raises(ValueError, match=r"space must be one of \('features', 'weights'\), got 'theta'"):
+        PIRLGMM(model, space="theta").fit(train)
+    with pytest.raises(ValueError, match="n_components=400 is larger than the number of training demonstrations"):
+        PIRLGMM(model, n_components=400, space="weights").fit(train)
