@@ -80,6 +80,7 @@ from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_SMOOTHING, DEFAULT_V_MAX, Refe
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
+from .conflicts import ConflictRule, TrackMotion, yield_gaps
 from .demonstrations import settled
 
 __all__ = ["SelectionRule", "CENTRE_RULE", "GAPS", "leader_gaps", "leader_frames", "selection_counts", "ReplayScene", "EstimateNoise", "DriverSettings", "load_replay", "interaction_flags",
@@ -445,6 +446,7 @@ def load_replay(
     arc_length: str = "fit",
     settle_frames: int | None = None,
     features: str = "paper",
+    conflicts: ConflictRule = ConflictRule(),
 ) -> ReplayScene:
     """Read track files recorded on one map into a `ReplayScene`.
 
@@ -485,8 +487,13 @@ def load_replay(
         ``selection="steps"``: frames after each frame that was not the driver's own that also leave
         ``step_mask`` (not the estimate) while the drivers' real-time MPC re-converges; default
         `pirl_sim.scenarios.demonstrations.SETTLE_FRAMES`.
-    features : {"paper", "speed-level"}
-        The model's feature set (`pirl_sim.driving.roundabout_features`).
+    features : {"paper", "speed-level", "following"}
+        The model's feature set (`pirl_sim.driving.roundabout_features`). ``"following"`` adds to the states
+        the gap to the vehicle ahead and its speed (`pirl_sim.dynamics.following`): the recorded car ahead
+        within 2 m of the heading line, or a standing obstacle at the stop point of a conflict where the car
+        has to yield (`pirl_sim.scenarios.conflicts`), whichever is nearer; `NO_LEADER_GAP` when neither.
+    conflicts : ConflictRule
+        When a car yields at a conflict point (``features="following"``).
     """
     from .demonstrations import SETTLE_FRAMES
 
@@ -615,6 +622,8 @@ def load_replay(
                 rows_k = track.index.to_numpy()[keep]
                 extra["gap"], extra["v_lead"] = _obstacle(gaps_all[rows_k], lead_speed_all[rows_k], speed)
                 extra["gap"], extra["v_lead"] = extra["gap"][sel], extra["v_lead"][sel]
+                meta["_motion"] = TrackMotion(frames[keep], s_local, speed, xy,
+                                              track["psi_rad"].to_numpy(dtype=float)[keep], path_list[paths[key]])
             if usable is not None:
                 extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)
                 extra["settled"] = _frame_steps(settled(usable, settle_frames), restart, speed, stride)[0]
@@ -634,6 +643,8 @@ def load_replay(
     pending = placed
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
+    if features == "following":
+        _add_yield_gaps(pending, stride, conflicts)
     model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max, features)
     names = model.features.names
     trajectories = []
@@ -673,6 +684,10 @@ def load_replay(
             states[:, 0] = s
         if features == "following":  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
             states = np.column_stack([states, cut["gap"], cut["v_lead"]])
+            meta = dict(meta, yielding=cut["yielding"])
+            n_steps_counts["steps yielding at a conflict point"] += int(cut["yielding"][:-1].sum())
+            n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &
+                                                                   ~cut["yielding"])[:-1].sum())
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy))
         if mask is not None:
             meta["step_mask"] = mask
@@ -695,9 +710,9 @@ def load_replay(
                 if b - a < 2:
                     n_steps_counts["free steps in runs shorter than 2 steps (left out)"] += b - a
                     continue
+                cut_meta = {k: meta[k][a : b + 1] for k in ("d", "xy", "yielding") if k in meta}
                 trajectories.append(Trajectory(states[a : b + 1], controls[a:b], dt,
-                                               dict(meta, d=meta["d"][a : b + 1], xy=meta["xy"][a : b + 1],
-                                                    free_run=r, free_start=a)))
+                                               dict(meta, **cut_meta, free_run=r, free_start=a)))
             continue
         trajectories.append(Trajectory(states, controls, dt, meta))
     if not trajectories:
@@ -782,6 +797,25 @@ def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a
 
 #: gap [m] standing in for "no vehicle ahead" in the states of `pirl_sim.dynamics.following`
 NO_LEADER_GAP = 100.0
+
+
+def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
+    """Per recording file: standing obstacles where a car yields (`pirl_sim.scenarios.conflicts.yield_gaps`),
+    written into each pending track's sampled ``gap`` / ``v_lead`` where nearer than the vehicle ahead."""
+    by_file: dict[str, list] = {}
+    for item in pending:
+        by_file.setdefault(item[4]["file"], []).append(item)
+    for items in by_file.values():
+        motions = [it[4].pop("_motion") for it in items]
+        which = [np.arange(0, len(m.frames), stride) for m in motions]
+        gaps = yield_gaps(motions, rule, which)
+        for it, g, w in zip(items, gaps, which):
+            extra = it[4]["_extra"]
+            g = g[w][: len(extra["gap"])]
+            nearer = g < extra["gap"]
+            extra["gap"] = np.where(nearer, g, extra["gap"])
+            extra["v_lead"] = np.where(nearer, 0.0, extra["v_lead"])
+            extra["yielding"] = nearer
 
 
 def _obstacle(gap: np.ndarray, v_lead: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -177,3 +177,5 @@ def test_replay_with_following_features_sees_the_recorded_vehicle_ahead(tmp_path
     np.testing.assert_allclose(by_id[2].states[:, 4], 8.0)
     np.testing.assert_allclose(by_id[3].states[:, 3], NO_LEADER_GAP)
     np.testing.assert_allclose(by_id[3].states[:, 4], 8.0)  # alone: the car's own speed (the gap stays put)
+    assert not any(t.metadata["yielding"].any() for t in scene.selected)  # one lane: nobody crosses
+    assert scene.steps["steps behind a vehicle ahead"] == by_id[2].n_steps
