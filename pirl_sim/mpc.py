@@ -199,6 +199,7 @@ class BoxQP:
         else:
             raise ValueError(f"solver must be 'daqp' or 'casadi:<conic plugin>' (e.g. 'casadi:qpoases'), got {solver!r}")
         self._rows = np.flatnonzero(np.isfinite(self._x_lo) | np.isfinite(self._x_hi))
+        self._rollout = _Rollouts(dynamics)
         self._solvers: dict[int, tuple] = {}
         self._warm: dict[int, np.ndarray] = {}
 
@@ -236,7 +237,7 @@ class BoxQP:
 
     def violation(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Largest bound violation of each row of a batch, shape (M,): 0 when feasible."""
-        X = self.dynamics.rollout(x0, U)[:, 1:]
+        X = self._rollout(x0, U)[:, 1:]
         viol = np.maximum(self._x_lo - X, 0.0).max(axis=(1, 2)) if np.isfinite(self._x_lo).any() else 0.0
         viol = np.maximum(viol, np.maximum(X - self._x_hi, 0.0).max(axis=(1, 2)))
         viol = np.maximum(viol, np.maximum(self._u_lo - U, 0.0).max(axis=(1, 2)))
@@ -244,7 +245,7 @@ class BoxQP:
 
     def touches(self, x0: np.ndarray, U: np.ndarray, tol: float = 1e-7) -> np.ndarray:
         """Rows (M,) whose plan sits on a bound (an active set worth keeping when warm-starting)."""
-        X = self.dynamics.rollout(x0, U)[:, 1:]
+        X = self._rollout(x0, U)[:, 1:]
         near = lambda v, lo, hi: (np.abs(v - lo) <= tol) | (np.abs(v - hi) <= tol)
         return near(X, self._x_lo, self._x_hi).any(axis=(1, 2)) | near(U, self._u_lo, self._u_hi).any(axis=(1, 2))
 
@@ -329,6 +330,29 @@ class ConstrainedLQPredictor:
 
 
 _BATCHED_HALVINGS_MAX_ROWS = 16  #: line search: up to this many rows get all six halvings in one call
+
+
+class _Rollouts:
+    """``LinearDynamics.rollout`` as two matrix products with the condensed matrices flattened once per horizon
+    (the einsum form costs several times more for the small batches of a receding-horizon step)."""
+
+    def __init__(self, dynamics: LinearDynamics):
+        self.dynamics = dynamics
+        self._mats: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def __call__(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """States (M, N + 1, n_x) from starts x0 (M, n_x) and controls U (M, N, n_u)."""
+        M, N = U.shape[:2]
+        if N not in self._mats:
+            phi, gamma = self.dynamics.condensed(N)
+            n_x = self.dynamics.n_x
+            self._mats[N] = (np.ascontiguousarray(phi.reshape(N * n_x, n_x).T),
+                             np.ascontiguousarray(gamma.reshape(N * n_x, -1).T))
+        phi_t, gamma_t = self._mats[N]
+        X = np.empty((M, N + 1, self.dynamics.n_x))
+        X[:, 0] = x0
+        X[:, 1:] = (x0 @ phi_t + U.reshape(M, -1) @ gamma_t).reshape(M, N, -1)
+        return X
 
 
 def _pd_rows(H: np.ndarray) -> np.ndarray:
@@ -521,6 +545,7 @@ class SequentialMPC:
             raise ValueError(f"assembly must be 'outer' or 'stagewise', got {assembly!r}")
         self.assembly = assembly
         self._expansions: dict[int, _OuterExpansion | None] = {}
+        self._rollout = _Rollouts(dynamics) if assembly == "outer" else dynamics.rollout
         self.tol = float(tol)
         self.qp_tol = float(qp_tol)
         for name, value in (("n_iter", n_iter), ("n_qp_iter", n_qp_iter)):
@@ -536,7 +561,7 @@ class SequentialMPC:
         self.n_infeasible = 0
 
     def _cost(self, x0, U, theta):
-        return np.einsum("mk,mk->m", theta, self.features.values(self.dynamics.rollout(x0, U), U))
+        return np.einsum("mk,mk->m", theta, self.features.values(self._rollout(x0, U), U))
 
     def _expansion(self, n_steps: int) -> _OuterExpansion | None:
         if self.assembly != "outer":
@@ -557,7 +582,7 @@ class SequentialMPC:
         exp = self._expansion(U.shape[1])
         if exp is None:
             return self._model_stagewise(x0, U, theta)
-        X = self.dynamics.rollout(x0, U)
+        X = self._rollout(x0, U)
         values, g, jj, ww = exp.terms(X, U, theta)
         # exact Hessian only where it stays at least half as curved as the control-effort term alone
         # (as in `_model_stagewise`): the test matrix A - margin is assembled first, then the margin added
