@@ -13,8 +13,12 @@ to yield and how far the point is that it has to stop before, from what the reco
    roundabout comes from the entering car's left), moving at ``min_speed`` or more, not already on the ego's
    path (those are vehicles ahead or behind, `pirl_sim.scenarios.replay.leader_gaps_and_speeds`), unless it
    passes the point ``clearance`` seconds before the other car arrives;
-4. the yield gap is the distance to the nearest such conflict less ``stop_margin`` (the front half of the car
-   and a margin), >= 0; inf when the ego need not yield.
+4. ``obstacle="stop"``: the car yields to a standing obstacle at the nearest such conflict point less
+   ``stop_margin`` (the front half of the car and a margin), gap >= 0; ``"merge"`` (default): to the other
+   car projected onto the ego's path, a *virtual vehicle ahead* that reaches the conflict point when the
+   other car does and drives on at its speed (gap = distance - v_j t_j - stop_margin, possibly negative:
+   the ego has to fall back behind it), so that the way is free again once the other car has passed; the
+   nearest (smallest gap) over the cars it yields to; inf when the ego need not yield.
 
 `pirl_sim.scenarios.replay.load_replay` with ``features="following"`` treats a yield gap as a standing vehicle
 ahead (speed 0) wherever it is shorter than the gap to the vehicle ahead, so that the ``headway`` feature and
@@ -28,7 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ConflictRule", "TrackMotion", "yield_gaps"]
+__all__ = ["ConflictRule", "TrackMotion", "yield_gaps", "OBSTACLES"]
+
+OBSTACLES = ("merge", "stop")
 
 
 @dataclass(frozen=True)
@@ -43,6 +49,7 @@ class ConflictRule:
     clearance : float [s]    the ego goes first when it passes this long before the other car arrives
     stop_margin : float [m]  yield gap = distance to the conflict point - stop_margin
     min_speed : float [m/s]  slower cars are not approaching
+    obstacle : {"merge", "stop"}  what the ego yields to (module doc)
     """
 
     look_ahead: float = 40.0
@@ -51,8 +58,11 @@ class ConflictRule:
     clearance: float = 1.5
     stop_margin: float = 3.0
     min_speed: float = 1.0
+    obstacle: str = "merge"
 
     def __post_init__(self) -> None:
+        if self.obstacle not in OBSTACLES:
+            raise ValueError(f"obstacle must be one of {OBSTACLES}, got {self.obstacle!r}")
         for name in ("look_ahead", "horizon", "radius", "clearance", "stop_margin", "min_speed"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
@@ -95,8 +105,9 @@ class _Grid:
 
 
 def yield_gaps(tracks: list[TrackMotion], rule: ConflictRule = ConflictRule(),
-               which: list[np.ndarray] | None = None) -> list[np.ndarray]:
-    """Yield gap [m] of every track at its frames (inf where it need not yield), for cars recorded together.
+               which: list[np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Yield gap [m] and the speed [m/s] of what the car yields to, for every track at its frames (gap inf and
+    speed NaN where it need not yield), for cars recorded together.
 
     Parameters
     ----------
@@ -107,7 +118,7 @@ def yield_gaps(tracks: list[TrackMotion], rule: ConflictRule = ConflictRule(),
 
     Returns
     -------
-    list of arrays (n_i,) [m]
+    list of (gap (n_i,) [m], speed (n_i,) [m/s])
     """
     if not isinstance(rule, ConflictRule):
         raise TypeError(f"rule must be a ConflictRule, got {type(rule).__name__}")
@@ -125,6 +136,7 @@ def yield_gaps(tracks: list[TrackMotion], rule: ConflictRule = ConflictRule(),
     out = []
     for i, ego in enumerate(tracks):
         gaps = np.full(len(ego.frames), np.inf)
+        speeds = np.full(len(ego.frames), np.nan)
         idx = np.arange(len(ego.frames)) if which is None else np.asarray(which[i], dtype=int)
         grid_i = grids[id(ego.path)]
         for k in idx:
@@ -134,7 +146,7 @@ def yield_gaps(tracks: list[TrackMotion], rule: ConflictRule = ConflictRule(),
             head = np.array([np.cos(ego.psi[k]), np.sin(ego.psi[k])])
             P = grid_i.points(ego.s[k] + ahead)  # (A, 2)
             on_path = grid_i.points(ego.s[k] + np.arange(-30.0, rule.look_ahead + 0.5, 1.0))
-            best = np.inf
+            best, best_v = np.inf, np.nan
             for j, kj in others:
                 o = tracks[j]
                 if o.v[kj] < rule.min_speed:
@@ -154,8 +166,12 @@ def yield_gaps(tracks: list[TrackMotion], rule: ConflictRule = ConflictRule(),
                 t_i = ahead[a_first] / max(float(ego.v[k]), 0.5)
                 if t_i + rule.clearance <= t_j:  # the ego passes well before the other car arrives
                     continue
-                best = min(best, ahead[a_first])
-            if np.isfinite(best):
-                gaps[k] = max(best - rule.stop_margin, 0.0)
-        out.append(gaps)
+                if rule.obstacle == "stop":
+                    gap, speed = max(ahead[a_first] - rule.stop_margin, 0.0), 0.0
+                else:
+                    gap, speed = ahead[a_first] - o.v[kj] * t_j - rule.stop_margin, float(o.v[kj])
+                if gap < best:
+                    best, best_v = gap, speed
+            gaps[k], speeds[k] = best, best_v
+        out.append((gaps, speeds))
     return out

@@ -490,8 +490,8 @@ def load_replay(
     features : {"paper", "speed-level", "following"}
         The model's feature set (`pirl_sim.driving.roundabout_features`). ``"following"`` adds to the states
         the gap to the vehicle ahead and its speed (`pirl_sim.dynamics.following`): the recorded car ahead
-        within 2 m of the heading line, or a standing obstacle at the stop point of a conflict where the car
-        has to yield (`pirl_sim.scenarios.conflicts`), whichever is nearer; `NO_LEADER_GAP` when neither.
+        within 2 m of the heading line, or what the car yields to at a conflict point
+        (`pirl_sim.scenarios.conflicts`), whichever is nearer; `NO_LEADER_GAP` when neither.
     conflicts : ConflictRule
         When a car yields at a conflict point (``features="following"``).
     """
@@ -800,8 +800,8 @@ NO_LEADER_GAP = 100.0
 
 
 def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
-    """Per recording file: standing obstacles where a car yields (`pirl_sim.scenarios.conflicts.yield_gaps`),
-    written into each pending track's sampled ``gap`` / ``v_lead`` where nearer than the vehicle ahead."""
+    """Per recording file: what a car yields to (`pirl_sim.scenarios.conflicts.yield_gaps`), written into each
+    pending track's sampled ``gap`` / ``v_lead`` where nearer than the vehicle ahead."""
     by_file: dict[str, list] = {}
     for item in pending:
         by_file.setdefault(item[4]["file"], []).append(item)
@@ -809,12 +809,12 @@ def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
         motions = [it[4].pop("_motion") for it in items]
         which = [np.arange(0, len(m.frames), stride) for m in motions]
         gaps = yield_gaps(motions, rule, which)
-        for it, g, w in zip(items, gaps, which):
+        for it, (g, v), w in zip(items, gaps, which):
             extra = it[4]["_extra"]
-            g = g[w][: len(extra["gap"])]
+            g, v = g[w][: len(extra["gap"])], v[w][: len(extra["gap"])]
             nearer = g < extra["gap"]
             extra["gap"] = np.where(nearer, g, extra["gap"])
-            extra["v_lead"] = np.where(nearer, 0.0, extra["v_lead"])
+            extra["v_lead"] = np.where(nearer, v, extra["v_lead"])
             extra["yielding"] = nearer
 
 

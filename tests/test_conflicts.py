@@ -25,9 +25,14 @@ def _car(path, xy, v, psi):
 def test_a_car_yields_to_traffic_from_its_left_and_stops_short_of_the_conflict():
     ego = _car(NORTH, (0.0, -20.0), 5.0, np.pi / 2)
     other = _car(EAST, (-15.0, 0.0), 8.0, 0.0)  # at the crossing after ~1.9 s; the ego after ~4 s
-    gaps = yield_gaps([ego, other])
-    assert 15.0 <= gaps[0][0] <= 17.5  # ~19 m to where the paths come within 1.5 m, less the 3 m margin
-    assert np.isinf(gaps[1][0])  # the other car has the ego on its right: it goes
+    gaps = yield_gaps([ego, other], ConflictRule(obstacle="stop"))
+    assert 15.0 <= gaps[0][0][0] <= 17.5  # ~19 m to where the paths come within 1.5 m, less the 3 m margin
+    assert gaps[0][1][0] == 0.0
+    assert np.isinf(gaps[1][0][0])  # the other car has the ego on its right: it goes
+    # merge: the other car as a virtual vehicle ahead, at the conflict when it gets there, then at its speed
+    (gap, speed), _ = yield_gaps([ego, other])
+    assert speed[0] == 8.0
+    assert gap[0] == pytest.approx(gaps[0][0][0] - 8.0 * 1.8, abs=1.7)  # ~1.8 s at 8 m/s to the crossing
 
 
 @pytest.mark.parametrize("ego_at, ego_v, other_path, other_at, other_v, why", [
@@ -39,25 +44,25 @@ def test_a_car_yields_to_traffic_from_its_left_and_stops_short_of_the_conflict()
 def test_no_yield(ego_at, ego_v, other_path, other_at, other_v, why):
     ego = _car(NORTH, ego_at, ego_v, np.pi / 2)
     other = _car(other_path, other_at, other_v, 0.0 if other_path is EAST else np.pi)
-    assert np.isinf(yield_gaps([ego, other])[0][0]), why
+    assert np.isinf(yield_gaps([ego, other])[0][0][0]), why
 
 
 def test_a_vehicle_already_on_the_path_is_a_leader_not_a_conflict():
     ego = _car(NORTH, (0.0, -20.0), 5.0, np.pi / 2)
     ahead = _car(NORTH, (-0.5, -5.0), 5.0, np.pi / 2)  # slightly left of the line, on the ego's path
-    assert np.isinf(yield_gaps([ego, ahead])[0][0])
+    assert np.isinf(yield_gaps([ego, ahead])[0][0][0])
 
 
 def test_only_shared_frames_count_and_which_limits_the_work():
     ego = _car(NORTH, (0.0, -20.0), 5.0, np.pi / 2)
     other = _car(EAST, (-15.0, 0.0), 8.0, 0.0)
     later = TrackMotion(other.frames + 1, other.s, other.v, other.xy, other.psi, other.path)
-    assert np.isinf(yield_gaps([ego, later])[0][0])  # never at the same frame
-    assert np.isinf(yield_gaps([ego, other], which=[np.array([], dtype=int), np.array([0])])[0][0])
+    assert np.isinf(yield_gaps([ego, later])[0][0][0])  # never at the same frame
+    assert np.isinf(yield_gaps([ego, other], which=[np.array([], dtype=int), np.array([0])])[0][0][0])
 
 
 @pytest.mark.parametrize("kwargs", [{"radius": 0.0}, {"horizon": -1.0}, {"clearance": float("nan")},
-                                    {"look_ahead": True}])
+                                    {"look_ahead": True}, {"obstacle": "wall"}])
 def test_bad_rules_are_refused(kwargs):
     with pytest.raises(ValueError):
         ConflictRule(**kwargs)
