@@ -8,6 +8,13 @@ spread over orders of magnitude); ``average="linear"`` averages the weights them
 
 Per-demonstration weights can be weakly identified: ``prior="population"`` refits every demonstration as MAP
 under a log-normal prior fitted to the first-pass estimates that did not reach a bound.
+
+``weighting="likelihood"`` (issue 14 item 2): the k neighbours vote with weights proportional to how well their
+own cost explains the history, p(history | theta_i) (`pirl_sim.learners.weight_space.paired_log_likelihoods`:
+the IRL's likelihood at the neighbour's fitted weights; the Boltzmann prefix marginal for the first steps of an
+episode), instead of 1 / distance: the analogue of PIRL-GMM's style posterior. The feature look-up then only
+proposes candidates, so a larger k lets the likelihood choose among more of them. A demonstration that is the
+neighbour through several windows votes once per window.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ __all__ = ["PIRLKNN"]
 
 AVERAGES = ("log", "linear")
 PRIORS = (None, "population")
+WEIGHTINGS = ("distance", "likelihood")
 
 
 class PIRLKNN(BaseLearner):
@@ -34,6 +42,8 @@ class PIRLKNN(BaseLearner):
         k; must not exceed the number of training samples.
     average : {"log", "linear"}
     prior : {None, "population"}
+    weighting : {"distance", "likelihood"}
+        The neighbours' votes: 1 / distance (the paper's) or their likelihood of the history (module doc).
     model, window, stride, feature_transform, log_bounds : see `BaseLearner`.
 
     Attributes
@@ -42,6 +52,7 @@ class PIRLKNN(BaseLearner):
     sample_theta_ : array (S, K)   weights of each look-up sample (window or demonstration)
     n_weights_at_bound_ : int      demonstrations with a normalised weight at the log bound
     n_scale_at_bound_ : int        demonstrations whose scale (rationality) reached the bound
+    control_rms_, episode_steps_   (``weighting="likelihood"``) as `PIRLGMM`'s, for the likelihoods
     """
 
     def __init__(
@@ -60,11 +71,13 @@ class PIRLKNN(BaseLearner):
         horizon=None,
         step_stride=1,
         irl_hessian="auto",
+        weighting="distance",
     ):
         self.model = model
         self.n_neighbors = n_neighbors
         self.average = average
         self.prior = prior
+        self.weighting = weighting
         self.window = window
         self.stride = stride
         self.windows = windows
@@ -83,6 +96,8 @@ class PIRLKNN(BaseLearner):
             raise ValueError(f"average must be one of {AVERAGES}, got {self.average!r}")
         if self.prior not in PRIORS:
             raise ValueError(f"prior must be one of {PRIORS}, got {self.prior!r}")
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"weighting must be one of {WEIGHTINGS}, got {self.weighting!r}")
         samples, owners = self._training_windows(trajectories)
         if k > len(samples):
             raise ValueError(
@@ -104,11 +119,39 @@ class PIRLKNN(BaseLearner):
         self.sample_owner_ = owners
         Z = self._fit_space(model.feature_values(samples))
         self.neighbors_ = NearestNeighbors(n_neighbors=int(k)).fit(Z)
+        if self.weighting == "likelihood":
+            self.control_rms_ = float(np.sqrt(np.mean(np.concatenate([np.square(t.controls).ravel()
+                                                                       for t in trajectories]))))
+            first = self.window is not None and self.windows == "first"
+            self.episode_steps_ = int(min(t.n_steps for t in trajectories)) if first else None
 
     def _infer(self, histories):
         Z = self._to_space(self.model_.feature_values(self._query_windows(histories)))
         dist, idx = self.neighbors_.kneighbors(Z)
+        if self.weighting == "likelihood":
+            return self._likelihood_average(histories, idx)
         return knn_average(dist, self.sample_theta_[idx], self.average)
+
+    def _likelihood_average(self, histories, idx: np.ndarray) -> np.ndarray:
+        """Neighbour weights ∝ p(history | theta_owner), averaged as ``average`` says, (M, K)."""
+        from .weight_space import paired_log_likelihoods
+
+        M, k = idx.shape
+        owner = self.sample_owner_[idx].ravel()
+        res = self.irl_result_
+        gn = getattr(res, "gauss_newton", None)
+        sigma = getattr(res, "sigma", None)
+        ll = paired_log_likelihoods(
+            self.model_, [histories[i] for i in np.repeat(np.arange(M), k)], likelihood=self.likelihood,
+            theta=res.theta[owner], normalized=res.normalized[owner], gauss_newton=None if gn is None else gn[owner],
+            sigma=None if sigma is None else sigma[owner], noise_floor_controls=np.array([[self.control_rms_]]),
+            horizon=self.horizon, step_stride=self.step_stride, episode_steps=self.episode_steps_).reshape(M, k)
+        w = np.exp(ll - ll.max(axis=1, keepdims=True))
+        w /= w.sum(axis=1, keepdims=True)
+        theta = self.sample_theta_[idx]
+        if self.average == "log":
+            return np.exp(np.einsum("mk,mkd->md", w, np.log(theta)))
+        return np.einsum("mk,mkd->md", w, theta)
 
 
 def knn_average(dist: np.ndarray, theta: np.ndarray, average: str = "log", exact_tol: float = 1e-12) -> np.ndarray:

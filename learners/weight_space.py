@@ -49,7 +49,7 @@ from pirl_sim.model import DriverModel
 from pirl_sim.receding import RecedingPolicy, cauchy_scale, receding_steps
 from pirl_sim.trajectory import Trajectory
 
-__all__ = ["demo_posteriors", "style_log_likelihoods", "information_to_covariance"]
+__all__ = ["demo_posteriors", "style_log_likelihoods", "paired_log_likelihoods", "information_to_covariance"]
 
 
 def _param_map(K: int, ref: int) -> np.ndarray:
@@ -253,3 +253,70 @@ def _prefix_log_likelihoods(model: DriverModel, histories: list[Trajectory], the
         logdet = 2.0 * np.sum(np.log(np.einsum("mii->mi", L)), axis=1)
         out[:, j] = -0.5 * (np.sum(z**2, axis=1) + logdet + T * n_u * np.log(2.0 * np.pi))
     return out
+
+
+def paired_log_likelihoods(model: DriverModel, histories: Sequence[Trajectory], *, likelihood: str,
+                           theta: np.ndarray, normalized: np.ndarray, gauss_newton: np.ndarray | None = None,
+                           sigma: np.ndarray | None = None, noise_floor_controls: np.ndarray | None = None,
+                           horizon: int | None = None, step_stride: int = 1, loss: str = "cauchy",
+                           episode_steps: int | None = None) -> np.ndarray:
+    """log p(history_p | weights_p) for P (history, weights) pairs, shape (P,) [nats]: `style_log_likelihoods`
+    with one row of weights per history (``theta``, ``normalized`` (P, K); ``gauss_newton``, ``sigma`` (P,)).
+    PIRL-kNN's ``weighting="likelihood"`` scores each history against its neighbours' weights with it."""
+    histories = model.check(histories)
+    P = len(histories)
+    theta, normalized = np.asarray(theta, dtype=float), np.asarray(normalized, dtype=float)
+    out = np.empty(P)
+    if likelihood == "receding":
+        steps = receding_steps(histories, int(horizon), stride=int(step_stride))
+        r = steps.u - RecedingPolicy(model, int(horizon)).solve(steps.x, normalized[steps.owner], steps.init).first
+        floor_u = steps.u if noise_floor_controls is None else noise_floor_controls
+        if loss == "gauss":
+            s = np.maximum(np.asarray(sigma, dtype=float), 1e-12)[steps.owner][:, None]
+            per = -0.5 * (r / s) ** 2 - np.log(s) - 0.5 * np.log(2 * np.pi)
+        else:
+            c = cauchy_scale(np.asarray(sigma, dtype=float), floor_u)[steps.owner][:, None]
+            per = -np.log(np.pi * c) - np.log1p((r / c) ** 2)
+        return np.bincount(steps.owner, weights=per.sum(axis=1), minlength=P)
+    if likelihood != "trajectory":
+        raise ValueError(f"likelihood must be 'trajectory' or 'receding', got {likelihood!r}")
+    lengths = np.array([h.n_steps for h in histories])
+    prefix = np.zeros(P, dtype=bool) if episode_steps is None else lengths < int(episode_steps)
+    for T in np.unique(lengths[prefix]):
+        idx = np.flatnonzero(prefix & (lengths == T))
+        out[idx] = _paired_prefix(model, [histories[i] for i in idx], theta[idx], int(episode_steps))
+    gn = np.zeros(P, dtype=bool) if gauss_newton is None else np.asarray(gauss_newton, dtype=bool)
+    whole = np.flatnonzero(~prefix)
+    if whole.size:
+        group = [histories[i] for i in whole]
+        blocks = model.laplace_blocks(group)
+        if gn[whole].any():
+            blocks = attach_gauss_newton(blocks, model.features, model.dynamics, group)
+        for block, idx in blocks:
+            rows = whole[idx]
+            for use_gn in (False, True):
+                sel = gn[rows] == use_gn
+                if not sel.any():
+                    continue
+                b = block if sel.all() else block.subset(sel)
+                nll, *_ = laplace_nll(theta[rows[sel]], b.gauss_newton() if use_gn else b, order=0)
+                out[rows[sel]] = -nll
+    return out
+
+
+def _paired_prefix(model: DriverModel, histories: list[Trajectory], theta: np.ndarray, n_steps: int) -> np.ndarray:
+    """`_prefix_log_likelihoods` with one row of absolute weights per history, shape (P,)."""
+    P, T = len(histories), histories[0].n_steps
+    n_u = model.dynamics.n_u
+    x0 = np.stack([h.states[0] for h in histories])
+    U_h = np.stack([h.controls for h in histories]).reshape(P, T * n_u)
+    states = model.predict_states(x0, theta, n_steps)
+    controls = model.dynamics.controls_from_states(states)
+    der = model.features.derivatives(model.dynamics, states, controls, gauss_newton=not model.features.quadratic)
+    H = np.einsum("pk,pkij->pij", theta, np.broadcast_to(der.hess, (P,) + der.hess.shape[1:]))
+    cov = np.linalg.inv(H)[:, : T * n_u, : T * n_u]
+    L = np.linalg.cholesky(0.5 * (cov + np.swapaxes(cov, 1, 2)))
+    r = U_h - controls[:, :T].reshape(P, T * n_u)
+    z = np.linalg.solve(L, r[..., None])[..., 0]
+    logdet = 2.0 * np.sum(np.log(np.einsum("pii->pi", L)), axis=1)
+    return -0.5 * (np.sum(z**2, axis=1) + logdet + T * n_u * np.log(2.0 * np.pi))

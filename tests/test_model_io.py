@@ -36,6 +36,7 @@ KINDS = [
     (PIRLKNN, {"n_neighbors": 3, "prior": "population"}),
     (PIRLGMM, {"n_components": 2, "random_state": 0, "space": "weights"}),
     (PIRLDPGMM, {"random_state": 0, "space": "weights", "max_components": 4}),
+    (PIRLKNN, {"n_neighbors": 5, "weighting": "likelihood"}),
 ]
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pirl_sim.deconvolution import XDMixture, extreme_deconvolution
-from pirl_sim.learners import PIRLDPGMM, PIRLGMM
+from pirl_sim.learners import PIRLDPGMM, PIRLGMM, PIRLKNN
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.model import synthetic_model
 from pirl_sim.population import Population, Style, generate_demonstrations
@@ -164,6 +164,23 @@ def test_refinement_by_the_style_likelihoods(three_styles):
     assert adjusted_rand_index(again, refined.labels_) > 0.99
     with pytest.raises(ValueError, match="refine must be a non-negative integer, got -1"):
         PIRLGMM(model, space="weights", refine=-1).fit(train)
+
+
+def test_knn_neighbours_weighted_by_their_likelihood_of_the_history(three_styles):
+    """PIRL-kNN's analogue of the style posterior: the neighbours whose cost explains the history best count."""
+    model, train, test = three_styles
+    true = np.stack([t.metadata["theta"] for t in test])
+    for params, histories in (({}, test), ({"window": 10, "windows": "first"}, [t.window(0, 10) for t in test])):
+        errors = {}
+        for weighting in ("distance", "likelihood"):
+            knn = PIRLKNN(model, n_neighbors=20, weighting=weighting, **params).fit(train)
+            errors[weighting] = np.median(weight_recovery_error(knn.infer_weights(histories), true, 1))
+        assert errors["likelihood"] < 0.5 * errors["distance"], (params, errors)
+    one = PIRLKNN(model, n_neighbors=1, weighting="likelihood").fit(train)
+    np.testing.assert_allclose(one.infer_weights(test), one.sample_theta_[one.neighbors_.kneighbors(
+        one._to_space(model.feature_values(test)))[1][:, 0]])  # one neighbour: its weights
+    with pytest.raises(ValueError, match=r"weighting must be one of \('distance', 'likelihood'\), got 'vote'"):
+        PIRLKNN(model, weighting="vote").fit(train)
 
 
 def test_space_is_checked(three_styles):

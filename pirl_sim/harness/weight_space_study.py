@@ -1,7 +1,7 @@
 """Feature-space against weight-space mixtures (issue 14 items 1-2): the measurements behind
 ``results/weight_space/``.
 
-``python3 -m pirl_sim.harness.weight_space_study --out results/weight_space`` (≈2 min on one core) writes
+``python3 -m pirl_sim.harness.weight_space_study --out results/weight_space`` (≈4 min on one core) writes
 ``table.csv`` / ``table.md`` (one row per experiment, protocol and learner) and ``README.md``. Same seed, same
 bytes (no timings in the files). Experiments:
 
@@ -15,6 +15,8 @@ bytes (no timings in the files). Experiments:
   style it is matched to (Hungarian on the training labels), worst over the styles.
 - ``passage``: the roundabout passage of ``reproduce passage`` (three user-study styles, beta = 100,
   500 train / 100 test), protocols paper and online (first 10 steps = 2 s).
+- PIRL-kNN with ``weighting="likelihood"`` (its neighbours vote by their likelihood of the history) beside the
+  paper's inverse-distance votes; on the passage with ``prior="population"`` as ``reproduce passage``.
 - ``lq-receding``: LQ drivers of the three styles (weights spread 10 % in log) who re-plan every step over 15
   steps with control noise 0.05 m/s^2 (`pirl_sim.simulate.simulate_receding_horizon`), 150 drivers of 30
   steps, receding-horizon likelihood.
@@ -108,6 +110,8 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
 
     rows = []
     online = Protocol("online", 10)
+    knn_pair = [("PIRL-kNN (k=10)", "pirl-knn", {"n_neighbors": 10}),
+                ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})]
     mixtures = lambda k: [  # noqa: E731 - the learners compared in every experiment
         (f"PIRL-GMM (k={k}), features", "pirl-gmm", {"n_components": k, "random_state": seed}),
         (f"PIRL-GMM (k={k}), weights", "pirl-gmm", {"n_components": k, "random_state": seed, "space": "weights"}),
@@ -118,7 +122,9 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
     for experiment, ranges in (("synthetic-spread", {"position_range": (2.0, 8.0), "velocity_range": (-1.0, 1.0)}),
                                ("synthetic", {})):
         data = generate_synthetic(SyntheticConfig(seed=seed, **ranges))
-        specs = [("TIRL", "tirl", {}), ("PIRL-kNN (k=1)", "pirl-knn", {"n_neighbors": 1})] + mixtures(2)
+        specs = [("TIRL", "tirl", {}), ("PIRL-kNN (k=1)", "pirl-knn", {"n_neighbors": 1}),
+                 ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})
+                 ] + mixtures(2)
         for protocol in (PAPER_PROTOCOL, online):
             for name, key, params in specs:
                 learner = _fit(key, {"model": data.model, **params, **protocol.learner_params()}, data.train)
@@ -129,7 +135,7 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
     train, test = demos[:600], demos[600:]
     means = _style_means(train, 3, model.features.n_features)
     for protocol in (PAPER_PROTOCOL, online):
-        for name, key, params in [("TIRL", "tirl", {})] + mixtures(3):
+        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3):
             learner = _fit(key, {"model": model, **params, **protocol.learner_params()}, train)
             rows.append(_row("lq-3-styles", protocol, name, learner, train, test, means))
             say(f"lq-3-styles {protocol.name} {name}: ARI {rows[-1]['ari']:.3g} "
@@ -140,7 +146,9 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
         passage = generate_passage(PassageConfig(seed=seed))
     means = _style_means(passage.train, 3, passage.model.features.n_features)
     for protocol in (PAPER_PROTOCOL, online):
-        for name, key, params in [("TIRL", "tirl", {})] + mixtures(3):
+        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3):
+            if key == "pirl-knn":
+                params = {**params, "prior": "population"}  # as reproduce passage
             learner = _fit(key, {"model": passage.model, **params, **protocol.learner_params()}, passage.train)
             rows.append(_row("passage", protocol, name, learner, passage.train, passage.test, means))
             say(f"passage {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
