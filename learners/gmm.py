@@ -136,6 +136,9 @@ class _MixtureLearner(BaseLearner):
         raise NotImplementedError
 
     def _fit_weight_space(self, model, trajectories):
+        refine = self.refine
+        if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
+            raise ValueError(f"refine must be a non-negative integer, got {refine!r}")
         M = len(trajectories)
         demo = self._irl(model, trajectories, np.arange(M), M)
         prior, redo = None, None
@@ -179,23 +182,19 @@ class _MixtureLearner(BaseLearner):
         self.style_log_means_ = xd.means[keep]
         self.style_log_covariances_ = xd.covariances[keep]
         self.xd_log_likelihood_ = xd.log_likelihood
-        self.labels_ = labels
-        self.sample_labels_ = labels
+        self.labels_ = labels  # weight space: one label per trajectory, no windows
         res = self._irl(model, trajectories, labels, self.n_styles_)
         self.irl_result_ = res
         self.theta_ = res.normalized
         self._set_noise_scale(trajectories)
         self.n_refined_ = 0
-        refine = self.refine
-        if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
-            raise ValueError(f"refine must be a non-negative integer, got {refine!r}")
         for _ in range(int(refine)):  # hard EM over the IRL likelihoods (module doc)
             new = self._posterior(self._style_log_likelihood(trajectories)).argmax(axis=1)
             sizes = np.bincount(new, minlength=self.n_styles_)
             if np.array_equal(new, self.labels_) or sizes.min() < min(self.min_cluster_size, sizes.max()):
                 break
             res = self._irl(model, trajectories, new, self.n_styles_)
-            self.labels_ = self.sample_labels_ = new
+            self.labels_ = new
             self.irl_result_, self.theta_ = res, res.normalized
             self.style_weights_ = sizes / sizes.sum()
             self.n_refined_ += 1
