@@ -25,8 +25,9 @@ NearestNeighbors; a NearestNeighbors index is rebuilt from its training points, 
 
 The model: ``dynamics`` (``A`` (n_x, n_x), ``B`` (n_x, n_u), ``dt`` [s], state and control names,
 ``position_index``), ``features`` (``reference`` and, per feature, ``name``, ``reduction``, ``quadratic`` and
-its ``residual``: ``squared_state`` with ``index``, ``squared_control``, or ``speed_deviation`` with its speed
-profile: ``path``, ``a_lat`` [m/s^2], ``v_max`` [m/s]), ``bounds`` (``state``/``control``: name -> [low,
+its ``residual``: ``squared_state`` with ``index``, ``squared_control``, ``speed_deviation`` with its speed
+profile: ``path``, ``a_lat`` [m/s^2], ``v_max`` [m/s], ``speed_target`` with ``v_target`` [m/s], or ``headway``
+with ``standstill`` [m], ``time_gap`` [s], ``softness`` [m]), ``bounds`` (``state``/``control``: name -> [low,
 high]) and, for a `pirl_sim.driving.PathDriverModel`, ``path`` and ``n_iter``. A path is a ``reference`` table
 (``s``, ``x``, ``y``, ``heading`` [rad], ``kappa`` [1/m], ``closed``) or a ``composite`` of reference paths
 (``segments``, ``gap`` [m], ``spacing`` [m], and its curvature table ``kappa``, which a replay may have
@@ -52,7 +53,14 @@ from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
 from sklearn.neighbors import NearestNeighbors
 from sklearn.preprocessing import StandardScaler
 
-from pirl_sim.driving import CompositePath, PathDriverModel, SpeedDeviationResidual, SpeedProfile
+from pirl_sim.driving import (
+    CompositePath,
+    HeadwayResidual,
+    PathDriverModel,
+    SpeedDeviationResidual,
+    SpeedProfile,
+    SpeedTargetResidual,
+)
 from pirl_sim.dynamics import LinearDynamics
 from pirl_sim.features import Feature, FeatureSet, SquaredControlResidual, SquaredStateResidual
 from pirl_sim.irl import IRLResult, LogNormalPrior
@@ -68,6 +76,8 @@ FORMAT = "pirl_sim.learner"
 FORMAT_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
 HEADER_KEY = "header"
+#: residual kinds a model file describes
+_RESIDUAL_KINDS = ("squared_state", "squared_control", "speed_deviation", "speed_target", "headway")
 
 _DATACLASSES = {c.__name__: c for c in (IRLResult, RecedingResult, LogNormalPrior)}
 _ESTIMATORS = {c.__name__: c for c in (StandardScaler, GaussianMixture, BayesianGaussianMixture, NearestNeighbors)}
@@ -155,9 +165,13 @@ class _Encoder:
             p = r.profile
             return {"kind": "speed_deviation", "a_lat": float(p.a_lat), "v_max": float(p.v_max),
                     "path": self.path(p.path, f"{key}.profile.path")}
+        if type(r) is SpeedTargetResidual:
+            return {"kind": "speed_target", "v_target": float(r.v_target)}
+        if type(r) is HeadwayResidual:
+            return {"kind": "headway", "standstill": float(r.standstill), "time_gap": float(r.time_gap),
+                    "softness": float(r.softness)}
         raise TypeError(f"feature {feature.name!r} has a residual of type {type(r).__name__}, which a {FORMAT} file "
-                        "cannot describe (squared_state, squared_control and speed_deviation only); pickle the "
-                        "learner instead")
+                        f"cannot describe ({', '.join(_RESIDUAL_KINDS)} only); pickle the learner instead")
 
     def model(self, model: DriverModel, key: str) -> dict:
         if type(model) not in (DriverModel, PathDriverModel):
@@ -254,8 +268,12 @@ class _Decoder:
             return SquaredControlResidual()
         if kind == "speed_deviation":
             return SpeedDeviationResidual(SpeedProfile(self.path(cfg["path"]), cfg["a_lat"], cfg["v_max"]))
+        if kind == "speed_target":
+            return SpeedTargetResidual(cfg["v_target"])
+        if kind == "headway":
+            return HeadwayResidual(cfg["standstill"], cfg["time_gap"], cfg["softness"])
         raise ValueError(f"{self.source}: feature {name!r} has unknown residual kind {kind!r} "
-                         "(squared_state, squared_control, speed_deviation)")
+                         f"({', '.join(_RESIDUAL_KINDS)})")
 
     def model(self, cfg: dict) -> DriverModel:
         d = cfg["dynamics"]

@@ -179,3 +179,22 @@ def test_replay_with_following_features_sees_the_recorded_vehicle_ahead(tmp_path
     np.testing.assert_allclose(by_id[3].states[:, 4], 8.0)  # alone: the car's own speed (the gap stays put)
     assert not any(t.metadata["yielding"].any() for t in scene.selected)  # one lane: nobody crosses
     assert scene.steps["steps behind a vehicle ahead"] == by_id[2].n_steps
+
+
+def test_a_learner_on_the_following_features_round_trips_through_the_model_file(tmp_path):
+    from pirl_sim.dynamics import following
+    from pirl_sim.learners import TIRL
+    from pirl_sim.learners.model_io import load_learner
+    from pirl_sim.trajectory import Trajectory
+
+    path = ReferencePath.from_polyline(np.column_stack([np.linspace(0, 400, 81), np.zeros(81)]))
+    model = PathDriverModel(following(0.2), roundabout_features(SpeedProfile(path, 1.8, 10.0), "following"),
+                            None, path=path)
+    rng = np.random.default_rng(0)
+    x0 = np.column_stack([np.zeros(6), rng.uniform(4, 9, 6), np.zeros(6), rng.uniform(5, 40, 6), rng.uniform(0, 8, 6)])
+    theta = np.array([1.0, 1.0, 1.0, 0.05, 0.05, 3.0])
+    states = model.predict_states(x0, np.tile(theta, (6, 1)), 20)
+    demos = [Trajectory(s, model.dynamics.controls_from_states(s), 0.2) for s in states]
+    learner = TIRL(model=model, window=10).fit(demos)
+    back = load_learner(learner.save(tmp_path / "tirl.npz"))
+    np.testing.assert_array_equal(back.infer_weights(demos), learner.infer_weights(demos))
