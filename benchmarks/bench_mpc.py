@@ -16,6 +16,10 @@ Cold starts are also timed with the Newton model assembled stage-wise through `F
 (``SequentialMPC(assembly="stagewise")``, the path before issue 16), interleaved with the default
 (``assembly="outer"``), and the ratio printed; both plans are compared. BLAS threads: ``--blas-threads``
 (default 1, through threadpoolctl; printed).
+
+Last runs (issue 16, 2026-12-01, this 2-core machine shared with other sessions, one BLAS thread): cold starts
+2,326/s with the machine lightly loaded, 1,659/s and 1,440/s while other sessions kept both cores busy (load
+average ~4); the stage-wise model measured in the same runs: 1.5-1.6x slower (1,025/s in the 1,659/s run).
 """
 
 from __future__ import annotations

@@ -25,6 +25,13 @@ filling included; "planned" counts those the MPC drove, the others were held at 
 by SUMO), all vehicles at once, simulated seconds per wall second of the stepping (SUMO, recording,
 observations and the drivers; SUMO start-up, network building and writing excluded) with a breakdown per
 step and per re-plan, and whether the targets are met.
+
+Last run (issue 16, 2026-12-01; the machine's other core and part of this one busy with other sessions' jobs,
+load average ~4): default 73x real time (4.1 PIRL drivers at once on average, libsumo / TraCI 1.25x, 2.7x on
+SUMO's side); crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 24x; very crowded 100.4 at once
+(88.8 re-planning) at 13.6x. Both crowded targets missed: the drivers' MPC (~0.05 ms per driver and re-plan
+plus ~1 ms per step of fixed numpy overhead) takes 60-70 % of a step. The code before issue 16 ran the
+crowded scenario at 10.5x, this code at 15.0x, interleaved in one session under the same load.
 """
 
 from __future__ import annotations

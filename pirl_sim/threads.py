@@ -88,13 +88,11 @@ def resolve_blas_threads(option: str | int | None = None, environ=None) -> int |
 
 
 def _load_runtimes() -> None:
-    """Import what loads the BLAS/OpenMP runtimes pirl_sim uses, so that threadpoolctl sees and limits them."""
+    """Import numpy's and scipy's BLAS, so that threadpoolctl sees and limits them. Runtimes loaded later
+    (scikit-learn's OpenMP, libsumo's OpenBLAS) read the thread variables the policy has set when they load;
+    importing scikit-learn here would cost commands that never use it ~1 s of start-up."""
     import numpy  # noqa: F401
     import scipy.linalg  # noqa: F401
-    try:
-        import sklearn.utils  # noqa: F401  (its OpenMP runtime)
-    except ImportError:  # pragma: no cover - scikit-learn is a dependency
-        pass
 
 
 def apply_thread_policy(option: str | int | None = None) -> int | None:

@@ -103,6 +103,7 @@ _PROBE = """
 import json, os, sys
 from pirl_sim.threads import apply_thread_policy, current_blas_threads
 n = apply_thread_policy(sys.argv[1] if len(sys.argv) > 1 else None)
+import sklearn.utils  # its OpenMP runtime loads after the policy: it reads the variables the policy set
 print(json.dumps({"n": n, "threads": current_blas_threads(), "env": os.environ.get("OPENBLAS_NUM_THREADS")}))
 """
 
@@ -116,7 +117,8 @@ def _probe(*args: str, env_value: str | None = None) -> dict:
 
 
 def test_policy_in_a_fresh_process():
-    """Default: every loaded BLAS/OpenMP runtime at 1 thread, and the variables set for child processes;
+    """Default: every loaded BLAS/OpenMP runtime at 1 thread (also one loaded after the policy), and the variables
+    set for child processes;
     'auto' leaves both alone; the environment variable is read when no option is given."""
     default = _probe()
     assert default["n"] == 1 and set(default["threads"].values()) == {1} and default["env"] == "1"
