@@ -236,6 +236,26 @@ class _MixtureLearner(BaseLearner):
         ll = self.style_log_likelihood(histories)
         return self._posterior(ll)
 
+    def predict_futures(self, histories, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """One predicted future per style, with its probability: the start of issue 14's multi-modal prediction.
+
+        Returns
+        -------
+        states : array (M, n_styles_, horizon + 1, n_x), or (n_styles_, horizon + 1, n_x) for one history
+            The MPC's prediction from the last state of each history under each style's weights ``theta_[j]``
+            (row 0 is that state).
+        proba : array (M, n_styles_) or (n_styles_,)
+            p(style | history), `predict_proba`.
+        """
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self)
+        proba = self.predict_proba(histories)
+        histories, single = self._as_histories(histories)
+        x0 = np.stack([h.states[-1] for h in histories])
+        states = np.stack([self.model_.predict_states(x0, th, horizon) for th in self.theta_], axis=1)
+        return (states[0], proba) if single else (states, proba)
+
     def _posterior(self, ll: np.ndarray) -> np.ndarray:
         lp = np.atleast_2d(ll) + np.log(self.style_weights_)[None]
         lp -= lp.max(axis=1, keepdims=True)

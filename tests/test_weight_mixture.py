@@ -150,6 +150,20 @@ def test_receding_likelihood_in_weight_space():
     assert np.mean([to_true[j] == s for j, s in zip(gmm.predict_style(drivers), style)]) >= 0.95
 
 
+def test_one_future_per_style_with_its_probability(three_styles):
+    model, train, test = three_styles
+    gmm = PIRLGMM(model, n_components=3, random_state=0, space="weights", window=10, windows="first").fit(train)
+    histories = [t.window(0, 10) for t in test[:5]]
+    futures, proba = gmm.predict_futures(histories, 30)
+    assert futures.shape == (5, 3, 31, 2) and proba.shape == (5, 3)
+    np.testing.assert_array_equal(futures[:, :, 0], np.stack([[h.states[-1]] * 3 for h in histories]))
+    np.testing.assert_allclose(futures[:, 1], model.predict_states(np.stack([h.states[-1] for h in histories]),
+                                                                   gmm.theta_[1], 30))
+    np.testing.assert_array_equal(proba, gmm.predict_proba(histories))
+    one, p1 = gmm.predict_futures(histories[0], 30)
+    assert one.shape == (3, 31, 2) and p1.shape == (3,)
+
+
 def test_refinement_by_the_style_likelihoods(three_styles):
     """Hard EM over the IRL likelihoods after the deconvolution: it stops when no label moves, and refine=0 keeps
     the deconvolution's partition and mixture weights."""

@@ -25,7 +25,8 @@ Columns: ``ari`` of the training clusters against the true styles; ``style_accur
 style of each test history under `PIRLGMM.predict_proba` (p(style | history) from each style's likelihood) and,
 for feature-space learners, ``feature_style_accuracy`` of the paper's feature look-up; ``style_error`` the
 worst per-style weight error; ``med`` [m], ``weight_error`` (median per test trajectory) as
-`pirl_sim.harness.experiment.evaluate`.
+`pirl_sim.harness.experiment.evaluate`; online, ``min_ade`` / ``min_fde`` [m] over one future per style
+(`PIRLGMM.predict_futures`, K = ``n_styles``; see `_min_over_styles`).
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ def _row(experiment, protocol, name, learner, train, test, style_means=None) -> 
     row["ari"] = np.nan if ari is None else ari
     row["n_styles"] = getattr(learner, "n_styles_", 1)
     row["style_accuracy"] = row["feature_style_accuracy"] = row["style_error"] = np.nan
+    row["min_ade"] = row["min_fde"] = np.nan
     if hasattr(learner, "predict_proba") and all("style" in t.metadata for t in test):
         to_true = match_styles(np.array([t.metadata["style"] for t in train]), learner.labels_)
         truth = np.array([t.metadata["style"] for t in test])
@@ -85,11 +87,34 @@ def _row(experiment, protocol, name, learner, train, test, style_means=None) -> 
         if learner.space == "features":
             look = learner.predict_style(seen)
             row["feature_style_accuracy"] = float(np.mean([to_true.get(int(j), -1) == s for j, s in zip(look, truth)]))
+        if protocol.kind == "online":
+            row.update(_min_over_styles(learner, test, protocol.history_steps))
         if style_means is not None:
             ref = learner.model_.features.reference_index
             row["style_error"] = float(max(weight_recovery_error(learner.theta_[j], style_means[s], ref)
                                            for j, s in to_true.items()))
     return row
+
+
+def _min_over_styles(learner, test, history: int) -> dict:
+    """minADE_K and minFDE_K [m] with one future per style (K = n_styles_, `PIRLGMM.predict_futures`): per test
+    trajectory the smallest over the K futures of the mean (ADE) and of the last (FDE) Euclidean position error
+    over the predicted steps, averaged over the test trajectories (the usual definitions, as in the INTERACTION
+    and Argoverse prediction benchmarks); all K = n_styles_ futures are the learner's own, so K differs between learners (its ``n_styles``)."""
+    from pirl_sim.metrics import euclidean_errors
+
+    model = learner.model_
+    lengths = np.array([t.n_steps for t in test])
+    ade, fde = np.empty(len(test)), np.empty(len(test))
+    for n in np.unique(lengths):
+        idx = np.flatnonzero(lengths == n)
+        futures, _ = learner.predict_futures([test[i].window(0, history) for i in idx], int(n) - history)
+        truth = np.stack([test[i].states[history + 1:] for i in idx])  # (m, H, n_x)
+        pred = model.positions(futures[:, :, 1:])  # (m, K, H, P)
+        err = euclidean_errors(pred, np.broadcast_to(model.positions(truth)[:, None], pred.shape))  # (m, K, H)
+        ade[idx] = err.mean(axis=2).min(axis=1)
+        fde[idx] = err[:, :, -1].min(axis=1)
+    return {"min_ade": float(ade.mean()), "min_fde": float(fde.mean())}
 
 
 def _fit(key, params, train):
@@ -169,7 +194,7 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
         rows.append(_row("lq-receding", PAPER_PROTOCOL, name, learner, train, test, means))
         say(f"lq-receding {name}: ARI {rows[-1]['ari']:.3g}")
     cols = ["experiment", "protocol", "learner", "med", "fde", "weight_error", "ari", "n_styles", "style_accuracy",
-            "feature_style_accuracy", "style_error"]
+            "feature_style_accuracy", "style_error", "min_ade", "min_fde"]
     return pd.DataFrame(rows)[cols]
 
 
