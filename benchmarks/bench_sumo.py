@@ -29,9 +29,11 @@ step and per re-plan, and whether the targets are met.
 Last run (issue 16, 2026-12-01; the machine's other core and part of this one busy with other sessions' jobs,
 load average ~4): default 73x real time (4.1 PIRL drivers at once on average, libsumo / TraCI 1.25x, 2.7x on
 SUMO's side); crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 24x; very crowded 100.4 at once
-(88.8 re-planning) at 13.6x. Both crowded targets missed: the drivers' MPC (~0.05 ms per driver and re-plan
-plus ~1 ms per step of fixed numpy overhead) takes 60-70 % of a step. The code before issue 16 ran the
-crowded scenario at 10.5x, this code at 15.0x, interleaved in one session under the same load.
+(88.8 re-planning) at 13.6x. Both crowded targets missed: the drivers' MPC (~1 ms of numpy overhead per step
+plus ~0.035 ms per driver: 2.4 ms for 40, 4.1 ms for 89) takes 55-60 % of a step, SUMO and the recording
+~20 µs per vehicle. For comparison, the crowded scenario on the code before issue 16 (commit 7918dce unpacked
+beside this one, depart_interval 1.2 s instead of demand_per_arm, not pinned differently) ran at 10.5x and
+this code at 15.0x, two runs each interleaved in one session under the same load (1.43x).
 """
 
 from __future__ import annotations
