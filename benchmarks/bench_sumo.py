@@ -32,7 +32,7 @@ SUMO's side); crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 2
 (88.8 re-planning) at 13.6x. Both crowded targets missed: the drivers' MPC (~1 ms of numpy overhead per step
 plus ~0.035 ms per driver: 2.4 ms for 40, 4.1 ms for 89) takes 55-60 % of a step, SUMO and the recording
 ~20 µs per vehicle. For comparison, the crowded scenario on the code before issue 16 (commit 7918dce unpacked
-beside this one, depart_interval 1.2 s instead of demand_per_arm, not pinned differently) ran at 10.5x and
+beside this one, depart_interval 1.2 s instead of demand_per_arm; both pinned to one core, one BLAS thread) ran at 10.5x and
 this code at 15.0x, two runs each interleaved in one session under the same load (1.43x).
 """
 
