@@ -198,3 +198,15 @@ def test_a_learner_on_the_following_features_round_trips_through_the_model_file(
     learner = TIRL(model=model, window=10).fit(demos)
     back = load_learner(learner.save(tmp_path / "tirl.npz"))
     np.testing.assert_array_equal(back.infer_weights(demos), learner.infer_weights(demos))
+
+
+def test_horizon_scan_fits_the_desired_speed_per_split(tmp_path):
+    from pirl_sim.harness.horizon_scan import scan_horizons
+
+    tracks, osm = _weaving_scene(tmp_path)
+    scene = load_replay([tracks], osm, smoothing=0.0, features="speed-level")
+    rows = scan_horizons(scene, [5], ReplayProtocol(seeds=(0,), test_fraction=0.34), step_stride=4,
+                         desired_speed="fit")
+    # cars at 8-11.3 m/s on a nearly straight lane: the fitted cap sits among their speeds, not at 13.9 m/s
+    assert 7.5 < rows["v_max"].iloc[0] < 12.0
+    assert rows["med"].iloc[0] < 1.0

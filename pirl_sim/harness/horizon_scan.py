@@ -30,7 +30,8 @@ from pirl_sim.trajectory import Trajectory
 __all__ = ["scan_horizons", "summarize_scan", "write_scan"]
 
 
-def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1, progress=None) -> pd.DataFrame:
+def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1, progress=None,
+                  desired_speed=None) -> pd.DataFrame:
     """Fit, score and predict per split seed and horizon (module doc).
 
     Parameters
@@ -39,6 +40,9 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
     horizons : sequence of int          MPC horizons H [steps of the scene's dt]
     proto : pirl_sim.harness.replay.ReplayProtocol   split seeds, test fraction, prediction windows
     step_stride : int                   score every ``step_stride``-th recorded step in the fit
+    desired_speed : None, "fit" or (a_lat, v_max)
+        The scene's desired speed, one fitted per split seed on the training tracks
+        (`pirl_sim.harness.replay.fit_scene_speed`), or given [m/s^2, m/s] (as `run_replay`).
 
     Returns
     -------
@@ -47,18 +51,33 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
     (training fit), ``med`` (closed-loop, [m]), ``med_open`` (open-loop plan over max(H, prediction horizon)),
     the fitted weights ``theta_<feature>``, step counts and ``fit_s``.
     """
-    from pirl_sim.harness.replay import _errors, _windows, predict_path_states, split_by_track, usable_tracks
+    from pirl_sim.harness.replay import (
+        _errors,
+        _windows,
+        fit_scene_speed,
+        predict_path_states,
+        split_by_track,
+        usable_tracks,
+    )
 
     say = progress or (lambda msg: None)
     horizons = [int(h) for h in horizons]
     if not horizons or any(h < 1 for h in horizons):
         raise ValueError(f"horizons must be positive numbers of steps, got {horizons!r}")
     model = scene.model
+    speed = {"a_lat": getattr(scene, "a_lat", np.nan), "v_max": getattr(scene, "v_max", np.nan)}
+    if desired_speed is not None and desired_speed != "fit":
+        speed = dict(zip(("a_lat", "v_max"), (float(x) for x in desired_speed)))
+        model = scene.with_desired_speed(speed["a_lat"], speed["v_max"])
     names = model.features.names
     tracks = usable_tracks(scene, proto)
     rows = []
     for seed in proto.seeds:
         train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
+        if desired_speed == "fit":
+            fit = fit_scene_speed(scene, train)
+            model = scene.with_desired_speed(fit.a_lat, fit.v_max)
+            speed = {"a_lat": fit.a_lat, "v_max": fit.v_max}
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
@@ -89,7 +108,7 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
                    "own_nll": cauchy_nll(r_own, own_scale), "own_rms": float(np.sqrt(np.mean(r_own**2))),
                    "med": med["closed"], "med_open": med["open"], "converged": bool(res.converged[0]),
                    "n_train_steps": int(r_train.shape[0]), "n_test_steps": int(r_test.shape[0]),
-                   "n_windows": len(windows), **counts, "fit_s": fit_s,
+                   "n_windows": len(windows), **counts, **speed, "fit_s": fit_s,
                    **{f"theta_{n}": float(v) for n, v in zip(names, theta)}}
             rows.append(row)
             say(f"seed {seed}, H = {H}: held-out NLL {row['test_nll']:.4f} (shared weights) / {row['own_nll']:.4f} "

@@ -300,7 +300,8 @@ def run_replay_command(args) -> int:
         if scan is not None:
             from pirl_sim.harness.horizon_scan import scan_horizons, write_scan
 
-            rows = scan_horizons(scene, scan, proto, progress=lambda m: say(f"[3/3] {m}"))
+            rows = scan_horizons(scene, scan, proto, progress=lambda m: say(f"[3/3] {m}"),
+                                 desired_speed="fit" if args.desired_speed == "fit" else None)
             command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
             table = write_scan(rows, args.out, command)
             print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
