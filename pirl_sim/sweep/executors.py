@@ -5,7 +5,8 @@ The sweep loop (`pirl_sim.sweep.run.run_sweep`) only uses ``submit(fn, *args) ->
 which `concurrent.futures` and `dask.distributed` both provide; so the same loop drives both:
 
 - `LocalExecutor`: a `concurrent.futures.ProcessPoolExecutor` with the *spawn* start method (libsumo allows
-  one simulation per process, and spawned workers share no state with the parent);
+  one simulation per process, and spawned workers share no state with the parent); each worker ends itself
+  when the process that started it dies, even by SIGKILL (`watch_parent`), so no orphan keeps computing;
 - `DaskExecutor`: a `dask.distributed.Client` connected to a scheduler (``tcp://HOST:PORT``; workers on any
   number of machines, each with pirl_sim installed at the same code version; start them with
   ``--nthreads 1``, one cell per process), or to a client you made (a ``LocalCluster`` in tests);
@@ -18,10 +19,58 @@ import concurrent.futures as cf
 import multiprocessing
 import os
 import re
+import sys
+import threading
 
 __all__ = ["LocalExecutor", "DaskExecutor", "InlineExecutor", "make_executor", "default_workers"]
 
 _ADDRESS = re.compile(r"^[a-z][a-z0-9+]*://\S+$")
+
+PARENT_POLL_SECONDS = 0.2  # [s] how often a local worker checks that the sweep's main process is alive
+
+
+def _parent_gone(parent_pid: int) -> bool:
+    """True once ``parent_pid`` is no longer this process's parent (it died and the process was re-parented)."""
+    return os.getppid() != parent_pid
+
+
+def _watch_parent_loop(parent_pid: int, interval: float) -> None:
+    import time
+
+    while not _parent_gone(parent_pid):
+        time.sleep(interval)
+    try:
+        sys.stderr.write(f"pirl_sim sweep worker {os.getpid()}: main process {parent_pid} is gone; exiting\n")
+        sys.stderr.flush()
+    finally:
+        os._exit(1)  # skip atexit and the pool's own shutdown: nobody is left to talk to
+
+
+def watch_parent(parent_pid: int, interval: float = PARENT_POLL_SECONDS) -> threading.Thread:
+    """Worker initialiser: end this process when the process ``parent_pid`` that started it dies.
+
+    A SIGKILL of the sweep's main process runs none of its clean-up, and `concurrent.futures` workers would wait
+    on their task queue forever (and keep the multiprocessing resource tracker alive, which exits when the last
+    holder of its pipe does). A daemon thread polls ``os.getppid()`` every ``interval`` seconds: when the
+    parent dies the worker is re-parented (to init or a sub-reaper), and the thread exits the process at once
+    (``os._exit``; cells hold no files open: the main process writes the cell store). A worker busy in a
+    cell's numerics is stopped too, since the check runs in its own thread.
+
+    Parameters
+    ----------
+    parent_pid : int      pid of the process that started this worker
+    interval : float      [s] polling period (> 0)
+    """
+    if isinstance(parent_pid, bool) or not isinstance(parent_pid, int) or parent_pid < 1:
+        raise ValueError(f"parent_pid must be a positive integer, got {parent_pid!r}")
+    if not interval > 0:
+        raise ValueError(f"interval must be > 0 seconds, got {interval!r}")
+    if _parent_gone(parent_pid):  # died while this worker started
+        os._exit(1)
+    thread = threading.Thread(target=_watch_parent_loop, args=(parent_pid, interval), name="pirl-watch-parent",
+                              daemon=True)
+    thread.start()
+    return thread
 
 
 def default_workers() -> int:
@@ -46,7 +95,8 @@ class LocalExecutor:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers must be a positive integer, got {workers!r}")
         self.workers = workers
-        self._pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+        self._pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                            initializer=watch_parent, initargs=(os.getpid(),))
 
     def describe(self) -> str:
         return f"{self.workers} local worker process{'es' if self.workers > 1 else ''}"
