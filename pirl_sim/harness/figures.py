@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import io
+import math
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["knn_vs_k", "feature_clusters", "s_t_predictions", "weight_tracking", "pyplot", "png_bytes"]
+__all__ = ["knn_vs_k", "knn_vs_k_figure", "label_log_axis", "legend_below", "nice_below", "nice_above", "feature_clusters", "s_t_predictions", "weight_tracking", "pyplot", "png_bytes"]
 
 
 def pyplot():
@@ -28,21 +29,100 @@ def png_bytes(fig) -> bytes:
     return buf.getvalue()
 
 
-def knn_vs_k(ktable: pd.DataFrame, title: str) -> bytes:
-    """MED of PIRL-kNN against k, one line per protocol (mean, bars: std over test trajectories)."""
+def nice_below(x: float) -> float:
+    """The largest number of the form {1, 2, 5} x 10^n that is <= ``x`` (> 0)."""
+    e = math.floor(math.log10(x))
+    for m in (5.0, 2.0, 1.0):
+        if m * 10.0**e <= x * (1 + 1e-12):
+            return m * 10.0**e
+    return 10.0**e  # pragma: no cover - m = 1 always fits
+
+
+def nice_above(x: float) -> float:
+    """The smallest number of the form {1, 2, 5} x 10^n that is >= ``x`` (> 0)."""
+    e = math.floor(math.log10(x))
+    for m in (1.0, 2.0, 5.0, 10.0):
+        if m * 10.0**e >= x * (1 - 1e-12):
+            return m * 10.0**e
+    return 10.0 ** (e + 1)  # pragma: no cover
+
+
+def label_log_axis(ax, lo: float, hi: float, axis: str = "y") -> None:
+    """Log ``axis`` from a labelled tick at or below ``lo`` to one at or above ``hi`` (both > 0, data units).
+
+    Spans of up to two decades get labelled ticks at 1, 2, 5 x 10^n written as plain numbers (matplotlib's
+    default labels only some minor ticks there, and can leave the lowest data without a tick below it); wider
+    spans keep decade ticks, with the limits widened to whole decades.
+    """
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    if not (lo > 0 and hi >= lo and math.isfinite(hi)):
+        raise ValueError(f"log axis limits must satisfy 0 < lo <= hi < inf, got lo={lo!r}, hi={hi!r}")
+    narrow = hi / lo <= 100
+    bottom = nice_below(lo) if narrow else 10.0 ** math.floor(math.log10(lo))
+    top = nice_above(hi) if narrow else 10.0 ** math.ceil(math.log10(hi))
+    if top <= bottom:
+        top = nice_above(bottom * 1.01)
+    target = ax.yaxis if axis == "y" else ax.xaxis
+    (ax.set_yscale if axis == "y" else ax.set_xscale)("log")
+    (ax.set_ylim if axis == "y" else ax.set_xlim)(bottom, top)
+    if narrow:
+        target.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        target.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+        target.set_minor_formatter(NullFormatter())
+
+
+def legend_below(fig, handles, labels, *, ncol: int | None = None, fontsize: float = 7, top: float = 0.93):
+    """One legend for the whole figure, centred below the panels (outside every axes, so it covers no data).
+
+    Lays the figure out (``tight_layout``) with room for the legend at the bottom and for a suptitle above
+    ``top`` (figure fraction). Returns the legend.
+    """
+    ncol = ncol or min(len(labels), 4) or 1
+    legend = fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=fontsize, frameon=False,
+                        bbox_to_anchor=(0.5, 0.0))
+    fig.canvas.draw()
+    height = legend.get_window_extent().height / fig.bbox.height  # figure fraction
+    fig.tight_layout(rect=(0.0, min(height + 0.01, 0.6), 1.0, top))
+    return legend
+
+
+def knn_vs_k_figure(ktable: pd.DataFrame, title: str):
+    """The figure of `knn_vs_k` (a matplotlib Figure; close it or pass it to `png_bytes`).
+
+    The per-trajectory MED is skewed (its std often exceeds its mean), so a mean +- std bar would cross zero
+    and be cut off on a log axis: the mean (solid, markers) and the std (dashed, same colour) are drawn as two
+    positive curves instead, on log-log axes.
+    """
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6, 3.6), dpi=100)
-    for name, g in ktable.groupby("protocol", sort=False):
-        ax.errorbar(g["k"], g["med"], yerr=g["med_std"], marker="o", capsize=3, label=name)
+    fig, ax = plt.subplots(figsize=(6, 3.9), dpi=100)
+    handles, labels, values = [], [], []
+    for c, (name, g) in enumerate(ktable.groupby("protocol", sort=False)):
+        (mean_line,) = ax.plot(g["k"], g["med"], marker="o", color=f"C{c}")
+        std = g["med_std"].to_numpy(dtype=float)
+        ax.plot(g["k"], np.where(std > 0, std, np.nan), ls="--", color=f"C{c}", lw=1)
+        handles.append(mean_line)
+        labels.append(str(name))
+        values += [v for v in (*g["med"], *std) if v == v and v > 0]
     ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("k (neighbours)")
-    ax.set_ylabel("MED [m] (mean ± std over test trajectories)")
+    if values:
+        label_log_axis(ax, min(values), max(values))
+    else:  # pragma: no cover - no positive value to show
+        ax.set_yscale("log")
+    ax.set_xlabel("k (neighbours of PIRL-kNN)")
+    ax.set_ylabel("MED [m] over test trajectories\n(solid: mean, dashed: std)")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    return png_bytes(fig)
+    legend_below(fig, handles, labels, top=1.0)
+    return fig
+
+
+def knn_vs_k(ktable: pd.DataFrame, title: str) -> bytes:
+    """MED of PIRL-kNN against k, one colour per protocol: mean (solid) and std (dashed) over test trajectories.
+
+    ktable has columns ``protocol``, ``k``, ``med`` [m], ``med_std`` [m]. Returns PNG bytes.
+    """
+    return png_bytes(knn_vs_k_figure(ktable, title))
 
 
 def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=None, style_names=None) -> bytes:

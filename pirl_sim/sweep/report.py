@@ -3,14 +3,17 @@
 Files written (into the results directory unless told otherwise; PNGs without timestamps, so the same table
 gives the same bytes):
 
-- ``med_vs_k.png``: MED against k, one panel per scenario (variant), one line per learner and protocol (mean
-  over seeds, bars: std over seeds when there are several), for every learner with more than one k;
+- ``med_vs_k.png``: MED against k, one panel per scenario (variant) and learner with more than one k (the x
+  axis says what k counts: clusters of PIRL-GMM, neighbours of PIRL-kNN), one line per protocol in the same
+  colour in every panel (mean over seeds, bars: std over seeds when there are several);
 - ``learners.png``: the learners side by side, one panel per experiment, bars grouped by scenario variant and
-  protocol; for learners run with several k the best k (lowest mean MED) stands for the learner and is named
-  in the legend;
+  protocol, one colour per learner in every panel; for learners run with several k the best k (lowest mean
+  MED) stands for the learner and is written above its bar;
 - ``recovery.png``: true against inferred normalised weights of test histories (``recovery.parquet``), one row
-  per experiment (its first scenario variant and protocol), one column per learner (best k), when the
-  scenario knows the truth;
+  per experiment (its first scenario variant and protocol), one column per learner (best k), one colour per
+  feature in every panel, when the scenario knows the truth;
+
+Legends sit below the panels, outside every axes, so that none covers data.
 - ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI), whether
   the paper's ordering MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) holds, timings and the figures.
 """
@@ -27,12 +30,13 @@ import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 
-from pirl_sim.harness.figures import png_bytes, pyplot
+from pirl_sim.harness.figures import label_log_axis, legend_below, png_bytes, pyplot
 from pirl_sim.harness.tables import markdown
 
 from .run import read_table
 
-__all__ = ["write_report", "summary_table", "best_variants"]
+__all__ = ["write_report", "summary_table", "best_variants", "med_vs_k_figure", "learners_side_by_side_figure",
+           "recovery_figure"]
 
 _K_IN_LABEL = re.compile(r"k=[^,)]+(, )?")
 
@@ -74,32 +78,67 @@ def _grid(n: int, width: float = 4.6, height: float = 3.4):
     return fig, list(axes.flat[:n])
 
 
-def med_vs_k(summary: pd.DataFrame) -> bytes | None:
-    """MED vs k per scenario variant (None when no learner ran with several k)."""
+# What k counts, per learner (the x axes of med_vs_k.png say it; the tables' column is just "k").
+K_MEANING = {"pirl-gmm": "clusters", "pirl-knn": "neighbours"}
+
+
+def _series_colors(names) -> dict:
+    """One matplotlib colour per series name, in first-seen order, shared by every panel of a figure."""
+    return {name: f"C{i % 10}" for i, name in enumerate(dict.fromkeys(names))}
+
+
+def med_vs_k_figure(summary: pd.DataFrame):
+    """The figure of `med_vs_k`, or None when no learner ran with several k.
+
+    One panel per scenario variant and learner (so each x axis counts one thing: clusters for PIRL-GMM,
+    neighbours for PIRL-kNN), one colour per protocol in every panel, one legend below the panels.
+    """
     s = summary[summary["k"].notna()]
     multi = s.groupby(["scenario_label", "learner_base", "protocol"], sort=False)["k"].nunique()
     multi = multi[multi > 1]
     if multi.empty:
         return None
-    scenarios = list(dict.fromkeys(multi.index.get_level_values(0)))
-    fig, axes = _grid(len(scenarios))
-    for ax, scen in zip(axes, scenarios):
-        for c, ((base, proto), _) in enumerate(multi.loc[scen].groupby(level=[0, 1], sort=False)):
+    panels = list(dict.fromkeys((scen, base) for scen, base, _ in multi.index))
+    colors = _series_colors(proto for _, _, proto in multi.index)
+    fig, axes = _grid(len(panels))
+    for ax, (scen, base) in zip(axes, panels):
+        values = []
+        learner = None
+        for proto in [p for sc, lb, p in multi.index if (sc, lb) == (scen, base)]:
             g = s[(s["scenario_label"] == scen) & (s["learner_base"] == base) & (s["protocol"] == proto)]
             g = g.sort_values("k")
-            yerr = g["med_sd"] if g["seeds"].max() > 1 else None
-            ax.errorbar(g["k"], g["med"], yerr=yerr, marker="o", ms=4, capsize=3, color=f"C{c}",
-                        label=f"{base}, {proto}")
+            learner = g["learner"].iloc[0]
+            several = g["seeds"].max() > 1
+            yerr = g["med_sd"] if several else None
+            ax.errorbar(g["k"], g["med"], yerr=yerr, marker="o", ms=4, capsize=3, color=colors[proto], label=proto)
+            low = g["med"] - (g["med_sd"].fillna(0.0) if several else 0.0)
+            values += [v for v in (*g["med"], *(g["med"] + (g["med_sd"].fillna(0.0) if several else 0.0)),
+                                   *low) if v == v and v > 0]
         ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("k")
+        ks = sorted(set(s[(s["scenario_label"] == scen) & (s["learner_base"] == base)]["k"]))
+        if len(ks) <= 6:  # few k: a labelled tick at each (matplotlib would write 2x10^0 ...)
+            from matplotlib.ticker import FuncFormatter, NullFormatter
+
+            ax.set_xticks(ks)
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+            ax.xaxis.set_minor_formatter(NullFormatter())
+        if values:
+            label_log_axis(ax, min(values), max(values))
+        what = K_MEANING.get(learner)
+        ax.set_xlabel(f"k ({what} of {base})" if what else f"k ({base})")
         ax.set_ylabel("MED [m]")
-        ax.set_title(scen, fontsize=9)
+        ax.set_title(f"{scen}: {base}", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=6)
-    fig.suptitle("MED vs k (mean over seeds)", fontsize=10)
-    fig.tight_layout()
-    return png_bytes(fig)
+    handles = [pyplot().Line2D([], [], color=c, marker="o", ms=4, label=p) for p, c in colors.items()]
+    fig.suptitle("MED vs k (mean over seeds; bars: std over seeds)", fontsize=10)
+    legend_below(fig, handles, list(colors))
+    return fig
+
+
+def med_vs_k(summary: pd.DataFrame) -> bytes | None:
+    """MED vs k per scenario variant and learner as PNG bytes (None when no learner ran with several k)."""
+    fig = med_vs_k_figure(summary)
+    return None if fig is None else png_bytes(fig)
 
 
 def _variant(scenario_label: str, experiment: str) -> str:
@@ -114,12 +153,12 @@ def _log_floor(values) -> float:
     return float(v.min() / 2.5) if v.size else 1e-6
 
 
-def learners_side_by_side(best: pd.DataFrame) -> bytes:
-    """Bars of MED per learner (best k), one panel per experiment, grouped by scenario variant and protocol."""
+def learners_side_by_side_figure(best: pd.DataFrame):
+    """The figure of `learners_side_by_side`: bars of MED per learner (one colour per learner in every panel),
+    the best k written above each bar of a learner run with several k, one legend below the panels."""
     experiments = list(dict.fromkeys(best["experiment"]))
     fig, axes = _grid(len(experiments), width=5.6)
-    learners = list(dict.fromkeys(best["learner_base"]))
-    colors = {lb: f"C{i}" for i, lb in enumerate(learners)}
+    colors = _series_colors(best["learner_base"])
     for ax, exp in zip(axes, experiments):
         b = best[best["experiment"] == exp]
         groups = list(dict.fromkeys(zip(b["scenario_label"], b["protocol"])))
@@ -127,6 +166,7 @@ def learners_side_by_side(best: pd.DataFrame) -> bytes:
         several_protocols = len({g[1] for g in groups}) > 1
         names = list(dict.fromkeys(b["learner_base"]))
         width = 0.8 / max(1, len(names))
+        tops = []
         for j, name in enumerate(names):
             xs, ys, errs, ks = [], [], [], []
             for i, (scen, proto) in enumerate(groups):
@@ -137,9 +177,12 @@ def learners_side_by_side(best: pd.DataFrame) -> bytes:
                 ys.append(float(r["med"].iloc[0]))
                 errs.append(float(r["med_sd"].iloc[0]) if r["seeds"].iloc[0] > 1 else 0.0)
                 ks.append(r["k"].iloc[0])
-            kset = sorted({int(k) for k in ks if k == k})
-            label = name + (f" (best k: {', '.join(map(str, kset))})" if kset else "")
-            ax.bar(xs, ys, width=width, yerr=errs if any(errs) else None, color=colors[name], label=label, capsize=2)
+            ax.bar(xs, ys, width=width, yerr=errs if any(errs) else None, color=colors[name], label=name, capsize=2)
+            for x, y, e, k in zip(xs, ys, errs, ks):
+                tops.append(y + e)
+                if k == k and k is not None:
+                    ax.annotate(f"k={int(k)}", (x, y + e), xytext=(0, 2), textcoords="offset points", ha="center",
+                                va="bottom", rotation=90, fontsize=5.5)
         ticks = []
         for scen, proto in groups:
             parts = ([_variant(scen, exp).replace(", ", "\n")] if several_variants else [])
@@ -147,22 +190,37 @@ def learners_side_by_side(best: pd.DataFrame) -> bytes:
             ticks.append("\n".join(p.replace(" (", "\n(") for p in parts) or proto)
         ax.set_xticks(range(len(groups)))
         ax.set_xticklabels(ticks, fontsize=6)
-        ax.set_yscale("log")
-        ax.set_ylim(bottom=_log_floor(b["med"]))
+        floor = _log_floor(b["med"])
+        positive = [t for t in tops if t == t and t > 0]
+        label_log_axis(ax, floor, max(positive) * 3 if positive else floor * 10)  # room for the k labels
+        ax.set_ylim(bottom=floor)  # bars start at the floor, below the lowest bar
         ax.set_ylabel("MED [m]")
         title = exp if several_protocols else f"{exp}, {groups[0][1]}"
         ax.set_title(title, fontsize=9)
         ax.grid(True, axis="y", which="both", alpha=0.3)
-        ax.legend(fontsize=6)
-    fig.suptitle("Learners side by side (best k where several ran)", fontsize=10)
-    fig.tight_layout()
-    return png_bytes(fig)
+    handles = [pyplot().Rectangle((0, 0), 1, 1, color=c) for c in colors.values()]
+    fig.suptitle("Learners side by side (best k where several ran, written above its bar)", fontsize=10)
+    legend_below(fig, handles, list(colors), ncol=len(colors))
+    return fig
+
+
+def learners_side_by_side(best: pd.DataFrame) -> bytes:
+    """Bars of MED per learner (best k), one panel per experiment, grouped by scenario variant and protocol;
+    PNG bytes."""
+    return png_bytes(learners_side_by_side_figure(best))
 
 
 def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None:
+    """PNG bytes of `recovery_figure` (None when there is nothing to draw)."""
+    fig = recovery_figure(recovery, best)
+    return None if fig is None else png_bytes(fig)
+
+
+def recovery_figure(recovery: pd.DataFrame, best: pd.DataFrame):
     """True vs inferred normalised weights: one row per experiment (its first scenario variant and protocol),
-    one column per learner (best k). Inferred weights beyond a decade outside the true range are drawn at the
-    edge (triangles)."""
+    one column per learner (best k), one colour per feature in every panel, the legend below the panels.
+    Inferred weights beyond a decade outside the true range are drawn at the edge (triangles). None when there
+    is nothing to draw."""
     if recovery is None or recovery.empty:
         return None
     panels = []
@@ -176,6 +234,7 @@ def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None
     if not panels:
         return None
     plt = pyplot()
+    colors = _series_colors(recovery[recovery["scenario_label"].isin({p[0] for p in panels})]["feature"])
     ncols = max(len(p[2]) for p in panels)
     fig, axes = plt.subplots(len(panels), ncols, figsize=(2.9 * ncols, 2.9 * len(panels)), dpi=100, squeeze=False)
     for row, (scen, proto, labels) in enumerate(panels):
@@ -190,14 +249,15 @@ def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None
                 ax.set_visible(False)
                 continue
             g = r[r["learner_label"] == labels[col]]
-            for c, f in enumerate(features):
+            for f in features:
+                c = colors[f]
                 gf = g[g["feature"] == f]
                 y = gf["inferred"].to_numpy()
                 inside = (y >= lo) & (y <= hi)
-                ax.scatter(gf["true"][inside], y[inside], s=6, alpha=0.5, color=f"C{c}", label=f)
+                ax.scatter(gf["true"][inside], y[inside], s=6, alpha=0.5, color=c, label=f)
                 for sel, edge, marker in ((y < lo, lo, "v"), (y > hi, hi, "^")):
                     if sel.any():
-                        ax.scatter(gf["true"][sel], np.full(sel.sum(), edge), s=14, color=f"C{c}", marker=marker)
+                        ax.scatter(gf["true"][sel], np.full(sel.sum(), edge), s=14, color=c, marker=marker)
             ax.plot([lo, hi], [lo, hi], "k:", lw=1)
             ax.set_xscale("log")
             ax.set_yscale("log")
@@ -208,12 +268,11 @@ def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None
             ax.set_ylabel(f"{scen}\n{proto}\ninferred weight" if col == 0 else "inferred weight", fontsize=7)
             ax.tick_params(labelsize=6)
             ax.grid(True, which="both", alpha=0.3)
-            if col == 0:
-                ax.legend(fontsize=6, markerscale=2)
     fig.suptitle("Weight recovery on test histories (normalised weights; dotted: inferred = true; triangles: "
                  "beyond the axes)", fontsize=9)
-    fig.tight_layout()
-    return png_bytes(fig)
+    handles = [plt.Line2D([], [], color=c, marker="o", ls="", ms=4) for c in colors.values()]
+    legend_below(fig, handles, list(colors), ncol=min(len(colors), 6), top=0.95)
+    return fig
 
 
 def _fmt(x) -> str:
