@@ -3,12 +3,44 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "package_version", "cli_logging"]
+
+
+def package_version() -> str:
+    """The installed version of pirl_sim, from the package metadata (``pyproject.toml``'s ``version``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("pirl_sim")
+    except PackageNotFoundError:  # pragma: no cover - run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
+@contextmanager
+def cli_logging(verbose: bool = False):
+    """Diagnostics of the ``pirl_sim`` loggers on stderr while a command runs: warnings always, progress and
+    details (INFO) with ``--verbose``; the bare message, as the commands printed before. Removed on exit, so
+    calling `main` again (tests, notebooks) adds no second handler."""
+    logger = logging.getLogger("pirl_sim")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setLevel(logging.INFO if verbose else logging.WARNING)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    old_level = logger.level
+    if verbose and logger.getEffectiveLevel() > logging.INFO:
+        logger.setLevel(logging.INFO)
+    logger.addHandler(handler)
+    try:
+        yield handler
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -16,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="pirl-sim",
         description="Probabilistic IRL of diverse drivers: generate, learn, predict, score.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log progress and details (INFO) on stderr, not only warnings")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -92,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
-    with thread_policy(option):  # 1 BLAS thread unless told otherwise; restored on return
+    with thread_policy(option), cli_logging(getattr(args, "verbose", False)):  # both restored on return
         return _run(args)
 
 

@@ -278,3 +278,100 @@ def test_label_log_axis_rejects_bad_limits():
             label_log_axis(ax, 1.0, float("nan"))
     finally:
         pyplot().close(fig)
+
+
+# -- item 16: --version, py.typed, diagnostics through logging --------------------------------------------------
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_version_flag_prints_the_package_metadata_version(capsys):
+    from importlib.metadata import version
+
+    from pirl_sim.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"pirl-sim {version('pirl_sim')}"
+
+
+def test_package_is_marked_typed():
+    import tomllib
+    from importlib.resources import files
+
+    assert files("pirl_sim").joinpath("py.typed").is_file()
+    data = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    assert "py.typed" in data["tool"]["setuptools"]["package-data"]["pirl_sim"]  # shipped in wheels too
+
+
+_TINY_SWEEP = """
+name = "tiny-log"
+seeds = [0]
+
+[[experiments]]
+scenario = "synthetic"
+params = { n_trajectories = 80, n_train = 60 }
+protocols = ["paper"]
+learners = ["tirl"]
+"""
+
+
+def test_failed_cells_are_reported_through_logging(tmp_path, monkeypatch, caplog, capsys):
+    import logging
+
+    from pirl_sim.cli import main
+    from pirl_sim.sweep import run as run_module
+
+    class FakeRun:
+        table = pd.DataFrame({"key": ["abc"]})
+        computed, cached, failed, wall_s = ["abc"], [], {"abc": "ValueError: boom"}, 0.1
+
+    monkeypatch.setattr(run_module, "run_sweep", lambda *a, **k: FakeRun())
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(_TINY_SWEEP)
+    with caplog.at_level(logging.WARNING, logger="pirl_sim"):
+        code = main(["sweep", str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 1
+    messages = [r.getMessage() for r in caplog.records if r.name == "pirl_sim.sweep.cli"]
+    assert any("cell abc failed: ValueError: boom" in m for m in messages), messages
+    assert all(r.levelno == logging.WARNING for r in caplog.records if r.name == "pirl_sim.sweep.cli")
+    err = capsys.readouterr().err
+    assert "cell abc failed: ValueError: boom" in err  # and shown on stderr by the command's handler
+    assert "1 cells failed" in err
+
+
+def test_cli_logging_shows_library_warnings_and_leaves_no_handler(tmp_path, capsys):
+    import logging
+
+    from pirl_sim.cli import main
+    from pirl_sim.sweep.config import load_config
+    from pirl_sim.sweep.store import code_version
+
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(_TINY_SWEEP)
+    out = tmp_path / "out"
+    (out / "cells").mkdir(parents=True)
+    key = load_config(cfg).cells[0].key(code_version())
+    (out / "cells" / f"{key}.json").write_text("{not json")  # a damaged cell: the store logs a warning
+    handlers = list(logging.getLogger("pirl_sim").handlers)
+    assert main(["sweep", str(cfg), "--out", str(out), "--dry-run"]) == 0
+    captured = capsys.readouterr()
+    assert "0 already in" in captured.out  # the result, on stdout as before
+    assert "ignoring unreadable result" in captured.err or "ignoring malformed result" in captured.err
+    assert logging.getLogger("pirl_sim").handlers == handlers  # the command's handler is gone
+
+
+def test_verbose_flag_shows_info_messages(capsys):
+    import logging
+
+    from pirl_sim.cli import cli_logging
+
+    log = logging.getLogger("pirl_sim.test_leftovers")
+    with cli_logging(verbose=False):
+        log.info("quiet detail")
+        log.warning("a warning")
+    with cli_logging(verbose=True):
+        log.info("loud detail")
+    err = capsys.readouterr().err
+    assert "quiet detail" not in err and "a warning" in err and "loud detail" in err

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import shlex
 import sys
 from pathlib import Path
@@ -10,6 +11,8 @@ from pathlib import Path
 __all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "main"]
 
 DEFAULT_OUT = Path("results") / "sweep"
+
+log = logging.getLogger(__name__)
 
 
 def _workers(text: str) -> int:
@@ -88,8 +91,7 @@ def run_sweep_command(args) -> int:
         run = run_sweep(config, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.quiet,
                         command=_command(args))
     except KeyboardInterrupt:
-        print(f"\ninterrupted: finished cells are kept in {args.out}/cells/; run the same command to resume",
-              file=sys.stderr)
+        log.warning("\ninterrupted: finished cells are kept in %s/cells/; run the same command to resume", args.out)
         return 130
     except ValueError as exc:  # e.g. a bad scheduler address
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
@@ -100,10 +102,9 @@ def run_sweep_command(args) -> int:
     print(f"{len(run.table)} cells in {args.out}/table.parquet ({len(run.computed)} run now, {len(run.cached)} "
           f"from the store) in {run.wall_s:.1f} s")
     for key, err in run.failed.items():
-        print(f"cell {key} failed: {err}", file=sys.stderr)
+        log.warning("cell %s failed: %s", key, err)
     if run.failed:
-        print(f"{len(run.failed)} cells failed (details in {args.out}/errors/); they run again next time",
-              file=sys.stderr)
+        log.warning("%d cells failed (details in %s/errors/); they run again next time", len(run.failed), args.out)
     if args.report and not run.table.empty:
         from .report import write_report
 
@@ -133,4 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     sub.required = True
     add_sweep_parsers(sub)
     args = parser.parse_args(argv)
-    return run_sweep_command(args) if args.command == "sweep" else run_report_command(args)
+    from pirl_sim.cli import cli_logging
+
+    with cli_logging():
+        return run_sweep_command(args) if args.command == "sweep" else run_report_command(args)
