@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pandas as pd
 
-__all__ = ["knn_vs_k", "knn_vs_k_figure", "label_log_axis", "legend_below", "nice_below", "nice_above", "feature_clusters", "s_t_predictions", "weight_tracking", "pyplot", "png_bytes"]
+__all__ = ["knn_vs_k", "knn_vs_k_figure", "label_log_axis", "legend_below", "nice_below", "nice_above",
+           "feature_clusters", "s_t_predictions", "weight_tracking", "pyplot", "png_bytes"]
 
 
 def pyplot():

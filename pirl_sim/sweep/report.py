@@ -192,8 +192,7 @@ def learners_side_by_side_figure(best: pd.DataFrame):
         ax.set_xticklabels(ticks, fontsize=6)
         floor = _log_floor(b["med"])
         positive = [t for t in tops if t == t and t > 0]
-        label_log_axis(ax, floor, max(positive) * 3 if positive else floor * 10)  # room for the k labels
-        ax.set_ylim(bottom=floor)  # bars start at the floor, below the lowest bar
+        label_log_axis(ax, floor, max(positive) * 3 if positive else floor * 10)  # room for the k labels above
         ax.set_ylabel("MED [m]")
         title = exp if several_protocols else f"{exp}, {groups[0][1]}"
         ax.set_title(title, fontsize=9)
