@@ -119,6 +119,29 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
 _libsumo_owner: SumoRun | None = None  # the run holding this process's libsumo simulation, if any
 
 
+def _import_libsumo():
+    """``import libsumo`` without its pyarrow version print.
+
+    libsumo 1.28 prints "Warning! pyarrow is installed with version ... which might be incompatible" to stdout
+    on import when the installed pyarrow is not the Arrow version it was built against (23.0). It carries its
+    own renamed copy of libarrow and pirl_sim passes no Arrow data to it, so the warning does not apply here.
+    ``LIBSUMO_AS_TRACI=quiet`` (read by libsumo's ``__init__``) skips the print; it is set only around the
+    import, after ``traci`` is imported, because with it set ``import traci`` would silently become libsumo.
+    """
+    import traci  # noqa: F401  first: traci stays the socket client
+
+    old = os.environ.get("LIBSUMO_AS_TRACI")
+    os.environ["LIBSUMO_AS_TRACI"] = "quiet"
+    try:
+        import libsumo
+    finally:
+        if old is None:
+            del os.environ["LIBSUMO_AS_TRACI"]
+        else:
+            os.environ["LIBSUMO_AS_TRACI"] = old
+    return libsumo
+
+
 def speed_mode(*, safe_speed: bool = True, max_accel: bool = True, max_decel: bool = True,
                right_of_way: bool = True, red_light: bool = True,
                ignore_junction_foes: bool = False) -> int:
@@ -607,7 +630,7 @@ class SumoRun:
                 raise RuntimeError(
                     "libsumo runs one simulation per process and another SumoRun holds it; close that "
                     "run first, use run_in_subprocess(...), or backend='traci'")
-            import libsumo
+            libsumo = _import_libsumo()
 
             libsumo.start(self.command)
             _libsumo_owner = self
