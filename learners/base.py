@@ -193,6 +193,41 @@ class BaseLearner(BaseEstimator):
         states = self.model_.predict_states(x0, theta, horizon)
         return states[0] if single else states
 
+    def predict_futures(self, histories: Trajectory | Sequence[Trajectory], horizon: int, n_futures: int | None = None,
+                        random_state=None) -> tuple[np.ndarray, np.ndarray]:
+        """K predicted futures of each history with their probabilities (issue 14 item 3, multi-modal prediction).
+
+        This base version has a single future, the point prediction of `predict_states`, with probability 1
+        (K = 1 whatever ``n_futures`` asks: a learner with one cost per history has nothing else to offer, e.g.
+        TIRL); the probabilistic learners override it (PIRL-GMM/DPGMM: one future per style or weights drawn from
+        the style mixture; PIRL-kNN: neighbours drawn by their votes).
+
+        Parameters
+        ----------
+        histories : Trajectory or sequence of M Trajectory
+        horizon : int           predicted steps, >= 1
+        n_futures : int or None  K, the number of futures asked for (>= 1); None: the learner's own choice
+        random_state : None, int or numpy.random.Generator
+            Seed of the draws of the learners that draw (`numpy.random.default_rng`); unused here.
+
+        Returns
+        -------
+        states : array (M, K, horizon + 1, n_x), or (K, horizon + 1, n_x) for one history
+            Row 0 of every future is the last state of its history.
+        proba : array (M, K) or (K,)     probability of each future; rows sum to 1
+        """
+        self._check_futures_args(horizon, n_futures)
+        states = self.predict_states(histories, horizon)
+        return states[..., None, :, :], np.ones(states.shape[:-2] + (1,))
+
+    @staticmethod
+    def _check_futures_args(horizon, n_futures) -> None:
+        if not is_positive_int(horizon):
+            raise ValueError(f"horizon must be a positive number of steps, got {horizon!r}")
+        if n_futures is not None and not is_positive_int(n_futures):
+            raise ValueError(f"n_futures (K, the number of predicted futures) must be an integer >= 1 or None, "
+                             f"got {n_futures!r}")
+
     def predict(self, history: Trajectory, horizon: int) -> Trajectory:
         """The predicted future of one history as a `Trajectory` (metadata: the weights used)."""
         if not isinstance(history, Trajectory):

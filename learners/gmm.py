@@ -236,25 +236,67 @@ class _MixtureLearner(BaseLearner):
         ll = self.style_log_likelihood(histories)
         return self._posterior(ll)
 
-    def predict_futures(self, histories, horizon: int) -> tuple[np.ndarray, np.ndarray]:
-        """One predicted future per style, with its probability: the start of issue 14's multi-modal prediction.
+    def predict_futures(self, histories, horizon: int, n_futures: int | None = None,
+                        random_state=None) -> tuple[np.ndarray, np.ndarray]:
+        """K predicted futures of each history with their probabilities (issue 14 item 3).
+
+        - ``n_futures=None``: one future per style, K = ``n_styles_``, under each style's weights ``theta_[j]``,
+          with probability p(style | history) (`predict_proba`).
+        - ``n_futures=K``, ``space="weights"``: K weights drawn from the posterior over the weights,
+          approximated as the mixture sum_j p(j | history) N(z; ``style_log_means_[j]``,
+          ``style_log_covariances_[j]``) over the log normalised weights z (the deconvolved mixture: the spread
+          of the drivers' own weights within each style; the history updates which style, not where within it);
+          each future has probability 1 / K (Monte Carlo draws). Draws use ``random_state``
+          (`numpy.random.default_rng`: an int, a Generator, or None for fresh entropy).
+        - ``n_futures=K``, ``space="features"``: a feature-space style has one weight vector and no spread, so
+          the min(K, ``n_styles_``) most probable styles, probabilities renormalised over them.
 
         Returns
         -------
-        states : array (M, n_styles_, horizon + 1, n_x), or (n_styles_, horizon + 1, n_x) for one history
-            The MPC's prediction from the last state of each history under each style's weights ``theta_[j]``
-            (row 0 is that state).
-        proba : array (M, n_styles_) or (n_styles_,)
-            p(style | history), `predict_proba`.
+        states : array (M, K, horizon + 1, n_x), or (K, horizon + 1, n_x) for one history
+            The MPC's predictions from the last state of each history (row 0 is that state).
+        proba : array (M, K) or (K,)
         """
         from sklearn.utils.validation import check_is_fitted
 
         check_is_fitted(self)
-        proba = self.predict_proba(histories)
+        self._check_futures_args(horizon, n_futures)
+        proba = np.atleast_2d(self.predict_proba(histories))
         histories, single = self._as_histories(histories)
         x0 = np.stack([h.states[-1] for h in histories])
-        states = np.stack([self.model_.predict_states(x0, th, horizon) for th in self.theta_], axis=1)
-        return (states[0], proba) if single else (states, proba)
+        M = len(histories)
+        if n_futures is None:
+            states = np.stack([self.model_.predict_states(x0, th, horizon) for th in self.theta_], axis=1)
+        elif self.space == "weights":
+            K = int(n_futures)
+            rng = np.random.default_rng(random_state)
+            theta = self._draw_weights(rng, proba, K)  # (M, K, n_features)
+            flat = self.model_.predict_states(np.repeat(x0, K, axis=0), theta.reshape(M * K, -1), horizon)
+            states = flat.reshape((M, K) + flat.shape[1:])
+            proba = np.full((M, K), 1.0 / K)
+        else:
+            K = min(int(n_futures), self.n_styles_)
+            top = np.argsort(-proba, axis=1, kind="stable")[:, :K]  # (M, K) most probable styles first
+            per_style = np.stack([self.model_.predict_states(x0, th, horizon) for th in self.theta_], axis=1)
+            states = np.take_along_axis(per_style, top[:, :, None, None], axis=1)
+            proba = np.take_along_axis(proba, top, axis=1)
+            proba = proba / proba.sum(axis=1, keepdims=True)
+        return (states[0], proba[0]) if single else (states, proba)
+
+    def _draw_weights(self, rng: np.random.Generator, proba: np.ndarray, K: int) -> np.ndarray:
+        """K normalised weight vectors per history drawn from the style mixture (`predict_futures`), (M, K, n_f)."""
+        M = proba.shape[0]
+        feats = self.model_.features
+        others = [k for k in range(feats.n_features) if k != feats.reference_index]
+        cum = np.cumsum(proba, axis=1)
+        styles = np.minimum((rng.random((M, K))[:, :, None] > cum[:, None, :]).sum(axis=2), self.n_styles_ - 1)
+        lam, vec = np.linalg.eigh(self.style_log_covariances_)  # a square root that tolerates singular ones
+        chol = vec * np.sqrt(np.maximum(lam, 0.0))[:, None, :]  # (J, D, D), chol @ chol.T = covariance
+        z = self.style_log_means_[styles] + np.einsum("mkij,mkj->mki", chol[styles],
+                                                       rng.standard_normal((M, K, len(others))))
+        theta = np.ones((M, K, feats.n_features))
+        theta[:, :, others] = np.exp(z)
+        return theta
 
     def _posterior(self, ll: np.ndarray) -> np.ndarray:
         lp = np.atleast_2d(ll) + np.log(self.style_weights_)[None]

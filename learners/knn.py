@@ -26,7 +26,7 @@ from pirl_sim.validation import is_positive_int
 
 from .base import BaseLearner, population_prior
 
-__all__ = ["PIRLKNN"]
+__all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes"]
 
 AVERAGES = ("log", "linear")
 PRIORS = (None, "population")
@@ -132,8 +132,61 @@ class PIRLKNN(BaseLearner):
             return self._likelihood_average(histories, idx)
         return knn_average(dist, self.sample_theta_[idx], self.average)
 
-    def _likelihood_average(self, histories, idx: np.ndarray) -> np.ndarray:
-        """Neighbour weights ∝ p(history | theta_owner), averaged as ``average`` says, (M, K)."""
+    def predict_futures(self, histories, horizon: int, n_futures: int | None = None,
+                        random_state=None) -> tuple[np.ndarray, np.ndarray]:
+        """K predicted futures of each history with their probabilities (issue 14 item 3).
+
+        The posterior over the weights is the neighbours' vote: the k neighbours' demonstrations with the weights
+        `infer_weights` averages (1 / distance, or the likelihood of the history with
+        ``weighting="likelihood"``; a demonstration that is a neighbour through several windows gets the sum
+        of its votes). ``n_futures=None``: one future per neighbouring demonstration, in order of vote, padded
+        as below to K = k. ``n_futures=K``: min(K, ``n_neighbors``) demonstrations drawn without replacement
+        with probabilities proportional to their votes (Gumbel top-K with ``random_state``, an int, a
+        `numpy.random.Generator` or None). Each future is the MPC's prediction under its demonstration's
+        weights ``demo_theta_``, with probability its vote renormalised over the K chosen. When fewer than K
+        demonstrations have a positive vote (exact matches), the rest are other neighbours at probability 0
+        (zero votes are drawn last); when fewer than K distinct demonstrations are neighbours, the first is
+        repeated at probability 0.
+
+        Returns
+        -------
+        states : array (M, K, horizon + 1, n_x), or (K, horizon + 1, n_x) for one history
+        proba : array (M, K) or (K,)
+        """
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self)
+        self._check_futures_args(horizon, n_futures)
+        k = int(self.n_neighbors)
+        histories, single = self._as_histories(histories)
+        Z = self._to_space(self.model_.feature_values(self._query_windows(histories)))
+        dist, idx = self.neighbors_.kneighbors(Z)
+        votes = self._likelihood_votes(histories, idx) if self.weighting == "likelihood" else inverse_distance_votes(dist)
+        owners = self.sample_owner_[idx]  # (M, k)
+        M = len(histories)
+        K = k if n_futures is None else min(int(n_futures), k)
+        rng = None if n_futures is None else np.random.default_rng(random_state)
+        chosen = np.empty((M, K), dtype=int)
+        proba = np.empty((M, K))
+        for m in range(M):
+            demos, inverse = np.unique(owners[m], return_inverse=True)
+            v = np.bincount(inverse, weights=votes[m], minlength=len(demos))
+            with np.errstate(divide="ignore"):
+                keys = np.log(v)  # -inf for a zero vote: drawn last
+            if rng is not None:
+                keys = keys + rng.gumbel(size=keys.shape)
+            order = np.argsort(-keys, kind="stable")[:K]  # highest key first; a positive vote comes first
+            pad = K - len(order)  # fewer distinct demonstrations than K: repeats of the first at probability 0
+            chosen[m] = np.concatenate([demos[order], np.full(pad, demos[order[0]])])
+            pv = np.concatenate([v[order], np.zeros(pad)])
+            proba[m] = pv / pv.sum()
+        x0 = np.stack([h.states[-1] for h in histories])
+        flat = self.model_.predict_states(np.repeat(x0, K, axis=0), self.demo_theta_[chosen.ravel()], horizon)
+        states = flat.reshape((M, K) + flat.shape[1:])
+        return (states[0], proba[0]) if single else (states, proba)
+
+    def _likelihood_votes(self, histories, idx: np.ndarray) -> np.ndarray:
+        """Neighbour votes ∝ p(history | theta_owner), rows summing to 1, (M, k)."""
         from .weight_space import paired_log_likelihoods
 
         M, k = idx.shape
@@ -148,6 +201,11 @@ class PIRLKNN(BaseLearner):
             horizon=self.horizon, step_stride=self.step_stride, episode_steps=self.episode_steps_).reshape(M, k)
         w = np.exp(ll - ll.max(axis=1, keepdims=True))
         w /= w.sum(axis=1, keepdims=True)
+        return w
+
+    def _likelihood_average(self, histories, idx: np.ndarray) -> np.ndarray:
+        """Neighbour weights ∝ p(history | theta_owner), averaged as ``average`` says, (M, K)."""
+        w = self._likelihood_votes(histories, idx)
         theta = self.sample_theta_[idx]
         if self.average == "log":
             return np.exp(np.einsum("mk,mkd->md", w, np.log(theta)))
@@ -167,9 +225,15 @@ def knn_average(dist: np.ndarray, theta: np.ndarray, average: str = "log", exact
     -------
     array (M, K). Rows with an exact match (distance <= exact_tol) average the exact matches only.
     """
-    exact = dist <= exact_tol
-    w = np.where(exact.any(axis=1, keepdims=True), exact.astype(float), 1.0 / np.maximum(dist, exact_tol))
-    w = w / w.sum(axis=1, keepdims=True)
+    w = inverse_distance_votes(dist, exact_tol)
     if average == "log":
         return np.exp(np.einsum("mk,mkd->md", w, np.log(theta)))
     return np.einsum("mk,mkd->md", w, theta)
+
+
+def inverse_distance_votes(dist: np.ndarray, exact_tol: float = 1e-12) -> np.ndarray:
+    """The paper's neighbour votes, (M, k) rows summing to 1: 1 / distance, or, in a row with exact matches
+    (distance <= exact_tol), equal votes for the exact matches and none for the others."""
+    exact = dist <= exact_tol
+    w = np.where(exact.any(axis=1, keepdims=True), exact.astype(float), 1.0 / np.maximum(dist, exact_tol))
+    return w / w.sum(axis=1, keepdims=True)

@@ -15,6 +15,20 @@ rolling
     at every ``stride``-th step t with t >= history_steps and t + horizon <= N, weights come from steps
     t - history_steps .. t and the MPC predicts steps t .. t + horizon. MED averages over all those
     predictions. Learners use sliding training windows.
+
+Multi-modal scores (issue 14 item 3; ``evaluate(..., n_futures=K)``, online and rolling only): every learner's
+``predict_futures`` gives K futures with probabilities after each history (PIRL-GMM/DPGMM: weights drawn from
+the style mixture in weight space, the most probable styles in feature space; PIRL-kNN: neighbours drawn by
+their votes; TIRL: its one future), scored by `pirl_sim.metrics` as the INTERACTION prediction challenge
+defines them: ``min_ade``, ``min_fde`` [m], ``miss_rate`` (the challenge's lateral / speed-dependent
+longitudinal rule at the last predicted step; the true speed there from the true positions' last step, a
+backward difference; the true heading the reference path's tangent for a model on a path, else the direction
+of that last step) and ``nll`` [nats per predicted step] of the true
+future under an isotropic Gaussian mixture of standard deviation ``nll_sigma`` [m] around the futures;
+``k_futures`` is the largest K a learner returned (fewer than asked for: TIRL 1, a feature-space mixture its
+number of styles). Each history is a case (the challenge's averaging): the online protocol averages over
+test trajectories, the rolling one over all its predictions. Without ``n_futures`` the row is exactly what it
+was before these scores existed.
 """
 
 from __future__ import annotations
@@ -25,13 +39,22 @@ from typing import Sequence
 
 import numpy as np
 
-from pirl_sim.metrics import adjusted_rand_index, euclidean_errors, weight_recovery_error
+from pirl_sim.metrics import (
+    adjusted_rand_index,
+    euclidean_errors,
+    interaction_miss,
+    min_ade,
+    min_fde,
+    mixture_nll,
+    weight_recovery_error,
+)
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate"]
+__all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate", "future_scores", "NLL_SIGMA"]
 
 PROTOCOL_KINDS = ("paper", "online", "rolling")
+NLL_SIGMA = 0.5  # [m] default standard deviation per step and coordinate of the NLL's Gaussian mixture
 
 
 @dataclass(frozen=True)
@@ -105,20 +128,49 @@ class Protocol:
 PAPER_PROTOCOL = Protocol()
 
 
-def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol) -> dict:
+def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol, *, n_futures: int | None = None,
+             random_state=None, nll_sigma: float = NLL_SIGMA) -> dict:
     """Score a fitted learner on test trajectories.
+
+    Parameters
+    ----------
+    learner : a fitted learner
+    test : sequence of Trajectory
+    protocol : Protocol
+    n_futures : int or None
+        K >= 1: also score K predicted futures per history (module doc; online and rolling protocols only).
+    random_state : None, int or numpy.random.Generator
+        Seed of the learners' draws of futures (one `numpy.random.default_rng` for the whole evaluation).
+    nll_sigma : float
+        Standard deviation [m] per step and coordinate of the NLL's Gaussian mixture.
 
     Returns
     -------
     dict with ``med`` [m] (the paper's MED: per-trajectory mean distance, averaged), ``med_std`` (spread of
     the per-trajectory values), ``fde`` [m], ``weight_error`` (median |log| ratio of inferred to true
-    normalised weights, when the truth is in the metadata), ``infer_predict_s`` and ``n_test``.
+    normalised weights, when the truth is in the metadata), ``infer_predict_s`` and ``n_test``; with
+    ``n_futures`` also ``k_futures``, ``min_ade``, ``min_fde``, ``miss_rate`` and ``nll`` (module doc).
     """
     test = list(test)
     if not test:
         raise ValueError("no test trajectories")
+    if n_futures is not None:
+        if not is_positive_int(n_futures):
+            raise ValueError(f"n_futures (K, the number of predicted futures) must be an integer >= 1 or None, "
+                             f"got {n_futures!r}")
+        if protocol.kind == "paper":
+            raise ValueError("multi-modal scores (n_futures) need the online or rolling protocol: the paper "
+                             "protocol predicts from the first state after seeing the whole trajectory")
+        if isinstance(nll_sigma, bool) or not isinstance(nll_sigma, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(nll_sigma) or nll_sigma <= 0:
+            raise ValueError(f"nll_sigma must be a finite number of metres > 0, got {nll_sigma!r}")
     if protocol.kind == "rolling":
-        return _evaluate_rolling(learner, test, protocol)
+        row = _evaluate_rolling(learner, test, protocol)
+        if n_futures is not None:
+            histories, futures = _rolling_cases(test, protocol)
+            row.update(future_scores(learner, histories, np.stack(futures), n_futures,
+                                     np.random.default_rng(random_state), nll_sigma))
+        return row
     model = learner.model_
     per_traj = np.empty(len(test))
     final = np.empty(len(test))
@@ -155,7 +207,78 @@ def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol) -> dict:
     if all("theta" in t.metadata for t in test):
         true = np.stack([np.asarray(t.metadata["theta"], dtype=float) for t in test])
         row["weight_error"] = float(np.median(weight_recovery_error(inferred, true, model.features.reference_index)))
+    if n_futures is not None:
+        rng = np.random.default_rng(random_state)
+        parts = []
+        for n in np.unique(lengths):
+            idx = np.flatnonzero(lengths == n)
+            start = protocol.history_steps
+            parts.append(future_scores(learner, [test[i].window(0, start) for i in idx],
+                                       np.stack([test[i].states[start:] for i in idx]), n_futures, rng, nll_sigma,
+                                       per_case=True))
+        row.update(_mean_scores(parts))
     return row
+
+
+def future_scores(learner, histories: Sequence[Trajectory], truth_states: np.ndarray, n_futures: int,
+                  rng: np.random.Generator, nll_sigma: float = NLL_SIGMA, *, per_case: bool = False) -> dict:
+    """Multi-modal scores of K futures after each history (module doc).
+
+    Parameters
+    ----------
+    learner : a fitted learner with ``predict_futures``
+    histories : sequence of M Trajectory
+    truth_states : array (M, H + 1, n_x)   the true states from the last observed one on (row 0)
+    n_futures : int                         K asked for
+    rng : numpy.random.Generator            the learner's draws
+    nll_sigma : float [m]
+    per_case : bool                         return the per-case arrays (for averaging over groups)
+
+    Returns
+    -------
+    dict: ``k_futures`` and the means over the M cases of ``min_ade``, ``min_fde`` [m], ``miss_rate`` and
+    ``nll`` [nats per predicted step]; with ``per_case`` the (M,) arrays instead of the means.
+    """
+    model = learner.model_
+    H = truth_states.shape[1] - 1
+    states, proba = learner.predict_futures(list(histories), H, n_futures=n_futures, random_state=rng)
+    pred = model.positions(states[:, :, 1:])  # (M, K, H, P)
+    true_pos = model.positions(truth_states)  # (M, H + 1, P)
+    truth = true_pos[:, 1:]
+    step = true_pos[:, -1] - true_pos[:, -2]  # the true motion over the last step
+    speed = np.linalg.norm(step, axis=-1) / model.dynamics.dt
+    heading = None
+    if step.shape[-1] == 2:  # the true heading at the last step: the path's tangent there for a path model
+        path = getattr(model, "path", None)
+        heading = (np.arctan2(step[:, 1], step[:, 0]) if path is None
+                   else path.heading_at(truth_states[:, -1, 0], extrapolate=True))
+    cases = {
+        "min_ade": min_ade(pred, truth),
+        "min_fde": min_fde(pred, truth),
+        "miss_rate": interaction_miss(pred, truth, speed, heading).astype(float),
+        "nll": mixture_nll(pred, proba, truth, float(nll_sigma)) / H,
+    }
+    if per_case:
+        return {"k_futures": int(proba.shape[1]), **cases}
+    return _mean_scores([{"k_futures": int(proba.shape[1]), **cases}])
+
+
+def _mean_scores(parts: list[dict]) -> dict:
+    out = {"k_futures": max(p["k_futures"] for p in parts)}
+    for name in ("min_ade", "min_fde", "miss_rate", "nll"):
+        out[name] = float(np.concatenate([np.atleast_1d(p[name]) for p in parts]).mean())
+    return out
+
+
+def _rolling_cases(test: list[Trajectory], protocol: Protocol):
+    """Histories and true futures (H + 1 states each) of every rolling prediction, as `_evaluate_rolling`."""
+    T, H = protocol.history_steps, protocol.horizon
+    histories, futures = [], []
+    for t in test:
+        for step in range(T, t.n_steps - H + 1, protocol.stride):
+            histories.append(t.window(step - T, step))
+            futures.append(t.states[step : step + H + 1])
+    return histories, futures
 
 
 def _evaluate_rolling(learner, test: list[Trajectory], protocol: Protocol) -> dict:

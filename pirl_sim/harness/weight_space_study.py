@@ -27,6 +27,17 @@ for feature-space learners, ``feature_style_accuracy`` of the paper's feature lo
 worst per-style weight error; ``med`` [m], ``weight_error`` (median per test trajectory) as
 `pirl_sim.harness.experiment.evaluate`; online, ``min_ade`` / ``min_fde`` [m] over one future per style
 (`PIRLGMM.predict_futures`, K = ``n_styles``; see `_min_over_styles`).
+
+Multi-modal prediction (issue 14 item 3), online rows of every learner: `evaluate` with ``n_futures=6``
+(K = 6 futures asked for, seed ``--seed``): ``k_futures`` the number a learner returns (TIRL 1, a feature-space
+mixture at most its styles, weight-space mixtures and PIRL-kNN 6 draws from their posterior over the weights),
+``min_ade_6`` / ``min_fde_6`` [m], ``miss_rate_6`` (the INTERACTION challenge's rule) and ``nll_6`` [nats per
+predicted step, Gaussian mixture of sigma 0.5 m around the futures]; definitions in `pirl_sim.metrics`. With
+fewer than 6 futures the scores are those of the smaller set (the challenge accepts fewer than 6 modalities).
+
+``futures.png``: the six futures of PIRL-GMM (k=3) in weight space after the first 2 s of the first test
+passage (seed ``--seed``), on the passage's map (lane edges 1.75 m either side of the path), and their arc
+length minus the true future's against time.
 """
 
 from __future__ import annotations
@@ -41,13 +52,16 @@ import pandas as pd
 
 from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate, style_agreement
 from pirl_sim.harness.tables import markdown
-from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.metrics import match_styles, weight_recovery_error
 from pirl_sim.validation import check_output_dir
 
-__all__ = ["run_study", "main", "lq_three_styles"]
+__all__ = ["run_study", "main", "lq_three_styles", "futures_figure"]
 
 LQ_STYLE_Q = (0.1, 1.0, 10.0)  # normalised state_sq weight of each LQ style
+N_FUTURES = 6  # K of the multi-modal scores (the INTERACTION challenge's number of modalities)
+LANE_HALF_WIDTH = 1.75  # [m] drawn either side of the passage's path in futures.png
+MULTIMODAL_COLUMNS = ("k_futures", "min_ade_6", "min_fde_6", "miss_rate_6", "nll_6")
 
 
 def lq_three_styles(n: int, rationality: float, seed: int, n_steps: int = 40):
@@ -70,9 +84,13 @@ def _style_means(demos, n_styles: int, K: int) -> np.ndarray:
     return np.stack([np.exp(np.log(theta[style == s]).mean(axis=0)) for s in range(n_styles)])
 
 
-def _row(experiment, protocol, name, learner, train, test, style_means=None) -> dict:
+def _row(experiment, protocol, name, learner, train, test, style_means=None, seed: int = 0) -> dict:
     row = {"experiment": experiment, "protocol": protocol.name, "learner": name}
-    row.update({k: v for k, v in evaluate(learner, test, protocol).items() if k in ("med", "fde", "weight_error")})
+    multi = {"n_futures": N_FUTURES, "random_state": seed} if protocol.kind == "online" else {}
+    scores = evaluate(learner, test, protocol, **multi)
+    row.update({k: v for k, v in scores.items() if k in ("med", "fde", "weight_error")})
+    for col in MULTIMODAL_COLUMNS:
+        row[col] = scores.get(col.removesuffix("_6"), np.nan)
     ari = style_agreement(learner, train)
     row["ari"] = np.nan if ari is None else ari
     row["n_styles"] = getattr(learner, "n_styles_", 1)
@@ -126,8 +144,9 @@ def _fit(key, params, train):
         return learner.fit(train)
 
 
-def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
-    """All experiments of the module doc; one row per (experiment, protocol, learner)."""
+def run_study(seed: int = 0, say=lambda m: None, figures: dict | None = None) -> pd.DataFrame:
+    """All experiments of the module doc; one row per (experiment, protocol, learner). ``figures``, a dict,
+    receives {file name: PNG bytes} of the study's figures."""
     from pirl_sim.scenarios.passage import PassageConfig, generate as generate_passage
     from pirl_sim.scenarios.synthetic import SyntheticConfig, generate as generate_synthetic
     from pirl_sim.simulate import simulate_receding_horizon
@@ -153,7 +172,7 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
         for protocol in (PAPER_PROTOCOL, online):
             for name, key, params in specs:
                 learner = _fit(key, {"model": data.model, **params, **protocol.learner_params()}, data.train)
-                rows.append(_row(experiment, protocol, name, learner, data.train, data.test))
+                rows.append(_row(experiment, protocol, name, learner, data.train, data.test, seed=seed))
                 say(f"{experiment} {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
     # three LQ styles, Boltzmann-rational, spread starts
     model, demos = lq_three_styles(800, 100.0, seed)
@@ -162,7 +181,7 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
     for protocol in (PAPER_PROTOCOL, online):
         for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3):
             learner = _fit(key, {"model": model, **params, **protocol.learner_params()}, train)
-            rows.append(_row("lq-3-styles", protocol, name, learner, train, test, means))
+            rows.append(_row("lq-3-styles", protocol, name, learner, train, test, means, seed))
             say(f"lq-3-styles {protocol.name} {name}: ARI {rows[-1]['ari']:.3g} "
                 f"style error {rows[-1]['style_error']:.3g}")
     # the roundabout passage
@@ -175,7 +194,9 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
             if key == "pirl-knn":
                 params = {**params, "prior": "population"}  # as reproduce passage
             learner = _fit(key, {"model": passage.model, **params, **protocol.learner_params()}, passage.train)
-            rows.append(_row("passage", protocol, name, learner, passage.train, passage.test, means))
+            rows.append(_row("passage", protocol, name, learner, passage.train, passage.test, means, seed))
+            if figures is not None and protocol.kind == "online" and name == "PIRL-GMM (k=3), weights":
+                figures["futures.png"] = futures_figure(learner, passage.test[0], protocol.history_steps, seed)
             say(f"passage {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
     # LQ drivers who re-plan, receding-horizon likelihood
     rng = np.random.default_rng(seed)
@@ -194,8 +215,67 @@ def run_study(seed: int = 0, say=lambda m: None) -> pd.DataFrame:
         rows.append(_row("lq-receding", PAPER_PROTOCOL, name, learner, train, test, means))
         say(f"lq-receding {name}: ARI {rows[-1]['ari']:.3g}")
     cols = ["experiment", "protocol", "learner", "med", "fde", "weight_error", "ari", "n_styles", "style_accuracy",
-            "feature_style_accuracy", "style_error", "min_ade", "min_fde"]
+            "feature_style_accuracy", "style_error", "min_ade", "min_fde", *MULTIMODAL_COLUMNS]
     return pd.DataFrame(rows)[cols]
+
+
+def futures_figure(learner, trajectory, history_steps: int, seed: int) -> bytes:
+    """PNG bytes: the `N_FUTURES` futures ``learner.predict_futures`` draws (seed ``seed``) after the first
+    ``history_steps`` steps of ``trajectory`` on a path model's map, and arc length s [m] against time [s].
+
+    Left: lane edges `LANE_HALF_WIDTH` either side of the model's path (its map), the observed history, the
+    true future and each predicted future, with markers every second; right: each future's arc length minus the
+    true one [m] against time [s].
+    """
+    from pirl_sim.harness.figures import png_bytes, pyplot
+
+    model = learner.model_
+    if not hasattr(model, "path"):
+        raise TypeError(f"futures_figure draws on a path model's map, got a {type(model).__name__}")
+    horizon = trajectory.n_steps - history_steps
+    states, proba = learner.predict_futures(trajectory.window(0, history_steps), horizon, n_futures=N_FUTURES,
+                                            random_state=np.random.default_rng(seed))
+    dt = model.dynamics.dt
+    t = np.arange(trajectory.n_steps + 1) * dt
+    every = max(1, int(round(1.0 / dt)))  # a marker every second
+    plt = pyplot()
+    fig, (ax_map, ax_s) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1.2, 1]})
+    s_all = np.linspace(0.0, model.path.length, 600)
+    for d in (-LANE_HALF_WIDTH, LANE_HALF_WIDTH):
+        edge = model.path.to_cartesian(s_all, np.full_like(s_all, d))
+        ax_map.plot(edge[:, 0], edge[:, 1], color="0.6", lw=1)
+    centre = model.path.to_cartesian(s_all, np.zeros_like(s_all))
+    ax_map.plot(centre[:, 0], centre[:, 1], color="0.8", lw=0.8, ls="--")
+    seen = model.positions(trajectory.states[: history_steps + 1])
+    true = model.positions(trajectory.states[history_steps:])
+    colours = plt.get_cmap("tab10")(np.arange(len(proba)) % 10)
+    order = np.argsort(-proba, kind="stable")
+    s_true = trajectory.states[history_steps:, 0]
+    for rank, k in enumerate(order):
+        xy = model.positions(states[k])
+        label = f"future {rank + 1}, p = {proba[k]:.2f}"
+        ax_map.plot(xy[:, 0], xy[:, 1], color=colours[rank], lw=1.2, alpha=0.8)
+        ax_map.plot(xy[::every, 0], xy[::every, 1], "o", ms=4, color=colours[rank], alpha=0.8)
+        ax_s.plot(t[history_steps:], states[k][:, 0] - s_true, color=colours[rank], lw=1.5, label=label)
+    ax_map.plot(seen[:, 0], seen[:, 1], "k-", lw=2.5, label=f"observed ({history_steps * dt:g} s)")
+    ax_map.plot(true[::every, 0], true[::every, 1], "kx", ms=7, mew=2, label="true future")
+    ax_s.axhline(0.0, color="k", ls="--", lw=2, label="true future")
+    pts = np.vstack([seen, true, model.positions(states.reshape(-1, states.shape[-1]))])
+    lo, hi = pts.min(axis=0) - 6.0, pts.max(axis=0) + 6.0
+    ax_map.set_xlim(lo[0], hi[0])
+    ax_map.set_ylim(lo[1], hi[1])
+    ax_map.set_aspect("equal")
+    ax_map.set_xlabel("x [m]")
+    ax_map.set_ylabel("y [m]")
+    ax_map.set_title("on the map (markers every 1 s)")
+    ax_map.legend(fontsize=8, loc="upper left")
+    ax_s.set_xlabel("time [s]")
+    ax_s.set_ylabel("predicted minus true arc length [m]")
+    ax_s.set_title(f"along the path, after the first {history_steps * dt:g} s")
+    ax_s.legend(fontsize=8, loc="best")
+    fig.suptitle(f"{len(proba)} futures of one passage, weights drawn from the style mixture (seed {seed})")
+    fig.tight_layout()
+    return png_bytes(fig)
 
 
 def _readme(table: pd.DataFrame, command: str) -> str:
@@ -203,6 +283,8 @@ def _readme(table: pd.DataFrame, command: str) -> str:
         "# Mixtures in feature space and in weight space\n\n"
         f"Written by `{command}` (pirl_sim/harness/weight_space_study.py; its docstring describes every experiment "
         "and column).\n\n" + markdown(table)
+        + "\n`futures.png`: the six futures of PIRL-GMM (k=3) in weight space after the first 2 s of the first test "
+        "passage, with the true future (module docstring).\n"
     )
 
 
@@ -219,7 +301,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-    table = run_study(args.seed, say)
+    figures: dict = {}
+    table = run_study(args.seed, say, figures)
+    for name, png in figures.items():
+        atomic_write_bytes(out / name, png)
     atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "table.md", markdown(table))
     command = "python3 -m pirl_sim.harness.weight_space_study" + (f" --seed {args.seed}" if args.seed else "")
