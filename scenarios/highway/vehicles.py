@@ -39,11 +39,14 @@ PIRL = "pirl"  #: ``kind`` of a vehicle driven by a PIRL driver (its MPC)
 BACKGROUND = "background"  #: ``kind`` of background traffic (highway-env's IDM)
 EGO = "ego"  #: ``kind`` of the agent's vehicle
 
-#: colours (RGB) of PIRL vehicles by style index, for rendering
 _NOT_ZERO = 1e-2  # highway_env.utils.not_zero's eps
 _QUARTER_PI = 0.25 * math.pi
 
-STYLE_COLORS = ((100, 200, 255), (255, 150, 50), (200, 100, 255), (255, 220, 80), (120, 230, 120))
+#: colours (RGB) of PIRL vehicles by style index, for rendering: none is one of highway-env's own
+#: ``VehicleGraphics`` colours (IDM/background blue (100, 200, 255), linear yellow (200, 200, 0), ego green
+#: (50, 200, 0), crashed red (255, 100, 100)) or close to them, so every PIRL vehicle stands out from
+#: background traffic, and a crashed one (red, see :attr:`RouteFollowing.color`) from all of them
+STYLE_COLORS = ((200, 100, 255), (255, 150, 0), (0, 150, 150), (150, 80, 40), (60, 60, 200))
 
 
 class RouteFollowing:
@@ -69,6 +72,22 @@ class RouteFollowing:
 
     vehicle_id: str = ""
     kind: str = ""
+    _color: tuple | None = None
+
+    @property
+    def color(self) -> tuple | None:
+        """Rendering colour (RGB) read by highway-env's ``VehicleGraphics.get_color``; ``None`` once crashed.
+
+        ``VehicleGraphics`` uses a vehicle's ``color`` attribute before it looks at ``crashed``, so a
+        vehicle given its own colour (PIRL styles, the env's ego) would never turn red; hiding the colour
+        while crashed lets highway-env draw it in its crash red (``VehicleGraphics.RED``), as its own vehicles.
+        Rendering only: nothing in the simulation reads it.
+        """
+        return None if self.crashed else self._color
+
+    @color.setter
+    def color(self, value) -> None:
+        self._color = None if value is None else tuple(value)
 
     def init_route(self, route: RouteLanes, pos: int, vehicle_id: str) -> None:
         """Attach the route (called once, right after construction, by :func:`place_on_route`)."""
@@ -102,7 +121,9 @@ class RouteFollowing:
         """Lane tracking along the route (replaces highway-env's search over every lane)."""
         self._locate()
         if self.road.record_history:
-            self.history.appendleft(self.create_from(self))
+            ghost = self.create_from(self)
+            ghost._color, ghost.crashed = self._color, self.crashed  # drawn as the vehicle is (rendering only)
+            self.history.appendleft(ghost)
 
     @property
     def remaining(self) -> float:
