@@ -20,6 +20,17 @@ if os.environ.get("CI", "").strip().lower() in ("1", "true", "yes"):
 
     pytest.importorskip = _import_or_fail
 
+# Hypothesis fuzz tests draw the same examples on every run (derandomize): a suite that passes once passes
+# again. Explore with fresh random examples by HYPOTHESIS_PROFILE=explore.
+try:
+    from hypothesis import settings as _hyp_settings
+
+    _hyp_settings.register_profile("reproducible", derandomize=True)
+    _hyp_settings.register_profile("explore", derandomize=False)
+    _hyp_settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "reproducible"))
+except ImportError:  # hypothesis is a test extra; without it the fuzz modules skip on their own
+    pass
+
 
 @pytest.fixture
 def model():

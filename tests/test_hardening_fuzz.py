@@ -135,6 +135,8 @@ def mutated_osm(draw):
             text = text[:m.start(2)] + value + text[m.end(2):]
         elif kind == "delete":
             lines = text.splitlines()
+            if not lines:  # an earlier cut left nothing to delete
+                continue
             del lines[draw(st.integers(0, len(lines) - 1))]
             text = "\n".join(lines)
         else:
