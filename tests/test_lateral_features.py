@@ -210,3 +210,16 @@ def test_horizon_scan_fits_the_desired_speed_per_split(tmp_path):
     # cars at 8-11.3 m/s on a nearly straight lane: the fitted cap sits among their speeds, not at 13.9 m/s
     assert 7.5 < rows["v_max"].iloc[0] < 12.0
     assert rows["med"].iloc[0] < 1.0
+
+
+def test_replay_cli_applies_the_lateral_model_to_a_single_recording(tmp_path):
+    from pirl_sim.cli import main
+
+    tracks, osm = _weaving_scene(tmp_path)
+    floors = {}
+    for lateral in ("hold", "mean-path"):
+        out = tmp_path / lateral
+        assert main(["replay", "--tracks", str(tracks), "--map", str(osm), "--out", str(out), "--seeds", "1",
+                     "--learners", "tirl", "--lateral", lateral, "--quiet"]) == 0
+        floors[lateral] = pd.read_csv(out / "rows.csv")["lateral_floor"].iloc[0]
+    assert floors["mean-path"] < 0.5 * floors["hold"]

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pirl_sim.validation import positive_int_arg
+from pirl_sim.validation import positive_float_arg, positive_int_arg
 
 __all__ = ["add_replay_parser", "run_replay_command", "replay_settings", "seconds_to_steps"]
 
@@ -28,18 +28,6 @@ LEARNERS = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
 #: the development roundabouts of issue 12 (never DR_USA_Roundabout_SR, the held-out set)
 DEV_ROUNDABOUTS = ("DR_USA_Roundabout_EP", "DR_USA_Roundabout_FT", "DR_CHN_Roundabout_LN")
 PIECE_DURATION = 20.0  # [s] longer tracks are cut into pieces of this duration (a whole roundabout passage)
-
-
-def _positive_float(text: str) -> float:
-    """argparse type of the numeric options (durations [s], steps, speeds, noise): a finite number > 0 (argparse
-    names the option in its error)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-    return value
 
 
 def seconds_to_steps(seconds: float, dt: float, option: str) -> int:
@@ -86,10 +74,10 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="the desired speed's a_lat and v_max: 'fit' on each split's training tracks (robust fit of "
                          "speeds against curvature, pirl_sim.speed_fit) or 'fixed' (--a-lat, --v-max) "
                          "(default fixed)")
-    rp.add_argument("--a-lat", type=_positive_float, default=None,
+    rp.add_argument("--a-lat", type=positive_float_arg, default=None,
                     help="lateral-acceleration limit [m/s^2] of the desired speed (default 1.8; a pirl_sim "
                          "recording's drivers' value)")
-    rp.add_argument("--v-max", type=_positive_float, default=None,
+    rp.add_argument("--v-max", type=positive_float_arg, default=None,
                     help="speed cap [m/s] of the desired speed (default 13.9; a pirl_sim recording's drivers' value)")
     rp.add_argument("--features", choices=["paper", "speed-level", "following"], default="paper",
                     help="the cost's features: 'paper' (speed_dev, acc_sq, jerk_sq), 'speed-level' (also speed_sq "
@@ -108,9 +96,9 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
                          "(default 10)")
     rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
-    rp.add_argument("--history", type=_positive_float, default=2.0,
+    rp.add_argument("--history", type=positive_float_arg, default=2.0,
                     help="observed history [s], at least one step of --dt (default 2)")
-    rp.add_argument("--horizon", type=_positive_float, default=3.0,
+    rp.add_argument("--horizon", type=positive_float_arg, default=3.0,
                     help="predicted horizon [s], at least one step of --dt (default 3)")
     rp.add_argument("--likelihood", choices=["trajectory", "receding"], default="trajectory",
                     help="the IRL's model of a demonstration: 'trajectory' (the paper's: one open-loop optimum) or "
@@ -120,16 +108,16 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="the drivers' MPC horizon [steps of --dt] for --likelihood receding and closed-loop "
                          "rollouts (default: drivers.horizon of a pirl_sim recording's run.json; required for "
                          "real data)")
-    rp.add_argument("--dt", type=_positive_float, default=None,
+    rp.add_argument("--dt", type=positive_float_arg, default=None,
                     help="model step [s], a multiple of the 0.1 s frames (default 0.2, the paper's; with "
                          "--likelihood receding on a pirl_sim recording its drivers' re-planning step)")
     rp.add_argument("--estimate", choices=["positions", "speeds"], default=None,
                     help="state estimate from positions only or from positions and recorded speeds (default: "
                          "speeds with --likelihood receding, positions otherwise)")
-    rp.add_argument("--sigma-v", type=_positive_float, default=None,
+    rp.add_argument("--sigma-v", type=positive_float_arg, default=None,
                     help="speed noise [m/s] of --estimate speeds (default 0.05 for real data, 0.001 for pirl_sim "
                          "recordings)")
-    rp.add_argument("--sigma-j", type=_positive_float, default=None,
+    rp.add_argument("--sigma-j", type=positive_float_arg, default=None,
                     help="jerk prior [m/s^3] of --estimate speeds (default 1 for real data, 3 for pirl_sim "
                          "recordings)")
     rp.add_argument("--selection", choices=["tracks", "steps", "free", "all"], default=None,
@@ -256,7 +244,7 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None) -> list:
 
 def run_replay_command(args) -> int:
     """Run ``pirl-sim replay`` from parsed arguments; returns the exit status."""
-    from pirl_sim.harness.replay import ReplayProtocol, run_replay, summarize, write_replay_results
+    from pirl_sim.harness.replay import run_replay, summarize, write_replay_results
     from pirl_sim.io.interaction import find_track_files
     from pirl_sim.scenarios.replay import load_replay
 
@@ -283,12 +271,7 @@ def run_replay_command(args) -> int:
                 raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
         else:
             specs = _learner_specs(args, settings["likelihood"], horizon)
-        pred = seconds_to_steps(args.horizon, dt, "--horizon")
-        proto = ReplayProtocol(history=seconds_to_steps(args.history, dt, "--history"), horizon=pred,
-                               fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon)
-                                                       if x <= args.horizon})),
-                               stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)),
-                               rollout=settings["rollout"], mpc_horizon=horizon or (scan[0] if scan else None))
+        proto = _protocol(args, settings, scan)
         for note in settings["notes"]:
             say(f"[0/3] {note}")
         say(f"[1/3] reading {len(files)} track files and {args.map} (dt {dt:g} s, estimate "
