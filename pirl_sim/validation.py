@@ -62,6 +62,18 @@ def positive_int_arg(text: str) -> int:
     return value
 
 
+def positive_float_arg(text: str) -> float:
+    """argparse type of numeric options (durations [s], speeds, noise): a finite number > 0 (argparse names the
+    option in its error)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
 def seed_arg(text: str) -> int:
     """argparse type: a seed, an integer in [0, 2**31)."""
     try:

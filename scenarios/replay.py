@@ -249,7 +249,7 @@ class ReplayScene:
     repairs : dict {what: count}  route-matching repairs of kept tracks (see module doc)
     selection : {"tracks", "steps"}  how `selected` chooses (module doc)
     steps : dict {what: count}   with ``selection="steps"``: steps of dt kept and left out by the masks
-    features : {"paper", "speed-level"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
+    features : {"paper", "speed-level", "following"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
     """
 
     model: PathDriverModel
@@ -811,7 +811,7 @@ def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
         gaps = yield_gaps(motions, rule, which)
         for it, (g, v), w in zip(items, gaps, which):
             extra = it[4]["_extra"]
-            g, v = g[w][: len(extra["gap"])], v[w][: len(extra["gap"])]
+            g, v = g[w], v[w]  # the frames the track is sampled at, as its extra["gap"]
             nearer = g < extra["gap"]
             extra["gap"] = np.where(nearer, g, extra["gap"])
             extra["v_lead"] = np.where(nearer, v, extra["v_lead"])

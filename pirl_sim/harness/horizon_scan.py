@@ -54,7 +54,7 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
     from pirl_sim.harness.replay import (
         _errors,
         _windows,
-        fit_scene_speed,
+        desired_speed_model,
         predict_path_states,
         split_by_track,
         usable_tracks,
@@ -64,20 +64,14 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
     horizons = [int(h) for h in horizons]
     if not horizons or any(h < 1 for h in horizons):
         raise ValueError(f"horizons must be positive numbers of steps, got {horizons!r}")
-    model = scene.model
-    speed = {"a_lat": getattr(scene, "a_lat", np.nan), "v_max": getattr(scene, "v_max", np.nan)}
-    if desired_speed is not None and desired_speed != "fit":
-        speed = dict(zip(("a_lat", "v_max"), (float(x) for x in desired_speed)))
-        model = scene.with_desired_speed(speed["a_lat"], speed["v_max"])
+    model, speed, _ = desired_speed_model(scene, None if desired_speed == "fit" else desired_speed)
     names = model.features.names
     tracks = usable_tracks(scene, proto)
     rows = []
     for seed in proto.seeds:
         train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
         if desired_speed == "fit":
-            fit = fit_scene_speed(scene, train)
-            model = scene.with_desired_speed(fit.a_lat, fit.v_max)
-            speed = {"a_lat": fit.a_lat, "v_max": fit.v_max}
+            model, speed, _ = desired_speed_model(scene, "fit", train)
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")

@@ -23,22 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pirl_sim.validation import positive_int_arg, seed_arg
+from pirl_sim.harness.replay_cli import seconds_to_steps
+from pirl_sim.validation import positive_float_arg, positive_int_arg, seed_arg
 
 __all__ = ["add_model_parsers", "run_fit_model_command", "run_predict_command", "rebind_model", "LEARNER_KEYS"]
 
 LEARNER_KEYS = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
-
-
-def _positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-    return value
 
 
 def _add_data_options(p: argparse.ArgumentParser) -> None:
@@ -64,9 +54,9 @@ def add_model_parsers(sub) -> None:
     fm.add_argument("--space", choices=["features", "weights"], default="features",
                     help="pirl-gmm / pirl-dpgmm: cluster in feature space (the paper's) or the per-demonstration "
                          "weight posteriors (issue 14; default features)")
-    fm.add_argument("--window", type=_positive_float, default=2.0,
+    fm.add_argument("--window", type=positive_float_arg, default=2.0,
                     help="look-up window [s]: histories are described by their last WINDOW seconds (default 2)")
-    fm.add_argument("--dt", type=_positive_float, default=None,
+    fm.add_argument("--dt", type=positive_float_arg, default=None,
                     help="model step [s], a multiple of 0.1 s (default 0.2; with --likelihood receding on a pirl_sim "
                          "recording its drivers' re-planning step)")
     fm.add_argument("--likelihood", choices=["trajectory", "receding"], default="trajectory",
@@ -85,9 +75,9 @@ def add_model_parsers(sub) -> None:
     )
     _add_data_options(pr)
     pr.add_argument("--model", type=Path, required=True, help="model file written by fit-model")
-    pr.add_argument("--history", type=_positive_float, default=None,
+    pr.add_argument("--history", type=positive_float_arg, default=None,
                     help="observed history [s] (default: the model's look-up window, else 2)")
-    pr.add_argument("--horizon", type=_positive_float, default=3.0, help="predicted horizon [s] (default 3)")
+    pr.add_argument("--horizon", type=positive_float_arg, default=3.0, help="predicted horizon [s] (default 3)")
     pr.add_argument("--out", type=Path, required=True, help="CSV file of the predictions")
 
 
@@ -119,13 +109,6 @@ def _load_scene(args, dt: float, say, receding: bool = False):
     return scene
 
 
-def _steps(seconds: float, dt: float, option: str) -> int:
-    steps = int(round(seconds / dt))
-    if steps < 1:
-        raise ValueError(f"{option} {seconds:g} s is less than one model step (dt {dt:g} s)")
-    return steps
-
-
 def _say(args):
     return (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
 
@@ -153,7 +136,7 @@ def run_fit_model_command(args) -> int:
         if args.space == "weights" and args.learner not in ("pirl-gmm", "pirl-dpgmm"):
             raise ValueError(f"--space weights is an option of pirl-gmm and pirl-dpgmm, not {args.learner}")
         scene = _load_scene(args, dt, say, receding)
-        params = {"model": scene.model, "window": _steps(args.window, dt, "--window"), "windows": "sliding"}
+        params = {"model": scene.model, "window": seconds_to_steps(args.window, dt, "--window"), "windows": "sliding"}
         if receding:
             params.update(likelihood="receding", horizon=horizon)
         if args.learner == "pirl-gmm":
@@ -225,11 +208,12 @@ def run_predict_command(args) -> int:
         scene = _load_scene(args, dt, say)
         learner = rebind_model(learner, scene.model)
         window = getattr(learner, "window", None)
-        history = _steps(args.history, dt, "--history") if args.history is not None else (window or _steps(2.0, dt, ""))
+        history = (seconds_to_steps(args.history, dt, "--history") if args.history is not None
+                   else (window or seconds_to_steps(2.0, dt, "--history")))
         if window is not None and history < window:
             raise ValueError(f"--history {history * dt:g} s is shorter than the model's look-up window "
                              f"{window * dt:g} s")
-        horizon = _steps(args.horizon, dt, "--horizon")
+        horizon = seconds_to_steps(args.horizon, dt, "--horizon")
         usable = [t for t in scene.selected if t.n_steps >= history + 1]
         if not usable:
             raise ValueError(f"no selected track has more than {history} steps (--history {history * dt:g} s)")

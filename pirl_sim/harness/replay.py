@@ -27,8 +27,9 @@ displacement errors at fixed horizons. Lateral offsets of the path-based predict
 ``ReplayProtocol.lateral`` (`pirl_sim.lateral`: the last one held, or the training tracks' mean path), the same
 for baselines and learners; ``med_path`` places each prediction at the *recorded* future offsets, which leaves
 the error along the path only (what the cost models), and ``lateral_floor`` is the MED of the recorded future
-arc lengths under the protocol's lateral model: what a perfect prediction along the path would score. Counts are of recorded tracks (``n_train``, ``n_test``) and of the
-pieces long tracks are cut into (``n_train_pieces``, ``n_test_pieces``).
+arc lengths under the protocol's lateral model: what a perfect prediction along the path would score. Counts
+are of recorded tracks (``n_train``, ``n_test``) and of the pieces long tracks are cut into (``n_train_pieces``,
+``n_test_pieces``).
 
 PIRL-kNN learners that differ only in k share one fit per split: the per-demonstration IRL, the look-up
 samples and their feature space do not depend on k, so the learner with the smallest k is fitted and the
@@ -314,6 +315,22 @@ def fit_scene_speed(scene, tracks, **kwargs):
     return fit_desired_speed(scene.curvature(states[:, 0]), states[:, 1], **kwargs)
 
 
+def desired_speed_model(scene, desired_speed=None, train=None):
+    """The scene's model under a desired speed: None (the scene's own), ``"fit"`` (a_lat, v_max fitted on the
+    training pieces ``train`` by `fit_scene_speed`) or (a_lat, v_max) [m/s^2, m/s].
+
+    Returns (model, {"a_lat", "v_max"}, the `pirl_sim.speed_fit.DesiredSpeedFit` or None)."""
+    if desired_speed is None:
+        return scene.model, {"a_lat": getattr(scene, "a_lat", np.nan), "v_max": getattr(scene, "v_max", np.nan)}, None
+    fit = None
+    if desired_speed == "fit":
+        fit = fit_scene_speed(scene, train)
+        a_lat, v_max = fit.a_lat, fit.v_max
+    else:
+        a_lat, v_max = (float(x) for x in desired_speed)
+    return scene.with_desired_speed(a_lat, v_max), {"a_lat": a_lat, "v_max": v_max}, fit
+
+
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
                desired_speed=None) -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene`.
@@ -346,22 +363,15 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     say = progress or (lambda msg: None)
     tracks = usable_tracks(scene, proto)
     unique = _track_keys(tracks)[1]
-    model = scene.model
+    model, speed, _ = desired_speed_model(scene, None if desired_speed == "fit" else desired_speed)
     dt = model.dynamics.dt
     rows, errors, examples = [], {}, {}
-    speed = {"a_lat": getattr(scene, "a_lat", np.nan), "v_max": getattr(scene, "v_max", np.nan)}
-    if desired_speed is not None and desired_speed != "fit":
-        a_lat, v_max = (float(x) for x in desired_speed)
-        model = scene.with_desired_speed(a_lat, v_max)
-        speed = {"a_lat": a_lat, "v_max": v_max}
     reuse = _shared_knn_fits(learner_specs)
     has_truth = any("theta" in t.metadata for t in tracks)
     for seed in proto.seeds:
         train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
         if desired_speed == "fit":
-            fit = fit_scene_speed(scene, train)
-            model = scene.with_desired_speed(fit.a_lat, fit.v_max)
-            speed = {"a_lat": fit.a_lat, "v_max": fit.v_max}
+            model, speed, fit = desired_speed_model(scene, "fit", train)
             say(f"seed {seed}: desired speed fitted on the training tracks: a_lat {fit.a_lat:.2f} m/s^2, "
                 f"v_max {fit.v_max:.2f} m/s{' (at a bound)' if fit.at_bound else ''}")
         counts = {**counts, **speed}
