@@ -80,10 +80,12 @@ def test_mean_path_lateral_model_and_the_error_decomposition(tmp_path):
     tracks, osm = _weaving_scene(tmp_path)
     scene = load_replay([tracks], osm, smoothing=0.0)
     rows = {}
-    for lateral in ("hold", "mean-path"):
+    for lateral in ("hold", "mean-path", "plane"):
         res = run_replay(scene, [], ReplayProtocol(seeds=(0, 1), test_fraction=0.34, lateral=lateral))
         rows[lateral] = res["rows"].set_index(["seed", "method"])
     hold, mean = rows["hold"], rows["mean-path"]
+    for seed in (0, 1):  # one route: pooling in the plane finds the same weave
+        assert rows["plane"].loc[(seed, "CA (path)"), "med"] < 0.5 * hold.loc[(seed, "CA (path)"), "med"]
     ca = "CA (path)"
     for seed in (0, 1):
         # the weave is the same for every car: following the training tracks' path beats holding the offset
@@ -223,3 +225,32 @@ def test_replay_cli_applies_the_lateral_model_to_a_single_recording(tmp_path):
                      "--learners", "tirl", "--lateral", lateral, "--quiet"]) == 0
         floors[lateral] = pd.read_csv(out / "rows.csv")["lateral_floor"].iloc[0]
     assert floors["mean-path"] < 0.5 * floors["hold"]
+
+
+def test_plane_profile_pools_offsets_over_routes_that_share_a_lane():
+    """Two routes along one straight lane, each driven by one track that keeps 0.6 m left of the centreline:
+    per route no bin has the 3 samples it needs from other tracks; in the plane the other route's track counts."""
+    from pirl_sim.driving import CompositePath
+
+    x = np.linspace(0.0, 100.0, 201)
+    a = ReferencePath.from_polyline(np.column_stack([x, np.zeros_like(x)]), smoothing=0.0)
+    b = ReferencePath.from_polyline(np.column_stack([x[:101], np.zeros(101)]), smoothing=0.0)
+    path = CompositePath((a, b))
+    xx = np.arange(0.0, 100.0, 0.8)
+    tracks = [np.column_stack([xx, np.full_like(xx, 0.6)]), np.column_stack([xx[:60], np.full(60, 0.6)])]
+    prof = MeanOffsetProfile().fit_plane(path, tracks)
+    s_b = path.offsets[1] + np.array([5.0, 20.0, 40.0])
+    np.testing.assert_allclose(prof(1, s_b), 0.6, atol=1e-9)  # route b's bins use route a's track too
+    np.testing.assert_allclose(prof(0, np.array([70.0])), 0.6, atol=1e-9)
+    # driven the other way, or standing, or far off the lane: not counted
+    back = [np.column_stack([xx[::-1], np.full_like(xx, 0.6)]), np.column_stack([np.full(50, 30.0), np.zeros(50)]),
+            np.column_stack([xx, np.full_like(xx, 9.0)])]
+    assert np.isnan(MeanOffsetProfile().fit_plane(path, back)(0, np.array([10.0, 30.0, 60.0]))).all()
+    d = predict_offsets("plane", 0.1, 1, s_b[0], s_b[1:], prof)
+    np.testing.assert_allclose(d, 0.1)  # the car's own deviation from the pooled path is kept
+    with pytest.raises(ValueError, match="window"):
+        MeanOffsetProfile().fit_plane(path, tracks, window=0.0)
+    with pytest.raises(ValueError, match=r"xy\[0\]"):
+        MeanOffsetProfile().fit_plane(path, [np.zeros((4, 3))])
+    with pytest.raises(ValueError, match="moving"):
+        MeanOffsetProfile().fit_plane(path, [np.zeros((4, 2))])

@@ -79,8 +79,9 @@ class ReplayProtocol:
     rollout : {"open", "closed"}  how learners' weights become a prediction (module doc)
     mpc_horizon : int or None     the MPC's planning horizon [steps]; required for ``rollout="closed"``
                                   (None with "open": plan over ``horizon``)
-    lateral : {"hold", "mean-path"}  lateral offsets of every path-based prediction (`pirl_sim.lateral`):
-                                  the last observed one held, or the training tracks' mean path per route
+    lateral : {"hold", "mean-path", "plane"}  lateral offsets of every path-based prediction (`pirl_sim.lateral`):
+                                  the last observed one held, or the training tracks' mean path per route, or
+                                  their mean path pooled in the plane over routes
     """
 
     history: int = 10
@@ -189,7 +190,8 @@ def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, pro
     track's own route of a `CompositePath`, even where a prediction runs beyond that route's ends).
 
     ``lateral``: the offsets the predicted arc lengths are placed at: the protocol's model (None:
-    ``proto.lateral``, with the fitted `pirl_sim.lateral.MeanOffsetProfile` ``profile`` for "mean-path"), or
+    ``proto.lateral``, with the fitted `pirl_sim.lateral.MeanOffsetProfile` ``profile`` for "mean-path" and
+    "plane"), or
     ``"recorded"``: the recorded future offsets, which leaves the error along the path only."""
     from pirl_sim.driving import CompositePath
     from pirl_sim.lateral import predict_offsets
@@ -210,10 +212,16 @@ def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, pro
     return err
 
 
-def fit_lateral_profile(train):
-    """`pirl_sim.lateral.MeanOffsetProfile` fitted on training pieces (route, arc length, recorded offset)."""
+def fit_lateral_profile(train, kind: str = "mean-path", path=None):
+    """`pirl_sim.lateral.MeanOffsetProfile` fitted on training pieces: per route from (route, arc length,
+    recorded offset) for ``kind="mean-path"``, pooled in the plane from their positions on ``path`` (the
+    model's reference path) for ``"plane"``; None for ``"hold"``."""
     from pirl_sim.lateral import MeanOffsetProfile
 
+    if kind == "hold":
+        return None
+    if kind == "plane":
+        return MeanOffsetProfile().fit_plane(path, [np.asarray(t.metadata["xy"], dtype=float) for t in train])
     segment = np.concatenate([np.full(t.n_steps + 1, int(t.metadata.get("segment", 0))) for t in train])
     s = np.concatenate([t.states[:, 0] for t in train])
     d = np.concatenate([np.asarray(t.metadata["d"], dtype=float) for t in train])
@@ -378,7 +386,7 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
-        profile = fit_lateral_profile(train) if proto.lateral == "mean-path" else None
+        profile = fit_lateral_profile(train, proto.lateral, model.path)
         recorded_s = np.stack([test[i].states[step + 1 : step + 1 + proto.horizon, 0] for i, step in windows])
         counts["lateral_floor"] = float(_errors(model, test, windows, recorded_s, proto, profile=profile).mean())
         x0 = np.stack([test[i].states[step] for i, step in windows])

@@ -85,10 +85,10 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "headway: the gap to the recorded vehicle ahead, held at constant velocity over a "
                          "prediction; selection defaults to 'all') (pirl_sim.driving.roundabout_features) "
                          "(default paper)")
-    rp.add_argument("--lateral", choices=["hold", "mean-path"], default="hold",
+    rp.add_argument("--lateral", choices=["hold", "mean-path", "plane"], default="hold",
                     help="lateral offsets of every path-based prediction (baselines and learners): 'hold' the last "
-                         "observed one, or follow the training tracks' 'mean-path' of the route (pirl_sim.lateral) "
-                         "(default hold)")
+                         "observed one, or follow the training tracks' 'mean-path' of the route, or their mean path "
+                         "pooled over routes in the 'plane' (pirl_sim.lateral) (default hold)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
