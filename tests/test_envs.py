@@ -104,7 +104,7 @@ def test_seeded_resets_are_deterministic():
     ({"drivers": {"horizn": 3}}, r"config drivers: unknown key\(s\) 'horizn'"),
     ({"simulation_frequency": 15}, r"simulation_frequency must be 10 Hz"),
     ({"policy_frequency": 3}, r"policy_frequency must divide 10 Hz"),
-    ({"reward": "speed"}, r"reward must be one of \('task', 'theta'\)"),
+    ({"reward": "speed"}, r"reward must be one of \('task', 'theta', 'exit'\)"),
     ({"reward_theta": {"speed_dev": 1.0, "accel": 1.0}}, r"reward_theta: unknown key\(s\) 'accel'"),
     ({"ego_route": "arm0_to_arm0"}, r"ego_route must be one of"),
     ({"initial_vehicles": 1000}, r"initial_vehicles = 1000 exceeds"),
@@ -269,6 +269,8 @@ def test_a_stable_baselines3_ppo_agent_trains_on_the_env():
         warnings.simplefilter("error")
         sb3_check_env(env, warn=True)
     model = sb3.PPO("MlpPolicy", env, n_steps=256, batch_size=64, n_epochs=2, seed=0, verbose=0, device="cpu")
+    # SB3's default logger makes a /tmp/SB3-<date> folder even when it writes nothing: a silent one instead
+    model.set_logger(sb3.common.logger.Logger(folder=None, output_formats=[]))
     model.learn(total_timesteps=1024)
     obs, _ = env.reset(seed=123)
     total = 0.0

@@ -1,8 +1,9 @@
 """What both backends of ``pirl_sim/Roundabout-v0`` share: the ego's reward, the neighbours' info, checks.
 
 - :class:`EgoReward`: the ego's features along its route's reference path, frame by frame, and the reward
-  terms of an agent step (``"task"``: progress, comfort, collision, arrival; ``"theta"``: minus the cost of
-  a chosen style, with the crash's cost-to-go); the env's module docstring states the formulas.
+  terms of an agent step (``"exit"``: reach the exit soon, safely and comfortably, in seconds; ``"task"``:
+  progress, comfort, collision, arrival; ``"theta"``: minus the cost of a chosen style, with the crash's
+  cost-to-go); the env's module docstring states the formulas.
 - :func:`neighbour_info`: the neighbours' ground truth (ids, PIRL or not, style, weights) of the
   observation's rows.
 - :func:`check_common` / :func:`reward_weights`: the configuration keys both backends have.
@@ -24,13 +25,27 @@ from pirl_sim.scenarios.population_config import (
 )
 from pirl_sim.validation import check_keys, number
 
-__all__ = ["REWARDS", "EGO_ID", "ACC_REF", "JERK_REF", "EMPTY_ROW_STYLE", "MAX_EGO_SPEED", "ORDERS", "EgoReward",
-           "neighbour_info", "common_defaults", "check_common", "check_kinematics", "check_action", "acceleration",
+__all__ = ["REWARDS", "EXIT_REWARD_DEFAULTS", "VEHICLE_LENGTH", "EGO_ID", "ACC_REF", "JERK_REF", "LAT_ACC_REF",
+           "EMPTY_ROW_STYLE", "MAX_EGO_SPEED", "ORDERS", "EgoReward", "clearance", "neighbour_info", "common_defaults", "check_common", "check_kinematics", "check_action", "acceleration",
            "reward_weights", "StepGuard"]
 
-REWARDS = ("task", "theta")  #: values of the ``reward`` option
+REWARDS = ("task", "theta", "exit")  #: values of the ``reward`` option
+#: the ``"exit"`` reward's weights (``exit_reward`` option; every one >= 0, see the env's module docstring):
+#: progress [s per (m / v_max)], time [1], comfort [1], near_miss [1], near_miss_gap [m], collision [s],
+#: arrival [s]
+EXIT_REWARD_DEFAULTS: dict[str, float] = {
+    "progress": 1.0,  # per second it would take at v_max to drive the step's progress
+    "time": 1.0,  # per second of the episode
+    "comfort": 0.5,  # per second at comfort index 1 (see EgoReward)
+    "near_miss": 2.0,  # per second with a vehicle nearer than near_miss_gap
+    "near_miss_gap": 2.0,  # [m] clearance below which a frame counts as a near miss
+    "collision": 50.0,  # [s] once, when the ego crashes (more than any duration the crash could save)
+    "arrival": 10.0,  # [s] once, when the ego reaches the end of its route
+}
+VEHICLE_LENGTH = 5.0  #: [m] the vehicles' length in both backends (highway-env's Vehicle.LENGTH, SUMO's default)
 EGO_ID = "ego"  #: the ego's vehicle id (and ``agent_id`` in recordings)
 ACC_REF, JERK_REF = 3.0, 8.0  #: [m/s^2], [m/s^3] comfort-term scales (the driver model's bounds)
+LAT_ACC_REF = 3.0  #: [m/s^2] scale of the lateral acceleration in the ``"exit"`` reward's comfort index
 EMPTY_ROW_STYLE = -2  #: ``neighbour_styles`` of an empty observation row
 FRAME_DT = 0.1  # [s] simulation frame = driver-model step
 MAX_EGO_SPEED = 30.0  #: [m/s] largest ego_speed: the driver model's speed bound
@@ -100,6 +115,15 @@ class StepGuard:
             self.ended = "terminated" if terminated else "truncated"
 
 
+def clearance(xy, others_xy) -> float:
+    """[m] the ego's clearance to the nearest other vehicle: least centre distance from ``xy`` (2,) to the rows
+    of ``others_xy`` (n, 2), minus :data:`VEHICLE_LENGTH` (bumper to bumper for vehicles in line; inf for none)."""
+    others = np.asarray(others_xy, dtype=float).reshape(-1, 2)
+    if not len(others):
+        return float("inf")
+    return float(np.sqrt(((others - np.asarray(xy, dtype=float)) ** 2).sum(axis=1)).min()) - VEHICLE_LENGTH
+
+
 def reward_weights(theta: Mapping[str, float]) -> np.ndarray:
     """Normalised weights (3,) of the ``"theta"`` reward over :data:`FEATURE_NAMES` (``jerk_sq`` = 1)."""
     return np.array([float(theta.get(f, 1.0)) for f in FEATURE_NAMES])
@@ -131,7 +155,8 @@ class EgoReward:
         self.s_path = float(routes.project([self.route], np.asarray(xy, dtype=float)[None, :])[0])
         self.v_des = self._desired_speed()
         self._prev_acc = 0.0
-        self._frames: list[tuple[float, float, float]] = []  # ((v - v_des)^2, a, jerk) per frame of the step
+        # ((v - v_des)^2 [m^2/s^2], a [m/s^2], jerk [m/s^3], lateral acceleration [m/s^2], near miss 0/1) per frame
+        self._frames: list[tuple[float, float, float, float, float]] = []
         self._crash_charged = False
         self.features = np.zeros(len(FEATURE_NAMES))
         self.terms = self.step_terms(progress=0.0, crashed=False, arrived=False, time=0.0)
@@ -139,15 +164,20 @@ class EgoReward:
     def _desired_speed(self) -> float:
         return float(self.profile(self.routes.offsets[self.route] + np.array([self.s_path]))[0][0])
 
-    def log_frame(self, xy, speed: float, accel: float) -> None:
-        """After each simulation frame: the ego's position [m], speed [m/s] and applied acceleration [m/s^2]."""
+    def log_frame(self, xy, speed: float, accel: float, clearance: float = np.inf) -> None:
+        """After each simulation frame: the ego's position [m], speed [m/s], applied acceleration [m/s^2] and
+        clearance [m] to the nearest other vehicle (centre distance minus :data:`VEHICLE_LENGTH`; inf: none)."""
         q = np.asarray(xy, dtype=float)[None, :]
         try:
             self.s_path = float(self.routes.project([self.route], q, [self.s_path])[0])
         except ValueError:  # the warm start lost the ego (e.g. pushed by a crash): project from scratch
             self.s_path = float(self.routes.project([self.route], q)[0])
+        s_global = self.routes.offsets[self.route] + np.array([self.s_path])
         self.v_des = self._desired_speed()
-        self._frames.append(((speed - self.v_des) ** 2, accel, (accel - self._prev_acc) / FRAME_DT))
+        kappa = float(self.routes.curvature(s_global)[0][0])
+        near = float(clearance < self.config["exit_reward"]["near_miss_gap"])
+        self._frames.append(((speed - self.v_des) ** 2, accel, (accel - self._prev_acc) / FRAME_DT,
+                             speed**2 * abs(kappa), near))
         self._prev_acc = accel
 
     def begin_step(self) -> None:
@@ -159,9 +189,10 @@ class EgoReward:
         [s] since the reset)."""
         c = self.config
         period = 1.0 / c["policy_frequency"]
-        f = np.array(self._frames) if self._frames else np.zeros((1, 3))
+        f = np.array(self._frames) if self._frames else np.zeros((1, 5))
         self.features = np.array([f[:, 0].mean(), (f[:, 1] ** 2).mean(), (f[:, 2] ** 2).mean()])
         comfort = float(((f[:, 1] / ACC_REF) ** 2 + (f[:, 2] / JERK_REF) ** 2).mean()) if self._frames else 0.0
+        lateral = float(((f[:, 3] / LAT_ACC_REF) ** 2).mean()) if self._frames else 0.0
         cost_to_go = 0.0
         if crashed and not self._crash_charged:
             # a crashed vehicle stands still: over the rest of the episode it would cost speed_dev = v_des^2
@@ -175,12 +206,22 @@ class EgoReward:
             "crash_cost_to_go": cost_to_go,
             "collision": float(crashed),
             "arrival": float(arrived),
+            # the "exit" reward's terms [s]
+            "progress_time": progress / c["drivers"].v_max,
+            "time": period,
+            "comfort_time": (comfort + lateral) * period,
+            "near_miss_time": float(f[:, 4].mean()) * period if self._frames else 0.0,
         }
         return self.terms
 
     def reward(self) -> float:
         """The step's reward from its terms (``reward``: ``"task"`` or ``"theta"``)."""
         c, t = self.config, self.terms
+        if c["reward"] == "exit":
+            w = c["exit_reward"]
+            return float(w["progress"] * t["progress_time"] - w["time"] * t["time"] - w["comfort"] * t["comfort_time"]
+                         - w["near_miss"] * t["near_miss_time"] - w["collision"] * t["collision"]
+                         + w["arrival"] * t["arrival"])
         r = c["collision_reward"] * t["collision"] + c["arrival_reward"] * t["arrival"]
         if c["reward"] == "task":
             r += c["progress_reward"] * t["progress"] + c["comfort_reward"] * t["comfort"]
@@ -236,6 +277,7 @@ def common_defaults() -> dict:
         "comfort_reward": -0.1,
         "collision_reward": -10.0,
         "arrival_reward": 1.0,
+        "exit_reward": dict(EXIT_REWARD_DEFAULTS),
         "record_tracks": False,
     }
 
@@ -279,6 +321,13 @@ def check_common(c: dict) -> None:
         raise ValueError(f"reward_theta[{REFERENCE_FEATURE!r}] is the reference weight, fixed at 1")
     for name in ("progress_reward", "comfort_reward", "collision_reward", "arrival_reward"):
         number(name, c[name])
+    ex = c["exit_reward"]
+    if not isinstance(ex, Mapping):
+        raise ValueError(f"exit_reward must be a mapping name -> weight >= 0 (names {', '.join(EXIT_REWARD_DEFAULTS)}), "
+                         f"got {ex!r}")
+    check_keys("exit_reward", ex, tuple(EXIT_REWARD_DEFAULTS))
+    c["exit_reward"] = {k: number(f"exit_reward[{k!r}]", ex.get(k, d), low=0.0)
+                        for k, d in EXIT_REWARD_DEFAULTS.items()}  # missing weights take their defaults
     if not isinstance(c["record_tracks"], bool):
         raise ValueError(f"record_tracks must be true or false, got {c['record_tracks']!r}")
 

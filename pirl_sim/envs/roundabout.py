@@ -84,6 +84,7 @@ from pirl_sim.envs.common import (
     StepGuard,
     acceleration,
     check_action,
+    clearance,
     check_common,
     check_kinematics,
     common_defaults,
@@ -331,7 +332,8 @@ class PirlRoundaboutEnv(AbstractEnv):
 
     def _log_ego(self, traffic: RoundaboutTraffic) -> None:
         ego = self.vehicle
-        self._ego_cost.log_frame(ego.position, ego.speed, ego.applied_acceleration)
+        others = [v.position for v in traffic.vehicles if v is not ego]
+        self._ego_cost.log_frame(ego.position, ego.speed, ego.applied_acceleration, clearance(ego.position, others))
 
     # -- stepping -------------------------------------------------------------------------------------
 
@@ -376,6 +378,7 @@ class PirlRoundaboutEnv(AbstractEnv):
     def _info(self, obs, action=None) -> dict:
         return {
             "speed": float(self.vehicle.speed),
+            "time": float(self.time),
             "crashed": bool(self.vehicle.crashed),
             "arrived": bool(self._arrived),
             "progress": float(self.vehicle.route_s),

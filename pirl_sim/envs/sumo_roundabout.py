@@ -64,6 +64,7 @@ from .common import (
     StepGuard,
     acceleration,
     check_common,
+    clearance,
     check_kinematics,
     common_defaults,
     neighbour_info,
@@ -309,7 +310,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
                 self._arrived = not self._crashed
                 break
             self._last_ego = now.ego
-            self._ego_cost.log_frame((now.ego.x, now.ego.y), now.ego.speed, now.ego.accel)
+            gap = clearance((now.ego.x, now.ego.y), [(st.x, st.y) for st in now.others.values()])
+            self._ego_cost.log_frame((now.ego.x, now.ego.y), now.ego.speed, now.ego.accel, gap)
             if self._crashed:
                 break
         self.time = round(self._run.time - self._t0, 9)
@@ -359,6 +361,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         now = self._controller.ego
         return {
             "speed": float(self._last_ego.speed),
+            "time": float(self.time),
             "crashed": bool(self._crashed),
             "arrived": bool(self._arrived),
             "progress": float(self._ego_cost.s_path),

@@ -1,0 +1,147 @@
+"""Scripted egos for ``pirl_sim/Roundabout-v0``: what an agent has to beat.
+
+Each baseline is a policy with ``act(env) -> action`` (the env's ``Box(-1, 1, (1,))`` action) that reads the
+*unwrapped* env, decides once per agent step (the action is held for the step's frames, like an agent's) and
+has ``reset(env)`` to call after every ``env.reset``:
+
+- :class:`HoldSpeed` (both backends): action 0, i.e. keep the speed the ego starts with (``ego_speed``).
+- :class:`IdmEgo` (highway backend): the ego driven as the env's background traffic drives: highway-env's
+  IDM towards the route's desired speed v_des(s) (lateral-acceleration limit and speed cap), behind its leader
+  on its route, with the traffic's gap acceptance (yielding) at the entry
+  (:class:`~pirl_sim.scenarios.highway.traffic.RoundaboutTraffic`'s rules).
+- :class:`MpcEgo` (highway backend): the ego driven as a PIRL driver of weights ``theta``: its MPC along the
+  route's reference path (:class:`~pirl_sim.scenarios.drivers.PirlDrivers`, the PIRL drivers' own controller,
+  horizon and hand-back at a standstill), its command capped by the same IDM leader and yielding limit the
+  traffic imposes on PIRL drivers.
+
+The accelerations are mapped to actions by :func:`action_of` (the inverse of the env's mapping).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from pirl_sim.scenarios.population_config import FEATURE_NAMES, FREE_FEATURES
+
+from .common import EGO_ID, reward_weights
+
+IDM_DELTA = 4.0  #: highway-env's IDM exponent (IDMVehicle.DELTA), also the env's background traffic's
+
+__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "action_of", "make_baseline"]
+
+#: baseline names of :func:`make_baseline`
+BASELINES = ("hold-speed", "idm", "mpc")
+
+
+def action_of(a: float, acceleration_range) -> np.ndarray:
+    """The action (1,) float32 in [-1, 1] that commands acceleration ``a`` [m/s^2] (clipped to the range)."""
+    lo, hi = (float(x) for x in acceleration_range)
+    x = a / hi if a >= 0 else -a / lo
+    return np.array([min(max(x, -1.0), 1.0)], dtype=np.float32)
+
+
+def _highway(env, name: str):
+    from .roundabout import PirlRoundaboutEnv
+
+    base = getattr(env, "unwrapped", env)
+    if not isinstance(base, PirlRoundaboutEnv):
+        raise TypeError(f"the {name} baseline drives the highway backend's ego (PirlRoundaboutEnv), got "
+                        f"{type(base).__name__}")
+    return base
+
+
+class HoldSpeed:
+    """Action 0 every step: the ego keeps its initial speed (both backends)."""
+
+    name = "hold-speed"
+
+    def reset(self, env) -> None:
+        """Nothing to reset."""
+
+    def act(self, env) -> np.ndarray:
+        return np.zeros(1, dtype=np.float32)
+
+
+class IdmEgo:
+    """The ego as the env's IDM background traffic drives (highway backend; see the module docstring)."""
+
+    name = "idm"
+
+    def reset(self, env) -> None:
+        _highway(env, self.name)
+
+    def act(self, env) -> np.ndarray:
+        base = _highway(env, self.name)
+        traffic, ego = base.road, base.vehicle
+        others = traffic.vehicles
+        a = traffic._limit(ego, others, traffic._occupancy(others), free_v0=traffic.v_des(ego), delta=IDM_DELTA)
+        return action_of(a, base.action_type.acceleration_range)
+
+
+class MpcEgo:
+    """The ego as a PIRL driver of weights ``theta`` drives (highway backend; see the module docstring).
+
+    Parameters
+    ----------
+    theta : mapping
+        Normalised weights ``{"speed_dev": ..., "acc_sq": ...}`` (``jerk_sq`` = 1), each > 0.
+    """
+
+    name = "mpc"
+
+    def __init__(self, theta: Mapping[str, float]) -> None:
+        if not isinstance(theta, Mapping):
+            raise TypeError(f"theta must be a mapping feature -> weight (features {', '.join(FREE_FEATURES)}), "
+                            f"got {type(theta).__name__}")
+        unknown = [k for k in theta if k not in FEATURE_NAMES]
+        missing = [k for k in FREE_FEATURES if k not in theta]
+        if unknown or missing:
+            raise ValueError(f"theta needs the weights {', '.join(FREE_FEATURES)} (optional jerk_sq = 1); got "
+                             f"{dict(theta)!r}")
+        w = reward_weights(theta)
+        if not np.all(np.isfinite(w)) or np.any(w <= 0):
+            raise ValueError(f"theta's weights must be finite and > 0, got {dict(theta)!r}")
+        self.theta = dict(theta)
+        self._weights = w
+        self._drivers = None
+
+    def reset(self, env) -> None:
+        from pirl_sim.scenarios.drivers import PirlDrivers
+
+        base = _highway(env, self.name)
+        traffic, drv = base.road, base.config["drivers"]
+        self._drivers = PirlDrivers(traffic.model, {EGO_ID: (base.config["ego_route"], self._weights)},
+                                    horizon=drv.horizon, stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
+
+    def act(self, env) -> np.ndarray:
+        from pirl_sim.scenarios.highway.traffic import STEP_LENGTH, _EgoState, _Observation
+
+        base = _highway(env, self.name)
+        if self._drivers is None:
+            raise RuntimeError("call reset(env) after env.reset() before act(env)")
+        traffic, ego = base.road, base.vehicle
+        others = traffic.vehicles
+        state = _EgoState(float(ego.position[0]), float(ego.position[1]), float(ego.speed),
+                          float(ego.applied_acceleration))
+        cmd = self._drivers.commands(traffic.time, {EGO_ID: _Observation(state)})[EGO_ID]
+        occupancy = traffic._occupancy(others)
+        if cmd is None:  # handed back at a standstill, as the PIRL drivers are: IDM until it drives again
+            a = traffic._limit(ego, others, occupancy, free_v0=traffic.v_des(ego), delta=IDM_DELTA)
+        else:
+            a = min((cmd - ego.speed) / STEP_LENGTH, traffic._limit(ego, others, occupancy, free_v0=None,
+                                                                     delta=IDM_DELTA))
+        return action_of(a, base.action_type.acceleration_range)
+
+
+def make_baseline(name: str, theta: Mapping[str, float] | None = None):
+    """A baseline by name (:data:`BASELINES`); ``theta`` for ``"mpc"`` (default: "tracks desired speed",
+    speed_dev 3, acc_sq 0.3)."""
+    if name == "hold-speed":
+        return HoldSpeed()
+    if name == "idm":
+        return IdmEgo()
+    if name == "mpc":
+        return MpcEgo(theta if theta is not None else {"speed_dev": 3.0, "acc_sq": 0.3})
+    raise ValueError(f"baseline must be one of {BASELINES}, got {name!r}")

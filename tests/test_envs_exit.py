@@ -1,0 +1,130 @@
+"""The ``"exit"`` task reward of ``pirl_sim/Roundabout-v0`` and the scripted baseline egos
+(:mod:`pirl_sim.envs.baselines`)."""
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+pytest.importorskip("highway_env")
+
+import pirl_sim.envs  # noqa: E402,F401  (registers the env ids)
+from pirl_sim.envs.baselines import BASELINES, HoldSpeed, IdmEgo, MpcEgo, action_of, make_baseline  # noqa: E402
+from pirl_sim.envs.common import EXIT_REWARD_DEFAULTS, VEHICLE_LENGTH, clearance  # noqa: E402
+
+ENV_ID = "pirl_sim/Roundabout-v0"
+#: the dense traffic of the training experiment (pirl_sim.harness.agents)
+DENSE = {"initial_vehicles": 12, "population": {"depart_interval": 2.0}}
+
+
+def make(**config):
+    return gym.make(ENV_ID, config={"reward": "exit", **config}).unwrapped
+
+
+def episode(env, policy, seed):
+    env.reset(seed=seed)
+    policy.reset(env)
+    total = 0.0
+    while True:
+        _, reward, terminated, truncated, info = env.step(policy.act(env))
+        total += reward
+        if terminated or truncated:
+            return total, info
+
+
+def test_exit_reward_is_its_terms_in_seconds():
+    env = make(initial_vehicles=0, population={"n_vehicles": 1, "depart_interval": 1000.0}, ego_start=200.0)
+    env.reset(seed=0)
+    w = env.config["exit_reward"]
+    assert w == EXIT_REWARD_DEFAULTS
+    total, arrived, progress_s = 0.0, False, 0.0
+    for a in [0.5, 0.5, -0.3, 0.0] * 40:
+        _, reward, terminated, truncated, info = env.step(np.array([a], dtype=np.float32))
+        t = info["rewards"]
+        assert t["time"] == pytest.approx(0.2) and 0.0 <= t["near_miss_time"] <= 0.2
+        assert t["comfort_time"] > 0  # the ego accelerates or drives round the ring
+        expected = (t["progress_time"] - t["time"] - w["comfort"] * t["comfort_time"]
+                    - w["near_miss"] * t["near_miss_time"] + w["arrival"] * t["arrival"])
+        assert reward == pytest.approx(expected)
+        total += reward
+        progress_s += t["progress_time"]
+        if terminated or truncated:
+            arrived = info["arrived"]
+            break
+    assert arrived and info["time"] == pytest.approx(env.time)
+    # progress [s at v_max] adds up to the distance driven / v_max
+    assert progress_s == pytest.approx((env.vehicle.route_s - 200.0) / env.config["drivers"].v_max)
+
+
+def test_clearance_and_near_misses():
+    assert clearance([0.0, 0.0], np.zeros((0, 2))) == np.inf
+    assert clearance([0.0, 0.0], [[3.0, 4.0], [0.0, 8.0]]) == pytest.approx(5.0 - VEHICLE_LENGTH)
+    # an ego following a vehicle 6 m ahead (centre to centre: 1 m bumper to bumper) is in a near miss
+    env = make(initial_vehicles=0, population={"n_vehicles": 1, "depart_interval": 1000.0})
+    env.reset(seed=0)
+    cost = env._ego_cost
+    cost.begin_step()
+    cost.log_frame(env.vehicle.position, 8.0, 0.0, clearance=1.0)
+    cost.log_frame(env.vehicle.position, 8.0, 0.0, clearance=3.0)
+    terms = cost.step_terms(progress=1.6, crashed=False, arrived=False, time=0.2)
+    assert terms["near_miss_time"] == pytest.approx(0.1)  # one of two 0.1 s frames nearer than 2 m
+
+
+@pytest.mark.parametrize("value, match", [
+    ([1.0], r"exit_reward must be a mapping name -> weight >= 0"),
+    ({"colision": 1.0}, r"exit_reward: unknown key\(s\) 'colision'; valid keys: progress, time"),
+    ({"collision": -1.0}, r"exit_reward\['collision'\] must be a finite number >= 0, got -1.0"),
+    ({"time": "1"}, r"exit_reward\['time'\] must be a finite number"),
+])
+def test_bad_exit_reward_values_are_rejected(value, match):
+    with pytest.raises(ValueError, match=match):
+        make(exit_reward=value)
+
+
+def test_partial_exit_reward_keeps_the_other_defaults():
+    env = make(exit_reward={"collision": 80.0})
+    assert env.config["exit_reward"] == {**EXIT_REWARD_DEFAULTS, "collision": 80.0}
+
+
+def test_baseline_arguments_are_checked():
+    with pytest.raises(ValueError, match=r"baseline must be one of \('hold-speed', 'idm', 'mpc'\), got 'pid'"):
+        make_baseline("pid")
+    with pytest.raises(ValueError, match=r"theta needs the weights speed_dev, acc_sq"):
+        MpcEgo({"speed_dev": 1.0})
+    with pytest.raises(ValueError, match=r"must be finite and > 0"):
+        MpcEgo({"speed_dev": 1.0, "acc_sq": 0.0})
+    with pytest.raises(TypeError, match=r"theta must be a mapping"):
+        MpcEgo([1.0, 1.0])
+    with pytest.raises(TypeError, match=r"drives the highway backend's ego"):
+        IdmEgo().reset(object())
+    assert set(BASELINES) == {"hold-speed", "idm", "mpc"}
+    np.testing.assert_array_equal(action_of(1.5, (-4.0, 3.0)), [0.5])
+    np.testing.assert_array_equal(action_of(-2.0, (-4.0, 3.0)), [-0.5])
+    np.testing.assert_array_equal(action_of(-9.0, (-4.0, 3.0)), [-1.0])
+
+
+def test_idm_ego_yields_where_holding_speed_crashes():
+    """Dense traffic, seed 1004: holding 8 m/s runs into the ring's traffic within 10 s; the IDM ego (yielding
+    at the entry) and the MPC ego reach the exit without a crash, and score more."""
+    env = make(**DENSE)
+    hold, hold_info = episode(env, HoldSpeed(), 1004)
+    assert hold_info["crashed"] and hold < -EXIT_REWARD_DEFAULTS["collision"] + 10
+    for policy in (IdmEgo(), MpcEgo({"speed_dev": 3.0, "acc_sq": 0.3})):
+        ret, info = episode(env, policy, 1004)
+        assert info["arrived"] and not info["crashed"] and ret > hold + 20
+
+
+@pytest.mark.slow
+def test_baselines_rank_as_expected_on_the_evaluation_seeds():
+    """Over 8 fixed seeds of dense traffic: the yielding egos (IDM, MPC) crash less than holding the speed,
+    reach the exit sooner on average when they do, and return more."""
+    env = make(**DENSE)
+    stats = {}
+    for name in BASELINES:
+        policy = make_baseline(name)
+        rows = [episode(env, policy, seed) for seed in range(1000, 1008)]
+        stats[name] = (np.mean([r for r, _ in rows]), sum(i["crashed"] for _, i in rows),
+                       np.mean([i["time"] for _, i in rows if i["arrived"]]))
+    for name in ("idm", "mpc"):
+        assert stats[name][1] < stats["hold-speed"][1]
+        assert stats[name][0] > stats["hold-speed"][0] + 5
+        assert stats[name][2] < stats["hold-speed"][2]
