@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import time
@@ -99,10 +100,10 @@ def _worker_version() -> str:
 
 
 def _data(spec: dict):
-    from .config import canonical_json
     from .scenarios import scenario_spec
 
-    key = canonical_json([spec["scenario"], spec["scenario_params"], spec["data_fingerprint"], spec["seed"]])
+    key = json.dumps([spec["scenario"], spec["scenario_params"], spec["data_fingerprint"], spec["seed"]],
+                     sort_keys=True)
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]

@@ -9,10 +9,13 @@ Layout of a results directory::
     recovery.parquet     true vs inferred weights per test trajectory (where the truth is known)
 
 A cell's key is the sha256 of its full configuration (`pirl_sim.sweep.config.Cell.spec`) and the code version
-(`code_version`: the package version and a hash of every source file of the package, its scenarios and
-learners), so a changed config or changed code never reuses an old result, and unchanged ones always do. A
-file in ``cells/`` is complete or absent (`pirl_sim.io.atomic`: written beside, fsynced, renamed); a file that
-does not parse (e.g. written by hand) is treated as absent and recomputed.
+(`code_version`: the package version and a hash of the source files of the code that computes a cell, `CELL_CODE`),
+so a changed config or a change to that code never reuses an old result, and unchanged ones always do; changes
+to the report, the command line, figures, the replay harness or the gymnasium envs leave the stored cells valid.
+`CELL_CODE` is checked by ``tests/test_sweep_code_version.py``: cells of every registered scenario run in a fresh
+process under a profiler, and every source file whose code ran must be hashed. A file in ``cells/`` is complete
+or absent (`pirl_sim.io.atomic`: written beside, fsynced, renamed); a file that does not parse (e.g. written by
+hand) is treated as absent and recomputed.
 """
 
 from __future__ import annotations
@@ -25,31 +28,71 @@ from pathlib import Path
 
 from pirl_sim.io.atomic import atomic_write_text
 
-__all__ = ["ResultStore", "code_version", "source_files"]
+__all__ = ["ResultStore", "code_version", "source_files", "CELL_CODE", "NOT_CELL_CODE"]
 
 log = logging.getLogger(__name__)
 
-#: packages whose sources make up the code version (scenarios and learners install as pirl_sim sub-packages)
-SOURCE_PACKAGES = ("pirl_sim", "pirl_sim.scenarios", "pirl_sim.learners")
+#: The code that computes a cell, whose source files make up the code version: modules, or packages with ``.*``
+#: (the package and every module below it). Over-inclusion only costs recomputation; the test named in the
+#: module doc catches a module that cells use and this list misses.
+CELL_CODE: tuple[str, ...] = (
+    # core maths (the package's __init__ holds its version)
+    "pirl_sim", "pirl_sim.trajectory", "pirl_sim.dynamics", "pirl_sim.paths", "pirl_sim.features", "pirl_sim.model",
+    "pirl_sim.population", "pirl_sim.driving", "pirl_sim.irl", "pirl_sim.receding", "pirl_sim.mpc",
+    "pirl_sim.metrics", "pirl_sim.deconvolution", "pirl_sim.validation",
+    "pirl_sim.io.*",                # track and map formats (the replay and simulator scenarios read them)
+    "pirl_sim.learners.*",
+    "pirl_sim.scenarios.*",         # the scenario builders and simulators
+    "pirl_sim.harness.experiment",  # protocols and scores
+    "pirl_sim.sweep.cell",          # the cell runner
+    "pirl_sim.sweep.scenarios",     # the sweep's scenario registry (parameters -> data)
+)
+#: Modules inside `CELL_CODE` packages that no cell runs: command lines.
+NOT_CELL_CODE: tuple[str, ...] = (
+    "pirl_sim.scenarios.simulate_cli",
+    "pirl_sim.scenarios.sumo.cli",
+    "pirl_sim.scenarios.highway.cli",
+)
+
+
+def _module_files(entry: str) -> dict[str, Path]:
+    """{module name: source file} of one `CELL_CODE` entry."""
+    pkg = entry[:-2] if entry.endswith(".*") else entry
+    spec = importlib.util.find_spec(pkg)
+    if spec is None or spec.origin is None:
+        raise ValueError(f"CELL_CODE names {entry!r}, which is not an importable module")
+    if not entry.endswith(".*"):
+        return {pkg: Path(spec.origin)}
+    if not spec.submodule_search_locations:
+        raise ValueError(f"CELL_CODE entry {entry!r}: {pkg} is a module, not a package")
+    out = {}
+    for root in spec.submodule_search_locations:
+        root = Path(root)
+        for f in root.rglob("*.py"):
+            if "__pycache__" in f.parts:
+                continue
+            parts = list(f.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join([pkg, *parts])] = f
+    return out
 
 
 def source_files() -> list[tuple[str, Path]]:
-    """Every ``*.py`` file of `SOURCE_PACKAGES` as (name independent of the install location, path), sorted."""
-    out = {}
-    for pkg in SOURCE_PACKAGES:
-        spec = importlib.util.find_spec(pkg)
-        for root in spec.submodule_search_locations or ():
-            root = Path(root)
-            for f in root.rglob("*.py"):
-                if "__pycache__" in f.parts:
-                    continue
-                out[f"{pkg}/{f.relative_to(root).as_posix()}"] = f
+    """The source files of `CELL_CODE` (less `NOT_CELL_CODE`) as (module name, path), sorted by name: names do
+    not depend on where the package is installed."""
+    out: dict[str, Path] = {}
+    for entry in CELL_CODE:
+        out.update(_module_files(entry))
+    for name in NOT_CELL_CODE:
+        out.pop(name, None)
     return sorted(out.items())
 
 
 def code_version() -> str:
-    """``<package version>+<16 hex digits of sha256 over the source files>``, from the files as they are now
-    (a few milliseconds; workers keep the value of their first cell, the code they imported)."""
+    """``<package version>+<16 hex digits of sha256 over the source files of the cell code>`` (`source_files`),
+    from the files as they are now (a few milliseconds; workers keep the value of their first cell, the code
+    they imported)."""
     from pirl_sim import __version__
 
     h = hashlib.sha256()

@@ -1,0 +1,129 @@
+"""The cell key's code version covers exactly the code that computes a cell (issue 13 item 5).
+
+- every source file whose code runs while cells of every registered scenario compute (traced in a fresh
+  process, under a profiler) is one of the hashed files, and so is every module those cells import;
+- the report, the command lines, figures, the replay harness and the envs are not hashed;
+- the committed ``results/sweep`` matches the code: ``pirl-sim sweep --dry-run`` over it has nothing to run.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from pirl_sim.sweep.store import NOT_CELL_CODE, code_version, source_files
+
+REPO = Path(__file__).resolve().parents[1]
+
+#: one tiny experiment per registered scenario, every learner and protocol kind, both likelihoods
+TRACE_CONFIG = """
+seeds = [0]
+
+[[experiments]]
+scenario = "synthetic"
+params = { n_trajectories = 40, n_train = 30, n_steps = 20 }
+protocols = ["paper", { kind = "online", history_steps = 5 }]
+learners = ["tirl", { name = "pirl-gmm", params = { n_components = 2 } }, "pirl-dpgmm",
+            { name = "pirl-knn", params = { n_neighbors = 2 } }]
+
+[[experiments]]
+scenario = "passage"
+params = { n_trajectories = 24, n_train = 18, n_steps = 20 }
+protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
+learners = ["tirl", { name = "tirl", label = "TIRL receding", params = { likelihood = "receding", horizon = 10 } },
+            { name = "pirl-knn", params = { n_neighbors = 2, prior = "population" } }]
+
+[[experiments]]
+scenario = "replay"
+params = { tracks = "scene", map = "scene/map.osm" }
+protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
+learners = ["tirl"]
+"""
+
+TRACER = textwrap.dedent("""
+    import json, sys
+    from pirl_sim.sweep.cell import run_cell, warm_up, _worker_version
+    from pirl_sim.sweep.config import load_config
+
+    config = load_config(sys.argv[1])
+    warm_up()
+    _worker_version()  # the version check hashes files: bookkeeping, not the cell's computation
+    specs = [cell.spec() for cell in config.cells]
+    before = set(sys.modules)
+    files = set()
+
+    def profile(frame, event, arg):
+        if event == "call":
+            files.add(frame.f_code.co_filename)
+
+    sys.setprofile(profile)
+    try:
+        for spec in specs:
+            run_cell(spec)
+    finally:
+        sys.setprofile(None)
+    print(json.dumps({"files": sorted(files), "imported": sorted(set(sys.modules) - before)}))
+""")
+
+
+def _source_roots() -> list[Path]:
+    import pirl_sim
+    import pirl_sim.learners
+    import pirl_sim.scenarios
+
+    return [Path(m.__file__).resolve().parent for m in (pirl_sim, pirl_sim.learners, pirl_sim.scenarios)]
+
+
+@pytest.mark.slow
+def test_every_module_a_cell_runs_is_in_the_code_version(tmp_path):
+    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
+
+    write_scene(generate(PassageConfig(n_trajectories=30, n_train=20, n_steps=20, seed=3)), tmp_path / "scene")
+    cfg = tmp_path / "trace.toml"
+    cfg.write_text(TRACE_CONFIG)
+    script = tmp_path / "trace.py"
+    script.write_text(TRACER)
+    proc = subprocess.run([sys.executable, str(script), str(cfg)], capture_output=True, text=True, timeout=600,
+                          cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    traced = json.loads(proc.stdout.strip().splitlines()[-1])
+    hashed = dict(source_files())
+    hashed_paths = {p.resolve() for p in hashed.values()}
+    roots = _source_roots()
+    ran = {Path(f).resolve() for f in traced["files"] if not f.startswith("<")}
+    ours = {f for f in ran if any(f.is_relative_to(r) for r in roots)}
+    assert len(ours) > 20, "the profiler saw the cells' code"
+    assert ours <= hashed_paths, f"cells ran code outside CELL_CODE: {sorted(map(str, ours - hashed_paths))}"
+    imported = {m for m in traced["imported"] if m.startswith("pirl_sim")}
+    assert imported <= set(hashed), f"cells imported modules outside CELL_CODE: {sorted(imported - set(hashed))}"
+
+
+def test_report_cli_figures_replay_harness_and_envs_are_not_in_the_code_version():
+    names = {name for name, _ in source_files()}
+    for outside in ("pirl_sim.sweep.report", "pirl_sim.sweep.cli", "pirl_sim.sweep.run", "pirl_sim.sweep.config",
+                    "pirl_sim.cli", "pirl_sim.harness.figures", "pirl_sim.harness.replay",
+                    "pirl_sim.harness.replay_cli", "pirl_sim.harness.reproduce", "pirl_sim.envs",
+                    "pirl_sim.envs.roundabout", "pirl_sim.lateral", "pirl_sim.threads", "pirl_sim.testing",
+                    *NOT_CELL_CODE):
+        assert outside not in names, outside
+    for inside in ("pirl_sim.irl", "pirl_sim.receding", "pirl_sim.learners.tirl", "pirl_sim.scenarios.passage",
+                   "pirl_sim.scenarios.sumo.runner", "pirl_sim.harness.experiment", "pirl_sim.sweep.cell",
+                   "pirl_sim.sweep.scenarios"):
+        assert inside in names, inside
+    assert code_version() == code_version()
+
+
+def test_committed_sweep_results_match_the_code(capsys):
+    """Fails after a change to the cell code until ``python3 -m pirl_sim sweep --report`` is rerun and
+    committed (that is the point: the committed results are made by the code)."""
+    from pirl_sim.sweep.cli import main
+
+    results = REPO / "results" / "sweep"
+    assert main(["sweep", "--dry-run", "--out", str(results)]) == 0
+    out = capsys.readouterr().out
+    assert out.rstrip().endswith(f"0 to run (code {code_version()})"), out
