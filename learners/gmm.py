@@ -91,6 +91,30 @@ class _MixtureLearner(BaseLearner):
             raise ValueError(f"space must be one of {SPACES}, got {self.space!r}")
         if self.space == "weights":
             return self._fit_weight_space(model, trajectories)
+        self._cluster(model, trajectories)
+        res = self._irl(model, trajectories, self.labels_, self.n_styles_)
+        self.irl_result_ = res
+        self.theta_ = res.normalized
+        self.cluster_sizes_ = np.bincount(self.labels_, minlength=self.n_styles_)
+        self.style_weights_ = self.mixture_.weights_[self.components_] / self.mixture_.weights_[self.components_].sum()
+        self._set_noise_scale(trajectories)
+
+    def cluster_labels(self, trajectories) -> np.ndarray:
+        """The feature-space clustering of `fit` alone, without the IRL per cluster: one style label per
+        trajectory (M,), the labels ``fit`` would give. For looking at clusters (figures); the learner is not
+        fitted by it. Only for ``space="features"``."""
+        self._check_common()
+        self._check_min_size()
+        if self.space != "features":
+            raise ValueError(f"cluster_labels clusters in feature space; this learner has space={self.space!r}")
+        model = self._model()
+        trajectories = model.check(trajectories)
+        self._cluster(model, trajectories)
+        return self.labels_
+
+    def _cluster(self, model, trajectories) -> None:
+        """Feature-space EM, small components dropped, one majority label per trajectory (sets mixture_,
+        components_, n_styles_, sample_labels_, labels_)."""
         samples, owners = self._training_windows(trajectories)
         Z = self._fit_space(model.feature_values(samples))
         mixture = self._make_mixture(Z)
@@ -124,12 +148,6 @@ class _MixtureLearner(BaseLearner):
         self.n_styles_ = len(self.components_)
         self.sample_labels_ = labels
         self.labels_ = votes
-        res = self._irl(model, trajectories, self.labels_, self.n_styles_)
-        self.irl_result_ = res
-        self.theta_ = res.normalized
-        self.cluster_sizes_ = np.bincount(self.labels_, minlength=self.n_styles_)
-        self.style_weights_ = self.mixture_.weights_[self.components_] / self.mixture_.weights_[self.components_].sum()
-        self._set_noise_scale(trajectories)
 
     # ------------------------------------------------------------------ weight space
     def _xd(self, X, S, rng):  # pragma: no cover - abstract

@@ -51,6 +51,12 @@ def test_gmm_recovers_three_styles_and_dpgmm_finds_their_number(model, rng):
     truth = np.array([d.metadata["style"] for d in demos])
     gmm = PIRLGMM(n_components=3, random_state=0).fit(demos)
     assert adjusted_rand_index(truth, gmm.labels_) > 0.95
+    # the clustering alone (for figures) gives fit's labels without fitting any weights
+    alone = PIRLGMM(n_components=3, random_state=0)
+    np.testing.assert_array_equal(alone.cluster_labels(demos), gmm.labels_)
+    assert not hasattr(alone, "theta_")
+    with pytest.raises(ValueError, match="space"):
+        PIRLGMM(n_components=3, space="weights").cluster_labels(demos)
     learned = np.sort(gmm.theta_[:, 0])
     np.testing.assert_allclose(learned, [0.1, 1.0, 10.0], rtol=0.15)
     with warnings.catch_warnings():

@@ -648,16 +648,14 @@ def _write_figures(result: dict, scene, out) -> None:
 
     tracks = scene.selected
     model = scene.model
-    with warnings.catch_warnings():  # an illustration: its IRL diagnostics are not reported
-        for category in _IRL_WARNINGS:
-            warnings.simplefilter("ignore", category)
-        gmm = PIRLGMM(model, n_components=min(int(result.get("gmm_k", 3)), len(tracks)), random_state=0).fit(tracks)
+    labels = PIRLGMM(model, n_components=min(int(result.get("gmm_k", 3)), len(tracks)),
+                     random_state=0).cluster_labels(tracks)  # the clusters alone: no IRL for an illustration
     styles = np.array([int(t.metadata.get("style", -1)) for t in tracks])
     names = None
     if np.any(styles >= 0):  # a sidecar gives styles: tracks without one (background traffic) get a marker too
         names = {int(s): (f"style {s}" if s >= 0 else "background (no style)") for s in np.unique(styles)}
     atomic_write_bytes(out / "clusters.png", figures.feature_clusters(
-        model.feature_values(tracks), model.features.names, gmm.labels_, styles if names else None, names))
+        model.feature_values(tracks), model.features.names, labels, styles if names else None, names))
     ex = result["examples"]
     if ex:
         h = result["history"]
