@@ -278,6 +278,9 @@ def common_defaults() -> dict:
         "collision_reward": -10.0,
         "arrival_reward": 1.0,
         "exit_reward": dict(EXIT_REWARD_DEFAULTS),
+        "style_observation": "none",  # "truth" / "inferred": the neighbours' weights as columns (envs.styles)
+        "style_learner": None,  # a fitted learner (or a saved one's path) for "inferred"
+        "style_history": 20,  # [frames of 0.1 s] inference window when the learner has none
         "record_tracks": False,
     }
 

@@ -21,7 +21,8 @@ import numpy as np
 from highway_env.envs.common.observation import KinematicObservation
 from highway_env.vehicle.kinematics import Vehicle
 
-__all__ = ["RoundaboutKinematics", "DIRECT_FEATURES", "kinematics_rows", "shuffle_rows"]
+__all__ = ["RoundaboutKinematics", "StyleKinematics", "DIRECT_FEATURES", "kinematics_rows", "shuffle_rows",
+           "with_style_columns"]
 
 #: features computed from (x, y, speed, heading) alone, without ``Vehicle.to_dict``
 DIRECT_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h")
@@ -76,6 +77,22 @@ def shuffle_rows(obs: np.ndarray, rows: list, rng: np.random.Generator) -> list:
     rng.shuffle(perm)
     obs[1:] = obs[1:][perm]
     return [rows[i] for i in perm]
+
+
+def with_style_columns(obs: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """``obs`` (V, F) with the style columns (V - 1, W) of rows 1.. appended (the ego's row: zeros), float32."""
+    ego = np.zeros((1, columns.shape[1]))
+    return np.concatenate([obs, np.concatenate([ego, columns])], axis=1).astype(np.float32)
+
+
+def style_space(space, width: int):
+    """A ``Box`` of shape (V, F) widened by ``width`` columns in [-1, 1] (the style columns)."""
+    from gymnasium import spaces
+
+    v = space.shape[0]
+    low = np.concatenate([np.broadcast_to(space.low, space.shape), -np.ones((v, width))], axis=1)
+    high = np.concatenate([np.broadcast_to(space.high, space.shape), np.ones((v, width))], axis=1)
+    return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
 
 
 def _finished(values: np.ndarray, features, features_range, clip: bool, vehicles_count: int) -> np.ndarray:
@@ -138,3 +155,17 @@ class RoundaboutKinematics(KinematicObservation):
             rows = shuffle_rows(obs, rows, self.env.np_random)
         self.rows = rows
         return obs.astype(self.space().dtype)
+
+
+class StyleKinematics(RoundaboutKinematics):
+    """:class:`RoundaboutKinematics` with the env's style columns appended to every row
+    (:mod:`pirl_sim.envs.styles`; the env's ``_style`` observer gives them for rows 1..)."""
+
+    def space(self):
+        return style_space(super().space(), self.env._style_width)
+
+    def observe(self) -> np.ndarray:
+        if not self.env.road:
+            return np.zeros(self.space().shape, dtype=np.float32)
+        obs = super().observe()
+        return with_style_columns(obs, self.env._style.columns(self.rows))

@@ -26,10 +26,31 @@ Spaces
   ``[presence, x, y, vx, vy, cos_h, sin_h]``; the ego's row absolute, the others relative to it; x, y
   scaled from [-100, 100] m and vx, vy from [-15, 15] m/s to [-1, 1] and clipped; empty rows are zero.
   Shape (8, 7), float32, in ``[-1, 1]`` (the space says so when every feature is bounded).
+- **Style columns** (``style_observation``, :mod:`pirl_sim.envs.styles`): ``"none"`` (default) as above;
+  ``"truth"`` or ``"inferred"`` append three columns to every ``Kinematics`` row, ``[style_known,
+  speed_dev, acc_sq]``: the neighbour's normalised weights as ``clip(ln(theta) / 3, -1, 1)``, its ground
+  truth (PIRL drivers only) or inferred online by the fitted learner ``style_learner`` from the vehicle's
+  history as the ego observed it (last ``window`` frames of the learner, or ``style_history``); zeros and
+  ``style_known = 0`` where unknown (the ego's row, empty rows, too short histories). Shape (8, 10).
 
 Rewards (``reward``)
 --------------------
 Every step (``simulation_frequency / policy_frequency`` frames of 0.1 s; default 2 frames, 0.2 s):
+
+- ``"exit"`` (reach the exit soon, safely, comfortably; every term in seconds, weights ``exit_reward``,
+  defaults :data:`~pirl_sim.envs.common.EXIT_REWARD_DEFAULTS`)::
+
+      r = progress * ds / v_max  -  time * T  -  comfort * T * mean_k[(a_k/3)^2 + (j_k/8)^2 + (v_k^2 kappa_k/3)^2]
+          - near_miss * T_near  -  collision * crashed  +  arrival * arrived
+
+  ``ds`` [m] the ego's progress along its route's reference path, ``v_max`` [m/s] the drivers' speed cap
+  (13.9), ``T`` [s] the step, ``a_k`` [m/s^2], ``j_k`` [m/s^3] and ``v_k^2 kappa_k`` [m/s^2] (lateral) its
+  acceleration, jerk and lateral acceleration in each frame, ``T_near`` [s] the step's time with another
+  vehicle nearer than ``near_miss_gap`` (2 m; centre distance minus 5 m, the vehicles' length). Defaults:
+  progress 1, time 1 (so driving at v_max costs nothing and every second slower costs up to 1), comfort
+  0.5, near_miss 2, collision 50 s (more than the 40 s episode a crash could cut short), arrival 10 s.
+  The return is about ``(route left)/v_max - (time to exit) - costs + 10`` for an arriving episode, and a
+  crash is always worse than waiting until the time limit.
 
 - ``"task"``: ``progress_reward * ds / (v_max T) + comfort_reward * mean_k((a_k/3)^2 + (j_k/8)^2)
   + collision_reward * crashed + arrival_reward * arrived`` with ``ds`` [m] the ego's progress along its
@@ -91,7 +112,8 @@ from pirl_sim.envs.common import (
     neighbour_info,
     reward_weights,
 )
-from pirl_sim.envs.observation import RoundaboutKinematics
+from pirl_sim.envs.observation import RoundaboutKinematics, StyleKinematics
+from pirl_sim.envs.styles import StyleObserver, check_style_config
 from pirl_sim.scenarios.highway.network import (
     RoundaboutGeometry,
     build_network,
@@ -239,6 +261,10 @@ class PirlRoundaboutEnv(AbstractEnv):
         check_keys(f"observation ({obs['type']})", obs, ("type", *params))
         if obs["type"] == "Kinematics":
             check_kinematics(obs, _KINEMATICS_FEATURES, "observation (Kinematics)")
+        check_style_config(c, ROUTE_IDS)
+        if c["style_observation"] != "none" and obs["type"] != "Kinematics":
+            raise ValueError(f"style_observation {c['style_observation']!r} adds columns to the 'Kinematics' "
+                             f"observation; got observation type {obs['type']!r}")
         c["roundabout_radius"] = RoundaboutGeometry(c["roundabout_radius"]).radius
         if isinstance(c["drivers"], Mapping):
             c["drivers"] = drivers_from_dict(c["drivers"], source="config drivers")
@@ -265,8 +291,13 @@ class PirlRoundaboutEnv(AbstractEnv):
 
     def define_spaces(self) -> None:
         obs = dict(self.config["observation"])
+        c = self.config
+        if getattr(self, "_style", None) is None or self._style.mode != c["style_observation"]:
+            self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
+        self._style_width = self._style.width
         if obs["type"] == "Kinematics":  # highway-env's, pandas-free, remembering its rows (for info)
-            self.observation_type = RoundaboutKinematics(self, **{k: v for k, v in obs.items() if k != "type"})
+            cls = StyleKinematics if self._style_width else RoundaboutKinematics
+            self.observation_type = cls(self, **{k: v for k, v in obs.items() if k != "type"})
         else:
             self.observation_type = _obs.observation_factory(self, obs)
         self.action_type = LongitudinalAction(self, **{k: v for k, v in self.config["action"].items()
@@ -329,6 +360,15 @@ class PirlRoundaboutEnv(AbstractEnv):
         traffic.insert_due()
         self._ego_cost = EgoReward(c, routes, traffic.profile, c["ego_route"], ego.position)
         traffic.step_callbacks.append(self._log_ego)
+        self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
+        if self._style.mode == "inferred":
+            traffic.step_callbacks.append(self._log_others)
+
+    def _log_others(self, traffic: RoundaboutTraffic) -> None:
+        """Every other route-following vehicle's frame, for the online inference of its weights."""
+        self._style.record([(v.vehicle_id, v.route_lanes.route_id, float(v.position[0]), float(v.position[1]),
+                             float(v.speed)) for v in traffic.vehicles
+                            if v is not self.vehicle and getattr(v, "route_lanes", None) is not None])
 
     def _log_ego(self, traffic: RoundaboutTraffic) -> None:
         ego = self.vehicle

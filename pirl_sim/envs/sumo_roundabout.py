@@ -69,7 +69,8 @@ from .common import (
     common_defaults,
     neighbour_info,
 )
-from .observation import DIRECT_FEATURES, kinematics_rows, shuffle_rows
+from .observation import DIRECT_FEATURES, kinematics_rows, shuffle_rows, style_space, with_style_columns
+from .styles import StyleObserver, check_style_config
 
 __all__ = ["PirlRoundaboutSumoEnv"]
 
@@ -201,6 +202,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         catalogue = [rid for rid, _ in routes(c["network"])]
         if c["ego_route"] not in catalogue:
             raise ValueError(f"ego_route must be one of {', '.join(catalogue)}, got {c['ego_route']!r}")
+        check_style_config(c, catalogue)
         m = c["ego_speed_mode"]
         if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 0 <= m < 128:
             raise ValueError(f"ego_speed_mode must be an integer bitset in [0, 127], got {m!r}")
@@ -218,6 +220,10 @@ class PirlRoundaboutSumoEnv(gym.Env):
             f in _BOUNDED or f in ranged for f in self._features)
         lim = 1.0 if bounded else np.inf
         self.observation_space = spaces.Box(-lim, lim, shape=(self._count, len(self._features)), dtype=np.float32)
+        c = self.config
+        self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
+        if self._style.width:
+            self.observation_space = style_space(self.observation_space, self._style.width)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
 
     def _acceleration(self, action) -> float:
@@ -251,6 +257,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
                               horizon=drv.horizon, control_noise=c["population"].control_noise, rng=noise_rng,
                               stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
         self._controller = _Controller(drivers)
+        self._route_of = dict(zip(plan["vehicle_id"], plan["route_id"]))
+        self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
         self._who = {r.vehicle_id: _Neighbour(r.vehicle_id, "pirl" if r.is_pirl else "background", int(r.style),
                                               np.array([getattr(r, t) for t in theta_cols]))
                      for r in plan.itertuples(index=False)}
@@ -310,6 +318,9 @@ class PirlRoundaboutSumoEnv(gym.Env):
                 self._arrived = not self._crashed
                 break
             self._last_ego = now.ego
+            if self._style.mode == "inferred":
+                self._style.record([(vid, self._route_of[vid], st.x, st.y, st.speed) for vid, st in now.others.items()
+                                    if vid in self._route_of])
             gap = clearance((now.ego.x, now.ego.y), [(st.x, st.y) for st in now.others.values()])
             self._ego_cost.log_frame((now.ego.x, now.ego.y), now.ego.speed, now.ego.accel, gap)
             if self._crashed:
@@ -355,6 +366,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
         if o.get("order", "sorted") == "shuffled":
             rows = shuffle_rows(obs, rows, self.np_random)
         self._rows = rows
+        if self._style.width:
+            return with_style_columns(obs, self._style.columns(rows))
         return obs.astype(np.float32)
 
     def _info(self) -> dict:
