@@ -39,6 +39,19 @@ learners = ["tirl", { name = "tirl", label = "TIRL receding", params = { likelih
             { name = "pirl-knn", params = { n_neighbors = 2, prior = "population" } }]
 
 [[experiments]]
+scenario = "sumo"
+params = { n_vehicles = 8, depart_interval = 3.0 }
+protocols = ["paper", { kind = "rolling", history_steps = 10, horizon = 10, stride = 20 }]
+learners = ["cv", "ca", { name = "tirl", params = { likelihood = "receding", step_stride = 4 } },
+            { name = "pirl-knn", params = { n_neighbors = 1, likelihood = "receding", step_stride = 4 } }]
+
+[[experiments]]
+scenario = "highway"
+params = { n_vehicles = 8, depart_interval = 3.0, selection = "tracks" }
+protocols = [{ kind = "rolling", history_steps = 10, horizon = 10, stride = 20 }]
+learners = ["cv", { name = "tirl", params = { likelihood = "receding", step_stride = 4 } }]
+
+[[experiments]]
 scenario = "replay"
 params = { tracks = "scene", map = "scene/map.osm" }
 protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
@@ -111,7 +124,7 @@ def test_report_cli_figures_replay_harness_and_envs_are_not_in_the_code_version(
                     "pirl_sim.envs.roundabout", "pirl_sim.lateral", "pirl_sim.threads", "pirl_sim.testing",
                     *NOT_CELL_CODE):
         assert outside not in names, outside
-    for inside in ("pirl_sim.irl", "pirl_sim.receding", "pirl_sim.learners.tirl", "pirl_sim.scenarios.passage",
+    for inside in ("pirl_sim.sweep.baselines", "pirl_sim.irl", "pirl_sim.receding", "pirl_sim.learners.tirl", "pirl_sim.scenarios.passage",
                    "pirl_sim.scenarios.sumo.runner", "pirl_sim.harness.experiment", "pirl_sim.sweep.cell",
                    "pirl_sim.sweep.scenarios"):
         assert inside in names, inside

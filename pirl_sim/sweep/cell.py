@@ -22,10 +22,11 @@ import time
 import warnings
 from collections import OrderedDict
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_cell", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE"]
+__all__ = ["run_cell", "run_simulation", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE"]
 
 CACHE_SIZE = 3  #: scenario data sets kept per worker process
 MAX_RECOVERY_POINTS = 200  #: test histories whose inferred weights are kept for the recovery scatter
@@ -99,7 +100,76 @@ def _worker_version() -> str:
     return _VERSION
 
 
-def _data(spec: dict):
+def _check_version(code_version: str | None) -> None:
+    if code_version is not None and _worker_version() != code_version:
+        raise RuntimeError(
+            f"worker {socket.gethostname()} pid {os.getpid()} runs pirl_sim {_worker_version()}, the sweep "
+            f"{code_version}: install the same code on every worker (or the sources changed while the sweep "
+            "ran: run it again)"
+        )
+
+
+def run_simulation(scenario: str, params: dict, seed: int, out_dir: str, code_version: str | None = None) -> dict:
+    """Record one run of a simulated scenario into ``out_dir`` (a directory of the store,
+    `pirl_sim.sweep.store.ResultStore.simulation_dir`): simulated beside it, its record written, then renamed
+    into place, so the directory is complete or absent. Returns the record (``timings``: ``simulate_s``)."""
+    import shutil
+
+    from pirl_sim.io.atomic import atomic_write_text
+
+    from .scenarios import scenario_spec
+    from .store import SIMULATION_RECORD
+
+    t0 = time.perf_counter()
+    limit_threads()
+    _check_version(code_version)
+    out = Path(out_dir)
+    if (out / SIMULATION_RECORD).is_file():
+        return json.loads((out / SIMULATION_RECORD).read_text(encoding="utf-8"))
+    tmp = out.parent / f".{out.name}.{socket.gethostname()}.{os.getpid()}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        scenario_spec(scenario).simulate(params, seed, tmp)
+        record = {"scenario": scenario, "simulation": params, "seed": seed, "code_version": _worker_version(),
+                  "timings": {"simulate_s": time.perf_counter() - t0},
+                  "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
+        atomic_write_text(tmp / SIMULATION_RECORD, json.dumps(record, sort_keys=True, indent=1) + "\n")
+        try:
+            os.rename(tmp, out)
+        except OSError:  # another worker finished the same simulation first: same bytes, keep theirs
+            if not (out / SIMULATION_RECORD).is_file():
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return record
+
+
+def _simulation_dir(spec: dict, store_root: str | None) -> Path:
+    """The recorded run a simulated scenario's cell reads: from the sweep's store (simulated now if absent, e.g.
+    when a cell runs on its own), or a per-process temporary store without one."""
+    import tempfile
+
+    from .scenarios import scenario_spec
+    from .store import ResultStore, simulation_key
+
+    global _TMP_STORE
+    sim_params = scenario_spec(spec["scenario"]).simulation(spec["scenario_params"])
+    if store_root is None:
+        if _TMP_STORE is None:
+            _TMP_STORE = tempfile.TemporaryDirectory(prefix="pirl_sim-simulations-")
+        store_root = _TMP_STORE.name
+    store = ResultStore(store_root)
+    key = simulation_key(spec["scenario"], sim_params, spec["seed"], _worker_version())
+    if not store.has_simulation(key):
+        run_simulation(spec["scenario"], sim_params, spec["seed"], str(store.simulation_dir(key)))
+    return store.simulation_dir(key)
+
+
+_TMP_STORE = None
+
+
+def _data(spec: dict, store_root: str | None = None):
     from .scenarios import scenario_spec
 
     key = json.dumps([spec["scenario"], spec["scenario_params"], spec["data_fingerprint"], spec["seed"]],
@@ -107,7 +177,11 @@ def _data(spec: dict):
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
-    data = scenario_spec(spec["scenario"]).build(spec["scenario_params"], spec["seed"])
+    scenario = scenario_spec(spec["scenario"])
+    if scenario.simulation is not None:
+        data = scenario.build(spec["scenario_params"], spec["seed"], _simulation_dir(spec, store_root))
+    else:
+        data = scenario.build(spec["scenario_params"], spec["seed"])
     _CACHE[key] = data
     while len(_CACHE) > CACHE_SIZE:
         _CACHE.popitem(last=False)
@@ -129,16 +203,54 @@ def _histories(test, protocol):
     return hist, np.asarray(owner, dtype=int)
 
 
-def _recovery(learner, test, protocol, model) -> dict | None:
-    """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories (truth permitting)."""
-    if not all("theta" in t.metadata for t in test):
-        return None
+def _weight_scores(inferred: np.ndarray, true: np.ndarray, styles, model, style_names) -> list[dict]:
+    """Weight recovery per free feature, over all test histories and per true style.
+
+    One dict per (feature, style) with ``feature``, ``style`` ("all" or the style's name), ``n`` (histories),
+    ``median_abs_log_err`` and ``p90_abs_log_err`` of |log(inferred / true)| (normalised weights: the reference
+    feature is 1) and ``spearman`` of true vs inferred weights (None when either is constant or n < 3).
+    """
+    from scipy.stats import spearmanr
+
+    names = list(model.features.names)
+    ref = model.features.reference_index
+    groups = [("all", np.ones(len(true), dtype=bool))]
+    if styles is not None:
+        for k in np.unique(styles):
+            label = style_names[int(k)] if 0 <= int(k) < len(style_names) else str(int(k))
+            groups.append((label, styles == k))
+    rows = []
+    for j, name in enumerate(names):
+        if j == ref:
+            continue
+        for label, mask in groups:
+            est, tru = inferred[mask, j], true[mask, j]
+            err = np.abs(np.log(est / tru))
+            rho = None
+            if len(est) >= 3 and np.ptp(est) > 0 and np.ptp(tru) > 0:
+                rho = _float(spearmanr(tru, est).statistic)
+            rows.append({"feature": name, "style": label, "n": int(mask.sum()),
+                         "median_abs_log_err": _float(np.median(err)),
+                         "p90_abs_log_err": _float(np.percentile(err, 90)), "spearman": rho})
+    return rows
+
+
+def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | None, list | None]:
+    """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories, and `_weight_scores`
+    over all of them (truth permitting; learners without weights, the baselines, give neither)."""
+    from .baselines import BASELINES
+
+    if not all("theta" in t.metadata for t in test) or isinstance(learner, tuple(BASELINES.values())):
+        return None, None
     hist, owner = _histories(test, protocol)
-    if len(hist) > MAX_RECOVERY_POINTS:
-        pick = np.unique(np.linspace(0, len(hist) - 1, MAX_RECOVERY_POINTS).astype(int))
-        hist, owner = [hist[i] for i in pick], owner[pick]
     inferred = learner.infer_weights(hist)
     true = np.stack([np.asarray(test[i].metadata["theta"], dtype=float) for i in owner])
+    styles = (np.array([int(test[i].metadata["style"]) for i in owner])
+              if all("style" in t.metadata for t in test) else None)
+    scores = _weight_scores(inferred, true, styles, model, style_names)
+    if len(hist) > MAX_RECOVERY_POINTS:
+        pick = np.unique(np.linspace(0, len(hist) - 1, MAX_RECOVERY_POINTS).astype(int))
+        inferred, true = inferred[pick], true[pick]
     names = list(model.features.names)
     ref = model.features.reference_index
     keep = [j for j in range(len(names)) if j != ref]
@@ -147,7 +259,7 @@ def _recovery(learner, test, protocol, model) -> dict | None:
         "reference": names[ref],
         "true": true[:, keep].tolist(),
         "inferred": inferred[:, keep].tolist(),
-    }
+    }, scores
 
 
 def _float(x):
@@ -157,7 +269,7 @@ def _float(x):
     return x if np.isfinite(x) else None
 
 
-def run_cell(spec: dict, code_version: str | None = None) -> dict:
+def run_cell(spec: dict, code_version: str | None = None, store_root: str | None = None) -> dict:
     """Run one cell.
 
     Parameters
@@ -167,6 +279,8 @@ def run_cell(spec: dict, code_version: str | None = None) -> dict:
         fields), learner, learner_params, seed.
     code_version : str or None
         The sweep's `pirl_sim.sweep.store.code_version`; a worker running other code raises RuntimeError.
+    store_root : str or None
+        The sweep's results directory: where simulated scenarios' recorded runs are (`run_simulation`).
 
     Returns
     -------
@@ -175,25 +289,23 @@ def run_cell(spec: dict, code_version: str | None = None) -> dict:
         for learners without clusters or data without styles), n_styles, n_train, n_test, n_predictions,
         n_warnings; ``timings`` [s]: generate_s (0 when cached), fit_s, evaluate_s, cell_s (wall clock),
         cpu_s (CPU time of the worker process: below cell_s when the worker waited for a core);
-        ``recovery`` (see `_recovery`) or None; ``warnings``: distinct warning messages (of the data generation
+        ``recovery`` (see `_recovery`) or None; ``weights``: `_weight_scores` (per free feature, overall and
+        per style) or None; ``warnings``: distinct warning messages (of the data generation
         too, when this cell generated the data); ``worker``: host, pid.
     """
     t_cell, cpu_cell = time.perf_counter(), time.process_time()
     limit_threads()
-    if code_version is not None and _worker_version() != code_version:
-        raise RuntimeError(
-            f"worker {socket.gethostname()} pid {os.getpid()} runs pirl_sim {_worker_version()}, the sweep "
-            f"{code_version}: install the same code on every worker (or the sources changed while the sweep "
-            "ran: run it again)"
-        )
+    _check_version(code_version)
     from pirl_sim.harness.experiment import Protocol, evaluate, style_agreement
-    from pirl_sim.learners import make_learner
+    from pirl_sim.learners import LEARNERS
+
+    from .baselines import BASELINES
 
     protocol = Protocol(**spec["protocol"])
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as data_warnings:  # only on a cache miss: kept out of n_warnings
         warnings.simplefilter("always")
-        data = _data(spec)
+        data = _data(spec, store_root)
     generate_s = time.perf_counter() - t0
     test = [t for t in data.test if t.n_steps >= protocol.steps_needed()]
     if not test:
@@ -202,7 +314,7 @@ def run_cell(spec: dict, code_version: str | None = None) -> dict:
     params = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["learner_params"].items()}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        learner = make_learner(spec["learner"], model=data.model, **params, **protocol.learner_params())
+        learner = {**LEARNERS, **BASELINES}[spec["learner"]](model=data.model, **params, **protocol.learner_params())
         t0 = time.perf_counter()
         learner.fit(data.train)
         fit_s = time.perf_counter() - t0
@@ -210,7 +322,7 @@ def run_cell(spec: dict, code_version: str | None = None) -> dict:
         row = evaluate(learner, test, protocol)
         evaluate_s = time.perf_counter() - t0
         ari = style_agreement(learner, data.train)
-        recovery = _recovery(learner, test, protocol, data.model)
+        recovery, weight_scores = _recovery(learner, test, protocol, data.model, data.style_names)
     n_styles = getattr(learner, "n_styles_", 1 if spec["learner"] == "tirl" else None)
     messages = []
     for w in [*caught, *data_warnings]:
@@ -234,6 +346,7 @@ def run_cell(spec: dict, code_version: str | None = None) -> dict:
         "timings": {"generate_s": generate_s, "fit_s": fit_s, "evaluate_s": evaluate_s,
                     "cell_s": time.perf_counter() - t_cell, "cpu_s": time.process_time() - cpu_cell},
         "recovery": recovery,
+        "weights": weight_scores,
         "warnings": messages,
         "worker": {"host": socket.gethostname(), "pid": os.getpid()},
     }

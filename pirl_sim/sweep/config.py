@@ -67,6 +67,7 @@ __all__ = [
     "default_config",
     "DEFAULT_CONFIG_TEXT",
     "canonical_json",
+    "sweep_learners",
 ]
 
 TOP_KEYS = ("name", "description", "seeds", "experiments")
@@ -78,7 +79,18 @@ PROTOCOL_KEYS = PROTOCOL_FIELDS + ("grid",)
 RESERVED_LEARNER_PARAMS = ("model", "window", "windows")
 #: learner parameters that are the "k" of the paper's figures
 K_PARAMS = {"pirl-knn": "n_neighbors", "pirl-gmm": "n_components"}
-LEARNER_DISPLAY = {"tirl": "TIRL", "pirl-gmm": "PIRL-GMM", "pirl-dpgmm": "PIRL-DPGMM", "pirl-knn": "PIRL-kNN"}
+LEARNER_DISPLAY = {"tirl": "TIRL", "pirl-gmm": "PIRL-GMM", "pirl-dpgmm": "PIRL-DPGMM", "pirl-knn": "PIRL-kNN",
+                   "cv": "CV", "ca": "CA"}
+
+
+def sweep_learners() -> dict:
+    """Learners a sweep runs, by name: `pirl_sim.learners.LEARNERS` and the kinematic baselines
+    (`pirl_sim.sweep.baselines.BASELINES`)."""
+    from pirl_sim.learners import LEARNERS
+
+    from .baselines import BASELINES
+
+    return {**LEARNERS, **BASELINES}
 
 
 def canonical_json(obj) -> str:
@@ -201,8 +213,7 @@ class LearnerGrid:
     grid: tuple[GridAxis, ...] = ()
 
     def __post_init__(self) -> None:
-        from pirl_sim.learners import LEARNERS
-
+        LEARNERS = sweep_learners()
         if self.name not in LEARNERS:
             raise ValueError(f"unknown learner {self.name!r}; choose one of {', '.join(sorted(LEARNERS))}")
         valid = tuple(k for k in LEARNERS[self.name]().get_params() if k not in RESERVED_LEARNER_PARAMS)
@@ -398,9 +409,9 @@ def _learner_label(grid: LearnerGrid, params: dict, varied: list[tuple[str, str]
 
 def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) -> None:
     """Values we can check without data: k against the training samples, windows, enums."""
-    from pirl_sim.learners import LEARNERS
     from pirl_sim.validation import is_positive_int
 
+    LEARNERS = sweep_learners()
     learner = LEARNERS[grid.name](**params, **proto.learner_params())
     try:
         learner._check_common()
@@ -415,8 +426,8 @@ def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) ->
             raise ValueError(f"{label}: {name} must be {allowed}, got {v!r}")
     kname = K_PARAMS.get(grid.name)
     k = params.get(kname) if kname else None
-    if isinstance(k, int):
-        window = proto.learner_params()["window"]
+    window = proto.learner_params()["window"]
+    if isinstance(k, int) and (shape.lengths or window is None or proto.learner_params().get("windows") == "first"):
         n = shape.n_samples(window, proto.learner_params().get("windows", "first"), params.get("stride", 1))
         what = "trajectories" if window is None else f"windows of {window} steps"
         bound = "" if shape.exact else "at most "
@@ -474,7 +485,8 @@ def _check_mixture(label: str, name: str, params: dict) -> None:
 
 def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
     from pirl_sim.harness.experiment import Protocol
-    from pirl_sim.learners import LEARNERS
+
+    LEARNERS = sweep_learners()
 
     cells: list[Cell] = []
     for e_idx, exp in enumerate(experiments):
@@ -515,6 +527,9 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                                 lparams = {**defaults, **given}
                                 if "random_state" in lparams and "random_state" not in given:
                                     lparams["random_state"] = seed
+                                if (lparams.get("likelihood") == "receding" and lparams.get("horizon") is None
+                                        and spec.driver_horizon is not None):
+                                    lparams["horizon"] = spec.driver_horizon(params)  # the drivers' own
                                 lparams = _jsonable(llabel, lparams)
                                 _check_learner(f"{elabel}: {llabel} under the {proto.name} protocol", lgrid,
                                                _tuples(lparams), proto, shape)

@@ -4,6 +4,12 @@ the tidy table is assembled from the store.
 A killed sweep loses only the cells that were running: run the same command again and only the missing cells
 run (a cell's key is its full config and the code version, see `pirl_sim.sweep.store`). A cell that raises is
 reported (``errors/<key>.json``, the exit status) and the others go on; it runs again next time.
+
+Simulated scenarios (``sumo``, ``highway``): the runs the missing cells need and the store does not hold are
+simulated first, each (simulation parameters, seed) once, beside the cells of the other scenarios; the cells
+that read a run are submitted once the runs are done (`pirl_sim.sweep.cell.run_simulation`). A simulation that
+fails fails its cells. Simulations need the results directory on a file system the workers share (local
+workers, or Dask workers on this machine).
 """
 
 from __future__ import annotations
@@ -20,14 +26,15 @@ import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 
-from .cell import run_cell
+from .cell import run_cell, run_simulation
 from .config import SweepConfig, canonical_json
 from .executors import make_executor
 from .progress import Progress
-from .store import ResultStore, code_version
+from .scenarios import scenario_spec
+from .store import ResultStore, code_version, simulation_key
 
-__all__ = ["SweepRun", "run_sweep", "assemble_table", "read_table", "TIMING_COLUMNS", "SCORE_COLUMNS",
-           "TABLE_COLUMNS"]
+__all__ = ["SweepRun", "run_sweep", "assemble_table", "read_table", "weights_table", "TIMING_COLUMNS",
+           "SCORE_COLUMNS", "TABLE_COLUMNS", "WEIGHT_COLUMNS"]
 
 #: wall-clock timings [s]: differ from run to run (everything else in the table does not)
 TIMING_COLUMNS = ("generate_s", "fit_s", "evaluate_s", "cell_s", "cpu_s")
@@ -38,8 +45,11 @@ TABLE_COLUMNS = (
     "learner", "learner_label", "k", "seed", *SCORE_COLUMNS, *TIMING_COLUMNS, "scenario_params", "learner_params",
     "code_version",
 )
+#: columns of ``weights.csv``: weight recovery per cell, free feature and true style ("all": every test history)
+WEIGHT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "learner_label", "seed", "feature",
+                  "style", "n", "median_abs_log_err", "p90_abs_log_err", "spearman")
 _INT_COLUMNS = ("history_steps", "horizon", "k", "seed", "n_styles", "n_train", "n_test", "n_predictions", "n_warnings")
-_COST = {"tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3}  # rough relative cost: long cells go first
+_COST = {"cv": 0, "ca": 0, "tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3}  # rough relative cost: long cells go first
 
 
 @dataclass
@@ -59,6 +69,7 @@ class SweepRun:
     startup_s : float [s]       starting and warming up the workers
     work_s : float [s]          sum of the computed cells' own time (``cell_s``)
     cpu_s : float [s]           sum of their CPU time (``cpu_s``)
+    simulated : list of str     simulation keys simulated by this run
     """
 
     out: Path
@@ -72,6 +83,7 @@ class SweepRun:
     startup_s: float = 0.0
     work_s: float = 0.0
     cpu_s: float = 0.0
+    simulated: list = field(default_factory=list)
 
 
 def _now() -> str:
@@ -129,7 +141,7 @@ def run_sweep(
     out.mkdir(parents=True, exist_ok=True)
 
     bar = None
-    computed, failed = [], {}
+    computed, failed, simulated = [], {}, []
     startup_s = work_s = cpu_s = 0.0
     description = "nothing to run"
     if todo:
@@ -143,32 +155,68 @@ def run_sweep(
             if code_version() != version:  # the sources changed while the workers started: plan again
                 version, keys, unique, records, todo = _plan(config, store)
             atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
+            sims, waiting = _simulations(unique, todo, store, version)
             bar = Progress(len(unique), len(records), stream=stream, enabled=progress)
             if progress:
-                print(f"sweep {config.name!r}: {len(todo)} of {len(unique)} cells to run on {description} "
+                extra = f" and {len(sims)} simulations" if sims else ""
+                print(f"sweep {config.name!r}: {len(todo)} of {len(unique)} cells{extra} to run on {description} "
                       f"(code {version}); results in {out}/", file=stream or sys.stderr, flush=True)
             bar.start()
-            futures = {ex.submit(run_cell, unique[k].spec(), version): k for k in todo}
+            root = str(out.resolve())
+
+            def cell_done(k, fut):
+                nonlocal work_s, cpu_s
+                try:
+                    res = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a failing cell must not stop the others
+                    fail(k, f"{type(exc).__name__}: {exc}")
+                    return
+                record = {"key": k, "code_version": version, "cell": unique[k].spec(), "result": res["scores"],
+                          "timings": res["timings"], "recovery": res["recovery"], "weights": res.get("weights"),
+                          "warnings": res["warnings"], "worker": res["worker"], "finished_at": _now()}
+                store.write(record)
+                records[k] = record
+                computed.append(k)
+                work_s += res["timings"]["cell_s"]
+                cpu_s += res["timings"]["cpu_s"]
+                bar.update()
+
+            def fail(k, message):
+                failed[k] = message
+                store.write_error(k, {"key": k, "cell": unique[k].spec(), "error": message, "at": _now(),
+                                      "code_version": version})
+                bar.update(failed=True)
+
+            def submit_cell(k):
+                return ex.submit(run_cell, unique[k].spec(), version, root)
+
+            # first: the simulations, and the cells that need none
+            futures = {ex.submit(run_simulation, *sims[sk], str(store.simulation_dir(sk)), version): ("sim", sk)
+                       for sk in sims}
+            futures.update({submit_cell(k): ("cell", k) for k in todo if k not in waiting})
+            sim_errors = {}
             try:
                 for fut in ex.as_completed(futures):
-                    k = futures[fut]
-                    try:
-                        res = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - a failing cell must not stop the others
-                        failed[k] = f"{type(exc).__name__}: {exc}"
-                        store.write_error(k, {"key": k, "cell": unique[k].spec(), "error": failed[k],
-                                              "at": _now(), "code_version": version})
-                        bar.update(failed=True)
+                    what, k = futures[fut]
+                    if what == "cell":
+                        cell_done(k, fut)
                         continue
-                    record = {"key": k, "code_version": version, "cell": unique[k].spec(), "result": res["scores"],
-                              "timings": res["timings"], "recovery": res["recovery"], "warnings": res["warnings"],
-                              "worker": res["worker"], "finished_at": _now()}
-                    store.write(record)
-                    records[k] = record
-                    computed.append(k)
-                    work_s += res["timings"]["cell_s"]
-                    cpu_s += res["timings"]["cpu_s"]
-                    bar.update()
+                    try:
+                        fut.result()
+                        simulated.append(k)
+                    except Exception as exc:  # noqa: BLE001 - its cells fail, the others go on
+                        sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
+                # then the cells that read the simulations
+                later = {}
+                for k in todo:
+                    if k in waiting:
+                        if waiting[k] in sim_errors:
+                            fail(k, sim_errors[waiting[k]])
+                        else:
+                            later[submit_cell(k)] = ("cell", k)
+                futures.update(later)
+                for fut in ex.as_completed(later):
+                    cell_done(later[fut][1], fut)
             except BaseException:
                 for f in futures:
                     f.cancel()
@@ -189,8 +237,27 @@ def run_sweep(
     table = assemble_table(config, keys, records)
     _write_table(table, out)
     _write_recovery(config, keys, records, out)
+    _write_weights(config, keys, records, out)
     return SweepRun(out, table, computed, cached, failed, version, description,
-                    time.perf_counter() - t_start, startup_s, work_s, cpu_s)
+                    time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated)
+
+
+def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str):
+    """The simulations the cells to run need and the store lacks ({simulation key: (scenario, simulation
+    parameters, seed)}), and {cell key: simulation key} of those cells."""
+    sims, waiting = {}, {}
+    for k in todo:
+        cell = unique[k]
+        spec = scenario_spec(cell.scenario)
+        if spec.simulation is None:
+            continue
+        params = spec.simulation(json.loads(canonical_json(dict(cell.scenario_params))))
+        sk = simulation_key(cell.scenario, params, cell.seed, version)
+        if store.has_simulation(sk):
+            continue
+        sims.setdefault(sk, (cell.scenario, params, cell.seed))
+        waiting[k] = sk
+    return sims, waiting
 
 
 def _plan(config: SweepConfig, store: ResultStore):
@@ -278,6 +345,32 @@ def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Pa
     buf = io.BytesIO()
     pd.concat(frames, ignore_index=True).to_parquet(buf, index=False)
     atomic_write_bytes(path, buf.getvalue())
+
+
+def weights_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
+    """Weight recovery per cell, free feature and true style (`WEIGHT_COLUMNS`), from the stored records."""
+    rows = []
+    for cell, k in zip(config.cells, keys):
+        rec = records.get(k)
+        if rec is None or not rec.get("weights"):
+            continue
+        for w in rec["weights"]:
+            rows.append({"key": k, "experiment": cell.experiment, "scenario": cell.scenario,
+                         "scenario_label": cell.scenario_label, "protocol": cell.protocol_label,
+                         "learner_label": cell.learner_label, "seed": cell.seed, **w})
+    table = pd.DataFrame(rows, columns=list(WEIGHT_COLUMNS))
+    for c in ("median_abs_log_err", "p90_abs_log_err", "spearman"):
+        table[c] = pd.to_numeric(table[c], errors="coerce").astype(float)
+    return table
+
+
+def _write_weights(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:
+    table = weights_table(config, keys, records)
+    path = out / "weights.csv"
+    if table.empty:
+        path.unlink(missing_ok=True)
+        return
+    atomic_write_text(path, table.to_csv(index=False))
 
 
 def read_table(results) -> pd.DataFrame:

@@ -18,6 +18,17 @@ Adding a scenario is one entry::
 
 ``build(params, seed)`` must be a module-level function (worker processes import it by name) and must give
 the same trajectories for the same parameters and seed. Heavy simulators are imported inside ``build``.
+
+**Simulated scenarios** (``sumo``, ``highway``) also give ``simulation(params)``, the part of the parameters
+that the simulation depends on, and ``simulate(simulation_params, seed, out_dir)``, which records one run. The
+sweep runs each (simulation parameters, seed) once, stores the recording beside the cells
+(`pirl_sim.sweep.store`), and every cell that uses it reads it back: ``build(params, seed, simulation_dir)``.
+Their parameters are the population's (`pirl_sim.scenarios.population_config`): ``n_vehicles``,
+``depart_interval``, ``background_share``, ``styles`` and ``mix``, ``control_noise`` (the closed-loop drivers'
+finite rationality: they re-plan with their own MPC every step, so noise on the applied jerk is what makes
+them less than rational), the drivers' MPC ``horizon``, and the selection of the demonstrations
+(``selection``: whole non-interacting tracks, or every PIRL track with a mask of the steps whose control is
+the driver's own; ``min_steps``; ``test_fraction``, the share of tracks split off by the seed for testing).
 """
 
 from __future__ import annotations
@@ -42,7 +53,7 @@ __all__ = [
     "resolve_scenario_params",
 ]
 
-PARAM_KINDS = ("int", "float", "range", "rationality", "mix", "styles", "path", "bool")
+PARAM_KINDS = ("int", "float", "range", "rationality", "mix", "styles", "path", "bool", "choice")
 
 
 @dataclass(frozen=True)
@@ -51,24 +62,30 @@ class Param:
 
     Attributes
     ----------
-    kind : {"int", "float", "range", "rationality", "mix", "styles", "path", "bool"}
+    kind : {"int", "float", "range", "rationality", "mix", "styles", "path", "bool", "choice"}
         ``range`` is a [low, high] pair; ``rationality`` a Boltzmann beta > 0 or ``inf`` (exact optima);
         ``mix`` a table {style name: mixture weight >= 0} over the scenario's styles (0 drops a style);
         ``styles`` a list of preset style names or tables {name, weight, mean, std} (feature name -> value);
-        ``path`` a file or directory, relative paths taken from the config file's directory.
+        ``path`` a file or directory, relative paths taken from the config file's directory; ``choice`` one of
+        ``choices``.
     default : JSON value or None
         None for ``path`` means required.
     doc : str
         Meaning and unit.
+    choices : tuple of str
+        The allowed values of a ``choice``.
     """
 
     kind: str
     default: Any
     doc: str
+    choices: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in PARAM_KINDS:
             raise ValueError(f"parameter kind must be one of {PARAM_KINDS}, got {self.kind!r}")
+        if (self.kind == "choice") != bool(self.choices):
+            raise ValueError("a 'choice' parameter needs its choices, and only it")
 
 
 @dataclass(frozen=True)
@@ -81,11 +98,13 @@ class ScenarioData:
     train, test : list of Trajectory
         Test trajectories carry ``theta`` (normalised true weights) and ``style`` in their metadata when
         the truth is known.
+    style_names : tuple of str   names of the style indices in the metadata, where known
     """
 
     model: Any
     train: list
     test: list
+    style_names: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -96,6 +115,7 @@ class TrainShape:
     ----------
     n_train : int               training trajectories (an upper bound when ``exact`` is False)
     lengths : tuple of int      steps of the longest ``n_train`` trajectories that can be in the training set
+                                (empty: not known before the data exist, e.g. a simulation's tracks)
     exact : bool
     """
 
@@ -104,7 +124,10 @@ class TrainShape:
     exact: bool = True
 
     def n_samples(self, window: int | None, windows: str, stride: int) -> int:
-        """Training samples a learner looks up: trajectories, or their feature windows of ``window`` steps."""
+        """Training samples a learner looks up: trajectories, or their feature windows of ``window`` steps
+        (``lengths`` empty: not known before the data exist; ``n_train`` trajectories)."""
+        if not self.lengths:
+            return self.n_train
         if window is None or windows == "first":
             return sum(1 for n in self.lengths if window is None or n >= window)
         return sum((n - window) // stride + 1 for n in self.lengths if n >= window)
@@ -126,15 +149,30 @@ class ScenarioSpec:
     train_shape : callable(dict) -> TrainShape
     fingerprint : callable(dict) -> str or None
         Hash of the data files a scenario reads (None: nothing read).
+    simulation : callable(dict) -> dict, or None
+        Simulated scenarios: the parameters the simulation depends on (see module doc); ``build`` then takes
+        the directory of the recorded run as a third argument.
+    simulate : callable(dict, int, Path), or None
+        Records one run of ``simulation(params)`` and a seed into a directory.
+    driver_horizon : callable(dict) -> int or None
+        The drivers' MPC horizon [steps], where the scenario knows it: the default ``horizon`` of learners
+        with ``likelihood = "receding"``.
     """
 
     name: str
     summary: str
     params: Mapping[str, Param]
     check: Callable[[dict], dict]
-    build: Callable[[dict, int], ScenarioData]
+    build: Callable[..., ScenarioData]
     train_shape: Callable[[dict], TrainShape]
     fingerprint: Callable[[dict], str | None] = field(default=lambda params: None)
+    simulation: Callable[[dict], dict] | None = None
+    simulate: Callable[[dict, int, Path], None] | None = None
+    driver_horizon: Callable[[dict], int | None] | None = None
+
+    def __post_init__(self) -> None:
+        if (self.simulation is None) != (self.simulate is None):
+            raise ValueError(f"scenario {self.name!r}: give both simulation and simulate, or neither")
 
 
 SCENARIOS: dict[str, ScenarioSpec] = {}
@@ -164,7 +202,7 @@ def _number(label: str, value) -> float:
     return float(value)
 
 
-def _convert(kind: str, label: str, value, base_dir: Path | None):
+def _convert(kind: str, label: str, value, base_dir: Path | None, choices: tuple[str, ...] = ()):
     """A TOML value of a parameter as its normalised JSON value."""
     if kind == "int":
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -175,6 +213,10 @@ def _convert(kind: str, label: str, value, base_dir: Path | None):
         if not math.isfinite(v):
             raise ValueError(f"{label} must be finite, got {value!r}")
         return v
+    if kind == "choice":
+        if value not in choices or not isinstance(value, str):
+            raise ValueError(f"{label} must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        return value
     if kind == "bool":
         if not isinstance(value, bool):
             raise ValueError(f"{label} must be true or false, got {value!r}")
@@ -276,7 +318,7 @@ def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path 
     full = {}
     for key, p in spec.params.items():
         value = given.get(key, p.default)
-        full[key] = _convert(p.kind, f"scenario {name!r} parameter {key!r}", value, base_dir)
+        full[key] = _convert(p.kind, f"scenario {name!r} parameter {key!r}", value, base_dir, p.choices)
     try:
         return spec.check(full)
     except TypeError as exc:  # the scenario config's own type checks
@@ -374,7 +416,7 @@ def _build_synthetic(params: dict, seed: int) -> ScenarioData:
     from pirl_sim.scenarios.synthetic import generate
 
     data = generate(_synthetic_config(params, seed))
-    return ScenarioData(data.model, data.train, data.test)
+    return ScenarioData(data.model, data.train, data.test, tuple(s["name"] for s in params["styles"]))
 
 
 def _shape_fixed(params: dict) -> TrainShape:
@@ -426,7 +468,7 @@ def _build_passage(params: dict, seed: int) -> ScenarioData:
     from pirl_sim.scenarios.passage import generate
 
     data = generate(_passage_config(params, seed))
-    return ScenarioData(data.model, data.train, data.test)
+    return ScenarioData(data.model, data.train, data.test, tuple(s["name"] for s in params["styles"]))
 
 
 # ------------------------------------------------------------------------------------------ replay
@@ -517,6 +559,133 @@ def _fingerprint_replay(params: dict) -> str:
     return h.hexdigest()[:20]
 
 
+# ------------------------------------------------------------------------------------------ simulators
+_SIMULATED_PARAMS = {
+    "n_vehicles": Param("int", 24, "vehicles in the run, PIRL and background"),
+    "depart_interval": Param("float", 4.0, "time between departures [s]"),
+    "background_share": Param("float", 0.2, "share of vehicles driven by the simulator's own model, in [0, 1)"),
+    "styles": Param("styles", None, "styles over (speed_dev, acc_sq), jerk_sq = 1: preset names "
+                    "(population_config.PRESET_STYLES) or tables {name, weight, mean, std}; default: the paper's three"),
+    "mix": Param("mix", None, "mixture weights by style name (0 drops a style); default: the styles' own"),
+    "control_noise": Param("float", 0.0, "standard deviation of the noise on every applied jerk [m/s^3]: the "
+                           "closed-loop drivers' finite rationality"),
+    "horizon": Param("int", 30, "the PIRL drivers' MPC horizon [steps of 0.1 s]"),
+    "selection": Param("choice", "steps", "demonstrations: 'tracks' (whole non-interacting PIRL tracks) or 'steps' "
+                       "(every PIRL track, the steps whose control is the driver's own)", choices=("tracks", "steps")),
+    "min_steps": Param("int", 10, "shortest demonstration kept [steps]; with 'steps': usable steps"),
+    "test_fraction": Param("float", 0.25, "share of the demonstrations in the test set (split by the seed)"),
+}
+#: parameters that choose demonstrations from a run; the rest make the run
+_SELECTION_PARAMS = ("selection", "min_steps", "test_fraction")
+
+
+def _population(label: str, params: dict):
+    """The run's `PopulationConfig` (validated there; errors name the parameter)."""
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, population_from_dict
+
+    if params["styles"] is None:
+        styles = [s.to_dict() for s in DEFAULT_POPULATION.styles]
+    else:
+        styles = [{"preset": s} if isinstance(s, str) else dict(s) for s in params["styles"]]
+    data = {k: params[k] for k in ("n_vehicles", "depart_interval", "background_share", "control_noise")}
+    pop = population_from_dict({**data, "styles": styles}, source=label)
+    mix = params.get("mix")
+    if mix is not None:
+        names = [s.name for s in pop.styles]
+        unknown = [k for k in mix if k not in names]
+        if unknown:
+            raise ValueError(f"{label}: mix names unknown style(s) {unknown}; styles: {', '.join(names)}")
+        kept = [dict(s.to_dict(), weight=mix.get(s.name, 0.0)) for s in pop.styles if mix.get(s.name, 0.0) > 0]
+        pop = population_from_dict({**data, "styles": kept}, source=label)
+    return pop
+
+
+def _simulator_config(name: str, params: dict):
+    """The simulator's scenario configuration of (simulation) parameters."""
+    table = {"population": _population(f"scenario {name!r}", params).to_dict(),
+             "drivers": {"horizon": params["horizon"]}}
+    if name == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import scenario_from_dict
+    else:
+        from pirl_sim.scenarios.highway.scenario import scenario_from_dict
+    return scenario_from_dict(table, source=f"scenario {name!r}")
+
+
+def _check_simulated(name: str, params: dict) -> dict:
+    for key, low in (("n_vehicles", 2), ("min_steps", 1), ("horizon", 1)):
+        if params[key] < low:
+            raise ValueError(f"scenario {name!r} parameter {key!r} must be >= {low}, got {params[key]!r}")
+    if not 0 < params["test_fraction"] < 1:
+        raise ValueError(f"scenario {name!r} parameter 'test_fraction' must be in (0, 1), got "
+                         f"{params['test_fraction']!r}")
+    config = _simulator_config(name, params)  # validates the population and the drivers
+    out = dict(params, styles=[s.to_dict() for s in config.population.styles])
+    out.pop("mix")
+    return out
+
+
+def _simulation_params(params: dict) -> dict:
+    return {k: v for k, v in params.items() if k not in _SELECTION_PARAMS}
+
+
+def _simulate(name: str, params: dict, seed: int, out_dir: Path) -> None:
+    config = _simulator_config(name, dict(params, mix=None))
+    if name == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import run_sumo_scenario as run
+    else:
+        from pirl_sim.scenarios.highway.scenario import run_highway_scenario as run
+    run(config, seed, out_dir=out_dir)
+
+
+def _build_simulated(name: str, params: dict, seed: int, simulation_dir: Path) -> ScenarioData:
+    if name == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import load_sumo_run as load
+    else:
+        from pirl_sim.scenarios.highway.scenario import load_highway_run as load
+    run = load(simulation_dir)
+    demos = run.demonstrations(selection=params["selection"], min_steps=params["min_steps"])
+    if len(demos) < 2:
+        raise ValueError(f"scenario {name!r}: only {len(demos)} demonstrations with selection "
+                         f"{params['selection']!r} and min_steps {params['min_steps']} (more vehicles?)")
+    train, test = _replay_split(len(demos), params["test_fraction"], seed)
+    names = tuple(s.name for s in run.config.population.styles)
+    return ScenarioData(run.model, [demos[i] for i in train], [demos[i] for i in test], names)
+
+
+def _shape_simulated(params: dict) -> TrainShape:
+    """At most every PIRL vehicle but one test track; lengths are known only after the run."""
+    n_pirl = params["n_vehicles"] - int(math.floor(params["background_share"] * params["n_vehicles"]))
+    return TrainShape(max(n_pirl - 1, 1), (), exact=False)
+
+
+def _check_sumo(params):
+    return _check_simulated("sumo", params)
+
+
+def _check_highway(params):
+    return _check_simulated("highway", params)
+
+
+def _simulate_sumo(params, seed, out_dir):
+    _simulate("sumo", params, seed, out_dir)
+
+
+def _simulate_highway(params, seed, out_dir):
+    _simulate("highway", params, seed, out_dir)
+
+
+def _build_sumo(params, seed, simulation_dir):
+    return _build_simulated("sumo", params, seed, simulation_dir)
+
+
+def _build_highway(params, seed, simulation_dir):
+    return _build_simulated("highway", params, seed, simulation_dir)
+
+
+def _driver_horizon(params) -> int:
+    return params["horizon"]
+
+
 register_scenario(ScenarioSpec(
     "synthetic", "the paper's 1-D point mass regulated by LQR, theta = q/r from two kernels",
     _SYNTHETIC_PARAMS, _check_synthetic, _build_synthetic, _shape_fixed,
@@ -528,4 +697,14 @@ register_scenario(ScenarioSpec(
 register_scenario(ScenarioSpec(
     "replay", "recorded INTERACTION-format tracks on their Lanelet2 map, split into train/test by the seed",
     _REPLAY_PARAMS, _check_replay, _build_replay, _shape_replay, _fingerprint_replay,
+))
+register_scenario(ScenarioSpec(
+    "sumo", "SUMO roundabout (libsumo), PIRL drivers of known weights re-planning every 0.1 s among SUMO's own",
+    _SIMULATED_PARAMS, _check_sumo, _build_sumo, _shape_simulated, simulation=_simulation_params,
+    simulate=_simulate_sumo, driver_horizon=_driver_horizon,
+))
+register_scenario(ScenarioSpec(
+    "highway", "highway-env roundabout, PIRL drivers of known weights re-planning every 0.1 s among IDM vehicles",
+    _SIMULATED_PARAMS, _check_highway, _build_highway, _shape_simulated, simulation=_simulation_params,
+    simulate=_simulate_highway, driver_horizon=_driver_horizon,
 ))

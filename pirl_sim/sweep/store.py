@@ -3,6 +3,8 @@
 Layout of a results directory::
 
     cells/<key>.json     one per finished cell: its full config, scores, timings, recovered weights
+    simulations/<key>/   one recorded run of a simulated scenario, shared by every cell that uses it (its
+                         ``simulation.json``, written last, says it is complete)
     errors/<key>.json    the last failure of a cell (not a result: the cell runs again next time)
     sweep.json           the sweep: config text, code version, every cell's key and labels, the command
     table.parquet/.csv   the tidy table, one row per cell (assembled from cells/)
@@ -28,7 +30,10 @@ from pathlib import Path
 
 from pirl_sim.io.atomic import atomic_write_text
 
-__all__ = ["ResultStore", "code_version", "source_files", "CELL_CODE", "NOT_CELL_CODE"]
+__all__ = ["ResultStore", "code_version", "source_files", "simulation_key", "CELL_CODE", "NOT_CELL_CODE",
+           "SIMULATION_RECORD"]
+
+SIMULATION_RECORD = "simulation.json"  #: written last into a simulation's directory
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +50,8 @@ CELL_CODE: tuple[str, ...] = (
     "pirl_sim.scenarios.*",         # the scenario builders and simulators
     "pirl_sim.harness.experiment",  # protocols and scores
     "pirl_sim.sweep.cell",          # the cell runner
+    "pirl_sim.sweep.baselines",     # the kinematic baselines (pseudo-learners)
+    "pirl_sim.sweep.store",         # where a cell finds its simulated run (and this list)
     "pirl_sim.sweep.scenarios",     # the sweep's scenario registry (parameters -> data)
 )
 #: Modules inside `CELL_CODE` packages that no cell runs: command lines.
@@ -101,6 +108,14 @@ def code_version() -> str:
     return f"{__version__}+{h.hexdigest()[:16]}"
 
 
+def simulation_key(scenario: str, params: dict, seed: int, version: str) -> str:
+    """Key of one simulated run: sha256 of the scenario, its simulation parameters, the seed and the code version
+    (32 hex digits)."""
+    blob = json.dumps({"scenario": scenario, "simulation": params, "seed": seed, "code_version": version},
+                      sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
 class ResultStore:
     """Finished cells of a results directory (see module doc).
 
@@ -113,6 +128,14 @@ class ResultStore:
         self.root = Path(root)
         self.cells_dir = self.root / "cells"
         self.errors_dir = self.root / "errors"
+        self.simulations_dir = self.root / "simulations"
+
+    def simulation_dir(self, key: str) -> Path:
+        return self.simulations_dir / key
+
+    def has_simulation(self, key: str) -> bool:
+        """True when the simulation ``key`` is complete (its record is written last, after a rename)."""
+        return (self.simulation_dir(key) / SIMULATION_RECORD).is_file()
 
     def path(self, key: str) -> Path:
         return self.cells_dir / f"{key}.json"

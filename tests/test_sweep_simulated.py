@@ -1,0 +1,144 @@
+"""SUMO and highway-env scenarios in the sweep (issue 13 item 2): one simulation per (parameters, seed) shared by
+its cells and kept in the store, per-feature weight scores, kinematic baselines, parameters checked up front.
+
+The simulators are the real ones (a run of 8-12 vehicles takes a second or two)."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pirl_sim.sweep import load_config, parse_config, run_sweep
+from pirl_sim.sweep.baselines import ConstantAcceleration, ConstantVelocity, KinematicModel
+from pirl_sim.sweep.cli import main as sweep_main
+
+SUMO = """
+seeds = [0]
+[[experiments]]
+scenario = "sumo"
+params = { n_vehicles = 12, depart_interval = 3.0 }
+protocols = [{ kind = "rolling", history_steps = 10, horizon = 20, stride = 20 }]
+learners = ["cv", "ca", { name = "tirl", grid = { likelihood = ["trajectory", "receding"] }, params = { step_stride = 2 } }]
+"""
+
+
+def _config(text: str):
+    return parse_config(tomllib.loads(text), text=text)
+
+
+@pytest.fixture(scope="module")
+def sumo_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sumo_sweep")
+    return out, run_sweep(_config(SUMO), out, workers=0, progress=False)
+
+
+@pytest.mark.slow
+def test_one_simulation_serves_every_cell_of_its_parameters_and_seed(sumo_run):
+    out, run = sumo_run
+    assert not run.failed and len(run.table) == 4
+    assert len(run.simulated) == 1
+    sim_dir = out / "simulations" / run.simulated[0]
+    assert (sim_dir / "simulation.json").is_file() and (sim_dir / "ground_truth.csv").is_file()
+    record = json.loads((sim_dir / "simulation.json").read_text())
+    assert record["scenario"] == "sumo" and record["seed"] == 0 and "selection" not in record["simulation"]
+    t = run.table.set_index("learner_label")
+    assert set(t.index) == {"CV", "CA", "TIRL (likelihood=trajectory)", "TIRL (likelihood=receding)"}
+    assert (t["med"] > 0).all() and (t["fde"] > 0).all()
+    assert t.loc[["CV", "CA"], "weight_error"].isna().all()  # baselines infer no weights
+    assert t.loc["TIRL (likelihood=receding)", "weight_error"] >= 0
+    # the drivers' horizon is the receding likelihood's default
+    cell = [c for c in _config(SUMO).cells if c.learner_params.get("likelihood") == "receding"][0]
+    assert cell.learner_params["horizon"] == 30
+
+
+@pytest.mark.slow
+def test_weights_table_per_feature_and_style(sumo_run):
+    out, run = sumo_run
+    w = pd.read_csv(out / "weights.csv")
+    assert set(w["feature"]) == {"speed_dev", "acc_sq"}
+    assert set(w["learner_label"]) == {"TIRL (likelihood=trajectory)", "TIRL (likelihood=receding)"}
+    styles = set(w["style"]) - {"all"}
+    assert styles and styles <= {"tracks desired speed", "minimises acceleration", "no preference"}
+    overall = w[w["style"] == "all"]
+    assert (overall["p90_abs_log_err"] >= overall["median_abs_log_err"]).all()
+    n_all = overall.groupby(["key", "feature"])["n"].first()
+    n_styles = w[w["style"] != "all"].groupby(["key", "feature"])["n"].sum()
+    assert (n_all == n_styles).all()  # every test history has a style
+
+
+@pytest.mark.slow
+def test_rerun_and_other_selection_reuse_the_simulation(sumo_run, tmp_path):
+    out, run = sumo_run
+    again = run_sweep(_config(SUMO), out, workers=0, progress=False)
+    assert again.computed == [] and again.simulated == []
+    other = _config(SUMO.replace("depart_interval = 3.0 }", "depart_interval = 3.0, min_steps = 20 }"))
+    more = run_sweep(other, out, workers=0, progress=False)
+    assert len(more.computed) == 4 and more.simulated == []  # new cells, the same run
+    sims = [p for p in (out / "simulations").iterdir() if not p.name.startswith(".")]
+    assert len(sims) == 1
+
+
+@pytest.mark.slow
+def test_highway_scenario_runs(tmp_path):
+    text = SUMO.replace('scenario = "sumo"', 'scenario = "highway"').replace(
+        'learners = ["cv", "ca", { name = "tirl", grid = { likelihood = ["trajectory", "receding"] }, params = { step_stride = 2 } }]',
+        'learners = ["cv", { name = "pirl-knn", params = { n_neighbors = 1, likelihood = "receding", step_stride = 2 } }]')
+    run = run_sweep(_config(text), tmp_path, workers=0, progress=False)
+    assert not run.failed and len(run.table) == 2 and len(run.simulated) == 1
+    info = json.loads(next((tmp_path / "simulations").glob("*/run.json")).read_text())
+    assert info["simulator"] == "highway-env"
+    knn = run.table[run.table["learner"] == "pirl-knn"].iloc[0]
+    assert knn["med"] > 0 and knn["weight_error"] >= 0
+
+
+BAD = {
+    "selection": ("selection = \"all\"", r"scenario 'sumo' parameter 'selection' must be one of 'tracks', 'steps'"),
+    "horizon": ("horizon = 0", r"scenario 'sumo' parameter 'horizon' must be >= 1, got 0"),
+    "control_noise": ("control_noise = -0.5", r"scenario 'sumo': control_noise must be >= 0"),
+    "control_noise type": ("control_noise = \"high\"", r"'control_noise' must be a number"),
+    "background_share": ("background_share = 1.5", r"background_share must be in \[0, 1\]"),
+    "test_fraction": ("test_fraction = 1.0", r"'test_fraction' must be in \(0, 1\)"),
+    "depart_interval": ("depart_interval = 0.0", r"depart_interval must be > 0 s"),
+    "preset style": ("styles = [\"fast\"]", r"unknown style name 'fast' for preset"),
+    "mix": ("mix = { fast = 1.0 }", r"mix names unknown style\(s\) \['fast'\]"),
+    "unknown key": ("lanes = 2", r"unknown parameter\(s\) 'lanes'; valid parameters: n_vehicles"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
+def test_bad_simulator_parameters_fail_at_dry_run_naming_the_key(case, tmp_path, capsys):
+    setting, match = BAD[case]
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(SUMO.replace("depart_interval = 3.0 }", f"{setting} }}" if case == "depart_interval"
+                                else f"depart_interval = 3.0, {setting} }}"))
+    with pytest.raises(ValueError, match=match):
+        load_config(cfg)
+    assert sweep_main(["sweep", str(cfg), "--out", str(tmp_path / "out"), "--dry-run"]) == 2
+    assert "error" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
+def test_baselines_predict_constant_velocity_and_acceleration():
+    from pirl_sim.driving import roundabout_model
+    from pirl_sim.paths import ReferencePath
+
+    path = ReferencePath.from_polyline(np.c_[np.linspace(0, 200, 50), np.zeros(50)])
+    model = roundabout_model(path, dt=0.5)
+    x0 = np.array([[10.0, 8.0, -2.0], [0.0, 5.0, 1.0]])
+    cv = KinematicModel(model, "cv").predict_states(x0, None, 4)
+    np.testing.assert_allclose(cv[:, :, 0], [[10, 14, 18, 22, 26], [0, 2.5, 5, 7.5, 10]])
+    np.testing.assert_allclose(cv[:, 1:, 2], 0.0)
+    ca = KinematicModel(model, "ca").predict_states(x0, None, 12)
+    # braking at 2 m/s^2 from 8 m/s stops after 4 s (8 steps) at 10 + 16 m, and stays there
+    np.testing.assert_allclose(ca[0, 8:, 0], 26.0)
+    np.testing.assert_allclose(ca[0, 8:, 1], 0.0)
+    np.testing.assert_allclose(ca[0, 2, :2], [10 + 8 * 1.0 - 1.0, 6.0])
+    np.testing.assert_allclose(ca[1, 4, 0], 5.0 * 2 + 0.5 * 2**2)
+    assert ConstantVelocity(model=model).fit().infer_weights([]).shape == (0, 3)
+    from pirl_sim.model import synthetic_model
+
+    with pytest.raises(ValueError, match="needs an acceleration"):
+        ConstantAcceleration(model=synthetic_model()).fit()
