@@ -190,9 +190,9 @@ def test_cluster_figure_uses_gmm_k_and_marks_background_tracks(mixed_result, tmp
     real_gmm, real_fig = learners.PIRLGMM, figures.feature_clusters
 
     class Recorder(real_gmm):
-        def fit(self, trajectories):
+        def cluster_labels(self, trajectories):
             seen["k"] = self.n_components
-            return super().fit(trajectories)
+            return super().cluster_labels(trajectories)
 
     def fig(values, names, labels, true_styles=None, style_names=None):
         seen["styles"], seen["names"] = true_styles, style_names

@@ -412,8 +412,15 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             fit_s = time.perf_counter() - t0
             t0 = time.perf_counter()
             theta = learner.infer_weights(histories)
-            s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
-                                         mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
+            if getattr(learner, "aggregate", "weights") == "futures":  # the mean of several futures
+                if proto.rollout != "open":
+                    raise ValueError(f"{name}: a learner that averages its neighbours' futures predicts open-loop "
+                                     f"plans; rollout {proto.rollout!r} is not available for it")
+                plan = proto.horizon if proto.mpc_horizon is None else max(proto.horizon, int(proto.mpc_horizon))
+                s_pred = learner.predict_states(histories, plan)[:, 1 : proto.horizon + 1, 0]
+            else:
+                s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
+                                             mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
             extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
             methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
             how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"

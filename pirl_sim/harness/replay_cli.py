@@ -90,7 +90,10 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "observed one, or follow the training tracks' 'mean-path' of the route, or their mean path "
                          "pooled over routes in the 'plane' (pirl_sim.lateral) (default hold)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
-                    help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn (default tirl,pirl-gmm,pirl-knn)")
+                    help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
+                         "with costs of what followed each training window, looked up by features and the last "
+                         "speed and acceleration, its neighbours' futures averaged: learners/knn.py) (default "
+                         "tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
     rp.add_argument("--knn-k", default="10",
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
@@ -213,11 +216,15 @@ def _steps(seconds: float, dt: float) -> int:
     return max(1, int(round(seconds / dt)))
 
 
-def _learner_specs(args, likelihood: str, mpc_horizon: int | None) -> list:
+NEXT_KNN = "pirl-knn-next"  #: PIRL-kNN with target="next" (learners/knn.py), a key of --learners only
+
+
+def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps: int | None = None) -> list:
     keys = [k.strip() for k in args.learners.split(",") if k.strip()]
-    unknown = [k for k in keys if k not in LEARNERS]
+    known = sorted([*LEARNERS, NEXT_KNN])
+    unknown = [k for k in keys if k not in known]
     if unknown or not keys:
-        raise ValueError(f"unknown learners {unknown or keys}; choose from {sorted(LEARNERS)}")
+        raise ValueError(f"unknown learners {unknown or keys}; choose from {known}")
     try:
         knn_ks = [int(k) for k in str(args.knn_k).split(",")]
     except ValueError:
@@ -237,6 +244,13 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None) -> list:
             specs.append((f"PIRL-GMM (k={args.gmm_k})", k, {"n_components": args.gmm_k, "random_state": 0, **irl}))
         elif k == "pirl-dpgmm":
             specs.append(("PIRL-DPGMM", k, {"random_state": 0, **irl}))
+        elif k == NEXT_KNN:
+            if horizon_steps is None:
+                raise ValueError(f"{NEXT_KNN} needs the prediction horizon in steps")
+            nxt = {"target": "next", "target_steps": int(horizon_steps), "state_features": (1, 2),
+                   "aggregate": "futures"}  # (1, 2): speed and acceleration along the path
+            specs += [(f"PIRL-kNN next (k={n})", "pirl-knn", {"n_neighbors": n, "stride": 2, **nxt, **knn_prior,
+                                                              **irl}) for n in knn_ks]
         else:
             specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, "stride": 2, **knn_prior, **irl}) for n in knn_ks]
     return specs
@@ -270,7 +284,7 @@ def run_replay_command(args) -> int:
             if not scan or any(h < 1 for h in scan):
                 raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
         else:
-            specs = _learner_specs(args, settings["likelihood"], horizon)
+            specs = _learner_specs(args, settings["likelihood"], horizon, seconds_to_steps(args.horizon, dt, "--horizon"))
         proto = _protocol(args, settings, scan)
         for note in settings["notes"]:
             say(f"[0/3] {note}")
@@ -345,7 +359,8 @@ def _run_table(args, say) -> int:
             files = sorted(find_track_files(a.tracks), key=lambda f: Path(f).name)
             if args.files is not None:
                 files = files[: args.files]
-            specs = _learner_specs(a, settings["likelihood"], settings["mpc_horizon"])
+            specs = _learner_specs(a, settings["likelihood"], settings["mpc_horizon"],
+                                   seconds_to_steps(a.horizon, settings["dt"], "--horizon"))
             proto = _protocol(a, settings)
             say(f"{name}: reading {len(files)} track files")
             scene = load_replay(files, a.map, **settings["load"])

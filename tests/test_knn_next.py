@@ -1,0 +1,102 @@
+"""PIRL-kNN with costs of what drivers did next (target="next"), situation look-ups and averaged futures
+(issue 12)."""
+
+import numpy as np
+import pytest
+
+from pirl_sim.learners import PIRLKNN
+from pirl_sim.model import synthetic_model
+from pirl_sim.trajectory import Trajectory
+
+
+def _phase(model, x0, theta, n):
+    states = model.predict_states(np.atleast_2d(x0), np.atleast_2d(theta), n)[0]
+    return states
+
+
+def _switching_drivers(model, rng, n=40):
+    """Point mass regulated to 0: gently (q/r = 0.05) for 20 steps, then hard (q/r = 20) for 20 more, each
+    phase the optimum of its own cost from where the last one ended."""
+    out = []
+    for _ in range(n):
+        x0 = np.array([rng.uniform(1.0, 3.0), 0.0])
+        a = _phase(model, x0, [0.05, 1.0], 20)
+        b = _phase(model, a[-1], [20.0, 1.0], 20)
+        states = np.vstack([a, b[1:]])
+        controls = np.diff(states[:, 1])[:, None] / model.dynamics.dt
+        out.append(Trajectory(states, controls, model.dynamics.dt))
+    return out
+
+
+def test_next_costs_predict_a_switch_that_whole_track_costs_average_away():
+    model = synthetic_model()
+    rng = np.random.default_rng(0)
+    train, test = _switching_drivers(model, rng), _switching_drivers(model, rng, 10)
+    hist = [t.window(10, 20) for t in test]  # histories that end at the switch
+    truth = np.stack([t.states[20:31, 0] for t in test])
+    common = dict(model=model, window=10, stride=2, n_neighbors=3)
+    demo = PIRLKNN(**common).fit(train)
+    nxt = PIRLKNN(**common, target="next", target_steps=10, state_features=(0, 1), aggregate="futures").fit(train)
+    assert len(nxt.demo_theta_) == len(nxt.sample_theta_) == 40 * len(range(0, 40 - 10 - 10 + 1, 2))
+    err = {name: np.abs(learner.predict_states(hist, 10)[:, :, 0] - truth).mean()
+           for name, learner in (("demo", demo), ("next", nxt))}
+    assert err["next"] < 0.7 * err["demo"], err  # measured 0.21 vs 0.34 m
+    # the averaged future is the vote-weighted mean of predict_futures
+    states, proba = nxt.predict_futures(hist, 10)
+    np.testing.assert_allclose(nxt.predict_states(hist, 10), np.einsum("mk,mk...->m...", proba, states))
+    one = nxt.predict_states(hist[0], 10)
+    np.testing.assert_allclose(one, nxt.predict_states(hist, 10)[0])
+    # aggregate="weights": one future under the averaged weights, as the base learner predicts
+    w = PIRLKNN(**common, target="next", target_steps=10, state_features=(0, 1)).fit(train)
+    np.testing.assert_allclose(w.predict_states(hist, 10),
+                               model.predict_states(np.stack([h.states[-1] for h in hist]), w.infer_weights(hist), 10))
+
+
+def test_state_features_enter_the_look_up():
+    model = synthetic_model()
+    train = _switching_drivers(model, np.random.default_rng(1), 12)
+    plain = PIRLKNN(model=model, window=10, stride=5).fit(train)
+    with_state = PIRLKNN(model=model, window=10, stride=5, state_features=(1,)).fit(train)
+    assert with_state.neighbors_._fit_X.shape[1] == plain.neighbors_._fit_X.shape[1] + 1
+
+
+@pytest.mark.parametrize("params, error, match", [
+    ({"target": "future", "window": 10}, ValueError, "target must be one of"),
+    ({"target": "next"}, ValueError, "needs window"),
+    ({"target": "next", "window": 10}, ValueError, "target_steps"),
+    ({"target": "next", "window": 10, "target_steps": 0}, ValueError, "target_steps"),
+    ({"target": "next", "window": 10, "target_steps": 5, "weighting": "likelihood"}, ValueError, "weighting"),
+    ({"window": 10, "aggregate": "median"}, ValueError, "aggregate must be one of"),
+    ({"window": 10, "state_features": (2,)}, ValueError, "state_features"),
+    ({"window": 10, "state_features": 1}, TypeError, "state_features"),
+    ({"target": "next", "window": 30, "target_steps": 30}, ValueError, "no training trajectory"),
+])
+def test_bad_next_parameters_name_the_value(params, error, match):
+    model = synthetic_model()
+    train = _switching_drivers(model, np.random.default_rng(2), 4)
+    with pytest.raises(error, match=match):
+        PIRLKNN(model=model, **params).fit(train)
+
+
+def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_ordering(tmp_path):
+    import warnings
+
+    import pandas as pd
+
+    from pirl_sim.cli import main
+    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=5))
+    write_scene(data, tmp_path / "scene")
+    args = ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
+            "--learners", "tirl,pirl-knn,pirl-knn-next", "--knn-k", "3,5", "--seeds", "1"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 0
+    rows = pd.read_csv(tmp_path / "out" / "rows.csv")
+    nxt = rows[rows["method"].str.startswith("PIRL-kNN next")]
+    assert sorted(nxt["method"]) == ["PIRL-kNN next (k=3)", "PIRL-kNN next (k=5)"]
+    assert (nxt["irl_converged"] == nxt["irl_groups"]).all() and (nxt["irl_groups"] > 30).all()
+    assert nxt["med"].notna().all() and (nxt["med"] > 0).all()
+    assert nxt.set_index("method").loc["PIRL-kNN next (k=5)", "irl_from"] == "PIRL-kNN next (k=3)"
+    assert main([*args, "--rollout", "closed", "--mpc-horizon", "15", "--out", str(tmp_path / "bad")]) == 2
