@@ -11,11 +11,13 @@ it at the start:
 
 where ``dbar`` is the median offset of the training tracks in bins of ``bin_width`` metres of arc length,
 averaged over a window of ``2 * smooth + 1`` bins (`MeanOffsetProfile`). Where a route has too few training
-tracks at s_0 or along the prediction, the offset is held. ``"plane"`` is the same rule with ``dbar`` pooled over
-every training track that drove *there*, whatever its route (`MeanOffsetProfile.fit_plane`): on a roundabout
-with many lanes most routes are driven by one or two tracks, and per route the profile has data for few windows
-(on the development roundabout DR_CHN_Roundabout_LN, 30 % of test windows; the rest fell back to holding),
-while the lanes that routes share are driven by many. Both are shared by every path-based predictor (baselines
+tracks at s_0 or along the prediction, the offset is held. ``"plane"`` is the same rule with ``dbar`` per route where the
+route's own training tracks give it, and elsewhere pooled over every training track that drove *there*,
+whatever its route (`MeanOffsetProfile.fit_plane`, `MeanOffsetProfile.backed_by`): on a roundabout with many
+lanes most routes are driven by one or two tracks, and per route the profile has data for few windows (on the
+development roundabout DR_CHN_Roundabout_LN, 30 % of test windows; the rest fell back to holding), while the
+lanes that routes share are driven by many. Pooling alone is worse where routes have their own data: the
+pooled median mixes neighbouring lanes (DR_USA_Roundabout_FT). Both are shared by every path-based predictor (baselines
 and learners alike), so that comparisons between them stay about the motion along the path.
 """
 
@@ -145,6 +147,17 @@ class MeanOffsetProfile:
                 if ok.sum() >= self.min_count:
                     medians[int(b)] = float(np.median(lat[ok]))
             table[k] = medians
+        out = MeanOffsetProfile(self.bin_width, self.min_count, self.smooth)
+        object.__setattr__(out, "_table", table)
+        return out
+
+    def backed_by(self, other: "MeanOffsetProfile") -> "MeanOffsetProfile":
+        """This fitted profile, with ``other``'s bins where this one has none (same bins required): e.g. the
+        per-route profile backed by the pooled one."""
+        if (self.bin_width, self.smooth) != (other.bin_width, other.smooth):
+            raise ValueError("backed_by needs profiles with the same bin_width and smooth")
+        table = {seg: {**other._table.get(seg, {}), **self._table.get(seg, {})}
+                 for seg in set(self._table) | set(other._table)}
         out = MeanOffsetProfile(self.bin_width, self.min_count, self.smooth)
         object.__setattr__(out, "_table", table)
         return out

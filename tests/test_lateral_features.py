@@ -254,3 +254,16 @@ def test_plane_profile_pools_offsets_over_routes_that_share_a_lane():
         MeanOffsetProfile().fit_plane(path, [np.zeros((4, 3))])
     with pytest.raises(ValueError, match="moving"):
         MeanOffsetProfile().fit_plane(path, [np.zeros((4, 2))])
+
+
+def test_backed_by_keeps_the_routes_own_bins_and_fills_the_rest():
+    own = MeanOffsetProfile(smooth=0).fit(np.zeros(6, int), np.array([0.1, 0.2, 0.3, 5.1, 5.2, 5.3]),
+                                          np.full(6, 1.0))
+    pooled = MeanOffsetProfile(smooth=0).fit(np.array([0, 0, 0, 0, 0, 0, 1, 1, 1]),
+                                             np.array([0.1, 0.2, 0.3, 9.1, 9.2, 9.3, 0.1, 0.2, 0.3]),
+                                             np.array([2.0, 2.0, 2.0, 3.0, 3.0, 3.0, 4.0, 4.0, 4.0]))
+    both = own.backed_by(pooled)
+    np.testing.assert_allclose(both(0, np.array([0.5, 5.5, 9.5])), [1.0, 1.0, 3.0])
+    np.testing.assert_allclose(both(1, np.array([0.5])), [4.0])
+    with pytest.raises(ValueError, match="bin_width"):
+        own.backed_by(MeanOffsetProfile(bin_width=2.0).fit(np.zeros(3, int), np.zeros(3), np.zeros(3)))

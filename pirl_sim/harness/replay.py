@@ -214,14 +214,15 @@ def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, pro
 
 def fit_lateral_profile(train, kind: str = "mean-path", path=None):
     """`pirl_sim.lateral.MeanOffsetProfile` fitted on training pieces: per route from (route, arc length,
-    recorded offset) for ``kind="mean-path"``, pooled in the plane from their positions on ``path`` (the
-    model's reference path) for ``"plane"``; None for ``"hold"``."""
+    recorded offset) for ``kind="mean-path"``, that backed by the profile pooled in the plane from their
+    positions on ``path`` (the model's reference path) for ``"plane"``; None for ``"hold"``."""
     from pirl_sim.lateral import MeanOffsetProfile
 
     if kind == "hold":
         return None
     if kind == "plane":
-        return MeanOffsetProfile().fit_plane(path, [np.asarray(t.metadata["xy"], dtype=float) for t in train])
+        pooled = MeanOffsetProfile().fit_plane(path, [np.asarray(t.metadata["xy"], dtype=float) for t in train])
+        return fit_lateral_profile(train, "mean-path").backed_by(pooled)
     segment = np.concatenate([np.full(t.n_steps + 1, int(t.metadata.get("segment", 0))) for t in train])
     s = np.concatenate([t.states[:, 0] for t in train])
     d = np.concatenate([np.asarray(t.metadata["d"], dtype=float) for t in train])
