@@ -92,8 +92,12 @@ def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_orderin
     write_scene(data, tmp_path / "scene")
     args = ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
             "--learners", "tirl,pirl-knn,pirl-knn-next", "--knn-k", "3,5", "--seeds", "1"]
-    assert main([*args, "--out", str(tmp_path / "out")]) == 0
+    assert main([*args, "--hindsight", "--out", str(tmp_path / "out")]) == 0
     rows = pd.read_csv(tmp_path / "out" / "rows.csv")
+    med = rows.set_index("method")["med"]
+    # the oracle row: each test window under the cost fitted on its own future beats every predictor
+    assert med["hindsight cost (oracle)"] < 0.5 * med["CA (path)"]
+    assert med["hindsight cost (oracle)"] < med.drop("hindsight cost (oracle)").min()
     nxt = rows[rows["method"].str.startswith("PIRL-kNN next")]
     assert sorted(nxt["method"]) == ["PIRL-kNN next (k=3)", "PIRL-kNN next (k=5)"]
     assert (nxt["irl_converged"] == nxt["irl_groups"]).all() and (nxt["irl_groups"] > 30).all()

@@ -58,9 +58,10 @@ from pirl_sim.validation import is_positive_int
 
 __all__ = ["ReplayProtocol", "run_replay", "paired_differences", "knn_with_neighbors", "predict_path_states",
            "split_by_track", "usable_tracks",
-           "BASELINES", "ROLLOUTS"]
+           "BASELINES", "HINDSIGHT", "ROLLOUTS"]
 
 BASELINES = ("CV (path)", "CA (path)", "CV (x, y)")
+HINDSIGHT = "hindsight cost (oracle)"  #: not a predictor: each window's cost fitted on its own future
 ROLLOUTS = ("open", "closed")
 
 
@@ -341,7 +342,7 @@ def desired_speed_model(scene, desired_speed=None, train=None):
 
 
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
-               desired_speed=None) -> dict:
+               desired_speed=None, hindsight: bool = False) -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene`.
 
     Parameters
@@ -366,6 +367,11 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     ``desired_speed``: None (the scene's model), ``"fit"`` (a_lat, v_max fitted per split seed on the training
     tracks by `fit_scene_speed`) or (a_lat, v_max) [m/s^2, m/s] fixed. Every row carries the ``a_lat`` and
     ``v_max`` its learners used.
+
+    ``hindsight=True`` adds the row ``HINDSIGHT``: every test window predicted from its start under the cost
+    the IRL fits on the window's own recorded future (one cost per window). It sees what it predicts, so it is
+    no predictor; it is what the model class (dynamics, features, MPC) could reach with a perfect online
+    inference of the weights, and separates that limit from the learners' inference.
     """
     from pirl_sim.learners import make_learner
 
@@ -427,7 +433,19 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
             say(f"seed {seed}: {name} {how} in {fit_s:.1f} s; IRL converged for {diag['irl_converged']} of "
                 f"{diag['irl_groups']} groups")
-        methods = {name: methods[name] for name in [*BASELINES[:2], *(sp[0] for sp in learner_specs)]}
+        if hindsight:
+            t0 = time.perf_counter()
+            futures = [test[i].window(step, step + proto.horizon) for i, step in windows]
+            oracle = make_learner("pirl-knn", model=model, n_neighbors=1)
+            diag = _fit_with_diagnostics(lambda: oracle.fit(futures))
+            del diag["learner"]
+            fit_s = time.perf_counter() - t0
+            s_pred = predict_path_states(model, x0, oracle.demo_theta_, proto.horizon)[:, 1:, 0]
+            methods[HINDSIGHT] = (s_pred, fit_s, 0.0, {**diag, "irl_from": ""})
+            say(f"seed {seed}: {HINDSIGHT} fitted on {len(futures)} test futures in {fit_s:.1f} s; IRL converged "
+                f"for {diag['irl_converged']} of {diag['irl_groups']}")
+        order = [*BASELINES[:2], *(sp[0] for sp in learner_specs), *([HINDSIGHT] if hindsight else [])]
+        methods = {name: methods[name] for name in order}
         if seed == proto.seeds[0]:  # a few windows for the S-T figure
             shown = np.linspace(0, len(windows) - 1, min(4, len(windows))).astype(int)
             examples = {

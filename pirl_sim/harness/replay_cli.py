@@ -70,6 +70,10 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help=f"names for --table (default {','.join(DEV_ROUNDABOUTS)})")
     rp.add_argument("--files", type=positive_int_arg, default=None,
                     help="use only the first N track files (sorted by name) of each recording (default all)")
+    rp.add_argument("--hindsight", action="store_true",
+                    help="also score each test window under the cost fitted on its own recorded future (an oracle "
+                         "row, 'hindsight cost (oracle)': what the model class reaches with perfect weights; not a "
+                         "predictor, never the best PIRL learner)")
     rp.add_argument("--desired-speed", choices=["fit", "fixed"], default="fixed",
                     help="the desired speed's a_lat and v_max: 'fit' on each split's training tracks (robust fit of "
                          "speeds against curvature, pirl_sim.speed_fit) or 'fixed' (--a-lat, --v-max) "
@@ -305,7 +309,7 @@ def run_replay_command(args) -> int:
             print(f"wrote {args.out}/")
             return 0
         result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"),
-                            desired_speed="fit" if args.desired_speed == "fit" else None)
+                            desired_speed="fit" if args.desired_speed == "fit" else None, hindsight=args.hindsight)
     except (ValueError, FileNotFoundError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
@@ -365,7 +369,8 @@ def _run_table(args, say) -> int:
             say(f"{name}: reading {len(files)} track files")
             scene = load_replay(files, a.map, **settings["load"])
             result = run_replay(scene, specs, proto, progress=lambda m: say(f"{name}: {m}"),
-                                desired_speed="fit" if args.desired_speed == "fit" else None)
+                                desired_speed="fit" if args.desired_speed == "fit" else None,
+                                hindsight=args.hindsight)
             write_replay_results(result, scene, args.out / name, command)
             elapsed = time.perf_counter() - t0
             rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
