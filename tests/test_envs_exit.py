@@ -128,3 +128,34 @@ def test_baselines_rank_as_expected_on_the_evaluation_seeds():
         assert stats[name][1] < stats["hold-speed"][1]
         assert stats[name][0] > stats["hold-speed"][0] + 5
         assert stats[name][2] < stats["hold-speed"][2]
+
+
+def test_residual_action_zero_drives_as_the_baseline():
+    from pirl_sim.envs.baselines import ResidualAction
+
+    env = ResidualAction(gym.make(ENV_ID, config={"reward": "exit", **DENSE}), "idm", scale=0.5)
+    env.reset(seed=1004)
+    residual = []
+    for _ in range(40):
+        _, reward, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        residual.append((reward, info["applied_action"], info["speed"]))
+        assert info["applied_action"] == pytest.approx(info["baseline_action"])
+        if terminated or truncated:
+            break
+    plain = make(**DENSE)
+    plain.reset(seed=1004)
+    idm = IdmEgo()
+    idm.reset(plain)
+    for reward, applied, speed in residual:
+        action = idm.act(plain)
+        assert float(action[0]) == pytest.approx(applied)
+        _, r, _, _, info = plain.step(action)
+        assert r == pytest.approx(reward) and info["speed"] == pytest.approx(speed)
+    # +1 moves the action up by the scale (clipped to 1)
+    env.reset(seed=1004)
+    _, _, _, _, info = env.step(np.ones(1, dtype=np.float32))
+    assert info["applied_action"] == pytest.approx(min(info["baseline_action"] + 0.5, 1.0))
+    with pytest.raises(ValueError, match=r"scale must be a finite number > 0"):
+        ResidualAction(env.env, "idm", scale=0.0)
+    with pytest.raises(TypeError, match=r"baseline must be one of"):
+        ResidualAction(env.env, baseline=3)

@@ -15,6 +15,10 @@ has ``reset(env)`` to call after every ``env.reset``:
   traffic imposes on PIRL drivers.
 
 The accelerations are mapped to actions by :func:`action_of` (the inverse of the env's mapping).
+
+:class:`ResidualAction` is a gymnasium wrapper for agents that learn a correction to a baseline (residual
+reinforcement learning): the applied action is ``clip(baseline action + scale * agent action, -1, 1)``, so an
+agent whose actions are 0 drives exactly as the baseline does.
 """
 
 from __future__ import annotations
@@ -25,11 +29,11 @@ import numpy as np
 
 from pirl_sim.scenarios.population_config import FEATURE_NAMES, FREE_FEATURES
 
-from .common import EGO_ID, reward_weights
+from .common import EGO_ID, check_action, reward_weights
 
 IDM_DELTA = 4.0  #: highway-env's IDM exponent (IDMVehicle.DELTA), also the env's background traffic's
 
-__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "action_of", "make_baseline"]
+__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "make_baseline"]
 
 #: baseline names of :func:`make_baseline`
 BASELINES = ("hold-speed", "idm", "mpc")
@@ -145,3 +149,49 @@ def make_baseline(name: str, theta: Mapping[str, float] | None = None):
     if name == "mpc":
         return MpcEgo(theta if theta is not None else {"speed_dev": 3.0, "acc_sq": 0.3})
     raise ValueError(f"baseline must be one of {BASELINES}, got {name!r}")
+
+
+def _wrapper_base():
+    import gymnasium as gym
+
+    return gym.Wrapper
+
+
+class ResidualAction(_wrapper_base()):
+    """The agent's action as a correction to a baseline ego's (see the module docstring).
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        ``pirl_sim/Roundabout-v0`` (possibly wrapped; the baseline reads the unwrapped env).
+    baseline : str or baseline object
+        A name of :data:`BASELINES` or an object with ``reset(env)`` and ``act(env)``; default ``"idm"``.
+    scale : float
+        > 0: the agent's action in [-1, 1] moves the baseline's action by up to ``scale`` (in action units:
+        1 is ``a_max`` up or ``-a_min`` down).
+
+    ``info["baseline_action"]`` and ``info["applied_action"]`` give both actions of each step.
+    """
+
+    def __init__(self, env, baseline="idm", scale: float = 0.5) -> None:
+        super().__init__(env)
+        self.baseline = make_baseline(baseline) if isinstance(baseline, str) else baseline
+        if not (hasattr(self.baseline, "act") and hasattr(self.baseline, "reset")):
+            raise TypeError(f"baseline must be one of {BASELINES} or have reset(env) and act(env), got "
+                            f"{type(baseline).__name__}")
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
+            raise ValueError(f"scale must be a finite number > 0 (action units), got {scale!r}")
+        self.scale = float(scale)
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.baseline.reset(self.env.unwrapped)
+        return obs, info
+
+    def step(self, action):
+        x = check_action(action)
+        base = float(self.baseline.act(self.env.unwrapped)[0])
+        applied = np.array([min(max(base + self.scale * x, -1.0), 1.0)], dtype=np.float32)
+        obs, reward, terminated, truncated, info = self.env.step(applied)
+        info = {**info, "baseline_action": base, "applied_action": float(applied[0])}
+        return obs, reward, terminated, truncated, info

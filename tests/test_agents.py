@@ -1,0 +1,100 @@
+"""The agents experiment (:mod:`pirl_sim.harness.agents`): config checks, intervals, a tiny end-to-end run that
+writes every file, and resuming (finished runs kept, changed settings redone, a torn file redone)."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+pytest.importorskip("gymnasium")
+pytest.importorskip("highway_env")
+pytest.importorskip("stable_baselines3")
+
+from pirl_sim.harness import agents  # noqa: E402
+from pirl_sim.harness.agents import AgentsConfig  # noqa: E402
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"modes": ("none", "oracle")}, r"modes must be distinct values out of \('none', 'truth', 'inferred'\), got "
+                                    r"\['none', 'oracle'\]"),
+    ({"baselines": ("idm", "idm")}, r"baselines must be distinct values"),
+    ({"seeds": ()}, r"seeds must be a non-empty list of distinct integers >= 0, got \[\]"),
+    ({"seeds": (0, 1000)}, r"training seeds and evaluation seeds must differ; both have \[1000\]"),
+    ({"steps": 0}, r"steps must be an integer >= 1, got 0"),
+    ({"gamma": 1.5}, r"gamma must be in \(0, 1\], got 1.5"),
+    ({"depart_interval": -1.0}, r"depart_interval must be a finite number > 0, got -1.0"),
+])
+def test_bad_settings_are_rejected(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        AgentsConfig(**kwargs)
+
+
+def test_intervals():
+    m, lo, hi = agents._t_interval([1.0, 2.0, 3.0])
+    assert m == 2.0 and lo == pytest.approx(2 - 4.302653 / math.sqrt(3)) and hi == pytest.approx(2 + 4.302653 / math.sqrt(3))
+    assert np.isnan(agents._t_interval([5.0])[1])
+    p, lo, hi = agents._wilson(0, 10)
+    assert p == 0 and lo == pytest.approx(0, abs=1e-12) and hi == pytest.approx(0.2775, abs=1e-4)
+    p, lo, hi = agents._wilson(5, 10)
+    assert p == 0.5 and lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
+
+
+def test_paired_difference_uses_the_same_evaluation_seeds():
+    rows = [{"policy": "idm", "mode": "", "train_seed": -1, "eval_seed": s, "return": r, "arrived": True,
+             "crashed": False, "time": 20.0, "time_to_exit": 20.0, "near_miss_time": 0.0}
+            for s, r in ((1, 0.0), (2, 10.0))]
+    rows += [{"policy": "ppo (none)", "mode": "none", "train_seed": t, "eval_seed": s, "return": r + d,
+              "arrived": True, "crashed": False, "time": 20.0, "time_to_exit": 20.0, "near_miss_time": 0.0}
+             for t, d in ((0, 1.0), (1, 3.0)) for s, r in ((1, 0.0), (2, 10.0))]
+    table = agents.summary_table(pd.DataFrame(rows)).set_index("policy")
+    assert table.loc["ppo (none)", "vs_idm"] == pytest.approx(2.0)  # +2 on both seeds: no spread
+    assert table.loc["ppo (none)", "vs_idm_lo"] == pytest.approx(2.0)
+    assert table.loc["ppo (none)", "return"] == pytest.approx(7.0)  # mean of the seeds' means 6 and 8
+    assert table.loc["idm", "success"] == 1.0 and table.loc["idm", "collision"] == 0.0
+
+
+@pytest.mark.slow
+def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))  # where SB3's default logger would make SB3-<date>
+    out = tmp_path / "agents"
+    argv = ["--out", str(out), "--steps", "128", "--n-steps", "64", "--seeds", "0", "--episodes", "1",
+            "--modes", "none,truth", "--baselines", "hold-speed"]
+    assert agents.main(argv) == 0
+    for name in ("episodes.csv", "table.csv", "table.md", "learning_curves.png", "README.md"):
+        assert (out / name).stat().st_size > 0
+    runs = sorted(p.name for p in (out / "runs").iterdir())
+    assert runs == ["baseline-hold-speed.json", "ppo-residual-idm-none-seed0.json",
+                    "ppo-residual-idm-truth-seed0.json"]
+    table = pd.read_csv(out / "table.csv")
+    assert list(table["policy"]) == ["hold-speed", "ppo residual-idm (none)", "ppo residual-idm (truth)"]
+    episodes = pd.read_csv(out / "episodes.csv")
+    assert set(episodes["eval_seed"]) == {1000} and len(episodes) == 3
+    record = json.loads((out / "runs" / "ppo-residual-idm-truth-seed0.json").read_text())
+    assert record["mode"] == "truth" and record["settings"]["steps"] == 128
+    capsys.readouterr()
+
+    # a rerun keeps every finished run; a torn file and changed settings are redone
+    (out / "runs" / "ppo-residual-idm-none-seed0.json").write_text('{"policy": "pp')
+    result = agents.run_experiment(AgentsConfig(modes=("none", "truth"), seeds=(0,), steps=128, n_steps=64,
+                                                batch_size=64, eval_seeds=(1000,), baselines=("hold-speed",)),
+                                   out, log=lambda *_: None)
+    assert result.ran == ["ppo-residual-idm-none-seed0"]
+    assert result.skipped == ["baseline-hold-speed", "ppo-residual-idm-truth-seed0"]
+    result = agents.run_experiment(AgentsConfig(modes=("truth",), seeds=(0,), steps=128, n_steps=64, batch_size=64,
+                                                eval_seeds=(1000, 1001), baselines=("hold-speed",)),
+                                   out, log=lambda *_: None)
+    assert result.ran == ["baseline-hold-speed", "ppo-residual-idm-truth-seed0"]  # other evaluation seeds: redone
+    # a run with the direct action joins the same directory and, evaluated alike, the same table
+    cfg = AgentsConfig(modes=("none",), action="direct", seeds=(0,), steps=64, n_steps=64, batch_size=64,
+                       eval_seeds=(1000, 1001), baselines=("hold-speed",))
+    result = agents.run_experiment(cfg, out, log=lambda *_: None)
+    agents.write_results(cfg, result, out, "test")
+    table = pd.read_csv(out / "table.csv")
+    assert list(table["policy"]) == ["hold-speed", "ppo direct (none)", "ppo residual-idm (truth)"]
+    assert not list(scratch.glob("SB3-*"))  # SB3's logger made no folder in the temporary directory
