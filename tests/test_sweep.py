@@ -178,9 +178,16 @@ two = { "tracks desired speed" = 1.0, "minimises acceleration" = 2.0, "no prefer
 def test_default_config_reproduces_the_papers_experiments():
     cfg = default_config()
     scen = {c.scenario for c in cfg.cells}
-    assert scen == {"synthetic", "passage"}
-    assert len(cfg.cells) == 83 and len({c.key("v") for c in cfg.cells}) == 79  # 4 cells shared by two blocks
-    syn = {(c.protocol_label, c.learner_label): c for c in cfg.cells if c.scenario == "synthetic"}
+    assert scen == {"synthetic", "passage", "sumo", "highway"}
+    assert {c.seed for c in cfg.cells} == {0, 1, 2}
+    paper = [c for c in cfg.cells if c.scenario in ("synthetic", "passage")]
+    assert len(paper) == 3 * 83 and len({c.key("v") for c in paper}) == 3 * 79  # 4 cells shared by two blocks
+    sims = [c for c in cfg.cells if c.scenario in ("sumo", "highway")]
+    assert len(sims) == 2 * 6 * 3
+    receding = [c for c in sims if c.learner_params.get("likelihood") == "receding"]
+    assert receding and all(c.learner_params["horizon"] == c.scenario_params["horizon"] for c in receding)
+    assert {c.learner for c in sims} == {"cv", "ca", "tirl", "pirl-gmm", "pirl-knn"}
+    syn = {(c.protocol_label, c.learner_label): c for c in cfg.cells if c.scenario == "synthetic" and c.seed == 0}
     assert syn[("paper", "PIRL-GMM (k=2)")].learner_params["random_state"] == 0
     assert {c.k for c in cfg.cells if c.experiment == "synthetic" and c.learner == "pirl-knn"} == {
         1, 2, 3, 5, 8, 13, 21, 34, 55, 89}
@@ -375,7 +382,7 @@ def test_cli_sweep_report_and_dry_run(tmp_path, capsys):
 
 def test_default_config_dry_run(capsys, tmp_path):
     assert sweep_main(["sweep", "--dry-run", "--out", str(tmp_path)]) == 0
-    assert "sweep 'paper' (<default>): 83 cells (79 distinct)" in capsys.readouterr().out
+    assert "sweep 'paper' (<default>): 285 cells (273 distinct)" in capsys.readouterr().out
 
 
 def test_store_ignores_foreign_files(tmp_path):

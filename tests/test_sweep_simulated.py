@@ -142,3 +142,28 @@ def test_baselines_predict_constant_velocity_and_acceleration():
 
     with pytest.raises(ValueError, match="needs an acceleration"):
         ConstantAcceleration(model=synthetic_model()).fit()
+
+
+def test_ci95_is_the_student_t_half_width():
+    from pirl_sim.sweep.report import ci95
+
+    assert np.isnan(ci95([1.0])) and np.isnan(ci95([]))
+    # n = 3, sd = 1: t(0.975, 2) = 4.3027 -> 4.3027 / sqrt(3)
+    assert ci95([1.0, 2.0, 3.0]) == pytest.approx(4.302653 / np.sqrt(3), rel=1e-5)
+    assert ci95([1.0, np.nan, 3.0, 2.0]) == pytest.approx(4.302653 / np.sqrt(3), rel=1e-5)
+
+
+@pytest.mark.slow
+def test_report_of_a_simulator_sweep_has_intervals_and_weight_tables(tmp_path):
+    from pirl_sim.sweep import write_report
+
+    text = SUMO.replace("seeds = [0]", "seeds = [0, 1]").replace(
+        'learners = ["cv", "ca", { name = "tirl", grid = { likelihood = ["trajectory", "receding"] }, params = { step_stride = 2 } }]',
+        'learners = ["cv", { name = "tirl", params = { likelihood = "receding", step_stride = 2 } }]')
+    run = run_sweep(_config(text), tmp_path, workers=0, progress=False)
+    assert not run.failed and len(run.simulated) == 2  # one run per seed
+    write_report(tmp_path)
+    md = (tmp_path / "README.md").read_text()
+    assert "## sumo" in md and " ± " in md
+    assert "| TIRL | speed_dev |" in md.replace("rolling (history 10, horizon 20 steps) | ", "")
+    assert "Median abs log error per true style" in md

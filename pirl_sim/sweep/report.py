@@ -14,8 +14,10 @@ gives the same bytes):
   feature in every panel, when the scenario knows the truth;
 
 Legends sit below the panels, outside every axes, so that none covers data.
-- ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI), whether
-  the paper's ordering MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) holds, timings and the figures.
+- ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI: the mean
+  over seeds and, with several seeds, its 95 % confidence interval, mean ± t(0.975, n-1) s / sqrt(n)), weight
+  recovery per feature and per style where the sweep has it (``weights.csv``), whether the paper's ordering
+  MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) holds, timings and the figures.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from pirl_sim.harness.tables import markdown
 from .run import read_table
 
 __all__ = ["write_report", "summary_table", "best_variants", "med_vs_k_figure", "learners_side_by_side_figure",
-           "recovery_figure"]
+           "recovery_figure", "ci95", "weights_summary"]
 
 _K_IN_LABEL = re.compile(r"k=[^,)]+(, )?")
 
@@ -47,8 +49,21 @@ def _base_label(label: str) -> str:
     return out.replace(", )", ")")
 
 
+def ci95(values) -> float:
+    """Half-width of the 95 % confidence interval of the mean of ``values`` (Student t, n - 1 degrees of
+    freedom; NaN values ignored); NaN for fewer than two values."""
+    from scipy.stats import t as student
+
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if len(v) < 2:
+        return math.nan
+    return float(student.ppf(0.975, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
+
+
 def summary_table(table: pd.DataFrame) -> pd.DataFrame:
-    """Mean (and std) over seeds per experiment, scenario variant, protocol and learner variant, table order."""
+    """Mean (and std, 95 % interval half-widths ``*_ci``) over seeds per experiment, scenario variant, protocol
+    and learner variant, table order."""
     keys = ["experiment", "scenario_label", "protocol", "learner_label"]
     t = table.copy()
     t["learner_base"] = [_base_label(x) for x in t["learner_label"]]
@@ -58,8 +73,28 @@ def summary_table(table: pd.DataFrame) -> pd.DataFrame:
         learner=("learner", "first"), learner_base=("learner_base", "first"), k=("k", "first"),
         med=("med", "mean"), med_sd=("med", "std"), fde=("fde", "mean"), weight_error=("weight_error", "mean"),
         ari=("ari", "mean"), n_styles=("n_styles", "mean"), seeds=("seed", "nunique"), cell_s=("cell_s", "sum"),
+        med_ci=("med", ci95), fde_ci=("fde", ci95), weight_error_ci=("weight_error", ci95), ari_ci=("ari", ci95),
     )
     return agg.reset_index()
+
+
+def weights_summary(weights: pd.DataFrame) -> pd.DataFrame:
+    """``weights.csv`` averaged over seeds per experiment, scenario variant, protocol, learner, feature and style:
+    means and 95 % interval half-widths (``*_ci``) of the median and 90th-percentile |log error| and Spearman."""
+    keys = ["experiment", "scenario_label", "protocol", "learner_label", "feature", "style"]
+    agg = weights.groupby(keys, sort=False).agg(
+        median=("median_abs_log_err", "mean"), median_ci=("median_abs_log_err", ci95),
+        p90=("p90_abs_log_err", "mean"), p90_ci=("p90_abs_log_err", ci95),
+        spearman=("spearman", "mean"), spearman_ci=("spearman", ci95), seeds=("seed", "nunique"))
+    return agg.reset_index()
+
+
+def _pm(mean, ci) -> str:
+    """'mean ± ci' (just the mean without an interval)."""
+    m = _fmt(mean)
+    if not m or ci is None or not np.isfinite(ci):
+        return m
+    return f"{m} ± {ci:.2g}"
 
 
 def best_variants(summary: pd.DataFrame) -> pd.DataFrame:
@@ -295,6 +330,10 @@ def _orderings(best: pd.DataFrame) -> list[str]:
     return lines
 
 
+#: scenarios whose experiments report weight recovery per feature and style (drivers of known weights)
+WEIGHT_SCENARIOS = ("sumo", "highway")
+
+
 def write_report(results, out_dir=None) -> dict:
     """Draw the figures and write ``README.md`` for a sweep's results (see module doc).
 
@@ -351,21 +390,46 @@ def write_report(results, out_dir=None) -> dict:
         "",
         "MED [m]: mean over test trajectories of the mean distance between predicted and true positions; FDE [m]: "
         "final displacement; weight error: median |log(inferred / true)| of the normalised weights; ARI: "
-        "adjusted Rand index of the training clusters against the true styles. Means over seeds (std when "
-        "several).",
+        "adjusted Rand index of the training clusters against the true styles. Means over seeds, with several "
+        "seeds ± the half-width of the mean's 95 % confidence interval (Student t); every seed's numbers are in "
+        "`table.csv`. CV / CA: constant velocity / constant acceleration along the path (no weights).",
         "",
     ]
+    weights = None
+    weight_experiments = set(table.loc[table["scenario"].isin(WEIGHT_SCENARIOS), "experiment"])
+    if (res_dir / "weights.csv").exists():
+        weights = pd.read_csv(res_dir / "weights.csv")
+        weights = weights[weights["key"].isin(set(table["key"]))]
+        weights = weights_summary(weights) if len(weights) else None
     for exp, g in summary.groupby("experiment", sort=False):
         lines += [f"## {exp}", ""]
-        cols = {"scenario_label": "scenario", "protocol": "protocol", "learner_label": "learner", "med": "MED [m]",
-                "med_sd": "MED std over seeds", "fde": "FDE [m]", "weight_error": "weight error", "ari": "ARI",
-                "n_styles": "styles", "seeds": "seeds"}
-        view = g[list(cols)].rename(columns=cols)
-        if g["seeds"].max() <= 1:
-            view = view.drop(columns=["MED std over seeds"])
+        view = pd.DataFrame({"scenario": g["scenario_label"], "protocol": g["protocol"],
+                             "learner": g["learner_label"]})
+        for col, name in (("med", "MED [m]"), ("fde", "FDE [m]"), ("weight_error", "weight error"), ("ari", "ARI")):
+            view[name] = [_pm(m, c) for m, c in zip(g[col], g[f"{col}_ci"])]
+        view["styles"] = [_fmt(x) for x in g["n_styles"]]
+        view["seeds"] = g["seeds"].to_numpy()
         if view["scenario"].nunique() == 1:
             view = view.drop(columns=["scenario"])
         lines += [markdown(view, _fmt), ""]
+        w = None if weights is None else weights[weights["experiment"] == exp]
+        if w is not None and len(w) and exp in weight_experiments:
+            overall = w[w["style"] == "all"]
+            wv = pd.DataFrame({"scenario": overall["scenario_label"], "protocol": overall["protocol"],
+                               "learner": overall["learner_label"], "feature": overall["feature"],
+                               "median abs log error": [_pm(m, c) for m, c in zip(overall["median"], overall["median_ci"])],
+                               "p90 abs log error": [_pm(m, c) for m, c in zip(overall["p90"], overall["p90_ci"])],
+                               "Spearman": [_pm(m, c) for m, c in zip(overall["spearman"], overall["spearman_ci"])]})
+            if wv["scenario"].nunique() == 1:
+                wv = wv.drop(columns=["scenario"])
+            per_style = w[w["style"] != "all"].pivot_table(
+                index=["protocol", "learner_label", "feature"], columns="style", values="median", sort=False)
+            lines += ["Weight recovery per feature over the test histories (normalised weights, jerk_sq = 1 for the "
+                      "simulators): median and 90th percentile of |log(inferred / true)|, Spearman of true vs "
+                      "inferred; means over seeds ± 95 % interval (`weights.csv`).", "", markdown(wv, _fmt), ""]
+            if len(per_style):
+                ps = per_style.reset_index().rename(columns={"learner_label": "learner"})
+                lines += ["Median abs log error per true style (mean over seeds):", "", markdown(ps, _fmt), ""]
         order = _orderings(best[best["experiment"] == exp])
         if order:
             lines += ["Orderings (best k of each learner):", "", *order, ""]
