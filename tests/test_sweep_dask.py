@@ -1,4 +1,5 @@
-"""The same sweep through a Dask LocalCluster of 2 workers (loopback) gives the local run's table (issue 7)."""
+"""The same sweep through a Dask LocalCluster of 2 workers (loopback) gives the local run's table (issue 7), a
+SUMO simulation included (issue 13)."""
 
 import pandas as pd
 import pytest
@@ -24,6 +25,13 @@ scenario = "passage"
 params = { n_trajectories = 40, n_train = 30 }
 protocols = [{ kind = "rolling", history_steps = 10, horizon = 15, stride = 5 }]
 learners = ["tirl", { name = "pirl-knn", params = { n_neighbors = 3 } }]
+
+[[experiments]]
+scenario = "sumo"
+seeds = [0]
+params = { n_vehicles = 8, depart_interval = 3.0 }
+protocols = [{ kind = "rolling", history_steps = 10, horizon = 10, stride = 20 }]
+learners = ["ca", { name = "tirl", params = { likelihood = "receding", step_stride = 4 } }]
 """
 
 
@@ -44,7 +52,8 @@ def test_dask_local_cluster_gives_the_local_table(tmp_path):
         ran_dask = run_sweep(config, tmp_path / "dask", executor=ex, progress=False)
         hosts = {(r["worker"]["host"], r["worker"]["pid"]) for r in _records(tmp_path / "dask")}
     assert not ran_local.failed and not ran_dask.failed
-    assert len(ran_dask.computed) == len(config.cells) == 20
+    assert len(ran_dask.computed) == len(config.cells) == 22
+    assert len(ran_dask.simulated) == len(ran_local.simulated) == 1  # the SUMO run, on a Dask worker
     assert len(hosts) == 2  # both Dask workers ran cells
     pd.testing.assert_frame_equal(_scores(ran_dask.table), _scores(ran_local.table))
     local_csv = pd.read_csv(tmp_path / "local" / "table.csv").drop(columns=list(TIMING_COLUMNS))
