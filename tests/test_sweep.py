@@ -382,7 +382,9 @@ def test_cli_sweep_report_and_dry_run(tmp_path, capsys):
 
 def test_default_config_dry_run(capsys, tmp_path):
     assert sweep_main(["sweep", "--dry-run", "--out", str(tmp_path)]) == 0
-    assert "sweep 'paper' (<default>): 285 cells (273 distinct)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "sweep 'paper' (<default>): 285 cells (273 distinct), 0 already in" in out
+    assert "273 to run and 6 simulations (code" in out  # SUMO and highway-env, 3 seeds each
 
 
 def test_store_ignores_foreign_files(tmp_path):

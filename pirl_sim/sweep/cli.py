@@ -80,12 +80,17 @@ def run_sweep_command(args) -> int:
     if args.dry_run:
         from .store import ResultStore, code_version
 
+        from .run import _simulations
+
         version = code_version()
-        keys = {c.key(version) for c in config.cells}
+        unique = {c.key(version): c for c in reversed(config.cells)}
+        keys = set(unique)
         store = ResultStore(args.out)
         stored = {k for k in keys & store.finished() if store.load(k) is not None}  # a damaged file runs again
+        sims, _ = _simulations(unique, [k for k in unique if k not in stored], store, version)
+        sim_part = f" and {len(sims)} simulation{'s' if len(sims) != 1 else ''}" if sims else ""
         print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(keys)} distinct), "
-              f"{len(stored)} already in {args.out}/, {len(keys) - len(stored)} to run (code {version})")
+              f"{len(stored)} already in {args.out}/, {len(keys) - len(stored)} to run{sim_part} (code {version})")
         return 0
     try:
         run = run_sweep(config, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.quiet,
