@@ -133,16 +133,22 @@ def test_unfitted_or_foreign_learners_are_rejected():
 def test_sumo_backend_observations_pass_the_checkers(mode):
     pytest.importorskip("traci")
     env = gym.make(ENV_ID, config={"backend": "sumo", "style_observation": mode, "sumo_binding": "traci",
-                                   "warmup": 5.0})
+                                   "warmup": 5.0, "reward": "exit"})
     check_env(env.unwrapped)
     sb3 = pytest.importorskip("stable_baselines3.common.env_checker")
     sb3.check_env(gym.wrappers.FlattenObservation(env), warn=True)
     obs, info = env.reset(seed=1)
+    w = env.unwrapped.config["exit_reward"]
     for _ in range(10):
-        obs, _, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        obs, reward, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        t = info["rewards"]  # the exit reward on SUMO: the same terms
+        assert reward == pytest.approx(t["progress_time"] - t["time"] - w["comfort"] * t["comfort_time"]
+                                       - w["near_miss"] * t["near_miss_time"] - w["collision"] * t["collision"]
+                                       + w["arrival"] * t["arrival"])
         if terminated or truncated:
             break
     assert obs.shape == env.observation_space.shape and env.observation_space.contains(obs)
+    assert info["time"] == pytest.approx(env.unwrapped.time)
     if mode == "truth":
         for row, is_pirl, theta in zip(obs[1:], info["neighbour_is_pirl"], info["neighbour_theta"]):
             expected = style_columns_of_weights(theta) if is_pirl else np.zeros(3)
