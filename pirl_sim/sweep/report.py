@@ -139,12 +139,22 @@ def med_vs_k_figure(summary: pd.DataFrame):
     for ax, (scen, base) in zip(axes, panels):
         values = []
         learner = None
+        groups = []
         for proto in [p for sc, lb, p in multi.index if (sc, lb) == (scen, base)]:
             g = s[(s["scenario_label"] == scen) & (s["learner_base"] == base) & (s["protocol"] == proto)]
-            g = g.sort_values("k")
+            groups.append((proto, g.sort_values("k")))
+        # a log axis cannot show mean - std <= 0: such bars end at the panel's lowest positive value
+        floor = min((v for _, g in groups for v in (*g["med"], *(g["med"] - g["med_sd"].fillna(0.0)))
+                     if v == v and v > 0), default=None)
+        for proto, g in groups:
             learner = g["learner"].iloc[0]
             several = g["seeds"].max() > 1
-            yerr = g["med_sd"] if several else None
+            yerr = None
+            if several:
+                sd = g["med_sd"].fillna(0.0).to_numpy()
+                med = g["med"].to_numpy()
+                lower = np.where(med - sd > 0, sd, med - floor) if floor is not None else sd
+                yerr = [lower, sd]
             ax.errorbar(g["k"], g["med"], yerr=yerr, marker="o", ms=4, capsize=3, color=colors[proto], label=proto)
             low = g["med"] - (g["med_sd"].fillna(0.0) if several else 0.0)
             values += [v for v in (*g["med"], *(g["med"] + (g["med_sd"].fillna(0.0) if several else 0.0)),
@@ -165,7 +175,8 @@ def med_vs_k_figure(summary: pd.DataFrame):
         ax.set_title(f"{scen}: {base}", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
     handles = [pyplot().Line2D([], [], color=c, marker="o", ms=4, label=p) for p, c in colors.items()]
-    fig.suptitle("MED vs k (mean over seeds; bars: std over seeds)", fontsize=10)
+    fig.suptitle("MED vs k (mean over seeds; bars: std over seeds, cut at the panel's lowest value where the "
+                 "std exceeds the mean)", fontsize=10)
     legend_below(fig, handles, list(colors))
     return fig
 
