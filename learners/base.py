@@ -158,6 +158,7 @@ class BaseLearner(BaseEstimator):
             prior=prior,
             log_bounds=self.log_bounds,
             hessian=hessian,
+            max_iter=int(getattr(self, "irl_max_iter", 100)),
         )
 
     # ------------------------------------------------------------------ public API

@@ -70,6 +70,7 @@ def test_state_features_enter_the_look_up():
     ({"window": 10, "state_features": (2,)}, ValueError, "state_features"),
     ({"window": 10, "state_features": 1}, TypeError, "state_features"),
     ({"target": "next", "window": 30, "target_steps": 30}, ValueError, "no training trajectory"),
+    ({"window": 10, "irl_max_iter": 0}, ValueError, "irl_max_iter"),
 ])
 def test_bad_next_parameters_name_the_value(params, error, match):
     model = synthetic_model()

@@ -436,7 +436,7 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         if hindsight:
             t0 = time.perf_counter()
             futures = [test[i].window(step, step + proto.horizon) for i, step in windows]
-            oracle = make_learner("pirl-knn", model=model, n_neighbors=1)
+            oracle = make_learner("pirl-knn", model=model, n_neighbors=1, irl_max_iter=400)
             diag = _fit_with_diagnostics(lambda: oracle.fit(futures))
             del diag["learner"]
             fit_s = time.perf_counter() - t0

@@ -252,7 +252,7 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps
             if horizon_steps is None:
                 raise ValueError(f"{NEXT_KNN} needs the prediction horizon in steps")
             nxt = {"target": "next", "target_steps": int(horizon_steps), "state_features": (1, 2),
-                   "aggregate": "futures"}  # (1, 2): speed and acceleration along the path
+                   "aggregate": "futures", "irl_max_iter": 400}  # (1, 2): speed and acceleration along the path
             specs += [(f"PIRL-kNN next (k={n})", "pirl-knn", {"n_neighbors": n, "stride": 2, **nxt, **knn_prior,
                                                               **irl}) for n in knn_ks]
         else:
