@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pirl_sim.harness.replay_cli import seconds_to_steps
+from pirl_sim.progress import reporter
 from pirl_sim.validation import positive_float_arg, positive_int_arg, seed_arg
 
 __all__ = ["add_model_parsers", "run_fit_model_command", "run_predict_command", "rebind_model", "LEARNER_KEYS"]
@@ -110,7 +111,7 @@ def _load_scene(args, dt: float, say, receding: bool = False):
 
 
 def _say(args):
-    return (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    return reporter(not args.quiet)
 
 
 def run_fit_model_command(args) -> int:

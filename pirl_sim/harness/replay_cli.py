@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pirl_sim.progress import reporter
 from pirl_sim.validation import positive_float_arg, positive_int_arg
 
 __all__ = ["add_replay_parser", "run_replay_command", "replay_settings", "seconds_to_steps"]
@@ -266,7 +267,7 @@ def run_replay_command(args) -> int:
     from pirl_sim.io.interaction import find_track_files
     from pirl_sim.scenarios.replay import load_replay
 
-    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    say = reporter(not args.quiet)
     if args.table is not None:
         return _run_table(args, say)
     if args.tracks is None or args.map is None:

@@ -9,7 +9,6 @@ Outputs (all from one seeded run; same seed, same bytes):
 
 from __future__ import annotations
 
-import sys
 import time
 import warnings
 from dataclasses import asdict, replace
@@ -21,6 +20,7 @@ from pirl_sim.harness import figures
 from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate, style_agreement
 from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+from pirl_sim.progress import reporter
 from pirl_sim.validation import check_output_dir
 
 __all__ = ["PAPER_SYNTHETIC_MED", "reproduce_synthetic"]
@@ -70,7 +70,7 @@ def reproduce_synthetic(out_dir, config=None, *, history_steps: int = 10, knn_ks
     out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
     knn_ks = tuple(k for k in knn_ks if k <= config.n_train)
     protocols = [PAPER_PROTOCOL, Protocol("online", history_steps)]
-    say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda msg: None)
+    say = reporter(progress)
 
     data = generate(config)
     say(f"[1/3] generated {len(data.train)} training and {len(data.test)} test trajectories (seed {config.seed})")
@@ -168,7 +168,7 @@ def reproduce_passage(out_dir, config=None, *, history_steps: int = 10, horizon:
 
     config = PassageConfig() if config is None else config
     out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
-    say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda msg: None)
+    say = reporter(progress)
     protocols = [
         PAPER_PROTOCOL,
         Protocol("online", history_steps),

@@ -54,6 +54,7 @@ from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate, styl
 from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.metrics import match_styles, weight_recovery_error
+from pirl_sim.progress import reporter
 from pirl_sim.validation import check_output_dir
 
 __all__ = ["run_study", "main", "lq_three_styles", "futures_figure"]
@@ -300,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    say = reporter(not args.quiet)
     figures: dict = {}
     table = run_study(args.seed, say, figures)
     for name, png in figures.items():
