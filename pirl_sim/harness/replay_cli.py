@@ -257,7 +257,9 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps
             specs += [(f"PIRL-kNN next (k={n})", "pirl-knn", {"n_neighbors": n, "stride": 2, **nxt, **knn_prior,
                                                               **irl}) for n in knn_ks]
         else:
-            specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, "stride": 2, **knn_prior, **irl}) for n in knn_ks]
+            # irl_max_iter 400: on DR_USA_Roundabout_FT 1-2 of ~730 per-demo fits needed more than 100 (x5)
+            specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, "stride": 2, "irl_max_iter": 400, **knn_prior,
+                                                **irl}) for n in knn_ks]
     return specs
 
 
