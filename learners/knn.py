@@ -33,6 +33,8 @@ neighbours who will stop and ones who will go have costs whose average does neit
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 from sklearn.neighbors import NearestNeighbors
 from sklearn.preprocessing import StandardScaler
@@ -223,6 +225,37 @@ class PIRLKNN(BaseLearner):
                                                                        for t in trajectories]))))
             first = self.window is not None and self.windows == "first"
             self.episode_steps_ = int(min(t.n_steps for t in trajectories)) if first else None
+
+    def with_neighbors(self, n_neighbors: int) -> PIRLKNN:
+        """This fitted learner with another number of neighbours k, without refitting its IRL.
+
+        Everything PIRL-kNN learns except its nearest-neighbour index is independent of k (the IRL result and
+        per-demonstration weights, the look-up samples and their owners, the feature scaling): the copy shares
+        those and gets a new index over the same look-up points, built as `fit` builds it. Its predictions are
+        identical to fitting with ``n_neighbors`` (tested); a sweep over k fits once.
+
+        Parameters
+        ----------
+        n_neighbors : int, at most the number of look-up samples
+
+        Returns
+        -------
+        PIRLKNN
+            A shallow copy (fitted arrays shared, not copied); this learner is not changed.
+        """
+        from sklearn.base import clone
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self, "neighbors_")
+        if not is_positive_int(n_neighbors):
+            raise ValueError(f"n_neighbors must be a positive integer, got {n_neighbors!r}")
+        Z = self.neighbors_._fit_X  # the look-up samples in the learner's (standardised) feature space
+        if n_neighbors > len(Z):
+            raise ValueError(f"n_neighbors={n_neighbors} is larger than the number of training samples ({len(Z)})")
+        out = copy.copy(self)
+        out.n_neighbors = n_neighbors
+        out.neighbors_ = clone(self.neighbors_).set_params(n_neighbors=int(n_neighbors)).fit(Z)
+        return out
 
     def _lookup(self, histories) -> np.ndarray:
         return self.scaler_.transform(self._lookup_values(self.model_, self._query_windows(histories)))

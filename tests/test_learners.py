@@ -142,3 +142,26 @@ def test_bad_training_data_raises(small):
         TIRL().fit([wrong_dt])
     with pytest.raises(ValueError, match="unknown learner 'svm'"):
         make_learner("svm")
+
+
+@pytest.mark.parametrize("options", [{}, {"window": 10, "windows": "first", "weighting": "likelihood"}])
+def test_knn_with_neighbors_equals_refitting(small, options):
+    base = PIRLKNN(n_neighbors=1, **options).fit(small.train)
+    test = small.test[:12]
+    histories = [t.window(0, 10) for t in test] if options else test
+    for k in (2, 7):
+        refit = PIRLKNN(n_neighbors=k, **options).fit(small.train)
+        derived = base.with_neighbors(k)
+        assert derived.get_params()["n_neighbors"] == k and base.n_neighbors == 1
+        assert derived.irl_result_ is base.irl_result_ and derived.scaler_ is base.scaler_  # shared, not refitted
+        np.testing.assert_array_equal(derived.infer_weights(histories), refit.infer_weights(histories))
+        np.testing.assert_array_equal(derived.predict_states(histories, 5), refit.predict_states(histories, 5))
+        for a, b in zip(derived.predict_futures(histories, 5), refit.predict_futures(histories, 5)):
+            np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(base.infer_weights(histories), PIRLKNN(**options).fit(small.train).infer_weights(histories))
+    with pytest.raises(ValueError, match="larger than the number of training samples"):
+        base.with_neighbors(10_000)
+    with pytest.raises(ValueError, match="positive integer"):
+        base.with_neighbors(0)
+    with pytest.raises(NotFittedError):
+        PIRLKNN().with_neighbors(2)

@@ -408,3 +408,44 @@ def test_sweep_tests_leave_the_process_multi_threaded():
     assert {f: n for f, n in now.items() if f in _THREADS_AT_START} == _THREADS_AT_START
     assert os.environ.get("OPENBLAS_NUM_THREADS") == _OPENBLAS_ENV_AT_START
     assert not cell_module._THREADS_LIMITED
+
+
+# ---------------------------------------------------------------------------------------------- k-grid
+def test_knn_k_grid_runs_as_one_fit_with_each_cells_own_numbers(tmp_path, monkeypatch):
+    """PIRL-kNN cells that differ only in k run as one task (one IRL fit, `PIRLKNN.with_neighbors`); every
+    cell's stored result equals the cell run on its own, warnings included; a k larger than the training set
+    (which the config check rejects) fails alone."""
+    from pirl_sim.learners import PIRLKNN
+    from pirl_sim.sweep.cell import knn_group, run_cells
+    from pirl_sim.sweep.run import _tasks
+
+    text = TINY.replace("seeds = [0, 1]", "seeds = [0]").replace("n_neighbors = [1, 4]", "n_neighbors = [4, 1]")
+    cfg = _config(text)
+    knn = [c for c in cfg.cells if c.learner == "pirl-knn" and c.protocol["kind"] == "online"]
+    assert [c.k for c in knn] == [4, 1] and len({knn_group(c.spec()) for c in knn}) == 1
+    assert knn_group(cfg.cells[0].spec()) is None  # TIRL
+    unique = {c.key("v"): c for c in cfg.cells}
+    tasks = _tasks(unique, list(unique))
+    assert sorted(len(t) for t in tasks) == [1, 1, 1, 1, 2, 2]
+    assert [unique[k].k for k in next(t for t in tasks if len(t) == 2)] == [1, 4]
+
+    fits = []
+    real_fit = PIRLKNN.fit
+    monkeypatch.setattr(PIRLKNN, "fit", lambda self, *a, **kw: fits.append(self.n_neighbors) or real_fit(self, *a, **kw))
+    specs = [c.spec() for c in sorted(knn, key=lambda c: c.k)]
+    specs.append({**specs[0], "learner_params": {**specs[0]["learner_params"], "n_neighbors": 61}})
+    with single_threaded():
+        together = run_cells(specs)
+        assert fits == [1]
+        alone = [run_cell(s) for s in specs[:2]]
+    assert together[2] == {"error": "ValueError: n_neighbors=61 is larger than the number of training samples (60)"}
+    for a, b in zip(alone, together):
+        assert a["scores"] == b["scores"] and a["recovery"] == b["recovery"] and a["weights"] == b["weights"]
+        assert a["warnings"] == b["warnings"]
+    with pytest.raises(ValueError, match="differ only in n_neighbors"):
+        run_cells([cfg.cells[0].spec(), specs[0]])
+
+    run = run_sweep(cfg, tmp_path, workers=0, progress=False)
+    assert len(run.computed) == 8 and not run.failed
+    table = run.table.set_index("learner_label")
+    assert set(table.index) == {"TIRL", "PIRL-GMM (k=2)", "PIRL-kNN (k=1)", "PIRL-kNN (k=4)"}

@@ -44,7 +44,6 @@ were as large as the split-to-split noise, so a single split proves nothing.
 
 from __future__ import annotations
 
-import copy
 import time
 import warnings
 from dataclasses import dataclass
@@ -271,34 +270,9 @@ def _fit_with_diagnostics(fit) -> dict:
 
 
 def knn_with_neighbors(fitted, n_neighbors: int):
-    """A fitted PIRL-kNN learner with another number of neighbours, without refitting its IRL.
-
-    Everything PIRL-kNN learns except its nearest-neighbour index is independent of k (per-demonstration
-    weights, look-up samples, feature scaling): the copy shares those and gets a new index over the same
-    samples, built as the learner builds it. Predictions are identical to fitting with ``n_neighbors``.
-
-    Parameters
-    ----------
-    fitted : PIRLKNN, fitted
-    n_neighbors : int, at most the number of look-up samples
-
-    Returns
-    -------
-    PIRLKNN (a shallow copy; ``fitted`` is not changed)
-    """
-    from sklearn.base import clone
-    from sklearn.utils.validation import check_is_fitted
-
-    check_is_fitted(fitted, "neighbors_")
-    if not is_positive_int(n_neighbors):
-        raise ValueError(f"n_neighbors must be a positive integer, got {n_neighbors!r}")
-    Z = fitted.neighbors_._fit_X  # the look-up samples in the learner's feature space
-    if n_neighbors > len(Z):
-        raise ValueError(f"n_neighbors={n_neighbors} is larger than the number of training samples ({len(Z)})")
-    out = copy.copy(fitted)
-    out.n_neighbors = n_neighbors
-    out.neighbors_ = clone(fitted.neighbors_).set_params(n_neighbors=int(n_neighbors)).fit(Z)
-    return out
+    """A fitted PIRL-kNN learner with another number of neighbours, without refitting its IRL: ``fitted``'s
+    `PIRLKNN.with_neighbors` (a shallow copy; predictions identical to fitting with ``n_neighbors``)."""
+    return fitted.with_neighbors(n_neighbors)
 
 
 def _shared_knn_fits(learner_specs) -> dict[int, int]:

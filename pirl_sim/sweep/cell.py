@@ -8,6 +8,9 @@
   worker or machine runs it, and workers do not oversubscribe the cores.
 - **Same code everywhere.** A worker whose code version differs from the sweep's refuses the cell: its result
   would be stored under a key that claims other code.
+- **One fit per PIRL-kNN k-grid.** `run_cells` runs the PIRL-kNN cells that differ only in ``n_neighbors`` as
+  one task: the IRL, which does not depend on k, is fitted once and each k gets its own neighbour index
+  (`pirl_sim.learners.knn.PIRLKNN.with_neighbors`); each cell's result is what `run_cell` gives it alone.
 - **Data cache.** Scenario data is cached per process (the last `CACHE_SIZE` data sets, by scenario, parameters
   and seed): cells of one scenario on one worker generate it once. Generation is deterministic, so caching
   never changes a result, only ``generate_s``.
@@ -26,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_cell", "run_simulation", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE"]
+__all__ = ["run_cell", "run_cells", "knn_group", "run_simulation", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE"]
 
 CACHE_SIZE = 3  #: scenario data sets kept per worker process
 MAX_RECOVERY_POINTS = 200  #: test histories whose inferred weights are kept for the recovery scatter
@@ -293,6 +296,39 @@ def run_cell(spec: dict, code_version: str | None = None, store_root: str | None
         per style) or None; ``warnings``: distinct warning messages (of the data generation
         too, when this cell generated the data); ``worker``: host, pid.
     """
+    return _run_cells([spec], code_version, store_root, raise_errors=True)[0]
+
+
+def knn_group(spec: dict) -> str | None:
+    """What PIRL-kNN cells must share to run together in `run_cells` (their spec without ``n_neighbors``, as
+    JSON), or None for a cell of another learner."""
+    if spec["learner"] != "pirl-knn" or "n_neighbors" not in spec["learner_params"]:
+        return None
+    params = {k: v for k, v in spec["learner_params"].items() if k != "n_neighbors"}
+    return json.dumps({**spec, "learner_params": params}, sort_keys=True)
+
+
+def run_cells(specs: list[dict], code_version: str | None = None, store_root: str | None = None) -> list[dict]:
+    """Run PIRL-kNN cells that differ only in ``n_neighbors`` (`knn_group`) with one fit.
+
+    The first cell fits as `run_cell` does; the others take that fitted learner with their own k
+    (`pirl_sim.learners.knn.PIRLKNN.with_neighbors`: the k-independent IRL is shared, only the neighbour index
+    is rebuilt), which predicts exactly as a refit would, so every cell's scores equal `run_cell`'s. Their
+    ``n_warnings`` and ``warnings`` include the shared fit's warnings, as a refit's would; their ``fit_s`` is
+    the time to derive the learner. A cell that fails does not stop the others (a failed fit is retried by the
+    next cell).
+
+    Returns
+    -------
+    list of dict, one per spec in order: `run_cell`'s result, or ``{"error": "Type: message"}``
+    """
+    groups = {knn_group(s) for s in specs}
+    if len(specs) > 1 and (None in groups or len(groups) != 1):
+        raise ValueError("run_cells runs PIRL-kNN cells that differ only in n_neighbors")
+    return _run_cells(list(specs), code_version, store_root, raise_errors=False)
+
+
+def _run_cells(specs: list[dict], code_version: str | None, store_root: str | None, raise_errors: bool) -> list[dict]:
     t_cell, cpu_cell = time.perf_counter(), time.process_time()
     limit_threads()
     _check_version(code_version)
@@ -301,52 +337,81 @@ def run_cell(spec: dict, code_version: str | None = None, store_root: str | None
 
     from .baselines import BASELINES
 
-    protocol = Protocol(**spec["protocol"])
+    first = specs[0]
+    protocol = Protocol(**first["protocol"])
     t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as data_warnings:  # only on a cache miss: kept out of n_warnings
-        warnings.simplefilter("always")
-        data = _data(spec, store_root)
-    generate_s = time.perf_counter() - t0
-    test = [t for t in data.test if t.n_steps >= protocol.steps_needed()]
-    if not test:
-        need = protocol.steps_needed()
-        raise ValueError(f"no test trajectory has the {need} steps the {protocol.name} protocol needs")
-    params = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["learner_params"].items()}
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        learner = {**LEARNERS, **BASELINES}[spec["learner"]](model=data.model, **params, **protocol.learner_params())
-        t0 = time.perf_counter()
-        learner.fit(data.train)
-        fit_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        row = evaluate(learner, test, protocol)
-        evaluate_s = time.perf_counter() - t0
-        ari = style_agreement(learner, data.train)
-        recovery, weight_scores = _recovery(learner, test, protocol, data.model, data.style_names)
-    n_styles = getattr(learner, "n_styles_", 1 if spec["learner"] == "tirl" else None)
-    messages = []
-    for w in [*caught, *data_warnings]:
-        text = f"{w.category.__name__}: {w.message}"
-        if text not in messages and len(messages) < MAX_WARNING_MESSAGES:
-            messages.append(text)
-    scores = {
-        "med": _float(row["med"]),
-        "med_std": _float(row["med_std"]),
-        "fde": _float(row["fde"]),
-        "weight_error": _float(row.get("weight_error")),
-        "ari": _float(ari),
-        "n_styles": None if n_styles is None else int(n_styles),
-        "n_train": len(data.train),
-        "n_test": len(test),
-        "n_predictions": int(row.get("n_predictions", len(test))),
-        "n_warnings": len(caught),
-    }
-    return {
-        "scores": scores,
-        "timings": {"generate_s": generate_s, "fit_s": fit_s, "evaluate_s": evaluate_s,
-                    "cell_s": time.perf_counter() - t_cell, "cpu_s": time.process_time() - cpu_cell},
-        "recovery": recovery,
-        "weights": weight_scores,
-        "warnings": messages,
-        "worker": {"host": socket.gethostname(), "pid": os.getpid()},
-    }
+    try:
+        with warnings.catch_warnings(record=True) as data_warnings:  # only on a cache miss: kept out of n_warnings
+            warnings.simplefilter("always")
+            data = _data(first, store_root)
+        generate_s = time.perf_counter() - t0
+        test = [t for t in data.test if t.n_steps >= protocol.steps_needed()]
+        if not test:
+            need = protocol.steps_needed()
+            raise ValueError(f"no test trajectory has the {need} steps the {protocol.name} protocol needs")
+    except Exception as exc:
+        if raise_errors:
+            raise
+        return [{"error": f"{type(exc).__name__}: {exc}"} for _ in specs]
+    results = []
+    fitted, fit_warnings = None, []
+    charged = False  # the data's generation time and warnings go to the first cell that finishes
+    for spec in specs:
+        try:
+            params = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["learner_params"].items()}
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                t0 = time.perf_counter()
+                if fitted is None:
+                    learner = {**LEARNERS, **BASELINES}[spec["learner"]](
+                        model=data.model, **params, **protocol.learner_params())
+                    learner.fit(data.train)
+                    shared = []
+                else:  # the same fit with another k
+                    learner = fitted.with_neighbors(params["n_neighbors"])
+                    shared = fit_warnings
+                fit_s = time.perf_counter() - t0
+                if fitted is None and len(specs) > 1:
+                    fitted, fit_warnings = learner, list(caught)
+                t0 = time.perf_counter()
+                row = evaluate(learner, test, protocol)
+                evaluate_s = time.perf_counter() - t0
+                ari = style_agreement(learner, data.train)
+                recovery, weight_scores = _recovery(learner, test, protocol, data.model, data.style_names)
+            caught = [*shared, *caught]
+        except Exception as exc:
+            if raise_errors:
+                raise
+            results.append({"error": f"{type(exc).__name__}: {exc}"})
+            t_cell, cpu_cell = time.perf_counter(), time.process_time()
+            continue
+        n_styles = getattr(learner, "n_styles_", 1 if spec["learner"] == "tirl" else None)
+        messages = []
+        for w in [*caught, *([] if charged else data_warnings)]:
+            text = f"{w.category.__name__}: {w.message}"
+            if text not in messages and len(messages) < MAX_WARNING_MESSAGES:
+                messages.append(text)
+        scores = {
+            "med": _float(row["med"]),
+            "med_std": _float(row["med_std"]),
+            "fde": _float(row["fde"]),
+            "weight_error": _float(row.get("weight_error")),
+            "ari": _float(ari),
+            "n_styles": None if n_styles is None else int(n_styles),
+            "n_train": len(data.train),
+            "n_test": len(test),
+            "n_predictions": int(row.get("n_predictions", len(test))),
+            "n_warnings": len(caught),
+        }
+        results.append({
+            "scores": scores,
+            "timings": {"generate_s": 0.0 if charged else generate_s, "fit_s": fit_s, "evaluate_s": evaluate_s,
+                        "cell_s": time.perf_counter() - t_cell, "cpu_s": time.process_time() - cpu_cell},
+            "recovery": recovery,
+            "weights": weight_scores,
+            "warnings": messages,
+            "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+        })
+        charged = True
+        t_cell, cpu_cell = time.perf_counter(), time.process_time()  # the next cell's own time
+    return results

@@ -26,7 +26,7 @@ import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 
-from .cell import run_cell, run_simulation
+from .cell import knn_group, run_cells, run_simulation
 from .config import SweepConfig, canonical_json
 from .executors import make_executor
 from .progress import Progress
@@ -164,13 +164,21 @@ def run_sweep(
             bar.start()
             root = str(out.resolve())
 
-            def cell_done(k, fut):
-                nonlocal work_s, cpu_s
+            def cells_done(ks, fut):
                 try:
-                    res = fut.result()
+                    results = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a failing cell must not stop the others
-                    fail(k, f"{type(exc).__name__}: {exc}")
+                    for k in ks:
+                        fail(k, f"{type(exc).__name__}: {exc}")
                     return
+                for k, res in zip(ks, results):
+                    if "error" in res:
+                        fail(k, res["error"])
+                    else:
+                        cell_done(k, res)
+
+            def cell_done(k, res):
+                nonlocal work_s, cpu_s
                 record = {"key": k, "code_version": version, "cell": unique[k].spec(), "result": res["scores"],
                           "timings": res["timings"], "recovery": res["recovery"], "weights": res.get("weights"),
                           "warnings": res["warnings"], "worker": res["worker"], "finished_at": _now()}
@@ -187,19 +195,20 @@ def run_sweep(
                                       "code_version": version})
                 bar.update(failed=True)
 
-            def submit_cell(k):
-                return ex.submit(run_cell, unique[k].spec(), version, root)
+            def submit(ks):
+                return ex.submit(run_cells, [unique[k].spec() for k in ks], version, root)
 
-            # first: the simulations, and the cells that need none
+            # first: the simulations, and the cells that need none (PIRL-kNN cells differing only in k: one task)
+            tasks = _tasks(unique, todo)
             futures = {ex.submit(run_simulation, *sims[sk], str(store.simulation_dir(sk)), version): ("sim", sk)
                        for sk in sims}
-            futures.update({submit_cell(k): ("cell", k) for k in todo if k not in waiting})
+            futures.update({submit(ks): ("cells", ks) for ks in tasks if ks[0] not in waiting})
             sim_errors = {}
             try:
                 for fut in ex.as_completed(futures):
                     what, k = futures[fut]
-                    if what == "cell":
-                        cell_done(k, fut)
+                    if what == "cells":
+                        cells_done(k, fut)
                         continue
                     try:
                         fut.result()
@@ -208,15 +217,16 @@ def run_sweep(
                         sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
                 # then the cells that read the simulations
                 later = {}
-                for k in todo:
-                    if k in waiting:
-                        if waiting[k] in sim_errors:
-                            fail(k, sim_errors[waiting[k]])
+                for ks in tasks:
+                    if ks[0] in waiting:
+                        if waiting[ks[0]] in sim_errors:
+                            for k in ks:
+                                fail(k, sim_errors[waiting[k]])
                         else:
-                            later[submit_cell(k)] = ("cell", k)
+                            later[submit(ks)] = ("cells", ks)
                 futures.update(later)
                 for fut in ex.as_completed(later):
-                    cell_done(later[fut][1], fut)
+                    cells_done(later[fut][1], fut)
             except BaseException:
                 for f in futures:
                     f.cancel()
@@ -240,6 +250,25 @@ def run_sweep(
     _write_weights(config, keys, records, out)
     return SweepRun(out, table, computed, cached, failed, version, description,
                     time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated)
+
+
+def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
+    """The cells to run as tasks, in ``todo``'s order (of each task's first cell): PIRL-kNN cells that differ only
+    in ``n_neighbors`` form one task (`pirl_sim.sweep.cell.run_cells`: one IRL fit for the whole k-grid, smallest
+    k first), every other cell its own."""
+    tasks, by_group = [], {}
+    for k in todo:
+        group = knn_group(unique[k].spec())
+        if group is None:
+            tasks.append([k])
+        elif group in by_group:
+            by_group[group].append(k)
+        else:
+            by_group[group] = [k]
+            tasks.append(by_group[group])
+    for ks in tasks:
+        ks.sort(key=lambda k: unique[k].learner_params.get("n_neighbors", 0))
+    return tasks
 
 
 def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str):
