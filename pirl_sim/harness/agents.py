@@ -68,6 +68,7 @@ MODES = ("none", "truth", "inferred")  #: observation modes (the env's ``style_o
 ACTIONS = ("residual-idm", "direct")
 BASELINE_POLICIES = ("hold-speed", "idm", "mpc")  #: scripted egos (:data:`pirl_sim.envs.baselines.BASELINES`)
 ENV_ID = "pirl_sim/Roundabout-v0"
+DEFAULT_COMMAND = "python3 -m pirl_sim.harness.agents --out results/agents"  #: the committed experiment's command
 
 
 @dataclass(frozen=True)
@@ -288,8 +289,9 @@ def _runs(cfg: AgentsConfig) -> list[tuple[str, str, str, int]]:
     return out
 
 
-def run_experiment(cfg: AgentsConfig, out, *, log=print) -> ExperimentResult:
-    """Run (or resume) the experiment into ``out``/runs and return every record (see the module docstring)."""
+def run_experiment(cfg: AgentsConfig, out, *, log=print, command: str = DEFAULT_COMMAND) -> ExperimentResult:
+    """Run (or resume) the experiment into ``out``/runs and return every record (see the module docstring);
+    ``command`` is stored with each new run (the README lists the commands of its runs)."""
     runs_dir = Path(out) / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -318,7 +320,7 @@ def run_experiment(cfg: AgentsConfig, out, *, log=print) -> ExperimentResult:
                 result.learner_time_s = time.perf_counter() - t1
                 log(f"style learner fitted in {result.learner_time_s:.1f} s")
             record = _train_ppo(cfg, what, seed, learner)
-        record.update({"name": name, "key": key, "settings": settings})
+        record.update({"name": name, "key": key, "settings": settings, "command": command})
         atomic_write_text(path, json.dumps(record, indent=1, allow_nan=True) + "\n")
         result.records.append(record)
         result.ran.append(name)
@@ -500,10 +502,12 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
                                       max([r["settings"].get("steps", 0) for r in records] + [cfg.steps]))
     compute = sum(r["wall_time_s"] for r in records)
     ppo_times = [r["train_time_s"] for r in records if r["policy"].startswith("ppo")]
+    commands = list(dict.fromkeys(r.get("command", DEFAULT_COMMAND) for r in records))
     readme = [
         "# PPO against scripted egos on pirl_sim/Roundabout-v0 (exit reward)", "",
-        f"Command: `{command}`", "",
-        "Settings (`pirl_sim.harness.agents.AgentsConfig`):", "",
+        "Made by " + ", then ".join(f"`{c}`" for c in commands) + f" (tables last written by `{command}`).", "",
+        "Settings of the last invocation (`pirl_sim.harness.agents.AgentsConfig`; each run's own are in its "
+        "`runs/*.json`):", "",
         "```json", json.dumps({k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()}, indent=1),
         "```", "",
         "95 % intervals in brackets: returns, times to exit and near-miss times over the training seeds' means "
@@ -556,9 +560,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(str(exc))
     from pirl_sim.threads import blas_threads
 
-    command = "python3 -m pirl_sim.harness.agents " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
+    import sys
+
+    command = "python3 -m pirl_sim.harness.agents " + " ".join(argv if argv is not None else sys.argv[1:])
     with blas_threads(1):
-        result = run_experiment(cfg, args.out)
+        result = run_experiment(cfg, args.out, command=command.strip())
         files = write_results(cfg, result, args.out, command.strip())
     print(markdown_table(pd.read_csv(files["table"])))
     print(f"wrote {', '.join(str(p) for p in files.values())} ({result.wall_time_s:.0f} s)")
