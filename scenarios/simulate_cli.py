@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -21,9 +20,6 @@ from typing import Any
 from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
 
 __all__ = ["add_simulate_parser", "add_simulator_parser", "run_simulator", "ProgressBar"]
-
-_BAR_WIDTH = 30
-
 
 def add_simulate_parser(subparsers) -> argparse._SubParsersAction:
     """Add the ``simulate`` command to a ``parser.add_subparsers()`` object.
@@ -65,34 +61,29 @@ def add_simulator_parser(simulators, name: str, *, help: str, description: str, 
 
 
 class ProgressBar:
-    """A one-line progress bar on a stream (stderr by default): ``[#####.....]  50% | 120.0 s | 40/80 done``.
+    """The simulation's progress, ``progress(time_s, n_done, n_total)``, as a bar of vehicles done on a stream
+    (stderr by default), drawn by tqdm through `pirl_sim.progress.bar` with the simulated time and an ETA: on a
+    terminal redrawn in place; otherwise a line at most every ``every`` seconds."""
 
-    On a terminal the line is redrawn in place; otherwise a line is printed each time another tenth of the
-    vehicles is done.
-    """
-
-    def __init__(self, stream=None):
+    def __init__(self, stream=None, every: float = 5.0):
         self.stream = sys.stderr if stream is None else stream
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self._last_tenth = -1
+        self.every = every
+        self._bar = None
 
     def __call__(self, time_s: float, n_done: int, n_total: int) -> None:
-        frac = n_done / n_total if n_total else 1.0
-        filled = int(round(_BAR_WIDTH * frac))
-        line = (f"[{'#' * filled}{'.' * (_BAR_WIDTH - filled)}] {100 * frac:3.0f}% | {time_s:7.1f} s simulated | "
-                f"{n_done}/{n_total} vehicles done")
-        if self.tty:
-            self.stream.write("\r" + line)
-            self.stream.flush()
-        elif math.floor(10 * frac) > self._last_tenth:
-            self._last_tenth = math.floor(10 * frac)
-            self.stream.write(line + "\n")
-            self.stream.flush()
+        if self._bar is None:
+            from pirl_sim.progress import bar
+            from pirl_sim.sweep.progress import LineStream
+
+            stream = self.stream if self.tty else LineStream(self.stream)
+            self._bar = bar(n_total, "vehicles done", unit="veh", stream=stream, every=self.every)
+        self._bar.set_postfix_str(f"{time_s:.1f} s simulated", refresh=False)
+        self._bar.update(n_done - self._bar.n)
 
     def close(self) -> None:
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
+        if self._bar is not None:
+            self._bar.close()
 
 
 def run_simulator(args: argparse.Namespace, *, default_config: Callable[..., Any],

@@ -656,7 +656,9 @@ def run_recover_command(args) -> int:
     """Run the command parsed by :func:`add_recover_parser` (0 on success, 2 for a bad configuration)."""
     import sys
 
-    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    from pirl_sim.progress import reporter
+
+    say = reporter(not args.quiet)  # progress lines on stderr; the table on stdout
     sims = list(SIMULATORS) if args.simulator == "both" else [args.simulator]
     runs = args.runs if args.runs is not None else args.out / "runs"
     try:

@@ -1,11 +1,11 @@
-"""A progress bar with ETA on stderr: redrawn in place on a terminal, a line every few seconds otherwise."""
+"""The sweep's progress bar with ETA on stderr, drawn by tqdm through `pirl_sim.progress.bar` (the project's one
+progress library): redrawn in place on a terminal, a line every few seconds otherwise."""
 
 from __future__ import annotations
 
 import sys
-import time
 
-__all__ = ["Progress", "format_duration"]
+__all__ = ["Progress", "LineStream", "format_duration"]
 
 
 def format_duration(seconds: float) -> str:
@@ -20,6 +20,29 @@ def format_duration(seconds: float) -> str:
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
 
 
+class LineStream:
+    """A stream that turns tqdm's in-place redraws (``\\r`` + bar + padding) into one line each, for streams that
+    are not terminals (logs of CI jobs and ``nohup`` runs); blank redraws (tqdm clearing the bar) write nothing."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.muted = False
+        self._last = None
+
+    def write(self, text: str) -> int:
+        line = text.replace("\r", "").rstrip()
+        if line and not self.muted and line != self._last:
+            self.stream.write(line + "\n")
+            self._last = line
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def isatty(self) -> bool:
+        return False
+
+
 class Progress:
     """Cells done out of ``total``, with an ETA from the mean time per computed cell so far.
 
@@ -32,8 +55,6 @@ class Progress:
     every : float      [s] minimum time between lines when the stream is not a terminal
     """
 
-    WIDTH = 24
-
     def __init__(self, total: int, cached: int = 0, *, stream=None, enabled: bool = True, every: float = 5.0) -> None:
         self.total, self.cached = total, cached
         self.stream = sys.stderr if stream is None else stream
@@ -41,55 +62,52 @@ class Progress:
         self.every = every
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.computed = self.failed = 0
-        self.t0 = time.perf_counter()
-        self._last = -float("inf")
-        self._shown = False
+        self._bar = None
 
     def start(self) -> None:
-        """Restart the clock (after worker start-up) and draw the bar."""
-        self.t0 = time.perf_counter()
-        self._draw(force=True)
+        """Start the clock (after worker start-up) and draw the bar."""
+        from pirl_sim.progress import bar
+
+        if self._bar is not None:
+            self._bar.close()
+        stream = self.stream if self.tty else LineStream(self.stream)
+        if not self.tty:
+            stream.muted = True  # tqdm draws on creation: the first line has the counts below
+        self._bar = bar(self.total, "sweep", enabled=self.enabled, initial=self.done, unit="cell", stream=stream,
+                        every=self.every)
+        self._bar.smoothing = 0  # rate = computed cells / elapsed: cells from the store do not count for the ETA
+        self._bar.bar_format = "{desc} [{bar:24}] {n_fmt}/{total_fmt} cells{postfix}, elapsed {elapsed}, ETA {remaining}"
+        self._postfix()
+        stream.muted = False
+        self._bar.refresh()
 
     def update(self, *, failed: bool = False) -> None:
+        if self._bar is None:
+            self.start()
         self.computed += 1
         self.failed += failed
-        self._draw(force=self.done >= self.total)
+        self._postfix()
+        self._bar.update(1)
 
     @property
     def done(self) -> int:
         return self.cached + self.computed
 
-    def line(self) -> str:
-        elapsed = time.perf_counter() - self.t0
-        todo = self.total - self.cached
-        remaining = self.total - self.done
-        eta = elapsed / self.computed * remaining if self.computed else float("nan")
-        frac = self.done / self.total if self.total else 1.0
-        filled = int(round(frac * self.WIDTH))
-        bar = "#" * filled + "-" * (self.WIDTH - filled)
-        parts = [f"sweep [{bar}] {self.done}/{self.total} cells", f"{self.computed}/{todo} run"]
+    def _postfix(self) -> None:
+        parts = [f"{self.computed}/{self.total - self.cached} run"]
         if self.cached:
             parts.append(f"{self.cached} from the store")
         if self.failed:
             parts.append(f"{self.failed} failed")
-        parts.append(f"elapsed {format_duration(elapsed)}")
-        parts.append("done" if remaining == 0 else f"ETA {format_duration(eta)}")
-        return ", ".join(parts)
+        self._bar.set_postfix_str(", ".join(parts), refresh=False)
 
-    def _draw(self, force: bool = False) -> None:
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if self.tty:
-            if force or now - self._last >= 0.1:
-                self.stream.write("\r\x1b[K" + self.line())
-                self.stream.flush()
-                self._last, self._shown = now, True
-        elif force or now - self._last >= self.every:
-            print(self.line(), file=self.stream, flush=True)
-            self._last = now
+    def line(self) -> str:
+        """The bar as text, e.g. ``sweep [##########--------------] 4/10 cells, 2/8 run, 2 from the store, elapsed
+        00:08, ETA 00:24``."""
+        if self._bar is None or not self.enabled:
+            return ""
+        return str(self._bar)
 
     def close(self) -> None:
-        if self.enabled and self.tty and self._shown:
-            self.stream.write("\n")
-            self.stream.flush()
+        if self._bar is not None:
+            self._bar.close()

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+from pirl_sim.progress import reporter
 
 from .cell import knn_group, run_cells, run_simulation
 from .config import SweepConfig, canonical_json
@@ -157,10 +157,9 @@ def run_sweep(
             atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
             sims, waiting = _simulations(unique, todo, store, version)
             bar = Progress(len(unique), len(records), stream=stream, enabled=progress)
-            if progress:
-                extra = f" and {len(sims)} simulations" if sims else ""
-                print(f"sweep {config.name!r}: {len(todo)} of {len(unique)} cells{extra} to run on {description} "
-                      f"(code {version}); results in {out}/", file=stream or sys.stderr, flush=True)
+            extra = f" and {len(sims)} simulations" if sims else ""
+            reporter(progress, stream=stream)(f"sweep {config.name!r}: {len(todo)} of {len(unique)} cells{extra} to "
+                                              f"run on {description} (code {version}); results in {out}/")
             bar.start()
             root = str(out.resolve())
 
