@@ -1,6 +1,6 @@
 """Sweep speed (issue 7): the machinery's overhead per cell, and the throughput of 2 workers against 1.
 
-    python benchmarks/bench_sweep.py [--repeats 3] [--part all|overhead|throughput|none] [--default-grid]
+    python benchmarks/bench_sweep.py [--repeats 3] [--part all|overhead|throughput|kgrid|none] [--default-grid]
 
 1. **Overhead per cell**: 40 cheap cells (synthetic, 60 trajectories, TIRL and kNN, 20 seeds) through
    ``run_sweep`` on 1 local worker. Overhead = (wall time - the cells' own time, summed over cells as
@@ -48,6 +48,16 @@ params = { n_trajectories = 200, n_train = 160 }
 protocols = ["paper", { kind = "rolling", history_steps = 10, horizon = 15, stride = 5 }]
 learners = ["tirl", { name = "pirl-gmm", params = { n_components = 3 } },
             { name = "pirl-knn", params = { n_neighbors = 10, prior = "population", stride = 2 } }]
+"""
+
+KGRID = """
+name = "kgrid"
+seeds = [0]
+[[experiments]]
+scenario = "passage"
+params = { n_trajectories = 200, n_train = 160 }
+protocols = [{ kind = "rolling", history_steps = 10, horizon = 15, stride = 5 }]
+learners = [{ name = "pirl-knn", params = { prior = "population", stride = 2 }, grid = { n_neighbors = [1, 3, 5, 10, 20, 40] } }]
 """
 
 
@@ -98,11 +108,32 @@ def throughput(config, repeats: int, tmp: Path, title: str) -> None:
           f"counting start-up: {cold:.2f}x")
 
 
+def kgrid(repeats: int) -> None:
+    from pirl_sim.sweep.cell import run_cell, run_cells, single_threaded
+
+    specs = [c.spec() for c in _config(KGRID).cells]
+    print(f"PIRL-kNN k-grid ({len(specs)} cells, passage, rolling), in this process, medians of {repeats}:")
+    with single_threaded():
+        run_cell(specs[0])  # the data set, cached for both
+        alone, together = [], []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            a = [run_cell(s) for s in specs]
+            alone.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            b = run_cells(specs)
+            together.append(time.perf_counter() - t0)
+            assert [r["scores"] for r in a] == [r["scores"] for r in b], "the k-grid task changed a cell's scores"
+    one, grid = statistics.median(alone), statistics.median(together)
+    print(f"  each cell on its own: {one:6.1f} s; as one task (one fit): {grid:6.1f} s -> {one / grid:.1f}x "
+          "(scores identical)")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--default-grid", action="store_true", help="also time the embedded default sweep (minutes)")
-    ap.add_argument("--part", choices=("all", "overhead", "throughput", "none"), default="all",
+    ap.add_argument("--part", choices=("all", "overhead", "throughput", "kgrid", "none"), default="all",
                     help="what to measure besides --default-grid (default: all)")
     args = ap.parse_args(argv)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -113,6 +144,8 @@ def main(argv=None):
             overhead(args.repeats, tmp)
         if args.part in ("all", "throughput"):
             throughput(_config(THROUGHPUT_GRID), args.repeats, tmp, "throughput on a small roundabout grid")
+        if args.part in ("all", "kgrid"):
+            kgrid(args.repeats)
         if args.default_grid:
             throughput(default_config(), 1, tmp, "throughput on the default grid")
 
