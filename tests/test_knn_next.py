@@ -105,3 +105,31 @@ def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_orderin
     assert nxt["med"].notna().all() and (nxt["med"] > 0).all()
     assert nxt.set_index("method").loc["PIRL-kNN next (k=5)", "irl_from"] == "PIRL-kNN next (k=3)"
     assert main([*args, "--rollout", "closed", "--mpc-horizon", "15", "--out", str(tmp_path / "bad")]) == 2
+
+
+def test_replay_scores_k_futures_of_each_learner(tmp_path):
+    import warnings
+
+    import pandas as pd
+
+    from pirl_sim.cli import main
+    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=6))
+    write_scene(data, tmp_path / "scene")
+    args = ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
+            "--learners", "tirl,pirl-gmm,pirl-knn-next", "--knn-k", "6", "--seeds", "1", "--futures", "6"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 0
+    rows = pd.read_csv(tmp_path / "out" / "rows.csv").set_index("method")
+    learners = ["TIRL", "PIRL-GMM (k=3)", "PIRL-kNN next (k=6)"]
+    for col in ("min_ade@6", "min_fde@6", "miss_rate@6", "nll_per_step@6"):
+        assert rows.loc[learners, col].notna().all(), col
+        assert rows.loc[["CA (path)", "CV (path)"], col].isna().all()
+    # TIRL has one future: its minADE is its MED; more futures can only lower the best one's error
+    assert rows.loc["TIRL", "min_ade@6"] == pytest.approx(rows.loc["TIRL", "med"])
+    assert rows.loc["PIRL-kNN next (k=6)", "min_ade@6"] <= rows.loc["PIRL-kNN next (k=6)", "med"] + 1e-9
+    assert ((rows.loc[learners, "miss_rate@6"] >= 0) & (rows.loc[learners, "miss_rate@6"] <= 1)).all()
+    summary = (tmp_path / "out" / "summary.md").read_text()
+    assert "min_ade@6_mean" in summary

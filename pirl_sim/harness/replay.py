@@ -185,19 +185,18 @@ def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, 
     return np.stack([t.states for t in trajs])
 
 
-def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, profile=None) -> np.ndarray:
-    """Distances (W, horizon) between predicted arc lengths mapped to x, y and the recorded positions (on the
-    track's own route of a `CompositePath`, even where a prediction runs beyond that route's ends).
+def _positions(model, test, windows, s_pred, proto, lateral: str | None = None, profile=None) -> np.ndarray:
+    """Predicted arc lengths (W, horizon) mapped to x, y (W, horizon, 2) [m] on the track's own route of a
+    `CompositePath` (even where a prediction runs beyond that route's ends).
 
     ``lateral``: the offsets the predicted arc lengths are placed at: the protocol's model (None:
     ``proto.lateral``, with the fitted `pirl_sim.lateral.MeanOffsetProfile` ``profile`` for "mean-path" and
-    "plane"), or
-    ``"recorded"``: the recorded future offsets, which leaves the error along the path only."""
+    "plane"), or ``"recorded"``: the recorded future offsets, which leaves the error along the path only."""
     from pirl_sim.driving import CompositePath
     from pirl_sim.lateral import predict_offsets
 
     lateral = proto.lateral if lateral is None else lateral
-    err = np.empty((len(windows), proto.horizon))
+    out = np.empty((len(windows), proto.horizon, 2))
     composite = isinstance(model.path, CompositePath)
     for w, (i, step) in enumerate(windows):
         t = test[i]
@@ -207,9 +206,40 @@ def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, pro
             d = t.metadata["d"][step + 1 : step + 1 + proto.horizon]
         else:
             d = predict_offsets(lateral, t.metadata["d"][step], seg, t.states[step, 0], s_pred[w], profile)
-        xy = model.path.to_cartesian(s_pred[w], d, **on)
-        err[w] = np.linalg.norm(xy - t.metadata["xy"][step + 1 : step + 1 + proto.horizon], axis=1)
-    return err
+        out[w] = model.path.to_cartesian(s_pred[w], d, **on)
+    return out
+
+
+def _recorded_xy(test, windows, horizon: int) -> np.ndarray:
+    """The recorded positions (W, horizon, 2) [m] after each window's start."""
+    return np.stack([np.asarray(test[i].metadata["xy"])[step + 1 : step + 1 + horizon] for i, step in windows])
+
+
+def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, profile=None) -> np.ndarray:
+    """Distances (W, horizon) [m] between predicted arc lengths mapped to x, y (`_positions`) and the recorded
+    positions."""
+    xy = _positions(model, test, windows, s_pred, proto, lateral, profile)
+    return np.linalg.norm(xy - _recorded_xy(test, windows, proto.horizon), axis=-1)
+
+
+def _future_scores(model, test, windows, s_futures, proba, proto, profile, dt: float, K: int) -> dict:
+    """minADE_K, minFDE_K, the INTERACTION miss rate and the mixture NLL per step (sigma 1 m) of the futures
+    along the path (W, K', horizon) with probabilities (W, K'), placed by the protocol's lateral model; named
+    by the K asked for (a learner may give fewer, K' <= K)."""
+    from pirl_sim.metrics import interaction_miss, min_ade, min_fde, mixture_nll
+
+    xy = np.stack([_positions(model, test, windows, s_futures[:, k], proto, profile=profile)
+                   for k in range(s_futures.shape[1])],
+                  axis=1)
+    truth = _recorded_xy(test, windows, proto.horizon)
+    end = np.stack([np.asarray(test[i].metadata["xy"])[step + proto.horizon - 1 : step + proto.horizon + 1]
+                    for i, step in windows])  # the last two recorded positions: true speed and heading at T
+    move = end[:, 1] - end[:, 0]
+    speed = np.linalg.norm(move, axis=1) / dt
+    heading = np.arctan2(move[:, 1], move[:, 0])
+    return {f"min_ade@{K}": float(min_ade(xy, truth).mean()), f"min_fde@{K}": float(min_fde(xy, truth).mean()),
+            f"miss_rate@{K}": float(interaction_miss(xy, truth, speed, heading).mean()),
+            f"nll_per_step@{K}": float(mixture_nll(xy, proba, truth, 1.0).mean() / proto.horizon)}
 
 
 def fit_lateral_profile(train, kind: str = "mean-path", path=None):
@@ -316,7 +346,7 @@ def desired_speed_model(scene, desired_speed=None, train=None):
 
 
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
-               desired_speed=None, hindsight: bool = False) -> dict:
+               desired_speed=None, hindsight: bool = False, n_futures: int = 0) -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene`.
 
     Parameters
@@ -341,6 +371,12 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     ``desired_speed``: None (the scene's model), ``"fit"`` (a_lat, v_max fitted per split seed on the training
     tracks by `fit_scene_speed`) or (a_lat, v_max) [m/s^2, m/s] fixed. Every row carries the ``a_lat`` and
     ``v_max`` its learners used.
+
+    ``n_futures=K`` (> 0) scores every learner's K predicted futures (`predict_futures` with ``n_futures=K``,
+    drawn with the split seed; a learner with one cost per history has one, PIRL-GMM one per style at most):
+    ``min_ade@K``, ``min_fde@K``,
+    ``miss_rate@K`` (INTERACTION's rule, `pirl_sim.metrics.interaction_miss`) and ``nll_per_step@K`` (the
+    mixture NLL with sigma = 1 m, nats per step); the baselines' rows leave them empty.
 
     ``hindsight=True`` adds the row ``HINDSIGHT``: every test window predicted from its start under the cost
     the IRL fits on the window's own recorded future (one cost per window). It sees what it predicts, so it is
@@ -403,6 +439,13 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
                 s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
                                              mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
             extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
+            if n_futures:
+                if proto.rollout != "open":
+                    raise ValueError("n_futures scores open-loop futures; rollout 'closed' is not available with it")
+                plan = proto.horizon if proto.mpc_horizon is None else max(proto.horizon, int(proto.mpc_horizon))
+                fut, proba = learner.predict_futures(histories, plan, n_futures=int(n_futures), random_state=seed)
+                extra.update(_future_scores(model, test, windows, fut[:, :, 1 : proto.horizon + 1, 0], proba, proto,
+                                            profile, dt, int(n_futures)))
             methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
             how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
             say(f"seed {seed}: {name} {how} in {fit_s:.1f} s; IRL converged for {diag['irl_converged']} of "
@@ -533,7 +576,8 @@ def summarize(result: dict) -> pd.DataFrame:
     warnings raised while fitting (summed over seeds)."""
     rows = result["rows"]
     scores = [c for c in rows.columns
-              if c in ("med", "med_path") or c.startswith("de@") or c in ("ari", "weight_error", "irl_weight_error")]
+              if c in ("med", "med_path") or c.startswith(("de@", "min_ade@", "min_fde@", "miss_rate@", "nll_per_step@"))
+              or c in ("ari", "weight_error", "irl_weight_error")]
     agg = rows.groupby("method")[scores].agg(["mean", "std"])
     agg.columns = [f"{a}_{b}" for a, b in agg.columns]
     out = agg.sort_values("med_mean").reset_index()

@@ -71,6 +71,9 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help=f"names for --table (default {','.join(DEV_ROUNDABOUTS)})")
     rp.add_argument("--files", type=positive_int_arg, default=None,
                     help="use only the first N track files (sorted by name) of each recording (default all)")
+    rp.add_argument("--futures", type=positive_int_arg, default=None, metavar="K",
+                    help="also score K predicted futures per window and learner: minADE_K, minFDE_K, INTERACTION "
+                         "miss rate, mixture NLL per step (columns min_ade@K ... in rows.csv; default: off)")
     rp.add_argument("--hindsight", action="store_true",
                     help="also score each test window under the cost fitted on its own recorded future (an oracle "
                          "row, 'hindsight cost (oracle)': what the model class reaches with perfect weights; not a "
@@ -312,7 +315,8 @@ def run_replay_command(args) -> int:
             print(f"wrote {args.out}/")
             return 0
         result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"),
-                            desired_speed="fit" if args.desired_speed == "fit" else None, hindsight=args.hindsight)
+                            desired_speed="fit" if args.desired_speed == "fit" else None, hindsight=args.hindsight,
+                            n_futures=args.futures or 0)
     except (ValueError, FileNotFoundError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
@@ -373,7 +377,7 @@ def _run_table(args, say) -> int:
             scene = load_replay(files, a.map, **settings["load"])
             result = run_replay(scene, specs, proto, progress=lambda m: say(f"{name}: {m}"),
                                 desired_speed="fit" if args.desired_speed == "fit" else None,
-                                hindsight=args.hindsight)
+                                hindsight=args.hindsight, n_futures=a.futures or 0)
             write_replay_results(result, scene, args.out / name, command)
             elapsed = time.perf_counter() - t0
             rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
