@@ -173,6 +173,8 @@ def test_stable_baselines3_checks_and_trains_on_the_sumo_backend():
         sb3_check_env(env, warn=True)
     model = sb3.PPO("MlpPolicy", env, n_steps=256, batch_size=64, n_epochs=2, seed=0, verbose=0, device="cpu",
                     policy_kwargs={"log_std_init": -1.5})
+    # SB3's default logger makes a /tmp/SB3-<date> folder even when it writes nothing: a silent one instead
+    model.set_logger(sb3.common.logger.Logger(folder=None, output_formats=[]))
     model.learn(total_timesteps=768)
     obs, _ = env.reset(seed=7)
     for _ in range(30):
