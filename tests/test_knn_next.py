@@ -79,20 +79,26 @@ def test_bad_next_parameters_name_the_value(params, error, match):
         PIRLKNN(model=model, **params).fit(train)
 
 
-def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_ordering(tmp_path):
+def _replay_args(tmp_path, seed: int, learners: str, knn_k: str) -> list:
+    """`pirl-sim replay` arguments (one split seed) on a small simulated three-style passage scene."""
     import warnings
 
-    import pandas as pd
-
-    from pirl_sim.cli import main
     from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=5))
+        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=seed))
     write_scene(data, tmp_path / "scene")
-    args = ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
-            "--learners", "tirl,pirl-knn,pirl-knn-next", "--knn-k", "3,5", "--seeds", "1"]
+    return ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
+            "--learners", learners, "--knn-k", knn_k, "--seeds", "1"]
+
+
+def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_ordering(tmp_path):
+    import pandas as pd
+
+    from pirl_sim.cli import main
+
+    args = _replay_args(tmp_path, 5, "tirl,pirl-knn,pirl-knn-next", "3,5")
     assert main([*args, "--hindsight", "--out", str(tmp_path / "out")]) == 0
     rows = pd.read_csv(tmp_path / "out" / "rows.csv")
     med = rows.set_index("method")["med"]
@@ -108,19 +114,11 @@ def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_orderin
 
 
 def test_replay_scores_k_futures_of_each_learner(tmp_path):
-    import warnings
-
     import pandas as pd
 
     from pirl_sim.cli import main
-    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=6))
-    write_scene(data, tmp_path / "scene")
-    args = ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
-            "--learners", "tirl,pirl-gmm,pirl-knn-next", "--knn-k", "6", "--seeds", "1", "--futures", "6"]
+    args = [*_replay_args(tmp_path, 6, "tirl,pirl-gmm,pirl-knn-next", "6"), "--futures", "6"]
     assert main([*args, "--out", str(tmp_path / "out")]) == 0
     rows = pd.read_csv(tmp_path / "out" / "rows.csv").set_index("method")
     learners = ["TIRL", "PIRL-GMM (k=3)", "PIRL-kNN next (k=6)"]

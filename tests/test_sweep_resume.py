@@ -41,19 +41,7 @@ def test_sigkill_halfway_then_resume(tmp_path):
         start_new_session=True,  # its own process group: the driver and its worker die together
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
     )
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None:
-            if cells.is_dir() and len(list(cells.glob("*.json"))) >= 3:
-                break
-            time.sleep(0.02)
-        assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read().decode()}"
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:  # pragma: no cover - only if an assertion fired first
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=30)
+    _kill_after(proc, cells, n_cells=3, timeout=120)
     assert proc.returncode == -signal.SIGKILL
     before = {p.stem: (p.stat().st_mtime_ns, p.read_bytes()) for p in cells.glob("*.json")}
     assert 3 <= len(before) < N_CELLS, "killed halfway"
@@ -100,19 +88,7 @@ def test_sigkilled_sumo_sweep_resumes_without_simulating_or_computing_again(tmp_
          "--quiet"],
         start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
     )
-    try:
-        deadline = time.monotonic() + 300
-        while time.monotonic() < deadline and proc.poll() is None:
-            if cells.is_dir() and len(list(cells.glob("*.json"))) >= 1:
-                break
-            time.sleep(0.02)
-        assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read().decode()}"
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:  # pragma: no cover - only if an assertion fired first
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=30)
+    _kill_after(proc, cells, n_cells=1, timeout=300)
     finished_sims = {p.name: p.joinpath("simulation.json").stat().st_mtime_ns
                      for p in sims.iterdir() if (p / "simulation.json").is_file()}
     finished_cells = {p.stem: p.read_bytes() for p in cells.glob("*.json")}
@@ -129,3 +105,20 @@ def test_sigkilled_sumo_sweep_resumes_without_simulating_or_computing_again(tmp_
         assert (cells / f"{key}.json").read_bytes() == data
     whole = run_sweep(load_config(cfg_path), tmp_path / "whole", workers=0, progress=False)
     pd.testing.assert_frame_equal(_scores(resumed.table), _scores(whole.table))
+
+
+def _kill_after(proc, cells, n_cells: int, timeout: float) -> None:
+    """SIGKILL the sweep's process group once ``n_cells`` cell files are in ``cells`` (fails if it ends first)."""
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and proc.poll() is None:
+            if cells.is_dir() and len(list(cells.glob("*.json"))) >= n_cells:
+                break
+            time.sleep(0.02)
+        assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read().decode()}"
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:  # pragma: no cover - only if an assertion fired first
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=30)

@@ -82,11 +82,17 @@ def test_rerun_and_other_selection_reuse_the_simulation(sumo_run, tmp_path):
     assert len(sims) == 1
 
 
+def _with_learners(text: str, learners: str) -> str:
+    """The SUMO test config ``text`` with its learners list replaced by ``learners`` (TOML)."""
+    old = 'learners = ["cv", "ca", { name = "tirl", grid = { likelihood = ["trajectory", "receding"] }, params = { step_stride = 2 } }]'
+    assert old in text
+    return text.replace(old, f"learners = {learners}")
+
+
 @pytest.mark.slow
 def test_highway_scenario_runs(tmp_path):
-    text = SUMO.replace('scenario = "sumo"', 'scenario = "highway"').replace(
-        'learners = ["cv", "ca", { name = "tirl", grid = { likelihood = ["trajectory", "receding"] }, params = { step_stride = 2 } }]',
-        'learners = ["cv", { name = "pirl-knn", params = { n_neighbors = 1, likelihood = "receding", step_stride = 2 } }]')
+    text = _with_learners(SUMO.replace('scenario = "sumo"', 'scenario = "highway"'),
+                          '["cv", { name = "pirl-knn", params = { n_neighbors = 1, likelihood = "receding", step_stride = 2 } }]')
     run = run_sweep(_config(text), tmp_path, workers=0, progress=False)
     assert not run.failed and len(run.table) == 2 and len(run.simulated) == 1
     info = json.loads(next((tmp_path / "simulations").glob("*/run.json")).read_text())
@@ -157,9 +163,8 @@ def test_ci95_is_the_student_t_half_width():
 def test_report_of_a_simulator_sweep_has_intervals_and_weight_tables(tmp_path):
     from pirl_sim.sweep import write_report
 
-    text = SUMO.replace("seeds = [0]", "seeds = [0, 1]").replace(
-        'learners = ["cv", "ca", { name = "tirl", grid = { likelihood = ["trajectory", "receding"] }, params = { step_stride = 2 } }]',
-        'learners = ["cv", { name = "tirl", params = { likelihood = "receding", step_stride = 2 } }]')
+    text = _with_learners(SUMO.replace("seeds = [0]", "seeds = [0, 1]"),
+                          '["cv", { name = "tirl", params = { likelihood = "receding", step_stride = 2 } }]')
     run = run_sweep(_config(text), tmp_path, workers=0, progress=False)
     assert not run.failed and len(run.simulated) == 2  # one run per seed
     write_report(tmp_path)
