@@ -67,17 +67,14 @@ class ProgressBar:
 
     def __init__(self, stream=None, every: float = 5.0):
         self.stream = sys.stderr if stream is None else stream
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.every = every
         self._bar = None
 
     def __call__(self, time_s: float, n_done: int, n_total: int) -> None:
         if self._bar is None:
             from pirl_sim.progress import bar
-            from pirl_sim.sweep.progress import LineStream
 
-            stream = self.stream if self.tty else LineStream(self.stream)
-            self._bar = bar(n_total, "vehicles done", unit="veh", stream=stream, every=self.every)
+            self._bar = bar(n_total, "vehicles done", unit="veh", stream=self.stream, every=self.every)
         self._bar.set_postfix_str(f"{time_s:.1f} s simulated", refresh=False)
         self._bar.update(n_done - self._bar.n)
 

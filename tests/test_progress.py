@@ -25,6 +25,7 @@ def test_bar_counts_and_writes_to_its_stream_only(capsys):
             b.update(1)
         assert b.n == 4
     assert "cells" in out.getvalue() and "4/4" in out.getvalue()
+    assert "\r" not in out.getvalue()  # not a terminal: whole lines (LineStream), no in-place redraws
     with bar(2, "quiet", enabled=False, stream=out) as b:
         b.update(2)
     assert "quiet" not in out.getvalue()

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import sys
 
+from pirl_sim.progress import LineStream
+
 __all__ = ["Progress", "LineStream", "format_duration"]
 
 
@@ -18,29 +20,6 @@ def format_duration(seconds: float) -> str:
     h, rem = divmod(s, 3600)
     m, s = divmod(rem, 60)
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
-
-
-class LineStream:
-    """A stream that turns tqdm's in-place redraws (``\\r`` + bar + padding) into one line each, for streams that
-    are not terminals (logs of CI jobs and ``nohup`` runs); blank redraws (tqdm clearing the bar) write nothing."""
-
-    def __init__(self, stream) -> None:
-        self.stream = stream
-        self.muted = False
-        self._last = None
-
-    def write(self, text: str) -> int:
-        line = text.replace("\r", "").rstrip()
-        if line and not self.muted and line != self._last:
-            self.stream.write(line + "\n")
-            self._last = line
-        return len(text)
-
-    def flush(self) -> None:
-        self.stream.flush()
-
-    def isatty(self) -> bool:
-        return False
 
 
 class Progress:
