@@ -62,10 +62,18 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     scratch = tmp_path / "tmp"
     scratch.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))  # where SB3's default logger would make SB3-<date>
+    import torch
+
     out = tmp_path / "agents"
     argv = ["--out", str(out), "--steps", "128", "--n-steps", "64", "--seeds", "0", "--episodes", "1",
             "--modes", "none,truth", "--baselines", "hold-speed"]
-    assert agents.main(argv) == 0
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        assert agents.main(argv) == 0
+        assert torch.get_num_threads() == 2  # training runs on one thread and gives the caller's setting back
+    finally:
+        torch.set_num_threads(threads)
     for name in ("episodes.csv", "table.csv", "table.md", "learning_curves.png", "README.md"):
         assert (out / name).stat().st_size > 0
     runs = sorted(p.name for p in (out / "runs").iterdir())

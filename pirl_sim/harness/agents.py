@@ -234,8 +234,20 @@ def _evaluate_baseline(cfg: AgentsConfig, name: str) -> dict:
 
 
 def _train_ppo(cfg: AgentsConfig, mode: str, seed: int, learner) -> dict:
-    import gymnasium as gym
+    """`_train_ppo_run` with torch on one thread (small networks on a shared machine), the caller's thread
+    count restored afterwards."""
     import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _train_ppo_run(cfg, mode, seed, learner)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _train_ppo_run(cfg: AgentsConfig, mode: str, seed: int, learner) -> dict:
+    import gymnasium as gym
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.monitor import Monitor
@@ -243,7 +255,6 @@ def _train_ppo(cfg: AgentsConfig, mode: str, seed: int, learner) -> dict:
     import pirl_sim.envs  # noqa: F401  (registers the env)
     from pirl_sim.envs.baselines import ResidualAction
 
-    torch.set_num_threads(1)
     t0 = time.perf_counter()
 
     def make_env():
