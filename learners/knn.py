@@ -217,8 +217,9 @@ class PIRLKNN(BaseLearner):
         self.demo_theta_ = res.normalized
         self.sample_theta_ = res.normalized[owners]
         self.sample_owner_ = owners
-        self.scaler_ = StandardScaler().fit(self._lookup_values(model, samples))
-        Z = self.scaler_.transform(self._lookup_values(model, samples))
+        values = self._lookup_values(model, samples)
+        self.scaler_ = StandardScaler().fit(values)
+        Z = self.scaler_.transform(values)
         self.neighbors_ = NearestNeighbors(n_neighbors=int(k)).fit(Z)
         if self.weighting == "likelihood":
             self.control_rms_ = float(np.sqrt(np.mean(np.concatenate([np.square(t.controls).ravel()

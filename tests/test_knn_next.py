@@ -131,3 +131,5 @@ def test_replay_scores_k_futures_of_each_learner(tmp_path):
     assert ((rows.loc[learners, "miss_rate@6"] >= 0) & (rows.loc[learners, "miss_rate@6"] <= 1)).all()
     summary = (tmp_path / "out" / "summary.md").read_text()
     assert "min_ade@6_mean" in summary
+    # futures are open-loop plans: a closed-loop rollout is refused before any fit
+    assert main([*args, "--rollout", "closed", "--mpc-horizon", "15", "--out", str(tmp_path / "bad")]) == 2

@@ -160,6 +160,11 @@ def split_by_track(tracks, seed: int, test_fraction: float) -> tuple[list, list,
     return train, test, counts
 
 
+def _open_plan(horizon: int, mpc_horizon: int | None) -> int:
+    """Steps of an open-loop plan whose first ``horizon`` steps are the prediction (module doc)."""
+    return horizon if mpc_horizon is None else max(horizon, int(mpc_horizon))
+
+
 def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, *, rollout: str = "open",
                         mpc_horizon: int | None = None) -> np.ndarray:
     """Predicted states (M, horizon + 1, n_x) from starts x0 (M, n_x) under normalised weights theta (M, K).
@@ -171,8 +176,7 @@ def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, 
     if rollout not in ROLLOUTS:
         raise ValueError(f"rollout must be one of {ROLLOUTS}, got {rollout!r}")
     if rollout == "open":
-        plan = horizon if mpc_horizon is None else max(horizon, int(mpc_horizon))
-        return model.predict_states(x0, theta, plan)[:, : horizon + 1]
+        return model.predict_states(x0, theta, _open_plan(horizon, mpc_horizon))[:, : horizon + 1]
     if not is_positive_int(mpc_horizon):
         raise ValueError(f"rollout='closed' needs mpc_horizon, a positive number of steps, got {mpc_horizon!r}")
     from pirl_sim.simulate import simulate_receding_horizon
@@ -386,6 +390,11 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     from pirl_sim.learners import make_learner
 
     say = progress or (lambda msg: None)
+    averaging = [name for name, _, params in learner_specs if params.get("aggregate") == "futures"]
+    if proto.rollout != "open" and (n_futures or averaging):  # before any work
+        what = f"n_futures={n_futures!r}" if n_futures else f"{averaging[0]} (it averages its neighbours' futures)"
+        raise ValueError(f"{what} predicts open-loop plans; rollout {proto.rollout!r} is not available for it")
+    plan = _open_plan(proto.horizon, proto.mpc_horizon)  # the futures' open-loop plans [steps]
     tracks = usable_tracks(scene, proto)
     unique = _track_keys(tracks)[1]
     model, speed, _ = desired_speed_model(scene, None if desired_speed == "fit" else desired_speed)
@@ -430,19 +439,12 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
             t0 = time.perf_counter()
             theta = learner.infer_weights(histories)
             if getattr(learner, "aggregate", "weights") == "futures":  # the mean of several futures
-                if proto.rollout != "open":
-                    raise ValueError(f"{name}: a learner that averages its neighbours' futures predicts open-loop "
-                                     f"plans; rollout {proto.rollout!r} is not available for it")
-                plan = proto.horizon if proto.mpc_horizon is None else max(proto.horizon, int(proto.mpc_horizon))
                 s_pred = learner.predict_states(histories, plan)[:, 1 : proto.horizon + 1, 0]
             else:
                 s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
                                              mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
             extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
             if n_futures:
-                if proto.rollout != "open":
-                    raise ValueError("n_futures scores open-loop futures; rollout 'closed' is not available with it")
-                plan = proto.horizon if proto.mpc_horizon is None else max(proto.horizon, int(proto.mpc_horizon))
                 fut, proba = learner.predict_futures(histories, plan, n_futures=int(n_futures), random_state=seed)
                 extra.update(_future_scores(model, test, windows, fut[:, :, 1 : proto.horizon + 1, 0], proba, proto,
                                             profile, dt, int(n_futures)))

@@ -244,6 +244,9 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps
     irl = {"likelihood": "receding", "horizon": int(mpc_horizon)} if likelihood == "receding" else {}
     # the population prior of PIRL-kNN is a prior of the trajectory likelihood's Laplace fit
     knn_prior = {} if likelihood == "receding" else {"prior": "population"}
+    # irl_max_iter 400: on DR_USA_Roundabout_FT 1-2 of ~730 per-demo fits needed more than 100 (x5), on EP 2 of
+    # 10,624 next segments
+    knn = {"stride": 2, "irl_max_iter": 400, **knn_prior, **irl}
     specs = []
     for k in keys:
         if k == "tirl":
@@ -256,13 +259,10 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps
             if horizon_steps is None:
                 raise ValueError(f"{NEXT_KNN} needs the prediction horizon in steps")
             nxt = {"target": "next", "target_steps": int(horizon_steps), "state_features": (1, 2),
-                   "aggregate": "futures", "irl_max_iter": 400}  # (1, 2): speed and acceleration along the path
-            specs += [(f"PIRL-kNN next (k={n})", "pirl-knn", {"n_neighbors": n, "stride": 2, **nxt, **knn_prior,
-                                                              **irl}) for n in knn_ks]
+                   "aggregate": "futures"}  # (1, 2): speed and acceleration along the path
+            specs += [(f"PIRL-kNN next (k={n})", "pirl-knn", {"n_neighbors": n, **knn, **nxt}) for n in knn_ks]
         else:
-            # irl_max_iter 400: on DR_USA_Roundabout_FT 1-2 of ~730 per-demo fits needed more than 100 (x5)
-            specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, "stride": 2, "irl_max_iter": 400, **knn_prior,
-                                                **irl}) for n in knn_ks]
+            specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, **knn}) for n in knn_ks]
     return specs
 
 
