@@ -1,11 +1,12 @@
 """Weight recovery of the receding-horizon IRL on simulated roundabouts whose drivers' weights are known.
 
 :func:`recovery_report` takes one recorded run (:class:`~pirl_sim.scenarios.demonstrations.RecordedRun`,
-SUMO or highway-env), fits the receding-horizon IRL (:func:`pirl_sim.receding.fit_receding`) to every PIRL
-track with at least ``min_steps`` usable steps (``selection="steps"``: the steps whose jerk is the driver's
-own), one weight vector per track, and one TIRL (``likelihood="receding"``) per style, and compares them
-with the true weights. :func:`summary_row` condenses per-track and per-style rows (of one run, or pooled over
-runs) into one row of the recovery table; :func:`check_targets` compares such a row with the issue's
+SUMO or highway-env), fits the receding-horizon IRL (:func:`pirl_sim.recovery.fit_track_weights`) to every
+PIRL track with at least ``min_steps`` usable steps (``selection="steps"``: the steps whose jerk is the
+driver's own), one weight vector per track, and one TIRL (``likelihood="receding"``) per style, and compares
+them with the true weights (:class:`RunRecovery`; its ``weights`` is the per-track
+:class:`pirl_sim.recovery.RecoveryReport`, with intervals). :func:`summary_row` condenses per-track and
+per-style rows (of one run, or pooled over runs) into one row of the recovery table; :func:`check_targets` compares such a row with the issue's
 targets (:data:`TARGETS`). :func:`run_recovery` simulates (or reuses) runs over seeds and control-noise
 levels in worker processes and :func:`write_recovery` writes ``table.csv``/``table.md``, ``styles.csv``,
 ``selection.csv``, ``noise.csv``/``noise.md``, ``times.csv`` and ``README.md``; ``pirl-sim recover`` is the
@@ -34,7 +35,7 @@ import pandas as pd
 from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_text
 
-__all__ = ["SIMULATORS", "TARGETS", "RecoveryReport", "recovery_report", "summary_row", "check_targets",
+__all__ = ["SIMULATORS", "TARGETS", "RunRecovery", "recovery_report", "summary_row", "check_targets",
            "RecoveryJob", "run_recovery", "RecoveryResult", "write_recovery", "FREE_FEATURES"]
 
 #: simulators of ``pirl-sim recover`` (the ``simulator`` entry of a run's ``run.json`` in brackets):
@@ -66,8 +67,9 @@ TARGETS: dict[str, tuple[tuple[str, str, float], ...]] = {
 
 # ---------------------------------------------------------------------------------------------- one run
 @dataclass(frozen=True, eq=False)
-class RecoveryReport:
-    """Recovered weights of one run.
+class RunRecovery:
+    """Recovered weights of one run: per track (``tracks``, and ``weights`` as a
+    :class:`pirl_sim.recovery.RecoveryReport`) and per style (TIRL).
 
     Attributes
     ----------
@@ -88,6 +90,8 @@ class RecoveryReport:
         :meth:`RecordedRun.step_selection_summary` (rows per style and "all").
     fit_time_s, tirl_time_s : float
         Wall time [s] of the per-track fit and of the per-style TIRL fits.
+    weights : pirl_sim.recovery.RecoveryReport
+        The per-track weights as the recovery API's report (errors per feature and style with intervals).
     """
 
     simulator: str
@@ -99,13 +103,14 @@ class RecoveryReport:
     selection: pd.DataFrame
     fit_time_s: float
     tirl_time_s: float
+    weights: Any = None
 
     def summary(self) -> dict[str, Any]:
         """This run's row of the recovery table (:func:`summary_row`)."""
         return summary_row(self.tracks, self.styles, self.n_pirl_tracks)
 
 
-def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RecoveryReport:
+def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery:
     """Fit per-track and per-style receding-horizon IRL to a recorded run and compare with the truth.
 
     Parameters
@@ -119,10 +124,11 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RecoveryRep
 
     Returns
     -------
-    RecoveryReport
+    RunRecovery
     """
     from pirl_sim.learners import TIRL
-    from pirl_sim.receding import STEP_MASK, fit_receding
+    from pirl_sim.receding import STEP_MASK
+    from pirl_sim.recovery import RecoveryReport, fit_track_weights
     from pirl_sim.validation import is_positive_int
 
     if not is_positive_int(min_steps):
@@ -142,7 +148,7 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RecoveryRep
     if not demos:
         raise ValueError(f"no PIRL track of the run has {min_steps} usable steps")
     t0 = time.perf_counter()
-    res = fit_receding(run.model, demos, horizon=run.horizon, stride=stride)
+    res = fit_track_weights(run.model, demos, likelihood="receding", horizon=run.horizon, stride=stride)
     fit_time = time.perf_counter() - t0
     truth = np.array([d.metadata["theta"] for d in demos])
     rows = {
@@ -150,7 +156,7 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RecoveryRep
         "style_name": [d.metadata["style_name"] for d in demos],
         "steps": [d.n_steps for d in demos],
         "usable_steps": [int(np.sum(d.metadata[STEP_MASK])) for d in demos],
-        "fitted_steps": res.n_steps.astype(np.int64),
+        "fitted_steps": res.fitted_steps,
     }
     for f, k in zip(FREE_FEATURES, free):
         rows[f"theta_{f}"] = truth[:, k]
@@ -158,8 +164,12 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RecoveryRep
         rows[f"log_err_{f}"] = np.log(res.normalized[:, k] / truth[:, k])
     rows["sigma"] = res.sigma
     rows["converged"] = res.converged
-    rows["at_bound"] = res.at_bound.any(axis=1)
+    rows["at_bound"] = res.at_bound
     tracks = pd.DataFrame(rows)
+    weights = RecoveryReport(FREE_FEATURES, truth[:, free], res.normalized[:, free], np.asarray(rows["track_id"]),
+                             tuple(rows["style_name"]), res.converged, res.fitted_steps,
+                             reference=names[run.model.features.reference_index],
+                             source=f"{simulator} seed {int(info['seed'])}")
 
     style_rows = []
     t0 = time.perf_counter()
@@ -177,16 +187,8 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RecoveryRep
         row["converged"] = bool(tirl.irl_result_.converged[0])
         style_rows.append(row)
     tirl_time = time.perf_counter() - t0
-    return RecoveryReport(simulator, int(info["seed"]), float(run.control_noise), n_pirl, tracks,
-                          pd.DataFrame(style_rows), selection, fit_time, tirl_time)
-
-
-def _spearman(a: np.ndarray, b: np.ndarray) -> float:
-    from scipy.stats import spearmanr
-
-    if len(a) < 3 or np.ptp(a) == 0 or np.ptp(b) == 0:
-        return math.nan
-    return float(spearmanr(a, b).statistic)
+    return RunRecovery(simulator, int(info["seed"]), float(run.control_noise), n_pirl, tracks,
+                       pd.DataFrame(style_rows), selection, fit_time, tirl_time, weights)
 
 
 def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) -> dict[str, Any]:
@@ -200,6 +202,8 @@ def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) 
     / ``groups`` (per-track fits), ``at_bound`` (tracks with a log weight at its bound), ``tirl_converged`` /
     ``tirl_groups``, ``sigma_median`` [m/s^3] (of the per-track fits).
     """
+    from pirl_sim.recovery import spearman
+
     n = len(tracks)
     row: dict[str, Any] = {
         "pirl_tracks": int(n_pirl_tracks),
@@ -213,7 +217,7 @@ def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) 
         row[f"median_abs_log_err_{f}"] = float(np.median(err)) if n else math.nan
         row[f"p90_abs_log_err_{f}"] = float(np.percentile(err, 90)) if n else math.nan
         row[f"max_abs_log_err_{f}"] = float(err.max()) if n else math.nan
-        row[f"spearman_{f}"] = _spearman(tracks[f"theta_{f}"].to_numpy(), tracks[f"theta_hat_{f}"].to_numpy())
+        row[f"spearman_{f}"] = spearman(tracks[f"theta_{f}"].to_numpy(), tracks[f"theta_hat_{f}"].to_numpy())
     for f in FREE_FEATURES:
         row[f"tirl_max_abs_log_err_{f}"] = float(np.abs(styles[f"log_err_{f}"]).max()) if len(styles) else math.nan
     row["converged"] = int(tracks["converged"].sum())
@@ -311,14 +315,14 @@ def _recorded(run_dir: Path, config, seed: int) -> bool:
     return set(DRIVER_STEP_COLUMNS) <= set(header)
 
 
-def run_job(job: RecoveryJob) -> tuple[RecoveryReport, bool, float]:
+def run_job(job: RecoveryJob) -> tuple[RunRecovery, bool, float]:
     """Simulate ``job`` unless its run directory already holds the run, then :func:`recovery_report`.
 
     Runs in a fresh process per job (:func:`run_recovery`): libsumo holds one simulation per process.
 
     Returns
     -------
-    (RecoveryReport, simulated, simulation wall time [s])
+    (RunRecovery, simulated, simulation wall time [s])
     """
     config = job.config()
     run_dir = Path(job.run_dir)
@@ -347,7 +351,7 @@ class RecoveryResult:
     """Reports of every job of :func:`run_recovery`, in job order."""
 
     jobs: tuple[RecoveryJob, ...]
-    reports: tuple[RecoveryReport, ...]
+    reports: tuple[RunRecovery, ...]
     simulated: tuple[bool, ...]
     sim_time_s: tuple[float, ...]
     stride: int
@@ -358,7 +362,7 @@ class RecoveryResult:
     def _rows(self, noise_study: bool) -> pd.DataFrame:
         """Summary rows of the jobs with (``noise_study``) or without an explicit control noise: per
         simulator and noise level, one row per seed and, with several seeds, a pooled one."""
-        groups: dict[tuple[str, float], list[RecoveryReport]] = {}
+        groups: dict[tuple[str, float], list[RunRecovery]] = {}
         for r, j in zip(self.reports, self.jobs):
             if (j.control_noise is not None) == noise_study:
                 groups.setdefault((r.simulator, r.control_noise), []).append(r)
@@ -383,7 +387,7 @@ class RecoveryResult:
         jobs with an explicit ``control_noise``); empty without them."""
         return self._rows(noise_study=True)
 
-    def _unique(self) -> list[RecoveryReport]:
+    def _unique(self) -> list[RunRecovery]:
         """Each report once (a noise level equal to the population's own shares the main job's report)."""
         out, seen = [], set()
         for r in self.reports:

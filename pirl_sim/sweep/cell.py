@@ -206,41 +206,12 @@ def _histories(test, protocol):
     return hist, np.asarray(owner, dtype=int)
 
 
-def _weight_scores(inferred: np.ndarray, true: np.ndarray, styles, model, style_names) -> list[dict]:
-    """Weight recovery per free feature, over all test histories and per true style.
-
-    One dict per (feature, style) with ``feature``, ``style`` ("all" or the style's name), ``n`` (histories),
-    ``median_abs_log_err`` and ``p90_abs_log_err`` of |log(inferred / true)| (normalised weights: the reference
-    feature is 1) and ``spearman`` of true vs inferred weights (None when either is constant or n < 3).
-    """
-    from scipy.stats import spearmanr
-
-    names = list(model.features.names)
-    ref = model.features.reference_index
-    groups = [("all", np.ones(len(true), dtype=bool))]
-    if styles is not None:
-        for k in np.unique(styles):
-            label = style_names[int(k)] if 0 <= int(k) < len(style_names) else str(int(k))
-            groups.append((label, styles == k))
-    rows = []
-    for j, name in enumerate(names):
-        if j == ref:
-            continue
-        for label, mask in groups:
-            est, tru = inferred[mask, j], true[mask, j]
-            err = np.abs(np.log(est / tru))
-            rho = None
-            if len(est) >= 3 and np.ptp(est) > 0 and np.ptp(tru) > 0:
-                rho = _float(spearmanr(tru, est).statistic)
-            rows.append({"feature": name, "style": label, "n": int(mask.sum()),
-                         "median_abs_log_err": _float(np.median(err)),
-                         "p90_abs_log_err": _float(np.percentile(err, 90)), "spearman": rho})
-    return rows
-
-
 def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | None, list | None]:
-    """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories, and `_weight_scores`
-    over all of them (truth permitting; learners without weights, the baselines, give neither)."""
+    """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories, and
+    `pirl_sim.recovery.weight_scores` over all of them (truth permitting; learners without weights, the baselines,
+    give neither)."""
+    from pirl_sim.recovery import weight_scores
+
     from .baselines import BASELINES
 
     if not all("theta" in t.metadata for t in test) or isinstance(learner, tuple(BASELINES.values())):
@@ -250,7 +221,7 @@ def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | No
     true = np.stack([np.asarray(test[i].metadata["theta"], dtype=float) for i in owner])
     styles = (np.array([int(test[i].metadata["style"]) for i in owner])
               if all("style" in t.metadata for t in test) else None)
-    scores = _weight_scores(inferred, true, styles, model, style_names)
+    scores = weight_scores(inferred, true, styles, model, style_names)
     if len(hist) > MAX_RECOVERY_POINTS:
         pick = np.unique(np.linspace(0, len(hist) - 1, MAX_RECOVERY_POINTS).astype(int))
         inferred, true = inferred[pick], true[pick]
@@ -292,7 +263,7 @@ def run_cell(spec: dict, code_version: str | None = None, store_root: str | None
         for learners without clusters or data without styles), n_styles, n_train, n_test, n_predictions,
         n_warnings; ``timings`` [s]: generate_s (0 when cached), fit_s, evaluate_s, cell_s (wall clock),
         cpu_s (CPU time of the worker process: below cell_s when the worker waited for a core);
-        ``recovery`` (see `_recovery`) or None; ``weights``: `_weight_scores` (per free feature, overall and
+        ``recovery`` (see `_recovery`) or None; ``weights``: `pirl_sim.recovery.weight_scores` (per free feature, overall and
         per style) or None; ``warnings``: distinct warning messages (of the data generation
         too, when this cell generated the data); ``worker``: host, pid.
     """
