@@ -17,19 +17,28 @@ whatever its route (`MeanOffsetProfile.fit_plane`, `MeanOffsetProfile.backed_by`
 lanes most routes are driven by one or two tracks, and per route the profile has data for few windows (on the
 development roundabout DR_CHN_Roundabout_LN, 30 % of test windows; the rest fell back to holding), while the
 lanes that routes share are driven by many. Pooling alone is worse where routes have their own data: the
-pooled median mixes neighbouring lanes (DR_USA_Roundabout_FT). Both are shared by every path-based predictor (baselines
-and learners alike), so that comparisons between them stay about the motion along the path.
+pooled median mixes neighbouring lanes (DR_USA_Roundabout_FT). ``"neighbours"`` adds to the ``"plane"`` rule what drivers did across the path at the same place
+(`NeighbourOffsets`): the deviation from the mean path is not held but changed as it changed after the
+``n_neighbors`` training windows nearest in position, heading, deviation and lateral speed (inverse-distance
+mean over their recorded futures, by time step):
+
+    d(t) = dbar(s(t)) + (d_0 - dbar(s_0)) + sum_k w_k (delta_k(t) - delta_k(0)),   delta = d - dbar(s).
+
+Where cars change lanes or cut across the circle at a place, the neighbours carry that. All of these are shared
+by every path-based predictor (baselines and learners alike), so that comparisons between them stay about the
+motion along the path.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["LATERAL_MODELS", "MeanOffsetProfile", "predict_offsets"]
+__all__ = ["LATERAL_MODELS", "MeanOffsetProfile", "NeighbourOffsets", "predict_offsets"]
 
-LATERAL_MODELS = ("hold", "mean-path", "plane")
+LATERAL_MODELS = ("hold", "mean-path", "plane", "neighbours")
 
 
 @dataclass(frozen=True)
@@ -190,7 +199,8 @@ def predict_offsets(kind: str, d0: float, segment: int, s0: float, s_pred: np.nd
 
     Parameters
     ----------
-    kind : {"hold", "mean-path", "plane"}
+    kind : {"hold", "mean-path", "plane"}  (``"neighbours"`` needs the window's history:
+                         `NeighbourOffsets.predict`)
     d0 : float [m]       last observed offset
     segment : int        the track's route
     s0 : float [m]       arc length at the start of the prediction
@@ -203,9 +213,135 @@ def predict_offsets(kind: str, d0: float, segment: int, s0: float, s_pred: np.nd
     held = np.full(s_pred.shape, float(d0))
     if kind == "hold":
         return held
+    if kind == "neighbours":
+        raise ValueError("lateral model 'neighbours' predicts from the window's history: use NeighbourOffsets.predict")
     if profile is None:
         raise ValueError(f"lateral model {kind!r} needs a fitted MeanOffsetProfile")
     base = profile(segment, np.concatenate([[s0], s_pred.ravel()]))
     if not np.all(np.isfinite(base)):
         return held
     return base[1:].reshape(s_pred.shape) + (float(d0) - base[0])
+
+
+@dataclass(frozen=True)
+class NeighbourOffsets:
+    """Lateral offsets from the mean path plus the change of deviation of the nearest training windows
+    (module doc, ``"neighbours"``).
+
+    Parameters
+    ----------
+    n_neighbors : int             training windows averaged per prediction (inverse distance)
+    lag : int [steps]             heading and lateral speed are taken over the last ``lag`` steps
+    stride : int [steps]          between training windows along a track
+    position_scale : float [m]    a distance in the plane of this much counts as 1 in the look-up
+    heading_weight : float        the unit heading vector's weight in the look-up
+    speed_scale : float [m/s]     a lateral-speed difference of this much counts as 1
+    offset_scale : float [m]      a deviation difference of this much counts as 1
+
+    The look-up of a window ending at step k: its position (x, y) [m] at k, heading over ``lag`` steps, deviation
+    ``delta`` [m] from the mean path at k, and lateral speed [m/s] over ``lag`` steps.
+    """
+
+    n_neighbors: int = 20
+    lag: int = 5
+    stride: int = 2
+    position_scale: float = 5.0
+    heading_weight: float = 3.0
+    speed_scale: float = 1.0
+    offset_scale: float = 1.0
+    _fit: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        for name in ("n_neighbors", "lag", "stride"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} must be a whole number >= 1, got {v!r}")
+        for name in ("position_scale", "heading_weight", "speed_scale", "offset_scale"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v) \
+                    or v <= 0:
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+
+    def _deviation(self, profile: MeanOffsetProfile, track) -> np.ndarray:
+        """delta = d - dbar(s) over a whole track (n_steps + 1,) [m]; NaN where the profile has no data."""
+        return np.asarray(track.metadata["d"], dtype=float) - profile(int(track.metadata.get("segment", 0)),
+                                                                       track.states[:, 0])
+
+    def _lookup(self, track, step: int, delta0: float) -> np.ndarray:
+        xy = np.asarray(track.metadata["xy"], dtype=float)
+        d = np.asarray(track.metadata["d"], dtype=float)
+        back = max(step - self.lag, 0)
+        move = xy[step] - xy[back]
+        norm = float(np.hypot(*move))
+        heading = move / norm if norm > 1e-6 else np.zeros(2)
+        lateral_speed = (d[step] - d[back]) / (max(step - back, 1) * track.dt)
+        return np.array([xy[step, 0] / self.position_scale, xy[step, 1] / self.position_scale,
+                         self.heading_weight * heading[0], self.heading_weight * heading[1],
+                         delta0 / self.offset_scale, lateral_speed / self.speed_scale])
+
+    def fit(self, profile: MeanOffsetProfile, train, horizon: int) -> "NeighbourOffsets":
+        """Fit on training tracks (Trajectory with ``metadata`` "xy" (n+1, 2) [m], "d" (n+1,) [m] and
+        "segment") under the fitted mean-path ``profile``, for predictions of ``horizon`` steps.
+
+        Returns a new fitted model (this one is not changed). Windows whose mean path is unknown anywhere
+        over their horizon are skipped; ValueError if none is left."""
+        from scipy.spatial import cKDTree
+
+        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
+            raise ValueError(f"horizon must be a whole number of steps >= 1, got {horizon!r}")
+        if not isinstance(profile, MeanOffsetProfile) or not profile.fitted:
+            raise ValueError("NeighbourOffsets.fit needs a fitted MeanOffsetProfile")
+        keys, targets = [], []
+        for track in train:
+            delta = self._deviation(profile, track)
+            for step in range(self.lag, len(delta) - horizon, self.stride):
+                future = delta[step : step + horizon + 1]
+                if np.all(np.isfinite(future)):
+                    keys.append(self._lookup(track, step, future[0]))
+                    targets.append(future[1:] - future[0])
+        if len(keys) < self.n_neighbors:
+            raise ValueError(f"NeighbourOffsets needs at least n_neighbors={self.n_neighbors} training windows "
+                             f"of {horizon} steps on the mean path, found {len(keys)}")
+        out = dataclasses.replace(self)
+        object.__setattr__(out, "_fit", {"profile": profile, "horizon": int(horizon), "tree": cKDTree(np.stack(keys)),
+                                         "targets": np.stack(targets)})
+        return out
+
+    @property
+    def fitted(self) -> bool:
+        return bool(self._fit)
+
+    @property
+    def profile(self) -> MeanOffsetProfile:
+        """The fitted mean path."""
+        if not self.fitted:
+            raise ValueError("NeighbourOffsets is not fitted: call fit(profile, train, horizon) first")
+        return self._fit["profile"]
+
+    def predict(self, tracks, windows, s_pred: np.ndarray) -> np.ndarray:
+        """Offsets (W, H) [m] at the predicted arc lengths ``s_pred`` (W, H) of the windows (track index, step):
+        the prediction starts after ``step`` of ``tracks[i]``. Held offsets where the mean path is unknown."""
+        profile = self.profile
+        s_pred = np.asarray(s_pred, dtype=float)
+        if s_pred.ndim != 2 or len(s_pred) != len(windows) or s_pred.shape[1] > self._fit["horizon"]:
+            raise ValueError(f"s_pred must be (W={len(windows)}, H <= {self._fit['horizon']}), got {s_pred.shape}")
+        out = np.empty_like(s_pred)
+        keys, rows, base0 = [], [], []
+        for w, (i, step) in enumerate(windows):
+            track = tracks[i]
+            d0 = float(track.metadata["d"][step])
+            base = profile(int(track.metadata.get("segment", 0)), np.concatenate([[track.states[step, 0]], s_pred[w]]))
+            if not np.all(np.isfinite(base)):
+                out[w] = d0
+                continue
+            out[w] = base[1:] + (d0 - base[0])
+            keys.append(self._lookup(track, step, d0 - base[0]))
+            rows.append(w)
+        if rows:
+            dist, idx = self._fit["tree"].query(np.stack(keys), k=self.n_neighbors)
+            dist, idx = dist.reshape(len(rows), -1), idx.reshape(len(rows), -1)
+            weights = 1.0 / np.maximum(dist, 1e-9)
+            weights /= weights.sum(axis=1, keepdims=True)
+            change = np.einsum("wk,wkh->wh", weights, self._fit["targets"][idx][:, :, : s_pred.shape[1]])
+            out[rows] += change
+        return out

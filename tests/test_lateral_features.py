@@ -8,7 +8,7 @@ import pytest
 from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
 from pirl_sim.dynamics import longitudinal
 from pirl_sim.harness.replay import ReplayProtocol, run_replay
-from pirl_sim.lateral import MeanOffsetProfile, predict_offsets
+from pirl_sim.lateral import MeanOffsetProfile, NeighbourOffsets, predict_offsets
 from pirl_sim.paths import ReferencePath
 from pirl_sim.scenarios.replay import load_replay
 
@@ -219,12 +219,13 @@ def test_replay_cli_applies_the_lateral_model_to_a_single_recording(tmp_path):
 
     tracks, osm = _weaving_scene(tmp_path)
     floors = {}
-    for lateral in ("hold", "mean-path"):
+    for lateral in ("hold", "mean-path", "neighbours"):
         out = tmp_path / lateral
         assert main(["replay", "--tracks", str(tracks), "--map", str(osm), "--out", str(out), "--seeds", "1",
                      "--learners", "tirl", "--lateral", lateral, "--quiet"]) == 0
         floors[lateral] = pd.read_csv(out / "rows.csv")["lateral_floor"].iloc[0]
     assert floors["mean-path"] < 0.5 * floors["hold"]
+    assert floors["neighbours"] < 0.5 * floors["hold"]
 
 
 def test_plane_profile_pools_offsets_over_routes_that_share_a_lane():
@@ -267,3 +268,58 @@ def test_backed_by_keeps_the_routes_own_bins_and_fills_the_rest():
     np.testing.assert_allclose(both(1, np.array([0.5])), [4.0])
     with pytest.raises(ValueError, match="bin_width"):
         own.backed_by(MeanOffsetProfile(bin_width=2.0).fit(np.zeros(3, int), np.zeros(3), np.zeros(3)))
+
+
+def _lane_change_tracks(n_each: int = 6, dt: float = 0.1):
+    """Straight road along x; half the cars keep 1.5 m left of the centreline, half come from 1.5 m right and
+    cross to the left between x = 30 and 42 m at 1 m/s (a lane change that the median path cannot show)."""
+    from pirl_sim.trajectory import Trajectory
+
+    x = np.arange(0.0, 80.0, 1.0)  # 10 m/s, 0.1 s steps
+    tracks = []
+    for k in range(2 * n_each):
+        shift = 0.13 * k  # start positions differ a little
+        xs = x + shift
+        if k % 2:
+            d = np.clip(-1.5 + (xs - 30.0) / 4.0, -1.5, 1.5)
+        else:
+            d = np.full_like(xs, 1.5)
+        states = np.column_stack([xs, np.full_like(xs, 10.0), np.zeros_like(xs)])
+        tracks.append(Trajectory(states, np.zeros((len(xs) - 1, 1)), dt,
+                                 {"xy": np.column_stack([xs, d]), "d": d, "segment": 0, "track_id": k}))
+    return tracks
+
+
+def test_neighbour_offsets_carry_a_lane_change_that_the_mean_path_misses():
+    tracks = _lane_change_tracks()
+    train, test = tracks[:-2], tracks[-2:]  # one of each kind tested
+    segment = np.concatenate([np.zeros(t.n_steps + 1, int) for t in train])
+    prof = MeanOffsetProfile().fit(segment, np.concatenate([t.states[:, 0] for t in train]),
+                                   np.concatenate([t.metadata["d"] for t in train]))
+    model = NeighbourOffsets(n_neighbors=3).fit(prof, train, horizon=15)
+    # the changing car 2 m into its change (x ~ 32 m), and a car keeping left at the same place
+    windows = [(i, int(np.searchsorted(test[i].states[:, 0], 32.0))) for i in (1, 0)]
+    s_pred = np.stack([test[i].states[step + 1 : step + 16, 0] for i, step in windows])
+    truth = np.stack([test[i].metadata["d"][step + 1 : step + 16] for i, step in windows])
+    got = model.predict(test, windows, s_pred)
+    plane = np.stack([predict_offsets("mean-path", test[i].metadata["d"][step], 0, test[i].states[step, 0],
+                                      s_pred[w], prof) for w, (i, step) in enumerate(windows)])
+    assert np.abs(got - truth).max() < 0.1  # both cars' futures
+    assert np.abs(plane[0] - truth[0]).max() > 1.0  # the median path does not change lanes with the car
+    # no mean path there: held, like the other models
+    far = model.predict(test, windows[:1], s_pred[:1] + 500.0)
+    np.testing.assert_array_equal(far, test[1].metadata["d"][windows[0][1]])
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: NeighbourOffsets(n_neighbors=0), "n_neighbors"),
+    (lambda: NeighbourOffsets(position_scale=float("nan")), "position_scale"),
+    (lambda: NeighbourOffsets().fit(_profile(), [], 15), "at least"),
+    (lambda: NeighbourOffsets().fit(_profile(), [], 0), "horizon"),
+    (lambda: NeighbourOffsets().fit(MeanOffsetProfile(), [], 5), "fitted"),
+    (lambda: NeighbourOffsets().predict([], [], np.zeros((0, 3))), "not fitted"),
+    (lambda: predict_offsets("neighbours", 0.0, 0, 0.0, np.zeros(3), _profile()), "NeighbourOffsets.predict"),
+])
+def test_bad_neighbour_offsets_inputs_name_the_value(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()

@@ -79,9 +79,10 @@ class ReplayProtocol:
     rollout : {"open", "closed"}  how learners' weights become a prediction (module doc)
     mpc_horizon : int or None     the MPC's planning horizon [steps]; required for ``rollout="closed"``
                                   (None with "open": plan over ``horizon``)
-    lateral : {"hold", "mean-path", "plane"}  lateral offsets of every path-based prediction (`pirl_sim.lateral`):
-                                  the last observed one held, or the training tracks' mean path per route, or
-                                  their mean path pooled in the plane over routes
+    lateral : {"hold", "mean-path", "plane", "neighbours"}  lateral offsets of every path-based prediction
+                                  (`pirl_sim.lateral`): the last observed one held, or the training tracks' mean
+                                  path per route, or their mean path pooled in the plane over routes, or that
+                                  plus the change of deviation of the nearest training windows
     """
 
     history: int = 10
@@ -202,12 +203,15 @@ def _positions(model, test, windows, s_pred, proto, lateral: str | None = None, 
     lateral = proto.lateral if lateral is None else lateral
     out = np.empty((len(windows), proto.horizon, 2))
     composite = isinstance(model.path, CompositePath)
+    neighbours = profile.predict(test, windows, s_pred) if lateral == "neighbours" else None
     for w, (i, step) in enumerate(windows):
         t = test[i]
         seg = int(t.metadata.get("segment", 0))
         on = {"segment": seg} if composite and "segment" in t.metadata else {}
         if lateral == "recorded":
             d = t.metadata["d"][step + 1 : step + 1 + proto.horizon]
+        elif neighbours is not None:
+            d = neighbours[w]
         else:
             d = predict_offsets(lateral, t.metadata["d"][step], seg, t.states[step, 0], s_pred[w], profile)
         out[w] = model.path.to_cartesian(s_pred[w], d, **on)
@@ -246,14 +250,20 @@ def _future_scores(model, test, windows, s_futures, proba, proto, profile, dt: f
             f"nll_per_step@{K}": float(mixture_nll(xy, proba, truth, 1.0).mean() / proto.horizon)}
 
 
-def fit_lateral_profile(train, kind: str = "mean-path", path=None):
+def fit_lateral_profile(train, kind: str = "mean-path", path=None, horizon: int | None = None):
     """`pirl_sim.lateral.MeanOffsetProfile` fitted on training pieces: per route from (route, arc length,
     recorded offset) for ``kind="mean-path"``, that backed by the profile pooled in the plane from their
-    positions on ``path`` (the model's reference path) for ``"plane"``; None for ``"hold"``."""
-    from pirl_sim.lateral import MeanOffsetProfile
+    positions on ``path`` (the model's reference path) for ``"plane"``; for ``"neighbours"`` a
+    `pirl_sim.lateral.NeighbourOffsets` on the ``"plane"`` profile for predictions of ``horizon`` steps; None for
+    ``"hold"``."""
+    from pirl_sim.lateral import MeanOffsetProfile, NeighbourOffsets
 
     if kind == "hold":
         return None
+    if kind == "neighbours":
+        if horizon is None:
+            raise ValueError("the 'neighbours' lateral model needs the prediction horizon [steps]")
+        return NeighbourOffsets().fit(fit_lateral_profile(train, "plane", path), train, horizon)
     if kind == "plane":
         pooled = MeanOffsetProfile().fit_plane(path, [np.asarray(t.metadata["xy"], dtype=float) for t in train])
         return fit_lateral_profile(train, "mean-path").backed_by(pooled)
@@ -412,7 +422,7 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
-        profile = fit_lateral_profile(train, proto.lateral, model.path)
+        profile = fit_lateral_profile(train, proto.lateral, model.path, proto.horizon)
         recorded_s = np.stack([test[i].states[step + 1 : step + 1 + proto.horizon, 0] for i, step in windows])
         counts["lateral_floor"] = float(_errors(model, test, windows, recorded_s, proto, profile=profile).mean())
         x0 = np.stack([test[i].states[step] for i, step in windows])

@@ -93,10 +93,11 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "headway: the gap to the recorded vehicle ahead, held at constant velocity over a "
                          "prediction; selection defaults to 'all') (pirl_sim.driving.roundabout_features) "
                          "(default paper)")
-    rp.add_argument("--lateral", choices=["hold", "mean-path", "plane"], default="hold",
+    rp.add_argument("--lateral", choices=["hold", "mean-path", "plane", "neighbours"], default="hold",
                     help="lateral offsets of every path-based prediction (baselines and learners): 'hold' the last "
                          "observed one, or follow the training tracks' 'mean-path' of the route, or their mean path "
-                         "pooled over routes in the 'plane' (pirl_sim.lateral) (default hold)")
+                         "pooled over routes in the 'plane', or that plus the change of deviation of the nearest "
+                         "training windows in the plane, 'neighbours' (pirl_sim.lateral) (default hold)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
                          "with costs of what followed each training window, looked up by features and the last "
