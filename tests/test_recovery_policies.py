@@ -1,0 +1,120 @@
+"""Recovery tests as an API (issue 13 item 6): weights of drivers and policies of known weights come back within
+stated tolerances, through pirl_sim.recovery.RecoveryReport and pirl_sim.testing.assert_recovered.
+
+(a) a SUMO population recorded by the simulator; (b) the scripted MPC ego of pirl_sim/Roundabout-v0 recorded
+with record_tracks; (c) a smoke test of the PPO experiment (its figure is results/policy_recovery, no pass/fail).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pirl_sim.recovery import RecoveryReport
+from pirl_sim.testing import assert_recovered, recovery_misses
+
+
+def _swapped_truth(report: RecoveryReport) -> RecoveryReport:
+    """The same fits compared with other tracks' true weights: what a broken pipeline would claim."""
+    order = np.roll(np.arange(report.n_tracks), report.n_tracks // 2)
+    return RecoveryReport.from_weights(report.true[order], report.estimated, features=report.features,
+                                       styles=report.styles, track_ids=report.track_ids)
+
+
+# ---------------------------------------------------------------------------------------------- (a) SUMO
+SUMO_VEHICLES = 40  # 32 PIRL tracks of the three default styles, 8 SUMO drivers
+SUMO_NOISE = 0.1  # [m/s^3] on every applied jerk: the drivers are not exactly rational
+#: stated tolerances on |log(theta_hat / theta)| of the per-track receding-horizon fits: over all tracks the
+#: upper end of the median's 95 % interval, per style the median itself (6-16 tracks a style)
+SUMO_TOLERANCES = {"median": {"speed_dev": 0.15, "acc_sq": 0.15}}
+SUMO_STYLE_TOLERANCES = {"median": {"speed_dev": 0.25, "acc_sq": 0.25}, "p90": {"speed_dev": 0.8, "acc_sq": 0.8}}
+
+
+@pytest.fixture(scope="module")
+def sumo_report(tmp_path_factory):
+    pytest.importorskip("libsumo")
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
+    from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_sumo_run, run_sumo_scenario
+
+    pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=SUMO_VEHICLES, control_noise=SUMO_NOISE)
+    out = tmp_path_factory.mktemp("sumo_recovery")
+    run_sumo_scenario(SumoScenarioConfig(population=pop), 0, out_dir=out)
+    return RecoveryReport.from_run(load_sumo_run(out))
+
+
+@pytest.mark.slow
+def test_sumo_population_weights_are_recovered(sumo_report):
+    rep = sumo_report
+    assert rep.source == "sumo seed 0" and rep.n_tracks >= 28
+    assert len(rep.style_names) == 3 and rep.converged.all()
+    assert_recovered(rep, SUMO_TOLERANCES, bound="high")
+    assert_recovered(rep, SUMO_STYLE_TOLERANCES, styles="each")
+    # the fits rank the drivers as their true weights do
+    assert rep.summary().query("style == 'all'")["spearman"].min() >= 0.8
+    # the same fits against other drivers' weights fail the same tolerances, naming features and styles
+    with pytest.raises(AssertionError, match=r"speed_dev, style 'all' \(n=\d+\): median"):
+        assert_recovered(_swapped_truth(rep), SUMO_TOLERANCES)
+
+
+# ---------------------------------------------------------------------------------------------- (b) MPC ego
+#: the MPC ego is exactly rational (no control noise): every episode's weights within 2 % (|log| 0.02)
+EGO_TOLERANCES = {"median": {"*": 0.01}, "p90": {"*": 0.02}}
+
+
+@pytest.fixture(scope="module")
+def mpc_ego():
+    pytest.importorskip("highway_env")
+    from pirl_sim.harness.policy_recovery import STYLES, mpc_ego_report
+
+    return mpc_ego_report(STYLES, seeds=(0, 1, 2, 3), ego_speeds=(5.0, 8.0, 11.0, 13.0))
+
+
+@pytest.mark.slow
+def test_mpc_ego_weights_are_recovered_from_its_recorded_tracks(mpc_ego):
+    rep, episodes = mpc_ego
+    assert rep.n_tracks == 8 and set(rep.style_names) == {"tracks desired speed", "minimises acceleration"}
+    assert rep.converged.all()
+    # the traffic capped some commands: those steps left the likelihood, the rest are the policy's own
+    assert all(e["own_steps"] > 0.6 * e["steps"] for e in episodes)
+    assert any(e["own_steps"] < e["steps"] for e in episodes)
+    assert_recovered(rep, EGO_TOLERANCES, styles="each")
+    assert_recovered(rep, {"median": {"*": 0.02}}, bound="high", styles="each")
+    # the two policies' weights are told apart: swapping them is far out of tolerance
+    misses = recovery_misses(_swapped_truth(rep), EGO_TOLERANCES, styles="each")
+    assert {m.style for m in misses} >= {"tracks desired speed", "minimises acceleration"}
+
+
+def test_policy_recovery_rejects_bad_settings():
+    from pirl_sim.harness.policy_recovery import PpoRecoveryConfig, mpc_ego_demonstrations
+
+    with pytest.raises(ValueError, match="training and evaluation seeds must differ; both have \\[1\\]"):
+        PpoRecoveryConfig(seeds=(0, 1), eval_seeds=(1, 2))
+    with pytest.raises(ValueError, match="theta must give speed_dev, acc_sq"):
+        PpoRecoveryConfig(theta=(("speed_dev", 1.0),))
+    with pytest.raises(ValueError, match="steps must be an integer >= 1"):
+        PpoRecoveryConfig(steps=0)
+    with pytest.raises(ValueError, match="config sets 'policy_frequency'"):
+        mpc_ego_demonstrations({"a": {"speed_dev": 1.0, "acc_sq": 1.0}}, [0], config={"policy_frequency": 5})
+    with pytest.raises(ValueError, match="ego_speeds must be 1 speeds"):
+        mpc_ego_demonstrations({"a": {"speed_dev": 1.0, "acc_sq": 1.0}}, [0], ego_speeds=[1.0, 2.0])
+    with pytest.raises(ValueError, match="seeds must be a non-empty list"):
+        mpc_ego_demonstrations({"a": {"speed_dev": 1.0, "acc_sq": 1.0}}, [])
+
+
+# ---------------------------------------------------------------------------------------------- (c) PPO smoke
+@pytest.mark.slow
+def test_ppo_recovery_experiment_runs_end_to_end(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from pirl_sim.harness.policy_recovery import PpoRecoveryConfig, ppo_ego_report, write_results
+
+    cfg = PpoRecoveryConfig(seeds=(0,), steps=128, n_steps=64, batch_size=32, n_epochs=1, eval_seeds=(1000,),
+                            duration=8.0)
+    result = ppo_ego_report(cfg)
+    ppo = result["reports"]["ppo"]
+    assert ppo.n_tracks == 1 and ppo.style_names == ("ppo seed 0",)
+    assert np.allclose(ppo.true, [[3.0, 0.3]])
+    assert set(result["episodes"]["policy"]) == {"ppo", "mpc"}
+    files = write_results(result, cfg, tmp_path, "test", 1.0)
+    assert "speed_dev" in files["README.md"].read_text() and (tmp_path / "tracks.csv").is_file()
