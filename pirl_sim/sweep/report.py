@@ -12,6 +12,8 @@ gives the same bytes):
 - ``recovery.png``: true against inferred normalised weights of test histories (``recovery.parquet``), one row
   per experiment (its first scenario variant and protocol), one column per learner (best k), one colour per
   feature in every panel, when the scenario knows the truth;
+- ``recovery_curves.png``: weight error against the training-set size, the control noise or the assumed MPC
+  horizon, one panel per experiment that varies one of them (`pirl_sim.sweep.curves`);
 
 Legends sit below the panels, outside every axes, so that none covers data.
 - ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI: the mean
@@ -375,8 +377,10 @@ def write_report(results, out_dir=None) -> dict:
     summary = summary_table(table)
     best = best_variants(summary)
     written = {}
+    from .curves import curves_markdown, recovery_curves
+
     figures = {"med_vs_k.png": med_vs_k(summary), "learners.png": learners_side_by_side(best),
-               "recovery.png": recovery_scatter(recovery, best)}
+               "recovery.png": recovery_scatter(recovery, best), "recovery_curves.png": recovery_curves(table)}
     for name, png in figures.items():
         if png is not None:
             written[name] = atomic_write_bytes(out / name, png)
@@ -444,9 +448,15 @@ def write_report(results, out_dir=None) -> dict:
         order = _orderings(best[best["experiment"] == exp])
         if order:
             lines += ["Orderings (best k of each learner):", "", *order, ""]
+    curves = curves_markdown(table, _fmt)
+    if curves:
+        lines += ["## Recovery curves", "", "Weight error (median |log(inferred / true)| of the normalised weights "
+                  "over the test histories) against the parameter each curve varies; mean over seeds ± 95 % "
+                  "interval (`pirl_sim.sweep.curves`, figure `recovery_curves.png`).", "", *curves]
     lines += ["## Figures", ""]
-    captions = {"learners.png": "Learners side by side", "med_vs_k.png": "MED vs k", "recovery.png": "Weight recovery"}
-    for fname in ("learners.png", "med_vs_k.png", "recovery.png"):
+    captions = {"learners.png": "Learners side by side", "med_vs_k.png": "MED vs k", "recovery.png": "Weight recovery",
+                "recovery_curves.png": "Recovery curves"}
+    for fname in ("learners.png", "med_vs_k.png", "recovery.png", "recovery_curves.png"):
         if fname in written:
             lines += [f"![{captions[fname]}]({fname})", ""]
     timing = table.drop_duplicates("key").groupby("learner", sort=False)[["fit_s", "evaluate_s", "cell_s"]].sum()

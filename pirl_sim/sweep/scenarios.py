@@ -28,7 +28,8 @@ Their parameters are the population's (`pirl_sim.scenarios.population_config`): 
 finite rationality: they re-plan with their own MPC every step, so noise on the applied jerk is what makes
 them less than rational), the drivers' MPC ``horizon``, and the selection of the demonstrations
 (``selection``: whole non-interacting tracks, or every PIRL track with a mask of the steps whose control is
-the driver's own; ``min_steps``; ``test_fraction``, the share of tracks split off by the seed for testing).
+the driver's own; ``min_steps``; ``test_fraction``, the share of tracks split off by the seed for testing;
+``n_train``, how many of the rest train, for recovery curves against the training-set size).
 """
 
 from __future__ import annotations
@@ -574,9 +575,11 @@ _SIMULATED_PARAMS = {
                        "(every PIRL track, the steps whose control is the driver's own)", choices=("tracks", "steps")),
     "min_steps": Param("int", 10, "shortest demonstration kept [steps]; with 'steps': usable steps"),
     "test_fraction": Param("float", 0.25, "share of the demonstrations in the test set (split by the seed)"),
+    "n_train": Param("int", 0, "training demonstrations kept, the first of the seed's random order (nested: a "
+                     "smaller n_train keeps a subset of a larger one's); 0: every one the split leaves"),
 }
 #: parameters that choose demonstrations from a run; the rest make the run
-_SELECTION_PARAMS = ("selection", "min_steps", "test_fraction")
+_SELECTION_PARAMS = ("selection", "min_steps", "test_fraction", "n_train")
 
 
 def _population(label: str, params: dict):
@@ -612,12 +615,16 @@ def _simulator_config(name: str, params: dict):
 
 
 def _check_simulated(name: str, params: dict) -> dict:
-    for key, low in (("n_vehicles", 2), ("min_steps", 1), ("horizon", 1)):
+    for key, low in (("n_vehicles", 2), ("min_steps", 1), ("horizon", 1), ("n_train", 0)):
         if params[key] < low:
             raise ValueError(f"scenario {name!r} parameter {key!r} must be >= {low}, got {params[key]!r}")
     if not 0 < params["test_fraction"] < 1:
         raise ValueError(f"scenario {name!r} parameter 'test_fraction' must be in (0, 1), got "
                          f"{params['test_fraction']!r}")
+    n_pirl = params["n_vehicles"] - int(math.floor(params["background_share"] * params["n_vehicles"]))
+    if params["n_train"] > n_pirl - 1:
+        raise ValueError(f"scenario {name!r} parameter 'n_train' = {params['n_train']} exceeds the {n_pirl - 1} "
+                         f"training tracks a run of {params['n_vehicles']} vehicles can give at most")
     config = _simulator_config(name, params)  # validates the population and the drivers
     out = dict(params, styles=[s.to_dict() for s in config.population.styles])
     out.pop("mix")
@@ -648,6 +655,11 @@ def _build_simulated(name: str, params: dict, seed: int, simulation_dir: Path) -
         raise ValueError(f"scenario {name!r}: only {len(demos)} demonstrations with selection "
                          f"{params['selection']!r} and min_steps {params['min_steps']} (more vehicles?)")
     train, test = _replay_split(len(demos), params["test_fraction"], seed)
+    if params["n_train"]:
+        if params["n_train"] > len(train):
+            raise ValueError(f"scenario {name!r}: n_train = {params['n_train']} but the run gives {len(train)} "
+                             f"training demonstrations (more vehicles, or a smaller n_train)")
+        train = train[:params["n_train"]]
     names = tuple(s.name for s in run.config.population.styles)
     return ScenarioData(run.model, [demos[i] for i in train], [demos[i] for i in test], names)
 
@@ -655,7 +667,7 @@ def _build_simulated(name: str, params: dict, seed: int, simulation_dir: Path) -
 def _shape_simulated(params: dict) -> TrainShape:
     """At most every PIRL vehicle but one test track; lengths are known only after the run."""
     n_pirl = params["n_vehicles"] - int(math.floor(params["background_share"] * params["n_vehicles"]))
-    return TrainShape(max(n_pirl - 1, 1), (), exact=False)
+    return TrainShape(params["n_train"] or max(n_pirl - 1, 1), (), exact=False)
 
 
 def _check_sumo(params):
