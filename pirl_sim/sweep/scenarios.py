@@ -621,11 +621,11 @@ def _check_simulated(name: str, params: dict) -> dict:
     if not 0 < params["test_fraction"] < 1:
         raise ValueError(f"scenario {name!r} parameter 'test_fraction' must be in (0, 1), got "
                          f"{params['test_fraction']!r}")
+    config = _simulator_config(name, params)  # validates the population and the drivers
     n_pirl = params["n_vehicles"] - int(math.floor(params["background_share"] * params["n_vehicles"]))
     if params["n_train"] > n_pirl - 1:
         raise ValueError(f"scenario {name!r} parameter 'n_train' = {params['n_train']} exceeds the {n_pirl - 1} "
                          f"training tracks a run of {params['n_vehicles']} vehicles can give at most")
-    config = _simulator_config(name, params)  # validates the population and the drivers
     out = dict(params, styles=[s.to_dict() for s in config.population.styles])
     out.pop("mix")
     return out
