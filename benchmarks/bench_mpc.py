@@ -12,28 +12,35 @@ Baseline: the same optimal-control problem written with casadi Opti (multiple sh
 casadi B-spline of the same table, the same smooth desired-speed formula) solved by IPOPT from the same starts.
 Target: >= 2,000 predictions/s and >= 10x faster than the baseline. Medians of --repeats.
 
-Cold starts are also timed with the Newton model assembled stage-wise through `FeatureSet.derivatives`
-(``SequentialMPC(assembly="stagewise")``, the path before issue 16), interleaved with the default
-(``assembly="outer"``), and the ratio printed; both plans are compared. BLAS threads: ``--blas-threads``
-(default 1, through threadpoolctl; printed).
+Cold starts are timed in child processes, alternately on the working tree and on a baseline revision of the
+package (``--baseline``, default `_baseline.BEFORE`: main before this afternoon's issue-16 speed work; the
+package is exported with ``git archive``), ``--repeats`` times each, so that both see the same load; the
+medians and their ratio are printed, with the largest difference between the two codes' plans. In-process
+figures (warm receding horizon, IPOPT) follow. BLAS threads: ``--blas-threads`` (default 1, through
+threadpoolctl and the thread variables of the children; printed), and the load average.
 
-Last runs (issue 16, 2026-12-01, this 2-core machine shared with other sessions, one BLAS thread): cold starts
-2,326/s with the machine lightly loaded, 1,659/s and 1,440/s while other sessions kept both cores busy (load
-average ~4); the stage-wise model measured in the same runs: 1.5-1.6x slower (1,025/s in the 1,659/s run).
+Last runs (issue 16, 2026-12-01 ~13:50-14:00 UTC, this 2-core machine shared with three other sessions' jobs,
+one BLAS thread; Newton steps of batches >= 96 starts by the Riccati recursion, the desired speed from one
+interval search): cold starts 2,604/s against 1,608/s for the baseline 45532b2 in the same run (1.62x, load
+average 4.7), and 1,849/s against 1,102/s (1.68x) at load average 6.0; plans equal to 8.8e-13.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import statistics
+import sys
 import time
 
 import numpy as np
 
-from pirl_sim.mpc import SequentialMPC
 from pirl_sim.scenarios.passage import PassageConfig
 from pirl_sim.threads import blas_threads, current_blas_threads, parse_blas_threads
 from pirl_sim.simulate import simulate_receding_horizon
+
+from _baseline import BEFORE, export_revision, run_worker
 
 THETA = np.array([3.0, 0.3, 1.0])
 N = 40
@@ -76,48 +83,89 @@ def opti_solver(model):
     return solve
 
 
+def cold_starts(M: int) -> np.ndarray:
+    """The cold-start workload: M starts (s [m], v [m/s], a [m/s^2]), seeded."""
+    rng = np.random.default_rng(0)
+    return np.column_stack([rng.uniform(0, 100, M), rng.uniform(2, 12, M), np.clip(rng.normal(0, 0.5, M), -3.9, 2.9)])
+
+
+def worker(M: int, rounds: int, plans: str | None) -> None:
+    """Child process: time ``rounds`` cold batches of M starts on the pirl_sim it imports; one JSON line out."""
+    model = PassageConfig().model()
+    x0 = cold_starts(M)
+    model.predict_states(x0[:5], THETA, N)  # build the solvers once
+    times = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        states = model.predict_states(x0, THETA, N)
+        times.append(time.perf_counter() - t0)
+    if plans:
+        np.save(plans, states)
+    print(json.dumps({"times": times}))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--starts", type=int, default=500)
     ap.add_argument("--ipopt-solves", type=int, default=20)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=5, help="child processes per code, alternating (default 5)")
+    ap.add_argument("--rounds", type=int, default=3, help="timed cold batches per child (default 3)")
+    ap.add_argument("--baseline", default=BEFORE, help=f"git revision to compare with (default {BEFORE})")
     ap.add_argument("--blas-threads", default="1", help="BLAS threads (a positive integer or 'auto'; default 1)")
+    ap.add_argument("--cold-only", action="store_true", help="skip the warm and IPOPT workloads")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--plans", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    with blas_threads(parse_blas_threads(args.blas_threads, "--blas-threads")):
-        run(args)
+    for name in ("starts", "repeats", "rounds", "ipopt_solves"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    threads = parse_blas_threads(args.blas_threads, "--blas-threads")
+    if threads is not None:
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ[var] = str(threads)
+    with blas_threads(threads):
+        if args.worker:
+            worker(args.starts, args.rounds, args.plans)
+        else:
+            run(args)
 
 
 def run(args):
+    M = args.starts
+    base_code = export_revision(args.baseline)
+    wargs = ["--starts", str(M), "--rounds", str(args.rounds), "--blas-threads", args.blas_threads]
+    here = os.path.abspath(__file__)
+    ours_t, base_t = [], []
+    plans = {name: os.path.join(str(base_code), f"plans_{name}_{os.getpid()}.npy") for name in ("ours", "base")}
+    load0 = os.getloadavg()
+    for r in range(args.repeats):  # alternating children: both codes see the same load
+        last = ["--plans", plans["base"]] if r == 0 else []
+        base_t += run_worker(here, wargs + last, base_code)["times"]
+        last = ["--plans", plans["ours"]] if r == 0 else []
+        ours_t += run_worker(here, wargs + last)["times"]
+    load1 = os.getloadavg()
+    ours_plans, base_plans = np.load(plans["ours"]), np.load(plans["base"])
+    for path in plans.values():
+        os.remove(path)
+    t_cold = statistics.median(ours_t) / M
+    t_base = statistics.median(base_t) / M
+
+    threads = ", ".join(f"{k} {v}" for k, v in current_blas_threads().items())
+    print(f"roundabout MPC, N={N}, bounds on v, a, j; {M} cold starts; BLAS threads: {threads}; load average "
+          f"{load0[0]:.2f} before, {load1[0]:.2f} after the cold runs ({os.cpu_count()} cores)")
+    print(f"  cold starts          : {1 / t_cold:8.0f} predictions/s  ({t_cold * 1e3:.3f} ms each; median of "
+          f"{len(ours_t)} batches in {args.repeats} processes), target >= 2,000/s: "
+          f"{'met' if 1 / t_cold >= 2000 else 'NOT met'}")
+    print(f"  cold, baseline {args.baseline} (same run, alternating): {1 / t_base:8.0f} predictions/s "
+          f"({t_base * 1e3:.3f} ms each); speed-up {t_base / t_cold:.2f}x; max |state difference| "
+          f"{np.abs(base_plans - ours_plans).max():.1e}")
+    if args.cold_only:
+        return
 
     model = PassageConfig().model()
     rng = np.random.default_rng(0)
-    M = args.starts
-    x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(2, 12, M), np.clip(rng.normal(0, 0.5, M), -3.9, 2.9)])
-    predictor = model.predictor()
-    predictor.controls(x0[:5], THETA, N)  # build the QP solver once
-
-    stagewise = SequentialMPC(predictor.dynamics, predictor.features, predictor.bounds, n_iter=predictor.n_iter,
-                              n_qp_iter=predictor.n_qp_iter, tol=predictor.tol, qp_tol=predictor.qp_tol,
-                              assembly="stagewise")
-    stagewise.controls(x0[:5], THETA, N)
-
-    def cold():
-        return model.predict_states(x0, THETA, N)
-
-    times, times_base = [], []
-    for _ in range(args.repeats):  # interleaved: the default, then the stage-wise baseline
-        predictor.n_qp = 0
-        t0 = time.perf_counter()
-        ours = cold()
-        times.append(time.perf_counter() - t0)
-        n_qp = predictor.n_qp
-        t0 = time.perf_counter()
-        base = stagewise.predict(x0, THETA, N)
-        times_base.append(time.perf_counter() - t0)
-    t_cold = statistics.median(times) / M
-    t_base = statistics.median(times_base) / M
-    plan_gap = np.abs(base - ours).max()
-
+    x0 = cold_starts(M)
+    ours = ours_plans
     drivers, steps = 50, 100
     starts = np.column_stack([rng.uniform(0, 20, drivers), rng.uniform(8, 12, drivers), np.zeros(drivers)])
     times = []
@@ -134,13 +182,8 @@ def run(args):
     t_ipopt = (time.perf_counter() - t0) / k
     gap = np.abs(ref[:, :, 0] - ours[:k, :, 0]).max()
 
-    threads = ", ".join(f"{k} {v}" for k, v in current_blas_threads().items())
-    print(f"roundabout MPC, N={N}, bounds on v, a, j; {M} cold starts ({n_qp} bounded QPs needed); BLAS threads: "
-          f"{threads}; medians of {args.repeats}:")
-    print(f"  cold starts          : {1 / t_cold:8.0f} predictions/s  ({t_cold * 1e3:.2f} ms each), target >= 2,000/s")
-    print(f"  cold, stage-wise model (before): {1 / t_base:8.0f} predictions/s; speed-up {t_base / t_cold:.2f}x; "
-          f"max |state difference| {plan_gap:.1e}")
-    print(f"  warm, receding horizon: {1 / t_warm:8.0f} predictions/s  ({t_warm * 1e3:.2f} ms each), target >= 2,000/s")
+    print(f"  warm, receding horizon: {1 / t_warm:8.0f} predictions/s  ({t_warm * 1e3:.2f} ms each, median of "
+          f"{args.repeats}, in this process)")
     print(f"  casadi Opti + IPOPT  : {1 / t_ipopt:8.0f} predictions/s  ({t_ipopt * 1e3:.2f} ms each, {k} solves)")
     print(f"  speed-up vs IPOPT    : cold {t_ipopt / t_cold:6.1f}x, warm {t_ipopt / t_warm:6.1f}x (target >= 10x)")
     print(f"  max |s_ours - s_ipopt| over the {k} compared plans: {gap:.2e} m")

@@ -202,22 +202,55 @@ class SpeedProfile:
             spline = CubicSpline(s, kappa, bc_type="not-a-knot")
         object.__setattr__(self, "_spline", spline)
 
-    def curvature(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """kappa(s), dkappa/ds, d2kappa/ds2 (zero slope beyond the ends of an open path)."""
-        s = np.asarray(s, dtype=float)
+    def _pieces(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The spline's cubic pieces at arc lengths s [m] (any shape), from one interval search.
+
+        Returns the cubic's coefficients c0..c3 of each point's interval (highest power first) and the offset
+        t [m] into it, so that kappa = ((c0 t + c1) t + c2) t + c3. Closed paths wrap s; open paths clip it
+        to [0, length] (the caller zeroes the slopes beyond the ends)."""
         L = self.path.length
-        if self.path.closed:
-            q = np.mod(s, L)
-            return self._spline(q), self._spline(q, 1), self._spline(q, 2)
-        q = np.clip(s, 0.0, L)
-        inside = (s >= 0.0) & (s <= L)
-        return self._spline(q), np.where(inside, self._spline(q, 1), 0.0), np.where(inside, self._spline(q, 2), 0.0)
+        q = np.mod(s, L) if self.path.closed else np.clip(s, 0.0, L)
+        knots, coef = self._spline.x, self._spline.c
+        i = np.clip(np.searchsorted(knots, q, side="right") - 1, 0, coef.shape[1] - 1)
+        return coef[0, i], coef[1, i], coef[2, i], coef[3, i], q - knots[i]
+
+    def curvature(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """kappa(s) [1/m], dkappa/ds [1/m^2], d2kappa/ds2 [1/m^3] at arc lengths s [m] (any shape; zero slope
+        beyond the ends of an open path). The spline and its two derivatives from one interval search (the
+        same piecewise cubic as ``scipy.interpolate.CubicSpline``, equal to rounding)."""
+        s = np.asarray(s, dtype=float)
+        c0, c1, c2, c3, t = self._pieces(s)
+        k = ((c0 * t + c1) * t + c2) * t + c3
+        dk = (3.0 * c0 * t + 2.0 * c1) * t + c2
+        d2k = 6.0 * c0 * t + 2.0 * c1
+        if not self.path.closed:
+            outside = (s < 0.0) | (s > self.path.length)
+            if outside.any():
+                dk, d2k = np.where(outside, 0.0, dk), np.where(outside, 0.0, d2k)
+        return k, dk, d2k
+
+    def value(self, s: np.ndarray) -> np.ndarray:
+        """v_des(s) [m/s] only, at arc lengths s [m] (any shape): what a cost evaluation needs."""
+        c0, c1, c2, c3, t = self._pieces(np.asarray(s, dtype=float))
+        k = ((c0 * t + c1) * t + c2) * t + c3
+        k2 = k * k
+        return np.power(k2 * k2 * (1.0 / self.a_lat**4) + self.v_max**-8.0, -0.125)
 
     def __call__(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """v_des(s), dv_des/ds, d2v_des/ds2."""
+        """v_des(s) [m/s], dv_des/ds [1/s], d2v_des/ds2 [1/(m s)] at arc lengths s [m] (any shape).
+
+        `smooth_desired_speed` of the curvature, with one fractional power (F^-9/8 = v / F,
+        F^-17/8 = v / F^2): equal to it to rounding."""
         k, dk, d2k = self.curvature(s)
-        v, dv, d2v = smooth_desired_speed(k, self.a_lat, self.v_max)
-        return v, dv * dk, d2v * dk**2 + dv * d2k
+        inv_a4 = 1.0 / self.a_lat**4
+        k2 = k * k
+        k3 = k2 * k
+        F = k2 * k2 * inv_a4 + self.v_max**-8.0
+        v = np.power(F, -0.125)
+        F98 = v / F
+        dv = -0.5 * inv_a4 * k3 * F98
+        d2v = -1.5 * inv_a4 * k2 * F98 + 2.25 * inv_a4 * inv_a4 * (k3 * k3) * (F98 / F)
+        return v, dv * dk, d2v * (dk * dk) + dv * d2k
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,6 +278,12 @@ class SpeedDeviationResidual:
         hx = np.zeros(x.shape[:2] + (1, x.shape[-1], x.shape[-1]))
         hx[..., 0, 0, 0] = -d2vd
         return Residual((v - vd)[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hx)
+
+    def value(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The residual r (M, N, 1) [m/s] alone, without derivatives (`pirl_sim.features.FeatureSet.values`)."""
+        value = getattr(self.profile, "value", None)
+        vd = value(x[..., 0]) if value is not None else self.profile(x[..., 0])[0]
+        return (x[..., 1] - vd)[..., None]
 
 
 def speed_deviation_feature(profile: SpeedProfile, name: str = "speed_dev", reduction: str = "mean") -> Feature:

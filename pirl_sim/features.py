@@ -199,8 +199,10 @@ class FeatureSet:
         x, u = self._split(states, controls)
         out = np.empty((states.shape[0], self.n_features))
         for k, feat in enumerate(self.features):
-            res = feat.residual(x, u)
-            stage = np.sum(res.r**2, axis=-1)
+            # a residual may offer ``value(x, u) -> r`` without its derivatives (cheaper for cost evaluations)
+            value = getattr(feat.residual, "value", None)
+            r = value(x, u) if value is not None else feat.residual(x, u).r
+            stage = np.sum(r**2, axis=-1)
             out[:, k] = stage.mean(axis=1) if feat.reduction == "mean" else stage.sum(axis=1)
         return out
 

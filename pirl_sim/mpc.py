@@ -330,6 +330,10 @@ class ConstrainedLQPredictor:
 
 
 _BATCHED_HALVINGS_MAX_ROWS = 16  #: line search: up to this many rows get all six halvings in one call
+#: SequentialMPC: batches of at least this many starts take their unconstrained Newton steps by the Riccati
+#: recursion (`_OuterExpansion.riccati`, O(N) per start but ~40 numpy calls per stage); smaller ones by dense
+#: solves (measured crossover on the roundabout model, N = 40: 50-100 starts)
+RICCATI_MIN_ROWS = 96
 
 
 class _Rollouts:
@@ -421,6 +425,20 @@ class _OuterExpansion:
         self.Hq = np.ascontiguousarray(der.hess[0, self.quad].reshape(len(self.quad), self.d * self.d))
         self._pairs: dict[tuple[int, int], np.ndarray] = {}
         self._stacks: dict[tuple, np.ndarray] = {}
+        # constant stage Hessians of the quadratic features, 2 scale J^T J over (x_n, u_{n-1}): (K_q, N q^2)
+        q = self.q
+        Sq = np.zeros((len(self.quad), N, q, q))
+        x0s, u0s = np.zeros((1, N, n_x)), np.zeros((1, N, n_u))
+        for i, k in enumerate(self.quad):
+            res = features.features[k].residual(x0s, u0s)
+            p_ = res.jac_x.shape[-2]
+            J = np.concatenate([np.broadcast_to(res.jac_x, (1, N, p_, n_x))[0],
+                                np.broadcast_to(res.jac_u, (1, N, p_, n_u))[0]], axis=-1)  # (N, p, q)
+            Sq[i] = 2.0 * self.scale[k] * np.einsum("npa,npb->nab", J, J)
+        self.Sq = np.ascontiguousarray(Sq.reshape(len(self.quad), N * q * q))
+        self.Sq_ref = Sq[self.ref_pos]
+        self.ref_stage_index = ref
+        self._maps = None
 
     def _pair(self, a: int, b: int) -> np.ndarray:
         """Outer products B_n,a B_n,b^T (+ the transpose for a != b), shape (N, d^2)."""
@@ -443,11 +461,22 @@ class _OuterExpansion:
         X (M, N + 1, n_x) states, U (M, N, n_u) controls, theta (M, K) weights (>= 0). The coefficients are
         two mappings pair (a, b) -> (M, N), a <= b over the stage basis: ``jj`` sums theta_k scale_k 2 J^T J of
         the non-quadratic features, ``ww`` their theta_k scale_k 2 r . d2r (state block)."""
+        values, sigma, jj, ww = self.stage_terms(X, U, theta)
+        return values, self.chain(sigma), jj, ww
+
+    def chain(self, sigma: np.ndarray) -> np.ndarray:
+        """The gradient in U (M, d) of stage gradients ``sigma`` (M, N, q) in (x_n, u_{n-1})."""
+        M, N, n_x = sigma.shape[0], self.N, self.dynamics.n_x
+        return np.ascontiguousarray(sigma[:, :, :n_x]).reshape(M, N * n_x) @ self.Gflat + sigma[:, :, n_x:].reshape(M, self.d)
+
+    def stage_terms(self, X: np.ndarray, U: np.ndarray, theta: np.ndarray):
+        """As `terms`, with the cost gradient per stage: ``sigma`` (M, N, q), the gradient of theta . f in
+        (x_n, u_{n-1}) for n = 1..N (`chain` maps it to U). One pass over the features, one product at the end."""
         M = U.shape[0]
-        N, n_x, n_u, d = self.N, self.dynamics.n_x, self.dynamics.n_u, self.d
+        N, n_x, n_u = self.N, self.dynamics.n_x, self.dynamics.n_u
         x, u = X[:, 1:, :], U
         values = np.empty((M, self.features.n_features))
-        grad = np.zeros((M, d))
+        sigma = np.zeros((M, N, self.q))
         jj: dict[tuple[int, int], np.ndarray] = {}
         ww: dict[tuple[int, int], np.ndarray] = {}
 
@@ -459,14 +488,14 @@ class _OuterExpansion:
             r, Jx, Ju = res.r, res.jac_x, res.jac_u
             scale = self.scale[k]
             values[:, k] = scale * np.sum(r**2, axis=(1, 2))
-            JxT, JuT = np.swapaxes(Jx, -1, -2), np.swapaxes(Ju, -1, -2)
-            gx = 2.0 * (JxT @ r[..., None])[..., 0]  # (M, N, n_x)
-            gu = 2.0 * (JuT @ r[..., None])[..., 0]  # (M, N, n_u)
-            g = scale * (gx.reshape(M, N * n_x) @ self.Gflat + gu.reshape(M, d))
-            grad += theta[:, k, None] * g
+            w = (2.0 * scale) * theta[:, k, None]  # (M, 1)
+            wr = (w[:, :, None] * r)[..., None]  # (M, N, p, 1): 2 scale theta_k r
+            if np.any(Jx):
+                sigma[:, :, :n_x] += np.sum(wr * Jx, axis=2)
+            if np.any(Ju):
+                sigma[:, :, n_x:] += np.sum(wr * Ju, axis=2)
             if feat.quadratic:
                 continue
-            w = (2.0 * scale) * theta[:, k, None]  # (M, 1)
             # the columns of J = [Jx, Ju] (over the stage basis) that are non-zero somewhere
             cols = [(a, np.broadcast_to(Jx[..., a], (M, N) + Jx.shape[2:3])) for a in range(n_x) if np.any(Jx[..., a])]
             cols += [(n_x + c, np.broadcast_to(Ju[..., c], (M, N) + Ju.shape[2:3])) for c in range(n_u)
@@ -480,7 +509,127 @@ class _OuterExpansion:
                     for bb in range(a, n_x):
                         if np.any(hx[..., a, bb]):
                             add(ww, (a, bb), w * np.einsum("mnp,mnp->mn", r, hx[..., a, bb]))
-        return values, grad, jj, ww
+        return values, sigma, jj, ww
+
+    def stage_hessians(self, theta: np.ndarray, jj: dict, ww: dict | None, ref_share: float) -> np.ndarray:
+        """Stage Hessians S (M, N, q, q) of the cost in (x_n, u_{n-1}): the coefficients of `terms` (``ww``
+        None: Gauss-Newton) and the quadratic features' constant stage Hessians, the reference feature's
+        weighted by ``ref_share``; the cost Hessian in U is ``sum_n B_n^T S_n B_n`` (`hessians`)."""
+        tq = theta[:, self.quad].copy()
+        tq[:, self.ref_pos] *= ref_share
+        M, q = theta.shape[0], self.q
+        S = (tq @ self.Sq).reshape(M, self.N, q, q)
+        for coef in (jj, ww or {}):
+            for (a, b), c in coef.items():
+                S[:, :, a, b] += c
+                if a != b:
+                    S[:, :, b, a] += c
+        return S
+
+    def riccati(self, S: np.ndarray, sigma: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Newton steps by a Riccati recursion over the stages, O(N) per start instead of a dense d x d solve.
+
+        Minimises ``1/2 dU^T H dU + g . dU`` with H = sum_n B_n^T S_n B_n and g = `chain` (sigma) (the same
+        step as the dense solve, to rounding) for stage Hessians S (M, N, q, q) and stage gradients sigma
+        (M, N, q); sigma None only tests definiteness. Backwards over n = N..1 the cost-to-go
+        ``1/2 x' P x + p' x`` of x_n is added to stage n's cost, mapped to (x_{n-1}, u_{n-1}) by
+        F = [[A, B], [0, I]] (Q = F' S~ F), and u_{n-1} = K x_{n-1} + k minimises it (H is positive
+        definite if and only if every Q_uu is); forwards from dx_0 = 0 the steps follow.
+
+        Returns
+        -------
+        ok : array (M,) of bool
+            H is positive definite (every Q_uu is): where the condensed Hessian's Cholesky factorisation
+            succeeds, to rounding.
+        step : array (M, N, n_u) or None
+            -H^-1 g where ok (other rows hold no meaningful values).
+        """
+        M, N = S.shape[:2]
+        n_x, n_u, q = self.dynamics.n_x, self.dynamics.n_u, self.q
+        Tc, TPc, F, FP = self._riccati_maps
+        nxx, nux = n_x * n_x, n_u * n_x
+        SQ = (S.reshape(M * N, q * q) @ Tc).reshape(M, N, -1)  # F' S_n F for every stage: [xx | ux | uu]
+        SG = None if sigma is None else (sigma.reshape(M * N, q) @ F).reshape(M, N, q)  # F' sigma_n
+        P = np.zeros((M, nxx))
+        p = np.zeros((M, n_x))
+        pivots = np.empty((N, M)) if n_u == 1 else None
+        ok = np.ones(M, dtype=bool)
+        gains = []
+        with np.errstate(all="ignore"):
+            for n in range(N - 1, -1, -1):
+                Q = SQ[:, n] + P @ TPc
+                Qux = Q[:, nxx:nxx + nux]
+                if n_u == 1:
+                    quu = Q[:, nxx + nux]
+                    pivots[n] = quu
+                    neg_inv = -1.0 / quu
+                    K = Qux * neg_inv[:, None]  # (M, n_x)
+                    P = Q[:, :nxx] + (Qux[:, :, None] * K[:, None, :]).reshape(M, nxx)
+                    if SG is not None:
+                        qv = SG[:, n] + p @ FP
+                        kk = qv[:, n_x:] * neg_inv[:, None]  # (M, 1)
+                        p = qv[:, :n_x] + Qux * kk
+                        gains.append((K, kk))
+                else:
+                    Quu = Q[:, nxx + nux:].reshape(M, n_u, n_u)
+                    Qux = Qux.reshape(M, n_u, n_x)
+                    ok &= ~_pd_rows(Quu)
+                    Quu = np.where(ok[:, None, None], Quu, np.eye(n_u))
+                    K = -np.linalg.solve(Quu, Qux)  # (M, n_u, n_x)
+                    QxuT = np.swapaxes(Qux, 1, 2)
+                    P = Q[:, :nxx] + (QxuT @ K).reshape(M, nxx)
+                    if SG is not None:
+                        qv = SG[:, n] + p @ FP
+                        kk = -np.linalg.solve(Quu, qv[:, n_x:, None])[..., 0]
+                        p = qv[:, :n_x] + (QxuT @ kk[..., None])[..., 0]
+                        gains.append((K, kk))
+            if pivots is not None:
+                ok = (pivots > 0.0).all(axis=0)
+            if SG is None:
+                return ok, None
+            A_t, B_t = self.dynamics.A.T, self.dynamics.B.T
+            step = np.empty((M, N, n_u))
+            dx = np.zeros((M, n_x))
+            for n, (K, kk) in enumerate(reversed(gains)):
+                if n_u == 1:
+                    du = np.einsum("mi,mi->m", K, dx)[:, None] + kk
+                else:
+                    du = (K @ dx[:, :, None])[..., 0] + kk
+                step[:, n] = du
+                dx = dx @ A_t + du @ B_t
+        return ok, step
+
+    @property
+    def _riccati_maps(self):
+        """Constant maps of the recursion. With the stage map F = [[A, B], [0, I]] (q, q) from
+        (x_{n-1}, u_{n-1}) to (x_n, u_{n-1}), vec(F' S F) = vec(S) (F (x) F): Tc (q^2, n_x^2 + n_u n_x + n_u^2)
+        keeps the columns of the state block, the control-state block and the control block of F' S F (it is
+        symmetric), TPc the rows of Tc that a state-block matrix P feeds; F, and FP its state rows (n_x, q)."""
+        if self._maps is None:
+            n_x, n_u, q = self.dynamics.n_x, self.dynamics.n_u, self.q
+            F = np.zeros((q, q))
+            F[:n_x, :n_x], F[:n_x, n_x:], F[n_x:, n_x:] = self.dynamics.A, self.dynamics.B, np.eye(n_u)
+            T = np.kron(F, F)
+            xx = [a * q + b for a in range(n_x) for b in range(n_x)]
+            ux = [a * q + b for a in range(n_x, q) for b in range(n_x)]
+            uu = [a * q + b for a in range(n_x, q) for b in range(n_x, q)]
+            Tc = T[:, xx + ux + uu]
+            self._maps = (np.ascontiguousarray(Tc), np.ascontiguousarray(Tc[xx]), F, np.ascontiguousarray(F[:n_x]))
+        return self._maps
+
+    def newton_steps(self, X: np.ndarray, U: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Newton steps (M, N, n_u) of the cost at U and the cost (M,) there, by `riccati`: the same steps as
+        `SequentialMPC._model` and a dense solve (the exact Hessian where it stays at least half as curved as
+        the reference term alone, the Gauss-Newton one elsewhere), to rounding."""
+        values, sigma, jj, ww = self.stage_terms(X, U, theta)
+        S = self.stage_hessians(theta, jj, ww, 0.5)
+        exact, _ = self.riccati(S, None)  # the test matrices: exact, half the reference term
+        S += 0.5 * theta[:, self.ref_stage_index, None, None, None] * self.Sq_ref
+        bad = np.flatnonzero(~exact)
+        if len(bad):  # Gauss-Newton where the exact Hessian is not safely positive definite
+            S[bad] = self.stage_hessians(theta[bad], {key: c[bad] for key, c in jj.items()}, None, 1.0)
+        _, step = self.riccati(S, sigma)
+        return step, np.einsum("mk,mk->m", theta, values)
 
     def hessians(self, theta: np.ndarray, jj: dict, ww: dict | None, ref_share: float,
                  rows: np.ndarray | None = None) -> np.ndarray:
@@ -526,6 +675,11 @@ class SequentialMPC:
         ``"stagewise"`` through `FeatureSet.derivatives` (the previous path, kept as the benchmarks'
         baseline). Both give the same matrices to floating-point rounding. ``"outer"`` falls back to
         ``"stagewise"`` when the reference feature is not quadratic.
+    riccati_rows : int or None
+        With ``assembly="outer"``, batches of at least this many starts (default `RICCATI_MIN_ROWS`) take
+        their unconstrained Newton steps by a Riccati recursion over the stages instead of assembling and
+        solving the dense d x d model (the same steps and the same exact/Gauss-Newton choice, to
+        rounding); None: always dense. The bounded QPs always use the dense model.
     """
 
     def __init__(
@@ -540,9 +694,13 @@ class SequentialMPC:
         qp_tol: float = 1e-2,
         solver: str = "daqp",
         assembly: str = "outer",
+        riccati_rows: int | None = RICCATI_MIN_ROWS,
     ):
         if assembly not in ("outer", "stagewise"):
             raise ValueError(f"assembly must be 'outer' or 'stagewise', got {assembly!r}")
+        if riccati_rows is not None and not is_positive_int(riccati_rows):
+            raise ValueError(f"riccati_rows must be a positive integer or None, got {riccati_rows!r}")
+        self.riccati_rows = None if riccati_rows is None else int(riccati_rows)
         self.assembly = assembly
         self._expansions: dict[int, _OuterExpansion | None] = {}
         self._rollout = _Rollouts(dynamics) if assembly == "outer" else dynamics.rollout
@@ -661,12 +819,22 @@ class SequentialMPC:
                     return A_new, b_new
             return A_at[rows], b_at[rows]
 
-        model(np.arange(M))
+        exp = self._expansion(n_steps)
+
+        def newton(rows):
+            """Full Newton steps (len(rows), N, n_u) at the current controls; sets their costs."""
+            if exp is not None and self.riccati_rows is not None and len(rows) >= self.riccati_rows:
+                step, cost[rows] = exp.newton_steps(self._rollout(x0[rows], U[rows]), U[rows], theta[rows])
+                return step
+            A, b = model(rows)
+            return -np.linalg.solve(A, b[..., None])[..., 0].reshape((len(rows),) + U.shape[1:]) - U[rows]
+
+        if exp is None or self.riccati_rows is None or len(todo) < self.riccati_rows:
+            model(np.arange(M))
         for _ in range(self.n_iter):
             if not len(todo):
                 break
-            A, b = model(todo)
-            full = -np.linalg.solve(A, b[..., None])[..., 0].reshape((len(todo),) + U.shape[1:]) - U[todo]
+            full = newton(todo)
             # backtracking: halve the Newton step where it does not lower the cost (at most 6 times). The full
             # steps are evaluated first; where that is worse, the halvings are evaluated one at a time for the
             # rows still worse, or, for a few rows (where each call's fixed cost dominates), all six in one

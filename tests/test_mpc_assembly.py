@@ -71,3 +71,78 @@ def test_reference_feature_must_be_quadratic(model):
         _OuterExpansion(model.dynamics, nonquad, 10)
     # SequentialMPC falls back to the stage-wise assembly then
     assert SequentialMPC(model.dynamics, nonquad)._expansion(10) is None
+
+
+def test_riccati_steps_equal_dense_solves(model):
+    """The Riccati recursion gives the dense Newton model's step and exact/Gauss-Newton choice, to rounding."""
+    rng = np.random.default_rng(2)
+    M, N = 60, 30
+    x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(1, 12, M), rng.normal(0, 0.5, M)])
+    U = rng.normal(0, 1.0, (M, N, 1))
+    theta = np.abs(rng.normal(1.0, 0.5, (M, 3))) + 0.05
+    mpc = _pair(model, "outer")
+    exp = mpc._expansion(N)
+    A, b, cost = mpc._model(x0, U, theta)
+    dense = -np.linalg.solve(A, b[..., None])[..., 0].reshape(M, N, 1) - U
+    step, cost_r = exp.newton_steps(mpc.dynamics.rollout(x0, U), U, theta)
+    np.testing.assert_allclose(cost_r, cost, rtol=1e-13)
+    assert np.abs(step - dense).max() <= 1e-10 * np.abs(dense).max()
+    # the definiteness test agrees with the dense Cholesky one, and both branches occur
+    from pirl_sim.mpc import _pd_rows
+
+    _, _, jj, ww = exp.terms(mpc.dynamics.rollout(x0, U), U, theta)
+    ok, _ = exp.riccati(exp.stage_hessians(theta, jj, ww, 0.5), None)
+    np.testing.assert_array_equal(ok, ~_pd_rows(exp.hessians(theta, jj, ww, 0.5)))
+    assert 0 < ok.sum() < M
+
+
+def test_riccati_with_two_controls():
+    """A planar point mass (n_u = 2) with a non-quadratic feature: the recursion's general branch."""
+    from pirl_sim.dynamics import LinearDynamics
+    from pirl_sim.features import Feature, FeatureSet, Residual, squared_control
+
+    def bowl(x, u):  # r = |p|^2 / 10: not affine in the state
+        pos = x[..., :2]
+        r = (np.sum(pos**2, axis=-1) / 10.0)[..., None]
+        jx = np.zeros(x.shape[:2] + (1, x.shape[-1]))
+        jx[..., 0, :2] = pos / 5.0
+        hx = np.zeros(x.shape[:2] + (1, x.shape[-1], x.shape[-1]))
+        hx[..., 0, 0, 0] = hx[..., 0, 1, 1] = 0.2
+        return Residual(r, jx, np.zeros((1, 1, 1, u.shape[-1])), hx)
+
+    dt = 0.1
+    dyn = LinearDynamics(A=np.block([[np.eye(2), dt * np.eye(2)], [np.zeros((2, 2)), np.eye(2)]]),
+                         B=np.vstack([np.zeros((2, 2)), dt * np.eye(2)]), dt=dt,
+                         state_names=("x [m]", "y [m]", "vx [m/s]", "vy [m/s]"),
+                         control_names=("ax [m/s^2]", "ay [m/s^2]"), position_index=(0, 1))
+    feats = FeatureSet((Feature("bowl", bowl, quadratic=False), squared_control("effort")), reference="effort")
+    rng = np.random.default_rng(3)
+    M, N = 12, 15
+    x0 = rng.normal(0, 3.0, (M, dyn.n_x))
+    U = rng.normal(0, 1.0, (M, N, dyn.n_u))
+    theta = np.column_stack([rng.uniform(0.5, 2.0, M), np.full(M, 0.05)])
+    mpc = SequentialMPC(dyn, feats)
+    A, b, _ = mpc._model(x0, U, theta)
+    dense = -np.linalg.solve(A, b[..., None])[..., 0].reshape(U.shape) - U
+    step, _ = mpc._expansion(N).newton_steps(dyn.rollout(x0, U), U, theta)
+    assert np.abs(step - dense).max() <= 1e-9 * np.abs(dense).max()
+
+
+def test_riccati_and_dense_plans_agree(model):
+    """Whole predictions with the Riccati steps (large batches) and with dense steps only."""
+    rng = np.random.default_rng(4)
+    M = 120
+    x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(2, 12, M), np.clip(rng.normal(0, 0.5, M), -3.9, 2.9)])
+    p = model.predictor()
+    riccati = SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=1)
+    dense = SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=None)
+    U1, U0 = riccati.controls(x0, THETA, 40), dense.controls(x0, THETA, 40)
+    assert riccati.n_qp == dense.n_qp > 0
+    np.testing.assert_allclose(U1, U0, atol=1e-9)
+
+
+@pytest.mark.parametrize("bad", [0, -3, 2.5, "many"])
+def test_bad_riccati_rows_are_named(model, bad):
+    p = model.predictor()
+    with pytest.raises(ValueError, match="riccati_rows must be a positive integer or None"):
+        SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=bad)
