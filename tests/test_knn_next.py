@@ -60,7 +60,36 @@ def test_state_features_enter_the_look_up():
     assert with_state.neighbors_._fit_X.shape[1] == plain.neighbors_._fit_X.shape[1] + 1
 
 
+def test_motion_look_up_takes_states_at_lags_and_can_leave_the_features_out():
+    model = synthetic_model()
+    rng = np.random.default_rng(3)
+    train, test = _switching_drivers(model, rng, 12), _switching_drivers(model, rng, 4)
+    motion = PIRLKNN(model=model, window=10, stride=5, state_features=(0, 1), state_lags=(0, 4),
+                     lookup_features=False).fit(train)
+    assert motion.neighbors_._fit_X.shape[1] == 4  # (p, v) now and 4 steps earlier, no features
+    hist = [t.window(10, 20) for t in test]
+    raw = np.stack([np.r_[h.states[-1], h.states[-5]] for h in hist])
+    np.testing.assert_allclose(motion._lookup(hist), motion.scaler_.transform(raw))
+    # on the switching drivers it finds what follows as well as the feature look-up does
+    truth = np.stack([t.states[20:31, 0] for t in test])
+    common = dict(model=model, window=10, stride=2, n_neighbors=3, target="next", target_steps=10,
+                  aggregate="futures")
+    err = {}
+    for name, extra in (("features", {"state_features": (0, 1)}),
+                        ("motion", {"state_features": (0, 1), "state_lags": (0, 5), "lookup_features": False})):
+        learner = PIRLKNN(**common, **extra).fit(train)
+        err[name] = np.abs(learner.predict_states(hist, 10)[:, :, 0] - truth).mean()
+    assert err["motion"] < 1.5 * err["features"] + 0.01, err
+    with pytest.raises(ValueError, match="state_lags reach 12"):
+        PIRLKNN(model=model, window=10, stride=5, state_features=(1,), state_lags=(0, 12)).fit(train)
+
+
 @pytest.mark.parametrize("params, error, match", [
+    ({"window": 10, "state_features": (1,), "state_lags": ()}, ValueError, "state_lags"),
+    ({"window": 10, "state_features": (1,), "state_lags": (-1,)}, ValueError, "state_lags"),
+    ({"window": 10, "state_features": (1,), "state_lags": 3}, TypeError, "state_lags"),
+    ({"window": 10, "lookup_features": False}, ValueError, "state_features alone"),
+    ({"window": 10, "state_features": (1,), "lookup_features": "no"}, TypeError, "lookup_features"),
     ({"target": "future", "window": 10}, ValueError, "target must be one of"),
     ({"target": "next"}, ValueError, "needs window"),
     ({"target": "next", "window": 10}, ValueError, "target_steps"),

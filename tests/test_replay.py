@@ -333,3 +333,19 @@ def test_unconnected_positions_are_bridged_or_cut_not_fatal(tmp_path):
     assert t1.n_steps == 74 and t2.n_steps == 39  # 150 frames -> 75 samples; the 80 frames on A -> 40
     np.testing.assert_allclose(t1.states[:, 1], 10.0, atol=0.05)  # the bridged frame does not disturb the speed
     assert np.all(t2.metadata["xy"][:, 1] == LANE_Y["A"])
+
+
+def test_replay_seeds_in_processes_give_the_same_results(scene_dir):
+    scene = _small_scene(scene_dir)
+    proto = ReplayProtocol(seeds=(0, 1, 2), lateral="neighbours")
+    specs = [("TIRL", "tirl", {}), ("PIRL-kNN (k=3)", "pirl-knn", {"n_neighbors": 3, "stride": 2})]
+    one = run_replay(scene, specs, proto)
+    two = run_replay(scene, specs, proto, jobs=2)
+    cols = ["seed", "method", "med", "med_path", "n_windows", "lateral_floor", "irl_converged"]
+    pd.testing.assert_frame_equal(one["rows"][cols], two["rows"][cols])
+    assert one["errors"].keys() == two["errors"].keys()
+    for key in one["errors"]:
+        np.testing.assert_array_equal(one["errors"][key], two["errors"][key])
+    np.testing.assert_array_equal(one["examples"]["truth"], two["examples"]["truth"])
+    with pytest.raises(ValueError, match="jobs"):
+        run_replay(scene, specs, proto, jobs=0)

@@ -360,7 +360,7 @@ def desired_speed_model(scene, desired_speed=None, train=None):
 
 
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
-               desired_speed=None, hindsight: bool = False, n_futures: int = 0) -> dict:
+               desired_speed=None, hindsight: bool = False, n_futures: int = 0, jobs: int = 1) -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene`.
 
     Parameters
@@ -396,9 +396,12 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     the IRL fits on the window's own recorded future (one cost per window). It sees what it predicts, so it is
     no predictor; it is what the model class (dynamics, features, MPC) could reach with a perfect online
     inference of the weights, and separates that limit from the learners' inference.
-    """
-    from pirl_sim.learners import make_learner
 
+    ``jobs`` (>= 1): split seeds run in this many forked processes at once (each seed is independent, so the
+    results do not depend on it); 1 runs them here, one after another.
+    """
+    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
+        raise ValueError(f"jobs must be a whole number of processes >= 1, got {jobs!r}")
     say = progress or (lambda msg: None)
     averaging = [name for name, _, params in learner_specs if params.get("aggregate") == "futures"]
     if proto.rollout != "open" and (n_futures or averaging):  # before any work
@@ -409,107 +412,144 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     unique = _track_keys(tracks)[1]
     model, speed, _ = desired_speed_model(scene, None if desired_speed == "fit" else desired_speed)
     dt = model.dynamics.dt
+    job = {"scene": scene, "tracks": tracks, "learner_specs": learner_specs, "proto": proto,
+           "desired_speed": desired_speed, "hindsight": hindsight, "n_futures": n_futures, "say": say,
+           "model": model, "speed": speed, "dt": dt, "plan": plan, "reuse": _shared_knn_fits(learner_specs),
+           "has_truth": any("theta" in t.metadata for t in tracks)}
+    if jobs == 1 or len(proto.seeds) == 1:
+        results = [_replay_seed(seed, job) for seed in proto.seeds]
+    else:  # seeds in forked processes that inherit the scene (nothing large is pickled)
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        _JOB.update(job)
+        try:
+            with ProcessPoolExecutor(min(jobs, len(proto.seeds)), mp_context=multiprocessing.get_context("fork")) as pool:
+                results = list(pool.map(_replay_seed_in_worker, proto.seeds))
+        finally:
+            _JOB.clear()
     rows, errors, examples = [], {}, {}
-    reuse = _shared_knn_fits(learner_specs)
-    has_truth = any("theta" in t.metadata for t in tracks)
-    for seed in proto.seeds:
-        train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
-        if desired_speed == "fit":
-            model, speed, fit = desired_speed_model(scene, "fit", train)
-            say(f"seed {seed}: desired speed fitted on the training tracks: a_lat {fit.a_lat:.2f} m/s^2, "
-                f"v_max {fit.v_max:.2f} m/s{' (at a bound)' if fit.at_bound else ''}")
-        counts = {**counts, **speed}
-        windows = _windows(test, proto)
-        if not windows:
-            raise ValueError("no test window: tracks are too short for the protocol")
-        profile = fit_lateral_profile(train, proto.lateral, model.path, proto.horizon)
-        recorded_s = np.stack([test[i].states[step + 1 : step + 1 + proto.horizon, 0] for i, step in windows])
-        counts["lateral_floor"] = float(_errors(model, test, windows, recorded_s, proto, profile=profile).mean())
-        x0 = np.stack([test[i].states[step] for i, step in windows])
-        histories = [test[i].window(step - proto.history, step) for i, step in windows]
-        methods = {}
-        for kind in BASELINES[:2]:
-            methods[kind] = (_baseline_s(kind, x0, proto.horizon, dt), 0.0, 0.0, {})
-        fitted = {}  # spec index -> (learner, fit diagnostics), for reuse by PIRL-kNN with another k
-        order = sorted(range(len(learner_specs)), key=lambda i: i in reuse)  # shared fits first
-        for i in order:
-            name, key, params = learner_specs[i]
-            t0 = time.perf_counter()
-            if i in reuse:
-                base, diag = fitted[reuse[i]]
-                learner = knn_with_neighbors(base, params.get("n_neighbors", 1))
-                diag = dict(diag, irl_from=learner_specs[reuse[i]][0])
-            else:
-                learner = make_learner(key, model=model, window=proto.history, windows="sliding", **params)
-                diag = _fit_with_diagnostics(lambda: learner.fit(train))
-                del diag["learner"]
-                diag["irl_from"] = ""
-            fitted[i] = (learner, diag)
-            fit_s = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            theta = learner.infer_weights(histories)
-            if getattr(learner, "aggregate", "weights") == "futures":  # the mean of several futures
-                s_pred = learner.predict_states(histories, plan)[:, 1 : proto.horizon + 1, 0]
-            else:
-                s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
-                                             mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
-            extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
-            if n_futures:
-                fut, proba = learner.predict_futures(histories, plan, n_futures=int(n_futures), random_state=seed)
-                extra.update(_future_scores(model, test, windows, fut[:, :, 1 : proto.horizon + 1, 0], proba, proto,
-                                            profile, dt, int(n_futures)))
-            methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
-            how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
-            say(f"seed {seed}: {name} {how} in {fit_s:.1f} s; IRL converged for {diag['irl_converged']} of "
-                f"{diag['irl_groups']} groups")
-        if hindsight:
-            t0 = time.perf_counter()
-            futures = [test[i].window(step, step + proto.horizon) for i, step in windows]
-            oracle = make_learner("pirl-knn", model=model, n_neighbors=1, irl_max_iter=400)
-            diag = _fit_with_diagnostics(lambda: oracle.fit(futures))
-            del diag["learner"]
-            fit_s = time.perf_counter() - t0
-            s_pred = predict_path_states(model, x0, oracle.demo_theta_, proto.horizon)[:, 1:, 0]
-            methods[HINDSIGHT] = (s_pred, fit_s, 0.0, {**diag, "irl_from": ""})
-            say(f"seed {seed}: {HINDSIGHT} fitted on {len(futures)} test futures in {fit_s:.1f} s; IRL converged "
-                f"for {diag['irl_converged']} of {diag['irl_groups']}")
-        order = [*BASELINES[:2], *(sp[0] for sp in learner_specs), *([HINDSIGHT] if hindsight else [])]
-        methods = {name: methods[name] for name in order}
-        if seed == proto.seeds[0]:  # a few windows for the S-T figure
-            shown = np.linspace(0, len(windows) - 1, min(4, len(windows))).astype(int)
-            examples = {
-                "t": dt * np.arange(-proto.history, proto.horizon + 1),
-                "truth": np.stack([test[windows[w][0]].states[windows[w][1] - proto.history:
-                                                             windows[w][1] + proto.horizon + 1, 0] for w in shown]),
-                "predictions": {name: m[0][shown] for name, m in methods.items()},
-            }
-        for name, (s_pred, fit_s, pred_s, extra) in methods.items():
-            err = _errors(model, test, windows, s_pred, proto, profile=profile)
-            errors[(seed, name)] = err.mean(axis=1)
-            med_path = float(_errors(model, test, windows, s_pred, proto, "recorded").mean())
-            row = {"seed": seed, "method": name, "med": float(err.mean()), "med_path": med_path,
-                   "n_windows": len(windows), **counts, "fit_s": fit_s, "predict_s": pred_s, **extra}
-            for k in proto.fde_steps:
-                row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
-            rows.append(row)
-        # CV in the plane, from the last two recorded positions
-        err = np.empty((len(windows), proto.horizon))
-        for w, (i, step) in enumerate(windows):
-            xy = test[i].metadata["xy"]
-            vel = (xy[step] - xy[step - 1]) / dt
-            pred = xy[step] + vel[None] * (dt * np.arange(1, proto.horizon + 1))[:, None]
-            err[w] = np.linalg.norm(pred - xy[step + 1 : step + 1 + proto.horizon], axis=1)
-        errors[(seed, "CV (x, y)")] = err.mean(axis=1)
-        row = {"seed": seed, "method": "CV (x, y)", "med": float(err.mean()), "n_windows": len(windows),
-               **counts, "fit_s": 0.0, "predict_s": 0.0}
-        for k in proto.fde_steps:
-            row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
-        rows.append(row)
+    for seed_rows, seed_errors, seed_examples in results:
+        rows += seed_rows
+        errors.update(seed_errors)
+        examples = examples or seed_examples
     rows = pd.DataFrame(rows)
     return {"rows": rows, "paired": paired_differences(errors, "TIRL"),
             "paired_ca": paired_differences(errors, "CA (path)"), "errors": errors, "selected": len(unique),
             "selected_pieces": len(tracks), "examples": examples, "history": proto.history,
             "horizon": proto.horizon, "gmm_k": _gmm_k(learner_specs)}
+
+
+def _replay_seed(seed: int, job: dict) -> tuple[list, dict, dict]:
+    """One split seed of `run_replay`: its rows, per-window errors {(seed, method): (W,)} and, for the first
+    seed, the S-T figure's windows. ``job`` holds run_replay's shared inputs."""
+    from pirl_sim.learners import make_learner
+
+    scene, tracks, learner_specs, proto = job["scene"], job["tracks"], job["learner_specs"], job["proto"]
+    desired_speed, hindsight, n_futures, say = job["desired_speed"], job["hindsight"], job["n_futures"], job["say"]
+    model, speed, dt, plan, reuse = job["model"], job["speed"], job["dt"], job["plan"], job["reuse"]
+    has_truth, with_examples = job["has_truth"], seed == proto.seeds[0]
+    rows, errors, examples = [], {}, {}
+    train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
+    if desired_speed == "fit":
+        model, speed, fit = desired_speed_model(scene, "fit", train)
+        say(f"seed {seed}: desired speed fitted on the training tracks: a_lat {fit.a_lat:.2f} m/s^2, "
+            f"v_max {fit.v_max:.2f} m/s{' (at a bound)' if fit.at_bound else ''}")
+    counts = {**counts, **speed}
+    windows = _windows(test, proto)
+    if not windows:
+        raise ValueError("no test window: tracks are too short for the protocol")
+    profile = fit_lateral_profile(train, proto.lateral, model.path, proto.horizon)
+    recorded_s = np.stack([test[i].states[step + 1 : step + 1 + proto.horizon, 0] for i, step in windows])
+    counts["lateral_floor"] = float(_errors(model, test, windows, recorded_s, proto, profile=profile).mean())
+    x0 = np.stack([test[i].states[step] for i, step in windows])
+    histories = [test[i].window(step - proto.history, step) for i, step in windows]
+    methods = {}
+    for kind in BASELINES[:2]:
+        methods[kind] = (_baseline_s(kind, x0, proto.horizon, dt), 0.0, 0.0, {})
+    fitted = {}  # spec index -> (learner, fit diagnostics), for reuse by PIRL-kNN with another k
+    order = sorted(range(len(learner_specs)), key=lambda i: i in reuse)  # shared fits first
+    for i in order:
+        name, key, params = learner_specs[i]
+        t0 = time.perf_counter()
+        if i in reuse:
+            base, diag = fitted[reuse[i]]
+            learner = knn_with_neighbors(base, params.get("n_neighbors", 1))
+            diag = dict(diag, irl_from=learner_specs[reuse[i]][0])
+        else:
+            learner = make_learner(key, model=model, window=proto.history, windows="sliding", **params)
+            diag = _fit_with_diagnostics(lambda: learner.fit(train))
+            del diag["learner"]
+            diag["irl_from"] = ""
+        fitted[i] = (learner, diag)
+        fit_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        theta = learner.infer_weights(histories)
+        if getattr(learner, "aggregate", "weights") == "futures":  # the mean of several futures
+            s_pred = learner.predict_states(histories, plan)[:, 1 : proto.horizon + 1, 0]
+        else:
+            s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
+                                         mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
+        extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
+        if n_futures:
+            fut, proba = learner.predict_futures(histories, plan, n_futures=int(n_futures), random_state=seed)
+            extra.update(_future_scores(model, test, windows, fut[:, :, 1 : proto.horizon + 1, 0], proba, proto,
+                                        profile, dt, int(n_futures)))
+        methods[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
+        how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
+        say(f"seed {seed}: {name} {how} in {fit_s:.1f} s; IRL converged for {diag['irl_converged']} of "
+            f"{diag['irl_groups']} groups")
+    if hindsight:
+        t0 = time.perf_counter()
+        futures = [test[i].window(step, step + proto.horizon) for i, step in windows]
+        oracle = make_learner("pirl-knn", model=model, n_neighbors=1, irl_max_iter=400)
+        diag = _fit_with_diagnostics(lambda: oracle.fit(futures))
+        del diag["learner"]
+        fit_s = time.perf_counter() - t0
+        s_pred = predict_path_states(model, x0, oracle.demo_theta_, proto.horizon)[:, 1:, 0]
+        methods[HINDSIGHT] = (s_pred, fit_s, 0.0, {**diag, "irl_from": ""})
+        say(f"seed {seed}: {HINDSIGHT} fitted on {len(futures)} test futures in {fit_s:.1f} s; IRL converged "
+            f"for {diag['irl_converged']} of {diag['irl_groups']}")
+    order = [*BASELINES[:2], *(sp[0] for sp in learner_specs), *([HINDSIGHT] if hindsight else [])]
+    methods = {name: methods[name] for name in order}
+    if with_examples:  # a few windows for the S-T figure
+        shown = np.linspace(0, len(windows) - 1, min(4, len(windows))).astype(int)
+        examples = {
+            "t": dt * np.arange(-proto.history, proto.horizon + 1),
+            "truth": np.stack([test[windows[w][0]].states[windows[w][1] - proto.history:
+                                                         windows[w][1] + proto.horizon + 1, 0] for w in shown]),
+            "predictions": {name: m[0][shown] for name, m in methods.items()},
+        }
+    for name, (s_pred, fit_s, pred_s, extra) in methods.items():
+        err = _errors(model, test, windows, s_pred, proto, profile=profile)
+        errors[(seed, name)] = err.mean(axis=1)
+        med_path = float(_errors(model, test, windows, s_pred, proto, "recorded").mean())
+        row = {"seed": seed, "method": name, "med": float(err.mean()), "med_path": med_path,
+               "n_windows": len(windows), **counts, "fit_s": fit_s, "predict_s": pred_s, **extra}
+        for k in proto.fde_steps:
+            row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
+        rows.append(row)
+    # CV in the plane, from the last two recorded positions
+    err = np.empty((len(windows), proto.horizon))
+    for w, (i, step) in enumerate(windows):
+        xy = test[i].metadata["xy"]
+        vel = (xy[step] - xy[step - 1]) / dt
+        pred = xy[step] + vel[None] * (dt * np.arange(1, proto.horizon + 1))[:, None]
+        err[w] = np.linalg.norm(pred - xy[step + 1 : step + 1 + proto.horizon], axis=1)
+    errors[(seed, "CV (x, y)")] = err.mean(axis=1)
+    row = {"seed": seed, "method": "CV (x, y)", "med": float(err.mean()), "n_windows": len(windows),
+           **counts, "fit_s": 0.0, "predict_s": 0.0}
+    for k in proto.fde_steps:
+        row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
+    rows.append(row)
+    return rows, errors, examples
+
+
+_JOB: dict = {}  #: run_replay's shared inputs, inherited by forked workers
+
+
+def _replay_seed_in_worker(seed: int) -> tuple[list, dict, dict]:
+    return _replay_seed(seed, _JOB)  # the fork inherited _JOB and the parent's BLAS thread limits
 
 
 def _gmm_k(learner_specs) -> int:

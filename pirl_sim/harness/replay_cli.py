@@ -100,14 +100,17 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "training windows in the plane, 'neighbours' (pirl_sim.lateral) (default hold)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
-                         "with costs of what followed each training window, looked up by features and the last "
-                         "speed and acceleration, its neighbours' futures averaged: learners/knn.py) (default "
+                         "with costs of what followed each training window, looked up by the speed and acceleration "
+                         "now, 0.5 s and 1 s ago, its neighbours' futures averaged: learners/knn.py) (default "
                          "tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
     rp.add_argument("--knn-k", default="10",
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
                          "(default 10)")
     rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
+    rp.add_argument("--jobs", type=positive_int_arg, default=1,
+                    help="split seeds run in this many processes at once (default 1; the results do not depend on "
+                         "it)")
     rp.add_argument("--history", type=positive_float_arg, default=2.0,
                     help="observed history [s], at least one step of --dt (default 2)")
     rp.add_argument("--horizon", type=positive_float_arg, default=3.0,
@@ -228,7 +231,8 @@ def _steps(seconds: float, dt: float) -> int:
 NEXT_KNN = "pirl-knn-next"  #: PIRL-kNN with target="next" (learners/knn.py), a key of --learners only
 
 
-def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps: int | None = None) -> list:
+def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps: int | None = None,
+                   dt: float | None = None) -> list:
     keys = [k.strip() for k in args.learners.split(",") if k.strip()]
     known = sorted([*LEARNERS, NEXT_KNN])
     unknown = [k for k in keys if k not in known]
@@ -257,10 +261,13 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps
         elif k == "pirl-dpgmm":
             specs.append(("PIRL-DPGMM", k, {"random_state": 0, **irl}))
         elif k == NEXT_KNN:
-            if horizon_steps is None:
-                raise ValueError(f"{NEXT_KNN} needs the prediction horizon in steps")
+            if horizon_steps is None or dt is None:
+                raise ValueError(f"{NEXT_KNN} needs the prediction horizon in steps and the step [s]")
+            # looked up by speed and acceleration along the path (state entries 1, 2) now, 0.5 s and 1 s ago
+            history = seconds_to_steps(args.history, dt, "--history")
+            lags = tuple(sorted({min(int(round(back / dt)), history) for back in (0.0, 0.5, 1.0)}))
             nxt = {"target": "next", "target_steps": int(horizon_steps), "state_features": (1, 2),
-                   "aggregate": "futures"}  # (1, 2): speed and acceleration along the path
+                   "state_lags": lags, "lookup_features": False, "aggregate": "futures"}
             specs += [(f"PIRL-kNN next (k={n})", "pirl-knn", {"n_neighbors": n, **knn, **nxt}) for n in knn_ks]
         else:
             specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, **knn}) for n in knn_ks]
@@ -295,7 +302,8 @@ def run_replay_command(args) -> int:
             if not scan or any(h < 1 for h in scan):
                 raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
         else:
-            specs = _learner_specs(args, settings["likelihood"], horizon, seconds_to_steps(args.horizon, dt, "--horizon"))
+            specs = _learner_specs(args, settings["likelihood"], horizon, seconds_to_steps(args.horizon, dt, "--horizon"),
+                                   dt)
         proto = _protocol(args, settings, scan)
         for note in settings["notes"]:
             say(f"[0/3] {note}")
@@ -317,7 +325,7 @@ def run_replay_command(args) -> int:
             return 0
         result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"),
                             desired_speed="fit" if args.desired_speed == "fit" else None, hindsight=args.hindsight,
-                            n_futures=args.futures or 0)
+                            n_futures=args.futures or 0, jobs=args.jobs)
     except (ValueError, FileNotFoundError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
@@ -372,13 +380,13 @@ def _run_table(args, say) -> int:
             if args.files is not None:
                 files = files[: args.files]
             specs = _learner_specs(a, settings["likelihood"], settings["mpc_horizon"],
-                                   seconds_to_steps(a.horizon, settings["dt"], "--horizon"))
+                                   seconds_to_steps(a.horizon, settings["dt"], "--horizon"), settings["dt"])
             proto = _protocol(a, settings)
             say(f"{name}: reading {len(files)} track files")
             scene = load_replay(files, a.map, **settings["load"])
             result = run_replay(scene, specs, proto, progress=lambda m: say(f"{name}: {m}"),
                                 desired_speed="fit" if args.desired_speed == "fit" else None,
-                                hindsight=args.hindsight, n_futures=a.futures or 0)
+                                hindsight=args.hindsight, n_futures=a.futures or 0, jobs=args.jobs)
             write_replay_results(result, scene, args.out / name, command)
             elapsed = time.perf_counter() - t0
             rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
