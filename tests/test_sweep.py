@@ -181,7 +181,7 @@ def test_default_config_reproduces_the_papers_experiments():
     assert scen == {"synthetic", "passage", "sumo", "highway"}
     assert {c.seed for c in cfg.cells} == {0, 1, 2}
     paper = [c for c in cfg.cells if c.scenario in ("synthetic", "passage")]
-    assert len(paper) == 3 * 83 and len({c.key("v") for c in paper}) == 3 * 79  # 4 cells shared by two blocks
+    assert len(paper) == 3 * 86 and len({c.key("v") for c in paper}) == 3 * 82  # 4 cells shared by two blocks
     sims = [c for c in cfg.cells if c.scenario in ("sumo", "highway")]
     assert len(sims) == 2 * 6 * 3
     receding = [c for c in sims if c.learner_params.get("likelihood") == "receding"]
@@ -383,8 +383,8 @@ def test_cli_sweep_report_and_dry_run(tmp_path, capsys):
 def test_default_config_dry_run(capsys, tmp_path):
     assert sweep_main(["sweep", "--dry-run", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "sweep 'paper' (<default>): 285 cells (273 distinct), 0 already in" in out
-    assert "273 to run and 6 simulations (code" in out  # SUMO and highway-env, 3 seeds each
+    assert "sweep 'paper' (<default>): 294 cells (282 distinct), 0 already in" in out
+    assert "282 to run and 6 simulations (code" in out  # SUMO and highway-env, 3 seeds each
 
 
 def test_store_ignores_foreign_files(tmp_path):

@@ -11,6 +11,13 @@
 - **One fit per PIRL-kNN k-grid.** `run_cells` runs the PIRL-kNN cells that differ only in ``n_neighbors`` as
   one task: the IRL, which does not depend on k, is fitted once and each k gets its own neighbour index
   (`pirl_sim.learners.knn.PIRLKNN.with_neighbors`); each cell's result is what `run_cell` gives it alone.
+- **Online scores (issue 14).** Under the ``online`` protocol every learner that predicts several futures
+  (``predict_futures``) is also scored on `ONLINE_FUTURES` futures per test history
+  (`pirl_sim.harness.experiment.evaluate` with ``n_futures``, drawn with the cell's seed): ``min_ade``,
+  ``min_fde`` [m], ``miss_rate`` and ``nll`` [nats per predicted step], ``k_futures`` the number it returned;
+  and every learner with a style posterior (``predict_proba``) by ``style_accuracy`` and ``style_ari`` of its
+  most probable style of each test history (`_style_scores`). These scores are None elsewhere; the other scores
+  of a cell do not depend on them (the draws come after the point predictions).
 - **Data cache.** Scenario data is cached per process (the last `CACHE_SIZE` data sets, by scenario, parameters
   and seed): cells of one scenario on one worker generate it once. Generation is deterministic, so caching
   never changes a result, only ``generate_s``.
@@ -29,9 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_cell", "run_cells", "knn_group", "run_simulation", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE"]
+__all__ = ["run_cell", "run_cells", "knn_group", "run_simulation", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE",
+           "ONLINE_FUTURES", "ONLINE_SCORES"]
 
 CACHE_SIZE = 3  #: scenario data sets kept per worker process
+ONLINE_FUTURES = 6  #: K futures per test history under the online protocol (the INTERACTION challenge's number)
+#: scores of the online protocol only (module doc); None in the cells of other protocols and learners
+ONLINE_SCORES = ("style_accuracy", "style_ari", "k_futures", "min_ade", "min_fde", "miss_rate", "nll")
 MAX_RECOVERY_POINTS = 200  #: test histories whose inferred weights are kept for the recovery scatter
 MAX_WARNING_MESSAGES = 10
 
@@ -236,6 +247,26 @@ def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | No
     }, scores
 
 
+def _style_scores(learner, train, test, protocol) -> dict:
+    """Style posterior of the online test histories: ``style_accuracy``, the share of test histories whose most
+    probable style (``learner.predict_proba``, p(style | first ``history_steps`` steps)) is their true style,
+    learned styles paired with true ones by the training labels (`pirl_sim.metrics.match_styles`: a learned
+    style left unpaired is always wrong), and ``style_ari``, the adjusted Rand index of those most probable
+    styles against the true styles (no pairing needed). Both None for learners without ``predict_proba`` or
+    ``labels_`` and for data without true styles."""
+    from pirl_sim.metrics import adjusted_rand_index, match_styles
+
+    none = {"style_accuracy": None, "style_ari": None}
+    if (protocol.kind != "online" or not hasattr(learner, "predict_proba") or not hasattr(learner, "labels_")
+            or not all("style" in t.metadata for t in (*train, *test))):
+        return none
+    to_true = match_styles(np.array([int(t.metadata["style"]) for t in train]), learner.labels_)
+    truth = np.array([int(t.metadata["style"]) for t in test])
+    guess = learner.predict_proba([t.window(0, protocol.history_steps) for t in test]).argmax(axis=1)
+    paired = np.array([to_true.get(int(j), -1) for j in guess])
+    return {"style_accuracy": _float(np.mean(paired == truth)), "style_ari": _float(adjusted_rand_index(truth, guess))}
+
+
 def _float(x):
     if x is None:
         return None
@@ -261,8 +292,9 @@ def run_cell(spec: dict, code_version: str | None = None, store_root: str | None
     dict
         ``scores``: med, med_std, fde [m], weight_error (median |log| ratio, None without truth), ari (None
         for learners without clusters or data without styles), n_styles, n_train, n_test, n_predictions,
-        n_warnings; ``timings`` [s]: generate_s (0 when cached), fit_s, evaluate_s, cell_s (wall clock),
-        cpu_s (CPU time of the worker process: below cell_s when the worker waited for a core);
+        n_warnings, and the online protocol's `ONLINE_SCORES` (module doc; None elsewhere); ``timings`` [s]:
+        generate_s (0 when cached), fit_s, evaluate_s (the online scores included), cell_s (wall clock), cpu_s
+        (CPU time of the worker process: below cell_s when the worker waited for a core);
         ``recovery`` (see `_recovery`) or None; ``weights``: `pirl_sim.recovery.weight_scores` (per free feature, overall and
         per style) or None; ``warnings``: distinct warning messages (of the data generation
         too, when this cell generated the data); ``worker``: host, pid.
@@ -345,7 +377,10 @@ def _run_cells(specs: list[dict], code_version: str | None, store_root: str | No
                 if fitted is None and len(specs) > 1:
                     fitted, fit_warnings = learner, list(caught)
                 t0 = time.perf_counter()
-                row = evaluate(learner, test, protocol)
+                futures = ({"n_futures": ONLINE_FUTURES, "random_state": spec["seed"]}
+                           if protocol.kind == "online" and hasattr(learner, "predict_futures") else {})
+                row = evaluate(learner, test, protocol, **futures)
+                row.update(_style_scores(learner, data.train, test, protocol))
                 evaluate_s = time.perf_counter() - t0
                 ari = style_agreement(learner, data.train)
                 recovery, weight_scores = _recovery(learner, test, protocol, data.model, data.style_names)
@@ -373,7 +408,10 @@ def _run_cells(specs: list[dict], code_version: str | None, store_root: str | No
             "n_test": len(test),
             "n_predictions": int(row.get("n_predictions", len(test))),
             "n_warnings": len(caught),
+            **{name: _float(row.get(name)) for name in ONLINE_SCORES},
         }
+        if scores["k_futures"] is not None:
+            scores["k_futures"] = int(scores["k_futures"])
         results.append({
             "scores": scores,
             "timings": {"generate_s": 0.0 if charged else generate_s, "fit_s": fit_s, "evaluate_s": evaluate_s,

@@ -18,7 +18,8 @@ gives the same bytes):
 Legends sit below the panels, outside every axes, so that none covers data.
 - ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI: the mean
   over seeds and, with several seeds, its 95 % confidence interval, mean ± t(0.975, n-1) s / sqrt(n)), weight
-  recovery per feature and per style where the sweep has it (``weights.csv``), whether the paper's ordering
+  recovery per feature and per style where the sweep has it (``weights.csv``), the online protocol's style
+  posterior and multi-modal scores (`online_view`), whether the paper's ordering
   MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) holds, timings and the figures.
 """
 
@@ -40,7 +41,7 @@ from pirl_sim.harness.tables import markdown
 from .run import read_table
 
 __all__ = ["write_report", "summary_table", "best_variants", "med_vs_k_figure", "learners_side_by_side_figure",
-           "recovery_figure", "ci95", "weights_summary"]
+           "recovery_figure", "ci95", "weights_summary", "online_view", "ONLINE_MEANS"]
 
 _K_IN_LABEL = re.compile(r"k=[^,)]+(, )?")
 
@@ -76,8 +77,31 @@ def summary_table(table: pd.DataFrame) -> pd.DataFrame:
         med=("med", "mean"), med_sd=("med", "std"), fde=("fde", "mean"), weight_error=("weight_error", "mean"),
         ari=("ari", "mean"), n_styles=("n_styles", "mean"), seeds=("seed", "nunique"), cell_s=("cell_s", "sum"),
         med_ci=("med", ci95), fde_ci=("fde", ci95), weight_error_ci=("weight_error", ci95), ari_ci=("ari", ci95),
+        **{c: (c, "mean") for c in ONLINE_MEANS if c in t.columns},
+        **{f"{c}_ci": (c, ci95) for c in ONLINE_MEANS if c in t.columns},
     )
     return agg.reset_index()
+
+
+#: the online protocol's scores (`pirl_sim.sweep.cell.ONLINE_SCORES`) averaged in `summary_table`, with the
+#: README's column titles
+ONLINE_MEANS = {"style_accuracy": "style accuracy", "style_ari": "style ARI", "min_ade": "minADE_6 [m]",
+                "min_fde": "minFDE_6 [m]", "miss_rate": "miss rate", "nll": "NLL [nats/step]"}
+
+
+def online_view(g: pd.DataFrame) -> pd.DataFrame | None:
+    """The README's table of the online protocol's scores for the `summary_table` rows ``g`` of one experiment
+    (the rows that have any), or None."""
+    cols = [c for c in ONLINE_MEANS if c in g.columns]
+    if not cols:
+        return None
+    g = g[g[cols].notna().any(axis=1)]
+    if g.empty:
+        return None
+    view = pd.DataFrame({"scenario": g["scenario_label"], "protocol": g["protocol"], "learner": g["learner_label"]})
+    for c in cols:
+        view[ONLINE_MEANS[c]] = [_pm(m, ci) for m, ci in zip(g[c], g[f"{c}_ci"])]
+    return view.drop(columns=["scenario"]) if view["scenario"].nunique() == 1 else view
 
 
 def weights_summary(weights: pd.DataFrame) -> pd.DataFrame:
@@ -333,8 +357,10 @@ def _fmt(x) -> str:
 def _orderings(best: pd.DataFrame) -> list[str]:
     lines = []
     for (scen, proto), g in best.groupby(["scenario_label", "protocol"], sort=False):
-        med = dict(zip(g["learner"], g["med"]))
-        lab = dict(zip(g["learner"], g["learner_label"]))
+        med, lab = {}, {}
+        for learner, m, label in zip(g["learner"], g["med"], g["learner_label"]):  # a learner's first variant
+            med.setdefault(learner, m)
+            lab.setdefault(learner, label)
         if all(k in med for k in ("tirl", "pirl-gmm", "pirl-knn")):
             ok = med["tirl"] > med["pirl-gmm"] > med["pirl-knn"]
             lines.append(f"- {scen}, {proto}: MED(TIRL) > MED({lab['pirl-gmm']}) > MED({lab['pirl-knn']}) "
@@ -427,6 +453,15 @@ def write_report(results, out_dir=None) -> dict:
         if view["scenario"].nunique() == 1:
             view = view.drop(columns=["scenario"])
         lines += [markdown(view, _fmt), ""]
+        online = online_view(g)
+        if online is not None:
+            lines += ["Online protocol, style posterior and 6 futures per test history (`pirl_sim.sweep.cell`): "
+                      "style accuracy, the share of test histories whose most probable style given the observed "
+                      "steps is their true one, and style ARI, the adjusted Rand index of those styles; minADE_6 / "
+                      "minFDE_6 [m], the smallest mean / final distance of the futures to the true one; miss rate "
+                      "(the INTERACTION challenge's rule) and NLL [nats per predicted step] of the true future "
+                      "under a Gaussian mixture (sigma 0.5 m) around the futures. TIRL has one future, a "
+                      "feature-space mixture at most one per style.", "", markdown(online, _fmt), ""]
         w = None if weights is None else weights[weights["experiment"] == exp]
         if w is not None and len(w) and exp in weight_experiments:
             overall = w[w["style"] == "all"]

@@ -26,7 +26,7 @@ import pandas as pd
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.progress import reporter
 
-from .cell import knn_group, run_cells, run_simulation
+from .cell import ONLINE_SCORES, knn_group, run_cells, run_simulation
 from .config import SweepConfig, canonical_json
 from .executors import make_executor
 from .progress import Progress
@@ -39,7 +39,7 @@ __all__ = ["SweepRun", "run_sweep", "assemble_table", "read_table", "weights_tab
 #: wall-clock timings [s]: differ from run to run (everything else in the table does not)
 TIMING_COLUMNS = ("generate_s", "fit_s", "evaluate_s", "cell_s", "cpu_s")
 SCORE_COLUMNS = ("med", "med_std", "fde", "weight_error", "ari", "n_styles", "n_train", "n_test", "n_predictions",
-                 "n_warnings")
+                 "n_warnings", *ONLINE_SCORES)  # the online protocol's (`pirl_sim.sweep.cell`): empty elsewhere
 TABLE_COLUMNS = (
     "key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "history_steps", "horizon",
     "learner", "learner_label", "k", "seed", *SCORE_COLUMNS, *TIMING_COLUMNS, "scenario_params", "learner_params",
@@ -48,7 +48,9 @@ TABLE_COLUMNS = (
 #: columns of ``weights.csv``: weight recovery per cell, free feature and true style ("all": every test history)
 WEIGHT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "learner_label", "seed", "feature",
                   "style", "n", "median_abs_log_err", "p90_abs_log_err", "spearman")
-_INT_COLUMNS = ("history_steps", "horizon", "k", "seed", "n_styles", "n_train", "n_test", "n_predictions", "n_warnings")
+_INT_COLUMNS = ("history_steps", "horizon", "k", "seed", "n_styles", "n_train", "n_test", "n_predictions", "n_warnings",
+                "k_futures")
+_FLOAT_SCORES = ("med", "med_std", "fde", "weight_error", "ari", *(c for c in ONLINE_SCORES if c != "k_futures"))
 _COST = {"cv": 0, "ca": 0, "tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3}  # rough relative cost: long cells go first
 
 
@@ -335,7 +337,7 @@ def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.Da
     table = pd.DataFrame(rows, columns=list(TABLE_COLUMNS))
     for c in _INT_COLUMNS:
         table[c] = pd.array(table[c].tolist(), dtype="Int64")
-    for c in ("med", "med_std", "fde", "weight_error", "ari", *TIMING_COLUMNS):
+    for c in (*_FLOAT_SCORES, *TIMING_COLUMNS):
         table[c] = pd.to_numeric(table[c], errors="coerce").astype(float)
     return table
 
@@ -425,6 +427,10 @@ def read_table(results) -> pd.DataFrame:
             raise ValueError(f"{path}: not a readable sweep table ({type(exc).__name__}: {exc}); run pirl-sim "
                              "sweep again to rewrite it") from None
         raise
+    for c in ONLINE_SCORES:  # a table written before these scores existed: empty columns
+        if c not in table.columns:
+            table.insert(list(TABLE_COLUMNS).index(c), c, pd.array([None] * len(table), dtype="Int64")
+                         if c in _INT_COLUMNS else np.full(len(table), np.nan))
     _check_table(table, path)
     return table
 
@@ -459,7 +465,7 @@ def _check_table(table: pd.DataFrame, path: Path) -> None:
         if any(wrong):
             i = wrong.index(True)
             raise ValueError(f"{path}: {where(i)}, column {c!r}: expected text, found {table[c].iloc[i]!r}")
-    for c in (*_INT_COLUMNS, "med", "med_std", "fde", "weight_error", "ari", *TIMING_COLUMNS):
+    for c in (*_INT_COLUMNS, *_FLOAT_SCORES, *TIMING_COLUMNS):
         values = pd.to_numeric(table[c], errors="coerce")
         wrong = (values.isna() & table[c].notna()).to_numpy()
         if wrong.any():
