@@ -95,6 +95,10 @@ def test_policy_recovery_rejects_bad_settings():
         PpoRecoveryConfig(theta=(("speed_dev", 1.0),))
     with pytest.raises(ValueError, match="steps must be an integer >= 1"):
         PpoRecoveryConfig(steps=0)
+    with pytest.raises(ValueError, match="initial_vehicles = 5 exceeds n_vehicles = 3"):
+        PpoRecoveryConfig(n_vehicles=3, initial_vehicles=5)
+    with pytest.raises(ValueError, match="normalize_reward must be true or false"):
+        PpoRecoveryConfig(normalize_reward=1)
     with pytest.raises(ValueError, match="config sets 'policy_frequency'"):
         mpc_ego_demonstrations({"a": {"speed_dev": 1.0, "acc_sq": 1.0}}, [0], config={"policy_frequency": 5})
     with pytest.raises(ValueError, match="ego_speeds must be 1 speeds"):

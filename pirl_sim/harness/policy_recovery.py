@@ -242,8 +242,13 @@ class PpoRecoveryConfig:
     seeds : tuple of int     PPO training seeds (PPO's and its env's)
     steps : int              environment steps of training per seed (agent steps of 0.1 s)
     eval_seeds : tuple of int  env seeds of the evaluation episodes, disjoint from ``seeds``
-    initial_vehicles : int   vehicles on the road at reset
+    n_vehicles : int         vehicles of the env's population (PIRL drivers and background) in an episode
+    initial_vehicles : int   of them on the road at reset (the others depart every ``depart_interval``)
+    depart_interval : float  [s] mean time between the population's departures
     duration : float         [s] episode time limit
+    normalize_reward : bool  train on rewards scaled by a running estimate of the return's standard deviation
+                             (SB3's ``VecNormalize``; the "theta" reward's costs are of the order of 10-1000
+                             per episode)
     n_steps, batch_size, n_epochs : int   PPO's rollout length, minibatch size, epochs per update
     gamma : float            PPO's discount (per 0.1 s step)
     learning_rate : float
@@ -255,8 +260,11 @@ class PpoRecoveryConfig:
     seeds: tuple[int, ...] = (0, 1, 2)
     steps: int = 30_000
     eval_seeds: tuple[int, ...] = tuple(range(1000, 1010))
-    initial_vehicles: int = 4
+    n_vehicles: int = 8
+    initial_vehicles: int = 2
+    depart_interval: float = 8.0
     duration: float = 40.0
+    normalize_reward: bool = True
     n_steps: int = 2048
     batch_size: int = 128
     n_epochs: int = 10
@@ -280,19 +288,22 @@ class PpoRecoveryConfig:
             raise ValueError(f"training and evaluation seeds must differ; both have {sorted(set(seeds) & set(eval_seeds))}")
         object.__setattr__(self, "seeds", tuple(seeds))
         object.__setattr__(self, "eval_seeds", tuple(eval_seeds))
-        for name in ("steps", "n_steps", "batch_size", "n_epochs", "initial_vehicles"):
+        for name in ("steps", "n_steps", "batch_size", "n_epochs", "initial_vehicles", "n_vehicles"):
             v = getattr(self, name)
             low = 0 if name == "initial_vehicles" else 1
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
-        for name in ("duration", "learning_rate"):
+        if self.initial_vehicles > self.n_vehicles:
+            raise ValueError(f"initial_vehicles = {self.initial_vehicles} exceeds n_vehicles = {self.n_vehicles}")
+        for name in ("duration", "learning_rate", "depart_interval"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
         if isinstance(self.gamma, bool) or not isinstance(self.gamma, (int, float)) or not 0 < self.gamma <= 1:
             raise ValueError(f"gamma must be in (0, 1], got {self.gamma!r}")
-        if not isinstance(self.use_sde, bool):
-            raise ValueError(f"use_sde must be true or false, got {self.use_sde!r}")
+        for name in ("use_sde", "normalize_reward"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
     @property
     def theta_map(self) -> dict[str, float]:
@@ -301,7 +312,8 @@ class PpoRecoveryConfig:
     def env_config(self) -> dict:
         """The env's options: the ``"theta"`` reward of :attr:`theta`, the traffic, one action per 0.1 s."""
         return {"reward": "theta", "reward_theta": self.theta_map, "initial_vehicles": self.initial_vehicles,
-                "duration": self.duration}
+                "duration": self.duration,
+                "population": {"n_vehicles": self.n_vehicles, "depart_interval": self.depart_interval}}
 
 
 def _train_ppo(cfg: PpoRecoveryConfig, seed: int):
@@ -310,13 +322,17 @@ def _train_ppo(cfg: PpoRecoveryConfig, seed: int):
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import Logger
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     import pirl_sim.envs  # noqa: F401
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        env = gym.wrappers.FlattenObservation(gym.make(ENV_ID, config={**cfg.env_config(), "policy_frequency": 10}))
+        env = DummyVecEnv([lambda: gym.wrappers.FlattenObservation(
+            gym.make(ENV_ID, config={**cfg.env_config(), "policy_frequency": 10}))])
+        if cfg.normalize_reward:
+            env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
         model = PPO("MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size, n_epochs=cfg.n_epochs,
                     gamma=cfg.gamma, learning_rate=cfg.learning_rate, use_sde=cfg.use_sde, seed=seed, verbose=0,
                     device="cpu", policy_kwargs={"log_std_init": cfg.log_std_init})
@@ -411,7 +427,9 @@ def write_results(result: dict, cfg: PpoRecoveryConfig, out, command: str, wall_
             f"Made by `{command}` in {wall_s:.0f} s wall time (2-core machine shared with other jobs).\n\n"
             f"PPO (stable-baselines3, direct acceleration action every 0.1 s) is trained on "
             f"`pirl_sim/Roundabout-v0` with `reward = \"theta\"`, `reward_theta = {cfg.theta_map}` (jerk_sq = 1), "
-            f"{cfg.steps} steps per training seed {list(cfg.seeds)}, {cfg.initial_vehicles} vehicles at reset; each "
+            f"{cfg.steps} steps per training seed {list(cfg.seeds)}, traffic of {cfg.n_vehicles} vehicles "
+            f"({cfg.initial_vehicles} at reset, one departure every {cfg.depart_interval:g} s), rewards "
+            f"{'scaled by VecNormalize' if cfg.normalize_reward else 'unscaled'}; each "
             f"trained policy then drives the evaluation seeds {cfg.eval_seeds[0]}-{cfg.eval_seeds[-1]} "
             "deterministically with `record_tracks`. Every episode's ego track is fitted on its own by the "
             "receding-horizon likelihood (the drivers' MPC horizon) and compared with `reward_theta` "
@@ -452,6 +470,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=_int_list, default=list(d.seeds), help="training seeds, comma-separated")
     p.add_argument("--eval-seeds", type=_int_list, default=list(d.eval_seeds), help="evaluation env seeds")
     p.add_argument("--n-steps", type=int, default=d.n_steps, help=f"PPO rollout length (default {d.n_steps})")
+    p.add_argument("--n-vehicles", type=int, default=d.n_vehicles,
+                   help=f"vehicles of the traffic per episode (default {d.n_vehicles})")
+    p.add_argument("--initial-vehicles", type=int, default=d.initial_vehicles,
+                   help=f"of them on the road at reset (default {d.initial_vehicles})")
+    p.add_argument("--no-normalize-reward", action="store_true", help="train on the unscaled theta reward")
     p.add_argument("--speed-dev", type=float, default=d.theta_map["speed_dev"], help="reward weight of speed_dev")
     p.add_argument("--acc-sq", type=float, default=d.theta_map["acc_sq"], help="reward weight of acc_sq")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
@@ -459,7 +482,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=tuple(args.seeds),
                                 steps=args.steps, eval_seeds=tuple(args.eval_seeds), n_steps=args.n_steps,
-                                batch_size=min(d.batch_size, args.n_steps))
+                                batch_size=min(d.batch_size, args.n_steps), n_vehicles=args.n_vehicles,
+                                initial_vehicles=args.initial_vehicles, normalize_reward=not args.no_normalize_reward)
     except ValueError as exc:
         p.error(str(exc))
     say = reporter(not args.quiet)
