@@ -12,6 +12,7 @@ A cost is ``C(xi) = theta . f(xi)`` with theta ordered as `FeatureSet.names`; we
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Callable, Literal, Mapping, NamedTuple, Sequence
 
@@ -461,9 +462,12 @@ class SquaredStateResidual:
         sel = np.arange(n_x) if self.index is None else np.asarray(self.index, dtype=int)
         if np.any((sel < 0) | (sel >= n_x)):
             raise ValueError(f"feature {self.name!r}: state index {list(sel)} out of range for n_x={n_x}")
-        jac_x = np.eye(n_x)[sel][None, None]
-        jac_u = np.zeros((1, 1, len(sel), u.shape[-1]))
+        jac_x, jac_u = _selector_jacobians(tuple(int(i) for i in sel), n_x, u.shape[-1])
         return Residual(x[..., sel], jac_x, jac_u)
+
+    def value(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The residual alone (M, N, p), without its Jacobians."""
+        return self(x, u).r
 
 
 @dataclass(frozen=True)
@@ -472,7 +476,23 @@ class SquaredControlResidual:
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
         n_u = u.shape[-1]
-        return Residual(u, np.zeros((1, 1, n_u, x.shape[-1])), np.eye(n_u)[None, None])
+        jac_u, jac_x = _selector_jacobians(tuple(range(n_u)), n_u, x.shape[-1])
+        return Residual(u, jac_x, jac_u)
+
+    def value(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The residual alone (M, N, n_u)."""
+        return u
+
+
+@functools.lru_cache(maxsize=64)
+def _selector_jacobians(sel: tuple[int, ...], n_in: int, n_other: int) -> tuple[np.ndarray, np.ndarray]:
+    """Read-only Jacobians (1, 1, p, n_in) of selecting entries ``sel`` of an n_in-vector, and zeros
+    (1, 1, p, n_other) for the other argument (made once: residuals are evaluated many times per MPC call)."""
+    jac = np.eye(n_in)[list(sel)][None, None]
+    zeros = np.zeros((1, 1, len(sel), n_other))
+    jac.setflags(write=False)
+    zeros.setflags(write=False)
+    return jac, zeros
 
 
 def squared_state(name: str, index: Sequence[int] | None = None, *, reduction: str = "sum") -> Feature:

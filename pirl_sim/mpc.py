@@ -423,6 +423,9 @@ class _OuterExpansion:
         zeros = np.zeros((1, N, n_u))
         der = features.derivatives(dynamics, dynamics.rollout(np.zeros((1, n_x)), zeros), zeros)
         self.Hq = np.ascontiguousarray(der.hess[0, self.quad].reshape(len(self.quad), self.d * self.d))
+        H_ref = der.hess[0, ref]
+        #: the reference feature's Hessian diagonal (d,) when it is diagonal, else None
+        self.ref_diagonal = np.diag(H_ref).copy() if not np.any(H_ref - np.diag(np.diag(H_ref))) else None
         self._pairs: dict[tuple[int, int], np.ndarray] = {}
         self._stacks: dict[tuple, np.ndarray] = {}
         # constant stage Hessians of the quadratic features, 2 scale J^T J over (x_n, u_{n-1}): (K_q, N q^2)
@@ -490,25 +493,28 @@ class _OuterExpansion:
             values[:, k] = scale * np.sum(r**2, axis=(1, 2))
             w = (2.0 * scale) * theta[:, k, None]  # (M, 1)
             wr = (w[:, :, None] * r)[..., None]  # (M, N, p, 1): 2 scale theta_k r
-            if np.any(Jx):
+            # the columns of J = [Jx, Ju] (over the stage basis) that are non-zero somewhere
+            nz_x = np.flatnonzero(np.any(Jx, axis=tuple(range(Jx.ndim - 1))))
+            nz_u = np.flatnonzero(np.any(Ju, axis=tuple(range(Ju.ndim - 1))))
+            if len(nz_x):
                 sigma[:, :, :n_x] += np.sum(wr * Jx, axis=2)
-            if np.any(Ju):
+            if len(nz_u):
                 sigma[:, :, n_x:] += np.sum(wr * Ju, axis=2)
             if feat.quadratic:
                 continue
-            # the columns of J = [Jx, Ju] (over the stage basis) that are non-zero somewhere
-            cols = [(a, np.broadcast_to(Jx[..., a], (M, N) + Jx.shape[2:3])) for a in range(n_x) if np.any(Jx[..., a])]
-            cols += [(n_x + c, np.broadcast_to(Ju[..., c], (M, N) + Ju.shape[2:3])) for c in range(n_u)
-                     if np.any(Ju[..., c])]
+            p = r.shape[2]
+            cols = [(a, np.broadcast_to(Jx[..., a], (M, N, p))) for a in nz_x]
+            cols += [(n_x + c, np.broadcast_to(Ju[..., c], (M, N, p))) for c in nz_u]
             for i, (a, Ja) in enumerate(cols):
                 for bb, Jb in cols[i:]:
-                    add(jj, (a, bb), w * np.einsum("mnp,mnp->mn", Ja, Jb))
+                    prod = Ja[..., 0] * Jb[..., 0] if p == 1 else np.einsum("mnp,mnp->mn", Ja, Jb)
+                    add(jj, (int(a), int(bb)), w * prod)
             if res.hess_x is not None:
                 hx = res.hess_x
-                for a in range(n_x):
-                    for bb in range(a, n_x):
-                        if np.any(hx[..., a, bb]):
-                            add(ww, (a, bb), w * np.einsum("mnp,mnp->mn", r, hx[..., a, bb]))
+                nz = np.any(hx, axis=tuple(range(hx.ndim - 2)))  # (n_x, n_x)
+                for a, bb in zip(*np.nonzero(np.triu(nz))):
+                    h = hx[..., a, bb]
+                    add(ww, (int(a), int(bb)), w * (r[..., 0] * h[..., 0] if p == 1 else np.einsum("mnp,mnp->mn", r, h)))
         return values, sigma, jj, ww
 
     def stage_hessians(self, theta: np.ndarray, jj: dict, ww: dict | None, ref_share: float) -> np.ndarray:
@@ -747,7 +753,11 @@ class SequentialMPC:
         A = exp.hessians(theta, jj, ww, 0.5)
         M, d = A.shape[:2]
         bad = _pd_rows(A)
-        A += np.multiply.outer(0.5 * theta[:, self.features.reference_index], exp.Hq[exp.ref_pos]).reshape(M, d, d)
+        half_ref = 0.5 * theta[:, self.features.reference_index]
+        if exp.ref_diagonal is not None:  # a control-effort Hessian is diagonal: add it on the diagonal only
+            A.reshape(M, d * d)[:, ::d + 1] += np.multiply.outer(half_ref, exp.ref_diagonal)
+        else:
+            A += np.multiply.outer(half_ref, exp.Hq[exp.ref_pos]).reshape(M, d, d)
         if bad.any():
             A[bad] = exp.hessians(theta, jj, None, 1.0, rows=bad)
         u = U.reshape(M, -1)

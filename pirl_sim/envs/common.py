@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -124,6 +125,48 @@ def clearance(xy, others_xy) -> float:
     return float(np.sqrt(((others - np.asarray(xy, dtype=float)) ** 2).sum(axis=1)).min()) - VEHICLE_LENGTH
 
 
+_PROJECT_MAX_ITER = 50  # as RouteSet.project
+_PROJECT_MIN_SLOPE = -0.05  # as RouteSet.project: floor on the Newton slope
+
+
+def _project_point(path, x: float, y: float, s_guess: float, tol: float = 1e-7) -> float | None:
+    """Arc length [m] of the foot point of (x, y) [m] on ``path`` (a ReferencePath, extended straight beyond
+    its ends), by Newton's method from ``s_guess`` [m]: `pirl_sim.scenarios.drivers.RouteSet.project` for
+    one point in scalar arithmetic (one vehicle per frame: numpy's per-call cost dominated). None when the
+    iteration does not converge or the guess is not finite."""
+    if not math.isfinite(s_guess):
+        return None
+    s_tab, x_tab, y_tab, h_tab = path.s, path.x, path.y, path.heading
+    n = len(s_tab)
+    step_len = float(s_tab[1] - s_tab[0])
+    inv_step, length = 1.0 / step_len, float(path.length)
+    s = float(s_guess)
+    for _ in range(_PROJECT_MAX_ITER):
+        if s < 0.0 or s > length:  # the straight extension beyond an end
+            e = 0 if s < 0.0 else n - 1
+            he = float(h_tab[e])
+            c, sn = math.cos(he), math.sin(he)
+            over = s if s < 0.0 else s - length
+            px, py, dx, dy, h, dh = float(x_tab[e]) + over * c, float(y_tab[e]) + over * sn, c, sn, he, 0.0
+        else:
+            j = min(max(int(s * inv_step), 0), n - 2)
+            s0, ds = float(s_tab[j]), float(s_tab[j + 1] - s_tab[j])
+            x0, y0, h0 = float(x_tab[j]), float(y_tab[j]), float(h_tab[j])
+            ddx, ddy, ddh = float(x_tab[j + 1]) - x0, float(y_tab[j + 1]) - y0, float(h_tab[j + 1]) - h0
+            u = min(max((s - s0) / ds, 0.0), 1.0)
+            px, py, h = x0 + u * ddx, y0 + u * ddy, h0 + u * ddh
+            dx, dy, dh = ddx / ds, ddy / ds, ddh / ds
+        c, sn = math.cos(h), math.sin(h)
+        rx, ry = x - px, y - py
+        f = rx * c + ry * sn
+        fprime = -(dx * c + dy * sn) + dh * (-rx * sn + ry * c)
+        step = min(max(-f / min(fprime, _PROJECT_MIN_SLOPE), -step_len), step_len)
+        s = s + step
+        if abs(step) <= tol:
+            return s
+    return None
+
+
 def reward_weights(theta: Mapping[str, float]) -> np.ndarray:
     """Normalised weights (3,) of the ``"theta"`` reward over :data:`FEATURE_NAMES` (``jerk_sq`` = 1)."""
     return np.array([float(theta.get(f, 1.0)) for f in FEATURE_NAMES])
@@ -167,14 +210,21 @@ class EgoReward:
     def log_frame(self, xy, speed: float, accel: float, clearance: float = np.inf) -> None:
         """After each simulation frame: the ego's position [m], speed [m/s], applied acceleration [m/s^2] and
         clearance [m] to the nearest other vehicle (centre distance minus :data:`VEHICLE_LENGTH`; inf: none)."""
-        q = np.asarray(xy, dtype=float)[None, :]
-        try:
-            self.s_path = float(self.routes.project([self.route], q, [self.s_path])[0])
-        except ValueError:  # the warm start lost the ego (e.g. pushed by a crash): project from scratch
-            self.s_path = float(self.routes.project([self.route], q)[0])
+        x, y = (float(c) for c in xy)
+        s = _project_point(self.routes.paths[self.route], x, y, self.s_path)
+        if s is None:  # the warm start lost the ego (e.g. pushed by a crash): project from scratch
+            s = float(self.routes.project([self.route], np.array([[x, y]]))[0])
+        self.s_path = s
         s_global = self.routes.offsets[self.route] + np.array([self.s_path])
-        self.v_des = self._desired_speed()
-        kappa = float(self.routes.curvature(s_global)[0][0])
+        k = self.routes.curvature(s_global)[0]
+        kappa = float(k[0])
+        a_lat, v_max = getattr(self.profile, "a_lat", None), getattr(self.profile, "v_max", None)
+        if a_lat is not None and v_max is not None and hasattr(self.profile, "routes"):
+            # a RouteSetProfile: its desired speed of this curvature, without evaluating the curvature again
+            k2 = kappa * kappa
+            self.v_des = float(np.power(k2 * k2 * (1.0 / a_lat**4) + v_max**-8.0, -0.125))
+        else:
+            self.v_des = self._desired_speed()
         near = float(clearance < self.config["exit_reward"]["near_miss_gap"])
         self._frames.append(((speed - self.v_des) ** 2, accel, (accel - self._prev_acc) / FRAME_DT,
                              speed**2 * abs(kappa), near))
