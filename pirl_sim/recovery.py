@@ -32,7 +32,7 @@ import pandas as pd
 
 from .trajectory import Trajectory
 
-__all__ = ["RecoveryReport", "TrackFits", "INTERVALS", "STATISTICS", "LIKELIHOODS", "abs_log_errors", "spearman",
+__all__ = ["RecoveryReport", "TrackFits", "ALL", "NO_STYLE", "INTERVALS", "STATISTICS", "LIKELIHOODS", "abs_log_errors", "spearman",
            "statistic", "interval", "weight_scores", "fit_track_weights"]
 
 #: confidence-interval methods: percentile bootstrap, or analytic (order statistics / Student t)
@@ -42,6 +42,8 @@ STATISTICS: tuple[str, ...] = ("median", "p90", "mean")
 #: likelihoods of the per-track fits: the drivers re-plan every step, or one open-loop optimum per track
 LIKELIHOODS: tuple[str, ...] = ("receding", "trajectory")
 _QUANTILE = {"median": 0.5, "p90": 0.9}
+ALL = "all"  #: the group of every track in summaries (not a style name)
+NO_STYLE = "(none)"  #: the style of tracks whose style is not known
 
 
 # ---------------------------------------------------------------------------------------------- statistics
@@ -286,7 +288,7 @@ class RecoveryReport:
     true : array (n, F)             true normalised weights, each finite and > 0
     estimated : array (n, F)        fitted normalised weights, each finite and > 0
     track_ids : int array (n,)      unique
-    styles : tuple of str (n,)      each track's true style name
+    styles : tuple of str (n,)      each track's true style name (:data:`NO_STYLE` when unknown; not "all")
     converged : bool array (n,)     whether each track's fit converged (all True when not known)
     fitted_steps : int array (n,)   steps each fit scored (0 when not known)
     reference : str                 the reference feature
@@ -341,6 +343,8 @@ class RecoveryReport:
             raise ValueError("track_ids must be unique")
         if isinstance(self.styles, str) or len(self.styles) != n or not all(isinstance(s, str) for s in self.styles):
             raise ValueError(f"styles must be {n} style names (str), one per track")
+        if ALL in self.styles:
+            raise ValueError(f"the style name {ALL!r} is reserved for the group of all tracks; rename that style")
         conv = np.ones(n, dtype=bool) if self.converged is None else np.asarray(self.converged)
         if conv.shape != (n,) or conv.dtype != bool:
             raise ValueError(f"converged must be {n} booleans, got {self.converged!r}")
@@ -366,12 +370,12 @@ class RecoveryReport:
     def from_weights(cls, true, estimated, *, features: Sequence[str], reference: str = "jerk_sq",
                      styles: Sequence[str] | None = None, track_ids=None, **kwargs) -> "RecoveryReport":
         """A report of given weights: ``true`` and ``estimated`` (n, F) normalised weights of the free
-        ``features``; ``styles`` default "all" for every track, ``track_ids`` default 0..n-1; other keywords
+        ``features``; ``styles`` default :data:`NO_STYLE` for every track, ``track_ids`` default 0..n-1; other keywords
         as the dataclass (``source``, ``method``, ...)."""
         true = np.asarray(true, dtype=float)
         n = true.shape[0] if true.ndim == 2 else 0
         return cls(tuple(features), true, estimated, np.arange(n) if track_ids is None else track_ids,
-                   tuple(["all"] * n) if styles is None else tuple(styles), reference=reference, **kwargs)
+                   tuple([NO_STYLE] * n) if styles is None else tuple(styles), reference=reference, **kwargs)
 
     @classmethod
     def from_trajectories(cls, model, trajectories: Sequence[Trajectory], *, likelihood: str = "receding",
@@ -384,7 +388,7 @@ class RecoveryReport:
         model : DriverModel
         trajectories : sequence of Trajectory (n)
             The truth is ``metadata["theta"]`` (K weights over ``model.features``, normalised here) unless
-            ``theta`` is given; styles are ``metadata["style_name"]`` (default "all"), track ids
+            ``theta`` is given; styles are ``metadata["style_name"]`` (default :data:`NO_STYLE`), track ids
             ``metadata["track_id"]`` (default the index).
         likelihood, horizon, stride, log_bounds : as :func:`fit_track_weights`
         theta : array (K,) or (n, K), optional
@@ -417,7 +421,7 @@ class RecoveryReport:
                                  log_bounds=log_bounds)
         free = [k for k in range(K) if k != ref]
         ids = [t.metadata.get("track_id", i) for i, t in enumerate(trajectories)]
-        styles = [str(t.metadata.get("style_name", "all")) for t in trajectories]
+        styles = [str(t.metadata.get("style_name", NO_STYLE)) for t in trajectories]
         return cls(tuple(names[k] for k in free), truth[:, free], fits.normalized[:, free], np.asarray(ids),
                    tuple(styles), fits.converged, fits.fitted_steps, reference=names[ref], **kwargs)
 
@@ -459,7 +463,7 @@ class RecoveryReport:
     def groups(self) -> list[tuple[str, np.ndarray]]:
         """("all", every track) then (style, its tracks) per style: (label, bool mask (n,))."""
         styles = np.array(self.styles, dtype=object)
-        return [("all", np.ones(self.n_tracks, dtype=bool))] + [(s, styles == s) for s in self.style_names]
+        return [(ALL, np.ones(self.n_tracks, dtype=bool))] + [(s, styles == s) for s in self.style_names]
 
     def per_track(self) -> pd.DataFrame:
         """One row per track: ``track_id``, ``style``, ``converged``, ``fitted_steps`` and per feature f

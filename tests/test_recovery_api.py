@@ -101,6 +101,7 @@ def test_assert_recovered_rejects_bad_arguments(kwargs, error, match):
     ({"true": np.full((3, 2), np.nan)}, r"true weights must be finite"),
     ({"track_ids": np.array([1, 1, 2])}, r"track_ids must be unique"),
     ({"styles": ("a", "b")}, r"styles must be 3 style names"),
+    ({"styles": ("a", "all", "b")}, r"style name 'all' is reserved"),
     ({"features": ("speed_dev", "speed_dev")}, r"features must be distinct"),
     ({"features": ("speed_dev", "jerk_sq")}, r"reference feature 'jerk_sq'"),
     ({"method": "jackknife"}, r"method must be one of .*'jackknife'"),
@@ -118,6 +119,7 @@ def test_report_checks_itself(change, match):
 
 def test_report_is_frozen_and_read_only():
     rep = _report(np.full((3, 2), 0.01))
+    assert rep.style_names == ("(none)",) and list(rep.summary()["style"]) == ["all", "(none)"] * 2
     with pytest.raises(AttributeError):
         rep.seed = 2
     with pytest.raises(ValueError, match="read-only"):
