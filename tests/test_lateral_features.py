@@ -314,6 +314,7 @@ def test_neighbour_offsets_carry_a_lane_change_that_the_mean_path_misses():
 @pytest.mark.parametrize("call, match", [
     (lambda: NeighbourOffsets(n_neighbors=0), "n_neighbors"),
     (lambda: NeighbourOffsets(position_scale=float("nan")), "position_scale"),
+    (lambda: NeighbourOffsets(deviation_times=(0.5, -1.0)), "deviation_times"),
     (lambda: NeighbourOffsets().fit(_profile(), [], 15), "at least"),
     (lambda: NeighbourOffsets().fit(_profile(), [], 0), "horizon"),
     (lambda: NeighbourOffsets().fit(MeanOffsetProfile(), [], 5), "fitted"),
@@ -323,3 +324,5 @@ def test_neighbour_offsets_carry_a_lane_change_that_the_mean_path_misses():
 def test_bad_neighbour_offsets_inputs_name_the_value(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+    with pytest.raises(TypeError, match="deviation_times"):
+        NeighbourOffsets(deviation_times=0.5)
