@@ -22,10 +22,12 @@ depend on more than the weights (e.g. spread start states). With ``space="weight
    demonstrations hit the bound (``acc_sq`` -> 0); without the refit their ``speed_dev`` estimate, conditional
    on ``acc_sq`` = 0, put 10 of them in the wrong style (ARI 0.938; with it 0.988).
 2. The posteriors are clustered by extreme deconvolution (`pirl_sim.deconvolution`, Bovy, Hogg & Roweis 2011),
-   EM that weighs every demonstration by what its posterior really pins down. PIRL-GMM takes k fixed or by BIC;
-   PIRL-DPGMM starts from ``max_components`` and lets Figueiredo & Jain's (2002) minimum-message-length rule
-   remove the components that too few demonstrations support (a stand-in for the Dirichlet process in weight
-   space: it counts Gaussian components, so a skewed style may take two).
+   EM that weighs every demonstration by what its posterior really pins down. PIRL-GMM takes k fixed or by BIC.
+   PIRL-DPGMM (``weight_mixture="dirichlet-process"``, the default) puts a Dirichlet process over the same
+   measurement model, truncated at ``max_components`` sticks and fitted by variational inference
+   (`pirl_sim.deconvolution.dp_deconvolution`); with ``weight_mixture="mml"`` it starts from ``max_components``
+   and lets Figueiredo & Jain's (2002) minimum-message-length rule remove the components that too few
+   demonstrations support (it counts Gaussian components, so a skewed style may take two).
 3. Each cluster's weights are refitted jointly by IRL on its members.
 4. ``refine`` passes of hard EM over the IRL likelihoods (the alternative the issue names, after Babeș-Vroman
    et al. 2011, "Apprenticeship learning about multiple intentions", ICML): every demonstration moves to its
@@ -34,6 +36,12 @@ depend on more than the weights (e.g. spread start states). With ``space="weight
    when no label changes. On the passage the one default pass moves the 2 demonstrations that the
    deconvolution left in the wrong style (posteriors too vague to decide: speed_dev -1.8 +- 0.4 between styles
    at -2.3 and -1.2): ARI 0.988 -> 1.0, worst per-style weight error 0.30 -> 0.065.
+
+PIRL-GMM's ``init="random"`` skips steps 1-3: the styles start as random equal-size clusters of the
+demonstrations, each fitted by IRL, and the hard EM of step 4 runs for up to ``refine`` passes (Babeș-Vroman et
+al.'s algorithm from a plain start; ``n_init`` restarts, the highest classification log-likelihood kept). No
+per-demonstration posterior is formed, so the styles' spread is unknown: ``style_log_covariances_`` are zero and
+the futures drawn in weight space are the styles' own.
 
 A history's style is then the most probable one under `predict_proba`.
 
@@ -49,15 +57,17 @@ import warnings
 import numpy as np
 from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
 
-from pirl_sim.deconvolution import extreme_deconvolution
+from pirl_sim.deconvolution import dp_deconvolution, extreme_deconvolution
 from pirl_sim.validation import is_positive_int
 
 from .base import BaseLearner, population_prior
 from .weight_space import demo_posteriors, style_log_likelihoods
 
-__all__ = ["PIRLGMM", "PIRLDPGMM", "SPACES"]
+__all__ = ["PIRLGMM", "PIRLDPGMM", "SPACES", "INITS", "WEIGHT_MIXTURES"]
 
 SPACES = ("features", "weights")
+INITS = ("deconvolution", "random")  #: PIRLGMM's starts in weight space (module doc)
+WEIGHT_MIXTURES = ("dirichlet-process", "mml")  #: PIRLDPGMM's mixtures in weight space (module doc)
 
 
 def _merge_rows(result, sub, rows: np.ndarray):
@@ -157,6 +167,11 @@ class _MixtureLearner(BaseLearner):
         refine = self.refine
         if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
             raise ValueError(f"refine must be a non-negative integer, got {refine!r}")
+        init = getattr(self, "init", "deconvolution")
+        if init not in INITS:
+            raise ValueError(f"init must be one of {INITS}, got {init!r}")
+        if init == "random":
+            return self._fit_random_start(model, trajectories, int(refine))
         M = len(trajectories)
         demo = self._irl(model, trajectories, np.arange(M), M)
         prior, redo = None, None
@@ -205,8 +220,14 @@ class _MixtureLearner(BaseLearner):
         self.irl_result_ = res
         self.theta_ = res.normalized
         self._set_noise_scale(trajectories)
+        self._hard_em(model, trajectories, int(refine))
+        self.cluster_sizes_ = np.bincount(self.labels_, minlength=self.n_styles_)
+
+    def _hard_em(self, model, trajectories, passes: int) -> None:
+        """Up to ``passes`` passes of hard EM over the IRL likelihoods from ``labels_`` (module doc); sets
+        ``n_refined_``, the passes that changed labels."""
         self.n_refined_ = 0
-        for _ in range(int(refine)):  # hard EM over the IRL likelihoods (module doc)
+        for _ in range(passes):
             new = self._posterior(self._style_log_likelihood(trajectories)).argmax(axis=1)
             sizes = np.bincount(new, minlength=self.n_styles_)
             if np.array_equal(new, self.labels_) or sizes.min() < min(self.min_cluster_size, sizes.max()):
@@ -216,6 +237,44 @@ class _MixtureLearner(BaseLearner):
             self.irl_result_, self.theta_ = res, res.normalized
             self.style_weights_ = sizes / sizes.sum()
             self.n_refined_ += 1
+
+    def _fit_random_start(self, model, trajectories, passes: int) -> None:
+        """``init="random"`` (module doc): Babeș-Vroman et al.'s EM from random equal-size clusters, ``n_init``
+        restarts, the one with the highest classification log-likelihood sum_i log(pi_l p(tau_i | theta_l))
+        (l: the demonstration's style) kept."""
+        k = getattr(self, "n_components", None)
+        if not is_positive_int(k):
+            raise ValueError(f"init='random' needs a fixed number of styles: n_components must be a positive integer, "
+                             f"got {k!r}")
+        M = len(trajectories)
+        if k > M:
+            raise ValueError(f"n_components={k} is larger than the number of training demonstrations ({M})")
+        if not is_positive_int(self.n_init):
+            raise ValueError(f"n_init must be a positive integer, got {self.n_init!r}")
+        rng = np.random.default_rng(self.random_state)
+        best, best_score = None, -np.inf
+        names = ("labels_", "irl_result_", "theta_", "style_weights_", "n_refined_", "control_rms_", "episode_steps_")
+        for _ in range(int(self.n_init)):
+            self.n_styles_ = int(k)
+            self.labels_ = rng.permutation(np.arange(M) % k)
+            res = self._irl(model, trajectories, self.labels_, self.n_styles_)
+            self.irl_result_, self.theta_ = res, res.normalized
+            self.style_weights_ = np.full(k, 1.0 / k)
+            self._set_noise_scale(trajectories)
+            self._hard_em(model, trajectories, passes)
+            ll = self._style_log_likelihood(trajectories) + np.log(self.style_weights_)[None]
+            score = float(ll[np.arange(M), self.labels_].sum())
+            if score > best_score:
+                best, best_score = {n: getattr(self, n) for n in names}, score
+        for n, v in best.items():
+            setattr(self, n, v)
+        feats = model.features
+        others = [j for j in range(feats.n_features) if j != feats.reference_index]
+        self.components_ = np.arange(self.n_styles_)
+        self.style_log_means_ = np.log(self.theta_[:, others])
+        self.style_log_covariances_ = np.zeros((self.n_styles_, len(others), len(others)))  # no spread estimated
+        self.classification_log_likelihood_ = best_score
+        self.n_demos_with_prior_ = 0
         self.cluster_sizes_ = np.bincount(self.labels_, minlength=self.n_styles_)
 
     def _set_noise_scale(self, trajectories):
@@ -367,7 +426,12 @@ class PIRLGMM(_MixtureLearner):
         What is clustered: the (transformed, standardised) features, the paper's; or the per-demonstration
         posteriors over the log normalised weights, by extreme deconvolution (module doc).
     refine : int
-        (``space="weights"``) passes of hard EM over the IRL likelihoods after the deconvolution (module doc).
+        (``space="weights"``) passes of hard EM over the IRL likelihoods after the deconvolution (module doc);
+        with ``init="random"`` the most passes of the EM.
+    init : {"deconvolution", "random"}
+        (``space="weights"``) where the styles start: the deconvolved mixture of the per-demonstration posteriors,
+        or random equal-size clusters with hard EM over the IRL likelihoods alone (Babeș-Vroman et al. 2011;
+        ``n_init`` restarts; module doc).
 
     Attributes
     ----------
@@ -405,6 +469,7 @@ class PIRLGMM(_MixtureLearner):
         irl_hessian="auto",
         space="features",
         refine=1,
+        init="deconvolution",
     ):
         self.model = model
         self.n_components = n_components
@@ -424,6 +489,7 @@ class PIRLGMM(_MixtureLearner):
         self.irl_hessian = irl_hessian
         self.space = space
         self.refine = refine
+        self.init = init
 
     def _make_mixture(self, Z):
         n = Z.shape[0]
@@ -479,8 +545,12 @@ class PIRLDPGMM(_MixtureLearner):
     min_cluster_size : int
         Components with fewer training samples are not counted as styles (see module doc).
     space : {"features", "weights"}
-        As `PIRLGMM`; in weight space the number of styles comes from minimum-message-length pruning of an
-        extreme-deconvolution mixture started with ``max_components`` (module doc).
+        As `PIRLGMM`; in weight space the number of styles comes from the mixture ``weight_mixture``.
+    weight_mixture : {"dirichlet-process", "mml"}
+        (``space="weights"``) a Dirichlet-process mixture of the per-demonstration posteriors by truncated
+        stick-breaking variational inference (`pirl_sim.deconvolution.dp_deconvolution`, truncation
+        ``max_components``, concentration ``weight_concentration_prior``), or the extreme-deconvolution mixture
+        started with ``max_components`` and pruned by minimum message length (module doc).
     Other parameters as `PIRLGMM`.
 
     Attributes
@@ -511,6 +581,7 @@ class PIRLDPGMM(_MixtureLearner):
         irl_hessian="auto",
         space="features",
         refine=1,
+        weight_mixture="dirichlet-process",
     ):
         self.model = model
         self.max_components = max_components
@@ -531,11 +602,17 @@ class PIRLDPGMM(_MixtureLearner):
         self.irl_hessian = irl_hessian
         self.space = space
         self.refine = refine
+        self.weight_mixture = weight_mixture
 
     def _xd(self, X, S, rng):
         k = self.max_components
         if not is_positive_int(k):
             raise ValueError(f"max_components must be a positive integer, got {k!r}")
+        if self.weight_mixture not in WEIGHT_MIXTURES:
+            raise ValueError(f"weight_mixture must be one of {WEIGHT_MIXTURES}, got {self.weight_mixture!r}")
+        if self.weight_mixture == "dirichlet-process":
+            return dp_deconvolution(X, S, min(int(k), X.shape[0]), rng=rng, concentration=self.weight_concentration_prior,
+                                    n_init=self.n_init, max_iter=self.max_iter)
         return extreme_deconvolution(X, S, min(int(k), X.shape[0]), rng=rng, n_init=self.n_init,
                                      max_iter=self.max_iter, prune=True)
 
