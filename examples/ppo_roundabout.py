@@ -1,7 +1,13 @@
 """Train a stable-baselines3 PPO agent on ``pirl_sim/Roundabout-v0`` for a few thousand steps.
 
     pip install torch==2.13.0 stable-baselines3     # CPU torch
-    python examples/ppo_roundabout.py [--steps 5000] [--reward task|theta] [--seed 0]
+    python examples/ppo_roundabout.py [--steps 5000] [--reward exit|task|theta] [--seed 0]
+
+A quick look only; the full experiment (PPO per observation mode over several training seeds against the
+hold-speed and IDM egos, with intervals, resumable) is ``python3 -m pirl_sim.harness.agents`` (README, "Agents
+in a crowd of known styles"). ``--reward exit`` (the default here) is the env's reward in seconds: reach the exit
+soon, without near misses or a crash, comfortably (stated term by term in ``pirl_sim/envs/roundabout.py``);
+``task`` is the earlier per-metre reward, on which the notes below were measured.
 
 The agent controls the ego's acceleration through highway-env's roundabout among PIRL drivers of the
 paper's three styles (the env's defaults: 8 vehicles on the road at reset, one arrival every 4 s, 5
@@ -77,7 +83,7 @@ class ConstantPolicy:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=5000, help="training steps (default 5000)")
-    ap.add_argument("--reward", choices=("task", "theta"), default="task")
+    ap.add_argument("--reward", choices=("exit", "task", "theta"), default="exit")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     from stable_baselines3 import PPO
