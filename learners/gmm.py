@@ -223,20 +223,27 @@ class _MixtureLearner(BaseLearner):
         self._hard_em(model, trajectories, int(refine))
         self.cluster_sizes_ = np.bincount(self.labels_, minlength=self.n_styles_)
 
-    def _hard_em(self, model, trajectories, passes: int) -> None:
+    def _hard_em(self, model, trajectories, passes: int) -> str:
         """Up to ``passes`` passes of hard EM over the IRL likelihoods from ``labels_`` (module doc); sets
-        ``n_refined_``, the passes that changed labels."""
+        ``n_refined_``, the passes that changed labels. Returns why it stopped: "converged" (no label moved),
+        "collapsed" (the next labels would leave a style with fewer than ``min_cluster_size`` demonstrations:
+        not taken) or "passes" (all passes done, labels still moving)."""
         self.n_refined_ = 0
+        self.em_collapse_sizes_ = None
         for _ in range(passes):
             new = self._posterior(self._style_log_likelihood(trajectories)).argmax(axis=1)
             sizes = np.bincount(new, minlength=self.n_styles_)
-            if np.array_equal(new, self.labels_) or sizes.min() < min(self.min_cluster_size, sizes.max()):
-                break
+            if np.array_equal(new, self.labels_):
+                return "converged"
+            if sizes.min() < min(self.min_cluster_size, sizes.max()):
+                self.em_collapse_sizes_ = sizes
+                return "collapsed"
             res = self._irl(model, trajectories, new, self.n_styles_)
             self.labels_ = new
             self.irl_result_, self.theta_ = res, res.normalized
             self.style_weights_ = sizes / sizes.sum()
             self.n_refined_ += 1
+        return "passes"
 
     def _fit_random_start(self, model, trajectories, passes: int) -> None:
         """``init="random"`` (module doc): Babeș-Vroman et al.'s EM from random equal-size clusters, ``n_init``
@@ -253,7 +260,8 @@ class _MixtureLearner(BaseLearner):
             raise ValueError(f"n_init must be a positive integer, got {self.n_init!r}")
         rng = np.random.default_rng(self.random_state)
         best, best_score = None, -np.inf
-        names = ("labels_", "irl_result_", "theta_", "style_weights_", "n_refined_", "control_rms_", "episode_steps_")
+        names = ("labels_", "irl_result_", "theta_", "style_weights_", "n_refined_", "control_rms_", "episode_steps_",
+                 "em_collapse_sizes_")
         for _ in range(int(self.n_init)):
             self.n_styles_ = int(k)
             self.labels_ = rng.permutation(np.arange(M) % k)
@@ -261,13 +269,25 @@ class _MixtureLearner(BaseLearner):
             self.irl_result_, self.theta_ = res, res.normalized
             self.style_weights_ = np.full(k, 1.0 / k)
             self._set_noise_scale(trajectories)
-            self._hard_em(model, trajectories, passes)
+            stop = self._hard_em(model, trajectories, passes)
             ll = self._style_log_likelihood(trajectories) + np.log(self.style_weights_)[None]
             score = float(ll[np.arange(M), self.labels_].sum())
             if score > best_score:
                 best, best_score = {n: getattr(self, n) for n in names}, score
+                best["stop"] = stop
+        stop = best.pop("stop")
         for n, v in best.items():
             setattr(self, n, v)
+        if stop == "collapsed" and passes:
+            sizes = self.em_collapse_sizes_
+            warnings.warn(
+                f"{type(self).__name__}(init='random'): hard EM stopped after {self.n_refined_} of {passes} passes: "
+                f"the next assignment would leave a style with fewer than {self.min_cluster_size} demonstrations "
+                f"(sizes {None if sizes is None else sizes.tolist()}); the styles are the last partition kept",
+                UserWarning, stacklevel=4)
+        elif stop == "passes" and passes:
+            warnings.warn(f"{type(self).__name__}(init='random'): labels still moving after {passes} passes of hard "
+                          "EM (refine); more passes may change the styles", UserWarning, stacklevel=4)
         feats = model.features
         others = [j for j in range(feats.n_features) if j != feats.reference_index]
         self.components_ = np.arange(self.n_styles_)

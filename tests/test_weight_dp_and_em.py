@@ -125,3 +125,14 @@ def test_random_start_rejects_what_it_cannot_do(three_styles, params, match):
     model, demos = three_styles
     with pytest.raises(ValueError, match=match):
         PIRLGMM(model, space="weights", **params).fit(demos)
+
+
+def test_random_start_warns_when_hard_em_would_empty_a_style(three_styles):
+    """Babeș-Vroman's EM from random clusters can send every demonstration to one style (the random clusters' fits
+    are all the population's average): the learner keeps the last partition and says so with the sizes."""
+    model, demos = three_styles
+    with pytest.warns(UserWarning, match=r"hard EM stopped after 0 of 5 passes: the next assignment would leave a "
+                                          r"style with fewer than 60 demonstrations \(sizes \["):
+        em = PIRLGMM(model, n_components=3, random_state=0, space="weights", init="random", refine=5,
+                     min_cluster_size=60, n_init=1).fit(demos)
+    assert em.n_refined_ == 0 and em.em_collapse_sizes_.min() < 60

@@ -17,6 +17,13 @@ bytes (no timings in the files). Experiments:
   500 train / 100 test), protocols paper and online (first 10 steps = 2 s).
 - PIRL-kNN with ``weighting="likelihood"`` (its neighbours vote by their likelihood of the history) beside the
   paper's inverse-distance votes; on the passage with ``prior="population"`` as ``reproduce passage``.
+- Weight space without a fixed k or without the deconvolution: ``PIRL-DPGMM, weights`` is the Dirichlet-process
+  mixture (`pirl_sim.deconvolution.dp_deconvolution`, truncated stick-breaking variational inference),
+  ``PIRL-DPGMM, weights, MML`` the earlier stand-in (extreme deconvolution pruned by minimum message length);
+  ``PIRL-GMM (k=K), weights, random start`` is Babeș-Vroman et al.'s hard EM over the IRL likelihoods from random
+  equal-size clusters (``init="random"``, at most `RANDOM_START_PASSES` passes, 3 restarts; no per-demonstration
+  posteriors), fitted under the paper protocol only (a weight-space fit does not depend on the protocol).
+  ``em_passes``: passes of hard EM that moved labels (after the deconvolution: ``refine`` = 1 at most).
 - ``lq-receding``: LQ drivers of the three styles (weights spread 10 % in log) who re-plan every step over 15
   steps with control noise 0.05 m/s^2 (`pirl_sim.simulate.simulate_receding_horizon`), 150 drivers of 30
   steps, receding-horizon likelihood.
@@ -60,6 +67,7 @@ from pirl_sim.validation import check_output_dir
 __all__ = ["run_study", "main", "lq_three_styles", "futures_figure"]
 
 LQ_STYLE_Q = (0.1, 1.0, 10.0)  # normalised state_sq weight of each LQ style
+RANDOM_START_PASSES = 50  # most passes of hard EM from random clusters (PIRL-GMM init="random")
 N_FUTURES = 6  # K of the multi-modal scores (the INTERACTION challenge's number of modalities)
 LANE_HALF_WIDTH = 1.75  # [m] drawn either side of the passage's path in futures.png
 MULTIMODAL_COLUMNS = ("k_futures", "min_ade_6", "min_fde_6", "miss_rate_6", "nll_6")
@@ -95,6 +103,7 @@ def _row(experiment, protocol, name, learner, train, test, style_means=None, see
     ari = style_agreement(learner, train)
     row["ari"] = np.nan if ari is None else ari
     row["n_styles"] = getattr(learner, "n_styles_", 1)
+    row["em_passes"] = getattr(learner, "n_refined_", np.nan)
     row["style_accuracy"] = row["feature_style_accuracy"] = row["style_error"] = np.nan
     row["min_ade"] = row["min_fde"] = np.nan
     if hasattr(learner, "predict_proba") and all("style" in t.metadata for t in test):
@@ -157,21 +166,28 @@ def run_study(seed: int = 0, say=lambda m: None, figures: dict | None = None) ->
     online = Protocol("online", 10)
     knn_pair = [("PIRL-kNN (k=10)", "pirl-knn", {"n_neighbors": 10}),
                 ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})]
-    mixtures = lambda k: [  # noqa: E731 - the learners compared in every experiment
-        (f"PIRL-GMM (k={k}), features", "pirl-gmm", {"n_components": k, "random_state": seed}),
-        (f"PIRL-GMM (k={k}), weights", "pirl-gmm", {"n_components": k, "random_state": seed, "space": "weights"}),
-        ("PIRL-DPGMM, features", "pirl-dpgmm", {"random_state": seed}),
-        ("PIRL-DPGMM, weights", "pirl-dpgmm", {"random_state": seed, "space": "weights"}),
-    ]
+    def mixtures(k, protocol=PAPER_PROTOCOL):  # the learners compared in every experiment
+        out = [
+            (f"PIRL-GMM (k={k}), features", "pirl-gmm", {"n_components": k, "random_state": seed}),
+            (f"PIRL-GMM (k={k}), weights", "pirl-gmm", {"n_components": k, "random_state": seed, "space": "weights"}),
+            ("PIRL-DPGMM, features", "pirl-dpgmm", {"random_state": seed}),
+            ("PIRL-DPGMM, weights", "pirl-dpgmm", {"random_state": seed, "space": "weights"}),
+            ("PIRL-DPGMM, weights, MML", "pirl-dpgmm", {"random_state": seed, "space": "weights",
+                                                        "weight_mixture": "mml"}),
+        ]
+        if protocol.kind == "paper":  # the fit does not depend on the protocol: its clusters once
+            out.append((f"PIRL-GMM (k={k}), weights, random start", "pirl-gmm",
+                        {"n_components": k, "random_state": seed, "space": "weights", "init": "random",
+                         "refine": RANDOM_START_PASSES}))
+        return out
     # the paper's synthetic problem, spread starts and the single start
     for experiment, ranges in (("synthetic-spread", {"position_range": (2.0, 8.0), "velocity_range": (-1.0, 1.0)}),
                                ("synthetic", {})):
         data = generate_synthetic(SyntheticConfig(seed=seed, **ranges))
         specs = [("TIRL", "tirl", {}), ("PIRL-kNN (k=1)", "pirl-knn", {"n_neighbors": 1}),
-                 ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})
-                 ] + mixtures(2)
+                 ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})]
         for protocol in (PAPER_PROTOCOL, online):
-            for name, key, params in specs:
+            for name, key, params in specs + mixtures(2, protocol):
                 learner = _fit(key, {"model": data.model, **params, **protocol.learner_params()}, data.train)
                 rows.append(_row(experiment, protocol, name, learner, data.train, data.test, seed=seed))
                 say(f"{experiment} {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
@@ -180,7 +196,7 @@ def run_study(seed: int = 0, say=lambda m: None, figures: dict | None = None) ->
     train, test = demos[:600], demos[600:]
     means = _style_means(train, 3, model.features.n_features)
     for protocol in (PAPER_PROTOCOL, online):
-        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3):
+        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3, protocol):
             learner = _fit(key, {"model": model, **params, **protocol.learner_params()}, train)
             rows.append(_row("lq-3-styles", protocol, name, learner, train, test, means, seed))
             say(f"lq-3-styles {protocol.name} {name}: ARI {rows[-1]['ari']:.3g} "
@@ -191,7 +207,7 @@ def run_study(seed: int = 0, say=lambda m: None, figures: dict | None = None) ->
         passage = generate_passage(PassageConfig(seed=seed))
     means = _style_means(passage.train, 3, passage.model.features.n_features)
     for protocol in (PAPER_PROTOCOL, online):
-        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3):
+        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3, protocol):
             if key == "pirl-knn":
                 params = {**params, "prior": "population"}  # as reproduce passage
             learner = _fit(key, {"model": passage.model, **params, **protocol.learner_params()}, passage.train)
@@ -215,7 +231,8 @@ def run_study(seed: int = 0, say=lambda m: None, figures: dict | None = None) ->
         learner = _fit(key, {"model": model, "likelihood": "receding", "horizon": 15, **params}, train)
         rows.append(_row("lq-receding", PAPER_PROTOCOL, name, learner, train, test, means))
         say(f"lq-receding {name}: ARI {rows[-1]['ari']:.3g}")
-    cols = ["experiment", "protocol", "learner", "med", "fde", "weight_error", "ari", "n_styles", "style_accuracy",
+    cols = ["experiment", "protocol", "learner", "med", "fde", "weight_error", "ari", "n_styles", "em_passes",
+            "style_accuracy",
             "feature_style_accuracy", "style_error", "min_ade", "min_fde", *MULTIMODAL_COLUMNS]
     return pd.DataFrame(rows)[cols]
 
