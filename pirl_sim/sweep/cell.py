@@ -253,7 +253,9 @@ def _style_scores(learner, train, test, protocol) -> dict:
     learned styles paired with true ones by the training labels (`pirl_sim.metrics.match_styles`: a learned
     style left unpaired is always wrong), and ``style_ari``, the adjusted Rand index of those most probable
     styles against the true styles (no pairing needed). Both None for learners without ``predict_proba`` or
-    ``labels_`` and for data without true styles."""
+    ``labels_`` and for data without true styles. A feature-space mixture predicts with its feature look-up
+    (`pirl_sim.learners.gmm.PIRLGMM.predict_style`), not with this posterior: these scores rate the styles it
+    learned, judged by their likelihoods."""
     from pirl_sim.metrics import adjusted_rand_index, match_styles
 
     none = {"style_accuracy": None, "style_ari": None}

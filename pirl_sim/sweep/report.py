@@ -457,7 +457,9 @@ def write_report(results, out_dir=None) -> dict:
         if online is not None:
             lines += ["Online protocol, style posterior and 6 futures per test history (`pirl_sim.sweep.cell`): "
                       "style accuracy, the share of test histories whose most probable style given the observed "
-                      "steps is their true one, and style ARI, the adjusted Rand index of those styles; minADE_6 / "
+                      "steps (p(style | history) from each learned style's likelihood) is their true one, and "
+                      "style ARI, the adjusted Rand index of those styles (the ARI column above is of the "
+                      "training clusters); minADE_6 / "
                       "minFDE_6 [m], the smallest mean / final distance of the futures to the true one; miss rate "
                       "(the INTERACTION challenge's rule) and NLL [nats per predicted step] of the true future "
                       "under a Gaussian mixture (sigma 0.5 m) around the futures. TIRL has one future, a "
