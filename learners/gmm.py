@@ -631,8 +631,9 @@ class PIRLDPGMM(_MixtureLearner):
         if self.weight_mixture not in WEIGHT_MIXTURES:
             raise ValueError(f"weight_mixture must be one of {WEIGHT_MIXTURES}, got {self.weight_mixture!r}")
         if self.weight_mixture == "dirichlet-process":
-            return dp_deconvolution(X, S, min(int(k), X.shape[0]), rng=rng, concentration=self.weight_concentration_prior,
-                                    n_init=self.n_init, max_iter=self.max_iter)
+            return dp_deconvolution(X, S, min(int(k), X.shape[0]), rng=rng,
+                                    concentration=self.weight_concentration_prior, n_init=self.n_init,
+                                    max_iter=self.max_iter)
         return extreme_deconvolution(X, S, min(int(k), X.shape[0]), rng=rng, n_init=self.n_init,
                                      max_iter=self.max_iter, prune=True)
 

@@ -379,7 +379,8 @@ def dp_deconvolution(
     S = 0.5 * (S + np.swapaxes(S, 1, 2)) + reg_covar * np.eye(D)[None]
     clean = _clean(X, S)
     spread = np.cov(clean.T).reshape(D, D) if N > 1 else np.eye(D)
-    prior = (clean.mean(axis=0), MEAN_PRECISION_PRIOR, float(D), COVARIANCE_PRIOR_SCALE * spread + reg_covar * np.eye(D))
+    prior = (clean.mean(axis=0), MEAN_PRECISION_PRIOR, float(D),
+             COVARIANCE_PRIOR_SCALE * spread + reg_covar * np.eye(D))
     best, best_bound = None, -np.inf
     for _ in range(int(n_init)):
         seed = int(rng.integers(2**31 - 1))

@@ -82,7 +82,8 @@ def three_styles():
 
 def _worst_style_error(learner, truth):
     pairs = match_styles(truth, learner.labels_)
-    return max(float(weight_recovery_error(learner.theta_[j], np.array([STYLE_Q[s], 1.0]), 1)) for j, s in pairs.items())
+    return max(float(weight_recovery_error(learner.theta_[j], np.array([STYLE_Q[s], 1.0]), 1))
+               for j, s in pairs.items())
 
 
 def test_dpgmm_in_weight_space_is_a_dirichlet_process_by_default(three_styles):

@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_cell", "run_cells", "knn_group", "run_simulation", "limit_threads", "single_threaded", "warm_up", "CACHE_SIZE",
-           "ONLINE_FUTURES", "ONLINE_SCORES"]
+__all__ = ["run_cell", "run_cells", "knn_group", "run_simulation", "limit_threads", "single_threaded", "warm_up",
+           "CACHE_SIZE", "ONLINE_FUTURES", "ONLINE_SCORES"]
 
 CACHE_SIZE = 3  #: scenario data sets kept per worker process
 ONLINE_FUTURES = 6  #: K futures per test history under the online protocol (the INTERACTION challenge's number)
