@@ -1,9 +1,10 @@
 """Feature-space against weight-space mixtures (issue 14 items 1-2): the measurements behind
 ``results/weight_space/``.
 
-``python3 -m pirl_sim.harness.weight_space_study --out results/weight_space`` (≈4 min on one core) writes
-``table.csv`` / ``table.md`` (one row per experiment, protocol and learner) and ``README.md``. Same seed, same
-bytes (no timings in the files). Experiments:
+``python3 -m pirl_sim.harness.weight_space_study --out results/weight_space`` (7 min 25 s on one core at a load
+average of ~6 from other jobs; ≈4 min before the random-start and MML rows) writes ``table.csv`` / ``table.md``
+(one row per experiment, protocol and learner) and ``README.md``. Same seed, same bytes (no timings in the
+files). Experiments:
 
 - ``synthetic-spread``: the paper's synthetic problem with start states spread over p in [2, 8] m and v in
   [-1, 1] m/s (the README's ``reproduce synthetic --position-range 2 8 --velocity-range -1 1``: same
