@@ -68,6 +68,10 @@ class BaseLearner(BaseEstimator):
         With ``likelihood="trajectory"``: the cost Hessian inside the Laplace likelihood (`pirl_sim.irl.fit_weights`):
         "auto" (default) fits with the exact one and refits with the Gauss-Newton one the groups whose exact
         Hessian was indefinite at the solution or that did not converge.
+    irl_max_iter : int
+        Newton iterations of the IRL (`pirl_sim.irl.fit_weights` ``max_iter``; its Gauss-Newton refit may take
+        5x). Short, smooth segments can need more than the default 100: on DR_USA_Roundabout_EP, 2 of 10,624
+        next-steps segments of PIRL-kNN took 850-1,250 iterations.
     """
 
     # ------------------------------------------------------------------ validation helpers
@@ -96,6 +100,8 @@ class BaseLearner(BaseEstimator):
             raise ValueError(f"irl_hessian must be one of {IRL_HESSIANS}, got {self.irl_hessian!r}")
         if not is_positive_int(self.step_stride):
             raise ValueError(f"step_stride must be a positive number of steps, got {self.step_stride!r}")
+        if not is_positive_int(self.irl_max_iter):
+            raise ValueError(f"irl_max_iter must be a positive number of iterations, got {self.irl_max_iter!r}")
 
     # ------------------------------------------------------------------ windows and feature space
     def _training_windows(self, trajectories: list[Trajectory]) -> tuple[list[Trajectory], np.ndarray]:
@@ -158,7 +164,7 @@ class BaseLearner(BaseEstimator):
             prior=prior,
             log_bounds=self.log_bounds,
             hessian=hessian,
-            max_iter=int(getattr(self, "irl_max_iter", 100)),
+            max_iter=int(self.irl_max_iter),
         )
 
     # ------------------------------------------------------------------ public API

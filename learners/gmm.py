@@ -487,6 +487,7 @@ class PIRLGMM(_MixtureLearner):
         horizon=None,
         step_stride=1,
         irl_hessian="auto",
+        irl_max_iter=100,
         space="features",
         refine=1,
         init="deconvolution",
@@ -507,6 +508,7 @@ class PIRLGMM(_MixtureLearner):
         self.horizon = horizon
         self.step_stride = step_stride
         self.irl_hessian = irl_hessian
+        self.irl_max_iter = irl_max_iter
         self.space = space
         self.refine = refine
         self.init = init
@@ -599,6 +601,7 @@ class PIRLDPGMM(_MixtureLearner):
         horizon=None,
         step_stride=1,
         irl_hessian="auto",
+        irl_max_iter=100,
         space="features",
         refine=1,
         weight_mixture="dirichlet-process",
@@ -620,6 +623,7 @@ class PIRLDPGMM(_MixtureLearner):
         self.horizon = horizon
         self.step_stride = step_stride
         self.irl_hessian = irl_hessian
+        self.irl_max_iter = irl_max_iter
         self.space = space
         self.refine = refine
         self.weight_mixture = weight_mixture

@@ -87,11 +87,7 @@ class PIRLKNN(BaseLearner):
     aggregate : {"weights", "futures"}
         How `predict_states` uses the neighbours: one future under their averaged weights, or the vote-weighted
         mean of their futures, each under its own cost (module doc).
-    irl_max_iter : int
-        Newton iterations of the IRL (`pirl_sim.irl.fit_weights` ``max_iter``; its Gauss-Newton refit may take
-        5x). Short, smooth next-steps segments can need more than the default: on DR_USA_Roundabout_EP, 2 of
-        10,624 took 850-1,250 iterations.
-    model, window, stride, feature_transform, log_bounds : see `BaseLearner`.
+    model, window, stride, feature_transform, log_bounds, irl_max_iter : see `BaseLearner`.
 
     Attributes
     ----------
@@ -154,8 +150,6 @@ class PIRLKNN(BaseLearner):
         """Validate target, target_steps, state_features, aggregate; returns the state indices."""
         if self.target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}, got {self.target!r}")
-        if not is_positive_int(self.irl_max_iter):
-            raise ValueError(f"irl_max_iter must be a positive number of iterations, got {self.irl_max_iter!r}")
         if self.aggregate not in AGGREGATES:
             raise ValueError(f"aggregate must be one of {AGGREGATES}, got {self.aggregate!r}")
         if self.target == "next":

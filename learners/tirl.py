@@ -23,7 +23,7 @@ class TIRL(BaseLearner):
 
     def __init__(self, model=None, *, window=None, stride=1, windows="sliding", feature_transform="log",
                  log_bounds=(-20.0, 20.0), likelihood="trajectory", horizon=None, step_stride=1,
-                 irl_hessian="auto"):
+                 irl_hessian="auto", irl_max_iter=100):
         self.model = model
         self.window = window
         self.stride = stride
@@ -34,6 +34,7 @@ class TIRL(BaseLearner):
         self.horizon = horizon
         self.step_stride = step_stride
         self.irl_hessian = irl_hessian
+        self.irl_max_iter = irl_max_iter
 
     def _fit(self, model, trajectories):
         res = self._irl(model, trajectories, np.zeros(len(trajectories), dtype=int), 1)

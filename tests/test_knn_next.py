@@ -162,3 +162,14 @@ def test_replay_scores_k_futures_of_each_learner(tmp_path):
     assert "min_ade@6_mean" in summary
     # futures are open-loop plans: a closed-loop rollout is refused before any fit
     assert main([*args, "--rollout", "closed", "--mpc-horizon", "15", "--out", str(tmp_path / "bad")]) == 2
+
+
+@pytest.mark.parametrize("key", ["tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn"])
+def test_every_learner_takes_the_irl_iteration_budget(key):
+    from pirl_sim.learners import make_learner
+
+    model = synthetic_model()
+    train = _switching_drivers(model, np.random.default_rng(4), 6)
+    assert make_learner(key, model=model).get_params()["irl_max_iter"] == 100
+    with pytest.raises(ValueError, match="irl_max_iter"):
+        make_learner(key, model=model, irl_max_iter=0).fit(train)
