@@ -19,8 +19,9 @@ of 0.1 s per step — the PIRL env's fixed 10 Hz — so that one env step is the
 The ego keeps its speed (PIRL: action 0; highway-env: IDLE). Only ``env.step`` is timed; episodes that end
 (the ego crashes into traffic it does not yield to, or time runs out) are reset outside the timed region.
 Steps/s are medians of ``--repeats`` rounds, each round measuring every workload once (interleaved, so
-that other load on the machine hits all of them alike). Targets: the PIRL env no worse than 2x slower than
-the bare ``roundabout-v0`` (the issue's baseline), nor than the 20-IDM one.
+that other load on the machine hits all of them alike). Targets: the PIRL env no more than 1.5x slower than
+the bare ``roundabout-v0`` (issue 16; the baseline named in the output), nor than the 20-IDM one. The load
+average is printed before and after.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import warnings
 
 import numpy as np
 
-TARGET_SLOWDOWN = 2.0
+TARGET_SLOWDOWN = 1.5  # issue 16: <= 1.5x the bare roundabout-v0 (was 2x)
 
 
 def timed_steps(env, action, n_steps: int, seed: int) -> tuple[float, float]:
@@ -56,6 +57,9 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=150, help="env steps per measurement (default 150)")
     ap.add_argument("--repeats", type=int, default=5, help="measurements per workload (default 5)")
     args = ap.parse_args()
+    import os
+
+    load0 = os.getloadavg()[0]
 
     import gymnasium as gym
     import highway_env  # noqa: F401  (registers highway-env's envs)
@@ -105,6 +109,7 @@ def main() -> None:
         env.close()
         rate, count = results[name]
         print(f"{name:42s}: {rate:7.2f} steps/s  {1e3 / rate:7.1f} ms/step  {count:5.1f} vehicles on the road{extra}")
+    print(f"load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after ({os.cpu_count()} cores)")
     pirl = results["PIRL env, 20 PIRL drivers"][0]
     like = results["baseline: roundabout-generic-v0, 20 IDM"][0]
     ref = results["baseline: roundabout-v0 (4 IDM)"][0]

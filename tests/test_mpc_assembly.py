@@ -146,3 +146,14 @@ def test_bad_riccati_rows_are_named(model, bad):
     p = model.predictor()
     with pytest.raises(ValueError, match="riccati_rows must be a positive integer or None"):
         SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=bad)
+
+
+def test_positive_definite_solves_match_lu():
+    from pirl_sim.mpc import _solve_pd
+
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(6, 12, 12))
+    A = X @ np.swapaxes(X, 1, 2) + 0.1 * np.eye(12)
+    A[2] = np.diag(np.r_[-1.0, np.ones(11)])  # not positive definite: solved by LU instead
+    b = rng.normal(size=(6, 12))
+    np.testing.assert_allclose(_solve_pd(A, b), np.linalg.solve(A, b[..., None])[..., 0], rtol=1e-10, atol=1e-12)
