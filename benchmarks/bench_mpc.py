@@ -19,10 +19,12 @@ medians and their ratio are printed, with the largest difference between the two
 figures (warm receding horizon, IPOPT) follow. BLAS threads: ``--blas-threads`` (default 1, through
 threadpoolctl and the thread variables of the children; printed), and the load average.
 
-Last runs (issue 16, 2026-12-01 ~13:50-14:00 UTC, this 2-core machine shared with three other sessions' jobs,
-one BLAS thread; Newton steps of batches >= 96 starts by the Riccati recursion, the desired speed from one
-interval search): cold starts 2,604/s against 1,608/s for the baseline 45532b2 in the same run (1.62x, load
-average 4.7), and 1,849/s against 1,102/s (1.68x) at load average 6.0; plans equal to 8.8e-13.
+Last runs (issue 16, 2026-12-01, this 2-core machine shared with three other sessions' jobs, one BLAS thread;
+cold Newton steps of batches >= 96 starts by the Riccati recursion, Newton systems by Cholesky (dposv), the
+desired speed from one interval search): cold starts 2,520/s against 1,578/s for the baseline 45532b2 in the
+same run (1.60x; load average 4.2-4.4, 14:43 UTC), 2,604/s against 1,608/s (1.62x, load 4.7) and 1,849/s against
+1,102/s (1.68x, load 6.0) on earlier commits of the same afternoon; plans equal to 1e-12. Warm receding horizon
+1,886/s, IPOPT 68/s (36.8x cold).
 """
 
 from __future__ import annotations

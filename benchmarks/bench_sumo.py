@@ -26,14 +26,14 @@ by SUMO), all vehicles at once, simulated seconds per wall second of the steppin
 observations and the drivers; SUMO start-up, network building and writing excluded) with a breakdown per
 step and per re-plan, and whether the targets are met.
 
-Last run (issue 16, 2026-12-01; the machine's other core and part of this one busy with other sessions' jobs,
-load average ~4): default 73x real time (4.1 PIRL drivers at once on average, libsumo / TraCI 1.25x, 2.7x on
-SUMO's side); crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 24x; very crowded 100.4 at once
-(88.8 re-planning) at 13.6x. Both crowded targets missed: the drivers' MPC (~1 ms of numpy overhead per step
-plus ~0.035 ms per driver: 2.4 ms for 40, 4.1 ms for 89) takes 55-60 % of a step, SUMO and the recording
-~20 µs per vehicle. For comparison, the crowded scenario on the code before issue 16 (commit 7918dce unpacked
-beside this one, depart_interval 1.2 s instead of demand_per_arm; both pinned to one core, one BLAS thread) ran at 10.5x and
-this code at 15.0x, two runs each interleaved in one session under the same load (1.43x).
+Last runs (issue 16, 2026-12-01 14:45-14:48 UTC, load average ~5 on the 2-core machine; the pinned process got
+66 % of its core): crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 16.3x and 16.7x real time
+(~24.8x on a core of its own), against 15.8x and 15.4x for the code before this afternoon's work (45532b2
+unpacked beside this one, the same scenario and this script, runs alternating): +5 %; very crowded 100.4 at once
+(88.8 re-planning) at 9.2x (~13.9x on a core of its own). Both targets missed by 2-3x. A crowded step: SUMO and
+the recording 1.6 ms (~28 us per vehicle), the drivers 4.4 ms, of which the MPC 3.6 ms (one batched,
+warm-started Newton step and the bounded QPs: ~1 ms of fixed numpy cost plus ~0.07 ms per driver). Earlier run
+(session before, load ~4): crowded 24x, very crowded 13.6x.
 """
 
 from __future__ import annotations
