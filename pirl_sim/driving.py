@@ -37,6 +37,7 @@ from .paths import DEFAULT_A_LAT, DEFAULT_V_MAX, ReferencePath
 __all__ = [
     "CompositePath",
     "smooth_desired_speed",
+    "desired_speed_along",
     "SpeedProfile",
     "SpeedDeviationResidual",
     "roundabout_features",
@@ -72,6 +73,21 @@ def smooth_desired_speed(kappa: np.ndarray, a_lat: float = DEFAULT_A_LAT, v_max:
     dv = -(k**3 / (2.0 * a4)) * F98
     d2v = -(3.0 * k**2 / (2.0 * a4)) * F98 + (9.0 / 4.0) * (k**6 / a4**2) * F ** (-17.0 / 8.0)
     return v, dv, d2v
+
+
+def desired_speed_along(k, dk, d2k, a_lat: float, v_max: float):
+    """v_des [m/s] and its first two derivatives in arc length [1/s, 1/(m s)] from the curvature k [1/m] and its
+    derivatives dk [1/m^2], d2k [1/m^3] along the path (arrays of one shape): `smooth_desired_speed` chained
+    through kappa(s), with one fractional power (F^-9/8 = v / F, F^-17/8 = v / F^2), equal to it to rounding."""
+    inv_a4 = 1.0 / a_lat**4
+    k2 = k * k
+    k3 = k2 * k
+    F = k2 * k2 * inv_a4 + v_max**-8.0
+    v = np.power(F, -0.125)
+    F98 = v / F
+    dv = -0.5 * inv_a4 * k3 * F98
+    d2v = -1.5 * inv_a4 * k2 * F98 + 2.25 * inv_a4 * inv_a4 * (k3 * k3) * (F98 / F)
+    return v, dv * dk, d2v * (dk * dk) + dv * d2k
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,18 +255,8 @@ class SpeedProfile:
     def __call__(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """v_des(s) [m/s], dv_des/ds [1/s], d2v_des/ds2 [1/(m s)] at arc lengths s [m] (any shape).
 
-        `smooth_desired_speed` of the curvature, with one fractional power (F^-9/8 = v / F,
-        F^-17/8 = v / F^2): equal to it to rounding."""
-        k, dk, d2k = self.curvature(s)
-        inv_a4 = 1.0 / self.a_lat**4
-        k2 = k * k
-        k3 = k2 * k
-        F = k2 * k2 * inv_a4 + self.v_max**-8.0
-        v = np.power(F, -0.125)
-        F98 = v / F
-        dv = -0.5 * inv_a4 * k3 * F98
-        d2v = -1.5 * inv_a4 * k2 * F98 + 2.25 * inv_a4 * inv_a4 * (k3 * k3) * (F98 / F)
-        return v, dv * dk, d2v * (dk * dk) + dv * d2k
+        `desired_speed_along` of the curvature."""
+        return desired_speed_along(*self.curvature(s), self.a_lat, self.v_max)
 
 
 @dataclass(frozen=True, eq=False)

@@ -43,7 +43,7 @@ from functools import cached_property
 import numpy as np
 from scipy.interpolate import CubicSpline, make_smoothing_spline
 
-from pirl_sim.driving import DEFAULT_BOUNDS, roundabout_features
+from pirl_sim.driving import DEFAULT_BOUNDS, desired_speed_along, roundabout_features
 from pirl_sim.dynamics import longitudinal
 from pirl_sim.model import DriverModel
 from pirl_sim.mpc import Bounds, SequentialMPC
@@ -364,17 +364,7 @@ class RouteSetProfile:
 
     def __call__(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """v_des(s) [m/s], dv_des/ds [1/s], d2v_des/ds2 [1/(m s)] at global arc lengths s [m]."""
-        k, dk, d2k = self.routes.curvature(s)
-        # smooth_desired_speed, with one fractional power (F^-9/8 = v / F, F^-17/8 = v / F^2)
-        inv_a4 = 1.0 / self.a_lat**4
-        k2 = k * k
-        k3 = k2 * k
-        F = k2 * k2 * inv_a4 + self.v_max**-8.0
-        v = np.power(F, -0.125)
-        F98 = v / F
-        dv = -0.5 * inv_a4 * k3 * F98
-        d2v = -1.5 * inv_a4 * k2 * F98 + 2.25 * inv_a4 * inv_a4 * (k3 * k3) * (F98 / F)
-        return v, dv * dk, d2v * (dk * dk) + dv * d2k
+        return desired_speed_along(*self.routes.curvature(s), self.a_lat, self.v_max)
 
 
 @dataclass(frozen=True)
