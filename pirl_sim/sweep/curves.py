@@ -122,8 +122,8 @@ def recovery_curves_figure(summary: pd.DataFrame):
             ax.axvline(float(truth.iloc[0]), color="0.4", ls="--", lw=1)
             ax.text(float(truth.iloc[0]), 1.0, " drivers'", transform=ax.get_xaxis_transform(), fontsize=7,
                     va="top", color="0.3")
-        if values:
-            label_log_axis(ax, min(values), max(values))
+        if values:  # a margin below the lowest point: it does not sit on the axis
+            label_log_axis(ax, 0.8 * min(values), max(values))
         ax.set_xlabel(CURVE_AXES[axis][1])
         ax.set_ylabel("weight error (median |log ratio|)")
         ax.set_title(exp, fontsize=9)
