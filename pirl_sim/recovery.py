@@ -32,7 +32,8 @@ import pandas as pd
 
 from .trajectory import Trajectory
 
-__all__ = ["RecoveryReport", "TrackFits", "ALL", "NO_STYLE", "INTERVALS", "STATISTICS", "LIKELIHOODS", "abs_log_errors", "spearman",
+__all__ = ["RecoveryReport", "TrackFits", "ALL", "NO_STYLE", "INTERVALS", "STATISTICS", "LIKELIHOODS", "abs_log_errors",
+           "spearman",
            "statistic", "interval", "weight_scores", "fit_track_weights"]
 
 #: confidence-interval methods: percentile bootstrap, or analytic (order statistics / Student t)

@@ -285,7 +285,8 @@ class PpoRecoveryConfig:
         seeds = _check_seeds("seeds", self.seeds)
         eval_seeds = _check_seeds("eval_seeds", self.eval_seeds)
         if set(seeds) & set(eval_seeds):
-            raise ValueError(f"training and evaluation seeds must differ; both have {sorted(set(seeds) & set(eval_seeds))}")
+            both = sorted(set(seeds) & set(eval_seeds))
+            raise ValueError(f"training and evaluation seeds must differ; both have {both}")
         object.__setattr__(self, "seeds", tuple(seeds))
         object.__setattr__(self, "eval_seeds", tuple(eval_seeds))
         for name in ("steps", "n_steps", "batch_size", "n_epochs", "initial_vehicles", "n_vehicles"):

@@ -6,8 +6,8 @@ PIRL track with at least ``min_steps`` usable steps (``selection="steps"``: the 
 driver's own), one weight vector per track, and one TIRL (``likelihood="receding"``) per style, and compares
 them with the true weights (:class:`RunRecovery`; its ``weights`` is the per-track
 :class:`pirl_sim.recovery.RecoveryReport`, with intervals). :func:`summary_row` condenses per-track and
-per-style rows (of one run, or pooled over runs) into one row of the recovery table; :func:`check_targets` compares such a row with the issue's
-targets (:data:`TARGETS`). :func:`run_recovery` simulates (or reuses) runs over seeds and control-noise
+per-style rows (of one run, or pooled over runs) into one row of the recovery table; :func:`check_targets`
+compares such a row with the issue's targets (:data:`TARGETS`). :func:`run_recovery` simulates (or reuses) runs over seeds and control-noise
 levels in worker processes and :func:`write_recovery` writes ``table.csv``/``table.md``, ``styles.csv``,
 ``selection.csv``, ``noise.csv``/``noise.md``, ``times.csv`` and ``README.md``; ``pirl-sim recover`` is the
 command.

@@ -297,8 +297,8 @@ def run_cell(spec: dict, code_version: str | None = None, store_root: str | None
         n_warnings, and the online protocol's `ONLINE_SCORES` (module doc; None elsewhere); ``timings`` [s]:
         generate_s (0 when cached), fit_s, evaluate_s (the online scores included), cell_s (wall clock), cpu_s
         (CPU time of the worker process: below cell_s when the worker waited for a core);
-        ``recovery`` (see `_recovery`) or None; ``weights``: `pirl_sim.recovery.weight_scores` (per free feature, overall and
-        per style) or None; ``warnings``: distinct warning messages (of the data generation
+        ``recovery`` (see `_recovery`) or None; ``weights``: `pirl_sim.recovery.weight_scores` (per free feature,
+        overall and per style) or None; ``warnings``: distinct warning messages (of the data generation
         too, when this cell generated the data); ``worker``: host, pid.
     """
     return _run_cells([spec], code_version, store_root, raise_errors=True)[0]

@@ -32,7 +32,8 @@ CURVE_AXES: dict[str, tuple[str, str]] = {
 
 
 def _without(label: str, name: str) -> str:
-    """A learner label without ``name=value``: 'TIRL (likelihood=receding, horizon=10)' -> 'TIRL (likelihood=receding)'."""
+    """A learner label without ``name=value``: 'TIRL (likelihood=receding, horizon=10)' ->
+    'TIRL (likelihood=receding)'."""
     out = re.sub(rf"{re.escape(name)}=[^,)]+(, )?", "", label).replace(" ()", "")
     return out.replace(", )", ")")
 
@@ -60,7 +61,8 @@ def curves_table(table: pd.DataFrame) -> pd.DataFrame:
         name, where, values = varied[0]
         x = g["n_train"].to_numpy(dtype=float) if name == "n_train" else np.asarray(values, dtype=float)
         truth = [float(p.get("horizon", math.nan)) if name == "horizon" else math.nan for p in sp]
-        learners = [_without(lab, name) for lab in g["learner_label"]] if where == "learner" else list(g["learner_label"])
+        labels = list(g["learner_label"])
+        learners = [_without(lab, name) for lab in labels] if where == "learner" else labels
         rows.append(pd.DataFrame({"experiment": exp, "axis": name, "x": x, "learner": learners,
                                   "seed": g["seed"].to_numpy(), "weight_error": g["weight_error"].to_numpy(dtype=float),
                                   "truth": truth}))
