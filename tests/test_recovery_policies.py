@@ -89,7 +89,7 @@ def test_mpc_ego_weights_are_recovered_from_its_recorded_tracks(mpc_ego):
 def test_policy_recovery_rejects_bad_settings():
     from pirl_sim.harness.policy_recovery import PpoRecoveryConfig, mpc_ego_demonstrations
 
-    with pytest.raises(ValueError, match="training and evaluation seeds must differ; both have \\[1\\]"):
+    with pytest.raises(ValueError, match="training seeds and evaluation seeds must differ; both have \\[1\\]"):
         PpoRecoveryConfig(seeds=(0, 1), eval_seeds=(1, 2))
     with pytest.raises(ValueError, match="theta must give speed_dev, acc_sq"):
         PpoRecoveryConfig(theta=(("speed_dev", 1.0),))

@@ -138,32 +138,43 @@ class AgentsConfig:
             if bad or len(set(values)) != len(values):
                 raise ValueError(f"{name} must be distinct values out of {allowed}, got {list(values)}")
             object.__setattr__(self, name, values)
-        for name in ("seeds", "eval_seeds"):
-            values = tuple(getattr(self, name))
-            if not values or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 for v in values) \
-                    or len(set(values)) != len(values):
-                raise ValueError(f"{name} must be a non-empty list of distinct integers >= 0, got {list(values)}")
-            object.__setattr__(self, name, tuple(int(v) for v in values))
         if self.action not in ACTIONS:
             raise ValueError(f"action must be one of {ACTIONS}, got {self.action!r}")
-        overlap = sorted(set(self.seeds) & set(self.eval_seeds))
-        if overlap:
-            raise ValueError(f"training seeds and evaluation seeds must differ; both have {overlap}")
-        for name in ("steps", "initial_vehicles", "n_steps", "batch_size", "n_epochs", "learner_seed"):
-            v = getattr(self, name)
-            low = 0 if name in ("initial_vehicles", "learner_seed") else 1
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
-        for name in ("depart_interval", "duration", "learning_rate", "residual_scale"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        if not (isinstance(self.gamma, (int, float)) and 0 < self.gamma <= 1):
-            raise ValueError(f"gamma must be in (0, 1], got {self.gamma!r}")
+        check_training_fields(self, integers={"steps": 1, "initial_vehicles": 0, "n_steps": 1, "batch_size": 1,
+                                              "n_epochs": 1, "learner_seed": 0},
+                              positive=("depart_interval", "duration", "learning_rate", "residual_scale"),
+                              flags=("use_sde",))
         if not (isinstance(self.log_std_init, (int, float)) and math.isfinite(self.log_std_init)):
             raise ValueError(f"log_std_init must be a finite number, got {self.log_std_init!r}")
-        if not isinstance(self.use_sde, bool):
-            raise ValueError(f"use_sde must be true or false, got {self.use_sde!r}")
+
+
+def check_training_fields(cfg, *, integers: dict, positive: tuple, flags: tuple) -> None:
+    """Validate (and normalise) the fields a PPO experiment's frozen config shares: ``seeds`` and ``eval_seeds``
+    (non-empty, distinct, disjoint integers >= 0; stored as tuples of int), the ``integers`` {name: lowest
+    allowed}, the finite ``positive`` numbers, ``gamma`` in (0, 1] and the boolean ``flags``; ValueError naming
+    the field."""
+    for name in ("seeds", "eval_seeds"):
+        values = tuple(getattr(cfg, name))
+        if not values or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 for v in values) \
+                or len(set(values)) != len(values):
+            raise ValueError(f"{name} must be a non-empty list of distinct integers >= 0, got {list(values)}")
+        object.__setattr__(cfg, name, tuple(int(v) for v in values))
+    overlap = sorted(set(cfg.seeds) & set(cfg.eval_seeds))
+    if overlap:
+        raise ValueError(f"training seeds and evaluation seeds must differ; both have {overlap}")
+    for name, low in integers.items():
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+    for name in positive:
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+    if isinstance(cfg.gamma, bool) or not isinstance(cfg.gamma, (int, float)) or not 0 < cfg.gamma <= 1:
+        raise ValueError(f"gamma must be in (0, 1], got {cfg.gamma!r}")
+    for name in flags:
+        if not isinstance(getattr(cfg, name), bool):
+            raise ValueError(f"{name} must be true or false, got {getattr(cfg, name)!r}")
 
 
 def env_config(cfg: AgentsConfig, mode: str = "none", learner=None) -> dict:

@@ -282,29 +282,14 @@ class PpoRecoveryConfig:
                 for v in theta.values()):
             raise ValueError(f"theta must give {', '.join(FREE_FEATURES)} each a finite weight > 0, got {theta!r}")
         object.__setattr__(self, "theta", tuple((f, float(theta[f])) for f in FREE_FEATURES))
-        seeds = _check_seeds("seeds", self.seeds)
-        eval_seeds = _check_seeds("eval_seeds", self.eval_seeds)
-        if set(seeds) & set(eval_seeds):
-            both = sorted(set(seeds) & set(eval_seeds))
-            raise ValueError(f"training and evaluation seeds must differ; both have {both}")
-        object.__setattr__(self, "seeds", tuple(seeds))
-        object.__setattr__(self, "eval_seeds", tuple(eval_seeds))
-        for name in ("steps", "n_steps", "batch_size", "n_epochs", "initial_vehicles", "n_vehicles"):
-            v = getattr(self, name)
-            low = 0 if name == "initial_vehicles" else 1
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+        from pirl_sim.harness.agents import check_training_fields
+
+        check_training_fields(self, integers={"steps": 1, "n_steps": 1, "batch_size": 1, "n_epochs": 1,
+                                              "initial_vehicles": 0, "n_vehicles": 1},
+                              positive=("duration", "learning_rate", "depart_interval"),
+                              flags=("use_sde", "normalize_reward"))
         if self.initial_vehicles > self.n_vehicles:
             raise ValueError(f"initial_vehicles = {self.initial_vehicles} exceeds n_vehicles = {self.n_vehicles}")
-        for name in ("duration", "learning_rate", "depart_interval"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        if isinstance(self.gamma, bool) or not isinstance(self.gamma, (int, float)) or not 0 < self.gamma <= 1:
-            raise ValueError(f"gamma must be in (0, 1], got {self.gamma!r}")
-        for name in ("use_sde", "normalize_reward"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
     @property
     def theta_map(self) -> dict[str, float]:
