@@ -22,12 +22,18 @@ def _pair(model, assembly):
     return SequentialMPC(p.dynamics, p.features, p.bounds, n_iter=p.n_iter, assembly=assembly)
 
 
-def test_newton_models_agree(model):
-    rng = np.random.default_rng(0)
-    M, N = 40, 25
+def _random_inputs(rng, M: int, N: int):
+    """Starts (M, 3), control sequences (M, N, 1) and positive weights (M, 3) for comparing Newton models."""
     x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(1, 12, M), rng.normal(0, 0.5, M)])
     U = rng.normal(0, 1.0, (M, N, 1))
     theta = np.abs(rng.normal(1.0, 0.5, (M, 3))) + 0.05
+    return x0, U, theta
+
+
+def test_newton_models_agree(model):
+    rng = np.random.default_rng(0)
+    M, N = 40, 25
+    x0, U, theta = _random_inputs(rng, M, N)
     A1, b1, c1 = _pair(model, "outer")._model(x0, U, theta)
     A0, b0, c0 = _pair(model, "stagewise")._model(x0, U, theta)
     assert np.abs(A1 - A0).max() <= 1e-12 * np.abs(A0).max()
@@ -77,9 +83,7 @@ def test_riccati_steps_equal_dense_solves(model):
     """The Riccati recursion gives the dense Newton model's step and exact/Gauss-Newton choice, to rounding."""
     rng = np.random.default_rng(2)
     M, N = 60, 30
-    x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(1, 12, M), rng.normal(0, 0.5, M)])
-    U = rng.normal(0, 1.0, (M, N, 1))
-    theta = np.abs(rng.normal(1.0, 0.5, (M, 3))) + 0.05
+    x0, U, theta = _random_inputs(rng, M, N)
     mpc = _pair(model, "outer")
     exp = mpc._expansion(N)
     A, b, cost = mpc._model(x0, U, theta)
