@@ -57,7 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser(
         "reproduce",
         help="reproduce one of the paper's experiments and write tables and figures",
-        description="Reproduce one of the paper's experiments; writes CSV/Markdown tables, figures and a summary.",
+        description="Reproduce one of the paper's experiments; writes CSV/Markdown tables, figures and a summary. "
+        "The experiment is an embedded sweep preset (pirl_sim/sweep/<experiment>.toml): its finished cells are kept "
+        "in the output directory (cells/), so an interrupted run resumes where it stopped.",
     )
     rep.add_argument(
         "experiment",
@@ -77,13 +79,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--history-steps", type=positive_int_arg, default=10, help="observed steps in the online protocol (default 10)"
     )
     rep.add_argument(
-        "--position-range", type=float, nargs=2, default=(1.0, 1.0), metavar=("LOW", "HIGH"),
-        help="start positions drawn uniformly from [LOW, HIGH] m (default 1 1: the single start)",
+        "--position-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+        help="synthetic only: start positions drawn uniformly from [LOW, HIGH] m (default 1 1: the single start)",
     )
     rep.add_argument(
-        "--velocity-range", type=float, nargs=2, default=(0.0, 0.0), metavar=("LOW", "HIGH"),
-        help="start velocities drawn uniformly from [LOW, HIGH] m/s (default 0 0)",
+        "--velocity-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+        help="synthetic only: start velocities drawn uniformly from [LOW, HIGH] m/s (default 0 0)",
     )
+    from pirl_sim.sweep.cli import _workers
+
+    rep.add_argument("--workers", type=_workers, default=0,
+                     help="sweep worker processes (default 0: in this process)")
     rep.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
     from pirl_sim.scenarios.highway.cli import add_highway_parser
@@ -109,6 +115,48 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_blas_threads_option(parser)  # every command: see pirl_sim/threads.py
     return parser
+
+
+def _reproduce(args) -> int:
+    """``pirl-sim reproduce``: 0, 1 when cells failed, 2 for a bad option, 130 when interrupted (finished cells
+    are kept)."""
+    import shlex
+
+    from pirl_sim.harness import reproduce
+
+    params = {k: v for k, v in (("n_trajectories", args.n_trajectories), ("n_train", args.n_train),
+                                ("position_range", args.position_range), ("velocity_range", args.velocity_range))
+              if v is not None}
+    out = args.out if args.out is not None else Path("results") / args.experiment
+    argv = sys.argv[1:]
+    command = "pirl-sim " + shlex.join(argv[argv.index("reproduce"):] if "reproduce" in argv else
+                                       ["reproduce", args.experiment, "--out", str(out)])
+    try:
+        ranges = [k for k in ("position_range", "velocity_range") if k in params]
+        if args.experiment != "synthetic" and ranges:
+            flags = " and ".join("--" + k.replace("_", "-") for k in ranges)
+            raise ValueError(f"{flags} apply to the synthetic experiment only (the passage starts are its own)")
+        check_output_dir(out)  # before the work, not after it
+        table = reproduce.reproduce(args.experiment, out, seed=args.seed, params=params,
+                                    history_steps=args.history_steps, workers=args.workers,
+                                    progress=not args.quiet, command=command)
+    except (TypeError, ValueError) as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2
+    except RuntimeError as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished cells are kept in {out}/cells/; run the same command to resume",
+              file=sys.stderr)
+        return 130
+    print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    if args.experiment == "synthetic":
+        for proto in table["protocol"].unique():
+            verdict = "holds" if reproduce.ordering_holds(table, proto) else "does NOT hold"
+            print(f"{proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) {verdict}")
+    print(f"wrote {out}/")
+    return 0
 
 
 def _replay(args) -> int:
@@ -155,53 +203,8 @@ def _run(args) -> int:
         from pirl_sim.scenarios.sumo.cli import run_simulate_sumo
 
         return run_simulate_sumo(args)
-    if args.command == "reproduce" and args.experiment == "passage":
-        from pirl_sim.harness.reproduce import reproduce_passage
-        from pirl_sim.scenarios.passage import PassageConfig
-
-        try:
-            sizes = {k: v for k, v in (("n_trajectories", args.n_trajectories), ("n_train", args.n_train)) if v}
-            config = PassageConfig(seed=args.seed, **sizes)
-        except (TypeError, ValueError) as exc:
-            print(f"pirl-sim: error: {exc}", file=sys.stderr)
-            return 2
-        out = args.out if args.out is not None else Path("results") / "passage"
-        try:
-            check_output_dir(out)  # before the work, not after it
-        except ValueError as exc:
-            print(f"pirl-sim: error: {exc}", file=sys.stderr)
-            return 2
-        table = reproduce_passage(out, config, history_steps=args.history_steps, progress=not args.quiet)
-        print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-        print(f"wrote {out}/")
-        return 0
     if args.command == "reproduce":
-        from pirl_sim.harness.reproduce import reproduce_synthetic, ordering_holds
-        from pirl_sim.scenarios.synthetic import SyntheticConfig
-
-        try:
-            config = SyntheticConfig(
-                n_trajectories=args.n_trajectories or 2000,
-                n_train=args.n_train or 1800,
-                seed=args.seed,
-                position_range=tuple(args.position_range),
-                velocity_range=tuple(args.velocity_range),
-            )
-            if args.history_steps >= config.n_steps:
-                raise ValueError(
-                    f"--history-steps must be less than the {config.n_steps} steps of a trajectory, got {args.history_steps}"
-                )
-            out = check_output_dir(args.out if args.out is not None else Path("results") / args.experiment)
-        except (TypeError, ValueError) as exc:
-            print(f"pirl-sim: error: {exc}", file=sys.stderr)
-            return 2
-        table = reproduce_synthetic(out, config, history_steps=args.history_steps, progress=not args.quiet)
-        print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-        for proto in table["protocol"].unique():
-            verdict = "holds" if ordering_holds(table, proto) else "does NOT hold"
-            print(f"{proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) {verdict}")
-        print(f"wrote {out}/")
-        return 0
+        return _reproduce(args)
     return 1  # pragma: no cover - argparse enforces a command
 
 

@@ -47,3 +47,67 @@ def test_reproduce_passage_quick_config(tmp_path, capsys):
     for name in ("knn_k.png", "clusters.png", "s_t.png", "switch.png", "README.md"):
         assert (out / name).stat().st_size > 0
     assert "crosses half-way after" in (out / "README.md").read_text()
+
+
+def test_reproduce_presets_are_cells_of_the_default_sweep():
+    """The presets run the default sweep's synthetic and passage cells (same keys: same numbers)."""
+    from pirl_sim.harness.reproduce import preset_config
+    from pirl_sim.sweep.config import default_config
+
+    default = {c.key("v") for c in default_config().cells}
+    for name in ("synthetic", "passage"):
+        cells = preset_config(name).cells
+        assert {c.experiment for c in cells} == {"table", "knn_k"}
+        assert {c.key("v") for c in cells} <= default, name
+
+
+def test_reproduce_options_map_onto_the_preset(capsys):
+    from pirl_sim.harness.reproduce import preset_config
+
+    config = preset_config("synthetic", seed=3, params={"n_train": 30, "n_trajectories": 40}, history_steps=7)
+    assert {c.seed for c in config.cells} == {3}
+    assert {c.scenario_params["n_train"] for c in config.cells} == {30}
+    assert {c.protocol["history_steps"] for c in config.cells if c.protocol["kind"] == "online"} == {7}
+    assert sorted({c.k for c in config.cells if c.experiment == "knn_k"}) == [1, 2, 3, 5, 8, 13, 21]  # k <= n_train
+    with pytest.raises(ValueError, match="unknown experiment 'highway'"):
+        preset_config("highway")
+    assert main(["reproduce", "passage", "--position-range", "2", "8", "--out", "/nonexistent/never"]) == 2
+    assert "--position-range apply to the synthetic experiment only" in capsys.readouterr().err
+
+
+def test_an_interrupted_reproduce_resumes_without_recomputing_finished_cells(tmp_path, monkeypatch):
+    """`reproduce synthetic` killed (SIGKILL) after its first cells: the same command computes only the missing
+    cells, leaves the finished ones untouched and writes the same files as an uninterrupted run."""
+    import os
+    import signal
+    import time
+
+    import pirl_sim.sweep.run as sweep_run
+    from pirl_sim.harness.reproduce import preset_config
+    from pirl_sim.sweep.store import code_version
+
+    args = ["reproduce", "synthetic", "--quiet"]
+    killed = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "pirl_sim", *args, "--out", str(killed)],
+                            env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    cells = killed / "cells"
+    deadline = time.monotonic() + 300
+    while proc.poll() is None and time.monotonic() < deadline and len(list(cells.glob("*.json"))) < 3:
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait() == -signal.SIGKILL
+    kept = {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json")}
+    n_cells = len({c.key(code_version()) for c in preset_config("synthetic").cells})
+    assert 3 <= len(kept) < n_cells and not (killed / "table.csv").exists()
+
+    computed = []
+    run_cells = sweep_run.run_cells
+    monkeypatch.setattr(sweep_run, "run_cells", lambda specs, *a: computed.extend(specs) or run_cells(specs, *a))
+    assert main(args + ["--out", str(killed)]) == 0
+    assert len(computed) == n_cells - len(kept)
+    assert {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json") if p.name in kept} == kept
+    fresh = tmp_path / "fresh"
+    assert main(args + ["--out", str(fresh)]) == 0
+    for name in ("table.csv", "table.md", "knn_k.csv", "knn_k.png", "README.md"):
+        assert (killed / name).read_bytes() == (fresh / name).read_bytes(), name

@@ -130,7 +130,7 @@ def test_reproduce_checks_the_output_directory_before_the_work(tmp_path, capsys,
     def no_work(*args, **kwargs):  # the check must come first: the work is never started
         raise AssertionError("the work started although the output directory is unusable")
 
-    monkeypatch.setattr(reproduce, f"reproduce_{experiment}", no_work)
+    monkeypatch.setattr(reproduce, "run_sweep", no_work)
     for out, message in _bad_outputs(tmp_path):
         code = main(["reproduce", experiment, "--n-trajectories", "150", "--n-train", "120", "--quiet",
                      "--out", str(out)])
@@ -139,13 +139,12 @@ def test_reproduce_checks_the_output_directory_before_the_work(tmp_path, capsys,
 
 
 def test_reproduce_api_checks_the_output_directory_first(tmp_path, monkeypatch):
-    import pirl_sim.scenarios.synthetic as synthetic
-    from pirl_sim.harness.reproduce import reproduce_synthetic
+    import pirl_sim.harness.reproduce as reproduce
 
-    monkeypatch.setattr(synthetic, "generate", lambda *a, **k: pytest.fail("generated data before the check"))
+    monkeypatch.setattr(reproduce, "run_sweep", lambda *a, **k: pytest.fail("ran the cells before the check"))
     for out, message in _bad_outputs(tmp_path):
         with pytest.raises(ValueError, match=f"out_dir .* {message}"):
-            reproduce_synthetic(out, progress=False)
+            reproduce.reproduce("synthetic", out, progress=False)
 
 
 def test_report_checks_its_output_directory(tmp_path, capsys):

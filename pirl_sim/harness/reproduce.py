@@ -1,104 +1,148 @@
-"""`pirl-sim reproduce synthetic`: the paper's synthetic experiment, written to a results directory.
+"""`pirl-sim reproduce synthetic|passage`: the paper's experiments as sweep presets plus report templates.
 
-Outputs (all from one seeded run; same seed, same bytes):
-- ``table.csv`` / ``table.md``: MED of TIRL, PIRL-GMM (k=2), PIRL-kNN (k=1) and PIRL-DPGMM under both protocols,
-  beside the paper's values (paper protocol only; the paper reports no online numbers).
-- ``knn_k.csv`` / ``knn_k.png``: MED of PIRL-kNN against k (the paper's Fig. "Performance of kNN with different k").
-- ``README.md``: the command, the configuration and whether the paper's ordering TIRL > GMM > kNN holds.
+Each experiment is an embedded sweep config (`pirl_sim/sweep/<name>.toml`, cells of the default sweep) whose
+cells the sweep engine computes and keeps in the output directory (``cells/``, ``sweep.json``:
+`pirl_sim.sweep.store`), so an interrupted run resumes; the report template here writes, from those cells
+(same seed, same bytes): ``table.csv``/``table.md`` (the preset's ``table`` experiment; synthetic: beside the
+paper's values), ``knn_k.csv``/``knn_k.png`` (its ``knn_k`` experiment: the paper's "Performance of kNN with
+different k"), ``README.md``, and for the passage ``clusters.png`` (feature space), ``s_t.png`` (S-T plots of
+online predictions) and ``switch.png`` (online inference through a style switch).
 """
 
 from __future__ import annotations
 
-import time
+import tomllib
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import asdict
+from importlib import resources
 
 import numpy as np
 import pandas as pd
 
 from pirl_sim.harness import figures
-from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate, style_agreement
 from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.progress import reporter
+from pirl_sim.sweep.run import run_sweep
 from pirl_sim.validation import check_output_dir
 
-__all__ = ["PAPER_SYNTHETIC_MED", "reproduce_synthetic"]
+__all__ = ["PAPER_SYNTHETIC_MED", "PRESETS", "preset_config", "reproduce", "ordering_holds"]
 
 #: Table "Experimental results on synthetic data" of the paper [m].
 PAPER_SYNTHETIC_MED = {"TIRL": 5.6e-2, "PIRL-GMM (k=2)": 9.8e-3, "PIRL-kNN (k=1)": 3.2e-3}
-KNN_KS = (1, 2, 3, 5, 8, 13, 21, 34, 55, 89)
+#: The experiments `reproduce` runs: embedded presets ``pirl_sim/sweep/<name>.toml``.
+PRESETS = ("synthetic", "passage")
 
 
-def _learner_specs(seed: int):
-    return [
-        ("TIRL", "tirl", {}),
-        ("PIRL-GMM (k=2)", "pirl-gmm", {"n_components": 2, "random_state": seed}),
-        ("PIRL-kNN (k=1)", "pirl-knn", {"n_neighbors": 1}),
-        ("PIRL-DPGMM", "pirl-dpgmm", {"random_state": seed}),
-    ]
+def preset_config(name: str, *, seed: int = 0, params: dict | None = None, history_steps: int | None = None):
+    """The embedded preset ``name`` as a validated `pirl_sim.sweep.config.SweepConfig`.
+
+    Parameters
+    ----------
+    name : {"synthetic", "passage"}
+    seed : int                   the one seed of every cell (data and learners)
+    params : dict or None        scenario parameters set in every experiment (e.g. ``n_train``,
+                                 ``position_range``); PIRL-kNN grid values of k above ``n_train`` are dropped
+    history_steps : int or None  [steps] history of every protocol that has one (None: the preset's)
+
+    Raises
+    ------
+    ValueError
+        An unknown preset, or a parameter the sweep config rejects (named there).
+    """
+    from pirl_sim.sweep.config import parse_config
+    from pirl_sim.sweep.scenarios import scenario_spec
+
+    if name not in PRESETS:
+        raise ValueError(f"unknown experiment {name!r}; choose one of {', '.join(PRESETS)}")
+    text = resources.files("pirl_sim.sweep").joinpath(f"{name}.toml").read_text(encoding="utf-8")
+    data = tomllib.loads(text)
+    data["seeds"] = [seed]
+    for exp in data["experiments"]:
+        exp["params"] = {**exp.get("params", {}), **(params or {})}
+        for proto in exp["protocols"]:
+            if history_steps is not None and proto["kind"] != "paper":
+                proto["history_steps"] = history_steps
+        n_train = exp["params"].get("n_train", scenario_spec(exp["scenario"]).params["n_train"].default)
+        for learner in exp["learners"]:
+            grid = learner.get("grid", {}) if isinstance(learner, dict) else {}
+            if isinstance(grid.get("n_neighbors"), list):
+                grid["n_neighbors"] = [k for k in grid["n_neighbors"] if not isinstance(k, int) or k <= n_train]
+    return parse_config(data, source=f"<{name}>", text=text)
 
 
-def _learner_table(data, specs, protocols, say, stage: str) -> pd.DataFrame:
-    """Fit every learner spec under every protocol and score it: one row per (protocol, learner)."""
-    from pirl_sim.learners import make_learner
+def reproduce(name: str, out_dir, *, seed: int = 0, params: dict | None = None, history_steps: int | None = None,
+              workers: int | None = 0, progress: bool = True, command: str | None = None) -> pd.DataFrame:
+    """Run the experiment ``name`` through the sweep engine into ``out_dir`` and write its files (module doc).
 
-    rows = []
-    for protocol in protocols:
-        for name, key, params in specs:
-            learner = make_learner(key, model=data.model, **params, **protocol.learner_params())
-            t0 = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)  # dropped tiny mixture components: by design
-                learner.fit(data.train)
-            fit_s = time.perf_counter() - t0
-            row = {"learner": name, **evaluate(learner, data.test, protocol), "fit_s": fit_s}
-            ari = style_agreement(learner, data.train)
-            row["ari"] = np.nan if ari is None else ari
-            row["n_styles"] = getattr(learner, "n_styles_", 1 if key == "tirl" else np.nan)
-            rows.append(row)
-            say(f"{stage} {protocol.name:40s} {name:22s} MED {row['med']:.3e} m")
-    return pd.DataFrame(rows)
+    Parameters
+    ----------
+    name, seed, params, history_steps
+        See `preset_config`.
+    out_dir : path               output directory; its finished cells are reused (resume)
+    workers : int or None        sweep workers (0: in this process; None: the usable cores)
+    progress : bool              progress bar and status lines on stderr
+    command : str or None        recorded in ``sweep.json``
 
+    Returns
+    -------
+    DataFrame
+        The main table (``table.csv``).
 
-def reproduce_synthetic(out_dir, config=None, *, history_steps: int = 10, knn_ks=KNN_KS, progress=True) -> pd.DataFrame:
-    """Run the synthetic reproduction and write its files to ``out_dir``; returns the main table."""
-    from pirl_sim.learners import make_learner
-    from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
-
-    config = SyntheticConfig() if config is None else config
+    Raises
+    ------
+    ValueError
+        ``out_dir`` is not a writable directory (checked before any work), or a bad parameter.
+    RuntimeError
+        Some cells failed (``out_dir/errors/``); the finished ones are kept and the same call resumes.
+    """
     out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
-    knn_ks = tuple(k for k in knn_ks if k <= config.n_train)
-    protocols = [PAPER_PROTOCOL, Protocol("online", history_steps)]
-    say = reporter(progress)
-
-    data = generate(config)
-    say(f"[1/3] generated {len(data.train)} training and {len(data.test)} test trajectories (seed {config.seed})")
-    table = _learner_table(data, _learner_specs(config.seed), protocols, say, "[2/3]")
-    table["paper_med"] = [
-        PAPER_SYNTHETIC_MED.get(n, np.nan) if p == PAPER_PROTOCOL.name else np.nan
-        for n, p in zip(table["learner"], table["protocol"])
-    ]
-    cols = ["protocol", "learner", "med", "paper_med", "med_std", "fde", "weight_error", "ari", "n_styles", "n_test"]
-    table = table[cols]
-
-    krows = []
-    for protocol in protocols:
-        for k in knn_ks:
-            learner = make_learner("pirl-knn", model=data.model, n_neighbors=k, **protocol.learner_params())
-            learner.fit(data.train)
-            r = evaluate(learner, data.test, protocol)
-            krows.append({"protocol": protocol.name, "k": k, "med": r["med"], "med_std": r["med_std"]})
-        say(f"[3/3] {protocol.name}: kNN MED for k in {list(knn_ks)}")
-    ktable = pd.DataFrame(krows)
-
-    out.mkdir(parents=True, exist_ok=True)
+    config = preset_config(name, seed=seed, params=params, history_steps=history_steps)
+    run = run_sweep(config, out, workers=workers, progress=progress, command=command, tables=False)
+    if run.failed:
+        first = next(iter(run.failed.values()))
+        raise RuntimeError(f"{len(run.failed)} of the {name} cells failed (first: {first}; details in {out}/errors/); "
+                           "the finished cells are kept: run again to retry the others")
+    table = _rows(run.table, "table")
+    knn = run.table[run.table["experiment"] == "knn_k"]
+    ktable = pd.DataFrame({"protocol": knn["protocol"].to_numpy(), "k": knn["k"].astype(int).to_numpy(),
+                           "med": knn["med"].to_numpy(), "med_std": knn["med_std"].to_numpy()})
+    if name == "synthetic":
+        kinds = run.table.loc[table.index, "protocol_kind"]
+        table.insert(3, "paper_med", [PAPER_SYNTHETIC_MED.get(n, np.nan) if k == "paper" else np.nan
+                                      for n, k in zip(table["learner"], kinds)])
+    title = {"synthetic": "synthetic data", "passage": "the roundabout passage"}[name]
     atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "table.md", markdown(table))
     atomic_write_text(out / "knn_k.csv", ktable.to_csv(index=False, float_format="%.6g"))
-    atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(ktable, "PIRL-kNN on synthetic data: MED vs k"))
-    atomic_write_text(out / "README.md", _summary(table, ktable, config, history_steps))
+    atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(ktable, f"PIRL-kNN on {title}: MED vs k"))
+    scenario = _scenario_config(config.cells[0])
+    history = next(c.protocol["history_steps"] for c in config.cells if c.protocol["kind"] != "paper")
+    if name == "synthetic":
+        atomic_write_text(out / "README.md", _synthetic_summary(table, ktable, scenario, history))
+        return table
+    reporter(progress)("figures: feature clusters, S-T predictions, style switch")
+    switch = _passage_figures(config, scenario, history, out)
+    atomic_write_text(out / "README.md", _passage_summary(table, switch, scenario))
     return table
+
+
+def _rows(tidy: pd.DataFrame, experiment: str) -> pd.DataFrame:
+    """The rows of one experiment of the sweep's tidy table in the reproductions' columns (index kept)."""
+    t = tidy[tidy["experiment"] == experiment]
+    out = pd.DataFrame({"protocol": t["protocol"], "learner": t["learner_label"]})
+    for c in ("med", "med_std", "fde", "weight_error", "ari", "n_styles"):
+        out[c] = t[c].astype(float)
+    out["n_test"] = t["n_test"].astype(int)
+    return out
+
+
+def _scenario_config(cell):
+    """The scenario's own config dataclass (`SyntheticConfig` or `PassageConfig`) of a cell."""
+    from pirl_sim.sweep import scenarios
+
+    make = scenarios._synthetic_config if cell.scenario == "synthetic" else scenarios._passage_config
+    return make(dict(cell.scenario_params), cell.seed)
 
 
 def ordering_holds(table: pd.DataFrame, protocol_name: str) -> bool:
@@ -107,9 +151,13 @@ def ordering_holds(table: pd.DataFrame, protocol_name: str) -> bool:
     return bool(t["TIRL"] > t["PIRL-GMM (k=2)"] > t["PIRL-kNN (k=1)"])
 
 
-def _summary(table, ktable, config, history_steps) -> str:
-    cfg = asdict(replace(config))
+def _config_lines(config) -> list[str]:
+    cfg = asdict(config)
     cfg["styles"] = [f"{s.name}: weight {s.weight}, mean {dict(s.mean)}, std {dict(s.std)}" for s in config.styles]
+    return ["## Configuration", "", *(f"- {k}: {v}" for k, v in cfg.items())]
+
+
+def _synthetic_summary(table, ktable, config, history_steps) -> str:
     lines = [
         "# Synthetic reproduction",
         "",
@@ -135,96 +183,46 @@ def _summary(table, ktable, config, history_steps) -> str:
         "",
         "![MED vs k](knn_k.png)",
         "",
-        "## Configuration",
-        "",
+        *_config_lines(config),
     ]
-    lines += [f"- {k}: {v}" for k, v in cfg.items()]
     return "\n".join(lines) + "\n"
 
 
 # ---------------------------------------------------------------------------------------------- passage
-PASSAGE_KS = (1, 3, 5, 10, 20, 40)
-
-
-def _passage_specs(seed: int):
-    return [
-        ("TIRL", "tirl", {}),
-        ("PIRL-GMM (k=3)", "pirl-gmm", {"n_components": 3, "random_state": seed}),
-        ("PIRL-DPGMM", "pirl-dpgmm", {"random_state": seed}),
-        ("PIRL-kNN (k=10)", "pirl-knn", {"n_neighbors": 10, "prior": "population", "stride": 2}),
-    ]
-
-
-def reproduce_passage(out_dir, config=None, *, history_steps: int = 10, horizon: int = 15, progress=True):
-    """The paper's roundabout experiment on simulated drivers of three known styles; writes ``out_dir``.
-
-    Files: ``table.csv``/``table.md`` (MED, FDE, weight error, ARI per learner and protocol), ``knn_k.csv``/
-    ``knn_k.png`` (MED vs k, rolling protocol), ``clusters.png`` (feature space), ``s_t.png`` (S-T plots of
-    predictions), ``switch.png`` (online inference through a style switch), ``README.md``.
-    """
-    from pirl_sim.learners import PIRLGMM, make_learner
-    from pirl_sim.scenarios.passage import PassageConfig, generate
+def _passage_figures(config, scenario, history_steps: int, out) -> dict:
+    """Write ``clusters.png`` (the paper protocol's PIRL-GMM), ``s_t.png`` (the online protocol's learners on the
+    first four test passages) and ``switch.png`` from the preset's ``table`` cells; returns the switch summary."""
+    from pirl_sim.harness.experiment import Protocol
     from pirl_sim.simulate import simulate_receding_horizon
+    from pirl_sim.sweep.cell import _data
+    from pirl_sim.sweep.config import _tuples, sweep_learners
 
-    config = PassageConfig() if config is None else config
-    out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
-    say = reporter(progress)
-    protocols = [
-        PAPER_PROTOCOL,
-        Protocol("online", history_steps),
-        Protocol("rolling", history_steps, "sliding", horizon=horizon, stride=5),
-    ]
-    data = generate(config)
-    say(f"[1/4] generated {len(data.train)} training and {len(data.test)} test passages (seed {config.seed})")
-    table = _learner_table(data, _passage_specs(config.seed), protocols, say, "[2/4]")
-    table = table[["protocol", "learner", "med", "med_std", "fde", "weight_error", "ari", "n_styles", "n_test"]]
-
-    rolling = protocols[-1]
-    krows = []
-    for k in PASSAGE_KS:
-        learner = make_learner("pirl-knn", model=data.model, n_neighbors=k, prior="population", stride=2,
-                               **rolling.learner_params())
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            learner.fit(data.train)
-        r = evaluate(learner, data.test, rolling)
-        krows.append({"protocol": rolling.name, "k": k, "med": r["med"], "med_std": r["med_std"]})
-    ktable = pd.DataFrame(krows)
-    say(f"[3/4] kNN MED for k in {list(PASSAGE_KS)}")
-
-    # figures: clusters, S-T, style switch
+    cells = [c for c in config.cells if c.experiment == "table"]
+    data = _data(cells[0].spec(), str(out))
     model = data.model
-    gmm = PIRLGMM(model, n_components=3, random_state=config.seed).fit(data.train)
+
+    def fitted(cell):
+        protocol = Protocol(**cell.protocol)
+        learner = sweep_learners()[cell.learner](model=model, **_tuples(dict(cell.learner_params)),
+                                                 **protocol.learner_params())
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # dropped tiny mixture components: by design
+            return learner.fit(data.train)
+
+    gmm = fitted(next(c for c in cells if c.learner == "pirl-gmm" and c.protocol["kind"] == "paper"))
     truth = np.array([t.metadata["style"] for t in data.train])
-    clusters_png = figures.feature_clusters(
-        model.feature_values(data.train), model.features.names, gmm.labels_, truth, [s.name for s in config.styles]
-    )
+    atomic_write_bytes(out / "clusters.png", figures.feature_clusters(
+        model.feature_values(data.train), model.features.names, gmm.labels_, truth, [s.name for s in scenario.styles]))
     shown = data.test[:4]
     t_axis = np.arange(shown[0].n_steps + 1) * model.dynamics.dt
-    preds = {}
-    online = protocols[1]
-    for name, key, params in _passage_specs(config.seed):
-        learner = make_learner(key, model=model, **params, **online.learner_params())
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            learner.fit(data.train)
-        states = learner.predict_states([t.window(0, history_steps) for t in shown], shown[0].n_steps - history_steps)
-        preds[name] = states[:, :, 0]
-    st_png = figures.s_t_predictions(t_axis, np.stack([t.states[:, 0] for t in shown]), preds, history_steps)
-
-    switch_png, switch_summary = _style_switch(data, config, history_steps, simulate_receding_horizon)
-    say("[4/4] figures")
-
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
-    atomic_write_text(out / "table.md", markdown(table))
-    atomic_write_text(out / "knn_k.csv", ktable.to_csv(index=False, float_format="%.6g"))
-    atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(ktable, "PIRL-kNN on the roundabout passage: MED vs k"))
-    atomic_write_bytes(out / "clusters.png", clusters_png)
-    atomic_write_bytes(out / "s_t.png", st_png)
+    preds = {c.learner_label: fitted(c).predict_states([t.window(0, history_steps) for t in shown],
+                                                        shown[0].n_steps - history_steps)[:, :, 0]
+             for c in cells if c.protocol["kind"] == "online"}
+    atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(t_axis, np.stack([t.states[:, 0] for t in shown]),
+                                                                preds, history_steps))
+    switch_png, switch_summary = _style_switch(data, scenario, history_steps, simulate_receding_horizon)
     atomic_write_bytes(out / "switch.png", switch_png)
-    atomic_write_text(out / "README.md", _passage_summary(table, ktable, config, switch_summary))
-    return table
+    return switch_summary
 
 
 def _style_switch(data, config, history_steps, simulate):
@@ -259,7 +257,7 @@ def _style_switch(data, config, history_steps, simulate):
     return png, {"switch_step": switch, "lag_steps": lag, "dt": dt}
 
 
-def _passage_summary(table, ktable, config, switch) -> str:
+def _passage_summary(table, switch, config) -> str:
     lag = switch["lag_steps"]
     lines = [
         "# Roundabout passage: three driving styles of known weights",
@@ -281,10 +279,6 @@ def _passage_summary(table, ktable, config, switch) -> str:
         "",
         "![switch](switch.png) ![clusters](clusters.png) ![S-T](s_t.png) ![MED vs k](knn_k.png)",
         "",
-        "## Configuration",
-        "",
+        *_config_lines(config),
     ]
-    cfg = asdict(replace(config))
-    cfg["styles"] = [f"{s.name}: weight {s.weight}, mean {dict(s.mean)}, std {dict(s.std)}" for s in config.styles]
-    lines += [f"- {k}: {v}" for k, v in cfg.items()]
     return "\n".join(lines) + "\n"

@@ -118,6 +118,7 @@ def run_sweep(
     progress: bool = True,
     command: str | None = None,
     stream=None,
+    tables: bool = True,
 ) -> SweepRun:
     """Run the cells of ``config`` that ``out_dir`` does not hold yet, then write the tables.
 
@@ -131,6 +132,9 @@ def run_sweep(
     scheduler : str or None     Dask scheduler address ``tcp://HOST:PORT``
     progress : bool             progress bar with ETA on ``stream`` (default stderr)
     command : str or None       recorded in ``sweep.json``
+    tables : bool               write the tidy tables (``table.parquet``, ``table.csv``, ``recovery.parquet``,
+                                ``weights.csv``); False: only the store and ``sweep.json`` (a report template
+                                writes its own files, `pirl_sim.harness.reproduce`)
 
     Returns
     -------
@@ -246,9 +250,10 @@ def run_sweep(
 
     cached = [k for k in records if k not in set(computed)]
     table = assemble_table(config, keys, records)
-    _write_table(table, out)
-    _write_recovery(config, keys, records, out)
-    _write_weights(config, keys, records, out)
+    if tables:
+        _write_table(table, out)
+        _write_recovery(config, keys, records, out)
+        _write_weights(config, keys, records, out)
     return SweepRun(out, table, computed, cached, failed, version, description,
                     time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated)
 
