@@ -468,6 +468,13 @@ class PirlDrivers:
         acceleration and jerk terms, is lowest at low speed where v_des is low, so from v = 0 every plan
         defers the start and the receding horizon never starts (measured: at several points of every
         route for the "minimises acceleration" and "no preference" styles, longer horizons worse).
+    kernel : {"auto", "numba", "numpy"}
+        How the drivers re-plan and are projected onto their routes: ``"numba"``, compiled loops
+        (:class:`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`: the same plans as the numpy MPC to
+        rounding, several times faster at a simulator step's batch sizes); ``"numpy"``, the batched
+        :class:`pirl_sim.mpc.SequentialMPC` and :meth:`RouteSet.project` (the reference); ``"auto"``
+        (default), numba where it is installed (the ``sumo`` extra) and the model is the paper's roundabout
+        model, numpy otherwise.
 
     Attributes
     ----------
@@ -492,6 +499,7 @@ class PirlDrivers:
     override_tol: float = 0.01
     stop_speed: float = 0.5
     resume_speed: float = 3.0
+    kernel: str = "auto"
     n_calls: int = field(default=0, init=False)
     n_plans: int = field(default=0, init=False)
     plan_time_s: float = field(default=0.0, init=False)
@@ -523,6 +531,18 @@ class PirlDrivers:
         self._lo, self._hi, _, _ = (self.model.bounds.resolve(dyn) if self.model.bounds is not None
                                     else (np.full(dyn.n_x, -np.inf), np.full(dyn.n_x, np.inf), None, None))
         self._mpc = self.model.predictor()
+        if self.kernel not in ("auto", "numba", "numpy"):
+            raise ValueError(f"kernel must be 'auto', 'numba' or 'numpy', got {self.kernel!r}")
+        self._compiled = None
+        if self.kernel != "numpy":
+            from .driver_kernel import CompiledDriverMPC, KernelUnsupported, numba_available
+
+            if self.kernel == "numba" or numba_available():
+                try:
+                    self._compiled = CompiledDriverMPC(self.model, self._mpc)
+                except KernelUnsupported:
+                    if self.kernel == "numba":
+                        raise
 
     def __call__(self, time: float, vehicle_id: str, observation) -> float:
         """Single-vehicle :data:`~.sumo.runner.Controller` form (plans only this vehicle)."""
@@ -575,7 +595,8 @@ class PirlDrivers:
         egos = [observations[v].ego for v in vids]
         r = np.array([st.route for st in states], dtype=np.int64)
         xy = np.array([[e.x, e.y] for e in egos])
-        s_local = self.model.routes.project(r, xy, np.array([st.s_next for st in states]))
+        project = self.model.routes.project if self._compiled is None else self._compiled.project
+        s_local = project(r, xy, np.array([st.s_next for st in states]))
         v = np.array([e.speed for e in egos])
         followed = np.array([math.isfinite(st.command) and abs(e.speed - st.command) <= self.override_tol
                              for st, e in zip(states, egos)])
@@ -589,7 +610,7 @@ class PirlDrivers:
         init = np.stack([np.concatenate([st.plan[1:], st.plan[-1:]]) if st.plan is not None
                          else np.zeros((self.horizon, n_u)) for st in states])
         t1 = _time.perf_counter()
-        plan = self._mpc.controls(x0, theta, self.horizon, init=init)
+        plan = (self._mpc if self._compiled is None else self._compiled).controls(x0, theta, self.horizon, init=init)
         self.plan_time_s += _time.perf_counter() - t1
         u = plan[:, 0]
         if self.control_noise > 0:

@@ -1,0 +1,242 @@
+"""Compiled (numba) per-step work of the PIRL drivers: the warm-started MPC re-plan and the projection onto
+the routes, for :class:`~pirl_sim.scenarios.drivers.PirlDrivers` (issue 16, speed at scale).
+
+:class:`CompiledDriverMPC` computes what :meth:`pirl_sim.mpc.SequentialMPC.controls` computes for the paper's
+roundabout model on a :class:`~pirl_sim.scenarios.drivers.RouteSet` (features ``speed_dev``, ``acc_sq``,
+``jerk_sq``, means over the steps, reference ``jerk_sq``; state (s, v, a), control jerk; box bounds), one
+driver at a time in compiled loops instead of batched numpy calls, whose fixed cost per call dominates at a
+simulator step's batch sizes:
+
+- the same Newton model (the exact Hessian where it stays positive definite with half the reference term,
+  Gauss-Newton elsewhere), the same backtracking line search (full step, then up to six halvings, accepted
+  when the cost is not above ``cost + 1e-12 |cost|``), the same stopping rules and the same warm-start rule
+  (a start whose warm start sits on a bound goes straight to the bounded QPs);
+- the Newton steps by a Riccati recursion over the stages, O(N) per driver (the numpy path's dense solve
+  gives the same steps to rounding; `pirl_sim.mpc._OuterExpansion.riccati` is the same recursion batched),
+  and the positive-definiteness test by the recursion's pivots (equivalent to the dense Cholesky test);
+- the bounded QPs with the same dense model (assembled here in O(N^2)) and the same solver, the
+  `pirl_sim.mpc.BoxQP` of the numpy MPC.
+
+Plans equal the numpy path's to floating-point rounding (other summation orders; tested on random problems
+and in closed loop, ``tests/test_driver_kernel.py``); results are deterministic run to run. numba is imported
+only when a kernel is built (:func:`numba_available` tells whether it can be); compiled code is cached on disk
+(``cache=True``), so only the first use on a machine pays the compilation (a few seconds).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+
+__all__ = ["numba_available", "CompiledDriverMPC", "KernelUnsupported"]
+
+_FEATURES = ("speed_dev", "acc_sq", "jerk_sq")
+
+_KERNELS: dict | None = None
+
+
+class KernelUnsupported(ValueError):
+    """The model is not the one the compiled kernel implements (use the numpy path)."""
+
+
+def numba_available() -> bool:
+    """Whether numba can be imported (the ``sumo`` extra installs it)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def _kernels() -> dict:
+    """The compiled functions (numba imported and the functions compiled, or loaded from the cache, once)."""
+    global _KERNELS
+    if _KERNELS is None:
+        _KERNELS = _build()
+    return _KERNELS
+
+
+def _build() -> dict:
+    from . import _driver_jit as j
+
+    return {"newton_batch": j.newton_batch, "dense_model": j.dense_model, "project": j.project, "cost": j.cost}
+
+
+class CompiledDriverMPC:
+    """`SequentialMPC.controls` and `RouteSet.project` of the PIRL drivers, compiled (see the module doc).
+
+    Parameters
+    ----------
+    model : RouteSetDriverModel
+        The paper's roundabout model on a route set (`~pirl_sim.scenarios.drivers.route_set_model`).
+    mpc : SequentialMPC
+        The model's predictor: its ``n_iter``, ``tol``, ``n_qp_iter``, ``qp_tol``, bounds and bounded-QP
+        solver are used, and its ``n_qp`` / ``n_infeasible`` counters kept up.
+
+    Raises
+    ------
+    KernelUnsupported
+        The model is not the paper's three features on a `RouteSetProfile` with a (s, v, a) / jerk model and
+        bounds (the numpy path covers every model).
+    ImportError
+        numba is not installed.
+    """
+
+    def __init__(self, model, mpc):
+        from pirl_sim.driving import SpeedDeviationResidual
+        from pirl_sim.features import SquaredControlResidual, SquaredStateResidual
+
+        from .drivers import RouteSetProfile
+
+        feats = model.features
+        dyn = model.dynamics
+        if tuple(feats.names) != _FEATURES or feats.reference != "jerk_sq":
+            raise KernelUnsupported(f"the compiled MPC implements the features {_FEATURES} (reference jerk_sq), "
+                                    f"got {tuple(feats.names)} (reference {feats.reference})")
+        f0, f1, f2 = feats.features
+        ok = (isinstance(f0.residual, SpeedDeviationResidual) and isinstance(f0.residual.profile, RouteSetProfile)
+              and isinstance(f1.residual, SquaredStateResidual) and tuple(f1.residual.index or ()) == (2,)
+              and isinstance(f2.residual, SquaredControlResidual)
+              and all(f.reduction == "mean" for f in feats.features)
+              and not f0.quadratic and f1.quadratic and f2.quadratic)
+        if not ok:
+            raise KernelUnsupported("the compiled MPC implements speed_dev on a RouteSetProfile, acc_sq = mean a^2 "
+                                    "and jerk_sq = mean j^2 only")
+        if dyn.n_x != 3 or dyn.n_u != 1:
+            raise KernelUnsupported(f"the compiled MPC needs states (s, v, a) and one control, got n_x = {dyn.n_x}, "
+                                    f"n_u = {dyn.n_u}")
+        if mpc._qp is None or mpc.assembly != "outer":
+            raise KernelUnsupported("the compiled MPC needs bounds and the 'outer' assembly of SequentialMPC")
+        if mpc.dynamics is not dyn or mpc.features is not feats:
+            raise KernelUnsupported("mpc must be the model's own predictor")
+        self._k = _kernels()
+        self.mpc = mpc
+        profile = f0.residual.profile
+        self.routes = profile.routes
+        xb, cf = self.routes._kappa
+        self._xb, self._cf = np.array(xb, dtype=float, order="C"), np.array(cf, dtype=float, order="C")
+        self._inv_a4 = 1.0 / profile.a_lat**4
+        self._vmax_m8 = profile.v_max**-8.0
+        self._Ad = np.array(dyn.A, dtype=float, order="C")
+        self._Bd = np.array(dyn.B[:, 0], dtype=float, order="C")
+        qp = mpc._qp
+        self._xlo, self._xhi = np.array(qp._x_lo, dtype=float), np.array(qp._x_hi, dtype=float)
+        self._ulo, self._uhi = float(qp._u_lo[0]), float(qp._u_hi[0])
+        T = self.routes._tables
+        self._tab = tuple(np.array(T[key], dtype=dtype, order="C") for key, dtype in (
+            ("base", np.int64), ("n", np.int64), ("inv_step", float), ("step", float), ("length", float),
+            ("rows", float)))
+        self.n_newton = 0  #: Newton steps taken so far (all drivers)
+        # compile (or load from numba's cache) now rather than inside the first simulation step
+        self.controls(np.zeros((0, 3)), np.ones((0, 3)), 1, np.zeros((0, 1, 1)))
+        self.model(np.zeros(3), np.ones(3), np.zeros(1))
+        self.project(np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(0))
+
+    # -- the MPC ------------------------------------------------------------------------------------
+
+    def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int, init: np.ndarray) -> np.ndarray:
+        """Controls (M, N, 1) [m/s^3] as `SequentialMPC.controls` (warm-started from ``init``).
+
+        Parameters
+        ----------
+        x0 : array (M, 3)
+            Starts (s [m] on the route set's global axis, v [m/s], a [m/s^2]); moved inside the state bounds.
+        theta : array (M, 3)
+            Weights (speed_dev, acc_sq, jerk_sq), >= 0, jerk_sq > 0.
+        n_steps : int
+            Horizon N [steps], >= 1.
+        init : array (M, N, 1)
+            Warm starts [m/s^3], finite.
+
+        Raises
+        ------
+        ValueError
+            For arrays of other shapes, non-finite starts or warm starts, or negative weights.
+        """
+        from pirl_sim.mpc import _check_horizon
+
+        n_steps = _check_horizon(n_steps)
+        x0 = np.array(x0, dtype=float, ndmin=2)
+        M = x0.shape[0]
+        if x0.shape != (M, 3) or not np.all(np.isfinite(x0)):
+            raise ValueError(f"start states must be finite with shape (M, 3), got shape {x0.shape}")
+        theta = np.ascontiguousarray(np.broadcast_to(np.asarray(theta, dtype=float), (M, 3)))
+        if not np.all(np.isfinite(theta)) or np.any(theta < 0) or np.any(theta[:, 2] <= 0):
+            raise ValueError("weights must be finite and >= 0, the jerk_sq weight > 0")
+        U = np.array(init, dtype=float)
+        if U.shape != (M, n_steps, 1) or not np.all(np.isfinite(U)):
+            raise ValueError(f"init must be finite with shape {(M, n_steps, 1)}, got {U.shape}")
+        x0 = np.ascontiguousarray(np.clip(x0, self._xlo, self._xhi))
+        U2 = U.reshape(M, n_steps)
+        on_bounds = np.zeros(M, dtype=np.bool_)
+        bad = np.zeros(M, dtype=np.bool_)
+        counts = np.zeros(1, dtype=np.int64)
+        k = self._k
+        k["newton_batch"](x0, theta, U2, self._Ad, self._Bd, self._xb, self._cf, self._inv_a4, self._vmax_m8,
+                          self._xlo, self._xhi, self._ulo, self._uhi, self.mpc.n_iter, self.mpc.tol, on_bounds,
+                          bad, counts)
+        self.n_newton += int(counts[0])
+        rows = np.flatnonzero(bad)
+        if len(rows):
+            self._bounded(x0, theta, U2, rows, n_steps)
+        return U
+
+    def model(self, x0: np.ndarray, theta: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The dense Newton model at U of one start: H (N, N) and b (N,) with the model 1/2 U'HU + b'U
+        (`SequentialMPC._model`); x0 (3,), theta (3,), U (N,)."""
+        N = len(U)
+        H, b = np.empty((N, N)), np.empty(N)
+        self._k["dense_model"](np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(theta, dtype=float),
+                               np.ascontiguousarray(U, dtype=float), self._Ad, self._Bd, self._xb, self._cf,
+                               self._inv_a4, self._vmax_m8, H, b)
+        return H, b
+
+    def _bounded(self, x0, theta, U, rows, n_steps):
+        """The bounded QPs of `SequentialMPC.controls` for the rows that need them (U (M, N) in place)."""
+        mpc, qp = self.mpc, self.mpc._qp
+        for _ in range(mpc.n_qp_iter):
+            if not len(rows):
+                break
+            moved = np.zeros(len(rows))
+            for j, m in enumerate(rows):
+                H, b = self.model(x0[m], theta[m], U[m])
+                try:
+                    new = qp.solve(H, b, x0[m], n_steps)
+                    mpc.n_qp += 1
+                except RuntimeError:
+                    mpc.n_infeasible += 1
+                    continue
+                moved[j] = np.max(np.abs(new - U[m]))
+                U[m] = new
+            rows = rows[moved > mpc.qp_tol]
+
+    # -- the projection -----------------------------------------------------------------------------
+
+    def project(self, route_index, xy, s_guess, *, tol: float = 1e-7) -> np.ndarray:
+        """`RouteSet.project` compiled: local arc lengths (M,) [m] of the foot points of xy (M, 2) [m] on
+        their routes (M,), from starts s_guess (M,) [m] (NaN: found by the path's ``to_frenet`` first).
+
+        Raises
+        ------
+        ValueError
+            As `RouteSet.project`: mismatched lengths, or no convergence.
+        """
+        from .drivers import _MIN_SLOPE, _NEWTON_MAX_ITER
+
+        r = np.ascontiguousarray(np.asarray(route_index, dtype=np.int64).reshape(-1))
+        q = np.ascontiguousarray(np.asarray(xy, dtype=float).reshape(-1, 2))
+        if len(r) != len(q):
+            raise ValueError(f"got {len(r)} route indices for {len(q)} points")
+        if len(r) and (r.min() < 0 or r.max() >= self.routes.n_routes):
+            raise ValueError(f"route indices must lie in [0, {self.routes.n_routes}), got {r.min()}..{r.max()}")
+        s = np.array(s_guess, dtype=float).reshape(-1)
+        if len(s) != len(r):
+            raise ValueError(f"got {len(s)} starting arc lengths for {len(r)} points")
+        for k in np.flatnonzero(~np.isfinite(s)):
+            s[k] = float(self.routes.paths[r[k]].to_frenet(q[k], extrapolate=True)[0])
+        work = np.zeros(len(s))
+        base, nrow, inv_step, step, length, rows = self._tab
+        it = self._k["project"](r, q, s, base, nrow, inv_step, step, length, rows, float(tol), _NEWTON_MAX_ITER,
+                                _MIN_SLOPE, work)
+        if it < 0:
+            k = -1 - it
+            raise ValueError(f"point {q[k].tolist()} on route {self.routes.route_ids[r[k]]!r}: no foot point after "
+                             f"{_NEWTON_MAX_ITER} Newton steps (last step {work[k]:.3g} m)")
+        return s
