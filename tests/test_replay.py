@@ -349,3 +349,55 @@ def test_replay_seeds_in_processes_give_the_same_results(scene_dir):
     np.testing.assert_array_equal(one["examples"]["truth"], two["examples"]["truth"])
     with pytest.raises(ValueError, match="jobs"):
         run_replay(scene, specs, proto, jobs=0)
+
+
+def test_an_interrupted_replay_resumes_from_its_finished_split_seeds(scene_dir, tmp_path, monkeypatch):
+    """Each split seed is stored as it finishes (``OUT/seeds/``); a replay interrupted in its last seed runs only
+    that seed again and writes the same results as an uninterrupted run (timings aside)."""
+    import pirl_sim.harness.replay as replay
+
+    out, _ = scene_dir
+    args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
+            "tirl,pirl-knn", "--knn-k", "3", "--quiet", "--out"]
+    run_seed, ran = replay._replay_seed, []
+
+    def interrupted(seed, job):
+        if seed == 2:
+            raise KeyboardInterrupt
+        return run_seed(seed, job)
+
+    monkeypatch.setattr(replay, "_replay_seed", interrupted)
+    assert main(args + [str(tmp_path / "resumed")]) == 130
+    stored = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "resumed" / "seeds").glob("*.pkl")}
+    assert sorted(name.split("-")[0] for name in stored) == ["0", "1"]
+    assert not (tmp_path / "resumed" / "rows.csv").exists()
+    monkeypatch.setattr(replay, "_replay_seed", lambda seed, job: ran.append(seed) or run_seed(seed, job))
+    assert main(args + [str(tmp_path / "resumed")]) == 0
+    assert ran == [2]
+    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "resumed" / "seeds").glob("*.pkl")
+            if p.name in stored} == stored
+    assert main(args + [str(tmp_path / "fresh")]) == 0
+    assert ran == [2, 0, 1, 2]
+    for name in ("rows.csv", "summary.csv", "paired.csv", "paired_ca.csv"):
+        a, b = (pd.read_csv(tmp_path / d / name) for d in ("resumed", "fresh"))
+        timings = [c for c in a.columns if c.startswith(("fit_s", "predict_s"))]
+        pd.testing.assert_frame_equal(a.drop(columns=timings), b.drop(columns=timings))
+
+
+def test_stored_split_seeds_are_keyed_by_identity_and_damaged_ones_rerun(tmp_path):
+    from pirl_sim.harness.replay import SeedStore, files_identity
+
+    store = SeedStore(tmp_path, ["scene", ReplayProtocol(seeds=(0,))])
+    assert store.key == SeedStore(tmp_path, ["scene", ReplayProtocol(seeds=(0,))]).key
+    assert store.key != SeedStore(tmp_path, ["scene", ReplayProtocol(seeds=(0,), stride=3)]).key
+    assert store.key != SeedStore(tmp_path, ["other scene", ReplayProtocol(seeds=(0,))]).key
+    store.save(0, ([{"med": 1.0}], {}, {}))
+    assert store.load(0) == ([{"med": 1.0}], {}, {}) and store.load(1) is None
+    store.path(0).write_bytes(b"not a pickle")
+    with pytest.warns(UserWarning, match="seed 0 runs again"):
+        assert store.load(0) is None
+    (tmp_path / "a.csv").write_text("1")
+    first = files_identity([tmp_path / "a.csv"], dt=0.2)
+    assert first != files_identity([tmp_path / "a.csv"], dt=0.1)
+    (tmp_path / "a.csv").write_text("2")
+    assert first != files_identity([tmp_path / "a.csv"], dt=0.2)

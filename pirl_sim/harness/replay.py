@@ -56,7 +56,7 @@ from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_
 from pirl_sim.validation import is_positive_int
 
 __all__ = ["ReplayProtocol", "run_replay", "paired_differences", "knn_with_neighbors", "predict_path_states",
-           "split_by_track", "usable_tracks",
+           "split_by_track", "usable_tracks", "SeedStore", "files_identity", "REPLAY_CODE",
            "BASELINES", "HINDSIGHT", "ROLLOUTS"]
 
 BASELINES = ("CV (path)", "CA (path)", "CV (x, y)")
@@ -360,7 +360,8 @@ def desired_speed_model(scene, desired_speed=None, train=None):
 
 
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
-               desired_speed=None, hindsight: bool = False, n_futures: int = 0, jobs: int = 1) -> dict:
+               desired_speed=None, hindsight: bool = False, n_futures: int = 0, jobs: int = 1,
+               partial_dir=None, data_identity: str = "") -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene`.
 
     Parameters
@@ -399,6 +400,11 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
 
     ``jobs`` (>= 1): split seeds run in this many forked processes at once (each seed is independent, so the
     results do not depend on it); 1 runs them here, one after another.
+
+    ``partial_dir`` (a directory, or None): each split seed's results are written there as soon as the seed
+    finishes (`SeedStore`), and seeds found there are not run again, so an interrupted replay resumes with the
+    same results. ``data_identity`` must identify the scene (e.g. `files_identity` of the files it was read
+    from and the loading settings): together with the other arguments and the code it keys the stored seeds.
     """
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
         raise ValueError(f"jobs must be a whole number of processes >= 1, got {jobs!r}")
@@ -416,20 +422,35 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
            "desired_speed": desired_speed, "hindsight": hindsight, "n_futures": n_futures, "say": say,
            "model": model, "speed": speed, "dt": dt, "plan": plan, "reuse": _shared_knn_fits(learner_specs),
            "has_truth": any("theta" in t.metadata for t in tracks)}
-    if jobs == 1 or len(proto.seeds) == 1:
-        results = [_replay_seed(seed, job) for seed in proto.seeds]
+    store = None if partial_dir is None else SeedStore(partial_dir, [data_identity, learner_specs, proto,
+                                                                     desired_speed, hindsight, n_futures])
+    done = {} if store is None else {seed: r for seed in proto.seeds if (r := store.load(seed)) is not None}
+    for seed in done:
+        say(f"seed {seed}: read from {store.path(seed)}")
+    todo = [seed for seed in proto.seeds if seed not in done]
+
+    def finished(seed, result):
+        done[seed] = result
+        if store is not None:
+            store.save(seed, result)
+
+    if jobs == 1 or len(todo) <= 1:
+        for seed in todo:
+            finished(seed, _replay_seed(seed, job))
     else:  # seeds in forked processes that inherit the scene (nothing large is pickled)
         import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures import ProcessPoolExecutor, as_completed
 
         _JOB.update(job)
         try:
-            with ProcessPoolExecutor(min(jobs, len(proto.seeds)), mp_context=multiprocessing.get_context("fork")) as pool:
-                results = list(pool.map(_replay_seed_in_worker, proto.seeds))
+            with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=multiprocessing.get_context("fork")) as pool:
+                futures = {pool.submit(_replay_seed_in_worker, seed): seed for seed in todo}
+                for fut in as_completed(futures):
+                    finished(futures[fut], fut.result())
         finally:
             _JOB.clear()
     rows, errors, examples = [], {}, {}
-    for seed_rows, seed_errors, seed_examples in results:
+    for seed_rows, seed_errors, seed_examples in (done[seed] for seed in proto.seeds):
         rows += seed_rows
         errors.update(seed_errors)
         examples = examples or seed_examples
@@ -546,6 +567,69 @@ def _replay_seed(seed: int, job: dict) -> tuple[list, dict, dict]:
 
 
 _JOB: dict = {}  #: run_replay's shared inputs, inherited by forked workers
+
+#: modules whose code a split seed runs besides the sweep's cell code (`pirl_sim.sweep.store.CELL_CODE`)
+REPLAY_CODE = ("pirl_sim.harness.replay", "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit")
+
+
+def files_identity(paths, **settings) -> str:
+    """sha256 (hex) of the names and bytes of ``paths`` (files, or directories: every file directly in them,
+    sorted) and of ``settings`` (by ``repr``): what `run_replay`'s ``data_identity`` needs of a scene read from
+    files."""
+    import hashlib
+    from pathlib import Path
+
+    h = hashlib.sha256(repr(sorted(settings.items())).encode())
+    for path in map(Path, paths):
+        for f in sorted(path.iterdir()) if path.is_dir() else [path]:
+            if f.is_file():
+                h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+class SeedStore:
+    """The finished split seeds of one `run_replay` call in ``root/seeds/<seed>-<key>.pkl``, written atomically.
+
+    The key hashes ``identity`` (by ``repr``: the scene's identity and run_replay's arguments) and the code
+    (`pirl_sim.sweep.store.code_version` and the source files of `REPLAY_CODE`), so other data, settings or
+    code never reuse a stored seed. A file that cannot be read is ignored (the seed runs again). The files are
+    pickles written by this class: read only output directories you made.
+    """
+
+    def __init__(self, root, identity) -> None:
+        import hashlib
+        import importlib.util
+        from pathlib import Path
+
+        from pirl_sim.sweep.store import code_version
+
+        h = hashlib.sha256(repr(identity).encode() + code_version().encode())
+        for name in REPLAY_CODE:
+            h.update(Path(importlib.util.find_spec(name).origin).read_bytes())
+        self.dir, self.key = Path(root) / "seeds", h.hexdigest()[:20]
+
+    def path(self, seed: int):
+        return self.dir / f"{seed}-{self.key}.pkl"
+
+    def load(self, seed: int):
+        """The stored (rows, errors, examples) of ``seed``, or None."""
+        import pickle
+
+        try:
+            return pickle.loads(self.path(seed).read_bytes())
+        except FileNotFoundError:
+            return None
+        except Exception as exc:  # noqa: BLE001 - a damaged file: the seed runs again
+            warnings.warn(f"ignoring unreadable {self.path(seed)} ({type(exc).__name__}); seed {seed} runs again",
+                          stacklevel=2)
+            return None
+
+    def save(self, seed: int, result) -> None:
+        import pickle
+
+        from pirl_sim.io.atomic import atomic_write_bytes
+
+        atomic_write_bytes(self.path(seed), pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 def _replay_seed_in_worker(seed: int) -> tuple[list, dict, dict]:

@@ -325,16 +325,30 @@ def run_replay_command(args) -> int:
             return 0
         result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"),
                             desired_speed="fit" if args.desired_speed == "fit" else None, hindsight=args.hindsight,
-                            n_futures=args.futures or 0, jobs=args.jobs)
+                            n_futures=args.futures or 0, jobs=args.jobs, partial_dir=args.out,
+                            data_identity=_data_identity(files, args.map, settings))
     except (ValueError, FileNotFoundError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished split seeds are kept in {args.out}/seeds/; run the same command to resume",
+              file=sys.stderr)
+        return 130
     command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
     write_replay_results(result, scene, args.out, command)
     print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(result["paired_ca"].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(f"wrote {args.out}/")
     return 0
+
+
+def _data_identity(files, map_path, settings) -> str:
+    """What the scene of ``files`` depends on: the files beside them (track files, run.json, ground_truth.csv,
+    driver_steps.csv), the map, which files were read and the loading settings (`files_identity`)."""
+    from pirl_sim.harness.replay import files_identity
+
+    dirs = sorted({Path(f).parent for f in files})
+    return files_identity([*dirs, map_path], files=[Path(f).name for f in files], load=settings["load"])
 
 
 def _protocol(args, settings, scan=None):
@@ -386,7 +400,8 @@ def _run_table(args, say) -> int:
             scene = load_replay(files, a.map, **settings["load"])
             result = run_replay(scene, specs, proto, progress=lambda m: say(f"{name}: {m}"),
                                 desired_speed="fit" if args.desired_speed == "fit" else None,
-                                hindsight=args.hindsight, n_futures=a.futures or 0, jobs=args.jobs)
+                                hindsight=args.hindsight, n_futures=a.futures or 0, jobs=args.jobs,
+                                partial_dir=args.out / name, data_identity=_data_identity(files, a.map, settings))
             write_replay_results(result, scene, args.out / name, command)
             elapsed = time.perf_counter() - t0
             rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
