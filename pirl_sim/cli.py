@@ -140,12 +140,9 @@ def _reproduce(args) -> int:
         table = reproduce.reproduce(args.experiment, out, seed=args.seed, params=params,
                                     history_steps=args.history_steps, workers=args.workers,
                                     progress=not args.quiet, command=command)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, RuntimeError) as exc:  # RuntimeError: cells failed (the others are kept)
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
-        return 2
-    except RuntimeError as exc:
-        print(f"pirl-sim: error: {exc}", file=sys.stderr)
-        return 1
+        return 1 if isinstance(exc, RuntimeError) else 2
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished cells are kept in {out}/cells/; run the same command to resume",
               file=sys.stderr)

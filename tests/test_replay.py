@@ -249,7 +249,6 @@ def _small_scene(scene_dir, n=48):
 
 
 def test_knn_with_another_k_equals_refitting(scene_dir):
-    from pirl_sim.harness.replay import knn_with_neighbors
     from pirl_sim.learners import PIRLKNN
 
     scene = _small_scene(scene_dir)
@@ -261,11 +260,11 @@ def test_knn_with_another_k_equals_refitting(scene_dir):
         base = PIRLKNN(n_neighbors=1, **params).fit(train)
         for k in (3, 10):
             refit = PIRLKNN(n_neighbors=k, **params).fit(train)
-            derived = knn_with_neighbors(base, k)
+            derived = base.with_neighbors(k)
             assert derived.get_params()["n_neighbors"] == k and base.n_neighbors == 1
             np.testing.assert_array_equal(derived.infer_weights(histories), refit.infer_weights(histories))
     with pytest.raises(ValueError, match="larger than the number of training samples"):
-        knn_with_neighbors(base, 10_000)
+        base.with_neighbors(10_000)
 
 
 def test_replay_fits_knn_once_per_split_for_all_k(scene_dir, monkeypatch):

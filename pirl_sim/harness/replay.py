@@ -33,7 +33,7 @@ are of recorded tracks (``n_train``, ``n_test``) and of the pieces long tracks a
 
 PIRL-kNN learners that differ only in k share one fit per split: the per-demonstration IRL, the look-up
 samples and their feature space do not depend on k, so the learner with the smallest k is fitted and the
-others are copies of it with only their nearest-neighbour index rebuilt (`knn_with_neighbors`; identical to
+others are copies of it with only their nearest-neighbour index rebuilt (`PIRLKNN.with_neighbors`; identical to
 refitting). Warnings raised while fitting are not silenced: the IRL's own diagnostics
 (`pirl_sim.irl.IRLConvergenceWarning`, `HessianRegularizationWarning`) are counted per fit, together with
 the learner's converged IRL groups (``irl_result_.converged``), and reported in the rows and the summary;
@@ -55,7 +55,7 @@ from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["ReplayProtocol", "run_replay", "paired_differences", "knn_with_neighbors", "predict_path_states",
+__all__ = ["ReplayProtocol", "run_replay", "paired_differences", "predict_path_states",
            "split_by_track", "usable_tracks", "SeedStore", "files_identity", "REPLAY_CODE",
            "BASELINES", "HINDSIGHT", "ROLLOUTS"]
 
@@ -313,12 +313,6 @@ def _fit_with_diagnostics(fit) -> dict:
     return out
 
 
-def knn_with_neighbors(fitted, n_neighbors: int):
-    """A fitted PIRL-kNN learner with another number of neighbours, without refitting its IRL: ``fitted``'s
-    `PIRLKNN.with_neighbors` (a shallow copy; predictions identical to fitting with ``n_neighbors``)."""
-    return fitted.with_neighbors(n_neighbors)
-
-
 def _shared_knn_fits(learner_specs) -> dict[int, int]:
     """{spec index: index of the spec whose fit it reuses} for PIRL-kNN specs that differ only in k (each
     group reuses the fit of its smallest k, the one whose fit succeeds whenever any does)."""
@@ -495,7 +489,7 @@ def _replay_seed(seed: int, job: dict) -> tuple[list, dict, dict]:
         t0 = time.perf_counter()
         if i in reuse:
             base, diag = fitted[reuse[i]]
-            learner = knn_with_neighbors(base, params.get("n_neighbors", 1))
+            learner = base.with_neighbors(params.get("n_neighbors", 1))
             diag = dict(diag, irl_from=learner_specs[reuse[i]][0])
         else:
             learner = make_learner(key, model=model, window=proto.history, windows="sliding", **params)
