@@ -44,12 +44,23 @@ def locate(s, xb, hint):
 
 
 @jit
-def vdes(s, xb, cf, inv_a4, vmax_m8, hint):
-    """v_des, dv_des/ds, d2v_des/ds2 at s (`pirl_sim.driving.desired_speed_along` of `RouteSet.curvature`, the
-    piecewise cubic with breaks xb (P+1,) and coefficients cf (4, P)) and the piece of s (see `locate`)."""
-    i = locate(s, xb, hint)
+def pieces(X, xb, idx, start):
+    """The pieces idx (N,) of the piecewise cubic holding the arc lengths X[1:, 0] (`locate`, each walk from
+    the previous piece, the first from ``start``, the piece of the start X[0, 0]). One pass of its own, so
+    that the arithmetic of `vdes` runs without mispredicted branches."""
+    h = start
+    for n in range(idx.shape[0]):
+        h = locate(X[n + 1, 0], xb, h)
+        idx[n] = h
+
+
+@jit
+def vdes(s, i, xb, cf, inv_a4, vmax_m8):
+    """v_des, dv_des/ds, d2v_des/ds2 at s in piece i (`pirl_sim.driving.desired_speed_along` of
+    `RouteSet.curvature`, the piecewise cubic with breaks xb (P+1,) and coefficients cf (P, 4): one cache line
+    per piece)."""
     t = s - xb[i]
-    c0, c1, c2, c3 = cf[0, i], cf[1, i], cf[2, i], cf[3, i]
+    c0, c1, c2, c3 = cf[i, 0], cf[i, 1], cf[i, 2], cf[i, 3]
     k = ((c0 * t + c1) * t + c2) * t + c3
     dk = (3.0 * c0 * t + 2.0 * c1) * t + c2
     d2k = 6.0 * c0 * t + 2.0 * c1
@@ -58,9 +69,10 @@ def vdes(s, xb, cf, inv_a4, vmax_m8, hint):
     F = k2 * k2 * inv_a4 + vmax_m8
     v = 1.0 / math.sqrt(math.sqrt(math.sqrt(F)))  # F^(-1/8), within a few ulp of numpy.power, ~4x cheaper
     F98 = v / F
+    F98F = F98 / F
     dv = -0.5 * inv_a4 * k3 * F98
-    d2v = -1.5 * inv_a4 * k2 * F98 + 2.25 * inv_a4 * inv_a4 * (k3 * k3) * (F98 / F)
-    return v, dv * dk, d2v * (dk * dk) + dv * d2k, i
+    d2v = -1.5 * inv_a4 * k2 * F98 + 2.25 * inv_a4 * inv_a4 * (k3 * k3) * F98F
+    return v, dv * dk, d2v * (dk * dk) + dv * d2k
 
 
 @jit
@@ -73,34 +85,30 @@ def rollout(x0, U, Ad, Bd, X):
             X[n + 1, i] = Ad[i, 0] * X[n, 0] + Ad[i, 1] * X[n, 1] + Ad[i, 2] * X[n, 2] + Bd[i] * u
 
 @jit
-def cost(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8):
-    """theta . f at (x0, U)."""
-    N = U.shape[0]
-    s, v, a = x0[0], x0[1], x0[2]
-    f0 = f1 = f2 = 0.0
-    hint = -1
-    for n in range(N):
-        u = U[n]
-        s, v, a = (Ad[0, 0] * s + Ad[0, 1] * v + Ad[0, 2] * a + Bd[0] * u,
-                   Ad[1, 0] * s + Ad[1, 1] * v + Ad[1, 2] * a + Bd[1] * u,
-                   Ad[2, 0] * s + Ad[2, 1] * v + Ad[2, 2] * a + Bd[2] * u)
-        vd, _, _, hint = vdes(s, xb, cf, inv_a4, vmax_m8, hint)
-        r = v - vd
-        f0 += r * r
-        f1 += a * a
-        f2 += u * u
-    return th[0] * (f0 / N) + th[1] * (f1 / N) + th[2] * (f2 / N)
-
-@jit
-def stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, r, dvd, d2vd):
-    """Rollout and the speed residual with its derivatives per stage n = 1..N (into r, dvd, d2vd (N,));
-    returns the cost."""
+def cost(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start):
+    """theta . f at (x0, U); X (N+1, 3) and idx (N,) are work arrays, start the piece of x0[0] (< 0: unknown)."""
     N = U.shape[0]
     rollout(x0, U, Ad, Bd, X)
+    pieces(X, xb, idx, locate(x0[0], xb, -1) if start < 0 else start)
     f0 = f1 = f2 = 0.0
-    hint = -1
     for n in range(N):
-        vd, d1, d2, hint = vdes(X[n + 1, 0], xb, cf, inv_a4, vmax_m8, hint)
+        r = X[n + 1, 1] - vdes(X[n + 1, 0], idx[n], xb, cf, inv_a4, vmax_m8)[0]
+        f0 += r * r
+        f1 += X[n + 1, 2] * X[n + 1, 2]
+        f2 += U[n] * U[n]
+    return th[0] * (f0 / N) + th[1] * (f1 / N) + th[2] * (f2 / N)
+
+
+@jit
+def stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, start):
+    """Rollout X (N+1, 3) and the speed residual with its derivatives per stage n = 1..N (into r, dvd, d2vd
+    (N,)); returns the cost. idx (N,) is a work array, start the piece of x0[0] (< 0: unknown)."""
+    N = U.shape[0]
+    rollout(x0, U, Ad, Bd, X)
+    pieces(X, xb, idx, locate(x0[0], xb, -1) if start < 0 else start)
+    f0 = f1 = f2 = 0.0
+    for n in range(N):
+        vd, d1, d2 = vdes(X[n + 1, 0], idx[n], xb, cf, inv_a4, vmax_m8)
         r[n] = X[n + 1, 1] - vd
         dvd[n] = d1
         d2vd[n] = d2
@@ -108,6 +116,7 @@ def stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, r, dvd, d2vd):
         f1 += X[n + 1, 2] * X[n + 1, 2]
         f2 += U[n] * U[n]
     return th[0] * (f0 / N) + th[1] * (f1 / N) + th[2] * (f2 / N)
+
 
 @jit
 def stage_matrix(n, w0, w1, r, dvd, d2vd, exact, S):
@@ -200,10 +209,23 @@ def riccati(th, U, X, r, dvd, d2vd, Ad, Bd, exact, uu_share, with_step, step, Ks
 
 
 @jit
+def exact_ok(th, U, X, r, dvd, d2vd, Ad, Bd, step, Ks, ks):
+    """Whether the exact Hessian with half the reference term is positive definite (`SequentialMPC._model`'s
+    test). Every stage's state block [[w0 (dvd^2 - r d2vd), -w0 dvd, 0], [-w0 dvd, w0, 0], [0, 0, w1]] is
+    positive semi-definite where r d2vd <= 0 (its determinant in (s, v) is -w0^2 r d2vd), and then the
+    Hessian, their sum plus the reference term's positive diagonal, is positive definite: the recursion's
+    pivots are tested only when some stage has r d2vd > 0."""
+    for n in range(U.shape[0]):
+        if r[n] * d2vd[n] > 0.0:
+            return riccati(th, U, X, r, dvd, d2vd, Ad, Bd, True, 0.5, False, step, Ks, ks)
+    return True
+
+
+@jit
 def newton_step(th, U, X, r, dvd, d2vd, Ad, Bd, step, Ks, ks):
     """The Newton step (N,) of `pirl_sim.mpc.SequentialMPC._model`: exact where the exact Hessian with
     half the reference term is positive definite, Gauss-Newton elsewhere."""
-    if riccati(th, U, X, r, dvd, d2vd, Ad, Bd, True, 0.5, False, step, Ks, ks):
+    if exact_ok(th, U, X, r, dvd, d2vd, Ad, Bd, step, Ks, ks):
         riccati(th, U, X, r, dvd, d2vd, Ad, Bd, True, 1.0, True, step, Ks, ks)
     else:
         riccati(th, U, X, r, dvd, d2vd, Ad, Bd, False, 1.0, True, step, Ks, ks)
@@ -213,10 +235,11 @@ def dense_model(x0, th, U, Ad, Bd, xb, cf, inv_a4, vmax_m8, H, b):
     """The dense Newton model at U: H (N, N) and b (N,) of 1/2 U'HU + b'U (`SequentialMPC._model`)."""
     N = U.shape[0]
     X = np.empty((N + 1, 3))
+    idx = np.empty(N, dtype=np.int64)
     r, dvd, d2vd = np.empty(N), np.empty(N), np.empty(N)
-    stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, r, dvd, d2vd)
+    stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, -1)
     dummy_s, dummy_K, dummy_k = np.empty(N), np.empty((N, 3)), np.empty(N)
-    exact = riccati(th, U, X, r, dvd, d2vd, Ad, Bd, True, 0.5, False, dummy_s, dummy_K, dummy_k)
+    exact = exact_ok(th, U, X, r, dvd, d2vd, Ad, Bd, dummy_s, dummy_K, dummy_k)
     wsc = 2.0 / N
     w0, w1, w2 = wsc * th[0], wsc * th[1], wsc * th[2]
     # Psi_k = A^k B (N, 3)
@@ -299,6 +322,7 @@ def newton_batch(x0s, ths, Us, Ad, Bd, xb, cf, inv_a4, vmax_m8, xlo, xhi, ulo, u
     counts[0] += Newton steps taken."""
     M, N = Us.shape
     X = np.empty((N + 1, 3))
+    idx = np.empty(N, dtype=np.int64)
     r, dvd, d2vd = np.empty(N), np.empty(N), np.empty(N)
     full, trial = np.empty(N), np.empty(N)
     Ks, ks = np.empty((N, 3)), np.empty(N)
@@ -306,7 +330,8 @@ def newton_batch(x0s, ths, Us, Ad, Bd, xb, cf, inv_a4, vmax_m8, xlo, xhi, ulo, u
         x0, th, U = x0s[m], ths[m], Us[m]
         on_bounds[m] = touches(x0, U, X, Ad, Bd, xlo, xhi, ulo, uhi, _TOUCH_TOL)
         if not on_bounds[m]:
-            c = stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, r, dvd, d2vd)
+            start = locate(x0[0], xb, -1)
+            c = stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, start)
             for _it in range(n_iter):
                 newton_step(th, U, X, r, dvd, d2vd, Ad, Bd, full, Ks, ks)
                 counts[0] += 1
@@ -314,14 +339,14 @@ def newton_batch(x0s, ths, Us, Ad, Bd, xb, cf, inv_a4, vmax_m8, xlo, xhi, ulo, u
                 alpha = 1.0
                 for n in range(N):
                     trial[n] = U[n] + full[n]
-                tc = cost(x0, trial, th, Ad, Bd, xb, cf, inv_a4, vmax_m8)
+                tc = cost(x0, trial, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start)
                 for _half in range(6):
                     if not tc > limit:
                         break
                     alpha *= 0.5
                     for n in range(N):
                         trial[n] = U[n] + alpha * full[n]
-                    tc = cost(x0, trial, th, Ad, Bd, xb, cf, inv_a4, vmax_m8)
+                    tc = cost(x0, trial, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start)
                 if tc > limit:  # not accepted: the controls stay, the iteration stops
                     break
                 big = 0.0
@@ -330,7 +355,7 @@ def newton_batch(x0s, ths, Us, Ad, Bd, xb, cf, inv_a4, vmax_m8, xlo, xhi, ulo, u
                     U[n] = trial[n]
                 if not alpha * big > tol:
                     break
-                c = stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, r, dvd, d2vd)
+                c = stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, start)
         bad[m] = on_bounds[m] or violation(x0, U, X, Ad, Bd, xlo, xhi, ulo, uhi) > _VIOLATION_TOL
 
 @jit

@@ -56,7 +56,7 @@ def _kernels() -> dict:
 def _build() -> dict:
     from . import _driver_jit as j
 
-    return {"newton_batch": j.newton_batch, "dense_model": j.dense_model, "project": j.project, "cost": j.cost}
+    return {"newton_batch": j.newton_batch, "dense_model": j.dense_model, "project": j.project}
 
 
 class CompiledDriverMPC:
@@ -111,7 +111,7 @@ class CompiledDriverMPC:
         profile = f0.residual.profile
         self.routes = profile.routes
         xb, cf = self.routes._kappa
-        self._xb, self._cf = np.array(xb, dtype=float, order="C"), np.array(cf, dtype=float, order="C")
+        self._xb, self._cf = np.array(xb, dtype=float, order="C"), np.array(cf.T, dtype=float, order="C")
         self._inv_a4 = 1.0 / profile.a_lat**4
         self._vmax_m8 = profile.v_max**-8.0
         self._Ad = np.array(dyn.A, dtype=float, order="C")

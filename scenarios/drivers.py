@@ -430,18 +430,6 @@ def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT
 # ----------------------------------------------------------------------------------------------
 
 @dataclass
-class _DriverState:
-    route: int
-    theta: np.ndarray
-    handed_back: bool = False  # the simulator drives the vehicle until it is faster than resume_speed
-    n_handbacks: int = 0
-    s_next: float = math.nan  # [m] local arc length the last plan reaches one step on
-    a_next: float = 0.0  # [m/s^2] acceleration the last plan reaches one step on
-    command: float = math.nan  # [m/s] last commanded speed
-    plan: np.ndarray | None = None  # (H, n_u) last plan
-
-
-@dataclass
 class PirlDrivers:
     """Batch controller of a simulator's PIRL vehicles: every one re-plans with its MPC every step.
 
@@ -520,14 +508,28 @@ class PirlDrivers:
                              f"{self.resume_speed!r}")
         self.handbacks: dict[str, int] = {}
         feats = self.model.features
-        self._state: dict[str, _DriverState] = {}
+        dyn = self.model.dynamics
+        # every driver's state in one row of arrays (gathered and scattered once per step, not per driver)
+        self._slot: dict[str, int] = {}  # vehicle id -> row
+        routes_, thetas = [], []
         for vid, (rid, theta) in self.drivers.items():
             w = feats.weights(theta)
             if w.shape != (feats.n_features,) or np.any(w <= 0):
                 raise ValueError(f"driver {vid!r}: theta must be {feats.n_features} positive weights "
                                  f"{feats.names}, got {theta!r}")
-            self._state[vid] = _DriverState(self.model.routes.index(rid), w)
-        dyn = self.model.dynamics
+            self._slot[vid] = len(routes_)
+            routes_.append(self.model.routes.index(rid))
+            thetas.append(w)
+        n = len(routes_)
+        self._route = np.array(routes_, dtype=np.int64)
+        self._theta = np.array(thetas, dtype=float).reshape(n, feats.n_features)
+        self._handed_back = np.zeros(n, dtype=bool)  # the simulator drives it until it is faster than resume_speed
+        self._s_next = np.full(n, math.nan)  # [m] local arc length the last plan reaches one step on
+        self._a_next = np.zeros(n)  # [m/s^2] acceleration the last plan reaches one step on
+        self._command = np.full(n, math.nan)  # [m/s] last commanded speed
+        self._plans = np.zeros((n, int(self.horizon), dyn.n_u))  # last plans (zeros: none yet)
+        self._live: set[str] = set()  # vehicles planned or handed back so far, still in the network
+        self._gone: set[str] = set()  # vehicles that left the network
         self._lo, self._hi, _, _ = (self.model.bounds.resolve(dyn) if self.model.bounds is not None
                                     else (np.full(dyn.n_x, -np.inf), np.full(dyn.n_x, np.inf), None, None))
         self._mpc = self.model.predictor()
@@ -568,47 +570,58 @@ class PirlDrivers:
     def _plan(self, time: float, observations: Mapping, *, prune: bool) -> dict[str, float | None]:
         t0 = _time.perf_counter()
         if prune:  # vehicles not observed any more have left the network
-            for gone in [v for v, st in self._state.items() if v not in observations
-                         and (st.plan is not None or st.handed_back)]:
-                del self._state[gone]
-        unknown = [v for v in observations if v not in self._state]
+            gone = [v for v in self._live if v not in observations]
+            self._live.difference_update(gone)
+            self._gone.update(gone)
+        slot, gone = self._slot, self._gone
+        unknown = [v for v in observations if v not in slot or v in gone]
         if unknown:
             raise ValueError(f"no PIRL driver for vehicle(s) {unknown}")
-        out: dict[str, float | None] = {}
-        vids = []
-        for vid, obs in observations.items():  # standstill hand-back (see the class docstring)
-            st, speed = self._state[vid], obs.ego.speed
-            if st.handed_back and speed > self.resume_speed:
-                st.handed_back, st.plan, st.command, st.s_next = False, None, math.nan, math.nan
-            elif not st.handed_back and speed < self.stop_speed:
-                st.handed_back = True
-                st.n_handbacks += 1
-                self.handbacks[vid] = st.n_handbacks
-            if st.handed_back:
-                out[vid] = None
-            else:
-                vids.append(vid)
-        if not vids:
+        vids = list(observations)
+        egos = [observations[v].ego for v in vids]
+        rows = np.fromiter((slot[v] for v in vids), dtype=np.int64, count=len(vids))
+        speed = np.fromiter((e.speed for e in egos), dtype=float, count=len(vids))
+        # standstill hand-back (see the class docstring)
+        was_back = self._handed_back[rows]
+        resumed = was_back & (speed > self.resume_speed)
+        stopped = ~was_back & (speed < self.stop_speed)
+        if resumed.any():
+            r_rows = rows[resumed]
+            self._handed_back[r_rows] = False
+            self._plans[r_rows] = 0.0
+            self._command[r_rows] = math.nan
+            self._s_next[r_rows] = math.nan
+        if stopped.any():
+            self._handed_back[rows[stopped]] = True
+            for k in np.flatnonzero(stopped):
+                self.handbacks[vids[k]] = self.handbacks.get(vids[k], 0) + 1
+        back = self._handed_back[rows]
+        out: dict[str, float | None] = {vids[k]: None for k in np.flatnonzero(back)}
+        self._live.update(vids)
+        if back.all():
             self.control_time_s += _time.perf_counter() - t0
             return out
-        states = [self._state[v] for v in vids]
-        egos = [observations[v].ego for v in vids]
-        r = np.array([st.route for st in states], dtype=np.int64)
-        xy = np.array([[e.x, e.y] for e in egos])
+        keep = np.flatnonzero(~back)
+        rows, speed = rows[keep], speed[keep]
+        vids = [vids[k] for k in keep]
+        egos = [egos[k] for k in keep]
+        M = len(rows)
+        r = self._route[rows]
+        xy = np.fromiter((c for e in egos for c in (e.x, e.y)), dtype=float, count=2 * M).reshape(M, 2)
+        accel = np.fromiter((e.accel for e in egos), dtype=float, count=M)
         project = self.model.routes.project if self._compiled is None else self._compiled.project
-        s_local = project(r, xy, np.array([st.s_next for st in states]))
-        v = np.array([e.speed for e in egos])
-        followed = np.array([math.isfinite(st.command) and abs(e.speed - st.command) <= self.override_tol
-                             for st, e in zip(states, egos)])
-        a = np.where(followed, [st.a_next for st in states], [e.accel for e in egos])
-        x0 = np.column_stack([self.model.routes.to_global(r, s_local), v, a])
+        s_local = project(r, xy, self._s_next[rows])
+        command = self._command[rows]
+        with np.errstate(invalid="ignore"):
+            followed = np.isfinite(command) & (np.abs(speed - command) <= self.override_tol)
+        a = np.where(followed, self._a_next[rows], accel)
+        x0 = np.column_stack([self.model.routes.to_global(r, s_local), speed, a])
         x0 = np.clip(x0, self._lo, self._hi)  # the MPC plans from the start moved into its bounds
         stopped = x0[:, 1] <= 0.0  # a stopped car does not decelerate further
         x0[stopped, 2] = np.maximum(x0[stopped, 2], 0.0)
-        theta = np.stack([st.theta for st in states])
-        n_u = self.model.dynamics.n_u
-        init = np.stack([np.concatenate([st.plan[1:], st.plan[-1:]]) if st.plan is not None
-                         else np.zeros((self.horizon, n_u)) for st in states])
+        theta = self._theta[rows]
+        prev = self._plans[rows]
+        init = np.concatenate([prev[:, 1:], prev[:, -1:]], axis=1)  # the last plans shifted by a step
         t1 = _time.perf_counter()
         plan = (self._mpc if self._compiled is None else self._compiled).controls(x0, theta, self.horizon, init=init)
         self.plan_time_s += _time.perf_counter() - t1
@@ -617,13 +630,13 @@ class PirlDrivers:
             u = u + self.control_noise * self.rng.standard_normal(u.shape)
         dyn = self.model.dynamics
         x1 = x0 @ dyn.A.T + u @ dyn.B.T
-        for k, (vid, st) in enumerate(zip(vids, states)):
-            st.s_next = float(x1[k, 0] - self.model.routes.offsets[st.route])
-            st.a_next = float(x1[k, 2])
-            st.command = max(float(x1[k, 1]), 0.0)
-            st.plan = plan[k]
-            out[vid] = st.command
+        self._s_next[rows] = x1[:, 0] - self.model.routes.offsets[r]
+        self._a_next[rows] = x1[:, 2]
+        cmd = np.maximum(x1[:, 1], 0.0)
+        self._command[rows] = cmd
+        self._plans[rows] = plan
+        out.update(zip(vids, cmd.tolist()))
         self.n_calls += 1
-        self.n_plans += len(vids)
+        self.n_plans += M
         self.control_time_s += _time.perf_counter() - t0
         return out
