@@ -26,7 +26,7 @@ from pirl_sim.progress import reporter
 from pirl_sim.sweep.run import run_sweep
 from pirl_sim.validation import check_output_dir
 
-__all__ = ["PAPER_SYNTHETIC_MED", "PRESETS", "preset_config", "reproduce", "ordering_holds"]
+__all__ = ["PAPER_SYNTHETIC_MED", "PRESETS", "preset_config", "reproduce", "report_tables", "ordering_holds"]
 
 #: Table "Experimental results on synthetic data" of the paper [m].
 PAPER_SYNTHETIC_MED = {"TIRL": 5.6e-2, "PIRL-GMM (k=2)": 9.8e-3, "PIRL-kNN (k=1)": 3.2e-3}
@@ -103,14 +103,7 @@ def reproduce(name: str, out_dir, *, seed: int = 0, params: dict | None = None, 
         first = next(iter(run.failed.values()))
         raise RuntimeError(f"{len(run.failed)} of the {name} cells failed (first: {first}; details in {out}/errors/); "
                            "the finished cells are kept: run again to retry the others")
-    table = _rows(run.table, "table")
-    knn = run.table[run.table["experiment"] == "knn_k"]
-    ktable = pd.DataFrame({"protocol": knn["protocol"].to_numpy(), "k": knn["k"].astype(int).to_numpy(),
-                           "med": knn["med"].to_numpy(), "med_std": knn["med_std"].to_numpy()})
-    if name == "synthetic":
-        kinds = run.table.loc[table.index, "protocol_kind"]
-        table.insert(3, "paper_med", [PAPER_SYNTHETIC_MED.get(n, np.nan) if k == "paper" else np.nan
-                                      for n, k in zip(table["learner"], kinds)])
+    table, ktable = report_tables(name, run.table)
     title = {"synthetic": "synthetic data", "passage": "the roundabout passage"}[name]
     atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "table.md", markdown(table))
@@ -127,14 +120,21 @@ def reproduce(name: str, out_dir, *, seed: int = 0, params: dict | None = None, 
     return table
 
 
-def _rows(tidy: pd.DataFrame, experiment: str) -> pd.DataFrame:
-    """The rows of one experiment of the sweep's tidy table in the reproductions' columns (index kept)."""
-    t = tidy[tidy["experiment"] == experiment]
-    out = pd.DataFrame({"protocol": t["protocol"], "learner": t["learner_label"]})
+def report_tables(name: str, tidy: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The main table (``table.csv``) and MED against k (``knn_k.csv``) of the preset ``name`` from the sweep's
+    tidy table of its cells (`pirl_sim.sweep.run.assemble_table`), rows in config order."""
+    t = tidy[tidy["experiment"] == "table"]
+    table = pd.DataFrame({"protocol": t["protocol"], "learner": t["learner_label"]})
     for c in ("med", "med_std", "fde", "weight_error", "ari", "n_styles"):
-        out[c] = t[c].astype(float)
-    out["n_test"] = t["n_test"].astype(int)
-    return out
+        table[c] = t[c].astype(float)
+    table["n_test"] = t["n_test"].astype(int)
+    if name == "synthetic":  # the paper's values beside its protocol's rows
+        table.insert(3, "paper_med", [PAPER_SYNTHETIC_MED.get(n, np.nan) if k == "paper" else np.nan
+                                      for n, k in zip(table["learner"], t["protocol_kind"])])
+    k = tidy[tidy["experiment"] == "knn_k"]
+    ktable = pd.DataFrame({"protocol": k["protocol"].to_numpy(), "k": k["k"].astype(int).to_numpy(),
+                           "med": k["med"].to_numpy(), "med_std": k["med_std"].to_numpy()})
+    return table.reset_index(drop=True), ktable
 
 
 def _scenario_config(cell):
