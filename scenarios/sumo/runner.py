@@ -66,7 +66,6 @@ import time as _time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from functools import partial
 from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
 
@@ -110,6 +109,8 @@ RECORD_COLUMNS: tuple[str, ...] = (
     "length", "width", "edge_id", "lane_id", "lane_pos",
     "commanded_speed", "overridden", "collided", "arrived", "vanished",
 )
+_LATER_COLUMNS = ("commanded_speed", "overridden", "collided", "arrived", "vanished")  # set after their row
+_FIXED_COLUMNS = tuple(c for c in RECORD_COLUMNS if c not in _LATER_COLUMNS)
 #: columns of :attr:`SumoRecording.summary`, in order
 SUMMARY_COLUMNS: tuple[str, ...] = (
     "vehicle_id", "route_id", "pirl", "depart", "first_time", "last_time", "n_steps", "status",
@@ -328,19 +329,39 @@ class Observation:
         The ego's route.
     """
 
-    __slots__ = ("time", "vehicle_id", "ego", "others", "route_edges", "_leader", "_leader_fn")
+    __slots__ = ("time", "vehicle_id", "ego", "_others", "_states", "route_edges", "_leader", "_leader_fn", "_run")
 
     def __init__(self, time: float, vehicle_id: str, ego: VehicleState, others: Mapping[str, VehicleState],
                  leader: tuple[str, float] | None = None, route_edges: tuple[str, ...] = (), *,
                  leader_fn: Callable[[], tuple[str, float] | None] | None = None):
-        self.time, self.vehicle_id, self.ego, self.others = time, vehicle_id, ego, others
+        self.time, self.vehicle_id, self.ego, self._others = time, vehicle_id, ego, others
         self.route_edges = route_edges
         self._leader, self._leader_fn = leader, leader_fn
+        self._states = self._run = None
+
+    @classmethod
+    def _of_run(cls, run: SumoRun, time: float, vehicle_id: str, states: Mapping[str, VehicleState],
+                route_edges: tuple[str, ...]) -> Observation:
+        """The runner's observation (built for every controlled vehicle and step, so without a call to
+        ``__init__``): ``others`` is a view of ``states`` made on first access, the leader asked from ``run``
+        on first access."""
+        obs = object.__new__(cls)
+        obs.time, obs.vehicle_id, obs.ego, obs._others, obs._states = time, vehicle_id, states[vehicle_id], None, states
+        obs.route_edges, obs._leader, obs._leader_fn, obs._run = route_edges, None, _leader_from_run, run
+        return obs
+
+    @property
+    def others(self) -> Mapping[str, VehicleState]:
+        if self._others is None:
+            self._others = _OthersView(self._states, self.vehicle_id)
+        return self._others
 
     @property
     def leader(self) -> tuple[str, float] | None:
-        if self._leader_fn is not None:
-            self._leader, self._leader_fn = self._leader_fn(), None
+        fn = self._leader_fn
+        if fn is not None:
+            self._leader = self._run._leader(self.vehicle_id) if fn is _leader_from_run else fn()
+            self._leader_fn = None
         return self._leader
 
     def _expire(self) -> None:
@@ -351,6 +372,10 @@ class Observation:
     def __repr__(self) -> str:
         return (f"Observation(time={self.time!r}, vehicle_id={self.vehicle_id!r}, ego={self.ego!r}, "
                 f"others=<{len(self.others)} vehicles>, route_edges={self.route_edges!r})")
+
+
+def _leader_from_run():  # marker: Observation.leader asks its run
+    raise AssertionError("not called")
 
 
 def _expired_leader():
@@ -599,7 +624,9 @@ class SumoRun:
         self._closed = False
         self._order = {v.vehicle_id: k for k, v in enumerate(self.vehicles)}
         self._veh = {v.vehicle_id: _VehicleRecord(v, v.vehicle_id in self.pirl_ids) for v in self.vehicles}
-        self._cols: dict[str, list] = {c: [] for c in RECORD_COLUMNS}
+        self._rows: list[tuple] = []  # the `_FIXED_COLUMNS` of every row
+        self._n_rows = 0
+        self._cols: dict[str, list] = {c: [] for c in _LATER_COLUMNS}
         self._pending: dict[str, tuple[int, float]] = {}  # vehicle -> (row, commanded speed)
         self._present: set[str] = set()  # vehicles recorded in the last step
         self._n_controlled = 0  # controlled vehicles among them
@@ -759,34 +786,37 @@ class SumoRun:
                 cols["overridden"][row] = abs(st.speed - cmd) > self.override_tol
         self._pending.clear()
 
-        # one row per vehicle, column by column (bound appends: this loop runs for every vehicle and step)
-        (a_step, a_time, a_vid, a_route, a_pirl, a_x, a_y, a_xf, a_yf, a_psi, a_speed, a_vx, a_vy, a_accel,
-         a_length, a_width, a_edge, a_lane, a_lanepos, a_cmd, a_over, a_coll, a_arr, a_van) = (
-            cols[name].append for name in RECORD_COLUMNS)
-        row = len(cols["step"])
-        step_no, nan, cos, sin = self._step, math.nan, math.cos, math.sin
+        # one row per vehicle: the columns fixed now in one tuple (`_FIXED_COLUMNS`), the ones later steps may
+        # change (`_LATER_COLUMNS`) in lists of their own (this runs for every vehicle and step)
+        row = self._n_rows
+        self._n_rows += len(ids)
+        step_no, cos, sin = self._step, math.cos, math.sin
+        add = self._rows.append
         for vid in ids:
             rec = self._veh[vid]
             st = states[vid]
             rec.last_row, rec.last_time, rec.last_edge = row, t, st.edge_id
             row += 1
-            a_step(step_no), a_time(t), a_vid(vid), a_route(rec.spec.route_id), a_pirl(rec.pirl)
-            a_x(st.x), a_y(st.y), a_xf(st.x_front), a_yf(st.y_front), a_psi(st.psi_rad), a_speed(st.speed)
-            a_vx(st.speed * cos(st.psi_rad)), a_vy(st.speed * sin(st.psi_rad)), a_accel(st.accel)
-            a_length(st.length), a_width(st.width), a_edge(st.edge_id), a_lane(st.lane_id)
-            a_lanepos(st.lane_pos), a_cmd(nan), a_over(None), a_coll(vid in colliding), a_arr(False)
-            a_van(False)
+            speed, psi = st.speed, st.psi_rad
+            add((step_no, t, vid, rec.spec.route_id, rec.pirl, st.x, st.y, st.x_front, st.y_front, psi, speed,
+                 speed * cos(psi), speed * sin(psi), st.accel, st.length, st.width, st.edge_id, st.lane_id,
+                 st.lane_pos))
+        n = len(ids)
+        cols["commanded_speed"].extend([math.nan] * n)
+        cols["overridden"].extend([None] * n)
+        cols["collided"].extend([vid in colliding for vid in ids] if colliding else [False] * n)
+        cols["arrived"].extend([False] * n)
+        cols["vanished"].extend([False] * n)
 
         if self.pirl_ids:
             frozen_states = MappingProxyType(states)
             observations = {}
+            of_run = Observation._of_run
             for vid in ids:
                 rec = self._veh[vid]
                 if not rec.pirl:
                     continue
-                observations[vid] = Observation(t, vid, states[vid], _OthersView(frozen_states, vid),
-                                                route_edges=self.routes[rec.spec.route_id],
-                                                leader_fn=partial(self._leader, vid))
+                observations[vid] = of_run(self, t, vid, frozen_states, self.routes[rec.spec.route_id])
             batch = None
             if observations and self._batch:
                 batch = self.controller.commands(t, MappingProxyType(observations))
@@ -886,7 +916,8 @@ class SumoRun:
 
     def recording(self) -> SumoRecording:
         """The recording so far as tidy DataFrames."""
-        cols = self._cols
+        cols = dict(zip(_FIXED_COLUMNS, zip(*self._rows))) if self._rows else {c: [] for c in _FIXED_COLUMNS}
+        cols.update(self._cols)
         frame = pd.DataFrame({c: cols[c] for c in RECORD_COLUMNS})
         frame = frame.astype({
             "step": "int64", "time": "float64", "vehicle_id": "object", "route_id": "object", "pirl": "bool",
