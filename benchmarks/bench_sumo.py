@@ -45,13 +45,19 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import json  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _baseline import export_revision, run_worker  # noqa: E402
+
 REPEATS = 3
 N_VEHICLES = 40
 SEED = 0
+#: the code before issue 16's compiled drivers (main on 2026-12-01, 16:09 UTC): the default baseline
+BASELINE = "e4e91c3"
 
 
 def _pin_to_one_core() -> str:
@@ -62,23 +68,25 @@ def _pin_to_one_core() -> str:
     return "not pinned (no sched_setaffinity)"
 
 
-def _measure(config, backend: str, repeats: int) -> dict:
+def _run_once(config, backend: str) -> dict:
+    """One run of a scenario: its timing (see `_measure`)."""
     from pirl_sim.scenarios.sumo import run_sumo_scenario
 
-    runs = []
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        res = run_sumo_scenario(config, SEED, backend=backend)
-        total, cpu = time.perf_counter() - t0, time.process_time() - c0
-        t = res.timing
-        runs.append({
-            "wall": t["wall_time_s"], "control": t["control_time_s"], "plan": t["plan_time_s"],
-            "sim": t["sim_time_s"], "steps": t["n_steps"], "plans": t["n_plans"], "total": total,
-            "mean_vehicles": t["mean_vehicles"], "max_vehicles": t["max_vehicles"],
-            "mean_pirl": t["mean_pirl"], "max_pirl": t["max_pirl"],
-            "n_pirl": int(res.vehicles["is_pirl"].sum()),
-            "cpu_share": cpu / total,  # the share of a core this process got (libsumo runs in it)
-        })
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = run_sumo_scenario(config, SEED, backend=backend)
+    total, cpu = time.perf_counter() - t0, time.process_time() - c0
+    t = res.timing
+    return {
+        "wall": t["wall_time_s"], "control": t["control_time_s"], "plan": t["plan_time_s"],
+        "sim": t["sim_time_s"], "steps": t["n_steps"], "plans": t["n_plans"], "total": total,
+        "mean_vehicles": t["mean_vehicles"], "max_vehicles": t["max_vehicles"],
+        "mean_pirl": t["mean_pirl"], "max_pirl": t["max_pirl"],
+        "n_pirl": int(res.vehicles["is_pirl"].sum()),
+        "cpu_share": cpu / total,  # the share of a core this process got (libsumo runs in it)
+    }
+
+
+def _summarise(runs: list[dict]) -> dict:
     med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
     med["rtf"] = med["sim"] / med["wall"]
     # on a shared machine the process gets only part of its core: the factor it would reach on a core of its
@@ -86,6 +94,11 @@ def _measure(config, backend: str, repeats: int) -> dict:
     med["rtf_cpu"] = med["rtf"] / min(med["cpu_share"], 1.0)
     med["sumo_side"] = med["wall"] - med["control"]
     return med
+
+
+def _measure(config, backend: str, repeats: int) -> dict:
+    """Medians over ``repeats`` runs in this process."""
+    return _summarise([_run_once(config, backend) for _ in range(repeats)])
 
 
 def _report(label: str, m: dict) -> None:
@@ -124,28 +137,58 @@ def scenarios():
     ]
 
 
+def _worker(index: int) -> None:
+    """Child process (``--worker``): one libsumo run of scenario ``index`` on whichever pirl_sim is imported."""
+    from pirl_sim.threads import apply_thread_policy
+
+    apply_thread_policy(1)
+    _, cfg, _ = scenarios()[index]
+    print(json.dumps(_run_once(cfg, "libsumo")))
+
+
+def _compare(index: int, repeats: int, baseline: str) -> tuple[dict, dict]:
+    """Runs of scenario ``index`` in child processes on this code and on revision ``baseline``, alternating
+    (both see the same load); medians of each."""
+    here = os.path.abspath(__file__)
+    base_code = export_revision(baseline)
+    ours, base = [], []
+    for _ in range(repeats):
+        ours.append(run_worker(here, [str(index)]))
+        base.append(run_worker(here, [str(index)], base_code))
+    return _summarise(ours), _summarise(base)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=REPEATS, help=f"runs of the default scenario (default {REPEATS})")
     ap.add_argument("--crowded-repeats", type=int, default=1, help="runs of each crowded scenario (default 1)")
     ap.add_argument("--skip-traci", action="store_true", help="no TraCI runs")
     ap.add_argument("--only", default=None, help="run only the scenarios whose name starts with this")
+    ap.add_argument("--baseline", default=BASELINE,
+                    help=f"git revision whose code the crowded scenarios are also run on, alternating with this "
+                         f"code (default {BASELINE}: before the compiled drivers); 'none' skips it")
+    ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     from pirl_sim.threads import apply_thread_policy, current_blas_threads
 
     apply_thread_policy(1)
-    pinned = _pin_to_one_core()
+    pinned = _pin_to_one_core()  # before any child starts: the children inherit the pinning
+    if args.worker is not None:
+        _worker(args.worker)
+        return 0
     threads = ", ".join(f"{k} {v}" for k, v in current_blas_threads().items())
-    print(f"SUMO roundabout benchmark ({pinned}; BLAS threads: {threads}; seed {SEED})")
-    for name, cfg, target in scenarios():
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    print(f"SUMO roundabout benchmark ({pinned}; BLAS threads: {threads}; seed {SEED}; load average "
+          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at the start)")
+    for index, (name, cfg, target) in enumerate(scenarios()):
         if args.only and not name.startswith(args.only):
             continue
-        repeats = args.repeats if target is None else args.crowded_repeats
-        lib = _measure(cfg, "libsumo", repeats)
-        print(f"{name} (medians of {repeats}):")
-        print(f"  {_crowd(lib)}")
-        _report("libsumo", lib)
         if target is None:
+            repeats = args.repeats
+            lib = _measure(cfg, "libsumo", repeats)
+            print(f"{name} (medians of {repeats}):")
+            print(f"  {_crowd(lib)}")
+            _report("libsumo", lib)
             if not args.skip_traci:
                 tra = _measure(cfg, "traci", repeats)
                 _report("traci", tra)
@@ -153,11 +196,29 @@ def main(argv=None) -> int:
                       f"{tra['sumo_side'] / lib['sumo_side']:.2f}x on SUMO's side (stepping minus the drivers)")
             verdict = "meets" if lib["rtf"] >= 50 else "MISSES"
             print(f"  {verdict} the >= 50x real-time target ({lib['rtf']:.1f}x)")
+            continue
+        repeats = args.crowded_repeats
+        if args.baseline.lower() == "none":
+            lib, base = _measure(cfg, "libsumo", repeats), None
         else:
-            n_at_once, rtf = target
-            ok = lib["mean_pirl"] >= n_at_once and lib["rtf"] >= rtf
-            print(f"  {'meets' if ok else 'MISSES'} the target of >= {n_at_once} PIRL drivers at once at >= {rtf:.0f}x "
-                  f"real time ({lib['mean_pirl']:.1f} at {lib['rtf']:.1f}x)")
+            lib, base = _compare(index, repeats, args.baseline)
+        print(f"{name} (medians of {repeats}{', alternating with ' + args.baseline if base else ''}):")
+        print(f"  {_crowd(lib)}")
+        _report("libsumo", lib)
+        n_at_once, rtf = target
+        ok = lib["mean_pirl"] >= n_at_once and lib["rtf"] >= rtf
+        print(f"  {'meets' if ok else 'MISSES'} the target of >= {n_at_once} PIRL drivers at once at >= {rtf:.0f}x "
+              f"real time ({lib['mean_pirl']:.1f} at {lib['rtf']:.1f}x; ~{lib['rtf_cpu']:.1f}x on a core of its own)")
+        if base is not None:
+            print(f"  {args.baseline} (the code before the compiled drivers), same scenario:")
+            print(f"  {_crowd(base)}")
+            _report("libsumo", base)
+            print(f"  speed-up over {args.baseline}: {base['wall'] / lib['wall']:.2f}x over the stepping "
+                  f"({lib['wall'] * 1e3 / lib['steps']:.3f} against {base['wall'] * 1e3 / base['steps']:.3f} ms per step), "
+                  f"{base['control'] / lib['control']:.2f}x on the drivers' side, "
+                  f"{base['sumo_side'] / lib['sumo_side']:.2f}x on SUMO's and the recording's")
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    print(f"load average at the end: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     return 0
 
 
