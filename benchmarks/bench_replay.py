@@ -1,15 +1,27 @@
-"""Replay speed (issue 6): 1,000 recorded tracks, fit + predict every learner, and where the time goes.
+"""Replay speed: 1,000 recorded tracks, fit + predict every learner, and where the time goes.
 
-    python benchmarks/bench_replay.py [--tracks 1000]
+    python benchmarks/bench_replay.py [--tracks 1000]              # issue 6: one split, four learners
+    python benchmarks/bench_replay.py --command [--jobs 1,2]        # issue 16: the replay command itself
 
 The scene is simulated (roundabout passage drivers of three styles, written in the INTERACTION format with a
-Lanelet2 map), because real recordings may not be redistributed. One train/test split (75/25 by track),
-2 s history, 3 s horizon, a prediction every 1 s along each test track. Target: under 60 s in total.
+Lanelet2 map), because real recordings may not be redistributed.
+
+Default (issue 6): one train/test split (75/25 by track), 2 s history, 3 s horizon, a prediction every 1 s
+along each test track. Target: under 60 s in total.
+
+``--command`` (issue 16): the wall time of the command a user runs on a real-data-sized recording,
+``pirl-sim replay --tracks T --map M --knn-k 5,10,19,30 --seeds 4 [--jobs J]`` (default learners TIRL,
+PIRL-GMM, PIRL-kNN; a fresh process per run, output in a temporary directory so that nothing is resumed), for
+each ``--jobs`` value, with the load average at the start. Target: under 120 s. BLAS threads: the command's
+own policy (one thread, `pirl_sim.threads`).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
 import tempfile
 import time
 import warnings
@@ -29,12 +41,16 @@ SPECS = [
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tracks", type=int, default=1000)
+    ap.add_argument("--command", action="store_true", help="time the replay command (issue 16) instead")
+    ap.add_argument("--jobs", default="1,2", help="--command: comma-separated --jobs values to time")
     args = ap.parse_args(argv)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         data = generate(PassageConfig(n_trajectories=args.tracks, n_train=args.tracks - 1))
     with tempfile.TemporaryDirectory() as tmp:
         paths = write_scene(data, tmp)
+        if args.command:
+            return _time_command(paths, [int(j) for j in args.jobs.split(",")], tmp)
         t0 = time.perf_counter()
         scene = load_replay([paths["tracks"]], paths["map"])
         t_load = time.perf_counter() - t0
@@ -51,6 +67,27 @@ def main(argv=None):
     rest = t_run - rows["fit_s"].sum() - rows["predict_s"].sum()
     print(f"  baselines, windows and scoring                 : {rest:6.1f} s")
     print(f"  total                                          : {total:6.1f} s  (target < 60 s: {'met' if total < 60 else 'NOT met'})")
+
+
+def _time_command(paths, jobs: list[int], tmp: str) -> None:
+    """Issue 16: wall time of ``pirl-sim replay ... --knn-k 5,10,19,30 --seeds 4 --jobs J`` per J."""
+    print(f"replay command on {len(data_tracks(paths))} simulated tracks, --knn-k 5,10,19,30 --seeds 4 "
+          f"(load average at the start {os.getloadavg()[0]:.1f}):")
+    for j in jobs:
+        out = os.path.join(tmp, f"out_jobs{j}")
+        cmd = [sys.executable, "-m", "pirl_sim", "replay", "--tracks", str(paths["tracks"]), "--map",
+               str(paths["map"]), "--knn-k", "5,10,19,30", "--seeds", "4", "--jobs", str(j), "--out", out]
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        wall = time.perf_counter() - t0
+        print(f"  --jobs {j}: {wall:6.1f} s  (target < 120 s: {'met' if wall < 120 else 'NOT met'})")
+
+
+def data_tracks(paths) -> list:
+    """Track ids in the written tracks file (for the printout)."""
+    import pandas as pd
+
+    return sorted(pd.read_csv(paths["tracks"], usecols=["track_id"])["track_id"].unique())
 
 
 if __name__ == "__main__":
