@@ -1,7 +1,7 @@
 """SUMO roundabout speed: PIRL drivers re-planning every 0.1 s step, how many at once, libsumo against TraCI.
 
-    python3 benchmarks/bench_sumo.py                 # ~3-4 min
-    python3 benchmarks/bench_sumo.py --skip-traci --crowded-repeats 1
+    python3 benchmarks/bench_sumo.py                 # ~4 min (~8 min with --crowded-repeats 3)
+    python3 benchmarks/bench_sumo.py --skip-traci --crowded-repeats 1 --baseline none   # ~1 min
 
 Every PIRL driver re-plans with its MPC at every 0.1 s step (one batched call per step for all of them). The
 process is pinned to one core (``os.sched_setaffinity``; a TraCI SUMO server started from it inherits the
@@ -26,14 +26,23 @@ by SUMO), all vehicles at once, simulated seconds per wall second of the steppin
 observations and the drivers; SUMO start-up, network building and writing excluded) with a breakdown per
 step and per re-plan, and whether the targets are met.
 
-Last runs (issue 16, 2026-12-01 14:45-14:48 UTC, load average ~5 on the 2-core machine; the pinned process got
-66 % of its core): crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 16.3x and 16.7x real time
-(~24.8x on a core of its own), against 15.8x and 15.4x for the code before this afternoon's work (45532b2
-unpacked beside this one, the same scenario and this script, runs alternating): +5 %; very crowded 100.4 at once
-(88.8 re-planning) at 9.2x (~13.9x on a core of its own). Both targets missed by 2-3x. A crowded step: SUMO and
-the recording 1.6 ms (~28 us per vehicle), the drivers 4.4 ms, of which the MPC 3.6 ms (one batched,
-warm-started Newton step and the bounded QPs: ~1 ms of fixed numpy cost plus ~0.07 ms per driver). Earlier run
-(session before, load ~4): crowded 24x, very crowded 13.6x.
+The crowded scenarios also run on a baseline revision (``--baseline``, default e4e91c3: main before the
+compiled drivers; ``none`` skips it), in child processes alternating with this code so that both see the same
+load (`_baseline.py`), and the speed-up is printed.
+
+Last runs (issue 16, 2026-12-01 16:30-16:38 UTC, ``--crowded-repeats 3``, load average 2.2 at the start and
+3.1 at the end from other sessions' jobs on the 2-core machine; the pinned processes got 98-99 % of their
+core; BLAS 1 thread): crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 57.1x real time
+(target >= 40 at >= 50x: met), against 24.9x for e4e91c3 in the same run: 2.29x faster (1.75 against 4.01 ms
+per step; the drivers 3.59x, SUMO's side 1.14x). Very crowded 100.2 at once (90.1 re-planning) at 28.9x
+(target >= 100 at >= 20x: met; the demand keeps the mean only just above 100), against 13.8x: 2.10x (drivers
+3.47x). A crowded step: SUMO and the recording 0.93 ms (of which libsumo's simulationStep ~0.5 ms and its
+subscription results ~0.12 ms), the drivers 0.82 ms, of which the MPC 0.48 ms (~12 us per re-plan: the
+compiled Newton step ~6.5 us, the rest the ~1 bounded QP per step through DAQP and the call's set-up), the
+projection ~0.1 ms (first positions by ``to_frenet`` included) and the per-step gathering ~0.2 ms. The default
+scenario: 298x with libsumo, 149x with TraCI (2.0x; 3.8x on SUMO's side). This docstring's previous runs (the
+code before the compiled drivers, 14:45 UTC, load ~5): crowded 16.3x (~24.8x on a core of its own), very
+crowded 9.2x (~13.9x).
 """
 
 from __future__ import annotations
