@@ -120,16 +120,17 @@ class MpcEgo:
                                     horizon=drv.horizon, stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
 
     def act(self, env) -> np.ndarray:
-        from pirl_sim.scenarios.highway.traffic import STEP_LENGTH, _EgoState, _Observation
+        from pirl_sim.scenarios.contract import EgoObservation, EgoView
+        from pirl_sim.scenarios.highway.traffic import STEP_LENGTH
 
         base = _highway(env, self.name)
         if self._drivers is None:
             raise RuntimeError("call reset(env) after env.reset() before act(env)")
         traffic, ego = base.road, base.vehicle
         others = traffic.vehicles
-        state = _EgoState(float(ego.position[0]), float(ego.position[1]), float(ego.speed),
-                          float(ego.applied_acceleration))
-        cmd = self._drivers.commands(traffic.time, {EGO_ID: _Observation(state)})[EGO_ID]
+        state = EgoView(float(ego.position[0]), float(ego.position[1]), float(ego.speed),
+                        float(ego.applied_acceleration))
+        cmd = self._drivers.commands(traffic.time, {EGO_ID: EgoObservation(state)})[EGO_ID]
         occupancy = traffic._occupancy(others)
         if cmd is None:  # handed back at a standstill, as the PIRL drivers are: IDM until it drives again
             a = traffic._limit(ego, others, occupancy, free_v0=traffic.v_des(ego), delta=IDM_DELTA)

@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from pirl_sim.scenarios.contract import STEP
 from pirl_sim.scenarios.population_config import (
     DEFAULT_POPULATION,
     FEATURE_NAMES,
@@ -48,7 +49,7 @@ EGO_ID = "ego"  #: the ego's vehicle id (and ``agent_id`` in recordings)
 ACC_REF, JERK_REF = 3.0, 8.0  #: [m/s^2], [m/s^3] comfort-term scales (the driver model's bounds)
 LAT_ACC_REF = 3.0  #: [m/s^2] scale of the lateral acceleration in the ``"exit"`` reward's comfort index
 EMPTY_ROW_STYLE = -2  #: ``neighbour_styles`` of an empty observation row
-FRAME_DT = 0.1  # [s] simulation frame = driver-model step
+FRAME_DT = STEP  # [s] simulation frame = driver-model step (the simulator contract's)
 MAX_EGO_SPEED = 30.0  #: [m/s] largest ego_speed: the driver model's speed bound
 ORDERS = ("sorted", "shuffled")  #: values of the Kinematics observation's ``order``
 _ACTION_FORM = "a finite number, or an array of shape (1,) holding one, in [-1, 1]"

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pirl_sim.scenarios.contract import STEP
 from pirl_sim.scenarios.population_config import FEATURE_NAMES, FREE_FEATURES
 
 __all__ = ["STYLE_OBSERVATIONS", "STYLE_COLUMNS", "LOG_WEIGHT_SCALE", "StyleObserver", "check_style_config",
@@ -38,7 +39,7 @@ __all__ = ["STYLE_OBSERVATIONS", "STYLE_COLUMNS", "LOG_WEIGHT_SCALE", "StyleObse
 STYLE_OBSERVATIONS = ("none", "truth", "inferred")  #: values of the ``style_observation`` option
 STYLE_COLUMNS = ("style_known", *FREE_FEATURES)  #: the extra observation columns, in order
 LOG_WEIGHT_SCALE = 3.0  #: ln(theta) of +-3 (theta = 0.05 or 20) maps to -+1
-_FRAME_DT = 0.1  # [s]
+_FRAME_DT = STEP  # [s] (the simulator contract's step)
 _FREE = [FEATURE_NAMES.index(f) for f in FREE_FEATURES]
 
 

@@ -41,6 +41,7 @@ import pandas as pd
 from gymnasium import spaces
 
 from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.scenarios.contract import STEP as CONTRACT_STEP
 from pirl_sim.scenarios.drivers import PirlDrivers, RouteSetProfile, route_set_model
 from pirl_sim.scenarios.planning import plan_population, random_streams
 from pirl_sim.scenarios.population_config import FEATURE_NAMES
@@ -74,7 +75,7 @@ from .styles import StyleObserver, check_style_config
 
 __all__ = ["PirlRoundaboutSumoEnv"]
 
-STEP = 0.1  # [s] SUMO step = driver-model step
+STEP = CONTRACT_STEP  # [s] SUMO step = driver-model step (the simulator contract's)
 PERCEPTION_DISTANCE = 200.0  # [m] highway-env's AbstractEnv.PERCEPTION_DISTANCE (5 x Vehicle.MAX_SPEED)
 _MAX_WAIT = 60.0  # [s] longest wait for the ego's insertion after the warm-up
 _KINEMATICS_KEYS = ("type", "features", "vehicles_count", "features_range", "absolute", "normalize", "clip",

@@ -39,12 +39,14 @@ from pirl_sim.validation import number
 
 from ..demonstrations import RecordedRun, recorded_demonstrations
 from ..drivers import RouteSet, RouteSetDriverModel, route_set_model
-from ..planning import check_routes, check_seed, plan_population, random_streams, route_id
+from ..planning import check_routes, plan_population, random_streams, route_id
 from ..population_config import DEFAULT_POPULATION, PopulationConfig
 from ..recording import INFO_FILE, RecordingFiles, ScenarioRecording, read_recording, write_recording
-from ..scenario_config import Progress, config_table, from_table, load_toml, run_timing, scenario_from_table
+from ..contract import run_scenario
+from ..scenario_config import Progress, config_table, from_table, load_toml, scenario_from_table
 from .network import ARMS, LANE_WIDTH, RoundaboutGeometry, build_network, lane_graph, route_catalogue, route_set
 from .traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
+from .vehicles import PIRL
 
 __all__ = [
     "SIMULATOR",
@@ -61,7 +63,6 @@ __all__ = [
 ]
 
 SIMULATOR = "highway-env"  #: ``simulator`` in ``run.json``
-_DEFAULT_EXTRA_TIME = 300.0  # [s] after the last departure, when max_duration is not given
 
 #: the route catalogue's ids in canonical order (entry arm, then first exit first), as the SUMO scenario's
 ROUTE_IDS: tuple[str, ...] = tuple(route_id(i, (i + k) % len(ARMS)) for i in range(len(ARMS))
@@ -245,52 +246,87 @@ def run_highway_scenario(config: HighwayScenarioConfig | None = None, seed: int 
     ValueError
         A bad seed or configuration, before anything runs.
     """
-    import highway_env
+    return run_scenario(HighwayAdapter(), config, seed, out_dir=out_dir, progress=progress)
 
-    config = HighwayScenarioConfig() if config is None else config
-    if not isinstance(config, HighwayScenarioConfig):
-        raise TypeError(f"config must be a HighwayScenarioConfig, got {type(config).__name__}")
-    seed = check_seed(seed)
-    plan = plan_population(config.population, ROUTE_IDS, seed, pirl_routes=config.pirl_routes,
-                           background_routes=config.background_routes)
-    _, noise_rng, behaviour_rng = random_streams(seed)
-    net, catalogue, routes = build_routes(config)
-    traffic = RoundaboutTraffic(net, catalogue, routes, plan, drivers=config.drivers, rules=config.rules,
-                                control_noise=config.population.control_noise, noise_rng=noise_rng,
-                                behaviour_rng=behaviour_rng, np_random=np.random.default_rng(seed))
-    duration = config.max_duration or float(plan["depart"].max()) + _DEFAULT_EXTRA_TIME
-    n_max = max(1, round(duration / STEP_LENGTH))
-    present = []
-    t0 = _time.perf_counter()
-    traffic.insert_due()
-    for k in range(n_max):
-        traffic.act()
-        traffic.step(STEP_LENGTH)
-        present.append(len(traffic.vehicles))
-        if progress is not None and (k + 1) % 10 == 0:
-            progress(traffic.time, traffic.n_finished, len(plan))
-        if traffic.n_pending == 0 and not traffic.vehicles:
-            break
-    wall = _time.perf_counter() - t0
-    if progress is not None:
-        progress(traffic.time, traffic.n_finished, len(plan))
-    lanes, successors = lane_graph(net)
-    info = {
-        "simulator": SIMULATOR,
-        "highway_env_version": highway_env.__version__,
-        "seed": seed,
-        "step_length_s": STEP_LENGTH,
-        "config": config.to_dict(),
-        "routes": list(ROUTE_IDS),
-        "n_vehicles": int(len(plan)),
-        "n_not_departed": int(traffic.n_pending),
-        "sim_time_s": round(traffic.time, 6),
-    }
-    recording = traffic.recording(info, lanes, successors)
-    files = write_recording(recording, out_dir, lane_width=LANE_WIDTH) if out_dir is not None else None
-    timing = run_timing(traffic.time, wall, present, traffic.controller, act_time_s=traffic.act_time_s)
-    model = route_set_model(routes, dt=STEP_LENGTH, a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
-    return HighwayScenarioResult(config, seed, plan, traffic.summary(), recording, routes, model, timing, files)
+
+class HighwayAdapter:
+    """highway-env behind the simulator contract (:class:`~pirl_sim.scenarios.contract.SimulatorAdapter`)."""
+
+    name = SIMULATOR
+    config_type = HighwayScenarioConfig
+
+    def plan(self, config: HighwayScenarioConfig, seed: int) -> pd.DataFrame:
+        return plan_population(config.population, ROUTE_IDS, seed, pirl_routes=config.pirl_routes,
+                               background_routes=config.background_routes)
+
+    def start(self, config: HighwayScenarioConfig, seed: int, plan: pd.DataFrame) -> _HighwaySimulation:
+        return _HighwaySimulation(config, seed, plan)
+
+    def info(self, config: HighwayScenarioConfig) -> tuple[dict, dict]:
+        import highway_env
+
+        return {"highway_env_version": highway_env.__version__}, {"routes": list(ROUTE_IDS)}
+
+    def write(self, sim: _HighwaySimulation, recording: ScenarioRecording, out_dir, config) -> RecordingFiles:
+        return write_recording(recording, out_dir, lane_width=LANE_WIDTH)
+
+    def result(self, config, seed, plan, sim: _HighwaySimulation, recording, timing, files) -> HighwayScenarioResult:
+        model = route_set_model(sim.routes, dt=STEP_LENGTH, a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
+        return HighwayScenarioResult(config, seed, plan, sim.traffic.summary(), recording, sim.routes, model, timing,
+                                     files)
+
+
+class _HighwaySimulation:
+    """One highway-env run of a plan (:class:`~pirl_sim.scenarios.contract.Simulation`) on
+    :class:`~.traffic.RoundaboutTraffic`."""
+
+    def __init__(self, config: HighwayScenarioConfig, seed: int, plan: pd.DataFrame):
+        self.config, self.seed, self.plan = config, seed, plan
+
+    def __enter__(self) -> _HighwaySimulation:
+        config = self.config
+        _, noise_rng, behaviour_rng = random_streams(self.seed)
+        self.net, _, self.routes = net, catalogue, routes = build_routes(config)
+        self.traffic = RoundaboutTraffic(net, catalogue, routes, self.plan, drivers=config.drivers, rules=config.rules,
+                                         control_noise=config.population.control_noise, noise_rng=noise_rng,
+                                         behaviour_rng=behaviour_rng, np_random=np.random.default_rng(self.seed))
+        self.controller = self.traffic.controller
+        self._t0 = _time.perf_counter()
+        self.traffic.insert_due()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+    def step(self) -> None:
+        self.traffic.act()
+        self.traffic.step(STEP_LENGTH)
+
+    @property
+    def n_present(self) -> int:
+        return len(self.traffic.vehicles)
+
+    @property
+    def n_present_pirl(self) -> int:
+        return sum(getattr(v, "kind", None) == PIRL for v in self.traffic.vehicles)
+
+    @property
+    def n_finished(self) -> int:
+        return self.traffic.n_finished
+
+    @property
+    def done(self) -> bool:
+        return self.traffic.n_pending == 0 and not self.traffic.vehicles
+
+    def finish(self) -> None:
+        self.wall_time_s = _time.perf_counter() - self._t0
+        self.time = self.traffic.time
+        self.n_not_departed = self.traffic.n_pending
+        self.own_times = {"act_time_s": self.traffic.act_time_s}
+
+    def recording(self, info) -> ScenarioRecording:
+        lanes, successors = lane_graph(self.net)
+        return self.traffic.recording(info, lanes, successors)
 
 
 def load_highway_run(directory) -> RecordedRun:

@@ -64,12 +64,12 @@ from highway_env.vehicle.behavior import IDMVehicle
 
 from pirl_sim.validation import number
 
+from ..contract import STEP, EgoObservation, EgoView, ground_truth_table
 from ..population_config import FEATURE_NAMES
 from ..recording import (
     DRIVER_STEP_COLUMNS,
     BACKGROUND_STYLE,
     BACKGROUND_STYLE_NAME,
-    GROUND_TRUTH_COLUMNS,
     TRACK_COLUMNS,
     ScenarioRecording,
 )
@@ -90,7 +90,7 @@ from .vehicles import (
 
 __all__ = ["STEP_LENGTH", "DriverConfig", "TrafficRules", "RoundaboutTraffic", "idm_acceleration"]
 
-STEP_LENGTH = 0.1  #: [s] simulation step = driver-model step = INTERACTION frame
+STEP_LENGTH = STEP  #: [s] simulation step = driver-model step = INTERACTION frame (the contract's)
 _EPS = 1e-9
 _STANDSTILL = 0.1  # [m/s] slower counts as stopped at the line
 
@@ -234,19 +234,6 @@ def _time_to_cover(d: float, v: float, a: float) -> float:
 # ----------------------------------------------------------------------------------------------
 # the traffic
 # ----------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class _EgoState:  # what PirlDrivers reads of a vehicle (duck-typed like SUMO's VehicleState)
-    x: float
-    y: float
-    speed: float
-    accel: float
-
-
-@dataclass(frozen=True)
-class _Observation:
-    ego: _EgoState
-
 
 class _Occupancy(NamedTuple):
     """Vehicles by lane (``(from, to)`` -> [(lane coordinate [m], vehicle)] sorted by the coordinate) and the
@@ -657,7 +644,7 @@ class RoundaboutTraffic(Road):
         others = self.vehicles
         pirl = [v for v in others if getattr(v, "kind", None) == PIRL and not v.crashed]
         commands = self.controller.commands(self.time, {
-            v.vehicle_id: _Observation(_EgoState(float(v.position[0]), float(v.position[1]), float(v.speed),
+            v.vehicle_id: EgoObservation(EgoView(float(v.position[0]), float(v.position[1]), float(v.speed),
                                                  float(v.applied_acceleration))) for v in pirl}) if pirl else {}
         self._commands = {}
         tol = self.drivers.override_tol / STEP_LENGTH
@@ -788,24 +775,14 @@ class RoundaboutTraffic(Road):
         renumber = {t.track_id: k + 1 for k, t in enumerate(recorded)}
         tracks["track_id"] = tracks["track_id"].map(renumber).astype(np.int64)
         pirl = np.array([t.kind == PIRL for t in recorded], dtype=bool)
-        theta = np.array([t.theta for t in recorded]).reshape(len(recorded), len(FEATURE_NAMES))
-        gt = pd.DataFrame({
-            "track_id": np.arange(1, len(recorded) + 1, dtype=np.int64),
-            "agent_id": [t.vehicle_id for t in recorded],
-            "route_id": [t.route_id for t in recorded],
-            "is_pirl": pirl,
-            "style": np.array([t.style for t in recorded], dtype=np.int64),
-            "style_name": [t.style_name for t in recorded],
-            **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
-            "interacted": pd.array([(t.n_overridden > 0 or t.handed_back or t.collided) if t.kind == PIRL else pd.NA
-                                    for t in recorded], dtype="boolean"),
-            "collided": np.array([t.collided for t in recorded], dtype=bool),
-            "removed_early": np.array([t.removed_early for t in recorded], dtype=bool),
-            "overridden_fraction": np.array([t.n_overridden / t.n_commands if t.kind == PIRL and t.n_commands
-                                             else (0.0 if t.kind == PIRL else np.nan) for t in recorded]),
-            "status": [t.status for t in recorded],
-            "n_frames": np.array([t.n_frames for t in recorded], dtype=np.int64),
-        }, columns=list(GROUND_TRUTH_COLUMNS))
+        gt = ground_truth_table(
+            agent_id=[t.vehicle_id for t in recorded], route_id=[t.route_id for t in recorded], is_pirl=pirl,
+            style=[t.style for t in recorded], style_name=[t.style_name for t in recorded],
+            theta=np.array([t.theta for t in recorded]),
+            interacted=[t.n_overridden > 0 or t.handed_back or t.collided for t in recorded],
+            collided=[t.collided for t in recorded], removed_early=[t.removed_early for t in recorded],
+            overridden_fraction=[t.n_overridden / t.n_commands if t.n_commands else 0.0 for t in recorded],
+            status=[t.status for t in recorded], n_frames=[t.n_frames for t in recorded])
         frames = pd.DataFrame(self._pirl_frames, columns=["track_id", "frame_id", "collided"])
         keys = list(zip(frames["track_id"], frames["frame_id"]))
         checked = [self._pirl_commands.get(k) for k in keys]

@@ -55,12 +55,10 @@ from pirl_sim.validation import number
 
 from ..demonstrations import RecordedRun, recorded_demonstrations
 from ..drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_model
-from ..planning import check_routes, check_seed, plan_population, random_streams
+from ..planning import check_routes, plan_population, random_streams
 from ..population_config import DEFAULT_POPULATION, FEATURE_NAMES, PopulationConfig
 from ..recording import (
     DRIVER_STEP_COLUMNS,
-    FRAME_DT_S,
-    GROUND_TRUTH_COLUMNS,
     INFO_FILE,
     TRACK_COLUMNS,
     RecordingFiles,
@@ -68,7 +66,8 @@ from ..recording import (
     read_recording,
     write_recording,
 )
-from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, run_timing, scenario_from_table
+from ..contract import STEP, ground_truth_table, run_scenario
+from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, scenario_from_table
 from .network import RoundaboutSpec, build_network, lane_graph, load_net, route_set, routes as network_routes, \
     validate_route
 from .runner import BACKENDS, COLLISION_ACTIONS, SPEED_MODE_ALL_CHECKS, SumoRecording, SumoRun, VehicleSpec
@@ -91,12 +90,11 @@ __all__ = [
     "load_sumo_run",
 ]
 
-STEP_LENGTH = FRAME_DT_S  #: [s] simulation step = INTERACTION frame = driver-model step
+STEP_LENGTH = STEP  #: [s] simulation step = INTERACTION frame = driver-model step (the contract's)
 PIRL_VTYPE = "pirl"
 BACKGROUND_VTYPE = "background"
 NETWORK_DIR = "network"  # under out_dir
 _NET_NAME = "roundabout"
-_DEFAULT_EXTRA_TIME = 300.0  # [s] after the last departure, when max_duration is not given
 
 #: The scenarios' default roundabout: 4 arms, single lane, ring radius 25 m, junction curves of 10 m radius,
 #: ring traffic visible from 50 m before an entry. Larger than :class:`~.network.RoundaboutSpec`'s defaults
@@ -397,85 +395,142 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
     ValueError
         Bad seed or backend, or a route that is not drivable in the built network: before SUMO starts.
     """
-    config = SumoScenarioConfig() if config is None else config
-    if not isinstance(config, SumoScenarioConfig):
-        raise TypeError(f"config must be a SumoScenarioConfig, got {type(config).__name__}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    seed = check_seed(seed)
-    plan = plan_vehicles(config, seed)
-    _, noise_rng, _ = random_streams(seed)
-    drv = config.drivers
-    with tempfile.TemporaryDirectory(prefix="pirl_sumo_") as tmp:
-        files = build_network(config.network, tmp, name=_NET_NAME)
-        net = load_net(files.net)
-        catalogue = config.route_catalogue()
-        for rid, edges in catalogue.items():
-            validate_route(net, edges, route_id=rid)
-        routes = route_set(net, catalogue, smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
-        vtypes = Path(tmp) / "vtypes.add.xml"
-        atomic_write_text(vtypes, vehicle_types_xml(drv))
-        model = route_set_model(routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
-                                n_qp_iter=drv.n_qp_iter)
-        pirl = plan[plan["is_pirl"]]
-        theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
-        controller = PirlDrivers(
-            model, {r.vehicle_id: (r.route_id, np.array([getattr(r, c) for c in theta_cols]))
-                    for r in pirl.itertuples(index=False)},
-            horizon=drv.horizon, control_noise=config.population.control_noise, rng=noise_rng,
-            override_tol=config.override_tol, stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
-        specs = [VehicleSpec(r.vehicle_id, r.route_id, float(r.depart),
-                             depart_speed=drv.depart_speed if r.is_pirl else "max",
-                             type_id=PIRL_VTYPE if r.is_pirl else BACKGROUND_VTYPE)
-                 for r in plan.itertuples(index=False)]
-        duration = config.max_duration or float(plan["depart"].max()) + _DEFAULT_EXTRA_TIME
-        n_max = max(1, round(duration / STEP_LENGTH))
-        present, present_pirl = [], []
-        with SumoRun(files.net, catalogue, specs, pirl_ids=set(pirl["vehicle_id"]), controller=controller,
-                     seed=seed, step_length=STEP_LENGTH, backend=backend, speed_mode=config.speed_mode,
-                     override_tol=config.override_tol, collision_action=config.collision_action,
-                     extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true")) as run:
-            for k in range(n_max):
-                run.step()
-                present.append(run.n_present)
-                present_pirl.append(run.n_present_controlled)
-                if progress is not None and (k + 1) % 10 == 0:
-                    progress((k + 1) * STEP_LENGTH, run.n_finished, len(specs))
-                if run.expected() == 0:
-                    break
-            sumo_rec = run.recording()
-        if progress is not None:
-            progress(sumo_rec.sim_time_s, int(sumo_rec.summary["status"].isin(("arrived", "vanished")).sum()),
-                     len(specs))
-        lanes, successors = lane_graph(net)
-        info = {
-            "simulator": "sumo",
-            "backend": backend,
-            "seed": seed,
-            "step_length_s": STEP_LENGTH,
-            "config": config.to_dict(),
-            "routes": [[k, list(v)] for k, v in catalogue.items()],  # in catalogue order
-            "network_file": f"{NETWORK_DIR}/{_NET_NAME}.net.xml",
-            "n_vehicles": int(len(plan)),
-            "n_not_departed": int((sumo_rec.summary["status"] == "not_departed").sum()),
-            "sim_time_s": round(sumo_rec.sim_time_s, 6),
-        }
-        recording = scenario_recording(plan, sumo_rec, lanes, successors, info, set(controller.handbacks))
-        written = None
-        if out_dir is not None:
-            out = Path(out_dir)
-            out.mkdir(parents=True, exist_ok=True)
-            (out / INFO_FILE).unlink(missing_ok=True)  # incomplete until write_recording puts it back
-            for p in (files.nodes, files.edges, files.connections, files.net, vtypes):
-                atomic_write_text(out / NETWORK_DIR / p.name, _without_generator_comment(p.read_text("utf-8")))
-            written = write_recording(recording, out, lane_width=config.network.lane_width)
-    timing = run_timing(sumo_rec.sim_time_s, sumo_rec.wall_time_s, present, controller,
-                        control_time_s=controller.control_time_s)
-    timing = {**timing, "mean_pirl": float(np.mean(present_pirl)) if present_pirl else 0.0,
-              "max_pirl": int(max(present_pirl, default=0))}
-    learner_model = route_set_model(routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max)
-    return SumoScenarioResult(config, seed, backend, plan, sumo_rec, recording, routes, learner_model, timing,
-                              written)
+    return run_scenario(SumoAdapter(backend), config, seed, out_dir=out_dir, progress=progress)
+
+
+@dataclass(frozen=True)
+class SumoAdapter:
+    """SUMO behind the simulator contract (:class:`~pirl_sim.scenarios.contract.SimulatorAdapter`).
+
+    Parameters
+    ----------
+    backend : {"libsumo", "traci"}
+    """
+
+    backend: str = "libsumo"
+    name = "sumo"
+    config_type = SumoScenarioConfig
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+
+    def plan(self, config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
+        return plan_vehicles(config, seed)
+
+    def start(self, config: SumoScenarioConfig, seed: int, plan: pd.DataFrame) -> _SumoSimulation:
+        return _SumoSimulation(config, seed, plan, self.backend)
+
+    def info(self, config: SumoScenarioConfig) -> tuple[dict, dict]:
+        return ({"backend": self.backend},
+                {"routes": [[k, list(v)] for k, v in config.route_catalogue().items()],  # in catalogue order
+                 "network_file": f"{NETWORK_DIR}/{_NET_NAME}.net.xml"})
+
+    def write(self, sim: _SumoSimulation, recording: ScenarioRecording, out_dir, config: SumoScenarioConfig):
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / INFO_FILE).unlink(missing_ok=True)  # incomplete until write_recording puts it back
+        for p in sim.network_files:
+            atomic_write_text(out / NETWORK_DIR / p.name, _without_generator_comment(p.read_text("utf-8")))
+        return write_recording(recording, out, lane_width=config.network.lane_width)
+
+    def result(self, config, seed, plan, sim: _SumoSimulation, recording, timing, files) -> SumoScenarioResult:
+        drv = config.drivers
+        learner_model = route_set_model(sim.routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max)
+        return SumoScenarioResult(config, seed, self.backend, plan, sim.sumo_recording, recording, sim.routes,
+                                  learner_model, timing, files)
+
+
+class _SumoSimulation:
+    """One SUMO run of a plan (:class:`~pirl_sim.scenarios.contract.Simulation`): the network built in a
+    temporary directory, every route checked against it, PIRL drivers on :class:`~.runner.SumoRun`."""
+
+    def __init__(self, config: SumoScenarioConfig, seed: int, plan: pd.DataFrame, backend: str):
+        self.config, self.seed, self.plan, self.backend = config, seed, plan, backend
+        self.sumo_recording: SumoRecording | None = None
+
+    def __enter__(self) -> _SumoSimulation:
+        config, plan = self.config, self.plan
+        _, noise_rng, _ = random_streams(self.seed)
+        drv = config.drivers
+        self._tmp = tempfile.TemporaryDirectory(prefix="pirl_sumo_")
+        try:
+            tmp = self._tmp.name
+            files = build_network(config.network, tmp, name=_NET_NAME)
+            self.net = load_net(files.net)
+            catalogue = config.route_catalogue()
+            for rid, edges in catalogue.items():
+                validate_route(self.net, edges, route_id=rid)
+            self.routes = route_set(self.net, catalogue, smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
+            vtypes = Path(tmp) / "vtypes.add.xml"
+            atomic_write_text(vtypes, vehicle_types_xml(drv))
+            self.network_files = (files.nodes, files.edges, files.connections, files.net, vtypes)
+            model = route_set_model(self.routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
+                                    n_qp_iter=drv.n_qp_iter)
+            pirl = plan[plan["is_pirl"]]
+            theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
+            self.controller = PirlDrivers(
+                model, {r.vehicle_id: (r.route_id, np.array([getattr(r, c) for c in theta_cols]))
+                        for r in pirl.itertuples(index=False)},
+                horizon=drv.horizon, control_noise=config.population.control_noise, rng=noise_rng,
+                override_tol=config.override_tol, stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
+            self.specs = [VehicleSpec(r.vehicle_id, r.route_id, float(r.depart),
+                                      depart_speed=drv.depart_speed if r.is_pirl else "max",
+                                      type_id=PIRL_VTYPE if r.is_pirl else BACKGROUND_VTYPE)
+                          for r in plan.itertuples(index=False)]
+            self.run = SumoRun(files.net, catalogue, self.specs, pirl_ids=set(pirl["vehicle_id"]),
+                               controller=self.controller, seed=self.seed, step_length=STEP_LENGTH,
+                               backend=self.backend, speed_mode=config.speed_mode, override_tol=config.override_tol,
+                               collision_action=config.collision_action,
+                               extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true"))
+            self.run.__enter__()
+        except BaseException:
+            self._tmp.cleanup()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        try:
+            if self.sumo_recording is None:
+                self.run.__exit__(*exc)
+        finally:
+            self._tmp.cleanup()
+
+    def step(self) -> None:
+        self.run.step()
+
+    @property
+    def n_present(self) -> int:
+        return self.run.n_present
+
+    @property
+    def n_present_pirl(self) -> int:
+        return self.run.n_present_controlled
+
+    @property
+    def n_finished(self) -> int:
+        if self.sumo_recording is not None:
+            return int(self.sumo_recording.summary["status"].isin(("arrived", "vanished")).sum())
+        return self.run.n_finished
+
+    @property
+    def done(self) -> bool:
+        return self.run.expected() == 0
+
+    def finish(self) -> None:
+        self.sumo_recording = self.run.recording()
+        self.run.__exit__(None, None, None)
+        self.time = self.sumo_recording.sim_time_s
+        self.wall_time_s = self.sumo_recording.wall_time_s
+        self.n_not_departed = int((self.sumo_recording.summary["status"] == "not_departed").sum())
+        self.own_times = {"control_time_s": self.controller.control_time_s}
+
+    def recording(self, info) -> ScenarioRecording:
+        lanes, successors = lane_graph(self.net)
+        return scenario_recording(self.plan, self.sumo_recording, lanes, successors, info,
+                                  set(self.controller.handbacks))
 
 
 def _without_generator_comment(xml: str) -> str:
@@ -514,23 +569,14 @@ def scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors
     s = summary.loc[departed]
     pirl = p["is_pirl"].to_numpy()
     collided = s["collided"].to_numpy(dtype=bool)
-    interacted = pd.array([bool(overridden_any.get(v, False)) or bool(c) or v in handed_back if is_p else pd.NA
-                           for v, is_p, c in zip(departed, pirl, collided)], dtype="boolean")
-    gt = pd.DataFrame({
-        "track_id": np.arange(1, len(departed) + 1, dtype=np.int64),
-        "agent_id": departed,
-        "route_id": p["route_id"].to_numpy(),
-        "is_pirl": pirl,
-        "style": p["style"].to_numpy(dtype=np.int64),
-        "style_name": p["style_name"].to_numpy(),
-        **{f"theta_{f}": p[f"theta_{f}"].to_numpy(dtype=float) for f in FEATURE_NAMES},
-        "interacted": interacted,
-        "collided": collided,
-        "removed_early": s["removed_early"].to_numpy(dtype=bool),
-        "overridden_fraction": np.where(pirl, s["overridden_fraction"].to_numpy(dtype=float), np.nan),
-        "status": s["status"].to_numpy(),
-        "n_frames": s["n_steps"].to_numpy(dtype=np.int64),
-    }, columns=list(GROUND_TRUTH_COLUMNS))
+    gt = ground_truth_table(
+        agent_id=departed, route_id=p["route_id"].to_numpy(), is_pirl=pirl, style=p["style"].to_numpy(),
+        style_name=p["style_name"].to_numpy(), theta=p[[f"theta_{f}" for f in FEATURE_NAMES]].to_numpy(dtype=float),
+        interacted=[bool(overridden_any.get(v, False)) or bool(c) or v in handed_back
+                    for v, c in zip(departed, collided)],
+        collided=collided, removed_early=s["removed_early"].to_numpy(dtype=bool),
+        overridden_fraction=s["overridden_fraction"].to_numpy(dtype=float), status=s["status"].to_numpy(),
+        n_frames=s["n_steps"].to_numpy())
     on_pirl = frame["vehicle_id"].map(dict(zip(departed, pirl))).to_numpy(dtype=bool)  # PIRL drivers (not an ego)
     steps = pd.DataFrame({
         "track_id": tracks["track_id"].to_numpy()[on_pirl],

@@ -1,0 +1,261 @@
+"""The simulator contract: what every roundabout simulator adapter (SUMO, highway-env) implements.
+
+Both simulators populate a roundabout with PIRL drivers of known weights and record the run in one format.
+What they share is declared here, once:
+
+- :data:`STEP` [s]: the simulation step = the driver model's step = the INTERACTION frame (0.1 s).
+- What a driver observes: :class:`VehicleView` (its own vehicle: position, speed, acceleration) inside a
+  :class:`DriverObservation` (``.ego``). A simulator may tell more (SUMO's observation also carries the
+  other vehicles and the leader); the PIRL drivers read only this. :class:`EgoView` / :class:`EgoObservation`
+  are the plain implementations for simulators that have nothing more to tell (highway-env).
+- The controller protocol: :class:`BatchController`, one call per step for every driven vehicle,
+  ``commands(time, {vehicle id: observation}) -> {vehicle id: speed [m/s] one step ahead, or None}`` (None
+  hands the vehicle back to the simulator's own model for that step). The PIRL drivers
+  (:class:`~pirl_sim.scenarios.drivers.PirlDrivers`) implement it.
+- The ground truth: :func:`ground_truth_table` builds ``ground_truth.csv``'s table from per-track columns,
+  with the conventions for non-PIRL tracks applied in one place.
+- The run: :func:`run_scenario` ``(adapter, config, seed)`` plans, steps, records and (optionally) writes a run
+  for any :class:`SimulatorAdapter`; ``run_sumo_scenario`` and ``run_highway_scenario`` are this function with
+  their simulator's adapter (``SumoAdapter``, ``HighwayAdapter``). How a simulator builds its road stays its
+  own (SUMO writes files through netconvert, highway-env builds a ``RoadNetwork`` in memory), inside
+  ``adapter.start``; what comes out of it has one form in both: ``route_set(net, routes, *, smoothing,
+  speed_smoothing, spacing)`` gives the routes' reference paths as one
+  :class:`~pirl_sim.scenarios.drivers.RouteSet`, ``lane_graph(net)`` the lanes for the map.
+
+Units: SI throughout (m, s, m/s, m/s^2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from contextlib import AbstractContextManager
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+import pandas as pd
+
+from .planning import check_seed
+from .population_config import FEATURE_NAMES
+from .recording import FRAME_DT_S, GROUND_TRUTH_COLUMNS, ScenarioRecording
+from .scenario_config import Progress, run_timing
+
+__all__ = ["STEP", "EXTRA_TIME_S", "VehicleView", "DriverObservation", "EgoView", "EgoObservation", "BatchController",
+           "Simulation", "SimulatorAdapter", "ground_truth_table", "run_scenario"]
+
+STEP = FRAME_DT_S  #: [s] simulation step = driver-model step = INTERACTION frame
+EXTRA_TIME_S = 300.0  #: [s] simulated after the last departure when a config gives no ``max_duration``
+
+
+@runtime_checkable
+class VehicleView(Protocol):
+    """A driven vehicle as its driver sees it: position ``x``, ``y`` [m] (the reference point the simulator
+    records), ``speed`` [m/s] and ``accel`` [m/s^2] along its heading."""
+
+    x: float
+    y: float
+    speed: float
+    accel: float
+
+
+@runtime_checkable
+class DriverObservation(Protocol):
+    """What a controller is told about one driven vehicle at one step: at least ``ego`` (a VehicleView)."""
+
+    ego: VehicleView
+
+
+@dataclass(frozen=True)
+class EgoView:
+    """A plain :class:`VehicleView` (x, y [m], speed [m/s], accel [m/s^2])."""
+
+    x: float
+    y: float
+    speed: float
+    accel: float
+
+
+@dataclass(frozen=True)
+class EgoObservation:
+    """A plain :class:`DriverObservation`: the driven vehicle only."""
+
+    ego: EgoView
+
+
+@runtime_checkable
+class BatchController(Protocol):
+    """A controller that commands all its vehicles of a step in one call.
+
+    ``commands(time [s], observations: Mapping[vehicle id, DriverObservation]) -> Mapping[vehicle id, float |
+    None]``: commanded speeds [m/s] one step ahead (None, or a missing id, hands that vehicle back to the
+    simulator's own driver model for the step).
+    """
+
+    def commands(self, time: float, observations: Mapping[str, DriverObservation]) -> Mapping[str, float | None]:
+        ...  # pragma: no cover - protocol
+
+
+class Simulation(Protocol):
+    """One running simulation (a context manager; leaving it releases the simulator).
+
+    Read by :func:`run_scenario` after every :meth:`step`: ``n_present`` (vehicles in the network),
+    ``n_present_pirl`` (PIRL vehicles in it), ``n_finished`` (vehicles that left) and ``done`` (nothing left to
+    depart or drive); after :meth:`finish`: ``time`` (simulated [s]), ``wall_time_s`` (wall time of the
+    stepping [s]), ``n_not_departed``, ``own_times`` (the simulator's own timings [s] by name) and
+    ``controller`` (the PIRL drivers: ``plan_time_s``, ``n_plans``).
+    """
+
+    time: float
+    n_present: int
+    n_present_pirl: int
+    n_finished: int
+    n_not_departed: int
+    done: bool
+    wall_time_s: float
+    own_times: Mapping[str, float]
+    controller: Any
+
+    def step(self) -> None:
+        """Advance by :data:`STEP`: the controller commands, the simulator moves, the frame is recorded."""
+
+    def finish(self) -> None:
+        """Stop stepping (the simulator's own recording is taken)."""
+
+    def recording(self, info: Mapping[str, Any]) -> ScenarioRecording:
+        """The run as a recording with the run's ``info`` (``run.json``)."""
+
+
+class SimulatorAdapter(Protocol):
+    """One simulator behind :func:`run_scenario`.
+
+    Attributes
+    ----------
+    name : str
+        ``simulator`` in ``run.json``.
+    config_type : type
+        The simulator's scenario configuration class (its default instance is the default scenario).
+    """
+
+    name: str
+    config_type: type
+
+    def plan(self, config, seed: int) -> pd.DataFrame:
+        """The vehicles to run (one row each; ``depart`` [s], ``is_pirl``, route, style and weights), drawn from
+        ``seed`` before anything runs."""
+
+    def start(self, config, seed: int, plan: pd.DataFrame) -> AbstractContextManager[Simulation]:
+        """The simulation of ``plan``, ready to step."""
+
+    def info(self, config) -> tuple[dict[str, Any], dict[str, Any]]:
+        """The simulator's own entries of ``run.json``: those written after ``simulator`` and those written after
+        ``config`` (the common ones are :func:`run_scenario`'s)."""
+
+    def write(self, simulation: Simulation, recording: ScenarioRecording, out_dir, config):
+        """Write the recording (and the simulator's own files) to ``out_dir``; returns the written files."""
+
+    def result(self, config, seed: int, plan: pd.DataFrame, simulation: Simulation, recording: ScenarioRecording,
+               timing: Mapping[str, float], files):
+        """The run's result object."""
+
+
+def run_scenario(adapter: SimulatorAdapter, config=None, seed: int = 0, *, out_dir=None,
+                 progress: Progress | None = None):
+    """Plan, simulate and record one scenario of ``adapter``'s simulator.
+
+    Parameters
+    ----------
+    adapter : SimulatorAdapter
+    config : adapter.config_type, optional
+        Default ``adapter.config_type()``.
+    seed : int
+        Seeds every draw and the simulator; the same seed gives byte-identical files.
+    out_dir : str or os.PathLike, optional
+        Where to write the recording; nothing is written there before the simulation has finished.
+    progress : callable, optional
+        Called every simulated second as ``progress(time_s, n_finished, n_vehicles)``.
+
+    Returns
+    -------
+    The adapter's result; its ``timing`` holds ``sim_time_s``, ``wall_time_s``, the PIRL drivers' ``plan_time_s``
+    and ``n_plans``, ``n_steps``, ``mean_vehicles`` / ``max_vehicles`` and ``mean_pirl`` / ``max_pirl`` in the
+    network per step, ``real_time_factor`` and the simulator's own times.
+
+    Raises
+    ------
+    TypeError
+        ``config`` is not the adapter's configuration type.
+    ValueError
+        A bad seed, or a configuration the simulator cannot run, before it starts.
+    """
+    config = adapter.config_type() if config is None else config
+    if not isinstance(config, adapter.config_type):
+        raise TypeError(f"config must be a {adapter.config_type.__name__}, got {type(config).__name__}")
+    seed = check_seed(seed)
+    plan = adapter.plan(config, seed)
+    duration = config.max_duration or float(plan["depart"].max()) + EXTRA_TIME_S
+    n_max = max(1, round(duration / STEP))
+    present, present_pirl = [], []
+    with adapter.start(config, seed, plan) as sim:
+        for k in range(n_max):
+            sim.step()
+            present.append(sim.n_present)
+            present_pirl.append(sim.n_present_pirl)
+            if progress is not None and (k + 1) % 10 == 0:
+                progress((k + 1) * STEP, sim.n_finished, len(plan))
+            if sim.done:
+                break
+        sim.finish()
+        if progress is not None:
+            progress(sim.time, sim.n_finished, len(plan))
+        head, tail = adapter.info(config)
+        info = {"simulator": adapter.name, **head, "seed": seed, "step_length_s": STEP, "config": config.to_dict(),
+                **tail, "n_vehicles": int(len(plan)), "n_not_departed": int(sim.n_not_departed),
+                "sim_time_s": round(sim.time, 6)}
+        recording = sim.recording(info)
+        files = adapter.write(sim, recording, out_dir, config) if out_dir is not None else None
+    timing = {**run_timing(sim.time, sim.wall_time_s, present, sim.controller, **sim.own_times),
+              "mean_pirl": float(np.mean(present_pirl)) if present_pirl else 0.0,
+              "max_pirl": int(max(present_pirl, default=0))}
+    return adapter.result(config, seed, plan, sim, recording, timing, files)
+
+
+def ground_truth_table(*, agent_id: Sequence[str], route_id: Sequence[str], is_pirl, style, style_name, theta,
+                       interacted, collided, removed_early, overridden_fraction, status, n_frames) -> pd.DataFrame:
+    """``ground_truth.csv``'s table (columns :data:`~pirl_sim.scenarios.recording.GROUND_TRUTH_COLUMNS`), one row
+    per recorded track in track-id order (ids 1, 2, ...).
+
+    Parameters
+    ----------
+    agent_id, route_id, style_name, status : sequences of str (n,)
+    is_pirl, collided, removed_early : bool arrays (n,)
+    style : int array (n,)
+    theta : array (n, K) of the drivers' normalised weights in ``FEATURE_NAMES`` order (any value for non-PIRL)
+    interacted : bool array (n,); recorded as NA for non-PIRL tracks
+    overridden_fraction : float array (n,); share of the driver's commands the simulator overrode, NaN for
+        non-PIRL tracks
+    n_frames : int array (n,)
+    """
+    is_pirl = np.asarray(is_pirl, dtype=bool)
+    n = len(is_pirl)
+    theta = np.asarray(theta, dtype=float).reshape(n, len(FEATURE_NAMES))
+    columns = {"agent_id": agent_id, "route_id": route_id, "style": style, "style_name": style_name,
+               "interacted": interacted, "collided": collided, "removed_early": removed_early,
+               "overridden_fraction": overridden_fraction, "status": status, "n_frames": n_frames}
+    wrong = {k: len(v) for k, v in columns.items() if len(v) != n}
+    if wrong:
+        raise ValueError(f"ground truth columns must have one entry per track ({n}), got lengths {wrong}")
+    return pd.DataFrame({
+        "track_id": np.arange(1, n + 1, dtype=np.int64),
+        "agent_id": list(agent_id),
+        "route_id": list(route_id),
+        "is_pirl": is_pirl,
+        "style": np.asarray(style, dtype=np.int64),
+        "style_name": list(style_name),
+        **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
+        "interacted": pd.array([bool(x) if p else pd.NA for x, p in zip(interacted, is_pirl)], dtype="boolean"),
+        "collided": np.asarray(collided, dtype=bool),
+        "removed_early": np.asarray(removed_early, dtype=bool),
+        "overridden_fraction": np.where(is_pirl, np.asarray(overridden_fraction, dtype=float), np.nan),
+        "status": list(status),
+        "n_frames": np.asarray(n_frames, dtype=np.int64),
+    }, columns=list(GROUND_TRUTH_COLUMNS))
