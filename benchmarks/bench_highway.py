@@ -23,10 +23,11 @@ that other load on the machine hits all of them alike). Targets: the PIRL env no
 the bare ``roundabout-v0`` (issue 16; the baseline named in the output), nor than the 20-IDM one. The load
 average is printed before and after.
 
-Last run (issue 16, 2026-12-01 14:43 UTC, ``--repeats 3 --steps 100``, load average 4.5-5.0 on 2 cores): PIRL
-env 46.3 ms/step (MPC 2.7 ms per frame for ~20 drivers), bare roundabout-v0 29.1 ms/step: 1.59x (target 1.5x
-missed; 1.74x at load 6.5-7 earlier the same afternoon before the ego's per-frame projection was made scalar,
-1.86x in the issue); 0.48x the 20-IDM road.
+Last run (issue 16, 2026-12-01 16:41 UTC, ``--repeats 3 --steps 100``, load average 2.3-2.7 on 2 cores, with
+the compiled PIRL-driver kernel, `pirl_sim.scenarios.driver_kernel`): PIRL env 22.8 ms/step (MPC 0.41 ms per
+batched call for ~20 drivers), bare roundabout-v0 26.3 ms/step: 0.86x (target 1.5x met); 0.27x the 20-IDM road.
+Before the kernel (14:43 UTC, load 4.5-5.0): 46.3 vs 29.1 ms/step, 1.59x, the MPC ~2.7 ms per frame; 1.86x when
+the issue was filed.
 """
 
 from __future__ import annotations
