@@ -549,7 +549,7 @@ class PirlDrivers:
             if self.kernel == "numba" or numba_available():
                 try:
                     self._compiled = CompiledDriverMPC(self.model, self._mpc)
-                except KernelUnsupported:
+                except (KernelUnsupported, ImportError):  # another model, or a numba that does not import
                     if self.kernel == "numba":
                         raise
 
