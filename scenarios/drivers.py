@@ -624,8 +624,8 @@ class PirlDrivers:
         a = np.where(followed, self._a_next[rows], accel)
         x0 = np.column_stack([self.model.routes.to_global(r, s_local), speed, a])
         x0 = np.clip(x0, self._lo, self._hi)  # the MPC plans from the start moved into its bounds
-        stopped = x0[:, 1] <= 0.0  # a stopped car does not decelerate further
-        x0[stopped, 2] = np.maximum(x0[stopped, 2], 0.0)
+        at_rest = x0[:, 1] <= 0.0  # a stopped car does not decelerate further
+        x0[at_rest, 2] = np.maximum(x0[at_rest, 2], 0.0)
         theta = self._theta[rows]
         prev = self._plans[rows]
         init = np.concatenate([prev[:, 1:], prev[:, -1:]], axis=1)  # the last plans shifted by a step
