@@ -191,7 +191,7 @@ def test_track_starting_before_its_route_stays_on_its_route(tmp_path):
     xy = scene.model.positions(t.states, t.metadata["d"])
     assert np.abs(xy - t.metadata["xy"]).max() < 0.1
     # the replay scores on the same axis: CV along the path from the first window is exact on this track
-    from pirl_sim.harness.replay import _errors
+    from pirl_sim.sweep.recorded import _errors
 
     proto = ReplayProtocol(history=2, horizon=10, fde_steps=(10,))
     x0 = t.states[2]
@@ -219,7 +219,11 @@ def test_counts_are_tracks_and_pieces_separately(tmp_path):
 
 
 def test_ca_baseline_never_reverses():
-    from pirl_sim.harness.replay import _baseline_s
+    """The replay's CA along the path is the sweep's pseudo-learner (`KinematicModel`)."""
+    from types import SimpleNamespace
+
+    from pirl_sim.dynamics import longitudinal
+    from pirl_sim.sweep.baselines import KinematicModel
 
     x0 = np.array([
         [10.0, -0.5, -1.0],  # reversing estimate, braking: stays
@@ -229,7 +233,8 @@ def test_ca_baseline_never_reverses():
         [10.0, -0.2, 1.0],   # starting from standstill
         [10.0, 5.0, 0.5],    # accelerating
     ])
-    s = _baseline_s("CA (path)", x0, 15, 0.2)
+    model = SimpleNamespace(dynamics=longitudinal(0.2), features=None)  # (s, v, a) states at dt 0.2 s
+    s = KinematicModel(model, "ca").predict_states(x0, None, 15)[:, 1:, 0]
     t = 0.2 * np.arange(1, 16)
     np.testing.assert_allclose(s[0], 10.0)
     np.testing.assert_allclose(s[1], 10.0)
@@ -334,49 +339,65 @@ def test_unconnected_positions_are_bridged_or_cut_not_fatal(tmp_path):
     assert np.all(t2.metadata["xy"][:, 1] == LANE_Y["A"])
 
 
-def test_replay_seeds_in_processes_give_the_same_results(scene_dir):
-    scene = _small_scene(scene_dir)
-    proto = ReplayProtocol(seeds=(0, 1, 2), lateral="neighbours")
-    specs = [("TIRL", "tirl", {}), ("PIRL-kNN (k=3)", "pirl-knn", {"n_neighbors": 3, "stride": 2})]
-    one = run_replay(scene, specs, proto)
-    two = run_replay(scene, specs, proto, jobs=2)
-    cols = ["seed", "method", "med", "med_path", "n_windows", "lateral_floor", "irl_converged"]
-    pd.testing.assert_frame_equal(one["rows"][cols], two["rows"][cols])
-    assert one["errors"].keys() == two["errors"].keys()
-    for key in one["errors"]:
-        np.testing.assert_array_equal(one["errors"][key], two["errors"][key])
-    np.testing.assert_array_equal(one["examples"]["truth"], two["examples"]["truth"])
-    with pytest.raises(ValueError, match="jobs"):
-        run_replay(scene, specs, proto, jobs=0)
+def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(scene_dir, tmp_path):
+    """``pirl-sim replay`` keeps one cell per (split seed, method) in OUT/cells/ and gives the rows of the in-process
+    `run_replay` on the same scene, with one worker process or two."""
+    import json
+
+    out, _ = scene_dir
+    args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
+            "tirl,pirl-knn", "--knn-k", "3", "--lateral", "neighbours", "--quiet", "--out"]
+    assert main(args + [str(tmp_path / "one")]) == 0
+    assert main(args + [str(tmp_path / "two"), "--jobs", "2"]) == 0
+    cells = [json.loads(p.read_text()) for p in (tmp_path / "one" / "cells").glob("*.json")]
+    assert sorted((c["cell"]["seed"], c["cell"]["learner"]) for c in cells) == sorted(
+        (seed, m) for seed in range(3) for m in ("cv", "ca", "tirl", "pirl-knn", "cv-xy"))
+    from pirl_sim.sweep.recorded import load_scene
+
+    scene = load_scene(cells[0]["cell"]["scenario_params"])  # as the cells read it (a pirl_sim recording)
+    direct = run_replay(scene, [("TIRL", "tirl", {}), ("PIRL-kNN (k=3)", "pirl-knn",
+                                                       {"n_neighbors": 3, "prior": "population", "stride": 2,
+                                                        "irl_max_iter": 400})],
+                        ReplayProtocol(seeds=(0, 1, 2), lateral="neighbours"))["rows"]
+    cols = ["seed", "method", "med", "med_path", "n_windows", "lateral_floor", "irl_converged", "de@3.0s"]
+    one, two = (pd.read_csv(tmp_path / d / "rows.csv") for d in ("one", "two"))
+    pd.testing.assert_frame_equal(one[cols], two[cols])
+    pd.testing.assert_frame_equal(one[cols], direct[cols].astype(one[cols].dtypes.to_dict()), rtol=1e-5)  # %.6g
+    with pytest.raises(SystemExit):
+        main(args + [str(tmp_path / "none"), "--jobs", "0"])
 
 
-def test_an_interrupted_replay_resumes_from_its_finished_split_seeds(scene_dir, tmp_path, monkeypatch):
-    """Each split seed is stored as it finishes (``OUT/seeds/``); a replay interrupted in its last seed runs only
-    that seed again and writes the same results as an uninterrupted run (timings aside)."""
-    import pirl_sim.harness.replay as replay
+def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_path, monkeypatch):
+    """The sweep engine stores each split seed's cells as they finish (``OUT/cells/``); a replay interrupted in
+    its last seed runs only that seed again and writes the same results as an uninterrupted run (timings
+    aside)."""
+    import json
+
+    import pirl_sim.sweep.recorded as recorded
 
     out, _ = scene_dir
     args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
             "tirl,pirl-knn", "--knn-k", "3", "--quiet", "--out"]
-    run_seed, ran = replay._replay_seed, []
+    run_seed, ran = recorded.replay_seed, []
 
-    def interrupted(seed, job):
+    def interrupted(scene, seed, *a, **kw):
         if seed == 2:
             raise KeyboardInterrupt
-        return run_seed(seed, job)
+        return run_seed(scene, seed, *a, **kw)
 
-    monkeypatch.setattr(replay, "_replay_seed", interrupted)
+    monkeypatch.setattr(recorded, "replay_seed", interrupted)
     assert main(args + [str(tmp_path / "resumed")]) == 130
-    stored = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "resumed" / "seeds").glob("*.pkl")}
-    assert sorted(name.split("-")[0] for name in stored) == ["0", "1"]
+    cells = tmp_path / "resumed" / "cells"
+    stored = {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json")}
+    assert sorted({json.loads(p.read_text())["cell"]["seed"] for p in cells.glob("*.json")}) == [0, 1]
     assert not (tmp_path / "resumed" / "rows.csv").exists()
-    monkeypatch.setattr(replay, "_replay_seed", lambda seed, job: ran.append(seed) or run_seed(seed, job))
+    monkeypatch.setattr(recorded, "replay_seed", lambda scene, seed, *a, **kw: ran.append(seed)
+                        or run_seed(scene, seed, *a, **kw))
     assert main(args + [str(tmp_path / "resumed")]) == 0
-    if len({p.name.split("-", 1)[1] for p in (tmp_path / "resumed" / "seeds").glob("*.pkl")}) > 1:
+    if len({json.loads(p.read_text())["code_version"] for p in cells.glob("*.json")}) > 1:
         pytest.skip("the code changed while the test ran (a shared working tree): every seed ran again")
     assert ran == [2]
-    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "resumed" / "seeds").glob("*.pkl")
-            if p.name in stored} == stored
+    assert {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json") if p.name in stored} == stored
     assert main(args + [str(tmp_path / "fresh")]) == 0
     assert ran == [2, 0, 1, 2]
     for name in ("rows.csv", "summary.csv", "paired.csv", "paired_ca.csv"):
@@ -385,20 +406,33 @@ def test_an_interrupted_replay_resumes_from_its_finished_split_seeds(scene_dir, 
         pd.testing.assert_frame_equal(a.drop(columns=timings), b.drop(columns=timings))
 
 
-def test_stored_split_seeds_are_keyed_by_identity_and_damaged_ones_rerun(tmp_path):
-    from pirl_sim.harness.replay import SeedStore, files_identity
+def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(scene_dir, tmp_path):
+    import argparse
+    import shutil
 
-    store = SeedStore(tmp_path, ["scene", ReplayProtocol(seeds=(0,))])
-    assert store.key == SeedStore(tmp_path, ["scene", ReplayProtocol(seeds=(0,))]).key
-    assert store.key != SeedStore(tmp_path, ["scene", ReplayProtocol(seeds=(0,), stride=3)]).key
-    assert store.key != SeedStore(tmp_path, ["other scene", ReplayProtocol(seeds=(0,))]).key
-    store.save(0, ([{"med": 1.0}], {}, {}))
-    assert store.load(0) == ([{"med": 1.0}], {}, {}) and store.load(1) is None
-    store.path(0).write_bytes(b"not a pickle")
-    with pytest.warns(UserWarning, match="seed 0 runs again"):
-        assert store.load(0) is None
-    (tmp_path / "a.csv").write_text("1")
-    first = files_identity([tmp_path / "a.csv"], dt=0.2)
-    assert first != files_identity([tmp_path / "a.csv"], dt=0.1)
-    (tmp_path / "a.csv").write_text("2")
-    assert first != files_identity([tmp_path / "a.csv"], dt=0.2)
+    from pirl_sim.harness.replay_cli import add_replay_parser, replay_config, replay_settings
+    from pirl_sim.sweep.recorded import recorded_fingerprint
+
+    out, _ = scene_dir
+    scene = tmp_path / "scene"
+    shutil.copytree(out, scene)
+    parser = argparse.ArgumentParser()
+    add_replay_parser(parser.add_subparsers())
+
+    def keys(*extra):
+        args = parser.parse_args(["replay", "--tracks", str(scene), "--map", str(scene / "map.osm"), *extra])
+        return [c.key("code") for c in replay_config(args, replay_settings(args), args.tracks, args.map).cells]
+
+    first = keys("--seeds", "2")
+    assert len(set(first)) == len(first) == 2 * 6  # CV, CA, TIRL, PIRL-GMM, PIRL-kNN, CV (x, y) per seed
+    assert set(first) < set(keys("--seeds", "3"))  # another seed adds cells, the others are reused
+    assert not set(first) & set(keys("--seeds", "2", "--estimate", "speeds"))  # loading settings
+    assert not set(first) & set(keys("--seeds", "2", "--lateral", "plane"))  # replay settings
+    params = {"tracks": str(scene), "map": str(scene / "map.osm"), "files": 0}
+    fingerprints = [recorded_fingerprint(params)]
+    for name in ("ground_truth.csv", "map.osm", "vehicle_tracks_000.csv"):  # sidecar, map, tracks
+        with open(scene / name, "a") as f:
+            f.write("\n")
+        fingerprints.append(recorded_fingerprint(params))
+    assert len(set(fingerprints)) == 4
+    assert not set(first) & set(keys("--seeds", "2"))

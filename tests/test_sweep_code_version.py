@@ -2,7 +2,8 @@
 
 - every source file whose code runs while cells of every registered scenario compute (traced in a fresh
   process, under a profiler) is one of the hashed files, and so is every module those cells import;
-- the report, the command lines, figures, the replay harness and the envs are not hashed;
+- the report, the command lines, figures, the replay's report template and the envs are not hashed (the
+  replay's cells, scenario ``recorded``, are: `pirl_sim.sweep.recorded` and what it runs);
 - the committed ``results/sweep`` matches the code: ``pirl-sim sweep --dry-run`` over it has nothing to run.
 """
 
@@ -54,6 +55,22 @@ learners = ["cv", { name = "tirl", params = { likelihood = "receding", step_stri
 [[experiments]]
 scenario = "replay"
 params = { tracks = "scene", map = "scene/map.osm" }
+protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
+learners = ["tirl"]
+
+[[experiments]]
+scenario = "recorded"
+params = { tracks = "scene", map = "scene/map.osm", replay = { fde_steps = [5], lateral = "neighbours", desired_speed = "fit", n_futures = 2 } }
+protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
+learners = ["cv", "ca", "tirl", { name = "pirl-knn", params = { n_neighbors = 2 } },
+            { name = "pirl-knn", label = "next", params = { n_neighbors = 2, target = "next", target_steps = 5,
+              state_features = [1, 2], state_lags = [0, 2], lookup_features = false, aggregate = "futures" } },
+            "hindsight", "cv-xy"]
+
+[[experiments]]
+scenario = "recorded"
+label = "recorded, closed loop"
+params = { tracks = "scene", map = "scene/map.osm", replay = { fde_steps = [5], rollout = "closed", mpc_horizon = 5 } }
 protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
 learners = ["tirl"]
 """
@@ -116,17 +133,17 @@ def test_every_module_a_cell_runs_is_in_the_code_version(tmp_path):
     assert imported <= set(hashed), f"cells imported modules outside CELL_CODE: {sorted(imported - set(hashed))}"
 
 
-def test_report_cli_figures_replay_harness_and_envs_are_not_in_the_code_version():
+def test_report_cli_figures_replay_template_and_envs_are_not_in_the_code_version():
     names = {name for name, _ in source_files()}
     for outside in ("pirl_sim.sweep.report", "pirl_sim.sweep.cli", "pirl_sim.sweep.run", "pirl_sim.sweep.config",
                     "pirl_sim.cli", "pirl_sim.harness.figures", "pirl_sim.harness.replay",
                     "pirl_sim.harness.replay_cli", "pirl_sim.harness.reproduce", "pirl_sim.envs",
-                    "pirl_sim.envs.roundabout", "pirl_sim.lateral", "pirl_sim.threads", "pirl_sim.testing",
+                    "pirl_sim.envs.roundabout", "pirl_sim.threads", "pirl_sim.testing",
                     *NOT_CELL_CODE):
         assert outside not in names, outside
     for inside in ("pirl_sim.sweep.baselines", "pirl_sim.irl", "pirl_sim.receding", "pirl_sim.learners.tirl", "pirl_sim.scenarios.passage",
                    "pirl_sim.scenarios.sumo.runner", "pirl_sim.harness.experiment", "pirl_sim.sweep.cell",
-                   "pirl_sim.sweep.scenarios"):
+                   "pirl_sim.sweep.scenarios", "pirl_sim.sweep.recorded", "pirl_sim.lateral", "pirl_sim.speed_fit"):
         assert inside in names, inside
     assert code_version() == code_version()
 

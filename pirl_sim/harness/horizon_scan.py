@@ -5,7 +5,7 @@ For each split seed (by track, as the replay) and each H: TIRL with the receding
 tracks' residuals u_t - pi_theta(x_t) at the fitted weights are scored under the *training* fit's residual
 model (Cauchy with the scale the fit ends with, `pirl_sim.receding.cauchy_nll`): the held-out negative log-likelihood per
 scored control. The same weights predict every test window closed-loop with that H (re-plan every step,
-`pirl_sim.harness.replay.predict_path_states`), scored as MED [m]. Per H the table gives means and standard
+`pirl_sim.sweep.recorded.predict_path_states`), scored as MED [m]. Per H the table gives means and standard
 errors over the split seeds, and the held-out NLL paired against the best H (per seed).
 
 Shared weights mix the styles of a population, so their residuals are dominated by the style misfit and
@@ -38,11 +38,11 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
     ----------
     scene : pirl_sim.scenarios.replay.ReplayScene
     horizons : sequence of int          MPC horizons H [steps of the scene's dt]
-    proto : pirl_sim.harness.replay.ReplayProtocol   split seeds, test fraction, prediction windows
+    proto : pirl_sim.sweep.recorded.ReplayProtocol   split seeds, test fraction, prediction windows
     step_stride : int                   score every ``step_stride``-th recorded step in the fit
     desired_speed : None, "fit" or (a_lat, v_max)
         The scene's desired speed, one fitted per split seed on the training tracks
-        (`pirl_sim.harness.replay.fit_scene_speed`), or given [m/s^2, m/s] (as `run_replay`).
+        (`pirl_sim.sweep.recorded.fit_scene_speed`), or given [m/s^2, m/s] (as `run_replay`).
 
     Returns
     -------
@@ -51,7 +51,7 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
     (training fit), ``med`` (closed-loop, [m]), ``med_open`` (open-loop plan over max(H, prediction horizon)),
     the fitted weights ``theta_<feature>``, step counts and ``fit_s``.
     """
-    from pirl_sim.harness.replay import (
+    from pirl_sim.sweep.recorded import (
         _errors,
         _windows,
         desired_speed_model,

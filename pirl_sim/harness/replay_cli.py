@@ -229,10 +229,29 @@ def _steps(seconds: float, dt: float) -> int:
 
 
 NEXT_KNN = "pirl-knn-next"  #: PIRL-kNN with target="next" (learners/knn.py), a key of --learners only
+ALWAYS = ("cv", "ca", "cv-xy")  #: the baselines of every replay (pseudo-learners of the preset)
 
 
-def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps: int | None = None,
-                   dt: float | None = None) -> list:
+def _cli_key(entry: dict) -> str:
+    """The --learners key of a preset learner entry."""
+    return NEXT_KNN if entry.get("params", {}).get("target") == "next" else entry["name"]
+
+
+def replay_config(args, settings: dict, tracks, map_path):
+    """The embedded preset ``pirl_sim/sweep/replay.toml`` with the command line's choices (see the preset's
+    comment) as a validated `pirl_sim.sweep.config.SweepConfig` of the scene ``tracks`` on ``map_path``.
+
+    Raises
+    ------
+    ValueError
+        Unknown learners, a bad --knn-k, or anything the sweep config rejects (named there).
+    """
+    import dataclasses
+    import tomllib
+    from importlib import resources
+
+    from pirl_sim.sweep.config import parse_config
+
     keys = [k.strip() for k in args.learners.split(",") if k.strip()]
     known = sorted([*LEARNERS, NEXT_KNN])
     unknown = [k for k in keys if k not in known]
@@ -246,39 +265,115 @@ def _learner_specs(args, likelihood: str, mpc_horizon: int | None, horizon_steps
         raise ValueError(f"--knn-k must be positive integers, got {args.knn_k!r}")
     if "tirl" not in keys:
         keys.insert(0, "tirl")  # the reference of the paired differences
-    irl = {"likelihood": "receding", "horizon": int(mpc_horizon)} if likelihood == "receding" else {}
-    # the population prior of PIRL-kNN is a prior of the trajectory likelihood's Laplace fit
-    knn_prior = {} if likelihood == "receding" else {"prior": "population"}
-    # irl_max_iter 400: on DR_USA_Roundabout_FT 1-2 of ~730 per-demo fits needed more than 100 (x5), on EP 2 of
-    # 10,624 next segments
-    knn = {"stride": 2, "irl_max_iter": 400, **knn_prior, **irl}
-    specs = []
-    for k in keys:
-        if k == "tirl":
-            specs.append(("TIRL", k, dict(irl)))
-        elif k == "pirl-gmm":
-            specs.append((f"PIRL-GMM (k={args.gmm_k})", k, {"n_components": args.gmm_k, "random_state": 0, **irl}))
-        elif k == "pirl-dpgmm":
-            specs.append(("PIRL-DPGMM", k, {"random_state": 0, **irl}))
-        elif k == NEXT_KNN:
-            if horizon_steps is None or dt is None:
-                raise ValueError(f"{NEXT_KNN} needs the prediction horizon in steps and the step [s]")
-            # looked up by speed and acceleration along the path (state entries 1, 2) now, 0.5 s and 1 s ago
-            history = seconds_to_steps(args.history, dt, "--history")
-            lags = tuple(sorted({min(int(round(back / dt)), history) for back in (0.0, 0.5, 1.0)}))
-            nxt = {"target": "next", "target_steps": int(horizon_steps), "state_features": (1, 2),
-                   "state_lags": lags, "lookup_features": False, "aggregate": "futures"}
-            specs += [(f"PIRL-kNN next (k={n})", "pirl-knn", {"n_neighbors": n, **knn, **nxt}) for n in knn_ks]
-        else:
-            specs += [(f"PIRL-kNN (k={n})", k, {"n_neighbors": n, **knn}) for n in knn_ks]
-    return specs
+    dt = settings["dt"]
+    history = seconds_to_steps(args.history, dt, "--history")
+    horizon = seconds_to_steps(args.horizon, dt, "--horizon")
+    text = resources.files("pirl_sim.sweep").joinpath("replay.toml").read_text(encoding="utf-8")
+    data = tomllib.loads(text)
+    data["seeds"] = list(range(args.seeds))
+    exp = data["experiments"][0]
+    exp["protocols"] = [{"kind": "rolling", "history_steps": history, "horizon": horizon, "stride": _steps(1.0, dt)}]
+    receding = settings["likelihood"] == "receding"
+    irl = {"likelihood": "receding", "horizon": int(settings["mpc_horizon"])} if receding else {}
+    lags = tuple(sorted({min(int(round(back / dt)), history) for back in (0.0, 0.5, 1.0)}))  # for pirl-knn-next
+    learners = []
+    for entry in ({"name": e} if isinstance(e, str) else dict(e) for e in exp["learners"]):
+        key = _cli_key(entry)
+        if key not in (*ALWAYS, *keys) and not (key == "hindsight" and args.hindsight):
+            continue
+        if key in keys:
+            params = {**entry.get("params", {}), **irl}
+            if receding:
+                params.pop("prior", None)  # a prior of the trajectory likelihood's Laplace fit
+            if key == "pirl-gmm":
+                params["n_components"] = args.gmm_k
+            if key == NEXT_KNN:
+                params.update(target_steps=horizon, state_lags=list(lags))
+            if entry["name"] == "pirl-knn":
+                entry["grid"] = {"n_neighbors": knn_ks}
+            entry["params"] = params
+        learners.append(entry)
+    # learners in the order of --learners, between the baselines along the path and the others
+    rank = {k: i for i, k in enumerate(keys)}
+    exp["learners"] = sorted(learners, key=lambda e: (-1 if e["name"] in ("cv", "ca") else
+                                                      rank.get(_cli_key(e), len(rank))))
+    fde = sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon) if x <= args.horizon})
+    load = {k: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v) for k, v in settings["load"].items()}
+    replay = {"fde_steps": fde, "rollout": settings["rollout"], "lateral": getattr(args, "lateral", "hold"),
+              "n_futures": args.futures or 0,
+              **({"mpc_horizon": settings["mpc_horizon"]} if settings["mpc_horizon"] is not None else {}),
+              **({"desired_speed": "fit"} if args.desired_speed == "fit" else {})}
+    exp["params"] = {"tracks": str(tracks), "map": str(map_path), "files": args.files or 0, "load": load,
+                     "replay": replay}
+    return parse_config(data, source="<replay>", text=text)
+
+
+def replay_results(config, run, scene) -> dict:
+    """The report template's result dict (`pirl_sim.harness.replay.collect_replay`) from the cells of a finished
+    `run_sweep` of ``config`` (a `replay_config`) over ``scene`` (the scene its cells replayed)."""
+    import dataclasses
+
+    from pirl_sim.harness.replay import collect_replay
+    from pirl_sim.sweep.recorded import _replay_settings, decode_method, method_id
+    from pirl_sim.sweep.store import ResultStore
+
+    store = ResultStore(run.out)
+    cells = list(config.cells)
+    label = {method_id(c.spec()): c.learner_label for c in cells}
+    per_seed: dict = {}
+    for cell in cells:
+        record = store.load(cell.key(run.code_version))
+        if record is None:
+            raise RuntimeError(f"the cell {cell.learner_label} of seed {cell.seed} has no result in {run.out}/cells/")
+        entry, examples = decode_method(record["result"])
+        entry["row"] = {**entry["row"], "method": cell.learner_label}
+        if entry["row"].get("irl_from"):
+            entry["row"]["irl_from"] = label[entry["row"]["irl_from"]]
+        per_seed.setdefault(cell.seed, {"methods": {}, "examples": examples})["methods"][cell.learner_label] = entry
+    seeds, order = sorted(per_seed), [c.learner_label for c in cells]
+    for out in per_seed.values():  # the preset's order of the methods
+        out["methods"] = dict(sorted(out["methods"].items(), key=lambda kv: order.index(kv[0])))
+    proto = dataclasses.replace(_replay_settings(cells[0].spec())[0], seeds=tuple(seeds))
+    gmm = [c.k for c in cells if c.learner == "pirl-gmm"]
+    return collect_replay(scene, proto, per_seed, gmm[0] if gmm else 3)
+
+
+def _replay(args, a, files, settings, out, say) -> tuple:
+    """One scene (``a.tracks``, ``a.map``) through the sweep engine into ``out``; returns (result, scene,
+    protocol). Finished cells in ``out/cells/`` are reused: an interrupted replay resumes."""
+    from pirl_sim.sweep.recorded import load_scene
+    from pirl_sim.sweep.run import run_sweep
+
+    config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
+    proto = _protocol(a, settings)
+    say(f"reading {len(files)} track files and {a.map} (dt {settings['dt']:g} s, estimate "
+        f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
+    run = run_sweep(config, out, workers=0 if args.jobs == 1 else args.jobs, progress=not args.quiet,
+                    command=_command(), tables=False)
+    if run.failed:
+        first = next(iter(run.failed.values()))
+        raise RuntimeError(f"{len(run.failed)} of the replay's cells failed (first: {first}; details in "
+                           f"{out}/errors/); the finished cells are kept: run the same command again to retry")
+    scene = load_scene(dict(config.cells[0].scenario_params))  # the cells' scene (this process's, if inline)
+    say(f"{scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), {scene.n_selected_tracks} "
+        f"selected; skipped {scene.skipped}; route repairs {scene.repairs}"
+        + (f"; steps {scene.steps}" if scene.steps else ""))
+    return replay_results(config, run, scene), scene, proto
+
+
+def _command() -> str:
+    return "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
+
+
+def _interrupted(out) -> int:
+    print(f"\ninterrupted: finished cells are kept in {out}/cells/; run the same command to resume", file=sys.stderr)
+    return 130
 
 
 def run_replay_command(args) -> int:
     """Run ``pirl-sim replay`` from parsed arguments; returns the exit status."""
-    from pirl_sim.harness.replay import run_replay, summarize, write_replay_results
+    from pirl_sim.harness.replay import summarize, write_replay_results
     from pirl_sim.io.interaction import find_track_files
-    from pirl_sim.scenarios.replay import load_replay
 
     say = reporter(not args.quiet)
     if args.table is not None:
@@ -288,71 +383,49 @@ def run_replay_command(args) -> int:
         return 2
     try:
         settings = replay_settings(args)
-        dt, horizon = settings["dt"], settings["mpc_horizon"]
         files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
         if args.files is not None:
             files = sorted(files, key=lambda f: Path(f).name)[: args.files]
-        scan = None
-        if args.scan_horizon is not None:
-            try:
-                scan = [int(h) for h in str(args.scan_horizon).split(",")]
-            except ValueError:
-                raise ValueError(f"--scan-horizon must be positive integers separated by commas, got "
-                                 f"{args.scan_horizon!r}") from None
-            if not scan or any(h < 1 for h in scan):
-                raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
-        else:
-            specs = _learner_specs(args, settings["likelihood"], horizon, seconds_to_steps(args.horizon, dt, "--horizon"),
-                                   dt)
-        proto = _protocol(args, settings, scan)
         for note in settings["notes"]:
-            say(f"[0/3] {note}")
-        say(f"[1/3] reading {len(files)} track files and {args.map} (dt {dt:g} s, estimate "
-            f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
-        scene = load_replay(files, args.map, **settings["load"])
-        say(f"[2/3] {scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), "
-            f"{scene.n_selected_tracks} selected; skipped {scene.skipped}; route repairs {scene.repairs}"
-            + (f"; steps {scene.steps}" if scene.steps else ""))
-        if scan is not None:
-            from pirl_sim.harness.horizon_scan import scan_horizons, write_scan
-
-            rows = scan_horizons(scene, scan, proto, progress=lambda m: say(f"[3/3] {m}"),
-                                 desired_speed="fit" if args.desired_speed == "fit" else None)
-            command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
-            table = write_scan(rows, args.out, command)
-            print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
-            print(f"wrote {args.out}/")
-            return 0
-        result = run_replay(scene, specs, proto, progress=lambda m: say(f"[3/3] {m}"),
-                            desired_speed="fit" if args.desired_speed == "fit" else None, hindsight=args.hindsight,
-                            n_futures=args.futures or 0, jobs=args.jobs, partial_dir=args.out,
-                            data_identity=_data_identity(files, args.map, settings))
-    except (ValueError, FileNotFoundError) as exc:
+            say(note)
+        if args.scan_horizon is not None:
+            return _scan(args, files, settings, say)
+        result, scene, _ = _replay(args, args, files, settings, args.out, say)
+    except (ValueError, FileNotFoundError, RuntimeError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"\ninterrupted: finished split seeds are kept in {args.out}/seeds/; run the same command to resume",
-              file=sys.stderr)
-        return 130
-    command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
-    write_replay_results(result, scene, args.out, command)
+        return _interrupted(args.out)
+    write_replay_results(result, scene, args.out, _command())
     print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(result["paired_ca"].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(f"wrote {args.out}/")
     return 0
 
 
-def _data_identity(files, map_path, settings) -> str:
-    """What the scene of ``files`` depends on: the files beside them (track files, run.json, ground_truth.csv,
-    driver_steps.csv), the map, which files were read and the loading settings (`files_identity`)."""
-    from pirl_sim.harness.replay import files_identity
+def _scan(args, files, settings, say) -> int:
+    """``--scan-horizon H1,H2,...`` (`pirl_sim.harness.horizon_scan`) instead of the replay."""
+    from pirl_sim.harness.horizon_scan import scan_horizons, write_scan
+    from pirl_sim.scenarios.replay import load_replay
 
-    dirs = sorted({Path(f).parent for f in files})
-    return files_identity([*dirs, map_path], files=[Path(f).name for f in files], load=settings["load"])
+    try:
+        scan = [int(h) for h in str(args.scan_horizon).split(",")]
+    except ValueError:
+        raise ValueError(f"--scan-horizon must be positive integers separated by commas, got "
+                         f"{args.scan_horizon!r}") from None
+    if not scan or any(h < 1 for h in scan):
+        raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
+    proto = _protocol(args, settings, scan)
+    scene = load_replay(files, args.map, **settings["load"])
+    rows = scan_horizons(scene, scan, proto, progress=say, desired_speed="fit" if args.desired_speed == "fit" else None)
+    table = write_scan(rows, args.out, _command())
+    print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    print(f"wrote {args.out}/")
+    return 0
 
 
 def _protocol(args, settings, scan=None):
-    from pirl_sim.harness.replay import ReplayProtocol
+    from pirl_sim.sweep.recorded import ReplayProtocol
 
     dt, horizon = settings["dt"], settings["mpc_horizon"]
     return ReplayProtocol(history=seconds_to_steps(args.history, dt, "--history"),
@@ -365,21 +438,19 @@ def _protocol(args, settings, scan=None):
 
 
 def _run_table(args, say) -> int:
-    """``replay --table ROOT``: every roundabout of ``--roundabouts`` in turn, then the table
-    (`pirl_sim.harness.replay_table`)."""
+    """``replay --table ROOT``: every roundabout of ``--roundabouts`` in turn (each through the sweep engine into
+    ``--out/NAME``), then the table (`pirl_sim.harness.replay_table`)."""
     import copy
     import time
 
-    from pirl_sim.harness.replay import run_replay, write_replay_results
+    from pirl_sim.harness.replay import write_replay_results
     from pirl_sim.harness.replay_table import table_row, write_table
     from pirl_sim.io.interaction import find_track_files
-    from pirl_sim.scenarios.replay import load_replay
 
     names = [n.strip() for n in str(args.roundabouts).split(",") if n.strip()]
     if "DR_USA_Roundabout_SR" in names:
         print("pirl-sim: error: DR_USA_Roundabout_SR is the held-out evaluation set of issue 12", file=sys.stderr)
         return 2
-    command = "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
     rows = []
     try:
         for name in names:
@@ -393,23 +464,17 @@ def _run_table(args, say) -> int:
             files = sorted(find_track_files(a.tracks), key=lambda f: Path(f).name)
             if args.files is not None:
                 files = files[: args.files]
-            specs = _learner_specs(a, settings["likelihood"], settings["mpc_horizon"],
-                                   seconds_to_steps(a.horizon, settings["dt"], "--horizon"), settings["dt"])
-            proto = _protocol(a, settings)
-            say(f"{name}: reading {len(files)} track files")
-            scene = load_replay(files, a.map, **settings["load"])
-            result = run_replay(scene, specs, proto, progress=lambda m: say(f"{name}: {m}"),
-                                desired_speed="fit" if args.desired_speed == "fit" else None,
-                                hindsight=args.hindsight, n_futures=a.futures or 0, jobs=args.jobs,
-                                partial_dir=args.out / name, data_identity=_data_identity(files, a.map, settings))
-            write_replay_results(result, scene, args.out / name, command)
+            result, scene, proto = _replay(args, a, files, settings, args.out / name, lambda m: say(f"{name}: {m}"))
+            write_replay_results(result, scene, args.out / name, _command())
             elapsed = time.perf_counter() - t0
             rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
             say(f"{name}: done in {elapsed:.0f} s")
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, RuntimeError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
-    text = write_table(rows, args.out, command)
+    except KeyboardInterrupt:
+        return _interrupted(args.out)
+    text = write_table(rows, args.out, _command())
     print(text)
     print(f"wrote {args.out}/")
     return 0

@@ -11,6 +11,12 @@ infer no weights (NaN: no weight scores) and have no styles.
   not reverse). Needs a state with an acceleration (the roundabout model's (s, v, a)); the synthetic point
   mass (p, v) has none.
 
+Two more pseudo-learners are methods of the ``recorded`` scenario only (`pirl_sim.sweep.recorded`, the replay),
+which computes them itself; their ``fit`` elsewhere raises ValueError:
+
+- ``cv-xy``: constant velocity in the plane from the last two recorded positions;
+- ``hindsight``: each test window under the cost fitted on its own recorded future (an oracle, no predictor).
+
 States are read by the dynamics' state names (``"s [m]"`` or ``"p [m]"``, ``"v [m/s]"``, ``"a [m/s^2]"``);
 other state entries (e.g. a leader's gap) are held.
 """
@@ -20,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from sklearn.base import BaseEstimator
 
-__all__ = ["BASELINES", "ConstantVelocity", "ConstantAcceleration", "KinematicModel"]
+__all__ = ["BASELINES", "ConstantVelocity", "ConstantAcceleration", "PlaneVelocity", "Hindsight", "KinematicModel"]
 
 _POSITION_NAMES = ("s [m]", "p [m]")
 
@@ -83,6 +89,8 @@ class _Baseline(BaseEstimator):
     def fit(self, trajectories=None, y=None):
         if self.model is None:
             raise ValueError(f"{type(self).__name__} needs the scenario's model")
+        if self.kind not in ("cv", "ca"):
+            raise ValueError(f"{self.kind!r} is a method of the 'recorded' scenario only (pirl_sim.sweep.recorded)")
         self.model_ = KinematicModel(self.model, self.kind)
         return self
 
@@ -104,5 +112,17 @@ class ConstantAcceleration(_Baseline):
     kind = "ca"
 
 
+class PlaneVelocity(_Baseline):
+    """Constant velocity in the plane (module doc; the ``recorded`` scenario's)."""
+
+    kind = "cv-xy"
+
+
+class Hindsight(_Baseline):
+    """The cost fitted on each window's own future (module doc; the ``recorded`` scenario's)."""
+
+    kind = "hindsight"
+
+
 #: sweep name -> class (the learners of `pirl_sim.learners.LEARNERS` are the others)
-BASELINES = {"cv": ConstantVelocity, "ca": ConstantAcceleration}
+BASELINES = {"cv": ConstantVelocity, "ca": ConstantAcceleration, "cv-xy": PlaneVelocity, "hindsight": Hindsight}

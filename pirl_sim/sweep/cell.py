@@ -327,13 +327,20 @@ def run_cells(specs: list[dict], code_version: str | None = None, store_root: st
     -------
     list of dict, one per spec in order: `run_cell`'s result, or ``{"error": "Type: message"}``
     """
+    from .scenarios import scenario_spec
+
     groups = {knn_group(s) for s in specs}
-    if len(specs) > 1 and (None in groups or len(groups) != 1):
+    if scenario_spec(specs[0]["scenario"]).run_cells is None and len(specs) > 1 and (None in groups or len(groups) != 1):
         raise ValueError("run_cells runs PIRL-kNN cells that differ only in n_neighbors")
     return _run_cells(list(specs), code_version, store_root, raise_errors=False)
 
 
 def _run_cells(specs: list[dict], code_version: str | None, store_root: str | None, raise_errors: bool) -> list[dict]:
+    from .scenarios import scenario_spec
+
+    custom = scenario_spec(specs[0]["scenario"]).run_cells
+    if custom is not None:  # a scenario with its own cell runner (`pirl_sim.sweep.recorded`)
+        return custom(specs, code_version, store_root, raise_errors)
     t_cell, cpu_cell = time.perf_counter(), time.process_time()
     limit_threads()
     _check_version(code_version)

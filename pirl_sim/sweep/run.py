@@ -261,10 +261,11 @@ def run_sweep(
 def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
     """The cells to run as tasks, in ``todo``'s order (of each task's first cell): PIRL-kNN cells that differ only
     in ``n_neighbors`` form one task (`pirl_sim.sweep.cell.run_cells`: one IRL fit for the whole k-grid, smallest
-    k first), every other cell its own."""
+    k first), every other cell its own; a scenario with a ``task_group`` groups its cells itself (the
+    ``recorded`` scenario: the methods of one split seed)."""
     tasks, by_group = [], {}
     for k in todo:
-        group = knn_group(unique[k].spec())
+        group = (scenario_spec(unique[k].scenario).task_group or knn_group)(unique[k].spec())
         if group is None:
             tasks.append([k])
         elif group in by_group:

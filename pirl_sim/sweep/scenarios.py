@@ -54,7 +54,7 @@ __all__ = [
     "resolve_scenario_params",
 ]
 
-PARAM_KINDS = ("int", "float", "range", "rationality", "mix", "styles", "path", "bool", "choice")
+PARAM_KINDS = ("int", "float", "range", "rationality", "mix", "styles", "path", "bool", "choice", "table")
 
 
 @dataclass(frozen=True)
@@ -63,12 +63,12 @@ class Param:
 
     Attributes
     ----------
-    kind : {"int", "float", "range", "rationality", "mix", "styles", "path", "bool", "choice"}
+    kind : {"int", "float", "range", "rationality", "mix", "styles", "path", "bool", "choice", "table"}
         ``range`` is a [low, high] pair; ``rationality`` a Boltzmann beta > 0 or ``inf`` (exact optima);
         ``mix`` a table {style name: mixture weight >= 0} over the scenario's styles (0 drops a style);
         ``styles`` a list of preset style names or tables {name, weight, mean, std} (feature name -> value);
         ``path`` a file or directory, relative paths taken from the config file's directory; ``choice`` one of
-        ``choices``.
+        ``choices``; ``table`` a table of values that the scenario's ``check`` validates.
     default : JSON value or None
         None for ``path`` means required.
     doc : str
@@ -158,6 +158,12 @@ class ScenarioSpec:
     driver_horizon : callable(dict) -> int or None
         The drivers' MPC horizon [steps], where the scenario knows it: the default ``horizon`` of learners
         with ``likelihood = "receding"``.
+    run_cells : callable(specs, code_version, store_root, raise_errors) -> list of dict, or None
+        A scenario's own cell runner (module-level), for the cells of one task (``task_group``); None: the
+        sweep's (`pirl_sim.sweep.cell.run_cells`, learners scored by `pirl_sim.harness.experiment.evaluate`).
+    task_group : callable(dict) -> str or None, or None
+        Which cells run as one task (equal strings; None: alone); None: PIRL-kNN k-grids
+        (`pirl_sim.sweep.cell.knn_group`).
     """
 
     name: str
@@ -170,6 +176,8 @@ class ScenarioSpec:
     simulation: Callable[[dict], dict] | None = None
     simulate: Callable[[dict, int, Path], None] | None = None
     driver_horizon: Callable[[dict], int | None] | None = None
+    run_cells: Callable[..., list] | None = None
+    task_group: Callable[[dict], str | None] | None = None
 
     def __post_init__(self) -> None:
         if (self.simulation is None) != (self.simulate is None):
@@ -278,6 +286,10 @@ def _convert(kind: str, label: str, value, base_dir: Path | None, choices: tuple
                 entry[part] = {str(k): _number(f"{label}[{i}].{part}[{k!r}]", v) for k, v in table.items()}
             out.append(entry)
         return out
+    if kind == "table":
+        if value is not None and not isinstance(value, Mapping):
+            raise ValueError(f"{label} must be a table, got {value!r}")
+        return None if value is None else dict(value)
     if kind == "path":
         if value is None:
             return None
@@ -720,3 +732,5 @@ register_scenario(ScenarioSpec(
     _SIMULATED_PARAMS, _check_highway, _build_highway, _shape_simulated, simulation=_simulation_params,
     simulate=_simulate_highway, driver_horizon=_driver_horizon,
 ))
+
+from . import recorded as _recorded  # noqa: E402,F401  registers the 'recorded' scenario (replay)

@@ -13,7 +13,8 @@ Layout of a results directory::
 A cell's key is the sha256 of its full configuration (`pirl_sim.sweep.config.Cell.spec`) and the code version
 (`code_version`: the package version and a hash of the source files of the code that computes a cell, `CELL_CODE`),
 so a changed config or a change to that code never reuses an old result, and unchanged ones always do; changes
-to the report, the command line, figures, the replay harness or the gymnasium envs leave the stored cells valid.
+to the report, the command line, figures, the replay's report template or the gymnasium envs leave the stored
+cells valid.
 `CELL_CODE` is checked by ``tests/test_sweep_code_version.py``: cells of every registered scenario run in a fresh
 process under a profiler, and every source file whose code ran must be hashed. A file in ``cells/`` is complete
 or absent (`pirl_sim.io.atomic`: written beside, fsynced, renamed); a file that does not parse (e.g. written by
@@ -54,6 +55,8 @@ CELL_CODE: tuple[str, ...] = (
     "pirl_sim.sweep.baselines",     # the kinematic baselines (pseudo-learners)
     "pirl_sim.sweep.store",         # where a cell finds its simulated run (and this list)
     "pirl_sim.sweep.scenarios",     # the sweep's scenario registry (parameters -> data)
+    "pirl_sim.sweep.recorded",      # the recorded scenario (replay) and its cell runner
+    "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit",  # what replay cells run besides
 )
 #: Modules inside `CELL_CODE` packages that no cell runs: command lines.
 NOT_CELL_CODE: tuple[str, ...] = (
