@@ -20,8 +20,9 @@ foot-point condition of the path's own interpolated frame (the same equation as
 :meth:`pirl_sim.paths.ReferencePath.to_frenet`, to 1e-7 m), vectorised over the vehicles of all routes and
 started from where the vehicle's previous plan put it; a vehicle's first position uses ``to_frenet``.
 
-Controller. :class:`PirlDrivers` is a batch controller (for :class:`~.sumo.runner.SumoRun` and
-:class:`~.highway.traffic.RoundaboutTraffic`): every step, for every PIRL vehicle on the road, the start
+Controller. :class:`PirlDrivers` is a batch controller (:class:`~.contract.BatchController` of the simulator
+contract, for :class:`~.sumo.runner.SumoRun` and :class:`~.highway.traffic.RoundaboutTraffic`; it reads only
+each observation's ``ego``, a :class:`~.contract.VehicleView`): every step, for every PIRL vehicle on the road, the start
 state is (s of the vehicle's centre, the simulator's speed, the acceleration the driver's own previous plan
 reached if the simulator carried that command out, else the simulator's measured acceleration), its MPC (:class:`pirl_sim.mpc.SequentialMPC`, horizon 30 steps of 0.1 s by
 default, warm-started with its previous plan shifted by a step) plans under the driver's weights, and the

@@ -34,10 +34,10 @@ speed SUMO actually drove with the command: ``overridden`` is true where they di
 ``override_tol``.
 
 Batch controllers. A controller that also has a method ``commands(time, observations)`` (see
-:class:`BatchController`) is called once per step with the observations of every controlled vehicle in the
-network (a mapping vehicle id -> :class:`Observation`) and returns a mapping vehicle id -> commanded speed
-[m/s] or None (a vehicle left out is handed back to SUMO like None); so a controller can plan all its
-vehicles in one batched computation.
+:class:`~pirl_sim.scenarios.contract.BatchController`, the simulator contract's) is called once per step with
+the observations of every controlled vehicle in the network (a mapping vehicle id -> :class:`Observation`)
+and returns a mapping vehicle id -> commanded speed [m/s] or None (a vehicle left out is handed back to SUMO
+like None); so a controller can plan all its vehicles in one batched computation.
 
 Collisions. ``collision_action`` is SUMO's ``--collision.action``: ``"warn"`` (default) reports them and
 keeps the vehicles, ``"remove"`` takes the vehicles in a collision out of the network (they are then
@@ -67,11 +67,12 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from ..contract import STEP, BatchController  # noqa: F401  (BatchController: the contract's, re-exported)
 from .network import NetworkFiles, load_net, validate_route
 
 __all__ = [
@@ -97,7 +98,7 @@ __all__ = [
 
 BACKENDS = ("libsumo", "traci")
 SPEED_MODE_ALL_CHECKS = 31  #: safe speed, max accel, max decel, right of way, red lights (SUMO's default)
-DEFAULT_STEP_LENGTH = 0.1  # [s]
+DEFAULT_STEP_LENGTH = STEP  # [s] (the simulator contract's step)
 DEFAULT_OVERRIDE_TOL = 0.01  # [m/s]
 DEFAULT_LEADER_LOOKAHEAD = 100.0  # [m]
 COLLISION_ACTIONS = ("warn", "remove", "teleport", "none")  #: SUMO's --collision.action values
@@ -407,18 +408,6 @@ class _OthersView(Mapping):
 
 #: ``controller(time [s], vehicle_id, observation) -> commanded speed [m/s] or None``
 Controller = Callable[[float, str, Observation], "float | None"]
-
-
-@runtime_checkable
-class BatchController(Protocol):
-    """A controller that commands all its vehicles of a step in one call (see the module docstring).
-
-    ``commands(time [s], observations: Mapping[vehicle id, Observation]) -> Mapping[vehicle id, float |
-    None]``: commanded speeds [m/s] (None or a missing id hands that vehicle back to SUMO).
-    """
-
-    def commands(self, time: float, observations: Mapping[str, Observation]) -> Mapping[str, float | None]:
-        ...
 
 
 @dataclass(frozen=True)
