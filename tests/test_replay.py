@@ -1,7 +1,6 @@
 """The replay harness (issue 6): recorded format in, learners and baselines scored in metres."""
 
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pandas as pd

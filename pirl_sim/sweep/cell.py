@@ -330,7 +330,8 @@ def run_cells(specs: list[dict], code_version: str | None = None, store_root: st
     from .scenarios import scenario_spec
 
     groups = {knn_group(s) for s in specs}
-    if scenario_spec(specs[0]["scenario"]).run_cells is None and len(specs) > 1 and (None in groups or len(groups) != 1):
+    own = scenario_spec(specs[0]["scenario"]).run_cells is not None  # a scenario's runner groups its own tasks
+    if not own and len(specs) > 1 and (None in groups or len(groups) != 1):
         raise ValueError("run_cells runs PIRL-kNN cells that differ only in n_neighbors")
     return _run_cells(list(specs), code_version, store_root, raise_errors=False)
 

@@ -16,9 +16,9 @@ prediction is mapped to Cartesian metres on the track's own path at its last obs
 compared with the recorded positions. Baselines (pseudo-learners, `METHODS`) use the same windows:
 
 - ``cv``, ``CV (path)``: constant speed along the path, ``ca``, ``CA (path)``: constant acceleration along the
-  path (`pirl_sim.sweep.baselines.KinematicModel`, as in every sweep), both from the estimated state at t; CA is physical: a car braking stops at v = 0 and stays there, a car with
-  v <= 0 and a <= 0 stays where it is, one with v <= 0 and a > 0 starts from standstill (the start-state rule
-  of `PathDriverModel.predict_states`);
+  path (`pirl_sim.sweep.baselines.KinematicModel`, as in every sweep), both from the estimated state at t;
+  CA is physical: a car braking stops at v = 0 and stays there, a car with v <= 0 and a <= 0 stays where it
+  is, one with v <= 0 and a > 0 starts from standstill (the start-state rule of `PathDriverModel.predict_states`);
 - ``cv-xy``, ``CV (x, y)``: constant velocity in the plane from the last two recorded positions;
 - ``hindsight`` (`HINDSIGHT`): not a predictor: each test window under the cost the IRL fits on its own
   recorded future.
@@ -572,7 +572,7 @@ def recorded_files(params: dict) -> list[Path]:
     if tracks.is_file():
         return [tracks]
     if not tracks.is_dir():
-        raise ValueError(f"scenario 'recorded': tracks {str(tracks)!r} is neither a file nor a directory")
+        raise ValueError(f"tracks {str(tracks)!r} is neither a file nor a directory")
     files = find_track_files(tracks)
     return files[: params["files"]] if params["files"] else files  # sorted by name
 

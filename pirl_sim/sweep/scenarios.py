@@ -34,7 +34,6 @@ the driver's own; ``min_steps``; ``test_fraction``, the share of tracks split of
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -495,14 +494,9 @@ _REPLAY_PARAMS = {
 
 
 def _replay_files(params: dict) -> list[Path]:
-    from pirl_sim.io.interaction import find_track_files
+    from .recorded import recorded_files
 
-    tracks = Path(params["tracks"])
-    if tracks.is_dir():
-        return find_track_files(tracks)
-    if not tracks.is_file():
-        raise ValueError(f"scenario 'replay': tracks {str(tracks)!r} is neither a file nor a directory")
-    return [tracks]
+    return recorded_files({**params, "files": 0})
 
 
 def _check_replay(params: dict) -> dict:
@@ -562,14 +556,9 @@ def _shape_replay(params: dict) -> TrainShape:
 
 
 def _fingerprint_replay(params: dict) -> str:
-    h = hashlib.sha256()
-    files = _replay_files(params)
-    sidecars = sorted({f.parent / "ground_truth.csv" for f in files if (f.parent / "ground_truth.csv").exists()})
-    for f in [*files, *sidecars, Path(params["map"])]:
-        h.update(f.name.encode() + b"\0")
-        h.update(f.read_bytes())
-        h.update(b"\0")
-    return h.hexdigest()[:20]
+    from .recorded import recorded_fingerprint
+
+    return recorded_fingerprint({**params, "files": 0})
 
 
 # ------------------------------------------------------------------------------------------ simulators
