@@ -366,7 +366,7 @@ def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(
         main(args + [str(tmp_path / "none"), "--jobs", "0"])
 
 
-def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_path, monkeypatch):
+def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_path, monkeypatch, capsys):
     """The sweep engine stores each split seed's cells as they finish (``OUT/cells/``); a replay interrupted in
     its last seed runs only that seed again and writes the same results as an uninterrupted run (timings
     aside)."""
@@ -390,12 +390,17 @@ def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_pa
     stored = {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json")}
     assert sorted({json.loads(p.read_text())["cell"]["seed"] for p in cells.glob("*.json")}) == [0, 1]
     assert not (tmp_path / "resumed" / "rows.csv").exists()
+    capsys.readouterr()
+    assert main(args + [str(tmp_path / "resumed"), "--dry-run"]) == 0  # counts, runs nothing
+    dry = capsys.readouterr().out
+    assert not (tmp_path / "resumed" / "rows.csv").exists()
     monkeypatch.setattr(recorded, "replay_seed", lambda scene, seed, *a, **kw: ran.append(seed)
                         or run_seed(scene, seed, *a, **kw))
     assert main(args + [str(tmp_path / "resumed")]) == 0
     if len({json.loads(p.read_text())["code_version"] for p in cells.glob("*.json")}) > 1:
         pytest.skip("the code changed while the test ran (a shared working tree): every seed ran again")
     assert ran == [2]
+    assert "15 cells, 10 already in" in dry and "5 to run" in dry  # CV, CA, TIRL, PIRL-kNN, CV (x, y) x 3 seeds
     assert {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json") if p.name in stored} == stored
     assert main(args + [str(tmp_path / "fresh")]) == 0
     assert ran == [2, 0, 1, 2]

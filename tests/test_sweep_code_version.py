@@ -62,10 +62,10 @@ learners = ["tirl"]
 scenario = "recorded"
 params = { tracks = "scene", map = "scene/map.osm", replay = { fde_steps = [5], lateral = "neighbours", desired_speed = "fit", n_futures = 2 } }
 protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
-learners = ["cv", "ca", "tirl", { name = "pirl-knn", params = { n_neighbors = 2 } },
-            { name = "pirl-knn", label = "next", params = { n_neighbors = 2, target = "next", target_steps = 5,
-              state_features = [1, 2], state_lags = [0, 2], lookup_features = false, aggregate = "futures" } },
-            "hindsight", "cv-xy"]
+learners = [
+    "cv", "ca", "tirl", { name = "pirl-knn", params = { n_neighbors = 2 } }, "hindsight", "cv-xy",
+    { name = "pirl-knn", label = "next", params = { n_neighbors = 2, target = "next", target_steps = 5, state_features = [1, 2], state_lags = [0, 2], lookup_features = false, aggregate = "futures" } },
+]
 
 [[experiments]]
 scenario = "recorded"

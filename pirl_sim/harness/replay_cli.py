@@ -153,6 +153,9 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "(horizon_scan.csv/.md)")
     rp.add_argument("--out", type=Path, default=Path("results") / "replay", help="output directory")
     rp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    rp.add_argument("--dry-run", action="store_true",
+                    help="validate the options and the scene's files, count the cells (one per split seed and method) "
+                         "and those already in --out; run nothing")
     return rp
 
 
@@ -265,17 +268,15 @@ def replay_config(args, settings: dict, tracks, map_path):
         raise ValueError(f"--knn-k must be positive integers, got {args.knn_k!r}")
     if "tirl" not in keys:
         keys.insert(0, "tirl")  # the reference of the paired differences
-    dt = settings["dt"]
-    history = seconds_to_steps(args.history, dt, "--history")
-    horizon = seconds_to_steps(args.horizon, dt, "--horizon")
+    dt, p = settings["dt"], _protocol(args, settings)
     text = resources.files("pirl_sim.sweep").joinpath("replay.toml").read_text(encoding="utf-8")
     data = tomllib.loads(text)
     data["seeds"] = list(range(args.seeds))
     exp = data["experiments"][0]
-    exp["protocols"] = [{"kind": "rolling", "history_steps": history, "horizon": horizon, "stride": _steps(1.0, dt)}]
+    exp["protocols"] = [{"kind": "rolling", "history_steps": p.history, "horizon": p.horizon, "stride": p.stride}]
     receding = settings["likelihood"] == "receding"
     irl = {"likelihood": "receding", "horizon": int(settings["mpc_horizon"])} if receding else {}
-    lags = tuple(sorted({min(int(round(back / dt)), history) for back in (0.0, 0.5, 1.0)}))  # for pirl-knn-next
+    lags = sorted({min(int(round(back / dt)), p.history) for back in (0.0, 0.5, 1.0)})  # for pirl-knn-next
     learners = []
     for entry in ({"name": e} if isinstance(e, str) else dict(e) for e in exp["learners"]):
         key = _cli_key(entry)
@@ -288,7 +289,7 @@ def replay_config(args, settings: dict, tracks, map_path):
             if key == "pirl-gmm":
                 params["n_components"] = args.gmm_k
             if key == NEXT_KNN:
-                params.update(target_steps=horizon, state_lags=list(lags))
+                params.update(target_steps=p.horizon, state_lags=lags)
             if entry["name"] == "pirl-knn":
                 entry["grid"] = {"n_neighbors": knn_ks}
             entry["params"] = params
@@ -297,11 +298,9 @@ def replay_config(args, settings: dict, tracks, map_path):
     rank = {k: i for i, k in enumerate(keys)}
     exp["learners"] = sorted(learners, key=lambda e: (-1 if e["name"] in ("cv", "ca") else
                                                       rank.get(_cli_key(e), len(rank))))
-    fde = sorted({_steps(x, dt) for x in (1.0, 2.0, args.horizon) if x <= args.horizon})
     load = {k: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v) for k, v in settings["load"].items()}
-    replay = {"fde_steps": fde, "rollout": settings["rollout"], "lateral": getattr(args, "lateral", "hold"),
-              "n_futures": args.futures or 0,
-              **({"mpc_horizon": settings["mpc_horizon"]} if settings["mpc_horizon"] is not None else {}),
+    replay = {"fde_steps": list(p.fde_steps), "rollout": p.rollout, "lateral": p.lateral, "n_futures": args.futures or 0,
+              **({"mpc_horizon": p.mpc_horizon} if p.mpc_horizon is not None else {}),
               **({"desired_speed": "fit"} if args.desired_speed == "fit" else {})}
     exp["params"] = {"tracks": str(tracks), "map": str(map_path), "files": args.files or 0, "load": load,
                      "replay": replay}
@@ -340,12 +339,21 @@ def replay_results(config, run, scene) -> dict:
 
 def _replay(args, a, files, settings, out, say) -> tuple:
     """One scene (``a.tracks``, ``a.map``) through the sweep engine into ``out``; returns (result, scene,
-    protocol). Finished cells in ``out/cells/`` are reused: an interrupted replay resumes."""
+    protocol), result and scene None with ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
+    interrupted replay resumes."""
     from pirl_sim.sweep.recorded import load_scene
     from pirl_sim.sweep.run import run_sweep
 
+    from pirl_sim.sweep.run import _plan
+    from pirl_sim.sweep.store import ResultStore
+
     config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
     proto = _protocol(a, settings)
+    if args.dry_run:
+        version, _, unique, records, _ = _plan(config, ResultStore(out))
+        print(f"replay of {a.tracks}: {len(unique)} cells, {len(records)} already in {out}/, "
+              f"{len(unique) - len(records)} to run (code {version})")
+        return None, None, proto
     say(f"reading {len(files)} track files and {a.map} (dt {settings['dt']:g} s, estimate "
         f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
     run = run_sweep(config, out, workers=0 if args.jobs == 1 else args.jobs, progress=not args.quiet,
@@ -391,6 +399,8 @@ def run_replay_command(args) -> int:
         if args.scan_horizon is not None:
             return _scan(args, files, settings, say)
         result, scene, _ = _replay(args, args, files, settings, args.out, say)
+        if result is None:  # --dry-run
+            return 0
     except (ValueError, FileNotFoundError, RuntimeError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
@@ -465,6 +475,8 @@ def _run_table(args, say) -> int:
             if args.files is not None:
                 files = files[: args.files]
             result, scene, proto = _replay(args, a, files, settings, args.out / name, lambda m: say(f"{name}: {m}"))
+            if result is None:  # --dry-run
+                continue
             write_replay_results(result, scene, args.out / name, _command())
             elapsed = time.perf_counter() - t0
             rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
@@ -474,6 +486,8 @@ def _run_table(args, say) -> int:
         return 2
     except KeyboardInterrupt:
         return _interrupted(args.out)
+    if args.dry_run:
+        return 0
     text = write_table(rows, args.out, _command())
     print(text)
     print(f"wrote {args.out}/")
