@@ -440,3 +440,11 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(scene_dir, tm
         fingerprints.append(recorded_fingerprint(params))
     assert len(set(fingerprints)) == 4
     assert not set(first) & set(keys("--seeds", "2"))
+
+
+def test_replay_cli_refuses_a_scene_with_too_few_tracks_before_any_cell(tmp_path, capsys):
+    tracks, osm = _straight_scene(tmp_path, [("A", 5.0, 150, None), ("B", 5.0, 150, None), ("A", 9.0, 150, None)])
+    out = tmp_path / "out"
+    assert main(["replay", "--tracks", str(tracks), "--map", str(osm), "--quiet", "--out", str(out)]) == 2
+    assert "only 3 selected tracks" in capsys.readouterr().err
+    assert not (out / "cells").exists()

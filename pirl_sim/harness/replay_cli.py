@@ -1,6 +1,13 @@
 """``pirl-sim replay``: its options and the command (kept out of `pirl_sim.cli` so that the replay can grow
 without touching the other commands).
 
+The replay runs through the sweep engine: the embedded preset ``pirl_sim/sweep/replay.toml`` set by the options
+(`replay_config`; scenario ``recorded``, `pirl_sim.sweep.recorded`), `pirl_sim.sweep.run.run_sweep` into
+``--out`` (``cells/``: one cell per split seed and method, stored as it finishes, keyed by the scene's files,
+the settings and the cell code; a rerun of the same command resumes), then the report template
+`pirl_sim.harness.replay.write_replay_results` (and `pirl_sim.harness.replay_table` with ``--table``).
+``--jobs N`` runs the split seeds in N sweep worker processes (1: in this process).
+
 Defaults that depend on the data. A tracks directory with a pirl_sim ``run.json`` is a *pirl_sim recording*:
 its drivers' model settings (path smoothing, desired-speed smoothing, a_lat, v_max) are used for the learned
 model, the state estimate trusts its exact speeds (`pirl_sim.scenarios.replay.SIMULATED_NOISE`), and with
@@ -109,8 +116,8 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "(default 10)")
     rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
     rp.add_argument("--jobs", type=positive_int_arg, default=1,
-                    help="split seeds run in this many processes at once (default 1; the results do not depend on "
-                         "it)")
+                    help="split seeds run in this many sweep worker processes at once (default 1: in this process; "
+                         "the results do not depend on it)")
     rp.add_argument("--history", type=positive_float_arg, default=2.0,
                     help="observed history [s], at least one step of --dt (default 2)")
     rp.add_argument("--horizon", type=positive_float_arg, default=3.0,
@@ -341,10 +348,8 @@ def _replay(args, a, files, settings, out, say) -> tuple:
     """One scene (``a.tracks``, ``a.map``) through the sweep engine into ``out``; returns (result, scene,
     protocol), result and scene None with ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
     interrupted replay resumes."""
-    from pirl_sim.sweep.recorded import load_scene
-    from pirl_sim.sweep.run import run_sweep
-
-    from pirl_sim.sweep.run import _plan
+    from pirl_sim.sweep.recorded import load_scene, usable_tracks
+    from pirl_sim.sweep.run import _plan, run_sweep
     from pirl_sim.sweep.store import ResultStore
 
     config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
@@ -356,13 +361,14 @@ def _replay(args, a, files, settings, out, say) -> tuple:
         return None, None, proto
     say(f"reading {len(files)} track files and {a.map} (dt {settings['dt']:g} s, estimate "
         f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
+    scene = load_scene(dict(config.cells[0].scenario_params))  # the cells' scene (kept for them when inline)
+    usable_tracks(scene, proto)  # too few usable tracks fail here, before any cell
     run = run_sweep(config, out, workers=0 if args.jobs == 1 else args.jobs, progress=not args.quiet,
                     command=_command(), tables=False)
     if run.failed:
         first = next(iter(run.failed.values()))
         raise RuntimeError(f"{len(run.failed)} of the replay's cells failed (first: {first}; details in "
                            f"{out}/errors/); the finished cells are kept: run the same command again to retry")
-    scene = load_scene(dict(config.cells[0].scenario_params))  # the cells' scene (this process's, if inline)
     say(f"{scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), {scene.n_selected_tracks} "
         f"selected; skipped {scene.skipped}; route repairs {scene.repairs}"
         + (f"; steps {scene.steps}" if scene.steps else ""))
