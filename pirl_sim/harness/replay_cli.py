@@ -6,7 +6,8 @@ The replay runs through the sweep engine: the embedded preset ``pirl_sim/sweep/r
 ``--out`` (``cells/``: one cell per split seed and method, stored as it finishes, keyed by the scene's files,
 the settings and the cell code; a rerun of the same command resumes), then the report template
 `pirl_sim.harness.replay.write_replay_results` (and `pirl_sim.harness.replay_table` with ``--table``).
-``--jobs N`` runs the split seeds in N sweep worker processes (1: in this process).
+``--jobs N`` runs the split seeds in N sweep worker processes (forked after the scene is read, so it is
+read once; 1: in this process).
 
 Defaults that depend on the data. A tracks directory with a pirl_sim ``run.json`` is a *pirl_sim recording*:
 its drivers' model settings (path smoothing, desired-speed smoothing, a_lat, v_max) are used for the learned
@@ -348,6 +349,7 @@ def _replay(args, a, files, settings, out, say) -> tuple:
     """One scene (``a.tracks``, ``a.map``) through the sweep engine into ``out``; returns (result, scene,
     protocol), result and scene None with ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
     interrupted replay resumes."""
+    from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
     from pirl_sim.sweep.recorded import load_scene, usable_tracks
     from pirl_sim.sweep.run import _plan, run_sweep
     from pirl_sim.sweep.store import ResultStore
@@ -363,8 +365,9 @@ def _replay(args, a, files, settings, out, say) -> tuple:
         f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
     scene = load_scene(dict(config.cells[0].scenario_params))  # the cells' scene (kept for them when inline)
     usable_tracks(scene, proto)  # too few usable tracks fail here, before any cell
-    run = run_sweep(config, out, workers=0 if args.jobs == 1 else args.jobs, progress=not args.quiet,
-                    command=_command(), tables=False)
+    # --jobs N > 1: N forked sweep workers, which inherit the scene read here
+    with (InlineExecutor() if args.jobs == 1 else LocalExecutor(args.jobs, start_method="fork")) as executor:
+        run = run_sweep(config, out, executor=executor, progress=not args.quiet, command=_command(), tables=False)
     if run.failed:
         first = next(iter(run.failed.values()))
         raise RuntimeError(f"{len(run.failed)} of the replay's cells failed (first: {first}; details in "

@@ -82,20 +82,25 @@ def default_workers() -> int:
 
 
 class LocalExecutor:
-    """Cells in ``workers`` local processes (spawn start method).
+    """Cells in ``workers`` local processes (spawn start method by default).
 
     Parameters
     ----------
-    workers : int     worker processes (>= 1)
+    workers : int         worker processes (>= 1)
+    start_method : {"spawn", "fork"}
+        ``"fork"``: the workers inherit what the calling process has read (``pirl-sim replay`` reads its scene
+        once); not for simulated scenarios (libsumo allows one simulation per process).
     """
 
     kind = "local"
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int, start_method: str = "spawn") -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        if start_method not in ("spawn", "fork"):
+            raise ValueError(f"start_method must be 'spawn' or 'fork', got {start_method!r}")
         self.workers = workers
-        self._pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+        self._pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method),
                                             initializer=watch_parent, initargs=(os.getpid(),))
 
     def describe(self) -> str:
