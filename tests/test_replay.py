@@ -448,3 +448,31 @@ def test_replay_cli_refuses_a_scene_with_too_few_tracks_before_any_cell(tmp_path
     assert main(["replay", "--tracks", str(tracks), "--map", str(osm), "--quiet", "--out", str(out)]) == 2
     assert "only 3 selected tracks" in capsys.readouterr().err
     assert not (out / "cells").exists()
+
+
+def test_a_sweep_config_runs_the_recorded_scenario_into_the_tidy_table(scene_dir, tmp_path):
+    """The replay's scenario is a sweep scenario like the others: a config of its own gives the tidy table's MED and
+    FDE of the in-process replay."""
+    from pirl_sim.sweep import load_config, run_sweep
+    from pirl_sim.sweep.recorded import load_scene
+
+    out, _ = scene_dir
+    cfg = tmp_path / "recorded.toml"
+    cfg.write_text(f"""
+seeds = [0, 1]
+[[experiments]]
+scenario = "recorded"
+params = {{ tracks = "{out}", map = "{out / 'map.osm'}", replay = {{ fde_steps = [5, 15] }} }}
+protocols = [{{ kind = "rolling", history_steps = 10, horizon = 15, stride = 5 }}]
+learners = [{{ name = "cv", label = "CV (path)" }}, {{ name = "ca", label = "CA (path)" }}, "tirl"]
+""")
+    config = load_config(cfg)
+    run = run_sweep(config, tmp_path / "out", workers=0, progress=False)
+    assert not run.failed and len(run.table) == 6
+    direct = run_replay(load_scene(dict(config.cells[0].scenario_params)), [("TIRL", "tirl", {})],
+                        ReplayProtocol(seeds=(0, 1), fde_steps=(5, 15)))["rows"].set_index(["seed", "method"])
+    for _, r in run.table.iterrows():
+        expected = direct.loc[(r["seed"], r["learner_label"])]
+        assert r["med"] == expected["med"] and r["fde"] == expected["de@3.0s"]
+        assert r["n_predictions"] == expected["n_windows"] and r["n_test"] == expected["n_test"]
+    assert (tmp_path / "out" / "table.csv").is_file()

@@ -691,6 +691,7 @@ def _plain(x):
 
 def decode_method(result: dict) -> dict:
     """A stored cell's ``result`` back into `replay_seed`'s per-method entry and examples: (entry, examples)."""
+    result = result["replay"]
     row = {k: (np.nan if v is None else v) for k, v in result["row"]}
     shown = None if result["shown"] is None else np.array(result["shown"], dtype=float)
     entry = {"row": row, "errors": np.array(result["errors"], dtype=float), "shown": shown}
@@ -704,8 +705,10 @@ def run_recorded_cells(specs: list[dict], code_version: str | None = None, store
 
     Returns
     -------
-    list of dict, one per spec: ``scores`` = {"row": [[column, value], ...] (in order), "errors" (W,),
-    "shown", "examples"} (NaN as None), ``timings`` (the task's time shared equally; each row has its own
+    list of dict, one per spec: ``scores`` = the sweep's scores (``med``, ``fde`` at the last of ``fde_steps``,
+    ``med_std`` over the windows, ``n_predictions`` windows, ``weight_error``, ``ari``, ``n_train``,
+    ``n_test`` tracks, ``n_warnings`` IRL diagnostics) and ``replay`` = {"row": [[column, value], ...] (in
+    order), "errors" (W,), "shown", "examples"} (NaN as None; `decode_method`), ``timings`` (the task's time shared equally; each row has its own
     ``fit_s``, ``predict_s``), ``warnings`` (distinct messages of the task), ``worker``; or ``{"error": ...}``
     for every spec when the task fails (raised instead with ``raise_errors``).
     """
@@ -733,8 +736,15 @@ def run_recorded_cells(specs: list[dict], code_version: str | None = None, store
     out = []
     for name, _, _ in methods:
         m = res["methods"][name]
-        scores = _plain({"row": list(m["row"].items()), "errors": m["errors"], "shown": m["shown"],
-                         "examples": res["examples"]})
+        row = m["row"]
+        fde = f"de@{proto.fde_steps[-1] * scene.model.dynamics.dt:.1f}s"
+        scores = _plain({  # the sweep's tidy table (`pirl_sim.sweep.run.SCORE_COLUMNS`), and the replay's own
+            "med": row["med"], "med_std": float(np.std(m["errors"])), "fde": row[fde],
+            "weight_error": row.get("weight_error"), "ari": row.get("ari"), "n_styles": None,
+            "n_train": row["n_train"], "n_test": row["n_test"], "n_predictions": row["n_windows"],
+            "n_warnings": int(row.get("irl_convergence_warnings", 0) + row.get("hessian_regularization_warnings", 0)),
+            "replay": {"row": list(row.items()), "errors": m["errors"], "shown": m["shown"],
+                       "examples": res["examples"]}})
         out.append({"scores": scores, "timings": {**share, "fit_s": m["row"]["fit_s"],
                                                   "evaluate_s": m["row"]["predict_s"]},
                     "recovery": None, "weights": None, "warnings": messages,
