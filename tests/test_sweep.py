@@ -449,3 +449,12 @@ def test_knn_k_grid_runs_as_one_fit_with_each_cells_own_numbers(tmp_path, monkey
     assert len(run.computed) == 8 and not run.failed
     table = run.table.set_index("learner_label")
     assert set(table.index) == {"TIRL", "PIRL-GMM (k=2)", "PIRL-kNN (k=1)", "PIRL-kNN (k=4)"}
+
+
+def test_local_executor_start_method_is_spawn_or_fork():
+    from pirl_sim.sweep.executors import LocalExecutor
+
+    with pytest.raises(ValueError, match="start_method must be 'spawn' or 'fork', got 'forkserver'"):
+        LocalExecutor(1, start_method="forkserver")
+    with LocalExecutor(1, start_method="fork") as ex:  # a forked worker runs a task like a spawned one
+        assert ex.submit(sum, [1, 2]).result() == 3
