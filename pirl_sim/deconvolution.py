@@ -49,6 +49,7 @@ components, unlike the pruning above (which removes components that fewer than P
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.special import digamma
@@ -131,6 +132,23 @@ def _check_points(X, S) -> tuple[np.ndarray, np.ndarray]:
     return X, S
 
 
+def _check_fit(X, S, rng, components: tuple[str, Any], n_init, max_iter, reg_covar) -> tuple[np.ndarray, np.ndarray]:
+    """The checks every mixture fit here makes of its input (points, rng, counts, regularisation); ``components``
+    is (the parameter's name, the number of components asked for, at most the number of points)."""
+    X, S = _check_points(X, S)
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    name, n_components = components
+    for label, v in ((name, n_components), ("n_init", n_init), ("max_iter", max_iter)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{label} must be a positive integer, got {v!r}")
+    if n_components > len(X):
+        raise ValueError(f"{name}={n_components} is more than the {len(X)} points")
+    if not (np.isfinite(reg_covar) and reg_covar > 0):
+        raise ValueError(f"reg_covar must be > 0, got {reg_covar!r}")
+    return X, S
+
+
 def xd_log_prob(X, S, weights, means, covariances) -> np.ndarray:
     """log alpha_j + log N(x_i | m_j, V_j + S_i), shape (N, J) (see `XDMixture.log_prob`)."""
     X, S = _check_points(X, S)
@@ -183,17 +201,8 @@ def extreme_deconvolution(
     -------
     XDMixture
     """
-    X, S = _check_points(X, S)
+    X, S = _check_fit(X, S, rng, ("n_components", n_components), n_init, max_iter, reg_covar)
     N, D = X.shape
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    for name, v in (("n_components", n_components), ("n_init", n_init), ("max_iter", max_iter)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValueError(f"{name} must be a positive integer, got {v!r}")
-    if n_components > N:
-        raise ValueError(f"n_components={n_components} is more than the {N} points")
-    if not (np.isfinite(reg_covar) and reg_covar > 0):
-        raise ValueError(f"reg_covar must be > 0, got {reg_covar!r}")
     S = 0.5 * (S + np.swapaxes(S, 1, 2))
     best, best_score = None, -np.inf
     for _ in range(int(n_init)):
@@ -360,22 +369,13 @@ def dp_deconvolution(
         E[Lambda_j]^-1; ``log_likelihood`` the evidence lower bound [nats] (up to terms that do not depend on
         the fit); ``n_iter``, ``converged``.
     """
-    X, S = _check_points(X, S)
+    X, S = _check_fit(X, S, rng, ("max_components", max_components), n_init, max_iter, reg_covar)
     N, D = X.shape
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    for name, v in (("max_components", max_components), ("n_init", n_init), ("max_iter", max_iter)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValueError(f"{name} must be a positive integer, got {v!r}")
-    if max_components > N:
-        raise ValueError(f"max_components={max_components} is more than the {N} points")
     alpha = 1.0 / max_components if concentration is None else concentration
     if isinstance(alpha, bool) or not isinstance(alpha, (int, float, np.integer, np.floating)) \
             or not np.isfinite(alpha) or alpha <= 0:
         raise ValueError(f"concentration (the Dirichlet process's alpha) must be a number > 0 or None, got "
                          f"{concentration!r}")
-    if not (np.isfinite(reg_covar) and reg_covar > 0):
-        raise ValueError(f"reg_covar must be > 0, got {reg_covar!r}")
     S = 0.5 * (S + np.swapaxes(S, 1, 2)) + reg_covar * np.eye(D)[None]
     clean = _clean(X, S)
     spread = np.cov(clean.T).reshape(D, D) if N > 1 else np.eye(D)
