@@ -7,7 +7,9 @@ PIRL-kNN learners that differ only in k share one fit), each cell stored by the 
 by its spec (the scene's parameters, the data files' identity `recorded_fingerprint`, the windows, the
 learner) and the cell code. Parameters (`RECORDED_PARAMS`): ``tracks``, ``map``, ``files`` and ``load`` (how
 `pirl_sim.scenarios.replay.load_replay` reads the scene), ``replay`` (the rest of the `ReplayProtocol`, the
-desired speed and the futures scored); the protocol is ``rolling`` (history, horizon, stride in steps).
+desired speed and the futures scored); the protocol is ``rolling`` (history, horizon, stride in steps). The
+config check reads every track file (`_recorded_shape`: an unreadable file or a k larger than the training set
+fails there). ``replay`` is this scenario's former name (same parameters).
 
 For each split seed the selected tracks are split by track into train and test. Every test track is predicted
 at every ``stride``-th step t with t >= history and t + horizon <= its length: learners infer weights from the
@@ -60,7 +62,7 @@ import socket
 import time
 import warnings
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +71,7 @@ from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.validation import is_positive_int
 
-from .scenarios import Param, ScenarioData, ScenarioSpec, TrainShape, register_scenario
+from .scenarios import SCENARIOS, Param, ScenarioData, ScenarioSpec, TrainShape, register_scenario
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
            "load_scene", "method_id", "decode_method", "predict_path_states", "split_by_track", "usable_tracks",
@@ -553,8 +555,9 @@ RECORDED_PARAMS = {
     "load": Param("table", None, "keyword arguments of pirl_sim.scenarios.replay.load_replay: dt, estimate, noise "
                   "{sigma_s, sigma_v, sigma_j, sigma_a}, selection, max_steps, features, arc_length, smoothing, "
                   "speed_smoothing, a_lat, v_max (absent: its defaults)"),
-    "replay": Param("table", None, "the rest of the replay: fde_steps, test_fraction, rollout, mpc_horizon, lateral "
-                    "(ReplayProtocol), desired_speed ('fit' or [a_lat, v_max]; absent: the scene's) and n_futures"),
+    "replay": Param("table", None, "the rest of the replay: fde_steps (absent: ReplayProtocol's below the "
+                    "horizon, and the horizon), test_fraction, rollout, mpc_horizon, lateral (ReplayProtocol), "
+                    "desired_speed ('fit' or [a_lat, v_max]; absent: the scene's) and n_futures"),
 }
 _LOAD_KEYS = ("dt", "estimate", "noise", "selection", "max_steps", "features", "arc_length", "smoothing",
               "speed_smoothing", "a_lat", "v_max")
@@ -604,8 +607,8 @@ def _replay_settings(spec: dict) -> tuple[ReplayProtocol, object, int]:
     replay, p = dict(spec["scenario_params"]["replay"]), spec["protocol"]
     desired = replay.pop("desired_speed", None)
     n_futures = int(replay.pop("n_futures", 0))
-    if "fde_steps" in replay:
-        replay["fde_steps"] = tuple(replay["fde_steps"])
+    default_fde = [k for k in ReplayProtocol.fde_steps if k < p["horizon"]] + [p["horizon"]]  # the default's that fit
+    replay["fde_steps"] = tuple(replay.get("fde_steps", default_fde))
     proto = ReplayProtocol(history=p["history_steps"], horizon=p["horizon"], stride=p["stride"],
                            seeds=(spec["seed"],), **replay)
     return proto, (tuple(desired) if isinstance(desired, list) else desired), n_futures
@@ -632,6 +635,9 @@ def _check_recorded(params: dict) -> dict:
                              f"{', '.join(keys)}")
     if isinstance(out["load"].get("noise"), dict):
         _load_kwargs(out["load"])  # EstimateNoise checks the noise model
+    dt = out["load"].get("dt", 0.2)
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or dt <= 0 or not np.isclose(dt / 0.1, round(dt / 0.1)):
+        raise ValueError(f"scenario 'recorded': load.dt must be a positive multiple of the 0.1 s frames, got {dt!r}")
     desired = out["replay"].get("desired_speed")
     if not (desired is None or desired == "fit" or (isinstance(desired, list) and len(desired) == 2)):
         raise ValueError(f"scenario 'recorded': replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
@@ -639,6 +645,27 @@ def _check_recorded(params: dict) -> dict:
     fde = tuple(out["replay"].get("fde_steps", (1,)))
     ReplayProtocol(horizon=max(fde, default=1), fde_steps=fde, **rest)  # the protocol's own checks
     return out
+
+
+def _recorded_shape(params: dict) -> TrainShape:
+    """An upper bound from the files alone: every valid vehicle track of every file, whole, the longest ones in
+    the training set (so the config check reads every track file and rejects a k larger than the training set)."""
+    from pirl_sim.io.interaction import read_tracks, read_tracks_lenient
+
+    stride = int(round(params["load"].get("dt", 0.2) / 0.1))  # model steps of 0.1 s frames
+    lengths = []
+    for f in recorded_files(params):
+        try:
+            df = read_tracks(f, kind="vehicle")
+        except ValueError:  # the replay keeps a file's valid tracks: count those
+            df, _ = read_tracks_lenient(f)
+            if df is None:
+                raise ValueError(f"{f}: no valid track (not an INTERACTION vehicle track file, or every track has a "
+                                 "bad row)") from None
+        lengths += [int((n - 1) // stride) for n in df["track_id"].value_counts()]
+    n = len(lengths)
+    n_train = n - max(1, int(round(params["replay"].get("test_fraction", 0.25) * n))) if n > 1 else n
+    return TrainShape(n_train, tuple(sorted(lengths, reverse=True)[:n_train]), exact=False)
 
 
 def _build_recorded(params: dict, seed: int) -> ScenarioData:
@@ -755,6 +782,7 @@ def run_recorded_cells(specs: list[dict], code_version: str | None = None, store
 register_scenario(ScenarioSpec(
     "recorded", "recorded roundabout tracks replayed as `pirl-sim replay` does: split by track per seed, every test "
     "window predicted and scored in metres (module pirl_sim.sweep.recorded)",
-    RECORDED_PARAMS, _check_recorded, _build_recorded, lambda params: TrainShape(0, (), exact=False),
-    recorded_fingerprint, run_cells=run_recorded_cells, task_group=_group,
+    RECORDED_PARAMS, _check_recorded, _build_recorded, _recorded_shape, recorded_fingerprint,
+    run_cells=run_recorded_cells, task_group=_group,
 ))
+register_scenario(replace(SCENARIOS["recorded"], name="replay", summary="the recorded scenario's former name"))

@@ -16,7 +16,7 @@ Adding a scenario is one entry::
         check=_check_sumo, build=_build_sumo, train_shape=_sumo_shape,
     ))
 
-``build(params, seed)`` must be a module-level function (worker processes import it by name) and must give
+``build(params, seed)`` must be a module-level function or a `functools.partial` of one and must give
 the same trajectories for the same parameters and seed. Heavy simulators are imported inside ``build``.
 
 **Simulated scenarios** (``sumo``, ``highway``) also give ``simulation(params)``, the part of the parameters
@@ -34,9 +34,11 @@ the driver's own; ``min_steps``; ``test_fraction``, the share of tracks split of
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -483,84 +485,6 @@ def _build_passage(params: dict, seed: int) -> ScenarioData:
     return ScenarioData(data.model, data.train, data.test, tuple(s["name"] for s in params["styles"]))
 
 
-# ------------------------------------------------------------------------------------------ replay
-_REPLAY_PARAMS = {
-    "tracks": Param("path", None, "a vehicle_tracks_*.csv file or a directory of them (required)"),
-    "map": Param("path", None, "the Lanelet2 OSM map of the recording (required)"),
-    "dt": Param("float", 0.2, "model step [s], a multiple of the 0.1 s frames"),
-    "test_fraction": Param("float", 0.25, "share of the selected tracks in the test set (split by the seed)"),
-    "include_interacting": Param("bool", False, "also use tracks flagged as interacting with a leader"),
-}
-
-
-def _replay_files(params: dict) -> list[Path]:
-    from .recorded import recorded_files
-
-    return recorded_files({**params, "files": 0})
-
-
-def _check_replay(params: dict) -> dict:
-    for key in ("tracks", "map"):
-        if params[key] is None:
-            raise ValueError(f"scenario 'replay' needs the parameter {key!r}")
-    if not Path(params["map"]).is_file():
-        raise ValueError(f"scenario 'replay': map {params['map']!r} is not a file")
-    try:
-        _replay_files(params)
-    except FileNotFoundError as exc:
-        raise ValueError(f"scenario 'replay': {exc}") from None
-    if not 0 < params["test_fraction"] < 1:
-        raise ValueError(f"test_fraction must be in (0, 1), got {params['test_fraction']!r}")
-    stride = params["dt"] / 0.1
-    if params["dt"] <= 0 or not math.isclose(stride, round(stride)):
-        raise ValueError(f"dt must be a positive multiple of the 0.1 s frames, got {params['dt']!r}")
-    return dict(params)
-
-
-def _replay_split(n: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    order = np.random.default_rng(seed).permutation(n)
-    n_test = max(1, int(round(test_fraction * n)))
-    return order[n_test:], order[:n_test]
-
-
-def _build_replay(params: dict, seed: int) -> ScenarioData:
-    from pirl_sim.scenarios.replay import load_replay
-
-    scene = load_replay(_replay_files(params), params["map"], dt=params["dt"])
-    tracks = scene.trajectories if params["include_interacting"] else scene.selected
-    if len(tracks) < 2:
-        raise ValueError(f"replay: only {len(tracks)} usable tracks (skipped: {scene.skipped})")
-    train, test = _replay_split(len(tracks), params["test_fraction"], seed)
-    return ScenarioData(scene.model, [tracks[i] for i in train], [tracks[i] for i in test])
-
-
-def _shape_replay(params: dict) -> TrainShape:
-    """An upper bound from the files alone: every valid track of every file, the longest ones in the training set."""
-    from pirl_sim.io.interaction import read_tracks, read_tracks_lenient
-
-    stride = int(round(params["dt"] / 0.1))
-    lengths = []
-    for f in _replay_files(params):
-        try:
-            df = read_tracks(f, kind="vehicle")
-        except ValueError:  # the replay keeps a file's valid tracks: count those
-            df, _ = read_tracks_lenient(f)
-            if df is None:
-                raise ValueError(f"{f}: no valid track (not an INTERACTION vehicle track file, or every track has a "
-                                 "bad row)") from None
-        frames = df["track_id"].value_counts()
-        lengths += [int((n - 1) // stride) for n in frames]
-    n = len(lengths)
-    n_train = n - max(1, int(round(params["test_fraction"] * n))) if n > 1 else n
-    return TrainShape(n_train, tuple(sorted(lengths, reverse=True)[:n_train]), exact=False)
-
-
-def _fingerprint_replay(params: dict) -> str:
-    from .recorded import recorded_fingerprint
-
-    return recorded_fingerprint({**params, "files": 0})
-
-
 # ------------------------------------------------------------------------------------------ simulators
 _SIMULATED_PARAMS = {
     "n_vehicles": Param("int", 24, "vehicles in the run, PIRL and background"),
@@ -604,15 +528,21 @@ def _population(label: str, params: dict):
     return pop
 
 
+def _simulator(name: str):
+    """The simulator's scenario module (`pirl_sim.scenarios.sumo.scenario` or ``.highway.scenario``); ValueError
+    naming the extra to install when its packages are missing (the config check fails so, not at a cell)."""
+    try:
+        return importlib.import_module(f"pirl_sim.scenarios.{name}.scenario")
+    except ModuleNotFoundError as exc:
+        raise ValueError(f"scenario {name!r} needs the {name} extra: pip install -e '.[{name}]' ({exc.name} is "
+                         "not installed)") from None
+
+
 def _simulator_config(name: str, params: dict):
     """The simulator's scenario configuration of (simulation) parameters."""
     table = {"population": _population(f"scenario {name!r}", params).to_dict(),
              "drivers": {"horizon": params["horizon"]}}
-    if name == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import scenario_from_dict
-    else:
-        from pirl_sim.scenarios.highway.scenario import scenario_from_dict
-    return scenario_from_dict(table, source=f"scenario {name!r}")
+    return _simulator(name).scenario_from_dict(table, source=f"scenario {name!r}")
 
 
 def _check_simulated(name: str, params: dict) -> dict:
@@ -638,24 +568,23 @@ def _simulation_params(params: dict) -> dict:
 
 def _simulate(name: str, params: dict, seed: int, out_dir: Path) -> None:
     config = _simulator_config(name, dict(params, mix=None))
-    if name == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import run_sumo_scenario as run
-    else:
-        from pirl_sim.scenarios.highway.scenario import run_highway_scenario as run
-    run(config, seed, out_dir=out_dir)
+    getattr(_simulator(name), f"run_{name}_scenario")(config, seed, out_dir=out_dir)
+
+
+def _split(n: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train, test) indices of n demonstrations: the seed's random order, its first test_fraction test."""
+    order = np.random.default_rng(seed).permutation(n)
+    n_test = max(1, int(round(test_fraction * n)))
+    return order[n_test:], order[:n_test]
 
 
 def _build_simulated(name: str, params: dict, seed: int, simulation_dir: Path) -> ScenarioData:
-    if name == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import load_sumo_run as load
-    else:
-        from pirl_sim.scenarios.highway.scenario import load_highway_run as load
-    run = load(simulation_dir)
+    run = getattr(_simulator(name), f"load_{name}_run")(simulation_dir)
     demos = run.demonstrations(selection=params["selection"], min_steps=params["min_steps"])
     if len(demos) < 2:
         raise ValueError(f"scenario {name!r}: only {len(demos)} demonstrations with selection "
                          f"{params['selection']!r} and min_steps {params['min_steps']} (more vehicles?)")
-    train, test = _replay_split(len(demos), params["test_fraction"], seed)
+    train, test = _split(len(demos), params["test_fraction"], seed)
     if params["n_train"]:
         if params["n_train"] > len(train):
             raise ValueError(f"scenario {name!r}: n_train = {params['n_train']} but the run gives {len(train)} "
@@ -671,30 +600,6 @@ def _shape_simulated(params: dict) -> TrainShape:
     return TrainShape(params["n_train"] or max(n_pirl - 1, 1), (), exact=False)
 
 
-def _check_sumo(params):
-    return _check_simulated("sumo", params)
-
-
-def _check_highway(params):
-    return _check_simulated("highway", params)
-
-
-def _simulate_sumo(params, seed, out_dir):
-    _simulate("sumo", params, seed, out_dir)
-
-
-def _simulate_highway(params, seed, out_dir):
-    _simulate("highway", params, seed, out_dir)
-
-
-def _build_sumo(params, seed, simulation_dir):
-    return _build_simulated("sumo", params, seed, simulation_dir)
-
-
-def _build_highway(params, seed, simulation_dir):
-    return _build_simulated("highway", params, seed, simulation_dir)
-
-
 def _driver_horizon(params) -> int:
     return params["horizon"]
 
@@ -707,19 +612,14 @@ register_scenario(ScenarioSpec(
     "passage", "roundabout passage, drivers of the paper's three user-study styles",
     _PASSAGE_PARAMS, _check_passage, _build_passage, _shape_fixed,
 ))
-register_scenario(ScenarioSpec(
-    "replay", "recorded INTERACTION-format tracks on their Lanelet2 map, split into train/test by the seed",
-    _REPLAY_PARAMS, _check_replay, _build_replay, _shape_replay, _fingerprint_replay,
-))
-register_scenario(ScenarioSpec(
-    "sumo", "SUMO roundabout (libsumo), PIRL drivers of known weights re-planning every 0.1 s among SUMO's own",
-    _SIMULATED_PARAMS, _check_sumo, _build_sumo, _shape_simulated, simulation=_simulation_params,
-    simulate=_simulate_sumo, driver_horizon=_driver_horizon,
-))
-register_scenario(ScenarioSpec(
-    "highway", "highway-env roundabout, PIRL drivers of known weights re-planning every 0.1 s among IDM vehicles",
-    _SIMULATED_PARAMS, _check_highway, _build_highway, _shape_simulated, simulation=_simulation_params,
-    simulate=_simulate_highway, driver_horizon=_driver_horizon,
-))
+for _name, _summary in (
+        ("sumo", "SUMO roundabout (libsumo), PIRL drivers of known weights re-planning every 0.1 s among SUMO's own"),
+        ("highway", "highway-env roundabout, PIRL drivers of known weights re-planning every 0.1 s among IDM "
+                    "vehicles")):
+    register_scenario(ScenarioSpec(
+        _name, _summary, _SIMULATED_PARAMS, partial(_check_simulated, _name), partial(_build_simulated, _name),
+        _shape_simulated, simulation=_simulation_params, simulate=partial(_simulate, _name),
+        driver_horizon=_driver_horizon,
+    ))
 
-from . import recorded as _recorded  # noqa: E402,F401  registers the 'recorded' scenario (replay)
+from . import recorded as _recorded  # noqa: E402,F401  registers the 'recorded' scenario and its old name 'replay'
