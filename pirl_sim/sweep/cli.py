@@ -127,8 +127,7 @@ def run_report_command(args) -> int:
     except ValueError as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
-    out = args.out if args.out is not None else (args.results if args.results.is_dir() else args.results.parent)
-    print(f"wrote {', '.join(sorted(written))} to {out}/")
+    print(f"wrote {', '.join(sorted(written))} to {Path(written['README.md']).parent}/")
     return 0
 
 

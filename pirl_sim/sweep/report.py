@@ -392,7 +392,10 @@ def write_report(results, out_dir=None) -> dict:
     if table.empty:
         raise ValueError(f"{results}: the table has no finished cell")
     res_dir = results if results.is_dir() else results.parent
-    out = check_output_dir(Path(out_dir) if out_dir is not None else res_dir, "the report's directory")
+    tables = "table.parquet" if (res_dir / "table.parquet").exists() else "table.csv"
+    if out_dir is None:  # a report template's directory (no table files) has a README.md of its own
+        out_dir = res_dir if results.is_file() or (res_dir / tables).exists() else res_dir / "report"
+    out = check_output_dir(out_dir, "the report's directory")
     manifest = {}
     if (res_dir / "sweep.json").exists():
         manifest = json.loads((res_dir / "sweep.json").read_text(encoding="utf-8"))
@@ -420,8 +423,9 @@ def write_report(results, out_dir=None) -> dict:
     command = manifest.get("command") or "pirl-sim sweep"
     n_cells = manifest.get("n_cells", len(table))
     lines += [
-        f"Made by `{command}`, then `pirl-sim report`; every number below is read from `table.parquet` (also "
-        "`table.csv`) in this directory.",
+        f"Made by `{command}`, then `pirl-sim report`; every number below is read from "
+        + ("`table.parquet` (also `table.csv`) in this directory." if (res_dir / tables).exists() else
+           f"the cells stored in {res_dir}/cells/."),
         "",
         f"- code version: `{manifest.get('code_version', table['code_version'].iloc[0])}`",
         f"- cells: {len(table)} finished of {n_cells} ({table['key'].nunique()} distinct computations); "

@@ -418,6 +418,8 @@ def read_table(results) -> pd.DataFrame:
                 path = path / name
                 break
         else:
+            if (path / "sweep.json").is_file() and (path / "cells").is_dir():  # a report template's run
+                return _stored_table(path)
             raise ValueError(f"{results}: no table.parquet or table.csv (run pirl-sim sweep first)")
     if not path.exists():
         raise ValueError(f"{results}: no such file or directory")
@@ -439,6 +441,19 @@ def read_table(results) -> pd.DataFrame:
                          if c in _INT_COLUMNS else np.full(len(table), np.nan))
     _check_table(table, path)
     return table
+
+
+def _stored_table(path: Path) -> pd.DataFrame:
+    """The tidy table of a results directory without table files (a report template's run, ``pirl-sim replay`` or
+    ``reproduce``): the cells its ``sweep.json`` lists whose records are in ``cells/``."""
+    from types import SimpleNamespace
+
+    listed = json.loads((path / "sweep.json").read_text(encoding="utf-8"))["cells"]
+    store = ResultStore(path)
+    records = {c["key"]: rec for c in listed if (rec := store.load(c["key"])) is not None}
+    cells = [SimpleNamespace(**c, protocol=records[c["key"]]["cell"]["protocol"] if c["key"] in records else None)
+             for c in listed]
+    return assemble_table(SimpleNamespace(cells=cells), [c["key"] for c in listed], records)
 
 
 #: columns every row of a finished cell has (a row cut short loses the last ones)
