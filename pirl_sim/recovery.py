@@ -34,7 +34,7 @@ from .trajectory import Trajectory
 
 __all__ = ["RecoveryReport", "TrackFits", "ALL", "NO_STYLE", "INTERVALS", "STATISTICS", "LIKELIHOODS", "abs_log_errors",
            "spearman",
-           "statistic", "interval", "weight_scores", "fit_track_weights"]
+           "statistic", "interval", "weight_scores", "fit_track_weights", "run_demonstrations"]
 
 #: confidence-interval methods: percentile bootstrap, or analytic (order statistics / Student t)
 INTERVALS: tuple[str, ...] = ("bootstrap", "analytic")
@@ -223,6 +223,19 @@ class TrackFits:
     at_bound: np.ndarray
     fitted_steps: np.ndarray
     sigma: np.ndarray
+
+
+def run_demonstrations(run, min_steps: int = 10) -> list:
+    """The PIRL tracks of a recorded run with at least ``min_steps`` steps whose control is the driver's own
+    (``selection="steps"``, interacting tracks included); ValueError for a bad ``min_steps`` or when none has."""
+    from .validation import is_positive_int
+
+    if not is_positive_int(min_steps):
+        raise ValueError(f"min_steps must be a positive integer, got {min_steps!r}")
+    demos = run.demonstrations(selection="steps", non_interacting=False, min_steps=min_steps)
+    if not demos:
+        raise ValueError(f"no PIRL track of the run has {min_steps} usable steps")
+    return demos
 
 
 def fit_track_weights(model, trajectories: Sequence[Trajectory], *, likelihood: str = "receding",
@@ -434,13 +447,7 @@ class RecoveryReport:
         driver's own (``selection="steps"``), fitted by the receding-horizon likelihood with the drivers'
         horizon (``horizon`` overrides it: a learner that assumes another one). ``source`` defaults to
         "<simulator> seed <seed>"."""
-        from .validation import is_positive_int
-
-        if not is_positive_int(min_steps):
-            raise ValueError(f"min_steps must be a positive integer, got {min_steps!r}")
-        demos = run.demonstrations(selection="steps", non_interacting=False, min_steps=min_steps)
-        if not demos:
-            raise ValueError(f"no PIRL track of the run has {min_steps} usable steps")
+        demos = run_demonstrations(run, min_steps)
         info = run.recording.info
         kwargs.setdefault("source", f"{info.get('simulator', 'run')} seed {info.get('seed', '?')}")
         return cls.from_trajectories(run.model, demos, likelihood="receding",

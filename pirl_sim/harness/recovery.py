@@ -128,11 +128,10 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
     """
     from pirl_sim.learners import TIRL
     from pirl_sim.receding import STEP_MASK
-    from pirl_sim.recovery import RecoveryReport, fit_track_weights
+    from pirl_sim.recovery import RecoveryReport, fit_track_weights, run_demonstrations
     from pirl_sim.validation import is_positive_int
 
-    if not is_positive_int(min_steps):
-        raise ValueError(f"min_steps must be a positive integer, got {min_steps!r}")
+    demos = run_demonstrations(run, min_steps)  # the tracks RecoveryReport.from_run fits
     if not is_positive_int(stride):
         raise ValueError(f"stride must be a positive integer, got {stride!r}")
     info = run.recording.info
@@ -143,10 +142,7 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
     free = [names.index(f) for f in FREE_FEATURES]
     gt = run.recording.ground_truth
     n_pirl = int(gt["is_pirl"].sum())
-    demos = run.demonstrations(selection="steps", non_interacting=False, min_steps=min_steps)
     selection = run.step_selection_summary(min_steps=min_steps)
-    if not demos:
-        raise ValueError(f"no PIRL track of the run has {min_steps} usable steps")
     t0 = time.perf_counter()
     res = fit_track_weights(run.model, demos, likelihood="receding", horizon=run.horizon, stride=stride)
     fit_time = time.perf_counter() - t0
