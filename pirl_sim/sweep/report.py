@@ -38,7 +38,7 @@ from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.harness.figures import label_log_axis, legend_below, png_bytes, pyplot
 from pirl_sim.harness.tables import markdown
 
-from .run import read_table
+from .run import read_table, template_run
 
 __all__ = ["write_report", "summary_table", "best_variants", "med_vs_k_figure", "learners_side_by_side_figure",
            "recovery_figure", "ci95", "weights_summary", "online_view", "ONLINE_MEANS"]
@@ -392,9 +392,9 @@ def write_report(results, out_dir=None) -> dict:
     if table.empty:
         raise ValueError(f"{results}: the table has no finished cell")
     res_dir = results if results.is_dir() else results.parent
-    tables = "table.parquet" if (res_dir / "table.parquet").exists() else "table.csv"
-    if out_dir is None:  # a report template's directory (no table files) has a README.md of its own
-        out_dir = res_dir if results.is_file() or (res_dir / tables).exists() else res_dir / "report"
+    template = results.is_dir() and template_run(results)
+    if out_dir is None:  # a report template's directory has a README.md of its own
+        out_dir = res_dir / "report" if template else res_dir
     out = check_output_dir(out_dir, "the report's directory")
     manifest = {}
     if (res_dir / "sweep.json").exists():
@@ -424,8 +424,8 @@ def write_report(results, out_dir=None) -> dict:
     n_cells = manifest.get("n_cells", len(table))
     lines += [
         f"Made by `{command}`, then `pirl-sim report`; every number below is read from "
-        + ("`table.parquet` (also `table.csv`) in this directory." if (res_dir / tables).exists() else
-           f"the cells stored in {res_dir}/cells/."),
+        + (f"the cells stored in {res_dir}/cells/." if template else
+           "`table.parquet` (also `table.csv`) in this directory."),
         "",
         f"- code version: `{manifest.get('code_version', table['code_version'].iloc[0])}`",
         f"- cells: {len(table)} finished of {n_cells} ({table['key'].nunique()} distinct computations); "

@@ -412,14 +412,14 @@ def _write_weights(config: SweepConfig, keys: list[str], records: dict, out: Pat
 def read_table(results) -> pd.DataFrame:
     """The tidy table of a results directory (``table.parquet``, else ``table.csv``) or of a table file."""
     path = Path(results)
+    if path.is_dir() and template_run(path):
+        return _stored_table(path)
     if path.is_dir():
         for name in ("table.parquet", "table.csv"):
             if (path / name).exists():
                 path = path / name
                 break
         else:
-            if (path / "sweep.json").is_file() and (path / "cells").is_dir():  # a report template's run
-                return _stored_table(path)
             raise ValueError(f"{results}: no table.parquet or table.csv (run pirl-sim sweep first)")
     if not path.exists():
         raise ValueError(f"{results}: no such file or directory")
@@ -443,9 +443,15 @@ def read_table(results) -> pd.DataFrame:
     return table
 
 
+def template_run(path: Path) -> bool:
+    """Whether ``path`` is a report template's results directory (``pirl-sim replay``, ``reproduce``): the sweep's
+    store and ``sweep.json`` without the sweep's ``table.parquet`` (a template writes tables of its own)."""
+    return (path / "sweep.json").is_file() and (path / "cells").is_dir() and not (path / "table.parquet").exists()
+
+
 def _stored_table(path: Path) -> pd.DataFrame:
-    """The tidy table of a results directory without table files (a report template's run, ``pirl-sim replay`` or
-    ``reproduce``): the cells its ``sweep.json`` lists whose records are in ``cells/``."""
+    """The tidy table of a report template's results directory (`template_run`): the cells its ``sweep.json``
+    lists whose records are in ``cells/``."""
     from types import SimpleNamespace
 
     listed = json.loads((path / "sweep.json").read_text(encoding="utf-8"))["cells"]
