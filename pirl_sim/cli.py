@@ -8,7 +8,7 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
-from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
+from pirl_sim.validation import positive_int_arg, seed_arg
 
 __all__ = ["main", "build_parser", "package_version", "cli_logging"]
 
@@ -136,7 +136,6 @@ def _reproduce(args) -> int:
         if args.experiment != "synthetic" and ranges:
             flags = " and ".join("--" + k.replace("_", "-") for k in ranges)
             raise ValueError(f"{flags} apply to the synthetic experiment only (the passage starts are its own)")
-        check_output_dir(out)  # before the work, not after it
         table = reproduce.reproduce(args.experiment, out, seed=args.seed, params=params,
                                     history_steps=args.history_steps, workers=args.workers,
                                     progress=not args.quiet, command=command)
@@ -144,9 +143,9 @@ def _reproduce(args) -> int:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 1 if isinstance(exc, RuntimeError) else 2
     except KeyboardInterrupt:
-        print(f"\ninterrupted: finished cells are kept in {out}/cells/; run the same command to resume",
-              file=sys.stderr)
-        return 130
+        from pirl_sim.sweep.cli import interrupted
+
+        return interrupted(out)
     print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     if args.experiment == "synthetic":
         for proto in table["protocol"].unique():
@@ -154,12 +153,6 @@ def _reproduce(args) -> int:
             print(f"{proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) {verdict}")
     print(f"wrote {out}/")
     return 0
-
-
-def _replay(args) -> int:
-    from pirl_sim.harness.replay_cli import run_replay_command
-
-    return run_replay_command(args)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -183,7 +176,9 @@ def _run(args) -> int:
 
         return run_recover_command(args)
     if args.command == "replay":
-        return _replay(args)
+        from pirl_sim.harness.replay_cli import run_replay_command
+
+        return run_replay_command(args)
     if args.command in ("fit-model", "predict"):
         from pirl_sim.harness.model_cli import run_fit_model_command, run_predict_command
 

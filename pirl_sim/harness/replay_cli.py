@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pirl_sim.progress import reporter
+from pirl_sim.sweep.cli import interrupted
 from pirl_sim.validation import positive_float_arg, positive_int_arg
 
 __all__ = ["add_replay_parser", "run_replay_command", "replay_settings", "seconds_to_steps"]
@@ -259,9 +260,8 @@ def replay_config(args, settings: dict, tracks, map_path):
     """
     import dataclasses
     import tomllib
-    from importlib import resources
 
-    from pirl_sim.sweep.config import parse_config
+    from pirl_sim.sweep.config import parse_config, preset_text
 
     keys = [k.strip() for k in args.learners.split(",") if k.strip()]
     known = sorted([*LEARNERS, NEXT_KNN])
@@ -277,7 +277,7 @@ def replay_config(args, settings: dict, tracks, map_path):
     if "tirl" not in keys:
         keys.insert(0, "tirl")  # the reference of the paired differences
     dt, p = settings["dt"], _protocol(args, settings)
-    text = resources.files("pirl_sim.sweep").joinpath("replay.toml").read_text(encoding="utf-8")
+    text = preset_text("replay")
     data = tomllib.loads(text)
     data["seeds"] = list(range(args.seeds))
     exp = data["experiments"][0]
@@ -345,12 +345,12 @@ def replay_results(config, run, scene) -> dict:
     return collect_replay(scene, proto, per_seed, gmm[0] if gmm else 3)
 
 
-def _replay(args, a, files, settings, out, say) -> tuple:
+def _replay(args, a, settings, out, say) -> tuple:
     """One scene (``a.tracks``, ``a.map``) through the sweep engine into ``out``; returns (result, scene,
     protocol), result and scene None with ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
     interrupted replay resumes."""
     from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
-    from pirl_sim.sweep.recorded import load_scene, usable_tracks
+    from pirl_sim.sweep.recorded import load_scene, recorded_files, usable_tracks
     from pirl_sim.sweep.run import _plan, run_sweep
     from pirl_sim.sweep.store import ResultStore
 
@@ -361,6 +361,7 @@ def _replay(args, a, files, settings, out, say) -> tuple:
         print(f"replay of {a.tracks}: {len(unique)} cells, {len(records)} already in {out}/, "
               f"{len(unique) - len(records)} to run (code {version})")
         return None, None, proto
+    files = recorded_files(config.cells[0].scenario_params)
     say(f"reading {len(files)} track files and {a.map} (dt {settings['dt']:g} s, estimate "
         f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
     scene = load_scene(dict(config.cells[0].scenario_params))  # the cells' scene (kept for them when inline)
@@ -368,10 +369,7 @@ def _replay(args, a, files, settings, out, say) -> tuple:
     # --jobs N > 1: N forked sweep workers, which inherit the scene read here
     with (InlineExecutor() if args.jobs == 1 else LocalExecutor(args.jobs, start_method="fork")) as executor:
         run = run_sweep(config, out, executor=executor, progress=not args.quiet, command=_command(), tables=False)
-    if run.failed:
-        first = next(iter(run.failed.values()))
-        raise RuntimeError(f"{len(run.failed)} of the replay's cells failed (first: {first}; details in "
-                           f"{out}/errors/); the finished cells are kept: run the same command again to retry")
+    run.check_failed("the replay's cells")
     say(f"{scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), {scene.n_selected_tracks} "
         f"selected; skipped {scene.skipped}; route repairs {scene.repairs}"
         + (f"; steps {scene.steps}" if scene.steps else ""))
@@ -382,15 +380,9 @@ def _command() -> str:
     return "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
 
 
-def _interrupted(out) -> int:
-    print(f"\ninterrupted: finished cells are kept in {out}/cells/; run the same command to resume", file=sys.stderr)
-    return 130
-
-
 def run_replay_command(args) -> int:
     """Run ``pirl-sim replay`` from parsed arguments; returns the exit status."""
     from pirl_sim.harness.replay import summarize, write_replay_results
-    from pirl_sim.io.interaction import find_track_files
 
     say = reporter(not args.quiet)
     if args.table is not None:
@@ -400,21 +392,18 @@ def run_replay_command(args) -> int:
         return 2
     try:
         settings = replay_settings(args)
-        files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
-        if args.files is not None:
-            files = sorted(files, key=lambda f: Path(f).name)[: args.files]
         for note in settings["notes"]:
             say(note)
         if args.scan_horizon is not None:
-            return _scan(args, files, settings, say)
-        result, scene, _ = _replay(args, args, files, settings, args.out, say)
+            return _scan(args, settings, say)
+        result, scene, _ = _replay(args, args, settings, args.out, say)
         if result is None:  # --dry-run
             return 0
     except (ValueError, FileNotFoundError, RuntimeError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        return _interrupted(args.out)
+        return interrupted(args.out)
     write_replay_results(result, scene, args.out, _command())
     print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(result["paired_ca"].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
@@ -422,10 +411,11 @@ def run_replay_command(args) -> int:
     return 0
 
 
-def _scan(args, files, settings, say) -> int:
+def _scan(args, settings, say) -> int:
     """``--scan-horizon H1,H2,...`` (`pirl_sim.harness.horizon_scan`) instead of the replay."""
     from pirl_sim.harness.horizon_scan import scan_horizons, write_scan
     from pirl_sim.scenarios.replay import load_replay
+    from pirl_sim.sweep.recorded import recorded_files
 
     try:
         scan = [int(h) for h in str(args.scan_horizon).split(",")]
@@ -435,7 +425,7 @@ def _scan(args, files, settings, say) -> int:
     if not scan or any(h < 1 for h in scan):
         raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
     proto = _protocol(args, settings, scan)
-    scene = load_replay(files, args.map, **settings["load"])
+    scene = load_replay(recorded_files({"tracks": args.tracks, "files": args.files or 0}), args.map, **settings["load"])
     rows = scan_horizons(scene, scan, proto, progress=say, desired_speed="fit" if args.desired_speed == "fit" else None)
     table = write_scan(rows, args.out, _command())
     print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
@@ -464,7 +454,7 @@ def _run_table(args, say) -> int:
 
     from pirl_sim.harness.replay import write_replay_results
     from pirl_sim.harness.replay_table import table_row, write_table
-    from pirl_sim.io.interaction import find_track_files
+    from pirl_sim.sweep.recorded import recorded_files
 
     names = [n.strip() for n in str(args.roundabouts).split(",") if n.strip()]
     if "DR_USA_Roundabout_SR" in names:
@@ -480,21 +470,19 @@ def _run_table(args, say) -> int:
             if not a.map.is_file():
                 raise FileNotFoundError(f"no map {a.map}")
             settings = replay_settings(a)
-            files = sorted(find_track_files(a.tracks), key=lambda f: Path(f).name)
-            if args.files is not None:
-                files = files[: args.files]
-            result, scene, proto = _replay(args, a, files, settings, args.out / name, lambda m: say(f"{name}: {m}"))
+            result, scene, proto = _replay(args, a, settings, args.out / name, lambda m: say(f"{name}: {m}"))
             if result is None:  # --dry-run
                 continue
             write_replay_results(result, scene, args.out / name, _command())
             elapsed = time.perf_counter() - t0
-            rows.append(table_row(name, [Path(f).name for f in files], result, scene, proto, elapsed))
+            files = [f.name for f in recorded_files({"tracks": a.tracks, "files": args.files or 0})]
+            rows.append(table_row(name, files, result, scene, proto, elapsed))
             say(f"{name}: done in {elapsed:.0f} s")
     except (ValueError, FileNotFoundError, RuntimeError) as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        return _interrupted(args.out)
+        return interrupted(args.out)
     if args.dry_run:
         return 0
     text = write_table(rows, args.out, _command())

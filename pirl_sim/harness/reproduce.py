@@ -14,7 +14,6 @@ from __future__ import annotations
 import tomllib
 import warnings
 from dataclasses import asdict
-from importlib import resources
 
 import numpy as np
 import pandas as pd
@@ -50,12 +49,12 @@ def preset_config(name: str, *, seed: int = 0, params: dict | None = None, histo
     ValueError
         An unknown preset, or a parameter the sweep config rejects (named there).
     """
-    from pirl_sim.sweep.config import parse_config
+    from pirl_sim.sweep.config import parse_config, preset_text
     from pirl_sim.sweep.scenarios import scenario_spec
 
     if name not in PRESETS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {', '.join(PRESETS)}")
-    text = resources.files("pirl_sim.sweep").joinpath(f"{name}.toml").read_text(encoding="utf-8")
+    text = preset_text(name)
     data = tomllib.loads(text)
     data["seeds"] = [seed]
     for exp in data["experiments"]:
@@ -99,10 +98,7 @@ def reproduce(name: str, out_dir, *, seed: int = 0, params: dict | None = None, 
     out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
     config = preset_config(name, seed=seed, params=params, history_steps=history_steps)
     run = run_sweep(config, out, workers=workers, progress=progress, command=command, tables=False)
-    if run.failed:
-        first = next(iter(run.failed.values()))
-        raise RuntimeError(f"{len(run.failed)} of the {name} cells failed (first: {first}; details in {out}/errors/); "
-                           "the finished cells are kept: run again to retry the others")
+    run.check_failed(f"the {name} cells")
     table, ktable = report_tables(name, run.table)
     title = {"synthetic": "synthetic data", "passage": "the roundabout passage"}[name]
     atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))

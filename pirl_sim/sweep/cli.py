@@ -8,7 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
-__all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "main"]
+__all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "main", "interrupted"]
 
 DEFAULT_OUT = Path("results") / "sweep"
 
@@ -64,6 +64,12 @@ def _command(args) -> str:
     return "pirl-sim sweep " + shlex.join([str(args.config), "--out", str(args.out)])
 
 
+def interrupted(out) -> int:
+    """Say that an interrupted run keeps its finished cells in ``out`` (sweep, reproduce, replay); exit status 130."""
+    print(f"\ninterrupted: finished cells are kept in {out}/cells/; run the same command to resume", file=sys.stderr)
+    return 130
+
+
 def run_sweep_command(args) -> int:
     """``pirl-sim sweep``: 0 when every cell finished, 1 when some failed, 2 for a bad config or option,
     130 when interrupted (finished cells are kept)."""
@@ -78,30 +84,22 @@ def run_sweep_command(args) -> int:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
     if args.dry_run:
-        from .store import ResultStore, code_version
+        from .run import _plan, _simulations
+        from .store import ResultStore
 
-        from .run import _simulations
-
-        version = code_version()
-        unique = {c.key(version): c for c in reversed(config.cells)}
-        keys = set(unique)
         store = ResultStore(args.out)
-        stored = {k for k in keys & store.finished() if store.load(k) is not None}  # a damaged file runs again
-        sims, _ = _simulations(unique, [k for k in unique if k not in stored], store, version)
+        version, _, unique, stored, todo = _plan(config, store)  # a damaged cell file is not stored: it runs again
+        sims, _ = _simulations(unique, todo, store, version)
         sim_part = f" and {len(sims)} simulation{'s' if len(sims) != 1 else ''}" if sims else ""
-        print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(keys)} distinct), "
-              f"{len(stored)} already in {args.out}/, {len(keys) - len(stored)} to run{sim_part} (code {version})")
+        print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(unique)} distinct), "
+              f"{len(stored)} already in {args.out}/, {len(todo)} to run{sim_part} (code {version})")
         return 0
     try:
         run = run_sweep(config, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.quiet,
                         command=_command(args))
     except KeyboardInterrupt:
-        log.warning("\ninterrupted: finished cells are kept in %s/cells/; run the same command to resume", args.out)
-        return 130
-    except ValueError as exc:  # e.g. a bad scheduler address
-        print(f"pirl-sim: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # e.g. no scheduler at that address
+        return interrupted(args.out)
+    except (ValueError, OSError) as exc:  # e.g. a bad scheduler address, no scheduler at that address
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
     print(f"{len(run.table)} cells in {args.out}/table.parquet ({len(run.computed)} run now, {len(run.cached)} "

@@ -66,6 +66,7 @@ __all__ = [
     "parse_config",
     "default_config",
     "DEFAULT_CONFIG_TEXT",
+    "preset_text",
     "canonical_json",
     "sweep_learners",
 ]
@@ -634,11 +635,12 @@ def load_config(path) -> SweepConfig:
     return parse_config(data, base_dir=path.resolve().parent, source=str(path), text=text)
 
 
-def _default_text() -> str:
-    return resources.files("pirl_sim.sweep").joinpath("default.toml").read_text(encoding="utf-8")
+def preset_text(name: str) -> str:
+    """The embedded sweep config ``pirl_sim/sweep/<name>.toml`` (default, synthetic, passage, replay) as text."""
+    return resources.files("pirl_sim.sweep").joinpath(f"{name}.toml").read_text(encoding="utf-8")
 
 
-DEFAULT_CONFIG_TEXT = _default_text()
+DEFAULT_CONFIG_TEXT = preset_text("default")
 
 
 def default_config() -> SweepConfig:

@@ -81,7 +81,17 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-class LocalExecutor:
+class _Executor:
+    """A context manager: closed on exit, its pending cells cancelled when the block raised."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close(cancel=exc[0] is not None)
+
+
+class LocalExecutor(_Executor):
     """Cells in ``workers`` local processes (spawn start method by default).
 
     Parameters
@@ -123,14 +133,8 @@ class LocalExecutor:
     def close(self, cancel: bool = False) -> None:
         self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
 
-    def __enter__(self):
-        return self
 
-    def __exit__(self, *exc):
-        self.close(cancel=exc[0] is not None)
-
-
-class DaskExecutor:
+class DaskExecutor(_Executor):
     """Cells on a Dask distributed cluster.
 
     Parameters
@@ -182,12 +186,6 @@ class DaskExecutor:
         if self._own:
             self.client.close()
 
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close(cancel=exc[0] is not None)
-
 
 class _Deferred:
     """A cell to run in the calling process when `InlineExecutor.as_completed` reaches it."""
@@ -216,7 +214,7 @@ class _Deferred:
         return not self._done
 
 
-class InlineExecutor:
+class InlineExecutor(_Executor):
     """Cells in the calling process, one after another (each runs when `as_completed` reaches it)."""
 
     kind = "inline"
@@ -239,12 +237,6 @@ class InlineExecutor:
         cell._VERSION = None  # this process is the worker: take the code version of this run's files
 
     def close(self, cancel: bool = False) -> None:
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
         pass
 
 

@@ -87,6 +87,14 @@ class SweepRun:
     cpu_s: float = 0.0
     simulated: list = field(default_factory=list)
 
+    def check_failed(self, what: str) -> None:
+        """RuntimeError when cells failed, naming how many of ``what`` and the first error (a report template's
+        run: its files need every cell); the finished cells are kept, so the same call retries the others."""
+        if self.failed:
+            raise RuntimeError(f"{len(self.failed)} of {what} failed (first: {next(iter(self.failed.values()))}; "
+                               f"details in {self.out}/errors/); the finished cells are kept: run the same command "
+                               "again to retry the others")
+
 
 def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
@@ -348,18 +356,20 @@ def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.Da
     return table
 
 
-def _write_table(table: pd.DataFrame, out: Path) -> None:
+def _write_parquet(frame: pd.DataFrame, path: Path) -> None:
     import io
 
     buf = io.BytesIO()
-    table.to_parquet(buf, index=False)
-    atomic_write_bytes(out / "table.parquet", buf.getvalue())
+    frame.to_parquet(buf, index=False)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _write_table(table: pd.DataFrame, out: Path) -> None:
+    _write_parquet(table, out / "table.parquet")
     atomic_write_text(out / "table.csv", table.to_csv(index=False))
 
 
 def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:
-    import io
-
     frames = []
     for cell, k in zip(config.cells, keys):
         rec = records.get(k)
@@ -378,9 +388,7 @@ def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Pa
     if not frames:
         path.unlink(missing_ok=True)
         return
-    buf = io.BytesIO()
-    pd.concat(frames, ignore_index=True).to_parquet(buf, index=False)
-    atomic_write_bytes(path, buf.getvalue())
+    _write_parquet(pd.concat(frames, ignore_index=True), path)
 
 
 def weights_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
@@ -427,14 +435,11 @@ def read_table(results) -> pd.DataFrame:
         raise ValueError(f"{results}: expected a results directory, table.parquet or table.csv")
     try:
         table = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
-    except (OSError, ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+    except Exception as exc:  # ParserError, EmptyDataError are ValueErrors; pyarrow's own for a damaged parquet
+        if not (isinstance(exc, (OSError, ValueError)) or type(exc).__module__.startswith("pyarrow")):
+            raise
         raise ValueError(f"{path}: not a readable sweep table ({type(exc).__name__}: {exc}); run pirl-sim sweep "
                          "again to rewrite it") from None
-    except Exception as exc:  # pyarrow's own errors for a damaged parquet file
-        if type(exc).__module__.startswith("pyarrow"):
-            raise ValueError(f"{path}: not a readable sweep table ({type(exc).__name__}: {exc}); run pirl-sim "
-                             "sweep again to rewrite it") from None
-        raise
     for c in ONLINE_SCORES:  # a table written before these scores existed: empty columns
         if c not in table.columns:
             table.insert(list(TABLE_COLUMNS).index(c), c, pd.array([None] * len(table), dtype="Int64")
