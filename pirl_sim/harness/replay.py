@@ -13,28 +13,18 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pirl_sim.sweep.recorded import (  # noqa: F401  (the replay's names, as before)
+from pirl_sim.sweep.recorded import (  # noqa: F401  (ReplayProtocol, predict_path_states: the replay's names)
     _IRL_WARNINGS,
     HINDSIGHT,
-    ROLLOUTS,
     ReplayProtocol,
     _track_keys,
     predict_path_states,
     replay_seed,
-    split_by_track,
     usable_tracks,
 )
 
-__all__ = ["ReplayProtocol", "run_replay", "replay_methods", "collect_replay", "paired_differences", "summarize",
-           "write_replay_results", "predict_path_states", "split_by_track", "usable_tracks", "HINDSIGHT", "ROLLOUTS"]
-
-
-def replay_methods(learner_specs, hindsight: bool = False) -> list:
-    """The methods of a replay, in the order of its rows: the baselines CV and CA along the path, the learners
-    (``learner_specs``: (name, learner key, params)), the hindsight oracle (with ``hindsight``) and CV in the
-    plane."""
-    return [("CV (path)", "cv", {}), ("CA (path)", "ca", {}), *learner_specs,
-            *([(HINDSIGHT, "hindsight", {})] if hindsight else []), ("CV (x, y)", "cv-xy", {})]
+__all__ = ["ReplayProtocol", "run_replay", "collect_replay", "paired_differences", "summarize", "selection_table",
+           "write_replay_results", "predict_path_states", "HINDSIGHT"]
 
 
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
@@ -69,7 +59,8 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     their pieces) and the S-T figure's ``examples``.
     """
     say = progress or (lambda msg: None)
-    methods = replay_methods(learner_specs, hindsight)
+    methods = [("CV (path)", "cv", {}), ("CA (path)", "ca", {}), *learner_specs,  # the order of the rows
+               *([(HINDSIGHT, "hindsight", {})] if hindsight else []), ("CV (x, y)", "cv-xy", {})]
     per_seed = {seed: replay_seed(scene, seed, methods, proto, desired_speed=desired_speed, n_futures=n_futures,
                                   say=say) for seed in proto.seeds}
     return collect_replay(scene, proto, per_seed, _gmm_k(learner_specs))
@@ -207,18 +198,21 @@ def _speed_lines(result: dict) -> list[str]:
     return [f"Desired speed (a_lat [m/s^2], v_max [m/s]) per split seed: {seeds}.", ""]
 
 
+def selection_table(scene, history: int, horizon: int | None = None) -> pd.DataFrame:
+    """`pirl_sim.scenarios.replay.selection_counts` for a training window (``min_steps`` = ``history``) and, with a
+    ``horizon``, a test window (``history + horizon``)."""
+    from pirl_sim.scenarios.replay import selection_counts
+
+    return pd.concat([selection_counts(scene, n).assign(min_steps=n)
+                      for n in (history, history + horizon if horizon else None) if n], ignore_index=True)
+
+
 def _selection_lines(scene, result: dict) -> list[str]:
     from pirl_sim.harness.tables import markdown
-    from pirl_sim.scenarios.replay import selection_counts
 
     if getattr(scene, "track_table", None) is None:
         return []
-    h = result["history"]
-    hz = result.get("horizon")
-    tables = [selection_counts(scene, h).assign(min_steps=h)]
-    if hz:
-        tables.append(selection_counts(scene, h + hz).assign(min_steps=h + hz))
-    table = pd.concat(tables, ignore_index=True)
+    table = selection_table(scene, result["history"], result.get("horizon"))
     return ["## Matched car tracks usable per selection rule", "",
             "usable: tracks with at least one piece the rule keeps of >= min_steps steps (history: a training "
             "window; history + horizon: a test window).", "", markdown(table), ""]

@@ -25,7 +25,7 @@ def _se(x: pd.Series) -> float:
 
 def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: float) -> dict:
     """Aggregate figures of one roundabout's replay (module doc)."""
-    from pirl_sim.scenarios.replay import selection_counts
+    from pirl_sim.harness.replay import selection_table
 
     rows = result["rows"]
     fde = [c for c in rows.columns if c.startswith("de@")]
@@ -67,10 +67,7 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
     out["ordering"] = " > ".join(f"{k} {v:.3f}" for k, v in sorted(order.items(), key=lambda kv: -kv[1]))
     out["paper_ordering_holds"] = (list(order) == ["TIRL", "PIRL-GMM", "PIRL-kNN"]
                                    and order["TIRL"] > order["PIRL-GMM"] > order["PIRL-kNN"])
-    counts = pd.concat([selection_counts(scene, proto.history).assign(min_steps=proto.history),
-                        selection_counts(scene, proto.history + proto.horizon).assign(
-                            min_steps=proto.history + proto.horizon)], ignore_index=True)
-    out["selection"] = counts
+    out["selection"] = selection_table(scene, proto.history, proto.horizon)
     if "a_lat" in rows:
         g = rows.groupby("seed")[["a_lat", "v_max"]].first()
         out["speed"] = ", ".join(f"{r.a_lat:.2f}/{r.v_max:.2f}" for _, r in g.iterrows())

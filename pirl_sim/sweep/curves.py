@@ -20,8 +20,7 @@ import re
 import numpy as np
 import pandas as pd
 
-__all__ = ["CURVE_AXES", "curves_table", "curves_summary", "recovery_curves_figure", "recovery_curves",
-           "curves_markdown"]
+__all__ = ["CURVE_AXES", "curves_table", "curves_summary", "recovery_curves_figure", "curves_markdown"]
 
 #: recovery parameters: (where the parameter is, axis label)
 CURVE_AXES: dict[str, tuple[str, str]] = {
@@ -134,14 +133,6 @@ def recovery_curves_figure(summary: pd.DataFrame):
     fig.suptitle("Recovery curves (mean over seeds; bars: 95 % interval of the mean)", fontsize=10)
     legend_below(fig, handles, list(colors))
     return fig
-
-
-def recovery_curves(table: pd.DataFrame) -> bytes | None:
-    """`recovery_curves_figure` of a sweep's table as PNG bytes (None when the sweep has no curve)."""
-    from pirl_sim.harness.figures import png_bytes
-
-    fig = recovery_curves_figure(curves_summary(curves_table(table)))
-    return None if fig is None else png_bytes(fig)
 
 
 def curves_markdown(table: pd.DataFrame, fmt) -> list[str]:

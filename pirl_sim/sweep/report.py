@@ -207,12 +207,6 @@ def med_vs_k_figure(summary: pd.DataFrame):
     return fig
 
 
-def med_vs_k(summary: pd.DataFrame) -> bytes | None:
-    """MED vs k per scenario variant and learner as PNG bytes (None when no learner ran with several k)."""
-    fig = med_vs_k_figure(summary)
-    return None if fig is None else png_bytes(fig)
-
-
 def _variant(scenario_label: str, experiment: str) -> str:
     """'passage population (rationality=20, mix=equal)' -> 'rationality=20, mix=equal'."""
     if scenario_label.startswith(experiment + " (") and scenario_label.endswith(")"):
@@ -226,8 +220,9 @@ def _log_floor(values) -> float:
 
 
 def learners_side_by_side_figure(best: pd.DataFrame):
-    """The figure of `learners_side_by_side`: bars of MED per learner (one colour per learner in every panel),
-    the best k written above each bar of a learner run with several k, one legend below the panels."""
+    """``learners.png``: bars of MED per learner (best k; one colour per learner in every panel), one panel per
+    experiment, grouped by scenario variant and protocol, the best k written above each bar of a learner run
+    with several k, one legend below the panels."""
     experiments = list(dict.fromkeys(best["experiment"]))
     fig, axes = _grid(len(experiments), width=5.6)
     colors = _series_colors(best["learner_base"])
@@ -273,18 +268,6 @@ def learners_side_by_side_figure(best: pd.DataFrame):
     fig.suptitle("Learners side by side (best k where several ran, written above its bar)", fontsize=10)
     legend_below(fig, handles, list(colors), ncol=len(colors))
     return fig
-
-
-def learners_side_by_side(best: pd.DataFrame) -> bytes:
-    """Bars of MED per learner (best k), one panel per experiment, grouped by scenario variant and protocol;
-    PNG bytes."""
-    return png_bytes(learners_side_by_side_figure(best))
-
-
-def recovery_scatter(recovery: pd.DataFrame, best: pd.DataFrame) -> bytes | None:
-    """PNG bytes of `recovery_figure` (None when there is nothing to draw)."""
-    fig = recovery_figure(recovery, best)
-    return None if fig is None else png_bytes(fig)
 
 
 def recovery_figure(recovery: pd.DataFrame, best: pd.DataFrame):
@@ -406,13 +389,14 @@ def write_report(results, out_dir=None) -> dict:
     summary = summary_table(table)
     best = best_variants(summary)
     written = {}
-    from .curves import curves_markdown, recovery_curves
+    from .curves import curves_markdown, curves_summary, curves_table, recovery_curves_figure
 
-    figures = {"med_vs_k.png": med_vs_k(summary), "learners.png": learners_side_by_side(best),
-               "recovery.png": recovery_scatter(recovery, best), "recovery_curves.png": recovery_curves(table)}
-    for name, png in figures.items():
-        if png is not None:
-            written[name] = atomic_write_bytes(out / name, png)
+    figures = {"med_vs_k.png": med_vs_k_figure(summary), "learners.png": learners_side_by_side_figure(best),
+               "recovery.png": recovery_figure(recovery, best),
+               "recovery_curves.png": recovery_curves_figure(curves_summary(curves_table(table)))}
+    for name, fig in figures.items():  # None: nothing to draw
+        if fig is not None:
+            written[name] = atomic_write_bytes(out / name, png_bytes(fig))
         else:
             (out / name).unlink(missing_ok=True)
 
