@@ -120,17 +120,14 @@ def build_parser() -> argparse.ArgumentParser:
 def _reproduce(args) -> int:
     """``pirl-sim reproduce``: 0, 1 when cells failed, 2 for a bad option, 130 when interrupted (finished cells
     are kept)."""
-    import shlex
-
     from pirl_sim.harness import reproduce
+    from pirl_sim.sweep.cli import command_line, interrupted
 
     params = {k: v for k, v in (("n_trajectories", args.n_trajectories), ("n_train", args.n_train),
                                 ("position_range", args.position_range), ("velocity_range", args.velocity_range))
               if v is not None}
     out = args.out if args.out is not None else Path("results") / args.experiment
-    argv = sys.argv[1:]
-    command = "pirl-sim " + shlex.join(argv[argv.index("reproduce"):] if "reproduce" in argv else
-                                       ["reproduce", args.experiment, "--out", str(out)])
+    command = command_line("reproduce", [args.experiment, "--out", str(out)])
     try:
         ranges = [k for k in ("position_range", "velocity_range") if k in params]
         if args.experiment != "synthetic" and ranges:
@@ -143,8 +140,6 @@ def _reproduce(args) -> int:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 1 if isinstance(exc, RuntimeError) else 2
     except KeyboardInterrupt:
-        from pirl_sim.sweep.cli import interrupted
-
         return interrupted(out)
     print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     if args.experiment == "synthetic":

@@ -51,7 +51,7 @@ from pirl_sim.metrics import (
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate", "future_scores", "NLL_SIGMA"]
+__all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate", "future_scores", "rolling_cases", "NLL_SIGMA"]
 
 PROTOCOL_KINDS = ("paper", "online", "rolling")
 NLL_SIGMA = 0.5  # [m] default standard deviation per step and coordinate of the NLL's Gaussian mixture
@@ -167,7 +167,7 @@ def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol, *, n_futur
     if protocol.kind == "rolling":
         row = _evaluate_rolling(learner, test, protocol)
         if n_futures is not None:
-            histories, futures = _rolling_cases(test, protocol)
+            histories, futures, _ = rolling_cases(test, protocol)
             row.update(future_scores(learner, histories, np.stack(futures), n_futures,
                                      np.random.default_rng(random_state), nll_sigma))
         return row
@@ -270,19 +270,9 @@ def _mean_scores(parts: list[dict]) -> dict:
     return out
 
 
-def _rolling_cases(test: list[Trajectory], protocol: Protocol):
-    """Histories and true futures (H + 1 states each) of every rolling prediction, as `_evaluate_rolling`."""
-    T, H = protocol.history_steps, protocol.horizon
-    histories, futures = [], []
-    for t in test:
-        for step in range(T, t.n_steps - H + 1, protocol.stride):
-            histories.append(t.window(step - T, step))
-            futures.append(t.states[step : step + H + 1])
-    return histories, futures
-
-
-def _evaluate_rolling(learner, test: list[Trajectory], protocol: Protocol) -> dict:
-    model = learner.model_
+def rolling_cases(test: Sequence[Trajectory], protocol: Protocol):
+    """Every prediction of the rolling protocol (module doc): its history, its true future (H + 1 states from
+    the last observed one) and the index of its test trajectory (an int array)."""
     T, H = protocol.history_steps, protocol.horizon
     histories, futures, owners = [], [], []
     for i, t in enumerate(test):
@@ -290,9 +280,15 @@ def _evaluate_rolling(learner, test: list[Trajectory], protocol: Protocol) -> di
             histories.append(t.window(step - T, step))
             futures.append(t.states[step : step + H + 1])
             owners.append(i)
+    return histories, futures, np.asarray(owners, dtype=int)
+
+
+def _evaluate_rolling(learner, test: list[Trajectory], protocol: Protocol) -> dict:
+    model = learner.model_
+    T, H = protocol.history_steps, protocol.horizon
+    histories, futures, owners = rolling_cases(test, protocol)
     if not histories:
         raise ValueError(f"no test trajectory is long enough for {T} history + {H} predicted steps")
-    owners = np.asarray(owners)
     t0 = time.perf_counter()
     theta = learner.infer_weights(histories)
     pred = model.predict_states(np.stack([h.states[-1] for h in histories]), theta, H)

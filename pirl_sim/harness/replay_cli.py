@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pirl_sim.progress import reporter
-from pirl_sim.sweep.cli import interrupted
+from pirl_sim.sweep.cli import command_line, interrupted
 from pirl_sim.validation import positive_float_arg, positive_int_arg
 
 __all__ = ["add_replay_parser", "run_replay_command", "replay_settings", "seconds_to_steps"]
@@ -345,9 +345,10 @@ def replay_results(config, run, scene) -> dict:
     return collect_replay(scene, proto, per_seed, gmm[0] if gmm else 3)
 
 
-def _replay(args, a, settings, out, say) -> tuple:
-    """One scene (``a.tracks``, ``a.map``) through the sweep engine into ``out``; returns (result, scene,
-    protocol), result and scene None with ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
+def _replay(a, settings, out, say) -> tuple:
+    """One scene (``a.tracks``, ``a.map``: the command's arguments, or their copy for one roundabout of --table)
+    through the sweep engine into ``out``; returns (result, scene, protocol), result and scene None with
+    ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
     interrupted replay resumes."""
     from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
     from pirl_sim.sweep.recorded import load_scene, recorded_files, usable_tracks
@@ -356,7 +357,7 @@ def _replay(args, a, settings, out, say) -> tuple:
 
     config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
     proto = _protocol(a, settings)
-    if args.dry_run:
+    if a.dry_run:
         version, _, unique, records, _ = _plan(config, ResultStore(out))
         print(f"replay of {a.tracks}: {len(unique)} cells, {len(records)} already in {out}/, "
               f"{len(unique) - len(records)} to run (code {version})")
@@ -367,8 +368,8 @@ def _replay(args, a, settings, out, say) -> tuple:
     scene = load_scene(dict(config.cells[0].scenario_params))  # the cells' scene (kept for them when inline)
     usable_tracks(scene, proto)  # too few usable tracks fail here, before any cell
     # --jobs N > 1: N forked sweep workers, which inherit the scene read here
-    with (InlineExecutor() if args.jobs == 1 else LocalExecutor(args.jobs, start_method="fork")) as executor:
-        run = run_sweep(config, out, executor=executor, progress=not args.quiet, command=_command(), tables=False)
+    with (InlineExecutor() if a.jobs == 1 else LocalExecutor(a.jobs, start_method="fork")) as executor:
+        run = run_sweep(config, out, executor=executor, progress=not a.quiet, command=_command(), tables=False)
     run.check_failed("the replay's cells")
     say(f"{scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), {scene.n_selected_tracks} "
         f"selected; skipped {scene.skipped}; route repairs {scene.repairs}"
@@ -377,7 +378,7 @@ def _replay(args, a, settings, out, say) -> tuple:
 
 
 def _command() -> str:
-    return "pirl-sim replay " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["replay"] else "pirl-sim replay"
+    return command_line("replay", [])
 
 
 def run_replay_command(args) -> int:
@@ -396,7 +397,7 @@ def run_replay_command(args) -> int:
             say(note)
         if args.scan_horizon is not None:
             return _scan(args, settings, say)
-        result, scene, _ = _replay(args, args, settings, args.out, say)
+        result, scene, _ = _replay(args, settings, args.out, say)
         if result is None:  # --dry-run
             return 0
     except (ValueError, FileNotFoundError, RuntimeError) as exc:
@@ -470,7 +471,7 @@ def _run_table(args, say) -> int:
             if not a.map.is_file():
                 raise FileNotFoundError(f"no map {a.map}")
             settings = replay_settings(a)
-            result, scene, proto = _replay(args, a, settings, args.out / name, lambda m: say(f"{name}: {m}"))
+            result, scene, proto = _replay(a, settings, args.out / name, lambda m: say(f"{name}: {m}"))
             if result is None:  # --dry-run
                 continue
             write_replay_results(result, scene, args.out / name, _command())

@@ -208,13 +208,10 @@ def _histories(test, protocol):
         return list(test), np.arange(len(test))
     if protocol.kind == "online":
         return [t.window(0, protocol.history_steps) for t in test], np.arange(len(test))
-    T, H = protocol.history_steps, protocol.horizon
-    hist, owner = [], []
-    for i, t in enumerate(test):
-        for step in range(T, t.n_steps - H + 1, protocol.stride):
-            hist.append(t.window(step - T, step))
-            owner.append(i)
-    return hist, np.asarray(owner, dtype=int)
+    from pirl_sim.harness.experiment import rolling_cases
+
+    hist, _, owner = rolling_cases(test, protocol)
+    return hist, owner
 
 
 def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | None, list | None]:

@@ -8,7 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
-__all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "main", "interrupted"]
+__all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "main", "interrupted", "command_line"]
 
 DEFAULT_OUT = Path("results") / "sweep"
 
@@ -57,11 +57,11 @@ def add_sweep_parsers(subparsers) -> None:
     rp.add_argument("--out", type=Path, default=None, help="where to write (default: the results directory)")
 
 
-def _command(args) -> str:
+def command_line(name: str, fallback: list[str]) -> str:
+    """The command ``name`` as typed (its arguments shell-quoted), or ``pirl-sim NAME FALLBACK...`` when it was
+    called from Python: what ``sweep.json`` and the READMEs record."""
     argv = sys.argv[1:]
-    if "sweep" in argv:
-        return "pirl-sim " + shlex.join(argv[argv.index("sweep"):])
-    return "pirl-sim sweep " + shlex.join([str(args.config), "--out", str(args.out)])
+    return "pirl-sim " + shlex.join(argv[argv.index(name):] if name in argv else [name, *fallback])
 
 
 def interrupted(out) -> int:
@@ -96,7 +96,7 @@ def run_sweep_command(args) -> int:
         return 0
     try:
         run = run_sweep(config, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.quiet,
-                        command=_command(args))
+                        command=command_line("sweep", [str(args.config), "--out", str(args.out)]))
     except KeyboardInterrupt:
         return interrupted(args.out)
     except (ValueError, OSError) as exc:  # e.g. a bad scheduler address, no scheduler at that address

@@ -49,7 +49,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from pirl_sim.validation import SEED_LIMIT
+from pirl_sim.validation import SEED_LIMIT, check_keys
 
 from .scenarios import resolve_scenario_params, scenario_spec
 
@@ -102,9 +102,7 @@ def canonical_json(obj) -> str:
 def _check_keys(label: str, table: Mapping, valid: tuple[str, ...]) -> None:
     if not isinstance(table, Mapping):
         raise ValueError(f"{label} must be a table, got {table!r}")
-    unknown = [k for k in table if k not in valid]
-    if unknown:
-        raise ValueError(f"{label}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: {', '.join(valid)}")
+    check_keys(label, table, valid)
 
 
 def _jsonable(label: str, value):

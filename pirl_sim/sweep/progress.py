@@ -7,19 +7,7 @@ import sys
 
 from pirl_sim.progress import LineStream
 
-__all__ = ["Progress", "LineStream", "format_duration"]
-
-
-def format_duration(seconds: float) -> str:
-    """``1:02:03``, ``2:03`` or ``5 s``."""
-    if seconds != seconds or seconds == float("inf"):
-        return "?"
-    s = int(round(seconds))
-    if s < 60:
-        return f"{s} s"
-    h, rem = divmod(s, 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+__all__ = ["Progress", "LineStream"]
 
 
 class Progress:
