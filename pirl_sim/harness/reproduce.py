@@ -135,10 +135,9 @@ def report_tables(name: str, tidy: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataF
 
 def _scenario_config(cell):
     """The scenario's own config dataclass (`SyntheticConfig` or `PassageConfig`) of a cell."""
-    from pirl_sim.sweep import scenarios
+    from pirl_sim.sweep.scenarios import generated_config
 
-    make = scenarios._synthetic_config if cell.scenario == "synthetic" else scenarios._passage_config
-    return make(dict(cell.scenario_params), cell.seed)
+    return generated_config(cell.scenario, dict(cell.scenario_params), cell.seed)
 
 
 def ordering_holds(table: pd.DataFrame, protocol_name: str) -> bool:

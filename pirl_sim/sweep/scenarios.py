@@ -384,12 +384,6 @@ def _style_dicts(styles) -> list[dict]:
     return out
 
 
-def _style_objects(dicts) -> tuple:
-    from pirl_sim.population import Style
-
-    return tuple(Style(d["name"], d["weight"], dict(d["mean"]), dict(d["std"])) for d in dicts)
-
-
 # ------------------------------------------------------------------------------------------ synthetic
 _SYNTHETIC_PARAMS = {
     "n_trajectories": Param("int", 2000, "trajectories in all (train + test)"),
@@ -404,15 +398,25 @@ _SYNTHETIC_PARAMS = {
 }
 
 
-def _synthetic_config(params: dict, seed: int = 0):
-    from pirl_sim.scenarios.synthetic import SyntheticConfig
+#: the generated scenarios: their module (``generate``), config class and [low, high] parameters
+_GENERATED = {"synthetic": ("synthetic", "SyntheticConfig", ("position_range", "velocity_range")),
+              "passage": ("passage", "PassageConfig", ("start_s", "start_v"))}
 
-    p = dict(params)
-    p["styles"] = _style_objects(p["styles"])
-    p["position_range"] = tuple(p["position_range"])
-    p["velocity_range"] = tuple(p["velocity_range"])
-    p.pop("mix", None)
-    return SyntheticConfig(**p, seed=seed)
+
+def generated_config(name: str, params: dict, seed: int = 0):
+    """The own config dataclass (`SyntheticConfig`, `PassageConfig`) of a generated scenario's parameters."""
+    from pirl_sim.population import Style
+
+    module, cls, ranges = _GENERATED[name]
+    p = {k: tuple(v) if k in ranges else v for k, v in params.items() if k != "mix"}
+    p["styles"] = tuple(Style(d["name"], d["weight"], dict(d["mean"]), dict(d["std"])) for d in p["styles"])
+    return getattr(importlib.import_module(f"pirl_sim.scenarios.{module}"), cls)(**p, seed=seed)
+
+
+def _build_generated(name: str, params: dict, seed: int) -> ScenarioData:
+    data = importlib.import_module(f"pirl_sim.scenarios.{_GENERATED[name][0]}").generate(
+        generated_config(name, params, seed))
+    return ScenarioData(data.model, data.train, data.test, tuple(s["name"] for s in params["styles"]))
 
 
 def _check_synthetic(params: dict) -> dict:
@@ -422,15 +426,8 @@ def _check_synthetic(params: dict) -> dict:
     styles = _styles("scenario 'synthetic'", PAPER_STYLES, params["styles"], params["mix"], lqr_features())
     out = dict(params, styles=_style_dicts(styles))
     out.pop("mix")
-    _synthetic_config(out)  # SyntheticConfig validates counts, ranges, dt
+    generated_config("synthetic", out)  # SyntheticConfig validates counts, ranges, dt
     return out
-
-
-def _build_synthetic(params: dict, seed: int) -> ScenarioData:
-    from pirl_sim.scenarios.synthetic import generate
-
-    data = generate(_synthetic_config(params, seed))
-    return ScenarioData(data.model, data.train, data.test, tuple(s["name"] for s in params["styles"]))
 
 
 def _shape_fixed(params: dict) -> TrainShape:
@@ -455,34 +452,16 @@ _PASSAGE_PARAMS = {
 }
 
 
-def _passage_config(params: dict, seed: int = 0):
-    from pirl_sim.scenarios.passage import PassageConfig
-
-    p = dict(params)
-    p["styles"] = _style_objects(p["styles"])
-    p["start_s"] = tuple(p["start_s"])
-    p["start_v"] = tuple(p["start_v"])
-    p.pop("mix", None)
-    return PassageConfig(**p, seed=seed)
-
-
 def _check_passage(params: dict) -> dict:
     from pirl_sim.scenarios.passage import THREE_STYLES
 
-    geometry = _passage_config(dict(params, styles=_style_dicts(THREE_STYLES)))  # validates all but styles
+    geometry = generated_config("passage", dict(params, styles=_style_dicts(THREE_STYLES)))  # all but styles
     features = geometry.model().features
     styles = _styles("scenario 'passage'", THREE_STYLES, params["styles"], params["mix"], features)
     out = dict(params, styles=_style_dicts(styles))
     out.pop("mix")
-    _passage_config(out)
+    generated_config("passage", out)
     return out
-
-
-def _build_passage(params: dict, seed: int) -> ScenarioData:
-    from pirl_sim.scenarios.passage import generate
-
-    data = generate(_passage_config(params, seed))
-    return ScenarioData(data.model, data.train, data.test, tuple(s["name"] for s in params["styles"]))
 
 
 # ------------------------------------------------------------------------------------------ simulators
@@ -606,11 +585,11 @@ def _driver_horizon(params) -> int:
 
 register_scenario(ScenarioSpec(
     "synthetic", "the paper's 1-D point mass regulated by LQR, theta = q/r from two kernels",
-    _SYNTHETIC_PARAMS, _check_synthetic, _build_synthetic, _shape_fixed,
+    _SYNTHETIC_PARAMS, _check_synthetic, partial(_build_generated, "synthetic"), _shape_fixed,
 ))
 register_scenario(ScenarioSpec(
     "passage", "roundabout passage, drivers of the paper's three user-study styles",
-    _PASSAGE_PARAMS, _check_passage, _build_passage, _shape_fixed,
+    _PASSAGE_PARAMS, _check_passage, partial(_build_generated, "passage"), _shape_fixed,
 ))
 for _name, _summary in (
         ("sumo", "SUMO roundabout (libsumo), PIRL drivers of known weights re-planning every 0.1 s among SUMO's own"),
