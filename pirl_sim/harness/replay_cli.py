@@ -328,7 +328,7 @@ def replay_results(config, run, scene) -> dict:
     cells = list(config.cells)
     label = {method_id(c.spec()): c.learner_label for c in cells}
     per_seed: dict = {}
-    for cell in cells:
+    for cell in cells:  # learner by learner, the seeds inside: the methods of a seed come in the preset's order
         record = store.load(cell.key(run.code_version))
         if record is None:
             raise RuntimeError(f"the cell {cell.learner_label} of seed {cell.seed} has no result in {run.out}/cells/")
@@ -337,10 +337,7 @@ def replay_results(config, run, scene) -> dict:
         if entry["row"].get("irl_from"):
             entry["row"]["irl_from"] = label[entry["row"]["irl_from"]]
         per_seed.setdefault(cell.seed, {"methods": {}, "examples": examples})["methods"][cell.learner_label] = entry
-    seeds, order = sorted(per_seed), [c.learner_label for c in cells]
-    for out in per_seed.values():  # the preset's order of the methods
-        out["methods"] = dict(sorted(out["methods"].items(), key=lambda kv: order.index(kv[0])))
-    proto = dataclasses.replace(_replay_settings(cells[0].spec())[0], seeds=tuple(seeds))
+    proto = dataclasses.replace(_replay_settings(cells[0].spec())[0], seeds=tuple(sorted(per_seed)))
     gmm = [c.k for c in cells if c.learner == "pirl-gmm"]
     return collect_replay(scene, proto, per_seed, gmm[0] if gmm else 3)
 

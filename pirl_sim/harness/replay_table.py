@@ -102,11 +102,9 @@ def table_markdown(rows: list[dict]) -> str:
                      f"{_pm(r.get('ratio_path', np.nan), r.get('ratio_path_se', np.nan))} | "
                      f"{_pm(r.get('floor_ratio', np.nan), r.get('floor_ratio_se', np.nan))} | {r['ordering']} | "
                      f"{'yes' if r['paper_ordering_holds'] else 'no'} | {r.get('speed', '')} | {r['elapsed_s']:.0f} |")
-    lines += ["", "IRL groups converged / fitted per split seed:", "",
-              "| roundabout | " + " | ".join(m for m in methods if any("converged" in r["methods"].get(m, {})
-                                                                         for r in rows)) + " |"]
     conv_methods = [m for m in methods if any("converged" in r["methods"].get(m, {}) for r in rows)]
-    lines.append("|---|" + "---|" * len(conv_methods))
+    lines += ["", "IRL groups converged / fitted per split seed:", "",
+              "| roundabout | " + " | ".join(conv_methods) + " |", "|---|" + "---|" * len(conv_methods)]
     for r in rows:
         lines.append(f"| {r['roundabout']} | " + " | ".join(r["methods"].get(m, {}).get("converged", "")
                                                            for m in conv_methods) + " |")

@@ -399,11 +399,8 @@ def _run_cells(specs: list[dict], code_version: str | None, store_root: str | No
             t_cell, cpu_cell = time.perf_counter(), time.process_time()
             continue
         n_styles = getattr(learner, "n_styles_", 1 if spec["learner"] == "tirl" else None)
-        messages = []
-        for w in [*caught, *([] if charged else data_warnings)]:
-            text = f"{w.category.__name__}: {w.message}"
-            if text not in messages and len(messages) < MAX_WARNING_MESSAGES:
-                messages.append(text)
+        messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}"  # distinct, in order
+                                      for w in [*caught, *([] if charged else data_warnings)]))[:MAX_WARNING_MESSAGES]
         scores = {
             "med": _float(row["med"]),
             "med_std": _float(row["med_std"]),
