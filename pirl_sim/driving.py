@@ -35,6 +35,7 @@ from .mpc import Bounds, SequentialMPC
 from .paths import DEFAULT_A_LAT, DEFAULT_V_MAX, ReferencePath
 
 __all__ = [
+    "physical_starts",
     "CompositePath",
     "smooth_desired_speed",
     "desired_speed_along",
@@ -384,6 +385,16 @@ def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSe
     return FeatureSet(tuple(feats), reference="jerk_sq")
 
 
+def physical_starts(x0: np.ndarray) -> np.ndarray:
+    """Start states (s, v, a) (M, 3) made physical, as a copy: a start estimated from noisy data with v < 0 is a
+    stopped car (v = 0), and a stopped car does not decelerate further (a >= 0)."""
+    x0 = np.array(np.atleast_2d(x0), dtype=float)
+    stopped = x0[:, 1] <= 0.0
+    x0[stopped, 1] = 0.0
+    x0[stopped, 2] = np.maximum(x0[stopped, 2], 0.0)
+    return x0
+
+
 @dataclass(frozen=True)
 class PathDriverModel(DriverModel):
     """A `DriverModel` along a reference path: predictions by `SequentialMPC`, positions in Cartesian metres.
@@ -408,13 +419,8 @@ class PathDriverModel(DriverModel):
         return self._predictors["seq"]
 
     def predict_states(self, x0: np.ndarray, theta: np.ndarray, horizon: int) -> np.ndarray:
-        """As `DriverModel.predict_states`, after making start states physical: a start estimated from noisy
-        data with v < 0 is a stopped car (v = 0), and a stopped car does not decelerate further (a >= 0)."""
-        x0 = np.array(np.atleast_2d(x0), dtype=float)
-        stopped = x0[:, 1] <= 0.0
-        x0[stopped, 1] = 0.0
-        x0[stopped, 2] = np.maximum(x0[stopped, 2], 0.0)
-        return super().predict_states(x0, theta, horizon)
+        """As `DriverModel.predict_states`, from `physical_starts` (x0)."""
+        return super().predict_states(physical_starts(x0), theta, horizon)
 
     def positions(self, states: np.ndarray, offset: np.ndarray | float = 0.0) -> np.ndarray:
         """Cartesian positions (..., 2) [m] of states (..., n_x) at lateral offset d [m] from the path."""

@@ -63,3 +63,29 @@ learners = ["cv"]
     err = capsys.readouterr().err
     assert "scenario 'highway' needs the highway extra: pip install -e '.[highway]' (highway_env is not installed)" in err
     assert "Traceback" not in err
+
+
+def test_recorded_configs_fail_their_check_naming_the_scenario_as_written(replay_out, tmp_path, capsys):
+    """``replay`` is the recorded scenario's former name: its errors name the scenario the config names, and both
+    take the rolling protocol only (rejected at the config check, not in every cell)."""
+    scene = replay_out.parent / "scene"
+    cfg = tmp_path / "recorded.toml"
+    for scenario in ("recorded", "replay"):
+        text = f"""
+seeds = [0]
+[[experiments]]
+scenario = "{scenario}"
+params = {{ tracks = "{scene}", map = "{scene / 'map.osm'}" }}
+protocols = [{{ kind = "paper" }}]
+learners = ["tirl"]
+"""
+        cfg.write_text(text)
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
+        assert f"scenario '{scenario}' runs the rolling protocol, not 'paper'" in capsys.readouterr().err
+        rolling = text.replace('kind = "paper"', 'kind = "rolling", history_steps = 5, horizon = 5, stride = 5')
+        cfg.write_text(rolling.replace("map = ", "files = -1, map = "))
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
+        assert f"scenario '{scenario}': files must be >= 0 (0: every file), got -1" in capsys.readouterr().err
+        cfg.write_text(rolling)
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 0
+        assert "1 cells (1 distinct)" in capsys.readouterr().out

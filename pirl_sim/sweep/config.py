@@ -511,6 +511,9 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                         proto = Protocol(**fields)
                     except (TypeError, ValueError) as exc:
                         raise ValueError(f"{elabel}: protocol {dict(fields)}: {exc}") from None
+                    if proto.kind not in spec.protocols:
+                        raise ValueError(f"{elabel}: scenario {exp.scenario!r} runs the {' or '.join(spec.protocols)} "
+                                         f"protocol, not {proto.kind!r}")
                     if shape.lengths and proto.steps_needed() > longest:
                         raise ValueError(
                             f"{elabel}: the {proto.name} protocol needs trajectories of at least "

@@ -69,7 +69,7 @@ import numpy as np
 
 from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
-from pirl_sim.validation import is_positive_int
+from pirl_sim.validation import check_keys, is_positive_int
 
 from .scenarios import SCENARIOS, Param, ScenarioData, ScenarioSpec, TrainShape, register_scenario
 
@@ -200,13 +200,10 @@ def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, 
         return model.predict_states(x0, theta, _open_plan(horizon, mpc_horizon))[:, : horizon + 1]
     if not is_positive_int(mpc_horizon):
         raise ValueError(f"rollout='closed' needs mpc_horizon, a positive number of steps, got {mpc_horizon!r}")
+    from pirl_sim.driving import physical_starts
     from pirl_sim.simulate import simulate_receding_horizon
 
-    x0 = np.array(np.atleast_2d(x0), dtype=float)
-    stopped = x0[:, 1] <= 0.0
-    x0[stopped, 1] = 0.0
-    x0[stopped, 2] = np.maximum(x0[stopped, 2], 0.0)
-    trajs = simulate_receding_horizon(model, x0, theta, horizon, int(mpc_horizon))
+    trajs = simulate_receding_horizon(model, physical_starts(x0), theta, horizon, int(mpc_horizon))
     return np.stack([t.states for t in trajs])
 
 
@@ -617,30 +614,27 @@ def _replay_settings(spec: dict) -> tuple[ReplayProtocol, object, int]:
 def _check_recorded(params: dict) -> dict:
     for key in ("tracks", "map"):
         if params[key] is None:
-            raise ValueError(f"scenario 'recorded' needs the parameter {key!r}")
+            raise ValueError(f"the parameter {key!r} is required")
     if not Path(params["map"]).is_file():
-        raise ValueError(f"scenario 'recorded': map {params['map']!r} is not a file")
+        raise ValueError(f"map {params['map']!r} is not a file")
     if params["files"] < 0:
-        raise ValueError(f"scenario 'recorded': files must be >= 0 (0: every file), got {params['files']!r}")
+        raise ValueError(f"files must be >= 0 (0: every file), got {params['files']!r}")
     try:
         if not recorded_files(params):
-            raise ValueError(f"scenario 'recorded': no vehicle_tracks_*.csv in {params['tracks']!r}")
+            raise ValueError(f"no vehicle_tracks_*.csv in {params['tracks']!r}")
     except FileNotFoundError as exc:
-        raise ValueError(f"scenario 'recorded': {exc}") from None
+        raise ValueError(str(exc)) from None
     out = dict(params, load=dict(params["load"] or {}), replay=dict(params["replay"] or {}))
     for name, keys in (("load", _LOAD_KEYS), ("replay", _REPLAY_KEYS)):
-        unknown = [k for k in out[name] if k not in keys]
-        if unknown:
-            raise ValueError(f"scenario 'recorded' parameter {name!r}: unknown key(s) {unknown}; valid keys: "
-                             f"{', '.join(keys)}")
+        check_keys(f"parameter {name!r}", out[name], keys)
     if isinstance(out["load"].get("noise"), dict):
         _load_kwargs(out["load"])  # EstimateNoise checks the noise model
     dt = out["load"].get("dt", 0.2)
     if isinstance(dt, bool) or not isinstance(dt, (int, float)) or dt <= 0 or not np.isclose(dt / 0.1, round(dt / 0.1)):
-        raise ValueError(f"scenario 'recorded': load.dt must be a positive multiple of the 0.1 s frames, got {dt!r}")
+        raise ValueError(f"load.dt must be a positive multiple of the 0.1 s frames, got {dt!r}")
     desired = out["replay"].get("desired_speed")
     if not (desired is None or desired == "fit" or (isinstance(desired, list) and len(desired) == 2)):
-        raise ValueError(f"scenario 'recorded': replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
+        raise ValueError(f"replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
     rest = {k: v for k, v in out["replay"].items() if k in ("test_fraction", "rollout", "mpc_horizon", "lateral")}
     fde = tuple(out["replay"].get("fde_steps", (1,)))
     ReplayProtocol(horizon=max(fde, default=1), fde_steps=fde, **rest)  # the protocol's own checks
@@ -783,6 +777,6 @@ register_scenario(ScenarioSpec(
     "recorded", "recorded roundabout tracks replayed as `pirl-sim replay` does: split by track per seed, every test "
     "window predicted and scored in metres (module pirl_sim.sweep.recorded)",
     RECORDED_PARAMS, _check_recorded, _build_recorded, _recorded_shape, recorded_fingerprint,
-    run_cells=run_recorded_cells, task_group=_group,
+    run_cells=run_recorded_cells, task_group=_group, protocols=("rolling",),
 ))
 register_scenario(replace(SCENARIOS["recorded"], name="replay", summary="the recorded scenario's former name"))

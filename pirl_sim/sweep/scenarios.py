@@ -165,6 +165,8 @@ class ScenarioSpec:
     task_group : callable(dict) -> str or None, or None
         Which cells run as one task (equal strings; None: alone); None: PIRL-kNN k-grids
         (`pirl_sim.sweep.cell.knn_group`).
+    protocols : tuple of str
+        The protocol kinds the scenario runs (a config with another fails its check).
     """
 
     name: str
@@ -179,6 +181,7 @@ class ScenarioSpec:
     driver_horizon: Callable[[dict], int | None] | None = None
     run_cells: Callable[..., list] | None = None
     task_group: Callable[[dict], str | None] | None = None
+    protocols: tuple[str, ...] = ("paper", "online", "rolling")
 
     def __post_init__(self) -> None:
         if (self.simulation is None) != (self.simulate is None):
