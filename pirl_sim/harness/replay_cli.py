@@ -61,6 +61,17 @@ def _horizon_arg(text: str) -> int:
     return value
 
 
+def _positive_ints(text: str) -> list[int]:
+    """argparse type of --knn-k and --scan-horizon: positive integers separated by commas."""
+    try:
+        values = [int(k) for k in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or any(k < 1 for k in values):
+        raise argparse.ArgumentTypeError(f"expected positive integers separated by commas, got {text!r}")
+    return values
+
+
 def add_replay_parser(sub) -> argparse.ArgumentParser:
     """The ``replay`` subcommand on an argparse subparsers object."""
     rp = sub.add_parser(
@@ -113,7 +124,7 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "now, 0.5 s and 1 s ago, its neighbours' futures averaged: learners/knn.py) (default "
                          "tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
-    rp.add_argument("--knn-k", default="10",
+    rp.add_argument("--knn-k", type=_positive_ints, default="10",
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
                          "(default 10)")
     rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
@@ -156,7 +167,7 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="learners' predictions: 'open' (one MPC plan) or 'closed' (re-plan every step over "
                          "--mpc-horizon steps, as the drivers) (default: closed with --likelihood receding, open "
                          "otherwise)")
-    rp.add_argument("--scan-horizon", default=None, metavar="H1,H2,...",
+    rp.add_argument("--scan-horizon", type=_positive_ints, default=None, metavar="H1,H2,...",
                     help="instead of the replay: for each MPC horizon [steps], fit TIRL with the receding likelihood "
                          "on the training tracks and report the held-out residual NLL per step and MED "
                          "(horizon_scan.csv/.md)")
@@ -268,12 +279,6 @@ def replay_config(args, settings: dict, tracks, map_path):
     unknown = [k for k in keys if k not in known]
     if unknown or not keys:
         raise ValueError(f"unknown learners {unknown or keys}; choose from {known}")
-    try:
-        knn_ks = [int(k) for k in str(args.knn_k).split(",")]
-    except ValueError:
-        raise ValueError(f"--knn-k must be positive integers separated by commas, got {args.knn_k!r}") from None
-    if any(k < 1 for k in knn_ks):
-        raise ValueError(f"--knn-k must be positive integers, got {args.knn_k!r}")
     if "tirl" not in keys:
         keys.insert(0, "tirl")  # the reference of the paired differences
     dt, p = settings["dt"], _protocol(args, settings)
@@ -299,7 +304,7 @@ def replay_config(args, settings: dict, tracks, map_path):
             if key == NEXT_KNN:
                 params.update(target_steps=p.horizon, state_lags=lags)
             if entry["name"] == "pirl-knn":
-                entry["grid"] = {"n_neighbors": knn_ks}
+                entry["grid"] = {"n_neighbors": list(args.knn_k)}
             entry["params"] = params
         learners.append(entry)
     # learners in the order of --learners, between the baselines along the path and the others
@@ -415,13 +420,7 @@ def _scan(args, settings, say) -> int:
     from pirl_sim.scenarios.replay import load_replay
     from pirl_sim.sweep.recorded import recorded_files
 
-    try:
-        scan = [int(h) for h in str(args.scan_horizon).split(",")]
-    except ValueError:
-        raise ValueError(f"--scan-horizon must be positive integers separated by commas, got "
-                         f"{args.scan_horizon!r}") from None
-    if not scan or any(h < 1 for h in scan):
-        raise ValueError(f"--scan-horizon must be positive numbers of steps, got {args.scan_horizon!r}")
+    scan = args.scan_horizon
     proto = _protocol(args, settings, scan)
     scene = load_replay(recorded_files({"tracks": args.tracks, "files": args.files or 0}), args.map, **settings["load"])
     rows = scan_horizons(scene, scan, proto, progress=say, desired_speed="fit" if args.desired_speed == "fit" else None)
