@@ -388,12 +388,12 @@ def run_replay_command(args) -> int:
     from pirl_sim.harness.replay import summarize, write_replay_results
 
     say = reporter(not args.quiet)
-    if args.table is not None:
-        return _run_table(args, say)
-    if args.tracks is None or args.map is None:
+    if args.table is None and (args.tracks is None or args.map is None):
         print("pirl-sim: error: replay needs --tracks and --map (or --table ROOT)", file=sys.stderr)
         return 2
     try:
+        if args.table is not None:
+            return _run_table(args, say)
         settings = replay_settings(args)
         for note in settings["notes"]:
             say(note)
@@ -445,7 +445,7 @@ def _protocol(args, settings, scan=None):
 
 def _run_table(args, say) -> int:
     """``replay --table ROOT``: every roundabout of ``--roundabouts`` in turn (each through the sweep engine into
-    ``--out/NAME``), then the table (`pirl_sim.harness.replay_table`)."""
+    ``--out/NAME``), then the table (`pirl_sim.harness.replay_table`); errors are the command's to report."""
     import copy
     import time
 
@@ -455,31 +455,24 @@ def _run_table(args, say) -> int:
 
     names = [n.strip() for n in str(args.roundabouts).split(",") if n.strip()]
     if "DR_USA_Roundabout_SR" in names:
-        print("pirl-sim: error: DR_USA_Roundabout_SR is the held-out evaluation set of issue 12", file=sys.stderr)
-        return 2
+        raise ValueError("DR_USA_Roundabout_SR is the held-out evaluation set of issue 12")
     rows = []
-    try:
-        for name in names:
-            t0 = time.perf_counter()
-            a = copy.copy(args)
-            a.tracks = args.table / "recorded_trackfiles" / name
-            a.map = args.table / "maps" / f"{name}.osm"
-            if not a.map.is_file():
-                raise FileNotFoundError(f"no map {a.map}")
-            settings = replay_settings(a)
-            result, scene, proto = _replay(a, settings, args.out / name, lambda m: say(f"{name}: {m}"))
-            if result is None:  # --dry-run
-                continue
-            write_replay_results(result, scene, args.out / name, _command())
-            elapsed = time.perf_counter() - t0
-            files = [f.name for f in recorded_files({"tracks": a.tracks, "files": args.files or 0})]
-            rows.append(table_row(name, files, result, scene, proto, elapsed))
-            say(f"{name}: done in {elapsed:.0f} s")
-    except (ValueError, FileNotFoundError, RuntimeError) as exc:
-        print(f"pirl-sim: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return interrupted(args.out)
+    for name in names:
+        t0 = time.perf_counter()
+        a = copy.copy(args)
+        a.tracks = args.table / "recorded_trackfiles" / name
+        a.map = args.table / "maps" / f"{name}.osm"
+        if not a.map.is_file():
+            raise FileNotFoundError(f"no map {a.map}")
+        settings = replay_settings(a)
+        result, scene, proto = _replay(a, settings, args.out / name, lambda m: say(f"{name}: {m}"))
+        if result is None:  # --dry-run
+            continue
+        write_replay_results(result, scene, args.out / name, _command())
+        elapsed = time.perf_counter() - t0
+        files = [f.name for f in recorded_files({"tracks": a.tracks, "files": args.files or 0})]
+        rows.append(table_row(name, files, result, scene, proto, elapsed))
+        say(f"{name}: done in {elapsed:.0f} s")
     if args.dry_run:
         return 0
     text = write_table(rows, args.out, _command())
