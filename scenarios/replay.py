@@ -250,6 +250,10 @@ class ReplayScene:
     selection : {"tracks", "steps"}  how `selected` chooses (module doc)
     steps : dict {what: count}   with ``selection="steps"``: steps of dt kept and left out by the masks
     features : {"paper", "speed-level", "following"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
+    estimator : dict or None     how the states were estimated (``estimate``, ``noise``, ``jerk_weight``,
+                                 ``arc_length`` of `load_replay`), for `history_window`; every trajectory then
+                                 carries its observations ``s_obs`` (n + 1,) [m] (composite arc lengths) and
+                                 ``v_obs`` (n + 1,) [m/s] in its metadata
     """
 
     model: PathDriverModel
@@ -266,6 +270,37 @@ class ReplayScene:
     a_lat: float = DEFAULT_A_LAT
     v_max: float = DEFAULT_V_MAX
     features: str = "paper"
+    estimator: dict | None = None
+
+    def history_window(self, trajectory: Trajectory, start: int, stop: int) -> Trajectory:
+        """``trajectory.window(start, stop)`` with its states estimated again from the observations of
+        steps ``start .. stop`` alone (the arc lengths and speeds of ``s_obs``/``v_obs``, as the scene's states
+        were estimated from the whole piece): what an online predictor at step ``stop`` can know. The
+        whole-piece estimate is a smoother whose states at ``stop`` also saw the steps after it.
+
+        Raises
+        ------
+        ValueError
+            A scene without ``estimator`` or a trajectory without observations, or a window of < 2 steps.
+        """
+        if self.estimator is None or "s_obs" not in trajectory.metadata:
+            raise ValueError("history_window needs a scene read by load_replay (its estimator and each "
+                             "trajectory's s_obs/v_obs observations)")
+        window = trajectory.window(start, stop)
+        a = int(window.metadata["window_start"]) - int(trajectory.metadata.get("window_start", 0))
+        b = a + window.n_steps
+        if b - a < 2:
+            raise ValueError(f"history_window needs at least 2 steps, got [{start}, {stop})")
+        meta = trajectory.metadata
+        s_obs, v_obs = np.asarray(meta["s_obs"])[a : b + 1], np.asarray(meta["v_obs"])[a : b + 1]
+        est = self.estimator
+        states, controls = _estimate(s_obs, {"v": v_obs}, None, self.model, est["estimate"], est["noise"],
+                                     est["jerk_weight"])
+        if est["arc_length"] == "observed":
+            states = states.copy()
+            states[:, 0] = s_obs
+        states = np.column_stack([states, window.states[:, states.shape[1]:]])  # the vehicle ahead as recorded
+        return Trajectory(states, controls, window.dt, window.metadata)
 
     def with_desired_speed(self, a_lat: float, v_max: float) -> PathDriverModel:
         """The scene's model with other desired-speed parameters [m/s^2, m/s] (same paths, dynamics and
@@ -690,7 +725,8 @@ def load_replay(
             n_steps_counts["steps yielding at a conflict point"] += int(cut["yielding"][:-1].sum())
             n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &
                                                                    ~cut["yielding"])[:-1].sum())
-        meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy))
+        meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy), s_obs=np.asarray(s),
+                    v_obs=np.asarray(cut["v"]))
         if mask is not None:
             meta["step_mask"] = mask
         truth = meta.pop("truth", None)
@@ -712,7 +748,7 @@ def load_replay(
                 if b - a < 2:
                     n_steps_counts["free steps in runs shorter than 2 steps (left out)"] += b - a
                     continue
-                cut_meta = {k: meta[k][a : b + 1] for k in ("d", "xy", "yielding") if k in meta}
+                cut_meta = {k: meta[k][a : b + 1] for k in ("d", "xy", "yielding", "s_obs", "v_obs") if k in meta}
                 trajectories.append(Trajectory(states[a : b + 1], controls[a:b], dt,
                                                dict(meta, **cut_meta, free_run=r, free_start=a)))
             continue
@@ -729,7 +765,8 @@ def load_replay(
         n_steps_counts["steps kept (free flow)"] = sum(t.n_steps for t in trajectories)
     return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs), selection, dict(n_steps_counts),
                        pd.DataFrame(track_rows), rule, _profile_path(model.path, speed_smoothing), speed_smoothing,
-                       a_lat, v_max, features)
+                       a_lat, v_max, features, {"estimate": estimate, "noise": noise, "jerk_weight": jerk_weight,
+                                                "arc_length": arc_length})
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:

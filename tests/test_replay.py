@@ -10,7 +10,7 @@ from pirl_sim.cli import main
 from pirl_sim.harness.replay import ReplayProtocol, run_replay
 from pirl_sim.io.interaction import read_tracks
 from pirl_sim.scenarios.passage import PassageConfig, generate, recording, write_scene
-from pirl_sim.scenarios.replay import SelectionRule, interaction_flags, load_replay
+from pirl_sim.scenarios.replay import SelectionRule, _estimate, interaction_flags, load_replay
 
 from shared_sample import DATA as SHARED, needs_sample  # noqa: E402
 
@@ -42,7 +42,7 @@ def test_simulated_scene_round_trips_through_the_interaction_format(scene_dir):
 
 def test_replay_orders_learners_as_the_paper(scene_dir):
     out, _ = scene_dir
-    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
     specs = [
         ("TIRL", "tirl", {}),
         ("PIRL-GMM (k=3)", "pirl-gmm", {"n_components": 3, "random_state": 0}),
@@ -245,11 +245,11 @@ def test_ca_baseline_never_reverses():
 
 
 def _small_scene(scene_dir, n=48):
-    from pirl_sim.scenarios.replay import ReplayScene
+    import dataclasses
 
     out, _ = scene_dir
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
-    return ReplayScene(scene.model, scene.trajectories[:n], scene.skipped, n)
+    return dataclasses.replace(scene, trajectories=scene.trajectories[:n], n_tracks=n, track_table=None)
 
 
 def test_knn_with_another_k_equals_refitting(scene_dir):
@@ -430,7 +430,8 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(scene_dir, tm
     first = keys("--seeds", "2")
     assert len(set(first)) == len(first) == 2 * 6  # CV, CA, TIRL, PIRL-GMM, PIRL-kNN, CV (x, y) per seed
     assert set(first) < set(keys("--seeds", "3"))  # another seed adds cells, the others are reused
-    assert not set(first) & set(keys("--seeds", "2", "--estimate", "speeds"))  # loading settings
+    assert not set(first) & set(keys("--seeds", "2", "--estimate", "positions"))  # loading settings
+    assert not set(first) & set(keys("--seeds", "2", "--start", "track"))
     assert not set(first) & set(keys("--seeds", "2", "--lateral", "plane"))  # replay settings
     params = {"tracks": str(scene), "map": str(scene / "map.osm"), "files": 0}
     fingerprints = [recorded_fingerprint(params)]
@@ -476,3 +477,36 @@ learners = [{{ name = "cv", label = "CV (path)" }}, {{ name = "ca", label = "CA 
         assert r["med"] == expected["med"] and r["fde"] == expected["de@3.0s"]
         assert r["n_predictions"] == expected["n_windows"] and r["n_test"] == expected["n_test"]
     assert (tmp_path / "out" / "table.csv").is_file()
+
+
+def test_history_start_states_see_no_step_after_the_window(scene_dir):
+    """A prediction at step k starts from states estimated from the history's observations alone: changing
+    the recording after k leaves them as they were, while the whole-track estimate (a smoother) moves."""
+    out, _ = scene_dir
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
+    t = max(scene.trajectories, key=lambda tr: tr.n_steps)
+    start, stop = 5, 15
+    hist = scene.history_window(t, start, stop)
+    assert hist.states.shape == (stop - start + 1, 3) and hist.metadata["window_start"] == start
+    np.testing.assert_allclose(hist.states[:, 0], t.states[start : stop + 1, 0], atol=0.2)  # same motion
+    bent = dict(t.metadata, s_obs=t.metadata["s_obs"].copy(), v_obs=t.metadata["v_obs"].copy())
+    bent["s_obs"][stop + 1 :] += np.linspace(0.0, 20.0, t.n_steps - stop)  # the car sped off after step `stop`
+    np.testing.assert_array_equal(scene.history_window(t.with_metadata(**bent), start, stop).states, hist.states)
+    own = _estimate(t.metadata["s_obs"][start : stop + 1], {"v": None}, None, scene.model, "positions", None, 1e-2)
+    np.testing.assert_allclose(hist.states, own[0], atol=1e-9)  # the window's own estimate ...
+    assert not np.allclose(hist.states, t.states[start : stop + 1], atol=1e-3)  # ... not the smoother's
+    refit = _estimate(bent["s_obs"], {"v": bent["v_obs"]}, None, scene.model, "positions", None, 1e-2)[0]
+    assert abs(refit[stop, 2] - t.states[stop, 2]) > 0.05  # the smoother's acceleration at `stop` moved
+
+
+def test_replay_start_option_is_checked_and_changes_the_start_states(scene_dir):
+    out, _ = scene_dir
+    with pytest.raises(ValueError, match="start must be one of"):
+        ReplayProtocol(start="smoothed")
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
+    specs = [("TIRL", "tirl", {})]
+    rows = {start: run_replay(scene, specs, ReplayProtocol(seeds=(0,), start=start))["rows"].set_index("method")
+            for start in ("history", "track")}
+    assert rows["history"].loc["CA (path)", "med"] != rows["track"].loc["CA (path)", "med"]
+    # the lateral floor uses recorded arc lengths, not the start states
+    assert rows["history"].loc["TIRL", "lateral_floor"] == rows["track"].loc["TIRL", "lateral_floor"]

@@ -57,6 +57,7 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
         desired_speed_model,
         predict_path_states,
         split_by_track,
+        start_histories,
         usable_tracks,
     )
 
@@ -75,7 +76,7 @@ def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1
         windows = _windows(test, proto)
         if not windows:
             raise ValueError("no test window: tracks are too short for the protocol")
-        x0 = np.stack([test[i].states[step] for i, step in windows])
+        x0 = np.stack([h.states[-1] for h in start_histories(scene, test, windows, proto)])
         u_train = np.concatenate([t.controls for t in train])
         for H in horizons:
             t0 = time.perf_counter()

@@ -118,6 +118,11 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "observed one, or follow the training tracks' 'mean-path' of the route, or their mean path "
                          "pooled over routes in the 'plane', or that plus the change of deviation of the nearest "
                          "training windows in the plane, 'neighbours' (pirl_sim.lateral) (default hold)")
+    rp.add_argument("--start", choices=["history", "track"], default="history",
+                    help="the states every prediction starts from and its learners see: estimated from the 2 s "
+                         "history alone ('history': what an online predictor knows), or the whole track's estimate "
+                         "('track': a smoother that also saw the future it predicts; replays before this option) "
+                         "(default history)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
                          "with costs of what followed each training window, looked up by the speed and acceleration "
@@ -148,7 +153,7 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "--likelihood receding on a pirl_sim recording its drivers' re-planning step)")
     rp.add_argument("--estimate", choices=["positions", "speeds"], default=None,
                     help="state estimate from positions only or from positions and recorded speeds (default: "
-                         "speeds with --likelihood receding, positions otherwise)")
+                         "speeds, positions with --start track and the trajectory likelihood)")
     rp.add_argument("--sigma-v", type=positive_float_arg, default=None,
                     help="speed noise [m/s] of --estimate speeds (default 0.05 for real data, 0.001 for pirl_sim "
                          "recordings)")
@@ -229,7 +234,9 @@ def replay_settings(args) -> dict:
     if selection == "steps" and not steps_file.is_file():
         raise ValueError(f"--selection steps needs {DRIVER_STEPS_FILE} beside the tracks (pirl_sim recordings); "
                          f"none in {steps_file.parent}")
-    estimate = args.estimate or ("speeds" if receding else "positions")
+    # history starts: a position-only fit over 2 s damps the jerks so hard that its last speed lags the car's
+    estimate = args.estimate or ("speeds" if receding or getattr(args, "start", "history") == "history"
+                                 else "positions")
     base = SIMULATED_NOISE if is_recording(args.tracks) else MEASURED_NOISE
     noise = EstimateNoise(base.sigma_s, args.sigma_v or base.sigma_v, args.sigma_j or base.sigma_j, base.sigma_a)
     load = {"dt": dt, "estimate": estimate, "noise": noise, "selection": selection,
@@ -312,7 +319,8 @@ def replay_config(args, settings: dict, tracks, map_path):
     exp["learners"] = sorted(learners, key=lambda e: (-1 if e["name"] in ("cv", "ca") else
                                                       rank.get(_cli_key(e), len(rank))))
     load = {k: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v) for k, v in settings["load"].items()}
-    replay = {"fde_steps": list(p.fde_steps), "rollout": p.rollout, "lateral": p.lateral, "n_futures": args.futures or 0,
+    replay = {"fde_steps": list(p.fde_steps), "rollout": p.rollout, "lateral": p.lateral, "start": p.start,
+              "n_futures": args.futures or 0,
               **({"mpc_horizon": p.mpc_horizon} if p.mpc_horizon is not None else {}),
               **({"desired_speed": "fit"} if args.desired_speed == "fit" else {})}
     exp["params"] = {"tracks": str(tracks), "map": str(map_path), "files": args.files or 0, "load": load,
@@ -440,7 +448,7 @@ def _protocol(args, settings, scan=None):
                                                   if x <= args.horizon})),
                           stride=_steps(1.0, dt), seeds=tuple(range(args.seeds)), rollout=settings["rollout"],
                           mpc_horizon=horizon or (scan[0] if scan else None),
-                          lateral=getattr(args, "lateral", "hold"))
+                          lateral=getattr(args, "lateral", "hold"), start=getattr(args, "start", "history"))
 
 
 def _run_table(args, say) -> int:

@@ -75,13 +75,14 @@ from .scenarios import SCENARIOS, Param, ScenarioData, ScenarioSpec, TrainShape,
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
            "load_scene", "method_id", "decode_method", "predict_path_states", "split_by_track", "usable_tracks",
-           "fit_lateral_profile", "desired_speed_model", "fit_scene_speed", "METHODS", "HINDSIGHT", "ROLLOUTS",
-           "RECORDED_PARAMS"]
+           "fit_lateral_profile", "desired_speed_model", "fit_scene_speed", "start_histories", "METHODS",
+           "HINDSIGHT", "ROLLOUTS", "RECORDED_PARAMS"]
 
 #: pseudo-learners of this scenario (module doc); every other method is a learner of `pirl_sim.learners.LEARNERS`
 METHODS = ("cv", "ca", "cv-xy", "hindsight")
 HINDSIGHT = "hindsight cost (oracle)"  #: not a predictor: each window's cost fitted on its own future
 ROLLOUTS = ("open", "closed")
+STARTS = ("history", "track")  #: start states of a prediction (`ReplayProtocol.start`)
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,12 @@ class ReplayProtocol:
                                   (`pirl_sim.lateral`): the last observed one held, or the training tracks' mean
                                   path per route, or their mean path pooled in the plane over routes, or that
                                   plus the change of deviation of the nearest training windows
+    start : {"history", "track"}  the states a prediction starts from and its learners see: estimated from
+                                  the window's history alone (`ReplayScene.history_window`; what an online
+                                  predictor knows), or the whole piece's estimate (a smoother that also saw the
+                                  recorded future; the replays before this option). With "history", read the
+                                  scene with ``estimate="speeds"``: a position-only fit over a short history damps
+                                  the jerks so hard that its last speed lags the car's
     """
 
     history: int = 10
@@ -114,9 +121,13 @@ class ReplayProtocol:
     rollout: str = "open"
     mpc_horizon: int | None = None
     lateral: str = "hold"
+    start: str = "history"
 
     def __post_init__(self) -> None:
         from pirl_sim.lateral import LATERAL_MODELS
+
+        if self.start not in STARTS:
+            raise ValueError(f"start must be one of {STARTS}, got {self.start!r}")
 
         if self.lateral not in LATERAL_MODELS:
             raise ValueError(f"lateral must be one of {LATERAL_MODELS}, got {self.lateral!r}")
@@ -148,6 +159,15 @@ def _windows(test, proto: ReplayProtocol):
             if mask is None or mask[step - proto.history : step + proto.horizon].all():
                 out.append((i, step))
     return out
+
+
+def start_histories(scene, test, windows, proto: ReplayProtocol) -> list:
+    """The history of every window (i, step) of the test pieces ``test``, the last state of each the start of
+    its prediction: estimated from the history alone or cut from the whole piece's estimate
+    (``proto.start``)."""
+    if proto.start == "history":
+        return [scene.history_window(test[i], step - proto.history, step) for i, step in windows]
+    return [test[i].window(step - proto.history, step) for i, step in windows]
 
 
 def _track_keys(tracks) -> tuple[list, list]:
@@ -467,8 +487,8 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     profile = fit_lateral_profile(train, proto.lateral, model.path, proto.horizon)
     recorded_s = np.stack([test[i].states[step + 1 : step + 1 + proto.horizon, 0] for i, step in windows])
     counts["lateral_floor"] = float(_errors(model, test, windows, recorded_s, proto, profile=profile).mean())
-    x0 = np.stack([test[i].states[step] for i, step in windows])
-    histories = [test[i].window(step - proto.history, step) for i, step in windows]
+    histories = start_histories(scene, test, windows, proto)
+    x0 = np.stack([h.states[-1] for h in histories])
     reuse = _shared_knn_fits(methods)
     predicted, fitted = {}, {}  # name -> (s_pred, fit_s, predict_s, extra); spec index -> (learner, diagnostics)
     for i in sorted(range(len(methods)), key=lambda i: i in reuse):  # shared fits first
@@ -553,12 +573,13 @@ RECORDED_PARAMS = {
                   "{sigma_s, sigma_v, sigma_j, sigma_a}, selection, max_steps, features, arc_length, smoothing, "
                   "speed_smoothing, a_lat, v_max (absent: its defaults)"),
     "replay": Param("table", None, "the rest of the replay: fde_steps (absent: ReplayProtocol's below the "
-                    "horizon, and the horizon), test_fraction, rollout, mpc_horizon, lateral (ReplayProtocol), "
+                    "horizon, and the horizon), test_fraction, rollout, mpc_horizon, lateral, start (ReplayProtocol), "
                     "desired_speed ('fit' or [a_lat, v_max]; absent: the scene's) and n_futures"),
 }
 _LOAD_KEYS = ("dt", "estimate", "noise", "selection", "max_steps", "features", "arc_length", "smoothing",
               "speed_smoothing", "a_lat", "v_max")
-_REPLAY_KEYS = ("fde_steps", "test_fraction", "rollout", "mpc_horizon", "lateral", "desired_speed", "n_futures")
+_REPLAY_KEYS = ("fde_steps", "test_fraction", "rollout", "mpc_horizon", "lateral", "start", "desired_speed",
+                "n_futures")
 _SIDECARS = ("ground_truth.csv", "driver_steps.csv", "run.json")  #: files beside the tracks that a scene reads
 _SCENES: OrderedDict = OrderedDict()  #: scenes loaded by this process (the last 2)
 
@@ -635,7 +656,7 @@ def _check_recorded(params: dict) -> dict:
     desired = out["replay"].get("desired_speed")
     if not (desired is None or desired == "fit" or (isinstance(desired, list) and len(desired) == 2)):
         raise ValueError(f"replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
-    rest = {k: v for k, v in out["replay"].items() if k in ("test_fraction", "rollout", "mpc_horizon", "lateral")}
+    rest = {k: v for k, v in out["replay"].items() if k in ("test_fraction", "rollout", "mpc_horizon", "lateral", "start")}
     fde = tuple(out["replay"].get("fde_steps", (1,)))
     ReplayProtocol(horizon=max(fde, default=1), fde_steps=fde, **rest)  # the protocol's own checks
     return out
