@@ -62,7 +62,7 @@ import socket
 import time
 import warnings
 from collections import OrderedDict
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -578,8 +578,10 @@ RECORDED_PARAMS = {
 }
 _LOAD_KEYS = ("dt", "estimate", "noise", "selection", "max_steps", "features", "arc_length", "smoothing",
               "speed_smoothing", "a_lat", "v_max")
-_REPLAY_KEYS = ("fde_steps", "test_fraction", "rollout", "mpc_horizon", "lateral", "start", "desired_speed",
-                "n_futures")
+#: ReplayProtocol's fields a config sets (the windows come from the protocol, the seed from the cell)
+_PROTOCOL_KEYS = tuple(f.name for f in fields(ReplayProtocol)
+                       if f.name not in ("history", "horizon", "stride", "seeds"))
+_REPLAY_KEYS = (*_PROTOCOL_KEYS, "desired_speed", "n_futures")
 _SIDECARS = ("ground_truth.csv", "driver_steps.csv", "run.json")  #: files beside the tracks that a scene reads
 _SCENES: OrderedDict = OrderedDict()  #: scenes loaded by this process (the last 2)
 
@@ -656,7 +658,7 @@ def _check_recorded(params: dict) -> dict:
     desired = out["replay"].get("desired_speed")
     if not (desired is None or desired == "fit" or (isinstance(desired, list) and len(desired) == 2)):
         raise ValueError(f"replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
-    rest = {k: v for k, v in out["replay"].items() if k in ("test_fraction", "rollout", "mpc_horizon", "lateral", "start")}
+    rest = {k: v for k, v in out["replay"].items() if k in _PROTOCOL_KEYS and k != "fde_steps"}
     fde = tuple(out["replay"].get("fde_steps", (1,)))
     ReplayProtocol(horizon=max(fde, default=1), fde_steps=fde, **rest)  # the protocol's own checks
     return out
