@@ -87,6 +87,10 @@ class PIRLKNN(BaseLearner):
     aggregate : {"weights", "futures"}
         How `predict_states` uses the neighbours: one future under their averaged weights, or the vote-weighted
         mean of their futures, each under its own cost (module doc).
+    lookup_history : bool
+        With ``target="next"``: the training histories' look-up values from `Trajectory.history_window` (each
+        history's states estimated from its own observations, as an online query's are) instead of the
+        training track's smoothed states. The next-steps segments keep the smoothed states.
     model, window, stride, feature_transform, log_bounds, irl_max_iter : see `BaseLearner`.
 
     Attributes
@@ -122,6 +126,7 @@ class PIRLKNN(BaseLearner):
         state_lags=(0,),
         lookup_features=True,
         aggregate="weights",
+        lookup_history=False,
         irl_max_iter=100,
     ):
         self.model = model
@@ -144,6 +149,7 @@ class PIRLKNN(BaseLearner):
         self.state_lags = state_lags
         self.lookup_features = lookup_features
         self.aggregate = aggregate
+        self.lookup_history = lookup_history
         self.irl_max_iter = irl_max_iter
 
     def _check_target(self, model) -> tuple[int, ...]:
@@ -179,6 +185,10 @@ class PIRLKNN(BaseLearner):
                              f"{self.state_lags!r}")
         if not isinstance(self.lookup_features, (bool, np.bool_)):
             raise TypeError(f"lookup_features must be True or False, got {self.lookup_features!r}")
+        if not isinstance(self.lookup_history, (bool, np.bool_)):
+            raise TypeError(f"lookup_history must be True or False, got {self.lookup_history!r}")
+        if self.lookup_history and self.target != "next":
+            raise ValueError("lookup_history=True applies to target='next' only")
         if not self.lookup_features and not idx:
             raise ValueError("lookup_features=False looks up by state_features alone; give some, e.g. (1, 2)")
         return idx
@@ -203,7 +213,7 @@ class PIRLKNN(BaseLearner):
         hist, nxt = [], []
         for t in trajectories:
             for start in range(0, t.n_steps - T - F + 1, int(self.stride)):
-                hist.append(t.window(start, start + T))
+                hist.append(t.history_window(start, start + T) if self.lookup_history else t.window(start, start + T))
                 nxt.append(t.window(start + T, start + T + F))
         if not hist:
             longest = max(t.n_steps for t in trajectories)

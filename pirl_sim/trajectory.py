@@ -121,6 +121,14 @@ class Trajectory:
             meta["step_mask"] = mask[start_i:stop_i]
         return Trajectory(self.states[start_i : stop_i + 1], self.controls[start_i:stop_i], self.dt, meta)
 
+    def history_window(self, start: int, stop: int | None = None) -> "Trajectory":
+        """`window` as an online observer of its steps would know it: with an ``estimator`` in the metadata (a
+        callable (trajectory, start, stop) -> Trajectory, e.g. `pirl_sim.scenarios.replay.HistoryEstimator` of
+        recorded tracks, whose states a smoother fitted to the whole track) the window's states estimated again
+        from its own observations; without one (exact simulated states), `window` itself."""
+        estimator = self.metadata.get("estimator")
+        return self.window(start, stop) if estimator is None else estimator(self, start, stop)
+
     def with_metadata(self, **updates: Any) -> "Trajectory":
         """A copy with metadata entries added or replaced."""
         meta = dict(self.metadata)

@@ -83,7 +83,7 @@ from pirl_sim.validation import is_positive_int
 from .conflicts import ConflictRule, TrackMotion, yield_gaps
 from .demonstrations import settled
 
-__all__ = ["SelectionRule", "CENTRE_RULE", "GAPS", "leader_gaps", "leader_frames", "selection_counts", "ReplayScene", "EstimateNoise", "DriverSettings", "load_replay", "interaction_flags",
+__all__ = ["SelectionRule", "CENTRE_RULE", "GAPS", "leader_gaps", "leader_frames", "selection_counts", "ReplayScene", "HistoryEstimator", "EstimateNoise", "DriverSettings", "load_replay", "interaction_flags",
            "track_key", "recording_settings", "is_recording", "FRAME_DT", "MAX_BRIDGE", "MEASURED_NOISE", "SIMULATED_NOISE",
            "ESTIMATES", "SELECTIONS"]
 
@@ -231,6 +231,48 @@ CENTRE_RULE = SelectionRule(time_gap=2.0, standstill=5.0, gap="centre")
 
 
 @dataclass(frozen=True)
+class HistoryEstimator:
+    """The state estimate of `load_replay` applied to one window of a trajectory's own observations (its
+    metadata's ``s_obs``, ``v_obs``): `Trajectory.history_window` calls it. The states of a whole piece come
+    from a smoother whose states at a step also saw the steps after it; a window's own estimate is what an
+    online observer of that window knows.
+
+    Attributes
+    ----------
+    dt : float [s]                 the model step
+    estimate : {"positions", "speeds"}, noise : EstimateNoise, jerk_weight : float   as in `load_replay`
+    arc_length : {"fit", "observed"}  as in `load_replay`
+    """
+
+    dt: float
+    estimate: str
+    noise: EstimateNoise
+    jerk_weight: float
+    arc_length: str = "fit"
+
+    def __call__(self, trajectory: Trajectory, start: int, stop: int | None = None) -> Trajectory:
+        """``trajectory.window(start, stop)`` with (s, v, a) estimated from the window's observations alone;
+        further state entries (the vehicle ahead) as recorded. Raises ValueError for a window of < 2 steps or a
+        trajectory without ``s_obs``/``v_obs``."""
+        if "s_obs" not in trajectory.metadata or "v_obs" not in trajectory.metadata:
+            raise ValueError("a history estimate needs the observations s_obs and v_obs in the trajectory's metadata")
+        window = trajectory.window(start, stop)
+        a = int(window.metadata["window_start"]) - int(trajectory.metadata.get("window_start", 0))
+        b = a + window.n_steps
+        if b - a < 2:
+            raise ValueError(f"a history estimate needs at least 2 steps, got [{start}, {stop})")
+        meta = trajectory.metadata
+        s_obs, v_obs = np.asarray(meta["s_obs"])[a : b + 1], np.asarray(meta["v_obs"])[a : b + 1]
+        states, controls = _estimate(s_obs, {"v": v_obs}, None, self.dt, self.estimate, self.noise,
+                                     self.jerk_weight)
+        if self.arc_length == "observed":
+            states = states.copy()
+            states[:, 0] = s_obs
+        states = np.column_stack([states, window.states[:, states.shape[1]:]])  # the vehicle ahead as recorded
+        return Trajectory(states, controls, window.dt, window.metadata)
+
+
+@dataclass(frozen=True)
 class ReplayScene:
     """Recorded tracks as driver-model trajectories.
 
@@ -250,10 +292,9 @@ class ReplayScene:
     selection : {"tracks", "steps"}  how `selected` chooses (module doc)
     steps : dict {what: count}   with ``selection="steps"``: steps of dt kept and left out by the masks
     features : {"paper", "speed-level", "following"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
-    estimator : dict or None     how the states were estimated (``estimate``, ``noise``, ``jerk_weight``,
-                                 ``arc_length`` of `load_replay`), for `history_window`; every trajectory then
-                                 carries its observations ``s_obs`` (n + 1,) [m] (composite arc lengths) and
-                                 ``v_obs`` (n + 1,) [m/s] in its metadata
+    Every trajectory also carries its observations ``s_obs`` (n + 1,) [m] (composite arc lengths) and ``v_obs``
+    (n + 1,) [m/s] and the ``estimator`` (`HistoryEstimator`) of its states in its metadata, so that
+    `Trajectory.history_window` estimates a window from its own observations.
     """
 
     model: PathDriverModel
@@ -270,37 +311,22 @@ class ReplayScene:
     a_lat: float = DEFAULT_A_LAT
     v_max: float = DEFAULT_V_MAX
     features: str = "paper"
-    estimator: dict | None = None
 
     def history_window(self, trajectory: Trajectory, start: int, stop: int) -> Trajectory:
-        """``trajectory.window(start, stop)`` with its states estimated again from the observations of
-        steps ``start .. stop`` alone (the arc lengths and speeds of ``s_obs``/``v_obs``, as the scene's states
-        were estimated from the whole piece): what an online predictor at step ``stop`` can know. The
+        """``trajectory.window(start, stop)`` with its states estimated again from the observations of steps
+        ``start .. stop`` alone (`HistoryEstimator`): what an online predictor at step ``stop`` can know. The
         whole-piece estimate is a smoother whose states at ``stop`` also saw the steps after it.
 
         Raises
         ------
         ValueError
-            A scene without ``estimator`` or a trajectory without observations, or a window of < 2 steps.
+            A trajectory that was not read by `load_replay` (no estimator and observations in its metadata), or
+            a window of < 2 steps.
         """
-        if self.estimator is None or "s_obs" not in trajectory.metadata:
-            raise ValueError("history_window needs a scene read by load_replay (its estimator and each "
-                             "trajectory's s_obs/v_obs observations)")
-        window = trajectory.window(start, stop)
-        a = int(window.metadata["window_start"]) - int(trajectory.metadata.get("window_start", 0))
-        b = a + window.n_steps
-        if b - a < 2:
-            raise ValueError(f"history_window needs at least 2 steps, got [{start}, {stop})")
-        meta = trajectory.metadata
-        s_obs, v_obs = np.asarray(meta["s_obs"])[a : b + 1], np.asarray(meta["v_obs"])[a : b + 1]
-        est = self.estimator
-        states, controls = _estimate(s_obs, {"v": v_obs}, None, self.model, est["estimate"], est["noise"],
-                                     est["jerk_weight"])
-        if est["arc_length"] == "observed":
-            states = states.copy()
-            states[:, 0] = s_obs
-        states = np.column_stack([states, window.states[:, states.shape[1]:]])  # the vehicle ahead as recorded
-        return Trajectory(states, controls, window.dt, window.metadata)
+        if not isinstance(trajectory.metadata.get("estimator"), HistoryEstimator):
+            raise ValueError("history_window needs a trajectory read by load_replay (its metadata's estimator "
+                             "and s_obs/v_obs observations)")
+        return trajectory.history_window(start, stop)
 
     def with_desired_speed(self, a_lat: float, v_max: float) -> PathDriverModel:
         """The scene's model with other desired-speed parameters [m/s^2, m/s] (same paths, dynamics and
@@ -683,6 +709,7 @@ def load_replay(
     if features == "following":
         _add_yield_gaps(pending, stride, conflicts)
     model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max, features)
+    estimator = HistoryEstimator(float(dt), estimate, noise, jerk_weight, arc_length)
     names = model.features.names
     trajectories = []
     track_rows = []
@@ -715,7 +742,7 @@ def load_replay(
                 n_steps_counts["steps of pieces skipped for too few usable steps"] += len(mask)
                 continue
         s = s_local + composite.offsets[segment]
-        states, controls = _estimate(s, cut, cut.get("estimate_mask"), model, estimate, noise, jerk_weight)
+        states, controls = _estimate(s, cut, cut.get("estimate_mask"), dt, estimate, noise, jerk_weight)
         if arc_length == "observed":
             states = states.copy()
             states[:, 0] = s
@@ -726,7 +753,7 @@ def load_replay(
             n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &
                                                                    ~cut["yielding"])[:-1].sum())
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy), s_obs=np.asarray(s),
-                    v_obs=np.asarray(cut["v"]))
+                    v_obs=np.asarray(cut["v"]), estimator=estimator)
         if mask is not None:
             meta["step_mask"] = mask
         truth = meta.pop("truth", None)
@@ -765,8 +792,7 @@ def load_replay(
         n_steps_counts["steps kept (free flow)"] = sum(t.n_steps for t in trajectories)
     return ReplayScene(model, trajectories, dict(skipped), n_tracks, dict(repairs), selection, dict(n_steps_counts),
                        pd.DataFrame(track_rows), rule, _profile_path(model.path, speed_smoothing), speed_smoothing,
-                       a_lat, v_max, features, {"estimate": estimate, "noise": noise, "jerk_weight": jerk_weight,
-                                                "arc_length": arc_length})
+                       a_lat, v_max, features)
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -897,9 +923,10 @@ def _frame_steps(usable: np.ndarray, restart: np.ndarray, speed: np.ndarray, str
     return mask, a[::stride]
 
 
-def _estimate(s, cut, mask, model, estimate, noise, jerk_weight):
-    """(states, controls) of one piece (module doc): (s, v, a) whatever the model's further state entries."""
-    dyn = longitudinal(model.dynamics.dt) if model.dynamics.n_x != 3 else model.dynamics
+def _estimate(s, cut, mask, dt, estimate, noise, jerk_weight):
+    """(states, controls) of one piece (module doc): (s, v, a) at model step dt [s], whatever the model's
+    further state entries."""
+    dyn = longitudinal(dt)
     if estimate == "speeds":
         a_obs = cut.get("a_obs")
         return estimate_longitudinal_states(s, dyn, v_obs=cut["v"], sigma_s=noise.sigma_s, sigma_v=noise.sigma_v,

@@ -492,10 +492,10 @@ def test_history_start_states_see_no_step_after_the_window(scene_dir):
     bent = dict(t.metadata, s_obs=t.metadata["s_obs"].copy(), v_obs=t.metadata["v_obs"].copy())
     bent["s_obs"][stop + 1 :] += np.linspace(0.0, 20.0, t.n_steps - stop)  # the car sped off after step `stop`
     np.testing.assert_array_equal(scene.history_window(t.with_metadata(**bent), start, stop).states, hist.states)
-    own = _estimate(t.metadata["s_obs"][start : stop + 1], {"v": None}, None, scene.model, "positions", None, 1e-2)
+    own = _estimate(t.metadata["s_obs"][start : stop + 1], {"v": None}, None, 0.2, "positions", None, 1e-2)
     np.testing.assert_allclose(hist.states, own[0], atol=1e-9)  # the window's own estimate ...
     assert not np.allclose(hist.states, t.states[start : stop + 1], atol=1e-3)  # ... not the smoother's
-    refit = _estimate(bent["s_obs"], {"v": bent["v_obs"]}, None, scene.model, "positions", None, 1e-2)[0]
+    refit = _estimate(bent["s_obs"], {"v": bent["v_obs"]}, None, 0.2, "positions", None, 1e-2)[0]
     assert abs(refit[stop, 2] - t.states[stop, 2]) > 0.05  # the smoother's acceleration at `stop` moved
 
 
@@ -510,3 +510,29 @@ def test_replay_start_option_is_checked_and_changes_the_start_states(scene_dir):
     assert rows["history"].loc["CA (path)", "med"] != rows["track"].loc["CA (path)", "med"]
     # the lateral floor uses recorded arc lengths, not the start states
     assert rows["history"].loc["TIRL", "lateral_floor"] == rows["track"].loc["TIRL", "lateral_floor"]
+
+
+def test_next_step_knn_looks_up_training_histories_as_an_online_query_sees_them(scene_dir):
+    """lookup_history=True: the training histories' look-up keys are their own estimates (the same as a query
+    of that history gets), not the smoothed track's; without an estimator (simulated states) nothing changes."""
+    from pirl_sim.learners import PIRLKNN
+
+    out, _ = scene_dir
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
+    train = scene.trajectories[:30]
+    kw = dict(model=scene.model, window=10, n_neighbors=1, prior="population", stride=5, target="next",
+              target_steps=15, state_features=(1, 2), lookup_features=False, aggregate="futures")
+    causal = PIRLKNN(lookup_history=True, **kw).fit(train)
+    smoothed = PIRLKNN(**kw).fit(train)
+    np.testing.assert_array_equal(causal.demo_theta_, smoothed.demo_theta_)  # same next-steps costs
+    t = train[0]
+    own = scene.history_window(t, 0, 10)
+    key = causal.scaler_.transform(own.states[-1:, 1:3])
+    dist, _ = causal.neighbors_.kneighbors(key, n_neighbors=1)
+    assert dist[0, 0] < 1e-9  # the first training history's key is its own estimate's last speed and acceleration
+    assert smoothed.neighbors_.kneighbors(smoothed.scaler_.transform(own.states[-1:, 1:3]), 1)[0][0, 0] > 1e-6
+    plain = [tr.with_metadata(estimator=None) for tr in train]
+    np.testing.assert_array_equal(PIRLKNN(lookup_history=True, **kw).fit(plain).neighbors_._fit_X,
+                                  smoothed.neighbors_._fit_X)
+    with pytest.raises(ValueError, match="target='next' only"):
+        PIRLKNN(model=scene.model, lookup_history=True).fit(train)

@@ -309,7 +309,7 @@ def replay_config(args, settings: dict, tracks, map_path):
             if key == "pirl-gmm":
                 params["n_components"] = args.gmm_k
             if key == NEXT_KNN:
-                params.update(target_steps=p.horizon, state_lags=lags)
+                params.update(target_steps=p.horizon, state_lags=lags, lookup_history=p.start == "history")
             if entry["name"] == "pirl-knn":
                 entry["grid"] = {"n_neighbors": list(args.knn_k)}
             entry["params"] = params
