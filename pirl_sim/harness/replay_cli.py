@@ -328,13 +328,12 @@ def replay_config(args, settings: dict, tracks, map_path):
     return parse_config(data, source="<replay>", text=text)
 
 
-def replay_results(config, run, scene) -> dict:
+def replay_results(config, run, scene, proto) -> dict:
     """The report template's result dict (`pirl_sim.harness.replay.collect_replay`) from the cells of a finished
-    `run_sweep` of ``config`` (a `replay_config`) over ``scene`` (the scene its cells replayed)."""
-    import dataclasses
-
-    from pirl_sim.harness.replay import collect_replay
-    from pirl_sim.sweep.recorded import _replay_settings, decode_method, method_id
+    `run_sweep` of ``config`` (a `replay_config` with the protocol ``proto``) over ``scene`` (the scene its cells
+    replayed)."""
+    from pirl_sim.harness.replay import _gmm_k, collect_replay
+    from pirl_sim.sweep.recorded import decode_method, method_id
     from pirl_sim.sweep.store import ResultStore
 
     store = ResultStore(run.out)
@@ -350,9 +349,8 @@ def replay_results(config, run, scene) -> dict:
         if entry["row"].get("irl_from"):
             entry["row"]["irl_from"] = label[entry["row"]["irl_from"]]
         per_seed.setdefault(cell.seed, {"methods": {}, "examples": examples})["methods"][cell.learner_label] = entry
-    proto = dataclasses.replace(_replay_settings(cells[0].spec())[0], seeds=tuple(sorted(per_seed)))
-    gmm = [c.k for c in cells if c.learner == "pirl-gmm"]
-    return collect_replay(scene, proto, per_seed, gmm[0] if gmm else 3)
+    return collect_replay(scene, proto, per_seed, _gmm_k([(c.learner_label, c.learner, c.learner_params)
+                                                         for c in cells]))
 
 
 def _replay(a, settings, out, say) -> tuple:
@@ -384,7 +382,7 @@ def _replay(a, settings, out, say) -> tuple:
     say(f"{scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), {scene.n_selected_tracks} "
         f"selected; skipped {scene.skipped}; route repairs {scene.repairs}"
         + (f"; steps {scene.steps}" if scene.steps else ""))
-    return replay_results(config, run, scene), scene, proto
+    return replay_results(config, run, scene, proto), scene, proto
 
 
 def _command() -> str:

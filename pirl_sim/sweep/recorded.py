@@ -71,7 +71,7 @@ from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.validation import check_keys, is_positive_int
 
-from .scenarios import SCENARIOS, Param, ScenarioData, ScenarioSpec, TrainShape, register_scenario
+from .scenarios import SCENARIOS, Param, ScenarioSpec, TrainShape, register_scenario
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
            "load_scene", "method_id", "decode_method", "predict_path_states", "split_by_track", "usable_tracks",
@@ -635,9 +635,6 @@ def _replay_settings(spec: dict) -> tuple[ReplayProtocol, object, int]:
 
 
 def _check_recorded(params: dict) -> dict:
-    for key in ("tracks", "map"):
-        if params[key] is None:
-            raise ValueError(f"the parameter {key!r} is required")
     if not Path(params["map"]).is_file():
         raise ValueError(f"map {params['map']!r} is not a file")
     if params["files"] < 0:
@@ -647,21 +644,20 @@ def _check_recorded(params: dict) -> dict:
             raise ValueError(f"no vehicle_tracks_*.csv in {params['tracks']!r}")
     except FileNotFoundError as exc:
         raise ValueError(str(exc)) from None
-    out = dict(params, load=dict(params["load"] or {}), replay=dict(params["replay"] or {}))
     for name, keys in (("load", _LOAD_KEYS), ("replay", _REPLAY_KEYS)):
-        check_keys(f"parameter {name!r}", out[name], keys)
-    if isinstance(out["load"].get("noise"), dict):
-        _load_kwargs(out["load"])  # EstimateNoise checks the noise model
-    dt = out["load"].get("dt", 0.2)
+        check_keys(f"parameter {name!r}", params[name], keys)
+    if isinstance(params["load"].get("noise"), dict):
+        _load_kwargs(params["load"])  # EstimateNoise checks the noise model
+    dt = params["load"].get("dt", 0.2)
     if isinstance(dt, bool) or not isinstance(dt, (int, float)) or dt <= 0 or not np.isclose(dt / 0.1, round(dt / 0.1)):
         raise ValueError(f"load.dt must be a positive multiple of the 0.1 s frames, got {dt!r}")
-    desired = out["replay"].get("desired_speed")
+    desired = params["replay"].get("desired_speed")
     if not (desired is None or desired == "fit" or (isinstance(desired, list) and len(desired) == 2)):
         raise ValueError(f"replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
-    rest = {k: v for k, v in out["replay"].items() if k in _PROTOCOL_KEYS and k != "fde_steps"}
-    fde = tuple(out["replay"].get("fde_steps", (1,)))
+    rest = {k: v for k, v in params["replay"].items() if k in _PROTOCOL_KEYS and k != "fde_steps"}
+    fde = tuple(params["replay"].get("fde_steps", (1,)))
     ReplayProtocol(horizon=max(fde, default=1), fde_steps=fde, **rest)  # the protocol's own checks
-    return out
+    return params
 
 
 def _recorded_shape(params: dict) -> TrainShape:
@@ -683,14 +679,6 @@ def _recorded_shape(params: dict) -> TrainShape:
     n = len(lengths)
     n_train = n - max(1, int(round(params["replay"].get("test_fraction", 0.25) * n))) if n > 1 else n
     return TrainShape(n_train, tuple(sorted(lengths, reverse=True)[:n_train]), exact=False)
-
-
-def _build_recorded(params: dict, seed: int) -> ScenarioData:
-    """The scene's selected pieces split by track with the seed (for sweep code that reads a scenario's data;
-    the replay cells run `run_recorded_cells`)."""
-    scene = load_scene(params)
-    train, test, _ = split_by_track(scene.selected, seed, params["replay"].get("test_fraction", 0.25))
-    return ScenarioData(scene.model, train, test)
 
 
 def load_scene(params: dict):
@@ -799,7 +787,7 @@ def run_recorded_cells(specs: list[dict], code_version: str | None = None, store
 register_scenario(ScenarioSpec(
     "recorded", "recorded roundabout tracks replayed as `pirl-sim replay` does: split by track per seed, every test "
     "window predicted and scored in metres (module pirl_sim.sweep.recorded)",
-    RECORDED_PARAMS, _check_recorded, _build_recorded, _recorded_shape, recorded_fingerprint,
+    RECORDED_PARAMS, _check_recorded, None, _recorded_shape, recorded_fingerprint,
     run_cells=run_recorded_cells, task_group=_group, protocols=("rolling",),
 ))
 register_scenario(replace(SCENARIOS["recorded"], name="replay", summary="the recorded scenario's former name"))

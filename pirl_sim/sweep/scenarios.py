@@ -147,7 +147,7 @@ class ScenarioSpec:
     check : callable(dict) -> dict
         Complete parameters (defaults merged, kinds converted) -> normalised JSON-serialisable parameters;
         raises ValueError naming the problem.
-    build : callable(dict, int) -> ScenarioData
+    build : callable(dict, int) -> ScenarioData, or None (a scenario whose ``run_cells`` reads its own data)
     train_shape : callable(dict) -> TrainShape
     fingerprint : callable(dict) -> str or None
         Hash of the data files a scenario reads (None: nothing read).
@@ -173,7 +173,7 @@ class ScenarioSpec:
     summary: str
     params: Mapping[str, Param]
     check: Callable[[dict], dict]
-    build: Callable[..., ScenarioData]
+    build: Callable[..., ScenarioData] | None
     train_shape: Callable[[dict], TrainShape]
     fingerprint: Callable[[dict], str | None] = field(default=lambda params: None)
     simulation: Callable[[dict], dict] | None = None
@@ -293,10 +293,10 @@ def _convert(kind: str, label: str, value, base_dir: Path | None, choices: tuple
     if kind == "table":
         if value is not None and not isinstance(value, Mapping):
             raise ValueError(f"{label} must be a table, got {value!r}")
-        return None if value is None else dict(value)
+        return dict(value or {})  # absent: empty
     if kind == "path":
         if value is None:
-            return None
+            raise ValueError(f"{label} is required")
         if not isinstance(value, str) or not value:
             raise ValueError(f"{label} must be a path string, got {value!r}")
         p = Path(value).expanduser()
