@@ -318,13 +318,13 @@ _IRL_WARNINGS = {IRLConvergenceWarning: "irl_convergence_warnings",
 def _fit_with_diagnostics(fit) -> dict:
     """Run ``fit()`` (returns the fitted learner); count the IRL's warnings, pass every other warning on.
 
-    Returns {"learner", "irl_converged", "irl_groups", "irl_convergence_warnings",
-    "hessian_regularization_warnings"}.
+    Returns {"irl_convergence_warnings", "hessian_regularization_warnings", "irl_converged", "irl_groups",
+    "irl_from"} (in this order, the rows' columns; ``irl_from`` empty: a fit of its own).
     """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         learner = fit()
-    out = {"learner": learner, **{name: 0 for name in _IRL_WARNINGS.values()}}
+    out = {name: 0 for name in _IRL_WARNINGS.values()}
     for w in caught:
         name = next((n for c, n in _IRL_WARNINGS.items() if issubclass(w.category, c)), None)
         if name is not None:
@@ -333,7 +333,7 @@ def _fit_with_diagnostics(fit) -> dict:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
     res = getattr(learner, "irl_result_", None)
     converged = np.asarray(res.converged, dtype=bool) if res is not None else np.zeros(0, dtype=bool)
-    out["irl_converged"], out["irl_groups"] = int(converged.sum()), int(converged.size)
+    out["irl_converged"], out["irl_groups"], out["irl_from"] = int(converged.sum()), int(converged.size), ""
     return out
 
 
@@ -501,10 +501,9 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             futures = [test[j].window(step, step + proto.horizon) for j, step in windows]
             oracle = make_learner("pirl-knn", model=model, n_neighbors=1, irl_max_iter=400)
             diag = _fit_with_diagnostics(lambda: oracle.fit(futures))
-            del diag["learner"]
             fit_s = time.perf_counter() - t0
             s_pred = predict_path_states(model, x0, oracle.demo_theta_, proto.horizon)[:, 1:, 0]
-            predicted[name] = (s_pred, fit_s, 0.0, {**diag, "irl_from": ""})
+            predicted[name] = (s_pred, fit_s, 0.0, diag)
             say(f"seed {seed}: {name} fitted on {len(futures)} test futures in {fit_s:.1f} s; IRL converged "
                 f"for {diag['irl_converged']} of {diag['irl_groups']}")
         elif key != "cv-xy":
@@ -515,8 +514,6 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             else:
                 learner = make_learner(key, model=model, window=proto.history, windows="sliding", **params)
                 diag = _fit_with_diagnostics(lambda: learner.fit(train))
-                del diag["learner"]
-                diag["irl_from"] = ""
             fitted[i] = (learner, diag)
             fit_s = time.perf_counter() - t0
             t0 = time.perf_counter()
