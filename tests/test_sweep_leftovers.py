@@ -41,6 +41,7 @@ def test_report_reads_the_cells_of_a_replay_and_keeps_its_readme(replay_out, cap
     assert f"to {replay_out}/report/" in capsys.readouterr().out
     md = (replay_out / "report" / "README.md").read_text()
     assert "| TIRL |" in md and "| CV (x, y) |" in md and f"the cells stored in {replay_out}/cells/" in md
+    assert "numbers are in its cell's file" in md and "`table.csv`" not in md  # a replay writes no table files
     assert (replay_out / "README.md").read_bytes() == readme  # the replay's own README is not overwritten
 
 

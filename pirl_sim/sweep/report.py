@@ -421,7 +421,8 @@ def write_report(results, out_dir=None) -> dict:
         "final displacement; weight error: median |log(inferred / true)| of the normalised weights; ARI: "
         "adjusted Rand index of the training clusters against the true styles. Means over seeds, with several "
         "seeds ± the half-width of the mean's 95 % confidence interval (Student t); every seed's numbers are in "
-        "`table.csv`. CV / CA: constant velocity / constant acceleration along the path (no weights).",
+        + ("its cell's file." if template else "`table.csv`.")
+        + " CV / CA: constant velocity / constant acceleration along the path (no weights).",
         "",
     ]
     weights = None
