@@ -264,10 +264,7 @@ class HistoryEstimator:
         meta = trajectory.metadata
         s_obs, v_obs = np.asarray(meta["s_obs"])[a : b + 1], np.asarray(meta["v_obs"])[a : b + 1]
         states, controls = _estimate(s_obs, {"v": v_obs}, None, self.dt, self.estimate, self.noise,
-                                     self.jerk_weight)
-        if self.arc_length == "observed":
-            states = states.copy()
-            states[:, 0] = s_obs
+                                     self.jerk_weight, self.arc_length)
         states = np.column_stack([states, window.states[:, states.shape[1]:]])  # the vehicle ahead as recorded
         return Trajectory(states, controls, window.dt, window.metadata)
 
@@ -742,10 +739,7 @@ def load_replay(
                 n_steps_counts["steps of pieces skipped for too few usable steps"] += len(mask)
                 continue
         s = s_local + composite.offsets[segment]
-        states, controls = _estimate(s, cut, cut.get("estimate_mask"), dt, estimate, noise, jerk_weight)
-        if arc_length == "observed":
-            states = states.copy()
-            states[:, 0] = s
+        states, controls = _estimate(s, cut, cut.get("estimate_mask"), dt, estimate, noise, jerk_weight, arc_length)
         if features == "following":  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
             states = np.column_stack([states, cut["gap"], cut["v_lead"]])
             meta = dict(meta, yielding=cut["yielding"])
@@ -923,15 +917,20 @@ def _frame_steps(usable: np.ndarray, restart: np.ndarray, speed: np.ndarray, str
     return mask, a[::stride]
 
 
-def _estimate(s, cut, mask, dt, estimate, noise, jerk_weight):
+def _estimate(s, cut, mask, dt, estimate, noise, jerk_weight, arc_length="fit"):
     """(states, controls) of one piece (module doc): (s, v, a) at model step dt [s], whatever the model's
-    further state entries."""
+    further state entries; with ``arc_length="observed"`` the states' s is the observed one."""
     dyn = longitudinal(dt)
     if estimate == "speeds":
-        a_obs = cut.get("a_obs")
-        return estimate_longitudinal_states(s, dyn, v_obs=cut["v"], sigma_s=noise.sigma_s, sigma_v=noise.sigma_v,
-                                            sigma_j=noise.sigma_j, a_obs=a_obs, sigma_a=noise.sigma_a,
-                                            step_mask=mask)
-    if mask is None or mask.all():
-        return fit_longitudinal_states(s, dyn, jerk_weight=jerk_weight)
-    return estimate_longitudinal_states(s, dyn, sigma_s=1.0, sigma_j=jerk_weight ** -0.5, step_mask=mask)
+        states, controls = estimate_longitudinal_states(
+            s, dyn, v_obs=cut["v"], sigma_s=noise.sigma_s, sigma_v=noise.sigma_v, sigma_j=noise.sigma_j,
+            a_obs=cut.get("a_obs"), sigma_a=noise.sigma_a, step_mask=mask)
+    elif mask is None or mask.all():
+        states, controls = fit_longitudinal_states(s, dyn, jerk_weight=jerk_weight)
+    else:
+        states, controls = estimate_longitudinal_states(s, dyn, sigma_s=1.0, sigma_j=jerk_weight ** -0.5,
+                                                        step_mask=mask)
+    if arc_length == "observed":
+        states = states.copy()
+        states[:, 0] = s
+    return states, controls
