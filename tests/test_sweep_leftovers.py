@@ -68,7 +68,8 @@ learners = ["cv"]
 
 def test_recorded_configs_fail_their_check_naming_the_scenario_as_written(replay_out, tmp_path, capsys):
     """``replay`` is the recorded scenario's former name: its errors name the scenario the config names, and both
-    take the rolling protocol only (rejected at the config check, not in every cell)."""
+    take the rolling protocol only and fde_steps within its horizon (rejected at the config check, not in every
+    cell)."""
     scene = replay_out.parent / "scene"
     cfg = tmp_path / "recorded.toml"
     for scenario in ("recorded", "replay"):
@@ -87,6 +88,10 @@ learners = ["tirl"]
         cfg.write_text(rolling.replace("map = ", "files = -1, map = "))
         assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
         assert f"scenario '{scenario}': files must be >= 0 (0: every file), got -1" in capsys.readouterr().err
+        cfg.write_text(rolling.replace("map = ", "replay = { fde_steps = [5, 10] }, map = "))  # beyond the horizon
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
+        assert (f"scenario '{scenario}' parameter 'replay': fde_steps must lie in [1, horizon=5], got (5, 10)"
+                in capsys.readouterr().err)
         cfg.write_text(rolling)
         assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 0
         assert "1 cells (1 distinct)" in capsys.readouterr().out

@@ -51,7 +51,7 @@ from pirl_sim.metrics import (
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
-__all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate", "future_scores", "rolling_cases", "NLL_SIGMA"]
+__all__ = ["Protocol", "PAPER_PROTOCOL", "evaluate", "future_scores", "cases", "NLL_SIGMA"]
 
 PROTOCOL_KINDS = ("paper", "online", "rolling")
 NLL_SIGMA = 0.5  # [m] default standard deviation per step and coordinate of the NLL's Gaussian mixture
@@ -164,58 +164,42 @@ def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol, *, n_futur
         if isinstance(nll_sigma, bool) or not isinstance(nll_sigma, (int, float, np.integer, np.floating)) \
                 or not np.isfinite(nll_sigma) or nll_sigma <= 0:
             raise ValueError(f"nll_sigma must be a finite number of metres > 0, got {nll_sigma!r}")
-    if protocol.kind == "rolling":
-        row = _evaluate_rolling(learner, test, protocol)
-        if n_futures is not None:
-            histories, futures, _ = rolling_cases(test, protocol)
-            row.update(future_scores(learner, histories, np.stack(futures), n_futures,
-                                     np.random.default_rng(random_state), nll_sigma))
-        return row
+    histories, futures, owners = cases(test, protocol)
+    if not histories:
+        raise ValueError(f"no test trajectory is long enough for {protocol.history_steps} history + "
+                         f"{protocol.horizon} predicted steps")
     model = learner.model_
-    per_traj = np.empty(len(test))
-    final = np.empty(len(test))
-    inferred = np.empty((len(test), model.features.n_features))
-    lengths = np.array([t.n_steps for t in test])
+    per_case, final = np.empty(len(histories)), np.empty(len(histories))
+    inferred = np.empty((len(histories), model.features.n_features))
+    lengths = np.array([len(f) for f in futures])
     t0 = time.perf_counter()
-    for n in np.unique(lengths):
+    for n in np.unique(lengths):  # one prediction horizon at a time
         idx = np.flatnonzero(lengths == n)
-        group = [test[i] for i in idx]
-        if protocol.kind == "paper":
-            seen, start = group, 0
-        else:
-            start = protocol.history_steps
-            if start >= n:
-                raise ValueError(f"history of {start} steps leaves nothing to predict in trajectories of {n} steps")
-            seen = [t.window(0, start) for t in group]
-        theta = learner.infer_weights(seen)
-        x0 = np.stack([t.states[start] for t in group])
-        pred = model.predict_states(x0, theta, int(n) - start)
-        truth = np.stack([t.states[start:] for t in group])
+        theta = learner.infer_weights([histories[i] for i in idx])
+        truth = np.stack([futures[i] for i in idx])
+        pred = model.predict_states(truth[:, 0].copy(), theta, int(n) - 1)
         err = euclidean_errors(model.positions(pred[:, 1:]), model.positions(truth[:, 1:]))
-        per_traj[idx] = err.mean(axis=1)
-        final[idx] = err[:, -1]
-        inferred[idx] = theta
+        per_case[idx], final[idx], inferred[idx] = err.mean(axis=1), err[:, -1], theta
     elapsed = time.perf_counter() - t0
+    counts = np.bincount(owners)
+    per_traj = (np.bincount(owners, per_case) / counts)[counts > 0]  # a trajectory's mean over its predictions
     row = {
         "protocol": protocol.name,
         "n_test": len(test),
+        **({"n_predictions": len(histories)} if protocol.kind == "rolling" else {}),
         "med": float(per_traj.mean()),
         "med_std": float(per_traj.std()),
         "fde": float(final.mean()),
         "infer_predict_s": elapsed,
     }
     if all("theta" in t.metadata for t in test):
-        true = np.stack([np.asarray(t.metadata["theta"], dtype=float) for t in test])
+        true = np.stack([np.asarray(test[i].metadata["theta"], dtype=float) for i in owners])
         row["weight_error"] = float(np.median(weight_recovery_error(inferred, true, model.features.reference_index)))
     if n_futures is not None:
         rng = np.random.default_rng(random_state)
-        parts = []
-        for n in np.unique(lengths):
-            idx = np.flatnonzero(lengths == n)
-            start = protocol.history_steps
-            parts.append(future_scores(learner, [test[i].window(0, start) for i in idx],
-                                       np.stack([test[i].states[start:] for i in idx]), n_futures, rng, nll_sigma,
-                                       per_case=True))
+        parts = [future_scores(learner, [histories[i] for i in idx], np.stack([futures[i] for i in idx]), n_futures,
+                               rng, nll_sigma, per_case=True)
+                 for idx in (np.flatnonzero(lengths == n) for n in np.unique(lengths))]
         row.update(_mean_scores(parts))
     return row
 
@@ -270,9 +254,17 @@ def _mean_scores(parts: list[dict]) -> dict:
     return out
 
 
-def rolling_cases(test: Sequence[Trajectory], protocol: Protocol):
-    """Every prediction of the rolling protocol (module doc): its history, its true future (H + 1 states from
-    the last observed one) and the index of its test trajectory (an int array)."""
+def cases(test: Sequence[Trajectory], protocol: Protocol):
+    """Every prediction of the protocol (module doc): its history (paper: the whole test trajectory), its true
+    future (the states from the last observed one on; paper: from the first) and the index of its test
+    trajectory (an int array). Online and paper: one per test trajectory; rolling: every window."""
+    if protocol.kind != "rolling":
+        start = 0 if protocol.kind == "paper" else protocol.history_steps
+        n = min(t.n_steps for t in test)
+        if start >= n:
+            raise ValueError(f"history of {start} steps leaves nothing to predict in trajectories of {n} steps")
+        return ([t if start == 0 else t.window(0, start) for t in test], [t.states[start:] for t in test],
+                np.arange(len(test)))
     T, H = protocol.history_steps, protocol.horizon
     histories, futures, owners = [], [], []
     for i, t in enumerate(test):
@@ -281,35 +273,6 @@ def rolling_cases(test: Sequence[Trajectory], protocol: Protocol):
             futures.append(t.states[step : step + H + 1])
             owners.append(i)
     return histories, futures, np.asarray(owners, dtype=int)
-
-
-def _evaluate_rolling(learner, test: list[Trajectory], protocol: Protocol) -> dict:
-    model = learner.model_
-    T, H = protocol.history_steps, protocol.horizon
-    histories, futures, owners = rolling_cases(test, protocol)
-    if not histories:
-        raise ValueError(f"no test trajectory is long enough for {T} history + {H} predicted steps")
-    t0 = time.perf_counter()
-    theta = learner.infer_weights(histories)
-    pred = model.predict_states(np.stack([h.states[-1] for h in histories]), theta, H)
-    elapsed = time.perf_counter() - t0
-    truth = np.stack(futures)
-    err = euclidean_errors(model.positions(pred[:, 1:]), model.positions(truth[:, 1:]))
-    per_traj = np.bincount(owners, err.mean(axis=1)) / np.bincount(owners)
-    per_traj = per_traj[np.bincount(owners) > 0]
-    row = {
-        "protocol": protocol.name,
-        "n_test": len(test),
-        "n_predictions": len(histories),
-        "med": float(per_traj.mean()),
-        "med_std": float(per_traj.std()),
-        "fde": float(err[:, -1].mean()),
-        "infer_predict_s": elapsed,
-    }
-    if all("theta" in t.metadata for t in test):
-        true = np.stack([np.asarray(test[i].metadata["theta"], dtype=float) for i in owners])
-        row["weight_error"] = float(np.median(weight_recovery_error(theta, true, model.features.reference_index)))
-    return row
 
 
 def style_agreement(learner, train: Sequence[Trajectory]) -> float | None:

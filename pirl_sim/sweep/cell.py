@@ -202,29 +202,18 @@ def _data(spec: dict, store_root: str | None = None):
     return data
 
 
-def _histories(test, protocol):
-    """The histories the protocol infers weights from, and the index of the test trajectory of each."""
-    if protocol.kind == "paper":
-        return list(test), np.arange(len(test))
-    if protocol.kind == "online":
-        return [t.window(0, protocol.history_steps) for t in test], np.arange(len(test))
-    from pirl_sim.harness.experiment import rolling_cases
-
-    hist, _, owner = rolling_cases(test, protocol)
-    return hist, owner
-
-
 def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | None, list | None]:
     """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories, and
     `pirl_sim.recovery.weight_scores` over all of them (truth permitting; learners without weights, the baselines,
     give neither)."""
+    from pirl_sim.harness.experiment import cases
     from pirl_sim.recovery import weight_scores
 
     from .baselines import BASELINES
 
     if not all("theta" in t.metadata for t in test) or isinstance(learner, tuple(BASELINES.values())):
         return None, None
-    hist, owner = _histories(test, protocol)
+    hist, _, owner = cases(test, protocol)
     inferred = learner.infer_weights(hist)
     true = np.stack([np.asarray(test[i].metadata["theta"], dtype=float) for i in owner])
     styles = (np.array([int(test[i].metadata["style"]) for i in owner])
@@ -264,6 +253,11 @@ def _style_scores(learner, train, test, protocol) -> dict:
     guess = learner.predict_proba([t.window(0, protocol.history_steps) for t in test]).argmax(axis=1)
     paired = np.array([to_true.get(int(j), -1) for j in guess])
     return {"style_accuracy": _float(np.mean(paired == truth)), "style_ari": _float(adjusted_rand_index(truth, guess))}
+
+
+def _messages(caught) -> list[str]:
+    """The distinct messages of caught warnings, in order (at most `MAX_WARNING_MESSAGES`)."""
+    return list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))[:MAX_WARNING_MESSAGES]
 
 
 def _float(x):
@@ -336,12 +330,24 @@ def run_cells(specs: list[dict], code_version: str | None = None, store_root: st
 def _run_cells(specs: list[dict], code_version: str | None, store_root: str | None, raise_errors: bool) -> list[dict]:
     from .scenarios import scenario_spec
 
-    custom = scenario_spec(specs[0]["scenario"]).run_cells
-    if custom is not None:  # a scenario with its own cell runner (`pirl_sim.sweep.recorded`)
-        return custom(specs, code_version, store_root, raise_errors)
     t_cell, cpu_cell = time.perf_counter(), time.process_time()
     limit_threads()
     _check_version(code_version)
+    custom = scenario_spec(specs[0]["scenario"]).run_cells
+    if custom is not None:  # a scenario with its own cell runner (`pirl_sim.sweep.recorded`): one task
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                outcomes = custom(specs)
+        except Exception as exc:
+            if raise_errors:
+                raise
+            return [{"error": f"{type(exc).__name__}: {exc}"} for _ in specs]
+        share = {"generate_s": 0.0, "cell_s": (time.perf_counter() - t_cell) / len(specs),
+                 "cpu_s": (time.process_time() - cpu_cell) / len(specs)}  # the task's time shared equally
+        return [{"scores": scores, "timings": {**share, **timings}, "recovery": None, "weights": None,
+                 "warnings": _messages(caught), "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
+                for scores, timings in outcomes]
     from pirl_sim.harness.experiment import Protocol, evaluate, style_agreement
     from pirl_sim.learners import LEARNERS
 
@@ -399,8 +405,7 @@ def _run_cells(specs: list[dict], code_version: str | None, store_root: str | No
             t_cell, cpu_cell = time.perf_counter(), time.process_time()
             continue
         n_styles = getattr(learner, "n_styles_", 1 if spec["learner"] == "tirl" else None)
-        messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}"  # distinct, in order
-                                      for w in [*caught, *([] if charged else data_warnings)]))[:MAX_WARNING_MESSAGES]
+        messages = _messages([*caught, *([] if charged else data_warnings)])
         scores = {
             "med": _float(row["med"]),
             "med_std": _float(row["med_std"]),

@@ -511,9 +511,10 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                         proto = Protocol(**fields)
                     except (TypeError, ValueError) as exc:
                         raise ValueError(f"{elabel}: protocol {dict(fields)}: {exc}") from None
-                    if proto.kind not in spec.protocols:
-                        raise ValueError(f"{elabel}: scenario {exp.scenario!r} runs the {' or '.join(spec.protocols)} "
-                                         f"protocol, not {proto.kind!r}")
+                    try:
+                        (spec.check_protocol or (lambda *_: None))(params, dict(fields))
+                    except (TypeError, ValueError) as exc:
+                        raise ValueError(f"{elabel}: scenario {exp.scenario!r} {exc}") from None
                     if shape.lengths and proto.steps_needed() > longest:
                         raise ValueError(
                             f"{elabel}: the {proto.name} protocol needs trajectories of at least "

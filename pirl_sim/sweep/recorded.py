@@ -57,8 +57,6 @@ were as large as the split-to-split noise, so a single split proves nothing.
 from __future__ import annotations
 
 import json
-import os
-import socket
 import time
 import warnings
 from collections import OrderedDict
@@ -575,10 +573,9 @@ RECORDED_PARAMS = {
 }
 _LOAD_KEYS = ("dt", "estimate", "noise", "selection", "max_steps", "features", "arc_length", "smoothing",
               "speed_smoothing", "a_lat", "v_max")
-#: ReplayProtocol's fields a config sets (the windows come from the protocol, the seed from the cell)
-_PROTOCOL_KEYS = tuple(f.name for f in fields(ReplayProtocol)
-                       if f.name not in ("history", "horizon", "stride", "seeds"))
-_REPLAY_KEYS = (*_PROTOCOL_KEYS, "desired_speed", "n_futures")
+#: ReplayProtocol's fields a config sets (the windows come from the protocol, the seed from the cell), and the rest
+_REPLAY_KEYS = (*(f.name for f in fields(ReplayProtocol) if f.name not in ("history", "horizon", "stride", "seeds")),
+                "desired_speed", "n_futures")
 _SIDECARS = ("ground_truth.csv", "driver_steps.csv", "run.json")  #: files beside the tracks that a scene reads
 _SCENES: OrderedDict = OrderedDict()  #: scenes loaded by this process (the last 2)
 
@@ -651,10 +648,18 @@ def _check_recorded(params: dict) -> dict:
     desired = params["replay"].get("desired_speed")
     if not (desired is None or desired == "fit" or (isinstance(desired, list) and len(desired) == 2)):
         raise ValueError(f"replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
-    rest = {k: v for k, v in params["replay"].items() if k in _PROTOCOL_KEYS and k != "fde_steps"}
-    fde = tuple(params["replay"].get("fde_steps", (1,)))
-    ReplayProtocol(horizon=max(fde, default=1), fde_steps=fde, **rest)  # the protocol's own checks
     return params
+
+
+def _check_protocol(params: dict, protocol: dict) -> None:
+    """The rolling protocol only, and the `ReplayProtocol` of its windows and the ``replay`` parameter (e.g.
+    ``fde_steps`` beyond the horizon) valid: at the config check, before any cell."""
+    if protocol["kind"] != "rolling":
+        raise ValueError(f"runs the rolling protocol, not {protocol['kind']!r}")
+    try:
+        _replay_settings({"scenario_params": params, "protocol": protocol, "seed": 0})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"parameter 'replay': {exc}") from None
 
 
 def _recorded_shape(params: dict) -> TrainShape:
@@ -727,46 +732,29 @@ def decode_method(result: dict) -> dict:
     return entry, {k: np.array(v, dtype=float) for k, v in result["examples"].items()}
 
 
-def run_recorded_cells(specs: list[dict], code_version: str | None = None, store_root: str | None = None,
-                       raise_errors: bool = False) -> list[dict]:
-    """Run the cells of one task (one scene, protocol and split seed; `pirl_sim.sweep.cell.run_cells` calls it):
-    `replay_seed` with every cell's method.
+def run_recorded_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
+    """Run the cells of one task (one scene, protocol and split seed; `pirl_sim.sweep.cell.run_cells` calls it and
+    adds the task's time shared equally, its distinct warnings and the worker): `replay_seed` with every cell's
+    method.
 
     Returns
     -------
-    list of dict, one per spec: ``scores`` = the sweep's scores (``med``, ``fde`` at the last of ``fde_steps``,
-    ``med_std`` over the windows, ``n_predictions`` windows, ``weight_error``, ``ari``, ``n_train``,
-    ``n_test`` tracks, ``n_warnings`` IRL diagnostics) and ``replay`` = {"row": [[column, value], ...] (in
-    order), "errors" (W,), "shown", "examples"} (NaN as None; `decode_method`), ``timings`` (the task's time shared equally; each row has its own
-    ``fit_s``, ``predict_s``), ``warnings`` (distinct messages of the task), ``worker``; or ``{"error": ...}``
-    for every spec when the task fails (raised instead with ``raise_errors``).
+    list of (scores, timings), one per spec: ``scores`` = the sweep's scores (``med``, ``fde`` at the last of
+    ``fde_steps``, ``med_std`` over the windows, ``n_predictions`` windows, ``weight_error``, ``ari``,
+    ``n_train``, ``n_test`` tracks, ``n_warnings`` IRL diagnostics) and ``replay`` = {"row": [[column, value],
+    ...] (in order), "errors" (W,), "shown", "examples"} (NaN as None; `decode_method`); ``timings``: the row's
+    ``fit_s`` and ``predict_s`` (as ``evaluate_s``).
     """
-    from .cell import MAX_WARNING_MESSAGES, _check_version, limit_threads
-
-    t_cell, cpu_cell = time.perf_counter(), time.process_time()
-    limit_threads()
-    _check_version(code_version)
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            scene = load_scene(specs[0]["scenario_params"])
-            proto, desired_speed, n_futures = _replay_settings(specs[0])
-            methods = [(method_id(s), s["learner"], {k: tuple(v) if isinstance(v, list) else v
-                                                     for k, v in s["learner_params"].items()}) for s in specs]
-            res = replay_seed(scene, specs[0]["seed"], methods, proto, desired_speed=desired_speed,
-                              n_futures=n_futures)
-    except Exception as exc:
-        if raise_errors:
-            raise
-        return [{"error": f"{type(exc).__name__}: {exc}"} for _ in specs]
-    messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))[:MAX_WARNING_MESSAGES]
-    share = {"generate_s": 0.0, "cell_s": (time.perf_counter() - t_cell) / len(specs),
-             "cpu_s": (time.process_time() - cpu_cell) / len(specs)}
+    scene = load_scene(specs[0]["scenario_params"])
+    proto, desired_speed, n_futures = _replay_settings(specs[0])
+    methods = [(method_id(s), s["learner"], {k: tuple(v) if isinstance(v, list) else v
+                                             for k, v in s["learner_params"].items()}) for s in specs]
+    res = replay_seed(scene, specs[0]["seed"], methods, proto, desired_speed=desired_speed, n_futures=n_futures)
+    fde = f"de@{proto.fde_steps[-1] * scene.model.dynamics.dt:.1f}s"
     out = []
     for name, _, _ in methods:
         m = res["methods"][name]
         row = m["row"]
-        fde = f"de@{proto.fde_steps[-1] * scene.model.dynamics.dt:.1f}s"
         scores = _plain({  # the sweep's tidy table (`pirl_sim.sweep.run.SCORE_COLUMNS`), and the replay's own
             "med": row["med"], "med_std": float(np.std(m["errors"])), "fde": row[fde],
             "weight_error": row.get("weight_error"), "ari": row.get("ari"), "n_styles": None,
@@ -774,10 +762,7 @@ def run_recorded_cells(specs: list[dict], code_version: str | None = None, store
             "n_warnings": int(row.get("irl_convergence_warnings", 0) + row.get("hessian_regularization_warnings", 0)),
             "replay": {"row": list(row.items()), "errors": m["errors"], "shown": m["shown"],
                        "examples": res["examples"]}})
-        out.append({"scores": scores, "timings": {**share, "fit_s": m["row"]["fit_s"],
-                                                  "evaluate_s": m["row"]["predict_s"]},
-                    "recovery": None, "weights": None, "warnings": messages,
-                    "worker": {"host": socket.gethostname(), "pid": os.getpid()}})
+        out.append((scores, {"fit_s": row["fit_s"], "evaluate_s": row["predict_s"]}))
     return out
 
 
@@ -785,6 +770,6 @@ register_scenario(ScenarioSpec(
     "recorded", "recorded roundabout tracks replayed as `pirl-sim replay` does: split by track per seed, every test "
     "window predicted and scored in metres (module pirl_sim.sweep.recorded)",
     RECORDED_PARAMS, _check_recorded, None, _recorded_shape, recorded_fingerprint,
-    run_cells=run_recorded_cells, task_group=_group, protocols=("rolling",),
+    run_cells=run_recorded_cells, task_group=_group, check_protocol=_check_protocol,
 ))
 register_scenario(replace(SCENARIOS["recorded"], name="replay", summary="the recorded scenario's former name"))

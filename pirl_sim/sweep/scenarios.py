@@ -159,14 +159,16 @@ class ScenarioSpec:
     driver_horizon : callable(dict) -> int or None
         The drivers' MPC horizon [steps], where the scenario knows it: the default ``horizon`` of learners
         with ``likelihood = "receding"``.
-    run_cells : callable(specs, code_version, store_root, raise_errors) -> list of dict, or None
-        A scenario's own cell runner (module-level), for the cells of one task (``task_group``); None: the
+    run_cells : callable(specs) -> list of (scores, timings), or None
+        A scenario's own cell runner (module-level), for the cells of one task (``task_group``; the sweep's
+        `pirl_sim.sweep.cell.run_cells` adds the shared timings, warnings and worker); None: the
         sweep's (`pirl_sim.sweep.cell.run_cells`, learners scored by `pirl_sim.harness.experiment.evaluate`).
     task_group : callable(dict) -> str or None, or None
         Which cells run as one task (equal strings; None: alone); None: PIRL-kNN k-grids
         (`pirl_sim.sweep.cell.knn_group`).
-    protocols : tuple of str
-        The protocol kinds the scenario runs (a config with another fails its check).
+    check_protocol : callable(dict, dict), or None
+        Checked with the parameters and every protocol (`Protocol` fields) at the config check: ValueError
+        (its message follows the scenario's name) for a protocol the scenario cannot run; None: every one.
     """
 
     name: str
@@ -181,7 +183,7 @@ class ScenarioSpec:
     driver_horizon: Callable[[dict], int | None] | None = None
     run_cells: Callable[..., list] | None = None
     task_group: Callable[[dict], str | None] | None = None
-    protocols: tuple[str, ...] = ("paper", "online", "rolling")
+    check_protocol: Callable[[dict, dict], None] | None = None
 
     def __post_init__(self) -> None:
         if (self.simulation is None) != (self.simulate is None):
