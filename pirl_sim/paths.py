@@ -57,6 +57,10 @@ DEFAULT_V_MAX = 13.9
 
 _DUPLICATE_TOL = 1e-9  # [m] consecutive points closer than this are one point
 _CLOSED_TOL = 1e-6  # [m] gap allowed between first and last row of a closed table
+TRACK_CANDIDATES = 16  #: table vertices nearest to each point among which ``to_frenet(track=True)`` chooses
+TRACK_TIE = 2.0  #: [m] candidate feet within this of the nearest one are equally near (``to_frenet(track=True)``)
+TRACK_STEP = 10.0  #: [m] largest change of arc length from one point of a track to the next (``to_frenet(track=True)``)
+TRACK_REACQUIRE = 10.0  #: [m] a foot this much nearer than the continued one restarts the track there
 
 
 def _as_float_array(name: str, value: Any) -> np.ndarray:
@@ -420,7 +424,55 @@ class ReferencePath:
     def _tree(self) -> cKDTree:
         return cKDTree(np.column_stack([self.x, self.y]))
 
-    def to_frenet(self, xy: Any, *, extrapolate: bool = False, max_iter: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    def _chord_foot(self, q: np.ndarray, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Best chord projection of points ``q`` (..., 2) on the two table segments next to vertices ``i`` (...):
+        (arc length, distance) [m], each of shape i.shape."""
+        n = len(self.s)
+        verts = np.column_stack([self.x, self.y])
+        best_s = np.zeros(i.shape)
+        best_dist = np.full(i.shape, np.inf)
+        for j in (np.clip(i - 1, 0, n - 2), np.clip(i, 0, n - 2)):
+            a, b = verts[j], verts[j + 1]
+            ab = b - a
+            u = np.clip(np.einsum("...j,...j->...", q - a, ab) / np.einsum("...j,...j->...", ab, ab), 0.0, 1.0)
+            dist = np.hypot(*np.moveaxis(q - a - u[..., None] * ab, -1, 0))
+            better = dist < best_dist
+            best_dist = np.where(better, dist, best_dist)
+            best_s = np.where(better, self.s[j] + u * (self.s[j + 1] - self.s[j]), best_s)
+        return best_s, best_dist
+
+    def _follow_track(self, q: np.ndarray) -> np.ndarray:
+        """Chord-foot arc lengths (n,) [m] of one vehicle's points ``q`` (n, 2) in time order (``to_frenet`` with
+        ``track``): the first point's of smallest arc length among its `TRACK_CANDIDATES` nearest vertices' feet
+        within `TRACK_TIE` of the nearest; every later point's nearest foot within `TRACK_STEP` of the previous
+        arc length, unless the nearest foot anywhere is more than `TRACK_REACQUIRE` nearer (the track was
+        placed on the wrong pass)."""
+        n = len(self.s)
+        _, cand = self._tree.query(q[:1], k=min(TRACK_CANDIDATES, n))
+        s0, dist0 = self._chord_foot(q[:1, None, :], cand.reshape(1, -1))
+        prev = float(s0[0][dist0[0] <= dist0[0].min() + TRACK_TIE].min())
+        glob_s, glob_dist = self._chord_foot(q, self._tree.query(q)[1])
+        out = np.empty(len(q))
+        out[0] = prev
+        for k in range(1, len(q)):
+            jump = abs(glob_s[k] - prev)
+            if (min(jump, self.length - jump) if self.closed else jump) <= TRACK_STEP:
+                out[k] = prev = float(glob_s[k])  # the nearest foot continues the track
+                continue
+            if self.closed:  # the window wraps around
+                gap = np.abs((self.s - prev + 0.5 * self.length) % self.length - 0.5 * self.length)
+                idx = np.flatnonzero(gap <= TRACK_STEP + np.max(np.diff(self.s)))
+            else:
+                lo = max(int(np.searchsorted(self.s, prev - TRACK_STEP)) - 1, 0)
+                idx = np.arange(lo, min(int(np.searchsorted(self.s, prev + TRACK_STEP)) + 1, n - 1) + 1)
+            s_loc, d_loc = self._chord_foot(q[k], idx)
+            j = int(np.argmin(d_loc))
+            near = d_loc[j] <= glob_dist[k] + TRACK_REACQUIRE
+            out[k] = prev = float(s_loc[j]) if near else float(glob_s[k])
+        return out
+
+    def to_frenet(self, xy: Any, *, extrapolate: bool = False, max_iter: int = 50,
+                  track: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Project points onto the path: arc length and signed lateral offset.
 
         The nearest table vertex (k-d tree) gives the two candidate segments; the closer chord projection
@@ -437,6 +489,14 @@ class ReferencePath:
             s > length). Without it such points raise.
         max_iter : int
             Newton iteration limit.
+        track : bool
+            ``xy`` (n, 2) is one vehicle's positions in time order: each foot point is sought near the previous
+            one. A path that passes the same place twice (a route once around a roundabout and on past its
+            entry) has two foot points there at about the same distance; projecting each point on its own
+            jumps between them (tens of metres of arc length from one step to the next). With ``track``, the
+            first point takes the foot of smallest arc length among those within `TRACK_TIE` of its nearest,
+            and every later point the nearest foot within `TRACK_STEP` of the previous point's arc length
+            (`ReferencePath._follow_track`).
 
         Returns
         -------
@@ -462,19 +522,15 @@ class ReferencePath:
         n = len(self.s)
         length = self.length
 
-        # initial guess: best chord projection on the two segments next to the nearest vertex
-        _, i = self._tree.query(q)
-        best_s = np.zeros(len(q))
-        best_dist = np.full(len(q), np.inf)
-        verts = np.column_stack([self.x, self.y])
-        for j in (np.clip(i - 1, 0, n - 2), np.clip(i, 0, n - 2)):
-            a, b = verts[j], verts[j + 1]
-            ab = b - a
-            u = np.clip(np.einsum("ij,ij->i", q - a, ab) / np.einsum("ij,ij->i", ab, ab), 0.0, 1.0)
-            dist = np.hypot(*(q - a - u[:, None] * ab).T)
-            better = dist < best_dist
-            best_dist = np.where(better, dist, best_dist)
-            best_s = np.where(better, self.s[j] + u * (self.s[j + 1] - self.s[j]), best_s)
+        # initial guess: best chord projection on the two segments next to the nearest vertex (with track: next
+        # to the vertex chosen among the nearest few, see the docstring)
+        if track:
+            if len(shape) != 1:
+                raise ValueError(f"track=True needs xy of shape (n, 2), one vehicle's positions, got {shape + (2,)}")
+            best_s = self._follow_track(q)
+        else:
+            _, i = self._tree.query(q)
+            best_s, _ = self._chord_foot(q, i)
 
         # Newton on f(s) = (q - p(s)) . t(s); f'(s) = -p'(s) . t(s) + h'(s) (q - p(s)) . n(s)
         s = best_s

@@ -1,7 +1,9 @@
 """Recorded driving in, trajectories out: INTERACTION-format tracks and a Lanelet2 map -> driver-model data.
 
 For every vehicle track: match it to the lanelet route it drove (`pirl_sim.io.lanelet2_map.match_route`),
-smooth that route's centerline into a `ReferencePath`, project the track into Frenet (s, d), resample the
+smooth that route's centerline into a `ReferencePath`, project the track into Frenet (s, d) (as a track: each
+foot point near the previous one, so that a route that passes a place twice does not make the arc length
+jump between its passes; `ReferencePath.to_frenet`), resample the
 10 Hz frames to the model's dt (0.2 s by default, as the paper), and estimate (s, v, a) and jerk by least
 squares through the dynamics (`fit_longitudinal_states`) rather than from noisy finite differences. All routes
 share one arc-length axis (`CompositePath`), so one driver model serves the whole scene.
@@ -21,7 +23,10 @@ Route matching leaves out positions that no path through the routing graph joins
 (`RouteMatch.unconnected`). A run of at most ``MAX_BRIDGE`` such frames inside a track is bridged: its
 Frenet (s, d) are interpolated between the frames either side (the recorded x, y stay as they are). Longer
 runs cut the track there, and its longest connected part is kept (if it is still long enough); leading and
-trailing runs are cut off. The counts are in ``ReplayScene.repairs``.
+trailing runs are cut off. A track whose arc length along its route jumps by more than
+`pirl_sim.paths.TRACK_STEP` from one frame to the next (it left the matched route, e.g. by a bypass lane the
+route does not take, and the projection found a far part of the route) is cut there too, and its longest part
+without a jump is kept. The counts are in ``ReplayScene.repairs``.
 
 Simulated scenes written by pirl_sim carry a ``ground_truth.csv`` sidecar beside the tracks (track_id,
 style, theta_<feature> ...); its values go into each trajectory's metadata. A sidecar that is there but
@@ -76,7 +81,7 @@ from pirl_sim.driving import (
     roundabout_features,
 )
 from pirl_sim.dynamics import following, longitudinal
-from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_SMOOTHING, DEFAULT_V_MAX, ReferencePath
+from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_SMOOTHING, DEFAULT_V_MAX, TRACK_STEP, ReferencePath
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
@@ -382,6 +387,27 @@ def _connected_frames(unconnected: np.ndarray, max_bridge: int) -> tuple[slice, 
     return slice(a, b), unconnected[a:b].copy()
 
 
+def _project_track(path: ReferencePath, xy: np.ndarray, bridge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frenet (s, d) [m] of one track's frames ``xy`` (n, 2) on its route: the connected frames projected as a
+    track (`ReferencePath.to_frenet` with ``track``), the bridged ones (``bridge``, (n,)) interpolated between."""
+    s, d = path.to_frenet(xy[~bridge], extrapolate=True, track=True)
+    if not bridge.any():
+        return s, d
+    k = np.arange(len(xy))
+    return np.interp(k, k[~bridge], s), np.interp(k, k[~bridge], d)
+
+
+def _without_jumps(s: np.ndarray) -> slice:
+    """The longest run of a track's frames whose arc length s (n,) [m] never changes by more than `TRACK_STEP`
+    from one frame to the next (a jump: the track left its matched route and the projection found a far part of
+    it)."""
+    breaks = np.flatnonzero(np.abs(np.diff(s)) > TRACK_STEP)
+    starts = np.concatenate([[0], breaks + 1])
+    stops = np.concatenate([breaks + 1, [len(s)]])
+    best = int(np.argmax(stops - starts))
+    return slice(int(starts[best]), int(stops[best]))
+
+
 def leader_gaps(df: pd.DataFrame, rule: SelectionRule) -> np.ndarray:
     """Per row of a track file (columns of the INTERACTION vehicle format): the gap [m] to the nearest vehicle
     ahead in a similar direction (``rule.gap``: bumper to bumper or centre to centre; inf when none), at the
@@ -662,15 +688,24 @@ def load_replay(
                 paths[key] = len(path_list)
                 path_list.append(ReferencePath.from_polyline(match.centerline, smoothing=smoothing))
             try:
-                s_local, d = path_list[paths[key]].to_frenet(xy, extrapolate=True)
+                s_local, d = _project_track(path_list[paths[key]], xy, bridge)
             except ValueError as exc:
                 skipped["no route on the map"] += 1
                 log.info("track %s of %s skipped: %s", track_id, file.name, exc)
                 continue
-            if bridge.any():
-                frames_k = np.arange(len(xy))
-                s_local = np.interp(frames_k, frames_k[~bridge], s_local[~bridge])
-                d = np.interp(frames_k, frames_k[~bridge], d[~bridge])
+            part = _without_jumps(s_local)
+            if part != slice(0, len(xy)):
+                repairs["tracks cut at a jump along their route"] += 1
+                repairs["positions cut off at a jump along their route"] += len(xy) - (part.stop - part.start)
+                log.info("track %s of %s: its arc length jumps by more than %g m (cut to frames %d-%d of %d)",
+                         track_id, file.name, TRACK_STEP, part.start, part.stop, len(xy))
+                if (part.stop - part.start - 1) * FRAME_DT < rule.min_duration:
+                    skipped["shorter than min_duration after cutting at a jump along its route"] += 1
+                    continue
+                keep = slice(keep.start + part.start, keep.start + part.stop)
+                xy, speed, s_local, d = xy[part], speed[part], s_local[part], d[part]
+                if usable is not None:
+                    usable, restart = usable[part], restart[part]
             sel = slice(0, None, stride)
             meta = {"track_id": int(track_id), "file": str(file), "route": key, "interacted": flags[int(track_id)],
                     "interacted_centre": flags_centre[int(track_id)]}

@@ -334,3 +334,37 @@ def test_queries_reject_bad_input():
         path.curvature("middle")
     with pytest.raises(ValueError, match="max_iter must be a positive integer, got 0"):
         path.to_frenet([1.0, 1.0], max_iter=0)
+
+
+def _once_around() -> ReferencePath:
+    """A route that enters a circle of radius 20 m, drives once around it and a quarter more, and leaves: it
+    passes the quarter from (0, -20) to (20, 0) twice."""
+    t = np.linspace(-np.pi / 2, 2 * np.pi, 300)
+    lead = np.column_stack([np.zeros(20), np.linspace(-60.0, -21.0, 20)])
+    tail = np.column_stack([np.linspace(21.0, 60.0, 20), np.zeros(20)])
+    return ReferencePath.from_polyline(np.vstack([lead, np.column_stack([20 * np.cos(t), 20 * np.sin(t)]), tail]))
+
+
+@pytest.mark.parametrize("offset", [0.5, -3.0])
+def test_frenet_of_a_track_follows_a_route_that_passes_a_place_twice(offset):
+    """Projected point by point, a vehicle on the quarter driven twice lands on whichever pass is nearer: its arc
+    length jumps by a lap (~125 m) back and forth. As a track, every point stays on its own pass."""
+    path = _once_around()
+    s_true = np.linspace(5.0, path.length - 5.0, 600)
+    xy = path.to_cartesian(s_true, np.full_like(s_true, offset))
+    s_each, _ = path.to_frenet(xy, extrapolate=True)
+    assert np.abs(s_each - s_true).max() > 100.0
+    s, d = path.to_frenet(xy, extrapolate=True, track=True)
+    np.testing.assert_allclose(s, s_true, atol=1e-9)
+    np.testing.assert_allclose(d, offset, atol=1e-9)
+    with pytest.raises(ValueError, match=r"track=True needs xy of shape \(n, 2\)"):
+        path.to_frenet(xy.reshape(30, 20, 2), track=True)
+
+
+def test_frenet_of_a_track_on_a_closed_path_wraps():
+    th = np.linspace(0.0, 2 * np.pi, 100, endpoint=False)
+    ring = ReferencePath.from_polyline(np.column_stack([20 * np.cos(th), 20 * np.sin(th)]), closed=True)
+    s_true = np.linspace(0.0, 3 * ring.length, 900) % ring.length
+    s, d = ring.to_frenet(ring.to_cartesian(s_true, np.ones_like(s_true)), track=True)
+    gap = np.abs((s - s_true + 0.5 * ring.length) % ring.length - 0.5 * ring.length)
+    assert gap.max() < 1e-9 and np.abs(d - 1.0).max() < 1e-9

@@ -536,3 +536,28 @@ def test_next_step_knn_looks_up_training_histories_as_an_online_query_sees_them(
                                   smoothed.neighbors_._fit_X)
     with pytest.raises(ValueError, match="target='next' only"):
         PIRLKNN(model=scene.model, lookup_history=True).fit(train)
+
+
+def test_a_track_that_leaves_its_route_for_a_far_part_of_it_is_cut_at_the_jump():
+    """A U-shaped route: out along y = 0, a turn, back along y = 15 m. A vehicle drives out to x = 60 m, then cuts
+    across to the return leg (not on its route, as a car on a bypass lane its matched route does not take) and
+    drives back on it. Its arc length along the route jumps by the skipped turn; the track is cut there and the
+    longer part kept."""
+    from pirl_sim.paths import TRACK_STEP, ReferencePath
+    from pirl_sim.scenarios.replay import _project_track, _without_jumps
+
+    th = np.linspace(-np.pi / 2, np.pi / 2, 40)
+    out = np.column_stack([np.linspace(0.0, 100.0, 50), np.zeros(50)])
+    turn = np.column_stack([100.0 + 7.5 * np.cos(th[1:-1]), 7.5 + 7.5 * np.sin(th[1:-1])])
+    back = np.column_stack([np.linspace(100.0, 0.0, 50), np.full(50, 15.0)])
+    route = ReferencePath.from_polyline(np.vstack([out, turn, back]))
+    x_out = np.arange(0.0, 60.0, 0.8)  # 75 frames out, then 10 frames across, then 40 back
+    across = np.column_stack([np.full(10, 60.0), np.linspace(1.5, 13.5, 10)])
+    xy = np.vstack([np.column_stack([x_out, np.zeros_like(x_out)]), across,
+                    np.column_stack([np.arange(59.2, 27.0, -0.8), np.full(41, 15.0)])])
+    s, d = _project_track(route, xy, np.zeros(len(xy), dtype=bool))
+    assert np.abs(np.diff(s)).max() > TRACK_STEP  # the jump onto the return leg
+    part = _without_jumps(s)
+    assert part.start == 0 and 75 <= part.stop < 85  # out and part of the way across
+    np.testing.assert_allclose(s[:75], x_out, atol=1e-6)
+    assert np.all(np.abs(np.diff(s[part])) <= TRACK_STEP)
