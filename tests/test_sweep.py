@@ -24,7 +24,7 @@ from pirl_sim.sweep import (
     write_report,
 )
 from pirl_sim.sweep.cell import run_cell, single_threaded
-from pirl_sim.sweep.cli import main as sweep_main
+from pirl_sim.cli import main as sweep_main
 from pirl_sim.sweep.scenarios import Param, TrainShape
 
 def _threads():

@@ -151,7 +151,7 @@ def test_report_cli_figures_replay_template_and_envs_are_not_in_the_code_version
 def test_committed_sweep_results_match_the_code(capsys):
     """Fails after a change to the cell code until ``python3 -m pirl_sim sweep --report`` is rerun and
     committed (that is the point: the committed results are made by the code)."""
-    from pirl_sim.sweep.cli import main
+    from pirl_sim.cli import main
 
     results = REPO / "results" / "sweep"
     assert main(["sweep", "--dry-run", "--out", str(results)]) == 0

@@ -14,7 +14,7 @@ import pytest
 
 from pirl_sim.sweep import load_config, parse_config, run_sweep
 from pirl_sim.sweep.baselines import ConstantAcceleration, ConstantVelocity, KinematicModel
-from pirl_sim.sweep.cli import main as sweep_main
+from pirl_sim.cli import main as sweep_main
 
 SUMO = """
 seeds = [0]

@@ -198,15 +198,16 @@ def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol, *, n_futur
     if n_futures is not None:
         rng = np.random.default_rng(random_state)
         parts = [future_scores(learner, [histories[i] for i in idx], np.stack([futures[i] for i in idx]), n_futures,
-                               rng, nll_sigma, per_case=True)
-                 for idx in (np.flatnonzero(lengths == n) for n in np.unique(lengths))]
-        row.update(_mean_scores(parts))
+                               rng, nll_sigma) for idx in (np.flatnonzero(lengths == n) for n in np.unique(lengths))]
+        row["k_futures"] = max(p["k_futures"] for p in parts)  # each case counts once, whatever its horizon
+        row.update({name: float(np.concatenate([p[name] for p in parts]).mean())
+                    for name in ("min_ade", "min_fde", "miss_rate", "nll")})
     return row
 
 
 def future_scores(learner, histories: Sequence[Trajectory], truth_states: np.ndarray, n_futures: int,
-                  rng: np.random.Generator, nll_sigma: float = NLL_SIGMA, *, per_case: bool = False) -> dict:
-    """Multi-modal scores of K futures after each history (module doc).
+                  rng: np.random.Generator, nll_sigma: float = NLL_SIGMA) -> dict:
+    """Multi-modal scores of K futures after each history (module doc), per history.
 
     Parameters
     ----------
@@ -216,12 +217,11 @@ def future_scores(learner, histories: Sequence[Trajectory], truth_states: np.nda
     n_futures : int                         K asked for
     rng : numpy.random.Generator            the learner's draws
     nll_sigma : float [m]
-    per_case : bool                         return the per-case arrays (for averaging over groups)
 
     Returns
     -------
-    dict: ``k_futures`` and the means over the M cases of ``min_ade``, ``min_fde`` [m], ``miss_rate`` and
-    ``nll`` [nats per predicted step]; with ``per_case`` the (M,) arrays instead of the means.
+    dict: ``k_futures`` and the (M,) arrays of ``min_ade``, ``min_fde`` [m], ``miss_rate`` and ``nll`` [nats per
+    predicted step] (`evaluate` averages them over every case).
     """
     model = learner.model_
     H = truth_states.shape[1] - 1
@@ -236,22 +236,13 @@ def future_scores(learner, histories: Sequence[Trajectory], truth_states: np.nda
         path = getattr(model, "path", None)
         heading = (np.arctan2(step[:, 1], step[:, 0]) if path is None
                    else path.heading_at(truth_states[:, -1, 0], extrapolate=True))
-    cases = {
+    return {
+        "k_futures": int(proba.shape[1]),
         "min_ade": min_ade(pred, truth),
         "min_fde": min_fde(pred, truth),
         "miss_rate": interaction_miss(pred, truth, speed, heading).astype(float),
         "nll": mixture_nll(pred, proba, truth, float(nll_sigma)) / H,
     }
-    if per_case:
-        return {"k_futures": int(proba.shape[1]), **cases}
-    return _mean_scores([{"k_futures": int(proba.shape[1]), **cases}])
-
-
-def _mean_scores(parts: list[dict]) -> dict:
-    out = {"k_futures": max(p["k_futures"] for p in parts)}
-    for name in ("min_ade", "min_fde", "miss_rate", "nll"):
-        out[name] = float(np.concatenate([np.atleast_1d(p[name]) for p in parts]).mean())
-    return out
 
 
 def cases(test: Sequence[Trajectory], protocol: Protocol):

@@ -10,9 +10,14 @@ result dict that the template writes (`write_replay_results`: ``rows.csv``, ``su
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
+from pirl_sim.harness.tables import markdown
+from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.sweep.recorded import (  # noqa: F401  (ReplayProtocol, predict_path_states: the replay's names)
     _IRL_WARNINGS,
     HINDSIGHT,
@@ -127,12 +132,8 @@ def summarize(result: dict) -> pd.DataFrame:
 
 
 def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
-    """rows.csv, summary.csv/.md, paired.csv and README.md (with the selection counts) in ``out_dir``."""
-    from pathlib import Path
-
-    from pirl_sim.harness.tables import markdown
-    from pirl_sim.io.atomic import atomic_write_text
-
+    """rows.csv, summary.csv/.md, paired.csv, paired_ca.csv and README.md (with the selection counts) and the
+    figures in ``out_dir``."""
     out = Path(out_dir)
     summary = summarize(result)
     atomic_write_text(out / "rows.csv", result["rows"].to_csv(index=False, float_format="%.6g"))
@@ -140,25 +141,20 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     atomic_write_text(out / "summary.md", f"# Replay scores\n\nMade by `{command}`. Mean and standard deviation "
                       f"over split seeds; MED and de@ in metres.\n\n{markdown(summary)}\n")
     atomic_write_text(out / "paired.csv", result["paired"].to_csv(index=False, float_format="%.6g"))
-    if "paired_ca" in result:
-        atomic_write_text(out / "paired_ca.csv", result["paired_ca"].to_csv(index=False, float_format="%.6g"))
+    atomic_write_text(out / "paired_ca.csv", result["paired_ca"].to_csv(index=False, float_format="%.6g"))
     _write_figures(result, scene, out)
     from pirl_sim.scenarios.replay import track_key
 
     n_inter = len({track_key(t) for t in scene.trajectories if t.metadata["interacted"]})
     selection = getattr(scene, "selection", "tracks")
-    if selection == "free":
-        used = (f"kept as free-flow runs (selection='free', steps with a leader left out, interacting tracks "
-                f"included): {result['selected']} (in {result['selected_pieces']} runs); steps: "
-                f"{getattr(scene, 'steps', {})}")
-    elif selection == "all":
-        used = (f"every matched track whole, leaders included (selection='all'): {result['selected']} (in "
-                f"{result['selected_pieces']} pieces)")
-    elif selection == "steps":
-        used = (f"kept with per-step masks (selection='steps', interacting tracks included): {result['selected']} "
-                f"(in {result['selected_pieces']} pieces); steps: {getattr(scene, 'steps', {})}")
-    else:
-        used = f"used (not interacting, long enough): {result['selected']} (in {result['selected_pieces']} pieces)"
+    what, pieces = {  # the tracks each selection rule uses, and what it cuts them into
+        "free": ("kept as free-flow runs (selection='free', steps with a leader left out, interacting tracks "
+                 "included)", "runs"),
+        "all": ("every matched track whole, leaders included (selection='all')", "pieces"),
+        "steps": ("kept with per-step masks (selection='steps', interacting tracks included)", "pieces"),
+    }.get(selection, ("used (not interacting, long enough)", "pieces"))
+    used = f"{what}: {result['selected']} (in {result['selected_pieces']} {pieces})" + (
+        f"; steps: {getattr(scene, 'steps', {})}" if selection in ("free", "steps") else "")
     lines = [
         "# Replay experiment",
         "",
@@ -182,8 +178,10 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "",
         markdown(result["paired"]),
         "",
-        *(["## Paired differences against CA (path)", "", markdown(result["paired_ca"]), ""]
-          if "paired_ca" in result else []),
+        "## Paired differences against CA (path)",
+        "",
+        markdown(result["paired_ca"]),
+        "",
         "![clusters](clusters.png) ![S-T](s_t.png)" + (" ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""),
     ]
     atomic_write_text(out / "README.md", "\n".join(lines) + "\n")
@@ -208,8 +206,6 @@ def selection_table(scene, history: int, horizon: int | None = None) -> pd.DataF
 
 
 def _selection_lines(scene, result: dict) -> list[str]:
-    from pirl_sim.harness.tables import markdown
-
     if getattr(scene, "track_table", None) is None:
         return []
     table = selection_table(scene, result["history"], result.get("horizon"))
@@ -222,10 +218,7 @@ def _write_figures(result: dict, scene, out) -> None:
     """clusters.png (PIRL-GMM with the replay's k, ``result["gmm_k"]``, default 3; the selected pieces; marker:
     true style where a sidecar gives one, background traffic as its own marker), s_t.png (a few predicted
     windows), knn_k.png (when several kNN learners ran)."""
-    import re
-
     from pirl_sim.harness import figures
-    from pirl_sim.io.atomic import atomic_write_bytes
     from pirl_sim.learners import PIRLGMM
 
     tracks = scene.selected
@@ -241,7 +234,7 @@ def _write_figures(result: dict, scene, out) -> None:
     ex = result["examples"]
     if ex:
         h = result["history"]
-        preds = {k: np.concatenate([np.repeat(ex["truth"][:, h : h + 1], 1, axis=1), v], axis=1)
+        preds = {k: np.concatenate([ex["truth"][:, h : h + 1], v], axis=1)
                  for k, v in ex["predictions"].items()}
         atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(ex["t"], ex["truth"], preds, h))
     rows = result["rows"]

@@ -329,22 +329,17 @@ def replay_config(args, settings: dict, tracks, map_path):
 
 
 def replay_results(config, run, scene, proto) -> dict:
-    """The report template's result dict (`pirl_sim.harness.replay.collect_replay`) from the cells of a finished
-    `run_sweep` of ``config`` (a `replay_config` with the protocol ``proto``) over ``scene`` (the scene its cells
-    replayed)."""
+    """The report template's result dict (`pirl_sim.harness.replay.collect_replay`) from the stored cells of a
+    finished `run_sweep` of ``config`` (a `replay_config` with the protocol ``proto``; every cell finished:
+    `SweepRun.check_failed` passed) over ``scene`` (the scene its cells replayed)."""
     from pirl_sim.harness.replay import _gmm_k, collect_replay
     from pirl_sim.sweep.recorded import decode_method, method_id
-    from pirl_sim.sweep.store import ResultStore
 
-    store = ResultStore(run.out)
     cells = list(config.cells)
     label = {method_id(c.spec()): c.learner_label for c in cells}
     per_seed: dict = {}
     for cell in cells:  # learner by learner, the seeds inside: the methods of a seed come in the preset's order
-        record = store.load(cell.key(run.code_version))
-        if record is None:
-            raise RuntimeError(f"the cell {cell.learner_label} of seed {cell.seed} has no result in {run.out}/cells/")
-        entry, examples = decode_method(record["result"])
+        entry, examples = decode_method(run.records[cell.key(run.code_version)]["result"])
         entry["row"] = {**entry["row"], "method": cell.learner_label}
         if entry["row"].get("irl_from"):
             entry["row"]["irl_from"] = label[entry["row"]["irl_from"]]
@@ -377,16 +372,13 @@ def _replay(a, settings, out, say) -> tuple:
     usable_tracks(scene, proto)  # too few usable tracks fail here, before any cell
     # --jobs N > 1: N forked sweep workers, which inherit the scene read here
     with (InlineExecutor() if a.jobs == 1 else LocalExecutor(a.jobs, start_method="fork")) as executor:
-        run = run_sweep(config, out, executor=executor, progress=not a.quiet, command=_command(), tables=False)
+        run = run_sweep(config, out, executor=executor, progress=not a.quiet, command=command_line("replay", []),
+                        tables=False)
     run.check_failed("the replay's cells")
     say(f"{scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), {scene.n_selected_tracks} "
         f"selected; skipped {scene.skipped}; route repairs {scene.repairs}"
         + (f"; steps {scene.steps}" if scene.steps else ""))
     return replay_results(config, run, scene, proto), scene, proto
-
-
-def _command() -> str:
-    return command_line("replay", [])
 
 
 def run_replay_command(args) -> int:
@@ -413,7 +405,7 @@ def run_replay_command(args) -> int:
         return 2
     except KeyboardInterrupt:
         return interrupted(args.out)
-    write_replay_results(result, scene, args.out, _command())
+    write_replay_results(result, scene, args.out, command_line("replay", []))
     print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(result["paired_ca"].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(f"wrote {args.out}/")
@@ -430,7 +422,7 @@ def _scan(args, settings, say) -> int:
     proto = _protocol(args, settings, scan)
     scene = load_replay(recorded_files({"tracks": args.tracks, "files": args.files or 0}), args.map, **settings["load"])
     rows = scan_horizons(scene, scan, proto, progress=say, desired_speed="fit" if args.desired_speed == "fit" else None)
-    table = write_scan(rows, args.out, _command())
+    table = write_scan(rows, args.out, command_line("replay", []))
     print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     print(f"wrote {args.out}/")
     return 0
@@ -474,14 +466,14 @@ def _run_table(args, say) -> int:
         result, scene, proto = _replay(a, settings, args.out / name, lambda m: say(f"{name}: {m}"))
         if result is None:  # --dry-run
             continue
-        write_replay_results(result, scene, args.out / name, _command())
+        write_replay_results(result, scene, args.out / name, command_line("replay", []))
         elapsed = time.perf_counter() - t0
         files = [f.name for f in recorded_files({"tracks": a.tracks, "files": args.files or 0})]
         rows.append(table_row(name, files, result, scene, proto, elapsed))
         say(f"{name}: done in {elapsed:.0f} s")
     if args.dry_run:
         return 0
-    text = write_table(rows, args.out, _command())
+    text = write_table(rows, args.out, command_line("replay", []))
     print(text)
     print(f"wrote {args.out}/")
     return 0

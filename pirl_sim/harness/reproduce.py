@@ -23,6 +23,7 @@ from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.progress import reporter
 from pirl_sim.sweep.run import run_sweep
+from pirl_sim.sweep.scenarios import generated_config, scenario_spec
 from pirl_sim.validation import check_output_dir
 
 __all__ = ["PAPER_SYNTHETIC_MED", "PRESETS", "preset_config", "reproduce", "report_tables", "ordering_holds"]
@@ -50,7 +51,6 @@ def preset_config(name: str, *, seed: int = 0, params: dict | None = None, histo
         An unknown preset, or a parameter the sweep config rejects (named there).
     """
     from pirl_sim.sweep.config import parse_config, preset_text
-    from pirl_sim.sweep.scenarios import scenario_spec
 
     if name not in PRESETS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {', '.join(PRESETS)}")
@@ -105,7 +105,7 @@ def reproduce(name: str, out_dir, *, seed: int = 0, params: dict | None = None, 
     atomic_write_text(out / "table.md", markdown(table))
     atomic_write_text(out / "knn_k.csv", ktable.to_csv(index=False, float_format="%.6g"))
     atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(ktable, f"PIRL-kNN on {title}: MED vs k"))
-    scenario = _scenario_config(config.cells[0])
+    scenario = generated_config(config.cells[0].scenario, dict(config.cells[0].scenario_params), seed)  # its dataclass
     history = next(c.protocol["history_steps"] for c in config.cells if c.protocol["kind"] != "paper")
     if name == "synthetic":
         atomic_write_text(out / "README.md", _synthetic_summary(table, ktable, scenario, history))
@@ -131,13 +131,6 @@ def report_tables(name: str, tidy: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataF
     ktable = pd.DataFrame({"protocol": k["protocol"].to_numpy(), "k": k["k"].astype(int).to_numpy(),
                            "med": k["med"].to_numpy(), "med_std": k["med_std"].to_numpy()})
     return table.reset_index(drop=True), ktable
-
-
-def _scenario_config(cell):
-    """The scenario's own config dataclass (`SyntheticConfig` or `PassageConfig`) of a cell."""
-    from pirl_sim.sweep.scenarios import generated_config
-
-    return generated_config(cell.scenario, dict(cell.scenario_params), cell.seed)
 
 
 def ordering_holds(table: pd.DataFrame, protocol_name: str) -> bool:

@@ -8,7 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
-__all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "main", "interrupted", "command_line"]
+__all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "interrupted", "command_line"]
 
 DEFAULT_OUT = Path("results") / "sweep"
 
@@ -127,16 +127,3 @@ def run_report_command(args) -> int:
         return 2
     print(f"wrote {', '.join(sorted(written))} to {Path(written['README.md']).parent}/")
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m pirl_sim.sweep {sweep,report} ...`` (the same commands as ``pirl-sim``)."""
-    parser = argparse.ArgumentParser(prog="python -m pirl_sim.sweep")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
-    add_sweep_parsers(sub)
-    args = parser.parse_args(argv)
-    from pirl_sim.cli import cli_logging
-
-    with cli_logging():
-        return run_sweep_command(args) if args.command == "sweep" else run_report_command(args)

@@ -91,7 +91,7 @@ def recovery_curves_figure(summary: pd.DataFrame):
     curves."""
     from pirl_sim.harness.figures import label_log_axis, legend_below, pyplot
 
-    from .report import _grid, _series_colors
+    from .report import _grid, _series_colors, _value_ticks
 
     if summary.empty:
         return None
@@ -113,11 +113,7 @@ def recovery_curves_figure(summary: pd.DataFrame):
             values += [v for v in m + ci if v > 0]
         if axis == "n_train":
             ax.set_xscale("log")
-            from matplotlib.ticker import FuncFormatter, NullFormatter
-
-            ax.set_xticks(sorted(set(s["x"])))
-            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
-            ax.xaxis.set_minor_formatter(NullFormatter())
+            _value_ticks(ax, sorted(set(s["x"])))
         truth = s["truth"].dropna()
         if len(truth):
             ax.axvline(float(truth.iloc[0]), color="0.4", ls="--", lw=1)

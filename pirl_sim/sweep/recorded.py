@@ -69,7 +69,7 @@ from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.validation import check_keys, is_positive_int
 
-from .scenarios import SCENARIOS, Param, ScenarioSpec, TrainShape, register_scenario
+from .scenarios import SCENARIOS, Param, ScenarioSpec, TrainShape, _split, register_scenario
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
            "load_scene", "method_id", "decode_method", "predict_path_states", "split_by_track", "usable_tracks",
@@ -189,12 +189,10 @@ def split_by_track(tracks, seed: int, test_fraction: float) -> tuple[list, list,
     """(train, test, counts) for one split seed: by recorded track, so that pieces of one long track never sit
     on both sides; counts ``n_train``, ``n_test`` (tracks), ``n_train_pieces``, ``n_test_pieces``."""
     keys, unique = _track_keys(tracks)
-    order = np.random.default_rng(seed).permutation(len(unique))
-    n_test = max(1, int(round(test_fraction * len(unique))))
-    test_keys = {unique[i] for i in order[:n_test]}
+    test_keys = {unique[i] for i in _split(len(unique), test_fraction, seed)[1]}  # as the simulated scenarios
     test = [t for t, k in zip(tracks, keys) if k in test_keys]
     train = [t for t, k in zip(tracks, keys) if k not in test_keys]
-    counts = {"n_train": len(unique) - n_test, "n_test": n_test, "n_train_pieces": len(train),
+    counts = {"n_train": len(unique) - len(test_keys), "n_test": len(test_keys), "n_train_pieces": len(train),
               "n_test_pieces": len(test)}
     return train, test, counts
 
@@ -536,26 +534,20 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
                                                              windows[w][1] + proto.horizon + 1, 0] for w in shown])}
     out = {}
     for name, key, _ in methods:
-        if key == "cv-xy":  # in the plane, from the last two recorded positions
-            err = np.empty((len(windows), proto.horizon))
-            for w, (i, step) in enumerate(windows):
-                xy = test[i].metadata["xy"]
-                vel = (xy[step] - xy[step - 1]) / dt
-                pred = xy[step] + vel[None] * (dt * np.arange(1, proto.horizon + 1))[:, None]
-                err[w] = np.linalg.norm(pred - xy[step + 1 : step + 1 + proto.horizon], axis=1)
-            row = {"seed": seed, "method": name, "med": float(err.mean()), "n_windows": len(windows), **counts,
-                   "fit_s": 0.0, "predict_s": 0.0}
-            s_shown = None
+        if key == "cv-xy":  # in the plane, at the velocity between the last two recorded positions
+            last = np.stack([np.asarray(test[i].metadata["xy"])[step - 1 : step + 1] for i, step in windows])
+            pred = last[:, 1:] + (last[:, 1:] - last[:, :1]) / dt * (dt * np.arange(1, proto.horizon + 1))[:, None]
+            err = np.linalg.norm(pred - _recorded_xy(test, windows, proto.horizon), axis=-1)
+            s_pred, fit_s, pred_s, extra, path = None, 0.0, 0.0, {}, {}
         else:
             s_pred, fit_s, pred_s, extra = predicted[name]
             err = _errors(model, test, windows, s_pred, proto, profile=profile)
-            med_path = float(_errors(model, test, windows, s_pred, proto, "recorded").mean())
-            row = {"seed": seed, "method": name, "med": float(err.mean()), "med_path": med_path,
-                   "n_windows": len(windows), **counts, "fit_s": fit_s, "predict_s": pred_s, **extra}
-            s_shown = s_pred[shown]
+            path = {"med_path": float(_errors(model, test, windows, s_pred, proto, "recorded").mean())}
+        row = {"seed": seed, "method": name, "med": float(err.mean()), **path, "n_windows": len(windows), **counts,
+               "fit_s": fit_s, "predict_s": pred_s, **extra}
         for k in proto.fde_steps:
             row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
-        out[name] = {"row": row, "errors": err.mean(axis=1), "shown": s_shown}
+        out[name] = {"row": row, "errors": err.mean(axis=1), "shown": None if s_pred is None else s_pred[shown]}
     return {"methods": out, "examples": examples}
 
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -38,19 +37,11 @@ from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.harness.figures import label_log_axis, legend_below, png_bytes, pyplot
 from pirl_sim.harness.tables import markdown
 
+from .curves import _without
 from .run import read_table, template_run
 
 __all__ = ["write_report", "summary_table", "best_variants", "med_vs_k_figure", "learners_side_by_side_figure",
            "recovery_figure", "ci95", "weights_summary", "online_view", "ONLINE_MEANS"]
-
-_K_IN_LABEL = re.compile(r"k=[^,)]+(, )?")
-
-
-def _base_label(label: str) -> str:
-    """The learner label without its k: 'PIRL-kNN (k=10)' -> 'PIRL-kNN'."""
-    out = _K_IN_LABEL.sub("", label).replace(" ()", "")
-    return out.replace(", )", ")")
-
 
 def ci95(values) -> float:
     """Half-width of the 95 % confidence interval of the mean of ``values`` (Student t, n - 1 degrees of
@@ -69,7 +60,7 @@ def summary_table(table: pd.DataFrame) -> pd.DataFrame:
     and learner variant, table order."""
     keys = ["experiment", "scenario_label", "protocol", "learner_label"]
     t = table.copy()
-    t["learner_base"] = [_base_label(x) for x in t["learner_label"]]
+    t["learner_base"] = [_without(x, "k") for x in t["learner_label"]]  # 'PIRL-kNN (k=10)' -> 'PIRL-kNN'
     for c in ("n_styles", "k"):
         t[c] = t[c].astype(float)
     agg = t.groupby(keys, sort=False).agg(
@@ -98,9 +89,16 @@ def online_view(g: pd.DataFrame) -> pd.DataFrame | None:
     g = g[g[cols].notna().any(axis=1)]
     if g.empty:
         return None
-    view = pd.DataFrame({"scenario": g["scenario_label"], "protocol": g["protocol"], "learner": g["learner_label"]})
-    for c in cols:
-        view[ONLINE_MEANS[c]] = [_pm(m, ci) for m, ci in zip(g[c], g[f"{c}_ci"])]
+    return _view(g, {c: ONLINE_MEANS[c] for c in cols})
+
+
+def _view(g: pd.DataFrame, scores: dict, **extra) -> pd.DataFrame:
+    """A README table of the summary rows ``g``: scenario (left out when there is one), protocol, learner, the
+    columns ``extra`` and 'mean ± ci' of each of ``scores`` {column of g: title}."""
+    view = pd.DataFrame({"scenario": g["scenario_label"], "protocol": g["protocol"], "learner": g["learner_label"],
+                         **extra})
+    for col, title in scores.items():
+        view[title] = [_pm(m, c) for m, c in zip(g[col], g[f"{col}_ci"])]
     return view.drop(columns=["scenario"]) if view["scenario"].nunique() == 1 else view
 
 
@@ -137,6 +135,15 @@ def _grid(n: int, width: float = 4.6, height: float = 3.4):
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     return fig, list(axes.flat[:n])
+
+
+def _value_ticks(ax, values) -> None:
+    """A tick labelled with its value at each of ``values`` on a log x axis, and no minor labels."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    ax.set_xticks(values)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
 
 
 # What k counts, per learner (the x axes of med_vs_k.png say it; the tables' column is just "k").
@@ -188,11 +195,7 @@ def med_vs_k_figure(summary: pd.DataFrame):
         ax.set_xscale("log")
         ks = sorted(set(s[(s["scenario_label"] == scen) & (s["learner_base"] == base)]["k"]))
         if len(ks) <= 6:  # few k: a labelled tick at each (matplotlib would write 2x10^0 ...)
-            from matplotlib.ticker import FuncFormatter, NullFormatter
-
-            ax.set_xticks(ks)
-            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
-            ax.xaxis.set_minor_formatter(NullFormatter())
+            _value_ticks(ax, ks)
         if values:
             label_log_axis(ax, min(values), max(values))
         what = K_MEANING.get(learner)
@@ -433,14 +436,9 @@ def write_report(results, out_dir=None) -> dict:
         weights = weights_summary(weights) if len(weights) else None
     for exp, g in summary.groupby("experiment", sort=False):
         lines += [f"## {exp}", ""]
-        view = pd.DataFrame({"scenario": g["scenario_label"], "protocol": g["protocol"],
-                             "learner": g["learner_label"]})
-        for col, name in (("med", "MED [m]"), ("fde", "FDE [m]"), ("weight_error", "weight error"), ("ari", "ARI")):
-            view[name] = [_pm(m, c) for m, c in zip(g[col], g[f"{col}_ci"])]
+        view = _view(g, {"med": "MED [m]", "fde": "FDE [m]", "weight_error": "weight error", "ari": "ARI"})
         view["styles"] = [_fmt(x) for x in g["n_styles"]]
         view["seeds"] = g["seeds"].to_numpy()
-        if view["scenario"].nunique() == 1:
-            view = view.drop(columns=["scenario"])
         lines += [markdown(view, _fmt), ""]
         online = online_view(g)
         if online is not None:
@@ -456,13 +454,8 @@ def write_report(results, out_dir=None) -> dict:
         w = None if weights is None else weights[weights["experiment"] == exp]
         if w is not None and len(w) and exp in weight_experiments:
             overall = w[w["style"] == "all"]
-            wv = pd.DataFrame({"scenario": overall["scenario_label"], "protocol": overall["protocol"],
-                               "learner": overall["learner_label"], "feature": overall["feature"],
-                               "median abs log error": [_pm(m, c) for m, c in zip(overall["median"], overall["median_ci"])],
-                               "p90 abs log error": [_pm(m, c) for m, c in zip(overall["p90"], overall["p90_ci"])],
-                               "Spearman": [_pm(m, c) for m, c in zip(overall["spearman"], overall["spearman_ci"])]})
-            if wv["scenario"].nunique() == 1:
-                wv = wv.drop(columns=["scenario"])
+            wv = _view(overall, {"median": "median abs log error", "p90": "p90 abs log error", "spearman": "Spearman"},
+                       feature=overall["feature"])
             per_style = w[w["style"] != "all"].pivot_table(
                 index=["protocol", "learner_label", "feature"], columns="style", values="median", sort=False)
             lines += ["Weight recovery per feature over the test histories (normalised weights, jerk_sq = 1 for the "

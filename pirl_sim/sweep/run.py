@@ -72,6 +72,7 @@ class SweepRun:
     work_s : float [s]          sum of the computed cells' own time (``cell_s``)
     cpu_s : float [s]           sum of their CPU time (``cpu_s``)
     simulated : list of str     simulation keys simulated by this run
+    records : dict {key: dict}  the stored record of every finished cell (`pirl_sim.sweep.store`)
     """
 
     out: Path
@@ -86,6 +87,7 @@ class SweepRun:
     work_s: float = 0.0
     cpu_s: float = 0.0
     simulated: list = field(default_factory=list)
+    records: dict = field(default_factory=dict)
 
     def check_failed(self, what: str) -> None:
         """RuntimeError when cells failed, naming how many of ``what`` and the first error (a report template's
@@ -259,11 +261,12 @@ def run_sweep(
     cached = [k for k in records if k not in set(computed)]
     table = assemble_table(config, keys, records)
     if tables:
-        _write_table(table, out)
+        _write_parquet(table, out / "table.parquet")
+        atomic_write_text(out / "table.csv", table.to_csv(index=False))
         _write_recovery(config, keys, records, out)
         _write_weights(config, keys, records, out)
     return SweepRun(out, table, computed, cached, failed, version, description,
-                    time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated)
+                    time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated, records)
 
 
 def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
@@ -362,11 +365,6 @@ def _write_parquet(frame: pd.DataFrame, path: Path) -> None:
     buf = io.BytesIO()
     frame.to_parquet(buf, index=False)
     atomic_write_bytes(path, buf.getvalue())
-
-
-def _write_table(table: pd.DataFrame, out: Path) -> None:
-    _write_parquet(table, out / "table.parquet")
-    atomic_write_text(out / "table.csv", table.to_csv(index=False))
 
 
 def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:

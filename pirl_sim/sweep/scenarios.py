@@ -403,16 +403,16 @@ _SYNTHETIC_PARAMS = {
 }
 
 
-#: the generated scenarios: their module (``generate``), config class and [low, high] parameters
-_GENERATED = {"synthetic": ("synthetic", "SyntheticConfig", ("position_range", "velocity_range")),
-              "passage": ("passage", "PassageConfig", ("start_s", "start_v"))}
+#: the generated scenarios: their module (``generate``), config class, [low, high] parameters and preset styles
+_GENERATED = {"synthetic": ("synthetic", "SyntheticConfig", ("position_range", "velocity_range"), "PAPER_STYLES"),
+              "passage": ("passage", "PassageConfig", ("start_s", "start_v"), "THREE_STYLES")}
 
 
 def generated_config(name: str, params: dict, seed: int = 0):
     """The own config dataclass (`SyntheticConfig`, `PassageConfig`) of a generated scenario's parameters."""
     from pirl_sim.population import Style
 
-    module, cls, ranges = _GENERATED[name]
+    module, cls, ranges, _ = _GENERATED[name]
     p = {k: tuple(v) if k in ranges else v for k, v in params.items() if k != "mix"}
     p["styles"] = tuple(Style(d["name"], d["weight"], dict(d["mean"]), dict(d["std"])) for d in p["styles"])
     return getattr(importlib.import_module(f"pirl_sim.scenarios.{module}"), cls)(**p, seed=seed)
@@ -424,14 +424,15 @@ def _build_generated(name: str, params: dict, seed: int) -> ScenarioData:
     return ScenarioData(data.model, data.train, data.test, tuple(s["name"] for s in params["styles"]))
 
 
-def _check_synthetic(params: dict) -> dict:
-    from pirl_sim.features import lqr_features
-    from pirl_sim.scenarios.synthetic import PAPER_STYLES
-
-    styles = _styles("scenario 'synthetic'", PAPER_STYLES, params["styles"], params["mix"], lqr_features())
+def _check_generated(name: str, params: dict) -> dict:
+    """Styles checked against the scenario's features (its preset styles, `_GENERATED`, by name or given), the
+    rest by its config dataclass (counts, ranges, dt, geometry)."""
+    presets = getattr(importlib.import_module(f"pirl_sim.scenarios.{name}"), _GENERATED[name][3])
+    geometry = generated_config(name, dict(params, styles=_style_dicts(presets)))  # all but the styles
+    styles = _styles(f"scenario {name!r}", presets, params["styles"], params["mix"], geometry.model().features)
     out = dict(params, styles=_style_dicts(styles))
     out.pop("mix")
-    generated_config("synthetic", out)  # SyntheticConfig validates counts, ranges, dt
+    generated_config(name, out)
     return out
 
 
@@ -455,18 +456,6 @@ _PASSAGE_PARAMS = {
     "start_s": Param("range", [10.0, 40.0], "start positions along the path [m]"),
     "start_v": Param("range", [9.0, 12.0], "start speeds [m/s]"),
 }
-
-
-def _check_passage(params: dict) -> dict:
-    from pirl_sim.scenarios.passage import THREE_STYLES
-
-    geometry = generated_config("passage", dict(params, styles=_style_dicts(THREE_STYLES)))  # all but styles
-    features = geometry.model().features
-    styles = _styles("scenario 'passage'", THREE_STYLES, params["styles"], params["mix"], features)
-    out = dict(params, styles=_style_dicts(styles))
-    out.pop("mix")
-    generated_config("passage", out)
-    return out
 
 
 # ------------------------------------------------------------------------------------------ simulators
@@ -590,11 +579,11 @@ def _driver_horizon(params) -> int:
 
 register_scenario(ScenarioSpec(
     "synthetic", "the paper's 1-D point mass regulated by LQR, theta = q/r from two kernels",
-    _SYNTHETIC_PARAMS, _check_synthetic, partial(_build_generated, "synthetic"), _shape_fixed,
+    _SYNTHETIC_PARAMS, partial(_check_generated, "synthetic"), partial(_build_generated, "synthetic"), _shape_fixed,
 ))
 register_scenario(ScenarioSpec(
     "passage", "roundabout passage, drivers of the paper's three user-study styles",
-    _PASSAGE_PARAMS, _check_passage, partial(_build_generated, "passage"), _shape_fixed,
+    _PASSAGE_PARAMS, partial(_check_generated, "passage"), partial(_build_generated, "passage"), _shape_fixed,
 ))
 for _name, _summary in (
         ("sumo", "SUMO roundabout (libsumo), PIRL drivers of known weights re-planning every 0.1 s among SUMO's own"),
