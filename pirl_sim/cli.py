@@ -8,6 +8,16 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
+from pirl_sim.harness import reproduce
+from pirl_sim.harness.model_cli import add_model_parsers, run_fit_model_command, run_predict_command
+from pirl_sim.harness.recovery import add_recover_parser, run_recover_command
+from pirl_sim.harness.replay_cli import add_replay_parser, run_replay_command
+from pirl_sim.scenarios.highway.cli import add_highway_parser, run_simulate_highway
+from pirl_sim.scenarios.simulate_cli import add_simulate_parser
+from pirl_sim.scenarios.sumo.cli import add_sumo_parser, run_simulate_sumo
+from pirl_sim.sweep.cli import (_workers, add_sweep_parsers, command_line, interrupted, run_report_command,
+                                run_sweep_command)
+from pirl_sim.threads import add_blas_threads_option, resolve_blas_threads, thread_policy
 from pirl_sim.validation import positive_int_arg, seed_arg
 
 __all__ = ["main", "build_parser", "package_version", "cli_logging"]
@@ -86,33 +96,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--velocity-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
         help="synthetic only: start velocities drawn uniformly from [LOW, HIGH] m/s (default 0 0)",
     )
-    from pirl_sim.sweep.cli import _workers
-
     rep.add_argument("--workers", type=_workers, default=0,
                      help="sweep worker processes (default 0: in this process)")
     rep.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
-
-    from pirl_sim.scenarios.highway.cli import add_highway_parser
-    from pirl_sim.scenarios.simulate_cli import add_simulate_parser
-    from pirl_sim.scenarios.sumo.cli import add_sumo_parser
-    from pirl_sim.sweep.cli import add_sweep_parsers
-
     simulators = add_simulate_parser(sub)
     add_sumo_parser(simulators)
     add_highway_parser(simulators)
     add_sweep_parsers(sub)
-    from pirl_sim.harness.recovery import add_recover_parser
-
     add_recover_parser(sub)
-
-    from pirl_sim.harness.replay_cli import add_replay_parser
-
     add_replay_parser(sub)
-    from pirl_sim.harness.model_cli import add_model_parsers
-
     add_model_parsers(sub)
-    from pirl_sim.threads import add_blas_threads_option
-
     add_blas_threads_option(parser)  # every command: see pirl_sim/threads.py
     return parser
 
@@ -120,9 +113,6 @@ def build_parser() -> argparse.ArgumentParser:
 def _reproduce(args) -> int:
     """``pirl-sim reproduce``: 0, 1 when cells failed, 2 for a bad option, 130 when interrupted (finished cells
     are kept)."""
-    from pirl_sim.harness import reproduce
-    from pirl_sim.sweep.cli import command_line, interrupted
-
     params = {k: v for k, v in (("n_trajectories", args.n_trajectories), ("n_train", args.n_train),
                                 ("position_range", args.position_range), ("velocity_range", args.velocity_range))
               if v is not None}
@@ -152,8 +142,6 @@ def _reproduce(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from pirl_sim.threads import resolve_blas_threads, thread_policy
-
     option = getattr(args, "blas_threads", None)
     try:
         resolve_blas_threads(option)  # a bad $PIRL_SIM_BLAS_THREADS stops the command before any work
@@ -167,28 +155,16 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args) -> int:
     """Run the parsed command (inside the thread policy, see `main`)."""
     if args.command == "recover":
-        from pirl_sim.harness.recovery import run_recover_command
-
         return run_recover_command(args)
     if args.command == "replay":
-        from pirl_sim.harness.replay_cli import run_replay_command
-
         return run_replay_command(args)
     if args.command in ("fit-model", "predict"):
-        from pirl_sim.harness.model_cli import run_fit_model_command, run_predict_command
-
         return run_fit_model_command(args) if args.command == "fit-model" else run_predict_command(args)
     if args.command in ("sweep", "report"):
-        from pirl_sim.sweep.cli import run_report_command, run_sweep_command
-
         return run_sweep_command(args) if args.command == "sweep" else run_report_command(args)
     if args.command == "simulate" and args.simulator == "highway":
-        from pirl_sim.scenarios.highway.cli import run_simulate_highway
-
         return run_simulate_highway(args)
     if args.command == "simulate" and args.simulator == "sumo":
-        from pirl_sim.scenarios.sumo.cli import run_simulate_sumo
-
         return run_simulate_sumo(args)
     if args.command == "reproduce":
         return _reproduce(args)

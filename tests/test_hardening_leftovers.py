@@ -321,13 +321,13 @@ def test_failed_cells_are_reported_through_logging(tmp_path, monkeypatch, caplog
     import logging
 
     from pirl_sim.cli import main
-    from pirl_sim.sweep import run as run_module
+    from pirl_sim.sweep import cli as cli_module
 
     class FakeRun:
         table = pd.DataFrame({"key": ["abc"]})
         computed, cached, failed, wall_s = ["abc"], [], {"abc": "ValueError: boom"}, 0.1
 
-    monkeypatch.setattr(run_module, "run_sweep", lambda *a, **k: FakeRun())
+    monkeypatch.setattr(cli_module, "run_sweep", lambda *a, **k: FakeRun())
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(_TINY_SWEEP)
     with caplog.at_level(logging.WARNING, logger="pirl_sim"):

@@ -84,15 +84,10 @@ class Protocol:
     def __post_init__(self) -> None:
         if self.kind not in PROTOCOL_KINDS:
             raise ValueError(f"protocol kind must be one of {PROTOCOL_KINDS}, got {self.kind!r}")
-        if self.kind in ("online", "rolling"):
-            h = self.history_steps
-            if not is_positive_int(h):
-                raise ValueError(f"the {self.kind} protocol needs history_steps >= 1, got {h!r}")
+        for name in {"online": ("history_steps",), "rolling": ("history_steps", "horizon", "stride")}.get(self.kind, ()):
+            if not is_positive_int(getattr(self, name)):
+                raise ValueError(f"the {self.kind} protocol needs {name} >= 1, got {getattr(self, name)!r}")
         if self.kind == "rolling":
-            for name in ("horizon", "stride"):
-                v = getattr(self, name)
-                if not is_positive_int(v):
-                    raise ValueError(f"the rolling protocol needs {name} >= 1, got {v!r}")
             if self.window_mode != "sliding":
                 raise ValueError("the rolling protocol infers from windows anywhere in a trajectory: window_mode must be 'sliding'")
         elif self.horizon is not None:

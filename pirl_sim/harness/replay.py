@@ -18,6 +18,7 @@ import pandas as pd
 
 from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+from pirl_sim.scenarios.replay import selection_counts, track_key
 from pirl_sim.sweep.recorded import (  # noqa: F401  (ReplayProtocol, predict_path_states: the replay's names)
     _IRL_WARNINGS,
     HINDSIGHT,
@@ -68,12 +69,14 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
                *([(HINDSIGHT, "hindsight", {})] if hindsight else []), ("CV (x, y)", "cv-xy", {})]
     per_seed = {seed: replay_seed(scene, seed, methods, proto, desired_speed=desired_speed, n_futures=n_futures,
                                   say=say) for seed in proto.seeds}
-    return collect_replay(scene, proto, per_seed, _gmm_k(learner_specs))
+    return collect_replay(scene, proto, per_seed, learner_specs)
 
 
-def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, gmm_k: int = 3) -> dict:
+def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=()) -> dict:
     """The replay's result dict (`run_replay`) from `pirl_sim.sweep.recorded.replay_seed`'s output per split seed
-    ({seed: output}, rows in the order of ``proto.seeds`` and then of each output's methods)."""
+    ({seed: output}, rows in the order of ``proto.seeds`` and then of each output's methods); ``gmm_k``, the
+    clusters of the cluster figure, is the first PIRL-GMM learner's ``n_components`` (3 without one) of
+    ``learner_specs`` [(name, key, params)]."""
     tracks = usable_tracks(scene, proto)
     rows, errors = [], {}
     for seed in proto.seeds:
@@ -86,12 +89,8 @@ def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, gmm_k: int = 3)
     return {"rows": pd.DataFrame(rows), "paired": paired_differences(errors, "TIRL"),
             "paired_ca": paired_differences(errors, "CA (path)"), "errors": errors,
             "selected": len(_track_keys(tracks)[1]), "selected_pieces": len(tracks), "examples": examples,
-            "history": proto.history, "horizon": proto.horizon, "gmm_k": gmm_k}
-
-
-def _gmm_k(learner_specs) -> int:
-    """Clusters of the cluster figure: the first PIRL-GMM learner's ``n_components`` (3 without one)."""
-    return next((int(p.get("n_components", 3)) for _, key, p in learner_specs if key == "pirl-gmm"), 3)
+            "history": proto.history, "horizon": proto.horizon,
+            "gmm_k": next((int(p.get("n_components", 3)) for _, key, p in learner_specs if key == "pirl-gmm"), 3)}
 
 
 def paired_differences(errors: dict, reference: str) -> pd.DataFrame:
@@ -143,8 +142,6 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     atomic_write_text(out / "paired.csv", result["paired"].to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "paired_ca.csv", result["paired_ca"].to_csv(index=False, float_format="%.6g"))
     _write_figures(result, scene, out)
-    from pirl_sim.scenarios.replay import track_key
-
     n_inter = len({track_key(t) for t in scene.trajectories if t.metadata["interacted"]})
     selection = getattr(scene, "selection", "tracks")
     what, pieces = {  # the tracks each selection rule uses, and what it cuts them into
@@ -199,8 +196,6 @@ def _speed_lines(result: dict) -> list[str]:
 def selection_table(scene, history: int, horizon: int | None = None) -> pd.DataFrame:
     """`pirl_sim.scenarios.replay.selection_counts` for a training window (``min_steps`` = ``history``) and, with a
     ``horizon``, a test window (``history + horizon``)."""
-    from pirl_sim.scenarios.replay import selection_counts
-
     return pd.concat([selection_counts(scene, n).assign(min_steps=n)
                       for n in (history, history + horizon if horizon else None) if n], ignore_index=True)
 

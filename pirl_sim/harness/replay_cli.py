@@ -23,13 +23,25 @@ whatever ``--dt``.
 from __future__ import annotations
 
 import argparse
+import copy
+import dataclasses
 import sys
+import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
 
+from pirl_sim.harness.replay import collect_replay, summarize, write_replay_results
+from pirl_sim.harness.replay_table import table_row, write_table
 from pirl_sim.progress import reporter
 from pirl_sim.sweep.cli import command_line, interrupted
+from pirl_sim.sweep.config import parse_config, preset_text
+from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
+from pirl_sim.sweep.recorded import (ReplayProtocol, decode_method, load_scene, method_id, recorded_files,
+                                     usable_tracks)
+from pirl_sim.sweep.run import _plan, run_sweep
+from pirl_sim.sweep.store import ResultStore
 from pirl_sim.validation import positive_float_arg, positive_int_arg
 
 __all__ = ["add_replay_parser", "run_replay_command", "replay_settings", "seconds_to_steps"]
@@ -53,12 +65,9 @@ def seconds_to_steps(seconds: float, dt: float, option: str) -> int:
 
 def _horizon_arg(text: str) -> int:
     try:
-        value = int(text)
-    except ValueError:
+        return positive_int_arg(text)
+    except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"--mpc-horizon must be a positive number of steps, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"--mpc-horizon must be a positive number of steps, got {text!r}")
-    return value
 
 
 def _positive_ints(text: str) -> list[int]:
@@ -276,11 +285,6 @@ def replay_config(args, settings: dict, tracks, map_path):
     ValueError
         Unknown learners, a bad --knn-k, or anything the sweep config rejects (named there).
     """
-    import dataclasses
-    import tomllib
-
-    from pirl_sim.sweep.config import parse_config, preset_text
-
     keys = [k.strip() for k in args.learners.split(",") if k.strip()]
     known = sorted([*LEARNERS, NEXT_KNN])
     unknown = [k for k in keys if k not in known]
@@ -332,9 +336,6 @@ def replay_results(config, run, scene, proto) -> dict:
     """The report template's result dict (`pirl_sim.harness.replay.collect_replay`) from the stored cells of a
     finished `run_sweep` of ``config`` (a `replay_config` with the protocol ``proto``; every cell finished:
     `SweepRun.check_failed` passed) over ``scene`` (the scene its cells replayed)."""
-    from pirl_sim.harness.replay import _gmm_k, collect_replay
-    from pirl_sim.sweep.recorded import decode_method, method_id
-
     cells = list(config.cells)
     label = {method_id(c.spec()): c.learner_label for c in cells}
     per_seed: dict = {}
@@ -344,8 +345,7 @@ def replay_results(config, run, scene, proto) -> dict:
         if entry["row"].get("irl_from"):
             entry["row"]["irl_from"] = label[entry["row"]["irl_from"]]
         per_seed.setdefault(cell.seed, {"methods": {}, "examples": examples})["methods"][cell.learner_label] = entry
-    return collect_replay(scene, proto, per_seed, _gmm_k([(c.learner_label, c.learner, c.learner_params)
-                                                         for c in cells]))
+    return collect_replay(scene, proto, per_seed, [(c.learner_label, c.learner, c.learner_params) for c in cells])
 
 
 def _replay(a, settings, out, say) -> tuple:
@@ -353,11 +353,6 @@ def _replay(a, settings, out, say) -> tuple:
     through the sweep engine into ``out``; returns (result, scene, protocol), result and scene None with
     ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
     interrupted replay resumes."""
-    from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
-    from pirl_sim.sweep.recorded import load_scene, recorded_files, usable_tracks
-    from pirl_sim.sweep.run import _plan, run_sweep
-    from pirl_sim.sweep.store import ResultStore
-
     config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
     proto = _protocol(a, settings)
     if a.dry_run:
@@ -383,8 +378,6 @@ def _replay(a, settings, out, say) -> tuple:
 
 def run_replay_command(args) -> int:
     """Run ``pirl-sim replay`` from parsed arguments; returns the exit status."""
-    from pirl_sim.harness.replay import summarize, write_replay_results
-
     say = reporter(not args.quiet)
     if args.table is None and (args.tracks is None or args.map is None):
         print("pirl-sim: error: replay needs --tracks and --map (or --table ROOT)", file=sys.stderr)
@@ -416,7 +409,6 @@ def _scan(args, settings, say) -> int:
     """``--scan-horizon H1,H2,...`` (`pirl_sim.harness.horizon_scan`) instead of the replay."""
     from pirl_sim.harness.horizon_scan import scan_horizons, write_scan
     from pirl_sim.scenarios.replay import load_replay
-    from pirl_sim.sweep.recorded import recorded_files
 
     scan = args.scan_horizon
     proto = _protocol(args, settings, scan)
@@ -429,8 +421,6 @@ def _scan(args, settings, say) -> int:
 
 
 def _protocol(args, settings, scan=None):
-    from pirl_sim.sweep.recorded import ReplayProtocol
-
     dt, horizon = settings["dt"], settings["mpc_horizon"]
     return ReplayProtocol(history=seconds_to_steps(args.history, dt, "--history"),
                           horizon=seconds_to_steps(args.horizon, dt, "--horizon"),
@@ -444,13 +434,6 @@ def _protocol(args, settings, scan=None):
 def _run_table(args, say) -> int:
     """``replay --table ROOT``: every roundabout of ``--roundabouts`` in turn (each through the sweep engine into
     ``--out/NAME``), then the table (`pirl_sim.harness.replay_table`); errors are the command's to report."""
-    import copy
-    import time
-
-    from pirl_sim.harness.replay import write_replay_results
-    from pirl_sim.harness.replay_table import table_row, write_table
-    from pirl_sim.sweep.recorded import recorded_files
-
     names = [n.strip() for n in str(args.roundabouts).split(",") if n.strip()]
     if "DR_USA_Roundabout_SR" in names:
         raise ValueError("DR_USA_Roundabout_SR is the held-out evaluation set of issue 12")

@@ -80,17 +80,16 @@ def _pm(x: float, se: float) -> str:
 
 def table_markdown(rows: list[dict]) -> str:
     """The Markdown tables of `write_table`."""
-    methods = []
-    for r in rows:
-        methods += [m for m in r["methods"] if m not in methods]
+    methods = list(dict.fromkeys(m for r in rows for m in r["methods"]))
+
+    def by_method(names, text) -> list[str]:  # a row per roundabout, a column per method: text(its figures)
+        return ["| roundabout | " + " | ".join(names) + " |", "|---|" + "---|" * len(names),
+                *(f"| {r['roundabout']} | " + " | ".join(text(r["methods"].get(m, {})) for m in names) + " |"
+                  for r in rows)]
+
     lines = ["MED at the 3 s horizon [m] (FDE at 3 s in brackets), mean ± standard error over split seeds:", "",
-             "| roundabout | " + " | ".join(methods) + " |", "|---|" + "---|" * len(methods)]
-    for r in rows:
-        cells = []
-        for m in methods:
-            v = r["methods"].get(m)
-            cells.append("" if v is None else f"{_pm(v['med'], v['med_se'])} ({_pm(v['fde'], v['fde_se'])})")
-        lines.append(f"| {r['roundabout']} | " + " | ".join(cells) + " |")
+             *by_method(methods, lambda v: f"{_pm(v['med'], v['med_se'])} ({_pm(v['fde'], v['fde_se'])})"
+                        if v else "")]
     lines += ["", "| roundabout | files | seeds | windows | best PIRL | best − CA (path) [m] | MED_best / MED_CA | "
               "along the path: best / CA | lateral floor / CA | "
               "ordering (MED, high to low) | paper's TIRL > GMM > kNN | a_lat / v_max per seed | time [s] |",
@@ -104,10 +103,7 @@ def table_markdown(rows: list[dict]) -> str:
                      f"{'yes' if r['paper_ordering_holds'] else 'no'} | {r.get('speed', '')} | {r['elapsed_s']:.0f} |")
     conv_methods = [m for m in methods if any("converged" in r["methods"].get(m, {}) for r in rows)]
     lines += ["", "IRL groups converged / fitted per split seed:", "",
-              "| roundabout | " + " | ".join(conv_methods) + " |", "|---|" + "---|" * len(conv_methods)]
-    for r in rows:
-        lines.append(f"| {r['roundabout']} | " + " | ".join(r["methods"].get(m, {}).get("converged", "")
-                                                           for m in conv_methods) + " |")
+              *by_method(conv_methods, lambda v: v.get("converged", ""))]
     lines += ["", "Matched car tracks usable per selection rule (min_steps: a training window = history; "
               "a test window = history + horizon):", "",
               "| roundabout | rule | selection | min_steps | usable / matched | share |", "|---|---|---|---|---|---|"]

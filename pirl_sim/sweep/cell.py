@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
+import tempfile
 import time
 import warnings
 from collections import OrderedDict
@@ -35,6 +37,14 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+
+from pirl_sim.harness.experiment import Protocol, cases, evaluate, style_agreement
+from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.metrics import adjusted_rand_index, match_styles
+
+from .baselines import BASELINES
+from .scenarios import scenario_spec
+from .store import SIMULATION_RECORD, ResultStore, code_version, simulation_key
 
 __all__ = ["run_cell", "run_cells", "knn_group", "run_simulation", "limit_threads", "single_threaded", "warm_up",
            "CACHE_SIZE", "ONLINE_FUTURES", "ONLINE_SCORES"]
@@ -90,7 +100,6 @@ def single_threaded():
 def warm_up(seconds: float = 0.0) -> int:
     """Import what cells use and limit threads (worker start-up, outside any cell's timing); returns the pid."""
     limit_threads()
-    import pirl_sim.harness.experiment  # noqa: F401
     import pirl_sim.learners  # noqa: F401
     import pirl_sim.scenarios.passage  # noqa: F401
     import pirl_sim.scenarios.synthetic  # noqa: F401
@@ -108,8 +117,6 @@ def _worker_version() -> str:
     """The code version of this process: computed once, when it first runs a cell (after its imports)."""
     global _VERSION
     if _VERSION is None:
-        from .store import code_version
-
         _VERSION = code_version()
     return _VERSION
 
@@ -127,13 +134,6 @@ def run_simulation(scenario: str, params: dict, seed: int, out_dir: str, code_ve
     """Record one run of a simulated scenario into ``out_dir`` (a directory of the store,
     `pirl_sim.sweep.store.ResultStore.simulation_dir`): simulated beside it, its record written, then renamed
     into place, so the directory is complete or absent. Returns the record (``timings``: ``simulate_s``)."""
-    import shutil
-
-    from pirl_sim.io.atomic import atomic_write_text
-
-    from .scenarios import scenario_spec
-    from .store import SIMULATION_RECORD
-
     t0 = time.perf_counter()
     limit_threads()
     _check_version(code_version)
@@ -162,11 +162,6 @@ def run_simulation(scenario: str, params: dict, seed: int, out_dir: str, code_ve
 def _simulation_dir(spec: dict, store_root: str | None) -> Path:
     """The recorded run a simulated scenario's cell reads: from the sweep's store (simulated now if absent, e.g.
     when a cell runs on its own), or a per-process temporary store without one."""
-    import tempfile
-
-    from .scenarios import scenario_spec
-    from .store import ResultStore, simulation_key
-
     global _TMP_STORE
     sim_params = scenario_spec(spec["scenario"]).simulation(spec["scenario_params"])
     if store_root is None:
@@ -184,8 +179,6 @@ _TMP_STORE = None
 
 
 def _data(spec: dict, store_root: str | None = None):
-    from .scenarios import scenario_spec
-
     key = json.dumps([spec["scenario"], spec["scenario_params"], spec["data_fingerprint"], spec["seed"]],
                      sort_keys=True)
     if key in _CACHE:
@@ -206,10 +199,7 @@ def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | No
     """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories, and
     `pirl_sim.recovery.weight_scores` over all of them (truth permitting; learners without weights, the baselines,
     give neither)."""
-    from pirl_sim.harness.experiment import cases
     from pirl_sim.recovery import weight_scores
-
-    from .baselines import BASELINES
 
     if not all("theta" in t.metadata for t in test) or isinstance(learner, tuple(BASELINES.values())):
         return None, None
@@ -242,8 +232,6 @@ def _style_scores(learner, train, test, protocol) -> dict:
     ``labels_`` and for data without true styles. A feature-space mixture predicts with its feature look-up
     (`pirl_sim.learners.gmm.PIRLGMM.predict_style`), not with this posterior: these scores rate the styles it
     learned, judged by their likelihoods."""
-    from pirl_sim.metrics import adjusted_rand_index, match_styles
-
     none = {"style_accuracy": None, "style_ari": None}
     if (protocol.kind != "online" or not hasattr(learner, "predict_proba") or not hasattr(learner, "labels_")
             or not all("style" in t.metadata for t in (*train, *test))):
@@ -292,7 +280,7 @@ def run_cell(spec: dict, code_version: str | None = None, store_root: str | None
         overall and per style) or None; ``warnings``: distinct warning messages (of the data generation
         too, when this cell generated the data); ``worker``: host, pid.
     """
-    return _run_cells([spec], code_version, store_root, raise_errors=True)[0]
+    return run_cells([spec], code_version, store_root, raise_errors=True)[0]
 
 
 def knn_group(spec: dict) -> str | None:
@@ -304,36 +292,29 @@ def knn_group(spec: dict) -> str | None:
     return json.dumps({**spec, "learner_params": params}, sort_keys=True)
 
 
-def run_cells(specs: list[dict], code_version: str | None = None, store_root: str | None = None) -> list[dict]:
-    """Run PIRL-kNN cells that differ only in ``n_neighbors`` (`knn_group`) with one fit.
+def run_cells(specs: list[dict], code_version: str | None = None, store_root: str | None = None,
+              raise_errors: bool = False) -> list[dict]:
+    """Run PIRL-kNN cells that differ only in ``n_neighbors`` (`knn_group`) with one fit (or the cells of one task
+    of a scenario with its own cell runner).
 
     The first cell fits as `run_cell` does; the others take that fitted learner with their own k
     (`pirl_sim.learners.knn.PIRLKNN.with_neighbors`: the k-independent IRL is shared, only the neighbour index
     is rebuilt), which predicts exactly as a refit would, so every cell's scores equal `run_cell`'s. Their
     ``n_warnings`` and ``warnings`` include the shared fit's warnings, as a refit's would; their ``fit_s`` is
     the time to derive the learner. A cell that fails does not stop the others (a failed fit is retried by the
-    next cell).
+    next cell; with ``raise_errors`` its error is raised: `run_cell`).
 
     Returns
     -------
     list of dict, one per spec in order: `run_cell`'s result, or ``{"error": "Type: message"}``
     """
-    from .scenarios import scenario_spec
-
     groups = {knn_group(s) for s in specs}
-    own = scenario_spec(specs[0]["scenario"]).run_cells is not None  # a scenario's runner groups its own tasks
-    if not own and len(specs) > 1 and (None in groups or len(groups) != 1):
+    custom = scenario_spec(specs[0]["scenario"]).run_cells  # a scenario's own runner groups its own tasks
+    if custom is None and len(specs) > 1 and (None in groups or len(groups) != 1):
         raise ValueError("run_cells runs PIRL-kNN cells that differ only in n_neighbors")
-    return _run_cells(list(specs), code_version, store_root, raise_errors=False)
-
-
-def _run_cells(specs: list[dict], code_version: str | None, store_root: str | None, raise_errors: bool) -> list[dict]:
-    from .scenarios import scenario_spec
-
     t_cell, cpu_cell = time.perf_counter(), time.process_time()
     limit_threads()
     _check_version(code_version)
-    custom = scenario_spec(specs[0]["scenario"]).run_cells
     if custom is not None:  # a scenario with its own cell runner (`pirl_sim.sweep.recorded`): one task
         try:
             with warnings.catch_warnings(record=True) as caught:
@@ -348,10 +329,7 @@ def _run_cells(specs: list[dict], code_version: str | None, store_root: str | No
         return [{"scores": scores, "timings": {**share, **timings}, "recovery": None, "weights": None,
                  "warnings": _messages(caught), "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
                 for scores, timings in outcomes]
-    from pirl_sim.harness.experiment import Protocol, evaluate, style_agreement
     from pirl_sim.learners import LEARNERS
-
-    from .baselines import BASELINES
 
     first = specs[0]
     protocol = Protocol(**first["protocol"])

@@ -8,6 +8,11 @@ import shlex
 import sys
 from pathlib import Path
 
+from .config import load_config
+from .report import write_report
+from .run import _plan, _simulations, run_sweep
+from .store import ResultStore
+
 __all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "interrupted", "command_line"]
 
 DEFAULT_OUT = Path("results") / "sweep"
@@ -73,9 +78,6 @@ def interrupted(out) -> int:
 def run_sweep_command(args) -> int:
     """``pirl-sim sweep``: 0 when every cell finished, 1 when some failed, 2 for a bad config or option,
     130 when interrupted (finished cells are kept)."""
-    from .config import load_config
-    from .run import run_sweep
-
     try:
         if args.workers is not None and args.scheduler is not None:
             raise ValueError("give --workers or --scheduler, not both: with a scheduler the Dask workers run the cells")
@@ -84,9 +86,6 @@ def run_sweep_command(args) -> int:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
     if args.dry_run:
-        from .run import _plan, _simulations
-        from .store import ResultStore
-
         store = ResultStore(args.out)
         version, _, unique, stored, todo = _plan(config, store)  # a damaged cell file is not stored: it runs again
         sims, _ = _simulations(unique, todo, store, version)
@@ -109,8 +108,6 @@ def run_sweep_command(args) -> int:
     if run.failed:
         log.warning("%d cells failed (details in %s/errors/); they run again next time", len(run.failed), args.out)
     if args.report and not run.table.empty:
-        from .report import write_report
-
         write_report(args.out)
         print(f"wrote the report to {args.out}/README.md")
     return 1 if run.failed else 0
@@ -118,8 +115,6 @@ def run_sweep_command(args) -> int:
 
 def run_report_command(args) -> int:
     """``pirl-sim report``: 0, or 2 when the results cannot be read."""
-    from .report import write_report
-
     try:
         written = write_report(args.results, args.out)
     except ValueError as exc:

@@ -49,8 +49,10 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from pirl_sim.validation import SEED_LIMIT, check_keys
+from pirl_sim.harness.experiment import PROTOCOL_KINDS, Protocol
+from pirl_sim.validation import SEED_LIMIT, check_keys, is_positive_int
 
+from .baselines import BASELINES
 from .scenarios import resolve_scenario_params, scenario_spec
 
 __all__ = [
@@ -88,8 +90,6 @@ def sweep_learners() -> dict:
     """Learners a sweep runs, by name: `pirl_sim.learners.LEARNERS` and the kinematic baselines
     (`pirl_sim.sweep.baselines.BASELINES`)."""
     from pirl_sim.learners import LEARNERS
-
-    from .baselines import BASELINES
 
     return {**LEARNERS, **BASELINES}
 
@@ -252,8 +252,6 @@ class ProtocolGrid:
     grid: tuple[GridAxis, ...] = ()
 
     def __post_init__(self) -> None:
-        from pirl_sim.harness.experiment import PROTOCOL_KINDS
-
         kind = self.fields.get("kind")
         if kind not in PROTOCOL_KINDS:
             raise ValueError(f"unknown protocol kind {kind!r}; choose one of {', '.join(PROTOCOL_KINDS)}")
@@ -408,8 +406,6 @@ def _learner_label(grid: LearnerGrid, params: dict, varied: list[tuple[str, str]
 
 def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) -> None:
     """Values we can check without data: k against the training samples, windows, enums."""
-    from pirl_sim.validation import is_positive_int
-
     LEARNERS = sweep_learners()
     learner = LEARNERS[grid.name](**params, **proto.learner_params())
     try:
@@ -451,10 +447,9 @@ def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) ->
     if grid.name == "pirl-knn":
         from pirl_sim.learners.knn import AVERAGES, PRIORS
 
-        if params["average"] not in AVERAGES:
-            raise ValueError(f"{label}: average must be one of {AVERAGES}, got {params['average']!r}")
-        if params["prior"] not in PRIORS:
-            raise ValueError(f"{label}: prior must be one of {PRIORS}, got {params['prior']!r}")
+        for key, choices in (("average", AVERAGES), ("prior", PRIORS)):
+            if params[key] not in choices:
+                raise ValueError(f"{label}: {key} must be one of {choices}, got {params[key]!r}")
 
 
 def _check_mixture(label: str, name: str, params: dict) -> None:
@@ -477,14 +472,11 @@ def _check_mixture(label: str, name: str, params: dict) -> None:
         mixture._validate_params()
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{label}: {exc}") from None
-    for key in ("min_cluster_size",):
-        if key in params and (isinstance(params[key], bool) or not isinstance(params[key], int) or params[key] < 1):
-            raise ValueError(f"{label}: {key} must be a positive integer, got {params[key]!r}")
+    if "min_cluster_size" in params and not is_positive_int(params["min_cluster_size"]):
+        raise ValueError(f"{label}: min_cluster_size must be a positive integer, got {params['min_cluster_size']!r}")
 
 
 def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
-    from pirl_sim.harness.experiment import Protocol
-
     LEARNERS = sweep_learners()
 
     cells: list[Cell] = []

@@ -22,6 +22,8 @@ import re
 import sys
 import threading
 
+from . import cell
+
 __all__ = ["LocalExecutor", "DaskExecutor", "InlineExecutor", "make_executor", "default_workers"]
 
 _ADDRESS = re.compile(r"^[a-z][a-z0-9+]*://\S+$")
@@ -124,10 +126,8 @@ class LocalExecutor(_Executor):
 
     def warm_up(self) -> None:
         """Start every worker and import what cells need (so start-up is not charged to the first cells)."""
-        from .cell import warm_up
-
         seconds = 0.5 if self.workers > 1 else 0.0
-        for f in [self._pool.submit(warm_up, seconds) for _ in range(self.workers)]:
+        for f in [self._pool.submit(cell.warm_up, seconds) for _ in range(self.workers)]:
             f.result()
 
     def close(self, cancel: bool = False) -> None:
@@ -178,9 +178,7 @@ class DaskExecutor(_Executor):
         return as_completed(list(futures))
 
     def warm_up(self) -> None:
-        from .cell import warm_up
-
-        self.client.run(warm_up)  # every worker, once
+        self.client.run(cell.warm_up)  # every worker, once
 
     def close(self, cancel: bool = False) -> None:
         if self._own:
@@ -194,11 +192,9 @@ class _Deferred:
         self._fn, self._args, self._done, self._value, self._error = fn, args, False, None, None
 
     def _run(self) -> None:
-        from .cell import single_threaded
-
         if not self._done:
             try:
-                with single_threaded():
+                with cell.single_threaded():
                     self._value = self._fn(*self._args)
             except Exception as exc:  # noqa: BLE001 - handed to the caller through result()
                 self._error = exc
@@ -232,8 +228,6 @@ class InlineExecutor(_Executor):
             yield f
 
     def warm_up(self) -> None:
-        from . import cell
-
         cell._VERSION = None  # this process is the worker: take the code version of this run's files
 
     def close(self, cancel: bool = False) -> None:

@@ -56,6 +56,7 @@ were as large as the split-to-split noise, so a single split proves nothing.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 import warnings
@@ -65,10 +66,18 @@ from pathlib import Path
 
 import numpy as np
 
+from pirl_sim.driving import CompositePath, physical_starts
+from pirl_sim.io.interaction import find_track_files, read_tracks, read_tracks_lenient
 from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
-from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
+from pirl_sim.lateral import LATERAL_MODELS, MeanOffsetProfile, NeighbourOffsets, predict_offsets
+from pirl_sim.metrics import (adjusted_rand_index, interaction_miss, match_styles, min_ade, min_fde, mixture_nll,
+                              weight_recovery_error)
+from pirl_sim.scenarios.replay import EstimateNoise, load_replay
+from pirl_sim.simulate import simulate_receding_horizon
+from pirl_sim.speed_fit import fit_desired_speed
 from pirl_sim.validation import check_keys, is_positive_int
 
+from .baselines import KinematicModel
 from .scenarios import SCENARIOS, Param, ScenarioSpec, TrainShape, _split, register_scenario
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
@@ -122,19 +131,13 @@ class ReplayProtocol:
     start: str = "history"
 
     def __post_init__(self) -> None:
-        from pirl_sim.lateral import LATERAL_MODELS
-
-        if self.start not in STARTS:
-            raise ValueError(f"start must be one of {STARTS}, got {self.start!r}")
-
-        if self.lateral not in LATERAL_MODELS:
-            raise ValueError(f"lateral must be one of {LATERAL_MODELS}, got {self.lateral!r}")
+        for name, choices in (("start", STARTS), ("lateral", LATERAL_MODELS), ("rollout", ROLLOUTS)):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
         for name in ("history", "horizon", "stride"):
             v = getattr(self, name)
             if not is_positive_int(v):
                 raise ValueError(f"{name} must be a positive number of steps, got {v!r}")
-        if self.rollout not in ROLLOUTS:
-            raise ValueError(f"rollout must be one of {ROLLOUTS}, got {self.rollout!r}")
         if self.mpc_horizon is not None and not is_positive_int(self.mpc_horizon):
             raise ValueError(f"mpc_horizon must be a positive number of steps or None, got {self.mpc_horizon!r}")
         if self.rollout == "closed" and self.mpc_horizon is None:
@@ -216,9 +219,6 @@ def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, 
         return model.predict_states(x0, theta, _open_plan(horizon, mpc_horizon))[:, : horizon + 1]
     if not is_positive_int(mpc_horizon):
         raise ValueError(f"rollout='closed' needs mpc_horizon, a positive number of steps, got {mpc_horizon!r}")
-    from pirl_sim.driving import physical_starts
-    from pirl_sim.simulate import simulate_receding_horizon
-
     trajs = simulate_receding_horizon(model, physical_starts(x0), theta, horizon, int(mpc_horizon))
     return np.stack([t.states for t in trajs])
 
@@ -230,9 +230,6 @@ def _positions(model, test, windows, s_pred, proto, lateral: str | None = None, 
     ``lateral``: the offsets the predicted arc lengths are placed at: the protocol's model (None:
     ``proto.lateral``, with the fitted `pirl_sim.lateral.MeanOffsetProfile` ``profile`` for "mean-path" and
     "plane"), or ``"recorded"``: the recorded future offsets, which leaves the error along the path only."""
-    from pirl_sim.driving import CompositePath
-    from pirl_sim.lateral import predict_offsets
-
     lateral = proto.lateral if lateral is None else lateral
     out = np.empty((len(windows), proto.horizon, 2))
     composite = isinstance(model.path, CompositePath)
@@ -267,8 +264,6 @@ def _future_scores(model, test, windows, s_futures, proba, proto, profile, dt: f
     """minADE_K, minFDE_K, the INTERACTION miss rate and the mixture NLL per step (sigma 1 m) of the futures
     along the path (W, K', horizon) with probabilities (W, K'), placed by the protocol's lateral model; named
     by the K asked for (a learner may give fewer, K' <= K)."""
-    from pirl_sim.metrics import interaction_miss, min_ade, min_fde, mixture_nll
-
     xy = np.stack([_positions(model, test, windows, s_futures[:, k], proto, profile=profile)
                    for k in range(s_futures.shape[1])],
                   axis=1)
@@ -289,8 +284,6 @@ def fit_lateral_profile(train, kind: str = "mean-path", path=None, horizon: int 
     positions on ``path`` (the model's reference path) for ``"plane"``; for ``"neighbours"`` a
     `pirl_sim.lateral.NeighbourOffsets` on the ``"plane"`` profile for predictions of ``horizon`` steps; None for
     ``"hold"``."""
-    from pirl_sim.lateral import MeanOffsetProfile, NeighbourOffsets
-
     if kind == "hold":
         return None
     if kind == "neighbours":
@@ -351,8 +344,6 @@ def _shared_knn_fits(learner_specs) -> dict[int, int]:
 def fit_scene_speed(scene, tracks, **kwargs):
     """`pirl_sim.speed_fit.fit_desired_speed` on the (curvature, speed) of every state of ``tracks`` (pieces of
     ``scene``)."""
-    from pirl_sim.speed_fit import fit_desired_speed
-
     states = np.concatenate([t.states for t in tracks])
     return fit_desired_speed(scene.curvature(states[:, 0]), states[:, 1], **kwargs)
 
@@ -455,8 +446,6 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
         tracks, or no test window.
     """
     from pirl_sim.learners import LEARNERS, make_learner
-
-    from .baselines import KinematicModel
 
     say = say or (lambda msg: None)
     unknown = [key for _, key, _ in methods if key not in METHODS and key not in LEARNERS]
@@ -575,8 +564,6 @@ _SCENES: OrderedDict = OrderedDict()  #: scenes loaded by this process (the last
 def recorded_files(params: dict) -> list[Path]:
     """The track files of a ``recorded`` scene: ``tracks`` itself, or the track files in that directory (the
     first ``files`` by name when ``files`` > 0)."""
-    from pirl_sim.io.interaction import find_track_files
-
     tracks = Path(params["tracks"])
     if tracks.is_file():
         return [tracks]
@@ -589,8 +576,6 @@ def recorded_files(params: dict) -> list[Path]:
 def recorded_fingerprint(params: dict) -> str:
     """sha256 (20 hex digits) of the names and bytes of the scene's track files, the sidecars beside them
     (`_SIDECARS`) and the map: part of every cell key, so other data never reuse a stored cell."""
-    import hashlib
-
     h = hashlib.sha256()
     files = [Path(f) for f in recorded_files(params)]
     sidecars = sorted({f.parent / name for f in files for name in _SIDECARS if (f.parent / name).is_file()})
@@ -600,8 +585,6 @@ def recorded_fingerprint(params: dict) -> str:
 
 
 def _load_kwargs(load: dict) -> dict:
-    from pirl_sim.scenarios.replay import EstimateNoise
-
     out = dict(load)
     if "noise" in out:
         out["noise"] = EstimateNoise(**out["noise"])
@@ -625,11 +608,7 @@ def _check_recorded(params: dict) -> dict:
         raise ValueError(f"map {params['map']!r} is not a file")
     if params["files"] < 0:
         raise ValueError(f"files must be >= 0 (0: every file), got {params['files']!r}")
-    try:
-        if not recorded_files(params):
-            raise ValueError(f"no vehicle_tracks_*.csv in {params['tracks']!r}")
-    except FileNotFoundError as exc:
-        raise ValueError(str(exc)) from None
+    recorded_files(params)  # neither a file nor a directory, or a directory without track files: ValueError
     for name, keys in (("load", _LOAD_KEYS), ("replay", _REPLAY_KEYS)):
         check_keys(f"parameter {name!r}", params[name], keys)
     if isinstance(params["load"].get("noise"), dict):
@@ -657,8 +636,6 @@ def _check_protocol(params: dict, protocol: dict) -> None:
 def _recorded_shape(params: dict) -> TrainShape:
     """An upper bound from the files alone: every valid vehicle track of every file, whole, the longest ones in
     the training set (so the config check reads every track file and rejects a k larger than the training set)."""
-    from pirl_sim.io.interaction import read_tracks, read_tracks_lenient
-
     stride = int(round(params["load"].get("dt", 0.2) / 0.1))  # model steps of 0.1 s frames
     lengths = []
     for f in recorded_files(params):
@@ -678,8 +655,6 @@ def _recorded_shape(params: dict) -> TrainShape:
 def load_scene(params: dict):
     """The `pirl_sim.scenarios.replay.ReplayScene` of a ``recorded`` scene's parameters (kept for the next cells
     of this process: loading is deterministic)."""
-    from pirl_sim.scenarios.replay import load_replay
-
     key = json.dumps([params["tracks"], params["map"], params["files"], params["load"]], sort_keys=True)
     if key not in _SCENES:
         _SCENES[key] = load_replay(recorded_files(params), params["map"], **_load_kwargs(params["load"]))

@@ -31,13 +31,15 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.stats import t as student
 
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 
 from pirl_sim.harness.figures import label_log_axis, legend_below, png_bytes, pyplot
 from pirl_sim.harness.tables import markdown
+from pirl_sim.validation import check_output_dir
 
-from .curves import _without
+from .curves import _without, curves_markdown, curves_summary, curves_table, recovery_curves_figure
 from .run import read_table, template_run
 
 __all__ = ["write_report", "summary_table", "best_variants", "med_vs_k_figure", "learners_side_by_side_figure",
@@ -46,8 +48,6 @@ __all__ = ["write_report", "summary_table", "best_variants", "med_vs_k_figure", 
 def ci95(values) -> float:
     """Half-width of the 95 % confidence interval of the mean of ``values`` (Student t, n - 1 degrees of
     freedom; NaN values ignored); NaN for fewer than two values."""
-    from scipy.stats import t as student
-
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
     if len(v) < 2:
@@ -371,8 +371,6 @@ def write_report(results, out_dir=None) -> dict:
     -------
     dict {name: path} of the files written.
     """
-    from pirl_sim.validation import check_output_dir
-
     results = Path(results)
     table = read_table(results)
     if table.empty:
@@ -392,8 +390,6 @@ def write_report(results, out_dir=None) -> dict:
     summary = summary_table(table)
     best = best_variants(summary)
     written = {}
-    from .curves import curves_markdown, curves_summary, curves_table, recovery_curves_figure
-
     figures = {"med_vs_k.png": med_vs_k_figure(summary), "learners.png": learners_side_by_side_figure(best),
                "recovery.png": recovery_figure(recovery, best),
                "recovery_curves.png": recovery_curves_figure(curves_summary(curves_table(table)))}

@@ -15,10 +15,12 @@ workers, or Dask workers on this machine).
 from __future__ import annotations
 
 import datetime as _dt
+import io
 import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -161,8 +163,8 @@ def run_sweep(
     startup_s = work_s = cpu_s = 0.0
     description = "nothing to run"
     if todo:
-        own = executor is None
-        ex = make_executor(workers, scheduler) if own else executor
+        ex = make_executor(workers, scheduler) if executor is None else executor
+        futures = {}
         try:
             description = ex.describe()
             t0 = time.perf_counter()
@@ -215,46 +217,43 @@ def run_sweep(
 
             # first: the simulations, and the cells that need none (PIRL-kNN cells differing only in k: one task)
             tasks = _tasks(unique, todo)
-            futures = {ex.submit(run_simulation, *sims[sk], str(store.simulation_dir(sk)), version): ("sim", sk)
-                       for sk in sims}
+            futures.update({ex.submit(run_simulation, *sims[sk], str(store.simulation_dir(sk)), version): ("sim", sk)
+                            for sk in sims})
             futures.update({submit(ks): ("cells", ks) for ks in tasks if ks[0] not in waiting})
             sim_errors = {}
-            try:
-                for fut in ex.as_completed(futures):
-                    what, k = futures[fut]
-                    if what == "cells":
-                        cells_done(k, fut)
-                        continue
-                    try:
-                        fut.result()
-                        simulated.append(k)
-                    except Exception as exc:  # noqa: BLE001 - its cells fail, the others go on
-                        sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
-                # then the cells that read the simulations
-                later = {}
-                for ks in tasks:
-                    if ks[0] in waiting:
-                        if waiting[ks[0]] in sim_errors:
-                            for k in ks:
-                                fail(k, sim_errors[waiting[k]])
-                        else:
-                            later[submit(ks)] = ("cells", ks)
-                futures.update(later)
-                for fut in ex.as_completed(later):
-                    cells_done(later[fut][1], fut)
-            except BaseException:
-                for f in futures:
-                    f.cancel()
-                raise
+            for fut in ex.as_completed(futures):
+                what, k = futures[fut]
+                if what == "cells":
+                    cells_done(k, fut)
+                    continue
+                try:
+                    fut.result()
+                    simulated.append(k)
+                except Exception as exc:  # noqa: BLE001 - its cells fail, the others go on
+                    sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
+            # then the cells that read the simulations
+            later = {}
+            for ks in tasks:
+                if ks[0] in waiting:
+                    if waiting[ks[0]] in sim_errors:
+                        for k in ks:
+                            fail(k, sim_errors[waiting[k]])
+                    else:
+                        later[submit(ks)] = ("cells", ks)
+            futures.update(later)
+            for fut in ex.as_completed(later):
+                cells_done(later[fut][1], fut)
         except BaseException:
-            if bar is not None:
-                bar.close()
-            if own:
+            for f in futures:
+                f.cancel()
+            if executor is None:
                 ex.close(cancel=True)
             raise
-        if own:
+        finally:
+            if bar is not None:
+                bar.close()
+        if executor is None:
             ex.close()
-        bar.close()
     else:
         atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
 
@@ -360,8 +359,6 @@ def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.Da
 
 
 def _write_parquet(frame: pd.DataFrame, path: Path) -> None:
-    import io
-
     buf = io.BytesIO()
     frame.to_parquet(buf, index=False)
     atomic_write_bytes(path, buf.getvalue())
@@ -455,8 +452,6 @@ def template_run(path: Path) -> bool:
 def _stored_table(path: Path) -> pd.DataFrame:
     """The tidy table of a report template's results directory (`template_run`): the cells its ``sweep.json``
     lists whose records are in ``cells/``."""
-    from types import SimpleNamespace
-
     listed = json.loads((path / "sweep.json").read_text(encoding="utf-8"))["cells"]
     store = ResultStore(path)
     records = {c["key"]: rec for c in listed if (rec := store.load(c["key"])) is not None}

@@ -44,6 +44,8 @@ from typing import Any
 
 import numpy as np
 
+from pirl_sim.population import Style
+
 __all__ = [
     "Param",
     "ScenarioData",
@@ -350,8 +352,6 @@ def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path 
 # ------------------------------------------------------------------------------------------ styles
 def _styles(label: str, presets, styles, mix, features):
     """Style objects from preset names / tables, mixture weights applied, validated against the features."""
-    from pirl_sim.population import Style
-
     by_name = {s.name: s for s in presets}
     if styles is None:
         chosen = list(presets)
@@ -410,8 +410,6 @@ _GENERATED = {"synthetic": ("synthetic", "SyntheticConfig", ("position_range", "
 
 def generated_config(name: str, params: dict, seed: int = 0):
     """The own config dataclass (`SyntheticConfig`, `PassageConfig`) of a generated scenario's parameters."""
-    from pirl_sim.population import Style
-
     module, cls, ranges, _ = _GENERATED[name]
     p = {k: tuple(v) if k in ranges else v for k, v in params.items() if k != "mix"}
     p["styles"] = tuple(Style(d["name"], d["weight"], dict(d["mean"]), dict(d["std"])) for d in p["styles"])
