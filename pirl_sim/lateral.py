@@ -24,7 +24,9 @@ pooled median mixes neighbouring lanes (DR_USA_Roundabout_FT). ``"neighbours"`` 
 
     d(t) = dbar(s(t)) + (d_0 - dbar(s_0)) + sum_k w_k (delta_k(t) - delta_k(0)),   delta = d - dbar(s).
 
-Where cars change lanes or cut across the circle at a place, the neighbours carry that. All of these are shared
+Where cars change lanes or cut across the circle at a place, the neighbours carry that. Offsets and deviations of
+a recorded track are read at its observed arc lengths (`observed_s`), not at its smoothed states' s, which
+depend on the recorded future. All of these are shared
 by every path-based predictor (baselines and learners alike), so that comparisons between them stay about the
 motion along the path.
 """
@@ -36,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["LATERAL_MODELS", "MeanOffsetProfile", "NeighbourOffsets", "predict_offsets"]
+__all__ = ["LATERAL_MODELS", "MeanOffsetProfile", "NeighbourOffsets", "observed_s", "predict_offsets"]
 
 LATERAL_MODELS = ("hold", "mean-path", "plane", "neighbours")
 
@@ -193,6 +195,21 @@ class MeanOffsetProfile:
         return out
 
 
+def observed_s(track) -> np.ndarray:
+    """Arc lengths (n_steps + 1,) [m] at which a track's offsets ``d`` were observed: its metadata's ``s_obs``
+    (recorded tracks: the projection of each recorded position), else its states' s (exact simulated states).
+    A recorded track's states come from a smoother that also saw the steps after each one; the offset at a step
+    belongs to the observed arc length, and a window's history must not depend on its future."""
+    s_obs = track.metadata.get("s_obs")
+    if s_obs is None:
+        return track.states[:, 0]
+    s_obs = np.asarray(s_obs, dtype=float)
+    if s_obs.shape != track.states[:, 0].shape:
+        raise ValueError(f"metadata s_obs has shape {s_obs.shape}, the track {track.states[:, 0].shape}: pass whole "
+                         "recorded pieces, not windows cut from them")
+    return s_obs
+
+
 def predict_offsets(kind: str, d0: float, segment: int, s0: float, s_pred: np.ndarray,
                     profile: MeanOffsetProfile | None = None) -> np.ndarray:
     """Lateral offsets [m] at the predicted arc lengths ``s_pred`` (H,) of one window (module doc).
@@ -290,7 +307,7 @@ class NeighbourOffsets:
     def _deviation(profile: MeanOffsetProfile, track) -> np.ndarray:
         """delta = d - dbar(s) over a whole track (n_steps + 1,) [m]; NaN where the profile has no data."""
         return np.asarray(track.metadata["d"], dtype=float) - profile(int(track.metadata.get("segment", 0)),
-                                                                       track.states[:, 0])
+                                                                       observed_s(track))
 
     def fit(self, profile: MeanOffsetProfile, train, horizon: int) -> "NeighbourOffsets":
         """Fit on training tracks (Trajectory with ``metadata`` "xy" (n+1, 2) [m], "d" (n+1,) [m] and
@@ -343,7 +360,8 @@ class NeighbourOffsets:
         for w, (i, step) in enumerate(windows):
             track = tracks[i]
             d0 = float(track.metadata["d"][step])
-            base = profile(int(track.metadata.get("segment", 0)), np.concatenate([[track.states[step, 0]], s_pred[w]]))
+            s0 = observed_s(track)[step]
+            base = profile(int(track.metadata.get("segment", 0)), np.concatenate([[s0], s_pred[w]]))
             if not np.all(np.isfinite(base)):
                 out[w] = d0
                 continue

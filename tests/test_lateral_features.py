@@ -326,3 +326,33 @@ def test_bad_neighbour_offsets_inputs_name_the_value(call, match):
         call()
     with pytest.raises(TypeError, match="deviation_times"):
         NeighbourOffsets(deviation_times=0.5)
+
+
+def test_neighbour_offsets_read_a_recorded_track_at_its_observed_arc_lengths():
+    """A recorded track's states come from a smoother that saw its future; its offsets belong to the observed arc
+    lengths ``s_obs``. With ``s_obs`` in the metadata the prediction does not depend on the smoothed s, so
+    changing the smoothed states (as a different future would) leaves it unchanged; a window cut from the
+    track (whose s_obs is the whole track's) is refused."""
+    from pirl_sim.lateral import observed_s
+    from pirl_sim.trajectory import Trajectory
+
+    tracks = _lane_change_tracks()
+    train, test = tracks[:-2], tracks[-2:]
+    segment = np.concatenate([np.zeros(t.n_steps + 1, int) for t in train])
+    prof = MeanOffsetProfile().fit(segment, np.concatenate([t.states[:, 0] for t in train]),
+                                   np.concatenate([t.metadata["d"] for t in train]))
+    model = NeighbourOffsets(n_neighbors=3).fit(prof, train, horizon=15)
+    observed = [Trajectory(t.states, t.controls, t.dt, {**t.metadata, "s_obs": t.states[:, 0].copy()}) for t in test]
+    smoothed_apart = []
+    for t in observed:
+        states = t.states.copy()
+        states[:, 0] += np.linspace(0.0, 6.0, len(states))  # a smoother pulled by another future
+        smoothed_apart.append(Trajectory(states, t.controls, t.dt, t.metadata))
+    windows = [(i, 32) for i in (1, 0)]
+    s_pred = np.stack([test[i].states[step + 1 : step + 16, 0] for i, step in windows])
+    np.testing.assert_array_equal(model.predict(smoothed_apart, windows, s_pred), model.predict(observed, windows, s_pred))
+    without = [Trajectory(t.states, t.controls, t.dt, {k: v for k, v in t.metadata.items() if k != "s_obs"})
+               for t in smoothed_apart]  # read at the smoothed s instead: another prediction
+    assert np.abs(model.predict(without, windows, s_pred) - model.predict(observed, windows, s_pred)).max() > 0.1
+    with pytest.raises(ValueError, match="not windows"):
+        observed_s(observed[0].window(0, 10))
