@@ -87,10 +87,9 @@ class Protocol:
         for name in {"online": ("history_steps",), "rolling": ("history_steps", "horizon", "stride")}.get(self.kind, ()):
             if not is_positive_int(getattr(self, name)):
                 raise ValueError(f"the {self.kind} protocol needs {name} >= 1, got {getattr(self, name)!r}")
-        if self.kind == "rolling":
-            if self.window_mode != "sliding":
-                raise ValueError("the rolling protocol infers from windows anywhere in a trajectory: window_mode must be 'sliding'")
-        elif self.horizon is not None:
+        if self.kind == "rolling" and self.window_mode != "sliding":
+            raise ValueError("the rolling protocol infers from windows anywhere in a trajectory: window_mode must be 'sliding'")
+        if self.kind != "rolling" and self.horizon is not None:
             raise ValueError(f"horizon is only used by the rolling protocol, not {self.kind!r}")
         if self.kind == "paper" and self.history_steps is not None:
             raise ValueError("the paper protocol uses whole trajectories: history_steps must be None")

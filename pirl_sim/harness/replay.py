@@ -33,8 +33,8 @@ __all__ = ["ReplayProtocol", "run_replay", "collect_replay", "paired_differences
            "write_replay_results", "predict_path_states", "HINDSIGHT"]
 
 
-def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, progress=None,
-               desired_speed=None, hindsight: bool = False, n_futures: int = 0) -> dict:
+def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, desired_speed=None,
+               hindsight: bool = False, n_futures: int = 0) -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene` in this process, one split seed after
     another (`pirl_sim.sweep.recorded.replay_seed`; ``pirl-sim replay`` runs the same through the sweep engine).
 
@@ -43,7 +43,6 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     scene : ReplayScene
     learner_specs : list of (name, learner key, params)  (see `pirl_sim.learners.make_learner`)
     proto : ReplayProtocol
-    progress : callable(str) or None
     desired_speed : None (the scene's model), ``"fit"`` (a_lat, v_max fitted per split seed on the training
         tracks) or (a_lat, v_max) [m/s^2, m/s] fixed. Every row carries the ``a_lat`` and ``v_max`` it used.
     hindsight : bool
@@ -64,11 +63,10 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     ``errors`` {(seed, method): per-window MED (W,)}, ``selected`` and ``selected_pieces`` (tracks used and
     their pieces) and the S-T figure's ``examples``.
     """
-    say = progress or (lambda msg: None)
     methods = [("CV (path)", "cv", {}), ("CA (path)", "ca", {}), *learner_specs,  # the order of the rows
                *([(HINDSIGHT, "hindsight", {})] if hindsight else []), ("CV (x, y)", "cv-xy", {})]
-    per_seed = {seed: replay_seed(scene, seed, methods, proto, desired_speed=desired_speed, n_futures=n_futures,
-                                  say=say) for seed in proto.seeds}
+    per_seed = {seed: replay_seed(scene, seed, methods, proto, desired_speed=desired_speed, n_futures=n_futures)
+                for seed in proto.seeds}
     return collect_replay(scene, proto, per_seed, learner_specs)
 
 

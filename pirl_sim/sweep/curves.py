@@ -91,7 +91,7 @@ def recovery_curves_figure(summary: pd.DataFrame):
     curves."""
     from pirl_sim.harness.figures import label_log_axis, legend_below, pyplot
 
-    from .report import _grid, _series_colors, _value_ticks
+    from .report import _grid, _log_yerr, _series_colors, _value_ticks
 
     if summary.empty:
         return None
@@ -107,8 +107,7 @@ def recovery_curves_figure(summary: pd.DataFrame):
         for learner, g in s.groupby("learner", sort=False):
             ci = g["ci"].fillna(0.0).to_numpy()
             m = g["mean"].to_numpy()
-            lower = np.where(m - ci > 0, ci, m - floor) if floor is not None else ci
-            ax.errorbar(g["x"], m, yerr=[np.maximum(lower, 0.0), ci], marker="o", ms=4, capsize=3,
+            ax.errorbar(g["x"], m, yerr=np.maximum(_log_yerr(m, ci, floor), 0.0), marker="o", ms=4, capsize=3,
                         color=colors[learner], label=learner)
             values += [v for v in m + ci if v > 0]
         if axis == "n_train":

@@ -60,8 +60,8 @@ import hashlib
 import json
 import time
 import warnings
-from collections import OrderedDict
 from dataclasses import dataclass, fields, replace
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -378,20 +378,17 @@ def _truth_scores(learner, train, test, windows, theta, model, has_truth: bool =
         got = np.asarray(labels)[styled]
         out["ari"] = adjusted_rand_index(truth, got)
         out["matched_styles"] = len(match_styles(truth, got))
-    ref = model.features.reference_index
-    known = [w for w, (i, _) in enumerate(windows) if "theta" in test[i].metadata]
-    if known:
-        true = np.stack([test[windows[w][0]].metadata["theta"] for w in known])
-        out["weight_error"] = float(np.median(weight_recovery_error(np.asarray(theta)[known], true, ref)))
-    elif has_truth:
-        out["weight_error"] = np.nan
-    known = [j for j, t in enumerate(train) if "theta" in t.metadata]
-    fitted = _training_weights(learner, len(train)) if known else None
-    if fitted is not None:  # the IRL's own recovery on the training tracks
-        true = np.stack([train[j].metadata["theta"] for j in known])
-        out["irl_weight_error"] = float(np.median(weight_recovery_error(np.asarray(fitted)[known], true, ref)))
-    elif has_truth:
-        out["irl_weight_error"] = np.nan
+    fitted = _training_weights(learner, len(train)) if any("theta" in t.metadata for t in train) else None
+    # the inferred weights of the test windows, and the IRL's own recovery on the training tracks
+    for col, weights, owners in (("weight_error", theta, [test[i] for i, _ in windows]),
+                                 ("irl_weight_error", fitted, train)):
+        known = [j for j, t in enumerate(owners) if "theta" in t.metadata]
+        if known and weights is not None:
+            true = np.stack([owners[j].metadata["theta"] for j in known])
+            out[col] = float(np.median(weight_recovery_error(np.asarray(weights)[known], true,
+                                                             model.features.reference_index)))
+        elif has_truth:
+            out[col] = np.nan
     return out
 
 
@@ -414,8 +411,7 @@ def _training_weights(learner, n_train: int) -> np.ndarray | None:
 
 
 
-def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_speed=None, n_futures: int = 0,
-                say=None) -> dict:
+def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_speed=None, n_futures: int = 0) -> dict:
     """One split seed of the replay: every method's row, per-window MED and predictions of a few windows.
 
     Parameters
@@ -429,7 +425,6 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     desired_speed : None, "fit" or (a_lat, v_max)
         The scene's own, fitted on this split's training pieces (`fit_scene_speed`), or given [m/s^2, m/s].
     n_futures : int              > 0: also score K futures of every learner (`pirl_sim.harness.replay.run_replay`)
-    say : callable(str) or None  progress messages
 
     Returns
     -------
@@ -447,7 +442,6 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     """
     from pirl_sim.learners import LEARNERS, make_learner
 
-    say = say or (lambda msg: None)
     unknown = [key for _, key, _ in methods if key not in METHODS and key not in LEARNERS]
     if unknown:
         raise ValueError(f"unknown replay method(s) {unknown}; choose from {sorted([*METHODS, *LEARNERS])}")
@@ -457,13 +451,9 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
         raise ValueError(f"{what} predicts open-loop plans; rollout {proto.rollout!r} is not available for it")
     tracks = usable_tracks(scene, proto)
     has_truth = any("theta" in t.metadata for t in tracks)
-    model, speed, _ = desired_speed_model(scene, None if desired_speed == "fit" else desired_speed)
     plan = _open_plan(proto.horizon, proto.mpc_horizon)  # the futures' open-loop plans [steps]
     train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
-    if desired_speed == "fit":
-        model, speed, fit = desired_speed_model(scene, "fit", train)
-        say(f"seed {seed}: desired speed fitted on the training tracks: a_lat {fit.a_lat:.2f} m/s^2, "
-            f"v_max {fit.v_max:.2f} m/s{' (at a bound)' if fit.at_bound else ''}")
+    model, speed, _ = desired_speed_model(scene, desired_speed, train)
     dt = model.dynamics.dt
     counts = {**counts, **speed}
     windows = _windows(test, proto)
@@ -489,8 +479,6 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             fit_s = time.perf_counter() - t0
             s_pred = predict_path_states(model, x0, oracle.demo_theta_, proto.horizon)[:, 1:, 0]
             predicted[name] = (s_pred, fit_s, 0.0, diag)
-            say(f"seed {seed}: {name} fitted on {len(futures)} test futures in {fit_s:.1f} s; IRL converged "
-                f"for {diag['irl_converged']} of {diag['irl_groups']}")
         elif key != "cv-xy":
             if i in reuse:
                 base, diag = fitted[reuse[i]]
@@ -514,9 +502,6 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
                 extra.update(_future_scores(model, test, windows, fut[:, :, 1 : proto.horizon + 1, 0], proba,
                                             proto, profile, dt, int(n_futures)))
             predicted[name] = (s_pred, fit_s, time.perf_counter() - t0, extra)
-            how = f"from the fit of {diag['irl_from']}" if diag["irl_from"] else "fitted"
-            say(f"seed {seed}: {name} {how} in {fit_s:.1f} s; IRL converged for {diag['irl_converged']} of "
-                f"{diag['irl_groups']} groups")
     shown = np.linspace(0, len(windows) - 1, min(4, len(windows))).astype(int)  # windows of the S-T figure
     examples = {"t": dt * np.arange(-proto.history, proto.horizon + 1),
                 "truth": np.stack([test[windows[w][0]].states[windows[w][1] - proto.history:
@@ -558,7 +543,6 @@ _LOAD_KEYS = ("dt", "estimate", "noise", "selection", "max_steps", "features", "
 _REPLAY_KEYS = (*(f.name for f in fields(ReplayProtocol) if f.name not in ("history", "horizon", "stride", "seeds")),
                 "desired_speed", "n_futures")
 _SIDECARS = ("ground_truth.csv", "driver_steps.csv", "run.json")  #: files beside the tracks that a scene reads
-_SCENES: OrderedDict = OrderedDict()  #: scenes loaded by this process (the last 2)
 
 
 def recorded_files(params: dict) -> list[Path]:
@@ -653,15 +637,15 @@ def _recorded_shape(params: dict) -> TrainShape:
 
 
 def load_scene(params: dict):
-    """The `pirl_sim.scenarios.replay.ReplayScene` of a ``recorded`` scene's parameters (kept for the next cells
-    of this process: loading is deterministic)."""
-    key = json.dumps([params["tracks"], params["map"], params["files"], params["load"]], sort_keys=True)
-    if key not in _SCENES:
-        _SCENES[key] = load_replay(recorded_files(params), params["map"], **_load_kwargs(params["load"]))
-        while len(_SCENES) > 2:
-            _SCENES.popitem(last=False)
-    _SCENES.move_to_end(key)
-    return _SCENES[key]
+    """The `pirl_sim.scenarios.replay.ReplayScene` of a ``recorded`` scene's parameters (the last 2 kept for the
+    next cells of this process: loading is deterministic)."""
+    return _load_scene(json.dumps([params["tracks"], params["map"], params["files"], params["load"]], sort_keys=True))
+
+
+@lru_cache(maxsize=2)
+def _load_scene(key: str):
+    tracks, map_path, files, load = json.loads(key)
+    return load_replay(recorded_files({"tracks": tracks, "files": files}), map_path, **_load_kwargs(load))
 
 
 def method_id(spec: dict) -> str:
@@ -681,13 +665,8 @@ def _plain(x):
         return {str(k): _plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple, np.ndarray)):
         return [_plain(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if np.isfinite(x) else None
-    return x
+    x = x.item() if isinstance(x, np.generic) else x  # numpy scalars as Python's bool, int, float
+    return None if isinstance(x, float) and not np.isfinite(x) else x
 
 
 def decode_method(result: dict) -> dict:

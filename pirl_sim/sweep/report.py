@@ -146,6 +146,12 @@ def _value_ticks(ax, values) -> None:
     ax.xaxis.set_minor_formatter(NullFormatter())
 
 
+def _log_yerr(mean: np.ndarray, err: np.ndarray, floor: float | None) -> list:
+    """Error bars [lower, upper] of mean ± err on a log axis, which cannot show mean - err <= 0: such a bar ends
+    at ``floor``, the panel's lowest positive value (None: none)."""
+    return [np.where(mean - err > 0, err, mean - floor) if floor is not None else err, err]
+
+
 # What k counts, per learner (the x axes of med_vs_k.png say it; the tables' column is just "k").
 K_MEANING = {"pirl-gmm": "clusters", "pirl-knn": "neighbours"}
 
@@ -182,12 +188,7 @@ def med_vs_k_figure(summary: pd.DataFrame):
         for proto, g in groups:
             learner = g["learner"].iloc[0]
             several = g["seeds"].max() > 1
-            yerr = None
-            if several:
-                sd = g["med_sd"].fillna(0.0).to_numpy()
-                med = g["med"].to_numpy()
-                lower = np.where(med - sd > 0, sd, med - floor) if floor is not None else sd
-                yerr = [lower, sd]
+            yerr = _log_yerr(g["med"].to_numpy(), g["med_sd"].fillna(0.0).to_numpy(), floor) if several else None
             ax.errorbar(g["k"], g["med"], yerr=yerr, marker="o", ms=4, capsize=3, color=colors[proto], label=proto)
             low = g["med"] - (g["med_sd"].fillna(0.0) if several else 0.0)
             values += [v for v in (*g["med"], *(g["med"] + (g["med_sd"].fillna(0.0) if several else 0.0)),
@@ -470,10 +471,10 @@ def write_report(results, out_dir=None) -> dict:
                   "interval (`pirl_sim.sweep.curves`, figure `recovery_curves.png`).", "", *curves]
     lines += ["## Figures", ""]
     captions = {"learners.png": "Learners side by side", "med_vs_k.png": "MED vs k", "recovery.png": "Weight recovery",
-                "recovery_curves.png": "Recovery curves"}
-    for fname in ("learners.png", "med_vs_k.png", "recovery.png", "recovery_curves.png"):
+                "recovery_curves.png": "Recovery curves"}  # in this order
+    for fname, caption in captions.items():
         if fname in written:
-            lines += [f"![{captions[fname]}]({fname})", ""]
+            lines += [f"![{caption}]({fname})", ""]
     timing = table.drop_duplicates("key").groupby("learner", sort=False)[["fit_s", "evaluate_s", "cell_s"]].sum()
     lines += ["## Time per learner [s] (sums over cells)", "", markdown(timing.reset_index(), _fmt), ""]
     if manifest.get("config"):

@@ -39,6 +39,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
@@ -571,10 +572,6 @@ def _shape_simulated(params: dict) -> TrainShape:
     return TrainShape(params["n_train"] or max(n_pirl - 1, 1), (), exact=False)
 
 
-def _driver_horizon(params) -> int:
-    return params["horizon"]
-
-
 register_scenario(ScenarioSpec(
     "synthetic", "the paper's 1-D point mass regulated by LQR, theta = q/r from two kernels",
     _SYNTHETIC_PARAMS, partial(_check_generated, "synthetic"), partial(_build_generated, "synthetic"), _shape_fixed,
@@ -590,7 +587,7 @@ for _name, _summary in (
     register_scenario(ScenarioSpec(
         _name, _summary, _SIMULATED_PARAMS, partial(_check_simulated, _name), partial(_build_simulated, _name),
         _shape_simulated, simulation=_simulation_params, simulate=partial(_simulate, _name),
-        driver_horizon=_driver_horizon,
+        driver_horizon=itemgetter("horizon"),  # the drivers' own
     ))
 
 from . import recorded as _recorded  # noqa: E402,F401  registers the 'recorded' scenario and its old name 'replay'
