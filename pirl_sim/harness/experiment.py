@@ -84,7 +84,8 @@ class Protocol:
     def __post_init__(self) -> None:
         if self.kind not in PROTOCOL_KINDS:
             raise ValueError(f"protocol kind must be one of {PROTOCOL_KINDS}, got {self.kind!r}")
-        for name in {"online": ("history_steps",), "rolling": ("history_steps", "horizon", "stride")}.get(self.kind, ()):
+        counts = {"online": ("history_steps",), "rolling": ("history_steps", "horizon", "stride")}  # [steps] >= 1
+        for name in counts.get(self.kind, ()):
             if not is_positive_int(getattr(self, name)):
                 raise ValueError(f"the {self.kind} protocol needs {name} >= 1, got {getattr(self, name)!r}")
         if self.kind == "rolling" and self.window_mode != "sliding":

@@ -315,38 +315,34 @@ def run_cells(specs: list[dict], code_version: str | None = None, store_root: st
     t_cell, cpu_cell = time.perf_counter(), time.process_time()
     limit_threads()
     _check_version(code_version)
-    if custom is not None:  # a scenario with its own cell runner (`pirl_sim.sweep.recorded`): one task
-        try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                outcomes = custom(specs)
-        except Exception as exc:
-            if raise_errors:
-                raise
-            return [{"error": f"{type(exc).__name__}: {exc}"} for _ in specs]
-        share = {"generate_s": 0.0, "cell_s": (time.perf_counter() - t_cell) / len(specs),
-                 "cpu_s": (time.process_time() - cpu_cell) / len(specs)}  # the task's time shared equally
-        return [{"scores": scores, "timings": {**share, **timings}, "recovery": None, "weights": None,
-                 "warnings": _messages(caught), "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
-                for scores, timings in outcomes]
     from pirl_sim.learners import LEARNERS
 
     first = specs[0]
     protocol = Protocol(**first["protocol"])
     t0 = time.perf_counter()
     try:
-        with warnings.catch_warnings(record=True) as data_warnings:  # only on a cache miss: kept out of n_warnings
+        with warnings.catch_warnings(record=True) as data_warnings:  # a data cache miss's: not in n_warnings
             warnings.simplefilter("always")
-            data = _data(first, store_root)
+            if custom is not None:  # a scenario with its own cell runner (`pirl_sim.sweep.recorded`): one task
+                outcomes = custom(specs)
+            else:
+                data = _data(first, store_root)
         generate_s = time.perf_counter() - t0
-        test = [t for t in data.test if t.n_steps >= protocol.steps_needed()]
-        if not test:
-            need = protocol.steps_needed()
-            raise ValueError(f"no test trajectory has the {need} steps the {protocol.name} protocol needs")
+        if custom is None:
+            test = [t for t in data.test if t.n_steps >= protocol.steps_needed()]
+            if not test:
+                need = protocol.steps_needed()
+                raise ValueError(f"no test trajectory has the {need} steps the {protocol.name} protocol needs")
     except Exception as exc:
         if raise_errors:
             raise
         return [{"error": f"{type(exc).__name__}: {exc}"} for _ in specs]
+    if custom is not None:  # the task's time shared equally; its warnings go to every cell
+        share = {"generate_s": 0.0, "cell_s": (time.perf_counter() - t_cell) / len(specs),
+                 "cpu_s": (time.process_time() - cpu_cell) / len(specs)}
+        return [{"scores": scores, "timings": {**share, **timings}, "recovery": None, "weights": None,
+                 "warnings": _messages(data_warnings), "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
+                for scores, timings in outcomes]
     results = []
     fitted, fit_warnings = None, []
     charged = False  # the data's generation time and warnings go to the first cell that finishes

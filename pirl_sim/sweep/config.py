@@ -193,13 +193,9 @@ def _parse_grid(label: str, grid, fixed: Mapping) -> tuple[GridAxis, ...]:
 
 
 def _points(axes: tuple[GridAxis, ...]):
-    """Every combination of the axes' choices: list of ({name: value}, [(name, label)])."""
-    if not axes:
-        return [({}, [])]
-    out = []
-    for combo in itertools.product(*(a.choices for a in axes)):
-        out.append(({a.name: c.value for a, c in zip(axes, combo)}, [(a.name, c.label) for a, c in zip(axes, combo)]))
-    return out
+    """Every combination of the axes' choices: list of ({name: value}, [(name, label)]) (no axes: one, empty)."""
+    return [({a.name: c.value for a, c in zip(axes, combo)}, [(a.name, c.label) for a, c in zip(axes, combo)])
+            for combo in itertools.product(*(a.choices for a in axes))]
 
 
 @dataclass(frozen=True)

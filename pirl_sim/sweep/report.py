@@ -381,9 +381,8 @@ def write_report(results, out_dir=None) -> dict:
     if out_dir is None:  # a report template's directory has a README.md of its own
         out_dir = res_dir / "report" if template else res_dir
     out = check_output_dir(out_dir, "the report's directory")
-    manifest = {}
-    if (res_dir / "sweep.json").exists():
-        manifest = json.loads((res_dir / "sweep.json").read_text(encoding="utf-8"))
+    manifest_file = res_dir / "sweep.json"
+    manifest = json.loads(manifest_file.read_text(encoding="utf-8")) if manifest_file.exists() else {}
     recovery = pd.read_parquet(res_dir / "recovery.parquet") if (res_dir / "recovery.parquet").exists() else None
     if recovery is not None:
         recovery = recovery[recovery["key"].isin(set(table["key"]))]

@@ -311,13 +311,8 @@ def _plan(config: SweepConfig, store: ResultStore):
     version = code_version()
     keys = [c.key(version) for c in config.cells]
     unique = dict(zip(keys, config.cells))  # first occurrence of every key
-    present = store.finished()
-    records = {}
-    for k in unique:
-        if k in present:
-            rec = store.load(k)
-            if rec is not None:
-                records[k] = rec
+    present = store.finished()  # one listing; a file that does not load is not stored: its cell runs again
+    records = {k: rec for k in unique if k in present and (rec := store.load(k)) is not None}
     todo = [k for k in unique if k not in records]
 
     def data_set(k):

@@ -337,10 +337,8 @@ def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path 
             f"scenario {name!r}: unknown parameter(s) {', '.join(map(repr, unknown))}; valid parameters: "
             f"{', '.join(spec.params)}"
         )
-    full = {}
-    for key, p in spec.params.items():
-        value = given.get(key, p.default)
-        full[key] = _convert(p.kind, f"scenario {name!r} parameter {key!r}", value, base_dir, p.choices)
+    full = {key: _convert(p.kind, f"scenario {name!r} parameter {key!r}", given.get(key, p.default), base_dir,
+                          p.choices) for key, p in spec.params.items()}
     try:
         return spec.check(full)
     except TypeError as exc:  # the scenario config's own type checks

@@ -168,9 +168,7 @@ class ResultStore:
         """Write a finished cell's record atomically (``record["key"]`` names the file)."""
         text = json.dumps(record, sort_keys=True, indent=1, allow_nan=False)
         path = atomic_write_text(self.path(record["key"]), text + "\n")
-        err = self.errors_dir / f"{record['key']}.json"
-        if err.exists():
-            err.unlink(missing_ok=True)
+        (self.errors_dir / f"{record['key']}.json").unlink(missing_ok=True)  # its last failure, if any
         return path
 
     def write_error(self, key: str, record: dict) -> Path:
