@@ -35,6 +35,15 @@ import numpy as np
 from pirl_sim.harness.replay import collect_replay, summarize, write_replay_results
 from pirl_sim.harness.replay_table import table_row, write_table
 from pirl_sim.progress import reporter
+from pirl_sim.scenarios.replay import (
+    DRIVER_STEPS_FILE,
+    MEASURED_NOISE,
+    SIMULATED_NOISE,
+    EstimateNoise,
+    is_recording,
+    load_replay,
+    recording_settings,
+)
 from pirl_sim.sweep.cli import command_line, interrupted
 from pirl_sim.sweep.config import parse_config, preset_text
 from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
@@ -201,15 +210,6 @@ def replay_settings(args) -> dict:
 
     Raises ValueError for combinations that cannot work (naming the option).
     """
-    from pirl_sim.scenarios.replay import (
-        DRIVER_STEPS_FILE,
-        MEASURED_NOISE,
-        SIMULATED_NOISE,
-        EstimateNoise,
-        is_recording,
-        recording_settings,
-    )
-
     rec = recording_settings(args.tracks)
     receding = args.likelihood == "receding"
     notes = []
@@ -408,7 +408,6 @@ def run_replay_command(args) -> int:
 def _scan(args, settings, say) -> int:
     """``--scan-horizon H1,H2,...`` (`pirl_sim.harness.horizon_scan`) instead of the replay."""
     from pirl_sim.harness.horizon_scan import scan_horizons, write_scan
-    from pirl_sim.scenarios.replay import load_replay
 
     scan = args.scan_horizon
     proto = _protocol(args, settings, scan)

@@ -13,8 +13,13 @@ lateral model: the best ratio any prediction along the path could reach).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
+
+from pirl_sim.harness.replay import selection_table
+from pirl_sim.io.atomic import atomic_write_text
 
 __all__ = ["table_row", "write_table", "table_markdown"]
 
@@ -25,8 +30,6 @@ def _se(x: pd.Series) -> float:
 
 def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: float) -> dict:
     """Aggregate figures of one roundabout's replay (module doc)."""
-    from pirl_sim.harness.replay import selection_table
-
     rows = result["rows"]
     fde = [c for c in rows.columns if c.startswith("de@")]
     fde = max(fde, key=lambda c: float(c[3:-1]))
@@ -116,10 +119,6 @@ def table_markdown(rows: list[dict]) -> str:
 
 def write_table(rows: list[dict], out_dir, command: str) -> str:
     """table.md and table.csv (one row per roundabout and method) in ``out_dir``; returns the Markdown."""
-    from pathlib import Path
-
-    from pirl_sim.io.atomic import atomic_write_text
-
     out = Path(out_dir)
     text = f"# Replay on recorded roundabouts\n\nMade by `{command}`.\n\n" + table_markdown(rows)
     atomic_write_text(out / "table.md", text)

@@ -23,6 +23,7 @@ from pirl_sim.harness.experiment import Protocol
 from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.progress import reporter
+from pirl_sim.simulate import simulate_receding_horizon
 from pirl_sim.sweep.cell import _data
 from pirl_sim.sweep.config import _tuples, parse_config, preset_text, sweep_learners
 from pirl_sim.sweep.run import run_sweep
@@ -181,8 +182,6 @@ def _synthetic_summary(table, ktable, config, history_steps) -> str:
 def _passage_figures(config, scenario, history_steps: int, out) -> dict:
     """Write ``clusters.png`` (the paper protocol's PIRL-GMM), ``s_t.png`` (the online protocol's learners on the
     first four test passages) and ``switch.png`` from the preset's ``table`` cells; returns the switch summary."""
-    from pirl_sim.simulate import simulate_receding_horizon
-
     cells = [c for c in config.cells if c.experiment == "table"]
     data = _data(cells[0].spec(), str(out))
     model = data.model
