@@ -41,6 +41,7 @@ import numpy as np
 from pirl_sim.harness.experiment import Protocol, cases, evaluate, style_agreement
 from pirl_sim.io.atomic import atomic_write_text
 from pirl_sim.metrics import adjusted_rand_index, match_styles
+from pirl_sim.recovery import weight_scores
 
 from .baselines import BASELINES
 from .scenarios import scenario_spec
@@ -199,8 +200,6 @@ def _recovery(learner, test, protocol, model, style_names=()) -> tuple[dict | No
     """True vs inferred normalised weights of up to `MAX_RECOVERY_POINTS` test histories, and
     `pirl_sim.recovery.weight_scores` over all of them (truth permitting; learners without weights, the baselines,
     give neither)."""
-    from pirl_sim.recovery import weight_scores
-
     if not all("theta" in t.metadata for t in test) or isinstance(learner, tuple(BASELINES.values())):
         return None, None
     hist, _, owner = cases(test, protocol)
