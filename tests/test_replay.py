@@ -561,3 +561,19 @@ def test_a_track_that_leaves_its_route_for_a_far_part_of_it_is_cut_at_the_jump()
     assert part.start == 0 and 75 <= part.stop < 85  # out and part of the way across
     np.testing.assert_allclose(s[:75], x_out, atol=1e-6)
     assert np.all(np.abs(np.diff(s[part])) <= TRACK_STEP)
+
+
+def test_a_recorded_sweep_config_reads_history_starts_with_speeds(scene_dir):
+    """A hand-written ``recorded`` config that names no ``load.estimate`` replays with history starts (the
+    default) and gets the speed-aided estimate, as ``pirl-sim replay`` does; with ``start = "track"`` (or an
+    explicit estimate) it is read as asked."""
+    from pirl_sim.sweep.recorded import load_scene
+
+    out, _ = scene_dir
+    params = {"tracks": str(out), "map": str(out / "map.osm"), "files": 0, "load": {}, "replay": {}}
+    first = load_scene(params).trajectories[0].metadata["estimator"]
+    assert first.estimate == "speeds"
+    track = load_scene({**params, "replay": {"start": "track"}}).trajectories[0].metadata["estimator"]
+    assert track.estimate == "positions"
+    asked = load_scene({**params, "load": {"estimate": "positions"}}).trajectories[0].metadata["estimator"]
+    assert asked.estimate == "positions"

@@ -69,7 +69,7 @@ import numpy as np
 from pirl_sim.driving import CompositePath, physical_starts
 from pirl_sim.io.interaction import find_track_files, read_tracks, read_tracks_lenient
 from pirl_sim.irl import HessianRegularizationWarning, IRLConvergenceWarning
-from pirl_sim.lateral import LATERAL_MODELS, MeanOffsetProfile, NeighbourOffsets, predict_offsets
+from pirl_sim.lateral import LATERAL_MODELS, MeanOffsetProfile, NeighbourOffsets, observed_s, predict_offsets
 from pirl_sim.metrics import (adjusted_rand_index, interaction_miss, match_styles, min_ade, min_fde, mixture_nll,
                               weight_recovery_error)
 from pirl_sim.scenarios.replay import EstimateNoise, load_replay
@@ -243,7 +243,7 @@ def _positions(model, test, windows, s_pred, proto, lateral: str | None = None, 
         elif neighbours is not None:
             d = neighbours[w]
         else:
-            d = predict_offsets(lateral, t.metadata["d"][step], seg, t.states[step, 0], s_pred[w], profile)
+            d = predict_offsets(lateral, t.metadata["d"][step], seg, observed_s(t)[step], s_pred[w], profile)
         out[w] = model.path.to_cartesian(s_pred[w], d, **on)
     return out
 
@@ -294,7 +294,7 @@ def fit_lateral_profile(train, kind: str = "mean-path", path=None, horizon: int 
         pooled = MeanOffsetProfile().fit_plane(path, [np.asarray(t.metadata["xy"], dtype=float) for t in train])
         return fit_lateral_profile(train, "mean-path").backed_by(pooled)
     segment = np.concatenate([np.full(t.n_steps + 1, int(t.metadata.get("segment", 0))) for t in train])
-    s = np.concatenate([t.states[:, 0] for t in train])
+    s = np.concatenate([observed_s(t) for t in train])  # where each offset was observed
     d = np.concatenate([np.asarray(t.metadata["d"], dtype=float) for t in train])
     return MeanOffsetProfile().fit(segment, s, d)
 
@@ -532,7 +532,7 @@ RECORDED_PARAMS = {
     "files": Param("int", 0, "use the first N track files, sorted by name (0: every file)"),
     "load": Param("table", None, "keyword arguments of pirl_sim.scenarios.replay.load_replay: dt, estimate, noise "
                   "{sigma_s, sigma_v, sigma_j, sigma_a}, selection, max_steps, features, arc_length, smoothing, "
-                  "speed_smoothing, a_lat, v_max (absent: its defaults)"),
+                  "speed_smoothing, a_lat, v_max (absent: its defaults, but estimate 'speeds' with history starts)"),
     "replay": Param("table", None, "the rest of the replay: fde_steps (absent: ReplayProtocol's below the "
                     "horizon, and the horizon), test_fraction, rollout, mpc_horizon, lateral, start (ReplayProtocol), "
                     "desired_speed ('fit' or [a_lat, v_max]; absent: the scene's) and n_futures"),
@@ -638,8 +638,12 @@ def _recorded_shape(params: dict) -> TrainShape:
 
 def load_scene(params: dict):
     """The `pirl_sim.scenarios.replay.ReplayScene` of a ``recorded`` scene's parameters (the last 2 kept for the
-    next cells of this process: loading is deterministic)."""
-    return _load_scene(json.dumps([params["tracks"], params["map"], params["files"], params["load"]], sort_keys=True))
+    next cells of this process: loading is deterministic). Without ``load.estimate``, a scene replayed with
+    history starts (``replay.start``, `ReplayProtocol`'s default) is read with ``estimate="speeds"``, as
+    ``pirl-sim replay`` reads it: a position-only fit over a short history lags the car's speed."""
+    start = (params.get("replay") or {}).get("start", ReplayProtocol.start)
+    load = {"estimate": "speeds" if start == "history" else "positions", **params["load"]}
+    return _load_scene(json.dumps([params["tracks"], params["map"], params["files"], load], sort_keys=True))
 
 
 @lru_cache(maxsize=2)
