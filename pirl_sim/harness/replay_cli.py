@@ -336,16 +336,16 @@ def replay_results(config, run, scene, proto) -> dict:
     """The report template's result dict (`pirl_sim.harness.replay.collect_replay`) from the stored cells of a
     finished `run_sweep` of ``config`` (a `replay_config` with the protocol ``proto``; every cell finished:
     `SweepRun.check_failed` passed) over ``scene`` (the scene its cells replayed)."""
-    cells = list(config.cells)
-    label = {method_id(c.spec()): c.learner_label for c in cells}
+    label = {method_id(c.spec()): c.learner_label for c in config.cells}
     per_seed: dict = {}
-    for cell in cells:  # learner by learner, the seeds inside: the methods of a seed come in the preset's order
+    for cell in config.cells:  # learner by learner, the seeds inside: the methods of a seed come in the preset's order
         entry, examples = decode_method(run.records[cell.key(run.code_version)]["result"])
         entry["row"] = {**entry["row"], "method": cell.learner_label}
         if entry["row"].get("irl_from"):
             entry["row"]["irl_from"] = label[entry["row"]["irl_from"]]
         per_seed.setdefault(cell.seed, {"methods": {}, "examples": examples})["methods"][cell.learner_label] = entry
-    return collect_replay(scene, proto, per_seed, [(c.learner_label, c.learner, c.learner_params) for c in cells])
+    return collect_replay(scene, proto, per_seed, [(c.learner_label, c.learner, c.learner_params)
+                                                   for c in config.cells])
 
 
 def _replay(a, settings, out, say) -> tuple:

@@ -31,8 +31,7 @@ def _se(x: pd.Series) -> float:
 def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: float) -> dict:
     """Aggregate figures of one roundabout's replay (module doc)."""
     rows = result["rows"]
-    fde = [c for c in rows.columns if c.startswith("de@")]
-    fde = max(fde, key=lambda c: float(c[3:-1]))
+    fde = max((c for c in rows.columns if c.startswith("de@")), key=lambda c: float(c[3:-1]))  # the last horizon
     methods = {}
     for m, g in rows.groupby("method", sort=False):
         methods[m] = {"med": float(g["med"].mean()), "med_se": _se(g["med"]),

@@ -702,8 +702,7 @@ def run_recorded_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
     res = replay_seed(scene, specs[0]["seed"], methods, proto, desired_speed=desired_speed, n_futures=n_futures)
     fde = f"de@{proto.fde_steps[-1] * scene.model.dynamics.dt:.1f}s"
     out = []
-    for name, _, _ in methods:
-        m = res["methods"][name]
+    for m in res["methods"].values():  # in the order of methods
         row = m["row"]
         scores = _plain({  # the sweep's tidy table (`pirl_sim.sweep.run.SCORE_COLUMNS`), and the replay's own
             "med": row["med"], "med_std": float(np.std(m["errors"])), "fde": row[fde],

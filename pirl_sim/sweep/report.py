@@ -84,12 +84,8 @@ def online_view(g: pd.DataFrame) -> pd.DataFrame | None:
     """The README's table of the online protocol's scores for the `summary_table` rows ``g`` of one experiment
     (the rows that have any), or None."""
     cols = [c for c in ONLINE_MEANS if c in g.columns]
-    if not cols:
-        return None
-    g = g[g[cols].notna().any(axis=1)]
-    if g.empty:
-        return None
-    return _view(g, {c: ONLINE_MEANS[c] for c in cols})
+    g = g[g[cols].notna().any(axis=1)]  # rows with an online score (none without the columns)
+    return None if g.empty else _view(g, {c: ONLINE_MEANS[c] for c in cols})
 
 
 def _view(g: pd.DataFrame, scores: dict, **extra) -> pd.DataFrame:
