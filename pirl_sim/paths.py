@@ -519,11 +519,10 @@ class ReferencePath:
         _check_finite("xy", q)
         shape = q.shape[:-1]
         q = q.reshape(-1, 2)
-        n = len(self.s)
         length = self.length
 
-        # initial guess: best chord projection on the two segments next to the nearest vertex (with track: next
-        # to the vertex chosen among the nearest few, see the docstring)
+        # initial guess: best chord projection on the two segments next to the nearest vertex (with track: next to
+        # the vertex that continues the track, `_follow_track`)
         if track:
             if len(shape) != 1:
                 raise ValueError(f"track=True needs xy of shape (n, 2), one vehicle's positions, got {shape + (2,)}")
