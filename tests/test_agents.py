@@ -25,6 +25,8 @@ from pirl_sim.harness.agents import AgentsConfig  # noqa: E402
     ({"steps": 0}, r"steps must be an integer >= 1, got 0"),
     ({"gamma": 1.5}, r"gamma must be in \(0, 1\], got 1.5"),
     ({"depart_interval": -1.0}, r"depart_interval must be a finite number > 0, got -1.0"),
+    ({"eval_seeds": (1000, 1002)}, r"eval_seeds must be consecutive integers, got \[1000, 1002\]"),
+    ({"direct_modes": ("all",)}, r"direct_modes must be distinct values"),
 ])
 def test_bad_settings_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -66,7 +68,7 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
 
     out = tmp_path / "agents"
     argv = ["--out", str(out), "--steps", "128", "--n-steps", "64", "--seeds", "0", "--episodes", "1",
-            "--modes", "none,truth", "--baselines", "hold-speed"]
+            "--modes", "none,truth", "--direct-modes", "", "--baselines", "hold-speed", "--quiet"]
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
@@ -74,35 +76,31 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
         assert torch.get_num_threads() == 2  # training runs on one thread and gives the caller's setting back
     finally:
         torch.set_num_threads(threads)
-    for name in ("episodes.csv", "table.csv", "table.md", "learning_curves.png", "README.md"):
+    for name in ("episodes.csv", "table.csv", "table.md", "learning_curves.png", "README.md", "sweep.json"):
         assert (out / name).stat().st_size > 0
-    runs = sorted(p.name for p in (out / "runs").iterdir())
-    assert runs == ["baseline-hold-speed.json", "ppo-residual-idm-none-seed0.json",
-                    "ppo-residual-idm-truth-seed0.json"]
+    cells = sorted((out / "cells").glob("*.json"))
+    assert len(cells) == 3  # the sweep engine's store: one file per run
     table = pd.read_csv(out / "table.csv")
-    assert list(table["policy"]) == ["hold-speed", "ppo residual-idm (none)", "ppo residual-idm (truth)"]
+    assert list(table["policy"]) == ["hold-speed", "ppo shielded-residual-idm (none)", "ppo shielded-residual-idm (truth)"]
     episodes = pd.read_csv(out / "episodes.csv")
     assert set(episodes["eval_seed"]) == {1000} and len(episodes) == 3
-    record = json.loads((out / "runs" / "ppo-residual-idm-truth-seed0.json").read_text())
-    assert record["mode"] == "truth" and record["settings"]["steps"] == 128
     capsys.readouterr()
 
-    # a rerun keeps every finished run; a torn file and changed settings are redone
-    (out / "runs" / "ppo-residual-idm-none-seed0.json").write_text('{"policy": "pp')
-    result = agents.run_experiment(AgentsConfig(modes=("none", "truth"), seeds=(0,), steps=128, n_steps=64,
-                                                batch_size=64, eval_seeds=(1000,), baselines=("hold-speed",)),
-                                   out, log=lambda *_: None)
-    assert result.ran == ["ppo-residual-idm-none-seed0"]
-    assert result.skipped == ["baseline-hold-speed", "ppo-residual-idm-truth-seed0"]
-    result = agents.run_experiment(AgentsConfig(modes=("truth",), seeds=(0,), steps=128, n_steps=64, batch_size=64,
-                                                eval_seeds=(1000, 1001), baselines=("hold-speed",)),
-                                   out, log=lambda *_: None)
-    assert result.ran == ["baseline-hold-speed", "ppo-residual-idm-truth-seed0"]  # other evaluation seeds: redone
-    # a run with the direct action joins the same directory and, evaluated alike, the same table
-    cfg = AgentsConfig(modes=("none",), action="direct", seeds=(0,), steps=64, n_steps=64, batch_size=64,
+    # a rerun keeps every finished run; a torn cell file is redone; other evaluation seeds redo every run
+    cfg = AgentsConfig(modes=("none", "truth"), direct_modes=(), seeds=(0,), steps=128, n_steps=64, batch_size=64,
+                       eval_seeds=(1000,), baselines=("hold-speed",))
+    first = agents.run_experiment(cfg, out)
+    assert first.ran == [] and len(first.skipped) == 3
+    torn = next(c for c in cells if '"mode": "none"' in c.read_text() or '"mode":"none"' in c.read_text())
+    torn.write_text('{"policy": "pp')
+    again = agents.run_experiment(cfg, out)
+    assert again.ran == ["ppo shielded-residual-idm (none) seed 0"]
+    assert [r["episodes"] for r in again.records] == [r["episodes"] for r in first.records]  # same seed, same result
+    cfg = AgentsConfig(modes=("truth",), direct_modes=("none",), seeds=(0,), steps=128, n_steps=64, batch_size=64,
                        eval_seeds=(1000, 1001), baselines=("hold-speed",))
-    result = agents.run_experiment(cfg, out, log=lambda *_: None)
+    result = agents.run_experiment(cfg, out)
+    assert sorted(result.ran) == ["hold-speed", "ppo direct (none) seed 0", "ppo shielded-residual-idm (truth) seed 0"]
     agents.write_results(cfg, result, out, "test")
     table = pd.read_csv(out / "table.csv")
-    assert list(table["policy"]) == ["hold-speed", "ppo direct (none)", "ppo residual-idm (truth)"]
+    assert list(table["policy"]) == ["hold-speed", "ppo direct (none)", "ppo shielded-residual-idm (truth)"]
     assert not list(scratch.glob("SB3-*"))  # SB3's logger made no folder in the temporary directory

@@ -159,3 +159,27 @@ def test_residual_action_zero_drives_as_the_baseline():
         ResidualAction(env.env, "idm", scale=0.0)
     with pytest.raises(TypeError, match=r"baseline must be one of"):
         ResidualAction(env.env, baseline=3)
+    with pytest.raises(TypeError, match=r"shield must be True or False, got 'yes'"):
+        ResidualAction(env.env, "idm", shield="yes")
+
+
+def test_shielded_residual_never_exceeds_the_traffics_limits():
+    """Full throttle under the shield: never above the leader and yielding limit, which binds at times (dense
+    traffic), and no crash; without the shield the same actions pass the limit."""
+    from pirl_sim.envs.baselines import ResidualAction, action_of, interaction_limit
+
+    env = ResidualAction(gym.make(ENV_ID, config={"reward": "exit", **DENSE}), "idm", scale=1.0, shield=True)
+    env.reset(seed=1004)
+    base = env.unwrapped
+    capped = 0
+    for _ in range(150):
+        cap = interaction_limit(base)
+        _, _, terminated, truncated, info = env.step(np.ones(1, dtype=np.float32))
+        if np.isfinite(cap):
+            bound = float(action_of(cap, base.action_type.acceleration_range)[0])
+            assert info["applied_action"] <= bound + 1e-6
+            capped += info["applied_action"] < 1.0 - 1e-6
+        assert not info["crashed"]
+        if terminated or truncated:
+            break
+    assert capped > 0, "the limit never bound: the test does not test the shield"

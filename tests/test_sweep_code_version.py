@@ -3,13 +3,15 @@
 - every source file whose code runs while cells of every registered scenario compute (traced in a fresh
   process, under a profiler) is one of the hashed files, and so is every module those cells import;
 - the report, the command lines, figures, the replay's report template and the envs are not hashed (the
-  replay's cells, scenario ``recorded``, are: `pirl_sim.sweep.recorded` and what it runs);
+  replay's cells, scenario ``recorded``, are: `pirl_sim.sweep.recorded` and what it runs); the envs are the
+  ``agents`` scenario's own code, hashed into its cells' keys only;
 - the committed ``results/sweep`` matches the code: ``pirl-sim sweep --dry-run`` over it has nothing to run.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
@@ -68,6 +70,14 @@ learners = [
 ]
 
 [[experiments]]
+scenario = "agents"
+params = { eval_episodes = 1, initial_vehicles = 4 }
+protocols = ["paper"]
+learners = ["hold-speed", "idm", "mpc",
+            { name = "ppo", params = { steps = 64, n_steps = 32, batch_size = 32, action = "shielded-residual-idm" } },
+            { name = "ppo", label = "inferred", params = { steps = 32, n_steps = 32, batch_size = 32, style_observation = "inferred" } }]
+
+[[experiments]]
 scenario = "recorded"
 label = "recorded, closed loop"
 params = { tracks = "scene", map = "scene/map.osm", replay = { fde_steps = [5], rollout = "closed", mpc_horizon = 5 } }
@@ -122,7 +132,11 @@ def test_every_module_a_cell_runs_is_in_the_code_version(tmp_path):
                           cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     traced = json.loads(proc.stdout.strip().splitlines()[-1])
-    hashed = dict(source_files())
+    from pirl_sim.sweep.scenarios import SCENARIOS
+
+    assert set(SCENARIOS) <= set(re.findall(r'scenario = "([^"]+)"', TRACE_CONFIG)), "a scenario is not traced"
+    extra = tuple(e for spec in SCENARIOS.values() for e in spec.code)  # scenarios' own code (agents: the envs)
+    hashed = dict(source_files(extra))
     hashed_paths = {p.resolve() for p in hashed.values()}
     roots = _source_roots()
     ran = {Path(f).resolve() for f in traced["files"] if not f.startswith("<")}
@@ -134,6 +148,11 @@ def test_every_module_a_cell_runs_is_in_the_code_version(tmp_path):
 
 
 def test_report_cli_figures_replay_template_and_envs_are_not_in_the_code_version():
+    """...of the learners' cells: the envs are the agents scenario's own code, in its cells' keys only."""
+    from pirl_sim.sweep.config import parse_config
+    from pirl_sim.sweep.run import cell_keys
+    from pirl_sim.sweep.scenarios import scenario_spec
+
     names = {name for name, _ in source_files()}
     for outside in ("pirl_sim.sweep.report", "pirl_sim.sweep.cli", "pirl_sim.sweep.run", "pirl_sim.sweep.config",
                     "pirl_sim.cli", "pirl_sim.harness.figures", "pirl_sim.harness.replay",
@@ -146,6 +165,15 @@ def test_report_cli_figures_replay_template_and_envs_are_not_in_the_code_version
                    "pirl_sim.sweep.scenarios", "pirl_sim.sweep.recorded", "pirl_sim.lateral", "pirl_sim.speed_fit"):
         assert inside in names, inside
     assert code_version() == code_version()
+    agents = {name for name, _ in source_files(scenario_spec("agents").code)}
+    assert {"pirl_sim.envs.roundabout", "pirl_sim.envs.baselines", "pirl_sim.sweep.agents"} <= agents - names
+    config = parse_config({"seeds": [0], "experiments": [
+        {"scenario": "agents", "protocols": ["paper"], "learners": ["idm"]},
+        {"scenario": "synthetic", "protocols": ["paper"], "learners": ["tirl"]}]})
+    agents_key, synthetic_key = cell_keys(config, code_version())
+    assert synthetic_key == config.cells[1].key(code_version())
+    assert agents_key == config.cells[0].key(code_version(scenario_spec("agents").code)) != config.cells[0].key(
+        code_version())
 
 
 def test_committed_sweep_results_match_the_code(capsys):

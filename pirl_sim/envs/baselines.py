@@ -18,11 +18,13 @@ The accelerations are mapped to actions by :func:`action_of` (the inverse of the
 
 :class:`ResidualAction` is a gymnasium wrapper for agents that learn a correction to a baseline (residual
 reinforcement learning): the applied action is ``clip(baseline action + scale * agent action, -1, 1)``, so an
-agent whose actions are 0 drives exactly as the baseline does.
+agent whose actions are 0 drives exactly as the baseline does; with ``shield`` it is also capped by the traffic's
+leader and yielding limits (:func:`interaction_limit`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -33,7 +35,8 @@ from .common import EGO_ID, check_action, reward_weights
 
 IDM_DELTA = 4.0  #: highway-env's IDM exponent (IDMVehicle.DELTA), also the env's background traffic's
 
-__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "make_baseline"]
+__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "interaction_limit",
+           "make_baseline"]
 
 #: baseline names of :func:`make_baseline`
 BASELINES = ("hold-speed", "idm", "mpc")
@@ -84,6 +87,16 @@ class IdmEgo:
         return action_of(a, base.action_type.acceleration_range)
 
 
+def interaction_limit(env) -> float:
+    """The largest acceleration [m/s^2] the traffic's rules allow the ego now (highway backend): the IDM limit of
+    its leader on its route and, when it must yield, of the entry's stop line, without the free-road term (+inf
+    when neither applies). The cap the traffic puts on the PIRL drivers' commands and :class:`MpcEgo`'s."""
+    base = _highway(env, "shield")
+    traffic, ego = base.road, base.vehicle
+    others = traffic.vehicles
+    return float(traffic._limit(ego, others, traffic._occupancy(others), free_v0=None, delta=IDM_DELTA))
+
+
 class MpcEgo:
     """The ego as a PIRL driver of weights ``theta`` drives (highway backend; see the module docstring).
 
@@ -131,12 +144,10 @@ class MpcEgo:
         state = EgoView(float(ego.position[0]), float(ego.position[1]), float(ego.speed),
                         float(ego.applied_acceleration))
         cmd = self._drivers.commands(traffic.time, {EGO_ID: EgoObservation(state)})[EGO_ID]
-        occupancy = traffic._occupancy(others)
         if cmd is None:  # handed back at a standstill, as the PIRL drivers are: IDM until it drives again
-            a = traffic._limit(ego, others, occupancy, free_v0=traffic.v_des(ego), delta=IDM_DELTA)
+            a = traffic._limit(ego, others, traffic._occupancy(others), free_v0=traffic.v_des(ego), delta=IDM_DELTA)
         else:
-            a = min((cmd - ego.speed) / STEP_LENGTH, traffic._limit(ego, others, occupancy, free_v0=None,
-                                                                     delta=IDM_DELTA))
+            a = min((cmd - ego.speed) / STEP_LENGTH, interaction_limit(base))
         return action_of(a, base.action_type.acceleration_range)
 
 
@@ -170,11 +181,20 @@ class ResidualAction(_wrapper_base()):
     scale : float
         > 0: the agent's action in [-1, 1] moves the baseline's action by up to ``scale`` (in action units:
         1 is ``a_max`` up or ``-a_min`` down).
+    shield : bool
+        Cap the applied action at the traffic's rules (:func:`interaction_limit`, highway backend): the agent
+        may drive faster than the baseline's desired speed, never closer to its leader or past a stop line
+        than the IDM's limits allow (as the PIRL drivers' commands are capped).
+    max_change : float or None
+        > 0: the correction moves towards ``scale * action`` by at most this much per agent step (action units;
+        the agent sets a target, the correction follows it at a bounded rate, so its jerk is bounded); None:
+        at once.
 
     ``info["baseline_action"]`` and ``info["applied_action"]`` give both actions of each step.
     """
 
-    def __init__(self, env, baseline="idm", scale: float = 0.5) -> None:
+    def __init__(self, env, baseline="idm", scale: float = 0.5, shield: bool = False,
+                 max_change: float | None = None) -> None:
         super().__init__(env)
         self.baseline = make_baseline(baseline) if isinstance(baseline, str) else baseline
         if not (hasattr(self.baseline, "act") and hasattr(self.baseline, "reset")):
@@ -183,16 +203,34 @@ class ResidualAction(_wrapper_base()):
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
             raise ValueError(f"scale must be a finite number > 0 (action units), got {scale!r}")
         self.scale = float(scale)
+        if not isinstance(shield, bool):
+            raise TypeError(f"shield must be True or False, got {shield!r}")
+        self.shield = shield
+        if max_change is not None and (isinstance(max_change, bool) or not isinstance(max_change, (int, float))
+                                       or not np.isfinite(max_change) or max_change <= 0):
+            raise ValueError(f"max_change must be a finite number > 0 (action units) or None, got {max_change!r}")
+        self.max_change = None if max_change is None else float(max_change)
+        self.correction = 0.0  #: the correction applied in the last step (action units)
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
         self.baseline.reset(self.env.unwrapped)
+        self.correction = 0.0
         return obs, info
 
     def step(self, action):
         x = check_action(action)
         base = float(self.baseline.act(self.env.unwrapped)[0])
-        applied = np.array([min(max(base + self.scale * x, -1.0), 1.0)], dtype=np.float32)
+        target = self.scale * x
+        if self.max_change is not None:
+            target = min(max(target, self.correction - self.max_change), self.correction + self.max_change)
+        self.correction = target
+        a = base + target
+        if self.shield:
+            cap = interaction_limit(self.env)
+            if math.isfinite(cap):
+                a = min(a, float(action_of(cap, self.env.unwrapped.action_type.acceleration_range)[0]))
+        applied = np.array([min(max(a, -1.0), 1.0)], dtype=np.float32)
         obs, reward, terminated, truncated, info = self.env.step(applied)
         info = {**info, "baseline_action": base, "applied_action": float(applied[0])}
         return obs, reward, terminated, truncated, info

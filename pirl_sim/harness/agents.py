@@ -1,19 +1,18 @@
 """Agents in a crowd of known styles: PPO on ``pirl_sim/Roundabout-v0`` per observation mode, against scripted egos.
 
-    python3 -m pirl_sim.harness.agents --out results/agents            # the committed experiment
+    python3 -m pirl_sim.harness.agents --out results/agents --jobs 2     # the committed experiment
     python3 -m pirl_sim.harness.agents --out /tmp/a --steps 512 --seeds 0 --episodes 2   # a tiny run
 
 One command trains stable-baselines3's PPO on the env's ``"exit"`` reward in dense traffic (12 vehicles at
-reset, one departure every 2 s on average) for every observation mode
-(``style_observation``: none, truth, inferred) and training seed, evaluates each trained policy
-(deterministic actions) on the same fixed evaluation seeds as the scripted baselines
-(:mod:`pirl_sim.envs.baselines`: hold speed, IDM, MPC with the "tracks desired speed" weights), and writes
-under ``--out``:
+reset, one departure every 2 s on average) for every observation mode (``style_observation``: none, truth,
+inferred) and training seed, evaluates each trained policy (deterministic actions) on the same fixed evaluation
+seeds as the scripted baselines (:mod:`pirl_sim.envs.baselines`: hold speed, IDM, MPC with the "tracks desired
+speed" weights), and writes under ``--out``. The runs are cells of the sweep engine's ``agents`` scenario
+(:mod:`pirl_sim.sweep.agents`, config :func:`sweep_config`), run on ``--jobs`` worker processes:
 
-- ``runs/<name>.json``: one file per finished (mode, seed) run or baseline, written atomically when it
-  finishes (its evaluation episodes, training curve, wall time, the settings it ran with). A rerun with the
-  same settings keeps and skips finished runs, so an interrupted experiment resumes where it stopped; a run
-  whose settings differ is redone.
+- ``cells/<key>.json``, ``sweep.json``: the sweep's store, one file per finished run, written atomically when it
+  finishes (evaluation episodes, training curve, timings, the settings it ran with). A rerun keeps finished
+  runs, so an interrupted experiment resumes where it stopped; a run whose settings or code changed is redone.
 - ``episodes.csv``: every evaluation episode (policy, mode, training seed, evaluation seed, return, arrived,
   crashed, time [s], time to exit [s] for arriving episodes, near-miss time [s]).
 - ``table.csv`` / ``table.md``: per policy, mean return, success rate, time to exit, collision rate and
@@ -23,14 +22,19 @@ under ``--out``:
   seeds, band min to max), with the baselines' mean evaluation returns as lines.
 - ``README.md``: settings, table, wall time.
 
-PPO's action (``--action``). ``"residual-idm"`` (default): a correction of at most ``residual_scale`` (0.25
-action units: 0.75 m/s^2 up, 1 m/s^2 down) to the IDM ego's action
-(:class:`~pirl_sim.envs.baselines.ResidualAction`), so that training starts from the IDM's driving.
-``"direct"``: the env's acceleration itself. Measured on one training seed, 10 evaluation episodes: with
-the direct action PPO ends below holding the speed after 20,000 steps (return -41.5 against -31.4, no episode
-reaches the exit: it learns to crawl; with independent exploration noise instead of gSDE -58.6 with 4
-crashes), while the residual one ends level with or above the IDM (scale 0.5: -20.4 against -16.9, faster but
-2 crashes; scale 0.25: -14.4, 10 of 10 arrive, no crash).
+PPO's action (``--action``, :class:`~pirl_sim.envs.baselines.ResidualAction`). ``"shielded-residual-idm"``
+(default): a correction of at most ``residual_scale`` (1 action unit: 3 m/s^2 up, 4 m/s^2 down) to the IDM
+ego's action, moving towards the action's target by at most ``max_change`` (0.1 units) per 0.2 s step, and
+capped by the traffic's leader and yielding limits (the cap the PIRL drivers' commands get): training starts
+from the IDM's driving, the agent may drive faster than the IDM's desired speed but not closer to its leader
+or into a gap the rules refuse. ``"residual-idm"``: the same without cap and rate limit; ``"direct"``: the
+env's acceleration itself (``--direct-modes``: the modes that also train it, as a reference). Measured on one
+training seed (``--seeds 0 --episodes 10 --modes none --direct-modes '' --baselines idm`` and the action's
+options; IDM ego: return -16.9, 9 of 10 arrive, 29.6 s to exit, no crash): the plain residual ended below the
+IDM (``--action residual-idm --max-change none``, scale 0.25: -18.4, one crash; scale 0.5: -19.7, 26.5 s, two
+crashes); capped at scale 1 without the rate limit it arrived 10 of 10 in 26.2 s without a crash but its
+jerky corrections cost twice the IDM's comfort term (-17.8; -14.2 after 100,000 steps); with the rate limit
+(the default) -11.4, 27.0 s.
 
 Intervals. Returns and times: Student-t 95 % intervals; for PPO over the training seeds' mean returns (each
 seed's mean over the evaluation episodes: the seeds are the independent replicates), for the baselines over
@@ -40,14 +44,13 @@ the evaluation seeds.
 
 The style learner of the ``"inferred"`` mode is PIRL-kNN (receding-horizon IRL, 2 s windows, k = 10) fitted
 on the PIRL tracks of one highway-env scenario recording of the env's population (seed
-``learner_seed``, not an env seed), refitted in each process (about 10 s; learners over route-set models are
-not yet savable by ``learners/model_io``).
+``learner_seed``, not an env seed), refitted in each worker process (about 10 s; learners over route-set
+models are not yet savable by ``learners/model_io``).
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import math
 import time
@@ -59,15 +62,13 @@ import numpy as np
 import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.validation import positive_int_arg
+from pirl_sim.sweep.agents import ACTIONS, MODES
 
-__all__ = ["AgentsConfig", "MODES", "ACTIONS", "BASELINE_POLICIES", "run_experiment", "env_config", "fit_style_learner", "main"]
+__all__ = ["AgentsConfig", "MODES", "ACTIONS", "BASELINE_POLICIES", "sweep_config", "run_experiment",
+           "write_results", "main"]
 
-MODES = ("none", "truth", "inferred")  #: observation modes (the env's ``style_observation``)
-#: what PPO's action is: ``"residual-idm"`` a correction to the IDM ego's action
-#: (:class:`~pirl_sim.envs.baselines.ResidualAction`), ``"direct"`` the env's acceleration itself
-ACTIONS = ("residual-idm", "direct")
 BASELINE_POLICIES = ("hold-speed", "idm", "mpc")  #: scripted egos (:data:`pirl_sim.envs.baselines.BASELINES`)
-ENV_ID = "pirl_sim/Roundabout-v0"
 DEFAULT_COMMAND = "python3 -m pirl_sim.harness.agents --out results/agents"  #: the committed experiment's command
 
 
@@ -81,14 +82,21 @@ class AgentsConfig:
         Observation modes to train (:data:`MODES`).
     action : str
         PPO's action (:data:`ACTIONS`).
+    direct_modes : tuple of str
+        Observation modes in which PPO also learns the direct action (a reference: what the residual buys);
+        empty: none.
     residual_scale : float
-        With ``"residual-idm"``: the largest correction, in action units (> 0).
+        With a residual action: the largest correction, in action units (> 0).
+    max_change : float or None
+        With a residual action: the largest change of the correction per agent step, in action units (> 0; the
+        action sets the correction's target); None: unbounded.
     seeds : tuple of int
         Training seeds (PPO's and its env's), >= 0.
     steps : int
         Environment steps of PPO training per run (agent steps of 0.2 s).
     eval_seeds : tuple of int
-        Env seeds of the evaluation episodes (the same for every policy), disjoint from ``seeds``.
+        Env seeds of the evaluation episodes (the same for every policy): consecutive integers, disjoint from
+        ``seeds``.
     baselines : tuple of str
         Scripted egos to evaluate (:data:`BASELINE_POLICIES`).
     initial_vehicles : int
@@ -113,10 +121,12 @@ class AgentsConfig:
     """
 
     modes: tuple[str, ...] = MODES
-    action: str = "residual-idm"
-    residual_scale: float = 0.25
+    action: str = "shielded-residual-idm"
+    direct_modes: tuple[str, ...] = ("none",)
+    residual_scale: float = 1.0
+    max_change: float | None = 0.1
     seeds: tuple[int, ...] = (0, 1, 2)
-    steps: int = 16_000
+    steps: int = 40_000
     eval_seeds: tuple[int, ...] = tuple(range(1000, 1020))
     baselines: tuple[str, ...] = BASELINE_POLICIES
     initial_vehicles: int = 12
@@ -132,10 +142,10 @@ class AgentsConfig:
     use_sde: bool = True
 
     def __post_init__(self) -> None:
-        for name, allowed in (("modes", MODES), ("baselines", BASELINE_POLICIES)):
+        for name, allowed in (("modes", MODES), ("direct_modes", MODES), ("baselines", BASELINE_POLICIES)):
             values = tuple(getattr(self, name))
             bad = [v for v in values if v not in allowed]
-            if bad or len(set(values)) != len(values):
+            if bad or len(set(values)) != len(values) or (name == "modes" and not values):
                 raise ValueError(f"{name} must be distinct values out of {allowed}, got {list(values)}")
             object.__setattr__(self, name, values)
         if self.action not in ACTIONS:
@@ -144,8 +154,14 @@ class AgentsConfig:
                                               "n_epochs": 1, "learner_seed": 0},
                               positive=("depart_interval", "duration", "learning_rate", "residual_scale"),
                               flags=("use_sde",))
+        if self.max_change is not None and (isinstance(self.max_change, bool) or not isinstance(
+                self.max_change, (int, float)) or not math.isfinite(self.max_change) or self.max_change <= 0):
+            raise ValueError(f"max_change must be a finite number > 0 or None, got {self.max_change!r}")
         if not (isinstance(self.log_std_init, (int, float)) and math.isfinite(self.log_std_init)):
             raise ValueError(f"log_std_init must be a finite number, got {self.log_std_init!r}")
+        first = self.eval_seeds[0]
+        if self.eval_seeds != tuple(range(first, first + len(self.eval_seeds))):
+            raise ValueError(f"eval_seeds must be consecutive integers, got {list(self.eval_seeds)}")
 
 
 def check_training_fields(cfg, *, integers: dict, positive: tuple, flags: tuple) -> None:
@@ -177,177 +193,71 @@ def check_training_fields(cfg, *, integers: dict, positive: tuple, flags: tuple)
             raise ValueError(f"{name} must be true or false, got {getattr(cfg, name)!r}")
 
 
-def env_config(cfg: AgentsConfig, mode: str = "none", learner=None) -> dict:
-    """The env's configuration for an observation mode (the ``"exit"`` reward, the experiment's traffic)."""
-    return {"reward": "exit", "initial_vehicles": cfg.initial_vehicles, "duration": cfg.duration,
-            "population": {"depart_interval": cfg.depart_interval}, "style_observation": mode,
-            "style_learner": learner if mode == "inferred" else None}
-
-
-def fit_style_learner(cfg: AgentsConfig):
-    """PIRL-kNN fitted on one highway-env recording of the env's population (see the module docstring)."""
-    from pirl_sim.learners import make_learner
-    from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig, run_highway_scenario
-    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, population_from_dict
-
-    pop = population_from_dict({**DEFAULT_POPULATION.to_dict(), "depart_interval": cfg.depart_interval})
-    run = run_highway_scenario(HighwayScenarioConfig(population=pop), seed=cfg.learner_seed)
-    return make_learner("pirl-knn", model=run.model, n_neighbors=10, window=20, stride=5, likelihood="receding",
-                        horizon=30).fit(run.demonstrations(selection="steps"))
-
-
-# ------------------------------------------------------------------------------------------ one run
-
-def _key(record: dict) -> str:
-    return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def _settings(cfg: AgentsConfig, kind: str) -> dict:
-    """What a run's result depends on (its key): the env and evaluation settings, and PPO's for PPO runs."""
-    env = {k: getattr(cfg, k) for k in ("eval_seeds", "initial_vehicles", "depart_interval", "duration")}
-    if kind == "ppo":
-        env.update({k: getattr(cfg, k) for k in ("action", "residual_scale", "steps", "learner_seed", "n_steps", "batch_size", "n_epochs",
-                                                  "gamma", "learning_rate", "log_std_init", "use_sde")})
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in env.items()}
-
-
-def _episode(env, act, seed: int, on_reset=None) -> dict:
-    """One evaluation episode: ``act(obs) -> action``; ``on_reset(env)`` after the reset (baselines)."""
-    obs, _ = env.reset(seed=seed)
-    if on_reset is not None:
-        on_reset(env)
-    total, near = 0.0, 0.0
-    while True:
-        obs, reward, terminated, truncated, info = env.step(act(obs))
-        total += float(reward)
-        near += info["rewards"]["near_miss_time"]
-        if terminated or truncated:
-            break
-    arrived = bool(info["arrived"])
-    return {"eval_seed": seed, "return": total, "arrived": arrived, "crashed": bool(info["crashed"]),
-            "time": float(info["time"]), "time_to_exit": float(info["time"]) if arrived else math.nan,
-            "near_miss_time": near}
-
-
-def _evaluate_baseline(cfg: AgentsConfig, name: str) -> dict:
-    import gymnasium as gym
-
-    import pirl_sim.envs  # noqa: F401  (registers the env)
-    from pirl_sim.envs.baselines import make_baseline
-
-    env = gym.make(ENV_ID, config=env_config(cfg)).unwrapped
-    policy = make_baseline(name)
-    t0 = time.perf_counter()
-    episodes = [_episode(env, lambda obs: policy.act(env), seed, policy.reset) for seed in cfg.eval_seeds]
-    env.close()
-    return {"policy": name, "mode": "", "seed": -1, "episodes": episodes, "curve": [],
-            "wall_time_s": time.perf_counter() - t0}
-
-
-def _train_ppo(cfg: AgentsConfig, mode: str, seed: int, learner) -> dict:
-    """`_train_ppo_run` with torch on one thread (small networks on a shared machine), the caller's thread
-    count restored afterwards."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        return _train_ppo_run(cfg, mode, seed, learner)
-    finally:
-        torch.set_num_threads(threads)
-
-
-def _train_ppo_run(cfg: AgentsConfig, mode: str, seed: int, learner) -> dict:
-    import gymnasium as gym
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.logger import Logger
-    from stable_baselines3.common.monitor import Monitor
-
-    import pirl_sim.envs  # noqa: F401  (registers the env)
-    from pirl_sim.envs.baselines import ResidualAction
-
-    t0 = time.perf_counter()
-
-    def make_env():
-        env = gym.make(ENV_ID, config=env_config(cfg, mode, learner))
-        if cfg.action == "residual-idm":
-            env = ResidualAction(env, "idm", cfg.residual_scale)
-        return gym.wrappers.FlattenObservation(env)
-
-    env = Monitor(make_env())
-    model = PPO("MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size, n_epochs=cfg.n_epochs,
-                gamma=cfg.gamma, learning_rate=cfg.learning_rate, use_sde=cfg.use_sde, seed=seed, verbose=0, device="cpu",
-                policy_kwargs={"log_std_init": cfg.log_std_init})
-    model.set_logger(Logger(folder=None, output_formats=[]))  # no SB3-<date> folder in the temp directory
-    model.learn(total_timesteps=cfg.steps)
-    train_time = time.perf_counter() - t0
-    ends = np.cumsum(env.get_episode_lengths())
-    curve = [[int(n), float(r)] for n, r in zip(ends, env.get_episode_rewards())]
-    env.close()
-    eval_env = make_env()
-    episodes = [_episode(eval_env, lambda obs: model.predict(obs, deterministic=True)[0], s) for s in cfg.eval_seeds]
-    eval_env.close()
-    return {"policy": f"ppo {cfg.action}", "mode": mode, "seed": seed, "episodes": episodes, "curve": curve,
-            "train_time_s": train_time, "wall_time_s": time.perf_counter() - t0}
-
-
 # ------------------------------------------------------------------------------------------ the experiment
+
+def sweep_config(cfg: AgentsConfig):
+    """The experiment as a sweep config over the ``agents`` scenario (`pirl_sim.sweep.agents`): PPO for every
+    observation mode (and ``direct_modes`` with the direct action) and training seed, the scripted egos once."""
+    from pirl_sim.sweep.config import parse_config
+
+    params = {"initial_vehicles": cfg.initial_vehicles, "depart_interval": cfg.depart_interval,
+              "duration": cfg.duration, "reward": "exit", "eval_episodes": len(cfg.eval_seeds),
+              "eval_seed": cfg.eval_seeds[0], "learner_seed": cfg.learner_seed}
+    ppo = {k: getattr(cfg, k) for k in ("residual_scale", "max_change", "steps", "n_steps", "batch_size", "n_epochs", "gamma",
+                                        "learning_rate", "log_std_init", "use_sde")}
+    learners = [{"name": "ppo", "label": f"ppo {cfg.action}", "params": {**ppo, "action": cfg.action},
+                 "grid": {"style_observation": list(cfg.modes)}}]
+    if cfg.direct_modes and cfg.action != "direct":
+        learners.append({"name": "ppo", "label": "ppo direct", "params": {**ppo, "action": "direct"},
+                         "grid": {"style_observation": list(cfg.direct_modes)}})
+    experiments = [{"scenario": "agents", "label": "ppo", "params": params, "seeds": list(cfg.seeds),
+                    "protocols": ["paper"], "learners": learners}]
+    if cfg.baselines:  # deterministic: one cell each
+        experiments.append({"scenario": "agents", "label": "scripted", "params": params, "seeds": [cfg.seeds[0]],
+                            "protocols": ["paper"], "learners": list(cfg.baselines)})
+    return parse_config({"name": "agents", "description": "PPO against scripted egos on pirl_sim/Roundabout-v0",
+                         "experiments": experiments})
+
 
 @dataclass
 class ExperimentResult:
-    """Every run's record (finished now or kept from before), and what was run now."""
+    """Every run's record (finished now or kept from the store), and what was run now (cell labels)."""
 
     records: list[dict]
     ran: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
-    learner_time_s: float = 0.0
 
 
-def _runs(cfg: AgentsConfig) -> list[tuple[str, str, str, int]]:
-    """(file name, kind, policy or mode, seed) of every run, baselines first."""
-    out = [(f"baseline-{b}", "baseline", b, -1) for b in cfg.baselines]
-    out += [(f"ppo-{cfg.action}-{m}-seed{s}", "ppo", m, s) for m in cfg.modes for s in cfg.seeds]
-    return out
+def run_experiment(cfg: AgentsConfig, out, *, jobs: int = 1, progress: bool = False,
+                   command: str = DEFAULT_COMMAND) -> ExperimentResult:
+    """Run (or resume) the experiment through the sweep engine into ``out`` (its ``cells/`` store and
+    ``sweep.json``; finished cells are kept, so an interrupted run resumes) on ``jobs`` worker processes (1: in
+    this process) and return every run's record: policy, mode, seed (-1 for scripted egos), episodes, curve,
+    train_time_s, wall_time_s."""
+    from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
+    from pirl_sim.sweep.run import run_sweep
 
-
-def run_experiment(cfg: AgentsConfig, out, *, log=print, command: str = DEFAULT_COMMAND) -> ExperimentResult:
-    """Run (or resume) the experiment into ``out``/runs and return every record (see the module docstring);
-    ``command`` is stored with each new run (the README lists the commands of its runs)."""
-    runs_dir = Path(out) / "runs"
-    runs_dir.mkdir(parents=True, exist_ok=True)
+    config = sweep_config(cfg)
     t0 = time.perf_counter()
-    result = ExperimentResult(records=[])
-    learner = None
-    for name, kind, what, seed in _runs(cfg):
-        settings = _settings(cfg, kind)
-        key = _key({"run": name, **settings})
-        path = runs_dir / f"{name}.json"
-        if path.exists():
-            try:
-                record = json.loads(path.read_text())
-            except json.JSONDecodeError:
-                record = None
-            if record is not None and record.get("key") == key:
-                result.records.append(record)
-                result.skipped.append(name)
-                log(f"{name}: finished before, kept")
-                continue
-        if kind == "baseline":
-            record = _evaluate_baseline(cfg, what)
-        else:
-            if what == "inferred" and learner is None:
-                t1 = time.perf_counter()
-                learner = fit_style_learner(cfg)
-                result.learner_time_s = time.perf_counter() - t1
-                log(f"style learner fitted in {result.learner_time_s:.1f} s")
-            record = _train_ppo(cfg, what, seed, learner)
-        record.update({"name": name, "key": key, "settings": settings, "command": command})
-        atomic_write_text(path, json.dumps(record, indent=1, allow_nan=True) + "\n")
+    with (InlineExecutor() if jobs == 1 else LocalExecutor(jobs)) as executor:
+        run = run_sweep(config, out, executor=executor, progress=progress, command=command, tables=False)
+    run.check_failed("the experiment's runs")
+    result = ExperimentResult(records=[], wall_time_s=time.perf_counter() - t0)
+    computed = set(run.computed)
+    for cell, key in zip(config.cells, run.keys):
+        rec = run.records[key]
+        res = rec["result"]
+        scripted = not res["policy"].startswith("ppo")
+        record = {**res, "seed": -1 if scripted else cell.seed, "wall_time_s": rec["timings"]["cell_s"],
+                  "episodes": [{**e, "time_to_exit": math.nan if e["time_to_exit"] is None else e["time_to_exit"]}
+                               for e in res["episodes"]],
+                  "settings": dict(cell.learner_params), "key": key}
         result.records.append(record)
-        result.ran.append(name)
-        log(f"{name}: done in {record['wall_time_s']:.0f} s")
-    result.wall_time_s = time.perf_counter() - t0
+        label = f"{res['policy']}" + (f" ({res['mode']}) seed {cell.seed}" if not scripted else "")
+        (result.ran if key in computed else result.skipped).append(label)
+    result.records.sort(key=lambda r: (r["policy"].startswith("ppo"), r["policy"],
+                                       MODES.index(r["mode"]) if r["mode"] in MODES else -1, r["seed"]))
     return result
 
 
@@ -493,43 +403,26 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
     return path
 
 
-def collect_records(cfg: AgentsConfig, out) -> list[dict]:
-    """Every finished run in ``out``/runs evaluated like ``cfg``'s (same evaluation seeds and traffic): this
-    invocation's and those of others into the same directory (e.g. ``--action direct``), baselines first."""
-    shared = _settings(cfg, "baseline")
-    records = []
-    for path in sorted((Path(out) / "runs").glob("*.json")):
-        try:
-            record = json.loads(path.read_text())
-        except json.JSONDecodeError:
-            continue
-        if all(record.get("settings", {}).get(k) == v for k, v in shared.items()):
-            records.append(record)
-    return sorted(records, key=lambda r: (r["policy"].startswith("ppo"), r["policy"],
-                                          MODES.index(r["mode"]) if r["mode"] in MODES else -1, r["seed"]))
-
-
 def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str) -> dict[str, Path]:
     """``episodes.csv``, ``table.csv``, ``table.md``, ``learning_curves.png``, ``README.md`` under ``out``, from
-    :func:`collect_records`."""
+    the records of :func:`run_experiment`."""
     out = Path(out)
-    records = collect_records(cfg, out)
+    records = result.records
     episodes = episodes_table(records)
     table = summary_table(episodes)
     files = {"episodes": atomic_write_text(out / "episodes.csv", episodes.to_csv(index=False, float_format="%.6g")),
              "table": atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))}
     md = markdown_table(table)
     files["table_md"] = atomic_write_text(out / "table.md", md)
-    files["figure"] = learning_curves(records, out / "learning_curves.png",
-                                      max([r["settings"].get("steps", 0) for r in records] + [cfg.steps]))
+    files["figure"] = learning_curves(records, out / "learning_curves.png", cfg.steps)
     compute = sum(r["wall_time_s"] for r in records)
     ppo_times = [r["train_time_s"] for r in records if r["policy"].startswith("ppo")]
-    commands = list(dict.fromkeys(r.get("command", DEFAULT_COMMAND) for r in records))
+    learner_time = sum(r.get("learner_time_s", 0.0) for r in records)
     readme = [
         "# PPO against scripted egos on pirl_sim/Roundabout-v0 (exit reward)", "",
-        "Made by " + ", then ".join(f"`{c}`" for c in commands) + f" (tables last written by `{command}`).", "",
-        "Settings of the last invocation (`pirl_sim.harness.agents.AgentsConfig`; each run's own are in its "
-        "`runs/*.json`):", "",
+        f"Made by `{command}` (the sweep engine's ``agents`` scenario, `pirl_sim.sweep.agents`; finished runs are "
+        "kept in `cells/`, so the same command resumes an interrupted experiment).", "",
+        "Settings (`pirl_sim.harness.agents.AgentsConfig`; every run's own are in its `cells/*.json`):", "",
         "```json", json.dumps({k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()}, indent=1),
         "```", "",
         "95 % intervals in brackets: returns, times to exit and near-miss times over the training seeds' means "
@@ -538,13 +431,13 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
         "averaged over its training seeds), t over the evaluation seeds. Time to exit counts arriving episodes "
         "only.", "",
         md,
-        f"Compute: {compute:.0f} s summed over the {len(records)} runs' wall times (PPO training {np.sum(ppo_times):.0f} s, "
-        f"{np.mean(ppo_times) if ppo_times else 0:.0f} s per run); this invocation {result.wall_time_s:.0f} s, "
-        f"ran {len(result.ran)}, kept {len(result.skipped)} finished runs"
-        + (f"; the style learner was fitted in {result.learner_time_s:.0f} s" if result.learner_time_s else "")
-        + ". Shared 2-core machine, one thread for torch and BLAS.", "",
-        "Files: `runs/*.json` (one per run, kept on reruns), `episodes.csv`, `table.csv`, `table.md`, "
-        "`learning_curves.png`.", ""]
+        f"Compute: {compute:.0f} s summed over the {len(records)} runs' wall times (PPO training "
+        f"{np.sum(ppo_times):.0f} s, {np.mean(ppo_times) if ppo_times else 0:.0f} s per run"
+        + (f"; style learner fits {learner_time:.0f} s" if learner_time else "")
+        + f"); this invocation {result.wall_time_s:.0f} s, ran {len(result.ran)}, kept {len(result.skipped)} "
+        "finished runs. Shared 2-core machine, one thread for torch and BLAS per worker.", "",
+        "Files: `cells/*.json` (the sweep's store, one per run), `sweep.json`, `episodes.csv`, `table.csv`, "
+        "`table.md`, `learning_curves.png`.", ""]
     files["readme"] = atomic_write_text(out / "README.md", "\n".join(readme))
     return files
 
@@ -560,22 +453,40 @@ def _csv_list(kind):
     return parse
 
 
+def _optional_float(text: str) -> float | None:
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or 'none', got {text!r}") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python3 -m pirl_sim.harness.agents", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="results/agents", help="output directory (default results/agents)")
     ap.add_argument("--modes", type=_csv_list(str), default=MODES, help="observation modes, e.g. none,truth")
     ap.add_argument("--action", default=AgentsConfig.action, help=f"PPO's action, one of {ACTIONS}")
+    ap.add_argument("--direct-modes", type=_csv_list(str), default=AgentsConfig.direct_modes,
+                    help="modes in which PPO also learns the direct action (default none; '' for no such run)")
     ap.add_argument("--residual-scale", type=float, default=AgentsConfig.residual_scale,
                     help="largest residual correction in action units (default %(default)s)")
+    ap.add_argument("--max-change", type=_optional_float, default=AgentsConfig.max_change,
+                    help="largest change of the residual per agent step in action units, or 'none' "
+                         "(default %(default)s)")
     ap.add_argument("--seeds", type=_csv_list(int), default=AgentsConfig.seeds, help="training seeds, e.g. 0,1,2")
     ap.add_argument("--steps", type=int, default=AgentsConfig.steps, help="PPO steps per run")
     ap.add_argument("--episodes", type=int, default=len(AgentsConfig.eval_seeds),
                     help="evaluation episodes (seeds 1000, 1001, ...)")
     ap.add_argument("--baselines", type=_csv_list(str), default=BASELINE_POLICIES)
     ap.add_argument("--n-steps", type=int, default=AgentsConfig.n_steps, help="PPO rollout length")
+    ap.add_argument("--jobs", type=positive_int_arg, default=1,
+                    help="worker processes (runs in parallel; default 1: in this process)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     try:
-        cfg = AgentsConfig(modes=args.modes, action=args.action, residual_scale=args.residual_scale, seeds=args.seeds, steps=args.steps, baselines=args.baselines,
+        cfg = AgentsConfig(modes=args.modes, action=args.action, direct_modes=args.direct_modes,
+                           residual_scale=args.residual_scale, max_change=args.max_change, seeds=args.seeds, steps=args.steps, baselines=args.baselines,
                            eval_seeds=tuple(range(1000, 1000 + args.episodes)), n_steps=args.n_steps,
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))
     except ValueError as exc:
@@ -586,7 +497,7 @@ def main(argv: list[str] | None = None) -> int:
 
     command = "python3 -m pirl_sim.harness.agents " + " ".join(argv if argv is not None else sys.argv[1:])
     with blas_threads(1):
-        result = run_experiment(cfg, args.out, command=command.strip())
+        result = run_experiment(cfg, args.out, jobs=args.jobs, progress=not args.quiet, command=command.strip())
         files = write_results(cfg, result, args.out, command.strip())
     print(markdown_table(pd.read_csv(files["table"])))
     print(f"wrote {', '.join(str(p) for p in files.values())} ({result.wall_time_s:.0f} s)")

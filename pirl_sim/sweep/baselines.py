@@ -12,7 +12,7 @@ infer no weights (NaN: no weight scores) and have no styles.
   mass (p, v) has none.
 
 Two more pseudo-learners are methods of the ``recorded`` scenario only (`pirl_sim.sweep.recorded`, the replay),
-which computes them itself; their ``fit`` elsewhere raises ValueError:
+which computes them itself (a sweep config that puts them elsewhere is refused; their ``fit`` raises ValueError):
 
 - ``cv-xy``: constant velocity in the plane from the last two recorded positions;
 - ``hindsight``: each test window under the cost fitted on its own recorded future (an oracle, no predictor).
@@ -116,12 +116,14 @@ class PlaneVelocity(_Baseline):
     """Constant velocity in the plane (module doc; the ``recorded`` scenario's)."""
 
     kind = "cv-xy"
+    scenarios = ("recorded", "replay")  #: where it runs (checked when a sweep config is built)
 
 
 class Hindsight(_Baseline):
     """The cost fitted on each window's own future (module doc; the ``recorded`` scenario's)."""
 
     kind = "hindsight"
+    scenarios = ("recorded", "replay")
 
 
 #: sweep name -> class (the learners of `pirl_sim.learners.LEARNERS` are the others)

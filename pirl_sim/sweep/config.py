@@ -83,15 +83,18 @@ RESERVED_LEARNER_PARAMS = ("model", "window", "windows")
 #: learner parameters that are the "k" of the paper's figures
 K_PARAMS = {"pirl-knn": "n_neighbors", "pirl-gmm": "n_components"}
 LEARNER_DISPLAY = {"tirl": "TIRL", "pirl-gmm": "PIRL-GMM", "pirl-dpgmm": "PIRL-DPGMM", "pirl-knn": "PIRL-kNN",
-                   "cv": "CV", "ca": "CA"}
+                   "cv": "CV", "ca": "CA", "ppo": "PPO"}
 
 
 def sweep_learners() -> dict:
-    """Learners a sweep runs, by name: `pirl_sim.learners.LEARNERS` and the kinematic baselines
-    (`pirl_sim.sweep.baselines.BASELINES`)."""
+    """Learners a sweep runs, by name: `pirl_sim.learners.LEARNERS`, the kinematic baselines
+    (`pirl_sim.sweep.baselines.BASELINES`) and the policies of the ``agents`` scenario
+    (`pirl_sim.sweep.agents.POLICIES`)."""
     from pirl_sim.learners import LEARNERS
 
-    return {**LEARNERS, **BASELINES}
+    from .agents import POLICIES
+
+    return {**LEARNERS, **BASELINES, **POLICIES}
 
 
 def canonical_json(obj) -> str:
@@ -509,6 +512,7 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                             f"{proto.steps_needed()} steps; the scenario's have at most {longest}"
                         )
                     for lgrid in exp.learners:
+                        _check_runs_here(elabel, exp.scenario, lgrid.name)
                         defaults = {k: v for k, v in LEARNERS[lgrid.name]().get_params().items()
                                     if k not in RESERVED_LEARNER_PARAMS}
                         for lvalues, lvaried in _points(lgrid.grid):
@@ -533,6 +537,18 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
     if not cells:  # pragma: no cover - every empty part is rejected above
         raise ValueError("empty grid: the sweep has no cell")
     return tuple(cells)
+
+
+def _check_runs_here(label: str, scenario: str, learner: str) -> None:
+    """ValueError unless ``scenario`` runs ``learner``: its `ScenarioSpec.learners` when it names them, else any
+    learner that is not another scenario's own (a class attribute ``scenarios``)."""
+    spec = scenario_spec(scenario)
+    own = getattr(sweep_learners()[learner], "scenarios", None)
+    if spec.learners is not None and learner not in spec.learners:
+        raise ValueError(f"{label}: scenario {scenario!r} runs the learners {list(spec.learners)} only, got "
+                         f"{learner!r}")
+    if spec.learners is None and own is not None and scenario not in own:
+        raise ValueError(f"{label}: {learner!r} runs in the scenario(s) {list(own)} only, not in {scenario!r}")
 
 
 def _tuples(params: dict) -> dict:

@@ -35,7 +35,7 @@ from .progress import Progress
 from .scenarios import scenario_spec
 from .store import ResultStore, code_version, simulation_key
 
-__all__ = ["SweepRun", "run_sweep", "assemble_table", "read_table", "weights_table", "TIMING_COLUMNS",
+__all__ = ["SweepRun", "run_sweep", "cell_keys", "assemble_table", "read_table", "weights_table", "TIMING_COLUMNS",
            "SCORE_COLUMNS", "TABLE_COLUMNS", "WEIGHT_COLUMNS"]
 
 #: wall-clock timings [s]: differ from run to run (everything else in the table does not)
@@ -53,7 +53,7 @@ WEIGHT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol",
 _INT_COLUMNS = ("history_steps", "horizon", "k", "seed", "n_styles", "n_train", "n_test", "n_predictions", "n_warnings",
                 "k_futures")
 _FLOAT_SCORES = ("med", "med_std", "fde", "weight_error", "ari", *(c for c in ONLINE_SCORES if c != "k_futures"))
-_COST = {"cv": 0, "ca": 0, "tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3}  # rough relative cost: long cells go first
+_COST = {"cv": 0, "ca": 0, "tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3, "ppo": 20}  # rough relative cost: long cells go first
 
 
 @dataclass
@@ -75,6 +75,7 @@ class SweepRun:
     cpu_s : float [s]           sum of their CPU time (``cpu_s``)
     simulated : list of str     simulation keys simulated by this run
     records : dict {key: dict}  the stored record of every finished cell (`pirl_sim.sweep.store`)
+    keys : list of str          every cell's key, in the config's order (`cell_keys`)
     """
 
     out: Path
@@ -90,6 +91,7 @@ class SweepRun:
     cpu_s: float = 0.0
     simulated: list = field(default_factory=list)
     records: dict = field(default_factory=dict)
+    keys: list = field(default_factory=list)
 
     def check_failed(self, what: str) -> None:
         """RuntimeError when cells failed, naming how many of ``what`` and the first error (a report template's
@@ -265,7 +267,7 @@ def run_sweep(
         _write_recovery(config, keys, records, out)
         _write_weights(config, keys, records, out)
     return SweepRun(out, table, computed, cached, failed, version, description,
-                    time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated, records)
+                    time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated, records, keys)
 
 
 def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
@@ -309,7 +311,7 @@ def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str
 def _plan(config: SweepConfig, store: ResultStore):
     """Keys under the current code version, the stored records, and the cells to run (in submission order)."""
     version = code_version()
-    keys = [c.key(version) for c in config.cells]
+    keys = cell_keys(config, version)
     unique = dict(zip(keys, config.cells))  # first occurrence of every key
     present = store.finished()  # one listing; a file that does not load is not stored: its cell runs again
     records = {k: rec for k in unique if k in present and (rec := store.load(k)) is not None}
@@ -325,6 +327,16 @@ def _plan(config: SweepConfig, store: ResultStore):
     todo.sort(key=lambda k: (first[data_set(k)],
                              -_COST.get(unique[k].learner, 1) * (2 if unique[k].protocol["kind"] == "rolling" else 1)))
     return version, keys, unique, records, todo
+
+
+def cell_keys(config: SweepConfig, version: str) -> list[str]:
+    """The key of every cell of ``config`` (in order) under the code version ``version``, or, for a scenario with
+    code of its own (`pirl_sim.sweep.scenarios.ScenarioSpec.code`), under the version that includes it."""
+    versions = {}
+    for name in dict.fromkeys(c.scenario for c in config.cells):
+        extra = scenario_spec(name).code
+        versions[name] = code_version(extra) if extra else version
+    return [c.key(versions[c.scenario]) for c in config.cells]
 
 
 def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:

@@ -172,6 +172,12 @@ class ScenarioSpec:
     check_protocol : callable(dict, dict), or None
         Checked with the parameters and every protocol (`Protocol` fields) at the config check: ValueError
         (its message follows the scenario's name) for a protocol the scenario cannot run; None: every one.
+    learners : tuple of str, or None
+        The only learners (sweep names) this scenario runs, checked at the config check; None: the learners
+        and baselines that are not some scenario's own (a learner class's ``scenarios`` names where it runs).
+    code : tuple of str
+        Modules (``.*``: packages) that compute this scenario's cells besides `pirl_sim.sweep.store.CELL_CODE`:
+        their source is part of this scenario's cell keys only (`pirl_sim.sweep.store.code_version`).
     """
 
     name: str
@@ -187,6 +193,8 @@ class ScenarioSpec:
     run_cells: Callable[..., list] | None = None
     task_group: Callable[[dict], str | None] | None = None
     check_protocol: Callable[[dict, dict], None] | None = None
+    learners: tuple[str, ...] | None = None
+    code: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if (self.simulation is None) != (self.simulate is None):
@@ -589,3 +597,4 @@ for _name, _summary in (
     ))
 
 from . import recorded as _recorded  # noqa: E402,F401  registers the 'recorded' scenario and its old name 'replay'
+from . import agents as _agents  # noqa: E402,F401  registers the 'agents' scenario

@@ -14,7 +14,8 @@ A cell's key is the sha256 of its full configuration (`pirl_sim.sweep.config.Cel
 (`code_version`: the package version and a hash of the source files of the code that computes a cell, `CELL_CODE`),
 so a changed config or a change to that code never reuses an old result, and unchanged ones always do; changes
 to the report, the command line, figures, the replay's report template or the gymnasium envs leave the stored
-cells valid.
+cells valid. A scenario whose cells run more code names it (`pirl_sim.sweep.scenarios.ScenarioSpec.code`: the
+``agents`` scenario's envs); that code is part of its own cells' keys only.
 `CELL_CODE` is checked by ``tests/test_sweep_code_version.py``: cells of every registered scenario run in a fresh
 process under a profiler, and every source file whose code ran must be hashed. A file in ``cells/`` is complete
 or absent (`pirl_sim.io.atomic`: written beside, fsynced, renamed); a file that does not parse (e.g. written by
@@ -89,25 +90,26 @@ def _module_files(entry: str) -> dict[str, Path]:
     return out
 
 
-def source_files() -> list[tuple[str, Path]]:
-    """The source files of `CELL_CODE` (less `NOT_CELL_CODE`) as (module name, path), sorted by name: names do
-    not depend on where the package is installed."""
+def source_files(extra: tuple[str, ...] = ()) -> list[tuple[str, Path]]:
+    """The source files of `CELL_CODE` and ``extra`` (entries like `CELL_CODE`'s: a scenario's own code,
+    `pirl_sim.sweep.scenarios.ScenarioSpec.code`), less `NOT_CELL_CODE`, as (module name, path), sorted by
+    name: names do not depend on where the package is installed."""
     out: dict[str, Path] = {}
-    for entry in CELL_CODE:
+    for entry in (*CELL_CODE, *extra):
         out.update(_module_files(entry))
     for name in NOT_CELL_CODE:
         out.pop(name, None)
     return sorted(out.items())
 
 
-def code_version() -> str:
-    """``<package version>+<16 hex digits of sha256 over the source files of the cell code>`` (`source_files`),
-    from the files as they are now (a few milliseconds; workers keep the value of their first cell, the code
-    they imported)."""
+def code_version(extra: tuple[str, ...] = ()) -> str:
+    """``<package version>+<16 hex digits of sha256 over the source files of the cell code>`` (`source_files`,
+    with a scenario's own code ``extra``), from the files as they are now (a few milliseconds; workers keep the
+    value of their first cell, the code they imported)."""
     from pirl_sim import __version__
 
     h = hashlib.sha256()
-    for name, path in source_files():
+    for name, path in source_files(extra):
         h.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
     return f"{__version__}+{h.hexdigest()[:16]}"
 

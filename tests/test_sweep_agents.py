@@ -1,0 +1,72 @@
+"""The sweep engine's ``agents`` scenario (`pirl_sim.sweep.agents`): what a config may put where, checked before any
+work starts, and one scripted cell run and stored like any sweep cell."""
+
+import pytest
+
+pytest.importorskip("gymnasium")
+pytest.importorskip("highway_env")
+
+from pirl_sim.sweep.config import parse_config  # noqa: E402
+
+
+def _config(learners, scenario="agents", protocols=("paper",), params=None):
+    return parse_config({"seeds": [0], "experiments": [{"scenario": scenario, "protocols": list(protocols),
+                                                        "learners": learners, "params": params or {}}]})
+
+
+@pytest.mark.parametrize("learners, scenario, protocols, params, match", [
+    (["tirl"], "agents", ("paper",), None,
+     r"scenario 'agents' runs the learners \['hold-speed', 'idm', 'mpc', 'ppo'\] only, got 'tirl'"),
+    (["ppo"], "synthetic", ("paper",), None, r"'ppo' runs in the scenario\(s\) \['agents'\] only, not in 'synthetic'"),
+    (["hindsight"], "synthetic", ("paper",), None,
+     r"'hindsight' runs in the scenario\(s\) \['recorded', 'replay'\] only, not in 'synthetic'"),
+    (["idm"], "agents", ({"kind": "online", "history_steps": 5},), None,
+     r"scenario 'agents' runs agents, not predictions: its one protocol is \"paper\", got 'online'"),
+    ([{"name": "ppo", "params": {"style_observation": "psychic"}}], "agents", ("paper",), None,
+     r"style_observation must be one of \('none', 'truth', 'inferred'\), got 'psychic'"),
+    ([{"name": "ppo", "params": {"action": "teleport"}}], "agents", ("paper",), None,
+     r"action must be one of \('residual-idm', 'shielded-residual-idm', 'direct'\), got 'teleport'"),
+    ([{"name": "ppo", "params": {"steps": 0}}], "agents", ("paper",), None, r"steps must be an integer >= 1, got 0"),
+    ([{"name": "ppo", "params": {"gamma": 0.0}}], "agents", ("paper",), None, r"gamma must be in \(0, 1\], got 0.0"),
+    ([{"name": "mpc", "params": {"acc_sq": -1.0}}], "agents", ("paper",), None,
+     r"acc_sq must be a finite number > 0, got -1.0"),
+    (["idm"], "agents", ("paper",), {"duration": 0.0}, r"duration must be a finite number > 0, got 0.0"),
+    (["idm"], "agents", ("paper",), {"eval_episodes": 0}, r"eval_episodes must be an integer >= 1, got 0"),
+    (["idm"], "agents", ("paper",), {"reward": "theta"}, r"reward"),
+])
+def test_bad_agents_configs_are_refused_before_any_work(learners, scenario, protocols, params, match):
+    with pytest.raises(ValueError, match=match):
+        _config(learners, scenario, protocols, params)
+
+
+def test_ppo_seed_is_the_cells_and_labels_follow_the_grid():
+    cfg = parse_config({"seeds": [3, 4], "experiments": [{"scenario": "agents", "protocols": ["paper"], "learners": [
+        {"name": "ppo", "label": "PPO", "grid": {"style_observation": ["none", "truth"]}}]}]})
+    assert [(c.learner_label, c.seed, c.learner_params["random_state"]) for c in cfg.cells] == [
+        ("PPO (style_observation=none)", 3, 3), ("PPO (style_observation=none)", 4, 4),
+        ("PPO (style_observation=truth)", 3, 3), ("PPO (style_observation=truth)", 4, 4)]
+
+
+def test_a_training_seed_among_the_evaluation_seeds_fails_the_cell():
+    from pirl_sim.sweep.agents import run_agent_cells
+
+    cfg = parse_config({"seeds": [1000], "experiments": [{"scenario": "agents", "protocols": ["paper"],
+                                                          "learners": ["ppo"]}]})
+    with pytest.raises(ValueError, match=r"training seed 1000 is one of the evaluation seeds 1000..1019"):
+        run_agent_cells([cfg.cells[0].spec()])
+
+
+def test_scripted_cell_runs_through_the_sweep_and_is_kept(tmp_path):
+    from pirl_sim.sweep.executors import InlineExecutor
+    from pirl_sim.sweep.run import run_sweep
+
+    cfg = _config(["hold-speed"], params={"eval_episodes": 2, "initial_vehicles": 4})
+    with InlineExecutor() as ex:
+        run = run_sweep(cfg, tmp_path, executor=ex, progress=False, tables=False)
+    (key,) = run.keys
+    result = run.records[key]["result"]
+    assert result["policy"] == "hold-speed" and [e["eval_seed"] for e in result["episodes"]] == [1000, 1001]
+    assert all(e["time_to_exit"] is None or e["time_to_exit"] == e["time"] for e in result["episodes"])
+    with InlineExecutor() as ex:
+        again = run_sweep(cfg, tmp_path, executor=ex, progress=False, tables=False)
+    assert again.computed == [] and again.cached == [key]
