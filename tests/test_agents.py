@@ -104,3 +104,14 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     table = pd.read_csv(out / "table.csv")
     assert list(table["policy"]) == ["hold-speed", "ppo direct (none)", "ppo shielded-residual-idm (truth)"]
     assert not list(scratch.glob("SB3-*"))  # SB3's logger made no folder in the temporary directory
+
+
+def test_committed_agents_results_match_the_code(capsys):
+    """Fails after a change to the agents' cell code (the envs, `pirl_sim.sweep.agents`, the cell code of every
+    sweep) until ``python3 -m pirl_sim.harness.agents --out results/agents --jobs 2`` is rerun and committed."""
+    from pathlib import Path
+
+    results = Path(__file__).resolve().parents[1] / "results" / "agents"
+    assert agents.main(["--out", str(results), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert out.rstrip().endswith(" 0 to run"), out

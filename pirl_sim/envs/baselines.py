@@ -35,8 +35,8 @@ from .common import EGO_ID, check_action, reward_weights
 
 IDM_DELTA = 4.0  #: highway-env's IDM exponent (IDMVehicle.DELTA), also the env's background traffic's
 
-__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "interaction_limit",
-           "make_baseline"]
+__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "drive_episode",
+           "interaction_limit", "make_baseline"]
 
 #: baseline names of :func:`make_baseline`
 BASELINES = ("hold-speed", "idm", "mpc")
@@ -149,6 +149,25 @@ class MpcEgo:
         else:
             a = min((cmd - ego.speed) / STEP_LENGTH, interaction_limit(base))
         return action_of(a, base.action_type.acceleration_range)
+
+
+def drive_episode(env, act, seed: int, *, options: dict | None = None, on_reset=None) -> dict:
+    """One episode: ``act(obs) -> action`` every step after ``env.reset(seed=seed, options=options)`` and
+    ``on_reset(env)`` (a scripted ego's ``reset``); returns ``seed``, ``return``, ``arrived``, ``crashed``,
+    ``time`` [s], ``steps`` and ``near_miss_time`` [s] (the reward's ``near_miss_time`` summed)."""
+    obs, _ = env.reset(seed=int(seed), options=options)
+    if on_reset is not None:
+        on_reset(env)
+    total, near, steps = 0.0, 0.0, 0
+    while True:
+        obs, reward, terminated, truncated, info = env.step(act(obs))
+        total += float(reward)
+        near += info["rewards"]["near_miss_time"]
+        steps += 1
+        if terminated or truncated:
+            break
+    return {"seed": int(seed), "return": total, "arrived": bool(info["arrived"]), "crashed": bool(info["crashed"]),
+            "time": float(info["time"]), "steps": steps, "near_miss_time": near}
 
 
 def make_baseline(name: str, theta: Mapping[str, float] | None = None):

@@ -483,14 +483,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=positive_int_arg, default=1,
                     help="worker processes (runs in parallel; default 1: in this process)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--dry-run", action="store_true",
+                    help="say how many runs are finished in --out under the current code, and run nothing")
     args = ap.parse_args(argv)
     try:
         cfg = AgentsConfig(modes=args.modes, action=args.action, direct_modes=args.direct_modes,
-                           residual_scale=args.residual_scale, max_change=args.max_change, seeds=args.seeds, steps=args.steps, baselines=args.baselines,
+                           residual_scale=args.residual_scale, max_change=args.max_change, seeds=args.seeds,
+                           steps=args.steps, baselines=args.baselines,
                            eval_seeds=tuple(range(1000, 1000 + args.episodes)), n_steps=args.n_steps,
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))
     except ValueError as exc:
         ap.error(str(exc))
+    if args.dry_run:
+        from pirl_sim.sweep.run import _plan
+        from pirl_sim.sweep.store import ResultStore
+
+        _, _, unique, records, _ = _plan(sweep_config(cfg), ResultStore(args.out))
+        print(f"agents experiment: {len(unique)} runs, {len(records)} already in {args.out}/, "
+              f"{len(unique) - len(records)} to run")
+        return 0
     from pirl_sim.threads import blas_threads
 
     import sys

@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pirl_sim.envs.baselines import drive_episode
+
 __all__ = ["ENV_ID", "ego_demonstration", "drive_episode", "mpc_ego_demonstrations", "mpc_ego_report",
            "PpoRecoveryConfig", "ppo_ego_report", "main"]
 
@@ -98,24 +100,6 @@ def ego_demonstration(env, *, theta: Mapping[str, float], style_name: str, track
             raise ValueError(f"own has {own.shape[0]} steps; the ego's track needs {first + d.n_steps}")
         meta[STEP_MASK] = settled(own, SETTLE_FRAMES)[first:first + d.n_steps]
     return d.with_metadata(**meta)
-
-
-def drive_episode(env, act: Callable[[np.ndarray], np.ndarray], seed: int, *,
-                  options: dict | None = None, on_reset: Callable | None = None) -> dict:
-    """One episode: ``act(obs) -> action`` every step after ``env.reset(seed=seed, options=options)`` and
-    ``on_reset(env)``; returns ``return``, ``arrived``, ``crashed``, ``time`` [s], ``steps``."""
-    obs, _ = env.reset(seed=int(seed), options=options)
-    if on_reset is not None:
-        on_reset(env)
-    total, steps = 0.0, 0
-    while True:
-        obs, reward, terminated, truncated, info = env.step(act(obs))
-        total += float(reward)
-        steps += 1
-        if terminated or truncated:
-            break
-    return {"seed": int(seed), "return": total, "arrived": bool(info["arrived"]), "crashed": bool(info["crashed"]),
-            "time": float(info["time"]), "steps": steps}
 
 
 class _LoggedMpcEgo:

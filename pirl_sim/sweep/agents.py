@@ -232,21 +232,15 @@ def fit_style_learner(learner_seed: int, depart_interval: float):
 
 
 def episode(env, act, seed: int, on_reset=None) -> dict:
-    """One evaluation episode: ``act(obs) -> action``; ``on_reset(env)`` after the reset (scripted egos)."""
-    obs, _ = env.reset(seed=seed)
-    if on_reset is not None:
-        on_reset(env)
-    total, near = 0.0, 0.0
-    while True:
-        obs, reward, terminated, truncated, info = env.step(act(obs))
-        total += float(reward)
-        near += info["rewards"]["near_miss_time"]
-        if terminated or truncated:
-            break
-    arrived = bool(info["arrived"])
-    return {"eval_seed": seed, "return": total, "arrived": arrived, "crashed": bool(info["crashed"]),
-            "time": float(info["time"]), "time_to_exit": float(info["time"]) if arrived else None,
-            "near_miss_time": near}
+    """One evaluation episode (`pirl_sim.envs.baselines.drive_episode`) as a cell stores it: ``eval_seed``,
+    ``return``, ``arrived``, ``crashed``, ``time`` [s], ``time_to_exit`` [s] (None unless it arrived),
+    ``near_miss_time`` [s]."""
+    from pirl_sim.envs.baselines import drive_episode
+
+    e = drive_episode(env, act, seed, on_reset=on_reset)
+    return {"eval_seed": e["seed"], "return": e["return"], "arrived": e["arrived"], "crashed": e["crashed"],
+            "time": e["time"], "time_to_exit": e["time"] if e["arrived"] else None,
+            "near_miss_time": e["near_miss_time"]}
 
 
 def _scripted(params: dict, name: str, lp: dict) -> dict:
