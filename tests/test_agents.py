@@ -55,6 +55,22 @@ def test_paired_difference_uses_the_same_evaluation_seeds():
     assert table.loc["ppo (none)", "vs_idm_lo"] == pytest.approx(2.0)
     assert table.loc["ppo (none)", "return"] == pytest.approx(7.0)  # mean of the seeds' means 6 and 8
     assert table.loc["idm", "success"] == 1.0 and table.loc["idm", "collision"] == 0.0
+    assert table.loc["ppo (none)", "tte_vs_idm"] == pytest.approx(0.0)
+
+
+def test_paired_time_to_exit_counts_seeds_where_both_arrived():
+    def row(policy, train_seed, seed, tte):
+        return {"policy": policy, "mode": "", "train_seed": train_seed, "eval_seed": seed, "return": 0.0,
+                "arrived": not np.isnan(tte), "crashed": False, "time": 40.0 if np.isnan(tte) else tte,
+                "time_to_exit": tte, "near_miss_time": 0.0}
+
+    rows = [row("idm", -1, 1, 30.0), row("idm", -1, 2, np.nan), row("idm", -1, 3, 28.0)]
+    rows += [row("ppo", 0, 1, 26.0), row("ppo", 1, 1, 28.0), row("ppo", 0, 2, 25.0), row("ppo", 1, 2, np.nan),
+             row("ppo", 0, 3, np.nan), row("ppo", 1, 3, 27.0)]
+    table = agents.summary_table(pd.DataFrame(rows)).set_index("policy")
+    # seed 1: 27 - 30; seed 2: the IDM did not arrive; seed 3: 27 (the arriving training seed) - 28
+    assert table.loc["ppo", "tte_vs_idm"] == pytest.approx(-2.0)
+    assert "Δtime to exit vs idm [s]" in agents.markdown_table(table.reset_index())
 
 
 @pytest.mark.slow

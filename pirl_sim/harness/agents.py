@@ -40,7 +40,8 @@ Intervals. Returns and times: Student-t 95 % intervals; for PPO over the trainin
 seed's mean over the evaluation episodes: the seeds are the independent replicates), for the baselines over
 the evaluation episodes. Success and collision rates: Wilson 95 % intervals over the pooled episodes. Paired
 differences: per evaluation seed, PPO's return (mean over training seeds) minus the baseline's, t-interval over
-the evaluation seeds.
+the evaluation seeds; the same for the time to exit, over the evaluation seeds on which the baseline and at
+least one training seed's policy arrived (PPO's time the mean over its arriving seeds).
 
 The style learner of the ``"inferred"`` mode is PIRL-kNN (receding-horizon IRL, 2 s windows, k = 10) fitted
 on the PIRL tracks of one highway-env scenario recording of the env's population (seed
@@ -301,7 +302,7 @@ def episodes_table(records: Sequence[dict]) -> pd.DataFrame:
 def summary_table(episodes: pd.DataFrame) -> pd.DataFrame:
     """One row per policy (see the module docstring for the intervals)."""
     rows = []
-    baselines = {p: g.set_index("eval_seed")["return"] for p, g in episodes.groupby("policy")
+    baselines = {p: g.set_index("eval_seed")[["return", "time_to_exit"]] for p, g in episodes.groupby("policy")
                  if not p.startswith("ppo")}
     for policy, g in episodes.groupby("policy", sort=False):
         ppo = policy.startswith("ppo")
@@ -319,10 +320,13 @@ def summary_table(episodes: pd.DataFrame) -> pd.DataFrame:
                "collision": coll[0], "collision_lo": coll[1], "collision_hi": coll[2],
                "near_miss_s": near[0], "near_miss_lo": near[1], "near_miss_hi": near[2]}
         if ppo:
-            mine = g.groupby("eval_seed")["return"].mean()
+            mine = g.groupby("eval_seed")[["return", "time_to_exit"]].mean()  # time: over arriving seeds
             for b, theirs in baselines.items():
-                d = _t_interval((mine - theirs.reindex(mine.index)).to_numpy())
-                row.update({f"vs_{b}": d[0], f"vs_{b}_lo": d[1], f"vs_{b}_hi": d[2]})
+                theirs = theirs.reindex(mine.index)
+                d = _t_interval((mine["return"] - theirs["return"]).to_numpy())
+                t = _t_interval((mine["time_to_exit"] - theirs["time_to_exit"]).to_numpy())  # both arrived
+                row.update({f"vs_{b}": d[0], f"vs_{b}_lo": d[1], f"vs_{b}_hi": d[2],
+                            f"tte_vs_{b}": t[0], f"tte_vs_{b}_lo": t[1], f"tte_vs_{b}_hi": t[2]})
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -340,7 +344,8 @@ def markdown_table(table: pd.DataFrame) -> str:
     """The summary as a Markdown table (95 % intervals in brackets)."""
     head = ["policy", "return", "success", "time to exit [s]", "collisions", "near miss [s]"]
     vs = [c for c in table.columns if c.startswith("vs_") and not c.endswith(("_lo", "_hi"))]
-    head += [f"Δreturn vs {c[3:]}" for c in vs]
+    head += [f"Δreturn vs {c[3:]}" for c in vs] + [f"Δtime to exit vs {c[3:]} [s]" for c in vs]
+    vs += [f"tte_{c}" for c in vs]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for _, r in table.iterrows():
         cells = [r["policy"], _fmt(r["return"], r["return_lo"], r["return_hi"]),
@@ -428,8 +433,8 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
         "95 % intervals in brackets: returns, times to exit and near-miss times over the training seeds' means "
         "for PPO and over the evaluation episodes for the baselines (Student t); success and collision rates "
         "Wilson over the pooled episodes; Δreturn is PPO minus the baseline on the same evaluation seeds (PPO "
-        "averaged over its training seeds), t over the evaluation seeds. Time to exit counts arriving episodes "
-        "only.", "",
+        "averaged over its training seeds), t over the evaluation seeds; Δtime to exit likewise over the "
+        "evaluation seeds on which both arrived. Time to exit counts arriving episodes only.", "",
         md,
         f"Compute: {compute:.0f} s summed over the {len(records)} runs' wall times (PPO training "
         f"{np.sum(ppo_times):.0f} s, {np.mean(ppo_times) if ppo_times else 0:.0f} s per run"
