@@ -485,6 +485,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="evaluation episodes (seeds 1000, 1001, ...)")
     ap.add_argument("--baselines", type=_csv_list(str), default=BASELINE_POLICIES)
     ap.add_argument("--n-steps", type=int, default=AgentsConfig.n_steps, help="PPO rollout length")
+    ap.add_argument("--gamma", type=float, default=AgentsConfig.gamma, help="PPO's discount (default %(default)s)")
+    ap.add_argument("--learning-rate", type=float, default=AgentsConfig.learning_rate,
+                    help="PPO's learning rate (default %(default)s)")
     ap.add_argument("--jobs", type=positive_int_arg, default=1,
                     help="worker processes (runs in parallel; default 1: in this process)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -496,6 +499,7 @@ def main(argv: list[str] | None = None) -> int:
                            residual_scale=args.residual_scale, max_change=args.max_change, seeds=args.seeds,
                            steps=args.steps, baselines=args.baselines,
                            eval_seeds=tuple(range(1000, 1000 + args.episodes)), n_steps=args.n_steps,
+                           gamma=args.gamma, learning_rate=args.learning_rate,
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))
     except ValueError as exc:
         ap.error(str(exc))

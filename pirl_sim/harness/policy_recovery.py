@@ -33,9 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pirl_sim.envs.baselines import drive_episode
-
-__all__ = ["ENV_ID", "ego_demonstration", "drive_episode", "mpc_ego_demonstrations", "mpc_ego_report",
+__all__ = ["ENV_ID", "ego_demonstration", "mpc_ego_demonstrations", "mpc_ego_report",
            "PpoRecoveryConfig", "ppo_ego_report", "main"]
 
 ENV_ID = "pirl_sim/Roundabout-v0"
@@ -173,6 +171,7 @@ def mpc_ego_demonstrations(policies: Mapping[str, Mapping[str, float]], seeds: S
     import gymnasium as gym
 
     import pirl_sim.envs  # noqa: F401  (registers the env)
+    from pirl_sim.envs.baselines import drive_episode
 
     if not isinstance(policies, Mapping) or not policies:
         raise ValueError(f"policies must be a non-empty mapping name -> weights, got {policies!r}")
@@ -327,6 +326,7 @@ def ppo_ego_report(cfg: PpoRecoveryConfig, *, log: Callable[[str], None] = lambd
     """
     import gymnasium as gym
 
+    from pirl_sim.envs.baselines import drive_episode
     from pirl_sim.recovery import RecoveryReport
 
     theta = cfg.theta_map
