@@ -70,3 +70,30 @@ def test_scripted_cell_runs_through_the_sweep_and_is_kept(tmp_path):
     with InlineExecutor() as ex:
         again = run_sweep(cfg, tmp_path, executor=ex, progress=False, tables=False)
     assert again.computed == [] and again.cached == [key]
+
+
+def test_the_generic_report_leaves_agents_cells_to_their_template(tmp_path, capsys):
+    from pirl_sim.cli import main
+
+    agents = """seeds = [0]
+[[experiments]]
+scenario = "agents"
+params = { eval_episodes = 1, initial_vehicles = 4 }
+protocols = ["paper"]
+learners = ["hold-speed"]
+"""
+    cfg = tmp_path / "agents.toml"
+    cfg.write_text(agents)
+    assert main(["sweep", str(cfg), "--out", str(tmp_path / "a"), "--workers", "0", "--report"]) == 2
+    assert "every cell is of the 'agents' scenario" in capsys.readouterr().err
+    assert (tmp_path / "a" / "table.csv").is_file()  # the finished cells and the table are kept
+    cfg.write_text(agents + """
+[[experiments]]
+scenario = "synthetic"
+params = { n_trajectories = 40, n_train = 30, n_steps = 20 }
+protocols = ["paper"]
+learners = ["tirl"]
+""")
+    assert main(["sweep", str(cfg), "--out", str(tmp_path / "a"), "--workers", "0", "--report"]) == 0
+    readme = (tmp_path / "a" / "README.md").read_text()
+    assert "not summarised here: 1 cells of the 'agents' scenario" in readme

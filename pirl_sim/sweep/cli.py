@@ -108,7 +108,11 @@ def run_sweep_command(args) -> int:
     if run.failed:
         log.warning("%d cells failed (details in %s/errors/); they run again next time", len(run.failed), args.out)
     if args.report and not run.table.empty:
-        write_report(args.out)
+        try:
+            write_report(args.out)
+        except ValueError as exc:  # e.g. a sweep of agents only: its cells are kept, the report says why not
+            print(f"pirl-sim: error: {exc}", file=sys.stderr)
+            return 2
         print(f"wrote the report to {args.out}/README.md")
     return 1 if run.failed else 0
 

@@ -372,6 +372,12 @@ def write_report(results, out_dir=None) -> dict:
     table = read_table(results)
     if table.empty:
         raise ValueError(f"{results}: the table has no finished cell")
+    agents = table["scenario"] == "agents"  # episodes, not predictions: pirl_sim.harness.agents reports them
+    if agents.all():
+        raise ValueError(f"{results}: every cell is of the 'agents' scenario, whose scores are episodes, not "
+                         "predictions: `python3 -m pirl_sim.harness.agents` writes their tables")
+    n_agents = int(agents.sum())
+    table = table[~agents].reset_index(drop=True)
     res_dir = results if results.is_dir() else results.parent
     template = results.is_dir() and template_run(results)
     if out_dir is None:  # a report template's directory has a README.md of its own
@@ -411,6 +417,8 @@ def write_report(results, out_dir=None) -> dict:
         f"seeds: {sorted(int(s) for s in table['seed'].unique())}",
         f"- cell time: {table.drop_duplicates('key')['cell_s'].sum():.0f} s in all (sum over cells, any number "
         "of workers)",
+        *([f"- not summarised here: {n_agents} cells of the 'agents' scenario (episodes, not predictions; "
+           "`python3 -m pirl_sim.harness.agents` writes their tables)"] if n_agents else []),
         "",
         "MED [m]: mean over test trajectories of the mean distance between predicted and true positions; FDE [m]: "
         "final displacement; weight error: median |log(inferred / true)| of the normalised weights; ARI: "
