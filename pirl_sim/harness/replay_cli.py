@@ -338,8 +338,8 @@ def replay_results(config, run, scene, proto) -> dict:
     `SweepRun.check_failed` passed) over ``scene`` (the scene its cells replayed)."""
     label = {method_id(c.spec()): c.learner_label for c in config.cells}
     per_seed: dict = {}
-    for cell in config.cells:  # learner by learner, the seeds inside: the methods of a seed come in the preset's order
-        entry, examples = decode_method(run.records[cell.key(run.code_version)]["result"])
+    for cell, key in zip(config.cells, run.keys):  # learner by learner, the seeds inside: a seed's methods in order
+        entry, examples = decode_method(run.records[key]["result"])
         entry["row"] = {**entry["row"], "method": cell.learner_label}
         if entry["row"].get("irl_from"):
             entry["row"]["irl_from"] = label[entry["row"]["irl_from"]]

@@ -483,6 +483,8 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
         elabel = f"experiment {e_idx + 1} ({exp.label})"
         seen: set[str] = set()
         spec = scenario_spec(exp.scenario)
+        for lgrid in exp.learners:
+            _check_runs_here(elabel, exp.scenario, lgrid.name)
         base = None if exp.base_dir is None else Path(exp.base_dir)
         for values, varied in _points(exp.grid):
             try:
@@ -512,7 +514,6 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                             f"{proto.steps_needed()} steps; the scenario's have at most {longest}"
                         )
                     for lgrid in exp.learners:
-                        _check_runs_here(elabel, exp.scenario, lgrid.name)
                         defaults = {k: v for k, v in LEARNERS[lgrid.name]().get_params().items()
                                     if k not in RESERVED_LEARNER_PARAMS}
                         for lvalues, lvaried in _points(lgrid.grid):
