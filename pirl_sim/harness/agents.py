@@ -32,9 +32,8 @@ env's acceleration itself (``--direct-modes``: the modes that also train it, as 
 training seed (``--seeds 0 --episodes 10 --modes none --direct-modes '' --baselines idm`` and the action's
 options; IDM ego: return -16.9, 9 of 10 arrive, 29.6 s to exit, no crash): the plain residual ended below the
 IDM (``--action residual-idm --max-change none``, scale 0.25: -18.4, one crash; scale 0.5: -19.7, 26.5 s, two
-crashes); capped at scale 1 without the rate limit it arrived 10 of 10 in 26.2 s without a crash but its
-jerky corrections cost twice the IDM's comfort term (-17.8; -14.2 after 100,000 steps); with the rate limit
-(the default) -11.4, 27.0 s.
+crashes); capped at scale 1 without the rate limit (``--max-change none``) it arrived 10 of 10 in 26.2 s without
+a crash but scored -17.8; with the rate limit (the default) -11.4, 27.0 s.
 
 Intervals. Returns and times: Student-t 95 % intervals; for PPO over the training seeds' mean returns (each
 seed's mean over the evaluation episodes: the seeds are the independent replicates), for the baselines over
