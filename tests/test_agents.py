@@ -27,6 +27,11 @@ from pirl_sim.harness.agents import AgentsConfig  # noqa: E402
     ({"depart_interval": -1.0}, r"depart_interval must be a finite number > 0, got -1.0"),
     ({"eval_seeds": (1000, 1002)}, r"eval_seeds must be consecutive integers, got \[1000, 1002\]"),
     ({"direct_modes": ("all",)}, r"direct_modes must be distinct values"),
+    ({"select_seed": 995, "select_every": 100},
+     r"the validation seeds 995..1004 \(select_seed, select_episodes\) must differ from the evaluation and training "
+     r"seeds; both have \[1000, 1001, 1002, 1003, 1004\]"),
+    ({"select_every": 0}, r"select_every must be an integer >= 1 \(environment steps\) or None, got 0"),
+    ({"max_change": -0.1}, r"max_change must be a finite number > 0, got -0.1"),
 ])
 def test_bad_settings_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -84,7 +89,8 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
 
     out = tmp_path / "agents"
     argv = ["--out", str(out), "--steps", "128", "--n-steps", "64", "--seeds", "0", "--episodes", "1",
-            "--modes", "none,truth", "--direct-modes", "", "--baselines", "hold-speed", "--quiet"]
+            "--modes", "none,truth", "--direct-modes", "", "--baselines", "hold-speed", "--quiet",
+            "--select-every", "64", "--select-episodes", "1"]
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
@@ -100,11 +106,16 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     assert list(table["policy"]) == ["hold-speed", "ppo shielded-residual-idm (none)", "ppo shielded-residual-idm (truth)"]
     episodes = pd.read_csv(out / "episodes.csv")
     assert set(episodes["eval_seed"]) == {1000} and len(episodes) == 3
+    for c in cells:  # PPO's runs checked their policy twice on the validation episode and kept the better one
+        res = json.loads(c.read_text())["result"]
+        if res["policy"].startswith("ppo"):
+            assert [s for s, _ in res["selection"]] == [64, 128]
+            assert res["selected_steps"] == max(res["selection"], key=lambda c: c[1])[0]
     capsys.readouterr()
 
     # a rerun keeps every finished run; a torn cell file is redone; other evaluation seeds redo every run
     cfg = AgentsConfig(modes=("none", "truth"), direct_modes=(), seeds=(0,), steps=128, n_steps=64, batch_size=64,
-                       eval_seeds=(1000,), baselines=("hold-speed",))
+                       eval_seeds=(1000,), baselines=("hold-speed",), select_every=64, select_episodes=1)
     first = agents.run_experiment(cfg, out)
     assert first.ran == [] and len(first.skipped) == 3
     torn = next(c for c in cells if '"mode": "none"' in c.read_text() or '"mode":"none"' in c.read_text())
@@ -113,7 +124,7 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     assert again.ran == ["ppo shielded-residual-idm (none) seed 0"]
     assert [r["episodes"] for r in again.records] == [r["episodes"] for r in first.records]  # same seed, same result
     cfg = AgentsConfig(modes=("truth",), direct_modes=("none",), seeds=(0,), steps=128, n_steps=64, batch_size=64,
-                       eval_seeds=(1000, 1001), baselines=("hold-speed",))
+                       eval_seeds=(1000, 1001), baselines=("hold-speed",), select_every=None)
     result = agents.run_experiment(cfg, out)
     assert sorted(result.ran) == ["hold-speed", "ppo direct (none) seed 0", "ppo shielded-residual-idm (truth) seed 0"]
     agents.write_results(cfg, result, out, "test")

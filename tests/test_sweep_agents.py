@@ -56,6 +56,43 @@ def test_a_training_seed_among_the_evaluation_seeds_fails_the_cell():
         run_agent_cells([cfg.cells[0].spec()])
 
 
+def test_validation_seeds_must_avoid_the_evaluation_and_training_seeds():
+    from pirl_sim.sweep.agents import run_agent_cells
+
+    def cell(seed, **params):
+        cfg = parse_config({"seeds": [seed], "experiments": [{"scenario": "agents", "protocols": ["paper"],
+                                                              "learners": [{"name": "ppo", "params": params}]}]})
+        return cfg.cells[0].spec()
+
+    with pytest.raises(ValueError, match=r"training seed 2003 is one of the evaluation seeds 1000..1019 or "
+                                         r"validation seeds 2000..2009: use other seeds"):
+        run_agent_cells([cell(2003, select_every=64)])
+    with pytest.raises(ValueError, match=r"validation seeds 1015..1024 \(select_seed, select_episodes\) overlap the "
+                                         r"evaluation seeds 1000..1019: choose another select_seed"):
+        run_agent_cells([cell(0, select_every=64, select_seed=1015)])
+
+
+def test_model_selection_evaluates_the_best_checked_policy():
+    """With checks every 64 steps, the evaluated policy is the one of the best check: its evaluation equals that of
+    a run trained for the selected number of steps without selection (chunked training is the same training)."""
+    pytest.importorskip("stable_baselines3")
+    from pirl_sim.sweep.agents import _ppo
+
+    params = {"initial_vehicles": 4, "depart_interval": 4.0, "duration": 10.0, "reward": "exit", "eval_episodes": 2,
+              "eval_seed": 1000, "learner_seed": 7}
+    lp = {"style_observation": "none", "action": "shielded-residual-idm", "residual_scale": 1.0, "max_change": 0.1,
+          "steps": 192, "n_steps": 64, "batch_size": 64, "n_epochs": 2, "gamma": 0.99, "learning_rate": 3e-3,
+          "log_std_init": 0.0, "use_sde": False, "select_every": 64, "select_episodes": 2, "select_seed": 2000}
+    selected = _ppo(params, lp, 0)
+    assert [s for s, _ in selected["selection"]] == [64, 128, 192]
+    best = max(selected["selection"], key=lambda c: c[1])
+    assert selected["selected_steps"] == best[0]
+    plain = _ppo(params, {**lp, "steps": best[0], "select_every": None}, 0)
+    assert "selection" not in plain
+    assert selected["episodes"] == plain["episodes"]
+    assert selected["curve"][: len(plain["curve"])] == plain["curve"]
+
+
 def test_scripted_cell_runs_through_the_sweep_and_is_kept(tmp_path):
     from pirl_sim.sweep.executors import InlineExecutor
     from pirl_sim.sweep.run import run_sweep

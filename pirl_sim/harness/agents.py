@@ -35,6 +35,14 @@ IDM (``--action residual-idm --max-change none``, scale 0.25: -18.4, one crash; 
 crashes); capped at scale 1 without the rate limit (``--max-change none``) it arrived 10 of 10 in 26.2 s without
 a crash but scored -17.8; with the rate limit (the default) -11.4, 27.0 s.
 
+Model selection (``--select-every N``, off by default): PPO's policy is checked every N environment steps on
+``--select-episodes`` validation episodes (env seeds 2000, 2001, ...) and the best check's policy is evaluated.
+Measured with ``--modes none --direct-modes '' --baselines idm --jobs 2 --select-every 5000`` (3 training seeds,
+10 validation episodes, 8 checks per run; 379 s): return -17.8 against -16.6 for the last policies of the same
+training runs (the committed table), Δreturn vs IDM -0.76 [-4.31, 2.79], one collision in 60 episodes: 10
+validation episodes rank these policies no better than chance (training seed 0's last policy scored -15.6 on
+them, worst of its checks, and -14.2 on the evaluation episodes, better than the selected check's -15.3).
+
 Intervals. Returns and times: Student-t 95 % intervals; for PPO over the training seeds' mean returns (each
 seed's mean over the evaluation episodes: the seeds are the independent replicates), for the baselines over
 the evaluation episodes. Success and collision rates: Wilson 95 % intervals over the pooled episodes. Paired
@@ -63,7 +71,7 @@ import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_text
 from pirl_sim.validation import positive_int_arg
-from pirl_sim.sweep.agents import ACTIONS, MODES
+from pirl_sim.sweep.agents import ACTIONS, MODES, PPOEgo
 
 __all__ = ["AgentsConfig", "MODES", "ACTIONS", "BASELINE_POLICIES", "sweep_config", "run_experiment",
            "write_results", "main"]
@@ -118,6 +126,12 @@ class AgentsConfig:
         Generalised state-dependent exploration (SB3's gSDE): the exploration noise is a function of the
         observation, redrawn every rollout, so the explored accelerations change smoothly. With independent
         noise every 0.2 s the jerk of the exploration alone costs more than the rest of the comfort term.
+    select_every : int or None
+        Model selection: every this many environment steps (and at the end) the policy is scored on
+        ``select_episodes`` validation episodes (env seeds from ``select_seed``, disjoint from ``eval_seeds`` and
+        ``seeds``) and the best one is evaluated (`pirl_sim.sweep.agents.PPOEgo`); None: the last policy.
+    select_episodes : int
+    select_seed : int
     """
 
     modes: tuple[str, ...] = MODES
@@ -140,6 +154,9 @@ class AgentsConfig:
     learning_rate: float = 3e-4
     log_std_init: float = -2.0
     use_sde: bool = True
+    select_every: int | None = None
+    select_episodes: int = 10
+    select_seed: int = 2000
 
     def __post_init__(self) -> None:
         for name, allowed in (("modes", MODES), ("direct_modes", MODES), ("baselines", BASELINE_POLICIES)):
@@ -148,20 +165,29 @@ class AgentsConfig:
             if bad or len(set(values)) != len(values) or (name == "modes" and not values):
                 raise ValueError(f"{name} must be distinct values out of {allowed}, got {list(values)}")
             object.__setattr__(self, name, values)
-        if self.action not in ACTIONS:
-            raise ValueError(f"action must be one of {ACTIONS}, got {self.action!r}")
-        check_training_fields(self, integers={"steps": 1, "initial_vehicles": 0, "n_steps": 1, "batch_size": 1,
-                                              "n_epochs": 1, "learner_seed": 0},
-                              positive=("depart_interval", "duration", "learning_rate", "residual_scale"),
-                              flags=("use_sde",))
-        if self.max_change is not None and (isinstance(self.max_change, bool) or not isinstance(
-                self.max_change, (int, float)) or not math.isfinite(self.max_change) or self.max_change <= 0):
-            raise ValueError(f"max_change must be a finite number > 0 or None, got {self.max_change!r}")
-        if not (isinstance(self.log_std_init, (int, float)) and math.isfinite(self.log_std_init)):
-            raise ValueError(f"log_std_init must be a finite number, got {self.log_std_init!r}")
+        check_training_fields(self, integers={"initial_vehicles": 0, "learner_seed": 0},
+                              positive=("depart_interval", "duration"), flags=())
+        PPOEgo(action=self.action, **ppo_params(self))._check_common()  # PPO's own settings, as the sweep checks them
         first = self.eval_seeds[0]
         if self.eval_seeds != tuple(range(first, first + len(self.eval_seeds))):
             raise ValueError(f"eval_seeds must be consecutive integers, got {list(self.eval_seeds)}")
+        if self.select_every is not None:
+            vals = set(range(self.select_seed, self.select_seed + self.select_episodes))
+            clash = sorted(vals & (set(self.eval_seeds) | set(self.seeds)))
+            if clash:
+                last = self.select_seed + self.select_episodes - 1
+                raise ValueError(f"the validation seeds {self.select_seed}..{last} (select_seed, select_episodes) "
+                                 f"must differ from the evaluation and training seeds; both have {clash}")
+
+
+#: AgentsConfig fields that are `pirl_sim.sweep.agents.PPOEgo` parameters of the same name
+PPO_FIELDS = ("residual_scale", "max_change", "steps", "n_steps", "batch_size", "n_epochs", "gamma", "learning_rate",
+              "log_std_init", "use_sde", "select_every", "select_episodes", "select_seed")
+
+
+def ppo_params(cfg) -> dict:
+    """PPO's parameters of every PPO run of the experiment (the action and observation mode aside)."""
+    return {k: getattr(cfg, k) for k in PPO_FIELDS}
 
 
 def check_training_fields(cfg, *, integers: dict, positive: tuple, flags: tuple) -> None:
@@ -203,8 +229,7 @@ def sweep_config(cfg: AgentsConfig):
     params = {"initial_vehicles": cfg.initial_vehicles, "depart_interval": cfg.depart_interval,
               "duration": cfg.duration, "reward": "exit", "eval_episodes": len(cfg.eval_seeds),
               "eval_seed": cfg.eval_seeds[0], "learner_seed": cfg.learner_seed}
-    ppo = {k: getattr(cfg, k) for k in ("residual_scale", "max_change", "steps", "n_steps", "batch_size", "n_epochs", "gamma",
-                                        "learning_rate", "log_std_init", "use_sde")}
+    ppo = ppo_params(cfg)
     learners = [{"name": "ppo", "label": f"ppo {cfg.action}", "params": {**ppo, "action": cfg.action},
                  "grid": {"style_observation": list(cfg.modes)}}]
     if cfg.direct_modes and cfg.action != "direct":
@@ -466,6 +491,15 @@ def _optional_float(text: str) -> float | None:
         raise argparse.ArgumentTypeError(f"expected a number or 'none', got {text!r}") from None
 
 
+def _optional_int(text: str) -> int | None:
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number or 'none', got {text!r}") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python3 -m pirl_sim.harness.agents", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="results/agents", help="output directory (default results/agents)")
@@ -487,6 +521,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gamma", type=float, default=AgentsConfig.gamma, help="PPO's discount (default %(default)s)")
     ap.add_argument("--learning-rate", type=float, default=AgentsConfig.learning_rate,
                     help="PPO's learning rate (default %(default)s)")
+    ap.add_argument("--select-every", type=_optional_int, default=AgentsConfig.select_every,
+                    help="environment steps between checks of PPO's policy on validation episodes (the best "
+                         "check's policy is evaluated), or 'none': the last policy (default %(default)s)")
+    ap.add_argument("--select-episodes", type=int, default=AgentsConfig.select_episodes,
+                    help="validation episodes per check (env seeds 2000, 2001, ...; default %(default)s)")
     ap.add_argument("--jobs", type=positive_int_arg, default=1,
                     help="worker processes (runs in parallel; default 1: in this process)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -498,7 +537,8 @@ def main(argv: list[str] | None = None) -> int:
                            residual_scale=args.residual_scale, max_change=args.max_change, seeds=args.seeds,
                            steps=args.steps, baselines=args.baselines,
                            eval_seeds=tuple(range(1000, 1000 + args.episodes)), n_steps=args.n_steps,
-                           gamma=args.gamma, learning_rate=args.learning_rate,
+                           gamma=args.gamma, learning_rate=args.learning_rate, select_every=args.select_every,
+                           select_episodes=args.select_episodes,
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))
     except ValueError as exc:
         ap.error(str(exc))

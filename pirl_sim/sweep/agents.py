@@ -30,8 +30,11 @@ here): ``"hold-speed"``, ``"idm"``, ``"mpc"`` (weights ``speed_dev``, ``acc_sq``
 A cell's scores (the stored ``result``): ``policy`` (e.g. ``"ppo residual-idm"``), ``mode`` (the observation
 mode, "" for scripted egos), ``episodes`` (one dict per evaluation episode: eval_seed, return, arrived, crashed,
 time [s], time_to_exit [s] or None, near_miss_time [s]), ``curve`` ([environment steps, return] of every
-finished training episode), ``train_time_s`` and, for PPO, ``learner_time_s`` (the style learner's fit, when
-this cell fitted it) [s]; the record's ``warnings`` hold the cell's warnings.
+finished training episode), ``train_time_s`` (with model selection including the validation episodes) and, for
+PPO, ``learner_time_s`` (the style learner's fit, when this cell fitted it) [s]; with model selection
+(``select_every``) also ``selection`` ([environment steps, mean validation return] of every check),
+``selected_steps`` (the check whose policy was evaluated) and ``select_time_s``; the record's ``warnings`` hold
+the cell's warnings.
 
 The code of these cells (this module and :mod:`pirl_sim.envs`) is part of this scenario's cell keys only
 (``ScenarioSpec.code``): a change to an env recomputes the agents' cells, not the learners' sweeps.
@@ -39,6 +42,7 @@ The code of these cells (this module and :mod:`pirl_sim.envs`) is part of this s
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 
@@ -49,7 +53,7 @@ from pirl_sim.validation import number
 from .scenarios import Param, ScenarioSpec, TrainShape, register_scenario
 
 __all__ = ["POLICIES", "ACTIONS", "MODES", "PPOEgo", "HoldSpeedEgo", "IdmEgo", "MpcEgo", "run_agent_cells",
-           "env_config", "fit_style_learner", "episode"]
+           "env_config", "fit_style_learner", "episode", "select_seeds"]
 
 ENV_ID = "pirl_sim/Roundabout-v0"
 MODES = ("none", "truth", "inferred")  #: observation modes (the env's ``style_observation``)
@@ -161,6 +165,17 @@ class PPOEgo(_Policy):
     use_sde : bool
         Generalised state-dependent exploration (gSDE): smooth exploration noise, redrawn every rollout. With
         independent noise every 0.2 s the exploration's jerk alone costs more than the rest of the comfort term.
+    select_every : int or None
+        Model selection on validation episodes: every ``select_every`` environment steps of training (rounded
+        up to whole rollouts of ``n_steps``) and at its end, the deterministic policy is scored on
+        ``select_episodes`` validation episodes (env seeds ``select_seed``, ``select_seed + 1``, ...; disjoint
+        from the evaluation seeds and the training seed), and the policy with the best mean validation return
+        is the one evaluated (SB3's ``EvalCallback`` best-model practice with fixed episode seeds). None: the
+        policy at the end of training.
+    select_episodes : int
+        Validation episodes per check (with ``select_every``).
+    select_seed : int
+        Env seed of the first validation episode.
     random_state : int or None
         Training seed (PPO's and its env's); the sweep sets it to the cell's seed.
     """
@@ -169,11 +184,13 @@ class PPOEgo(_Policy):
 
     def __init__(self, style_observation="none", action="residual-idm", residual_scale=0.25, max_change=None,
                  steps=16_000, n_steps=1024, batch_size=128, n_epochs=10, gamma=0.99, learning_rate=3e-4,
-                 log_std_init=-2.0, use_sde=True, random_state=None, model=None, window=None, windows="first") -> None:
+                 log_std_init=-2.0, use_sde=True, select_every=None, select_episodes=10, select_seed=2000,
+                 random_state=None, model=None, window=None, windows="first") -> None:
         self.style_observation, self.action, self.residual_scale = style_observation, action, residual_scale
         self.max_change = max_change
         self.steps, self.n_steps, self.batch_size, self.n_epochs = steps, n_steps, batch_size, n_epochs
         self.gamma, self.learning_rate, self.log_std_init, self.use_sde = gamma, learning_rate, log_std_init, use_sde
+        self.select_every, self.select_episodes, self.select_seed = select_every, select_episodes, select_seed
         self.random_state = random_state
         self.model, self.window, self.windows = model, window, windows
 
@@ -182,10 +199,16 @@ class PPOEgo(_Policy):
             raise ValueError(f"style_observation must be one of {MODES}, got {self.style_observation!r}")
         if self.action not in ACTIONS:
             raise ValueError(f"action must be one of {ACTIONS}, got {self.action!r}")
-        for name in ("steps", "n_steps", "batch_size", "n_epochs"):
+        for name in ("steps", "n_steps", "batch_size", "n_epochs", "select_episodes"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        v = self.select_every
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise ValueError(f"select_every must be an integer >= 1 (environment steps) or None, got {v!r}")
+        v = self.select_seed
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"select_seed must be an integer >= 0, got {v!r}")
         for name in ("residual_scale", "learning_rate"):
             number(name, getattr(self, name), low=0.0, allow_equal=False)
         number("log_std_init", self.log_std_init)
@@ -300,16 +323,46 @@ def _ppo_run(params: dict, lp: dict, seed: int) -> dict:
                 gamma=lp["gamma"], learning_rate=lp["learning_rate"], use_sde=lp["use_sde"], seed=seed, verbose=0,
                 device="cpu", policy_kwargs={"log_std_init": lp["log_std_init"]})
     model.set_logger(Logger(folder=None, output_formats=[]))  # no SB3-<date> folder in the temp directory
-    model.learn(total_timesteps=lp["steps"])
+
+    def act(obs):
+        return model.predict(obs, deterministic=True)[0]
+
+    selection, select_time = [], 0.0
+    if lp["select_every"] is None:
+        model.learn(total_timesteps=lp["steps"])
+    else:  # train in chunks; after each, score the policy on the validation episodes and keep the best
+        val_env, best = make_env(), (-math.inf, None)
+        while model.num_timesteps < lp["steps"]:
+            model.learn(total_timesteps=min(lp["select_every"], lp["steps"] - model.num_timesteps),
+                        reset_num_timesteps=model.num_timesteps == 0)
+            t1 = time.perf_counter()
+            score = float(np.mean([episode(val_env, act, s)["return"] for s in select_seeds(lp)]))
+            select_time += time.perf_counter() - t1
+            selection.append([int(model.num_timesteps), score])
+            if score > best[0]:
+                best = (score, copy.deepcopy(model.policy.state_dict()))
+        val_env.close()
+        model.policy.load_state_dict(best[1])
     train_time = time.perf_counter() - t0
     ends = np.cumsum(env.get_episode_lengths())
     curve = [[int(n), float(r)] for n, r in zip(ends, env.get_episode_rewards())]
     env.close()
     eval_env = make_env()
-    episodes = [episode(eval_env, lambda obs: model.predict(obs, deterministic=True)[0], s) for s in eval_seeds(params)]
+    episodes = [episode(eval_env, act, s) for s in eval_seeds(params)]
     eval_env.close()
-    return {"policy": f"ppo {lp['action']}", "mode": mode, "episodes": episodes, "curve": curve,
-            "train_time_s": train_time, "learner_time_s": learner_time}
+    out = {"policy": f"ppo {lp['action']}", "mode": mode, "episodes": episodes, "curve": curve,
+           "train_time_s": train_time, "learner_time_s": learner_time}
+    if selection:
+        out.update(selection=selection, selected_steps=max(selection, key=lambda c: c[1])[0],
+                   select_time_s=select_time)
+    return out
+
+
+def select_seeds(lp: dict) -> list[int]:
+    """The validation episodes' env seeds of a PPO cell with model selection (``select_every``), else []."""
+    if lp.get("select_every") is None:
+        return []
+    return list(range(lp["select_seed"], lp["select_seed"] + lp["select_episodes"]))
 
 
 def run_agent_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
@@ -322,15 +375,17 @@ def run_agent_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
             raise ValueError(f"the agents scenario runs the policies {tuple(POLICIES)}, got {spec['learner']!r}")
         t0 = time.perf_counter()
         if spec["learner"] == "ppo":
-            if seed in eval_seeds(params):
-                raise ValueError(f"training seed {seed} is one of the evaluation seeds {params['eval_seed']}.."
-                                 f"{params['eval_seed'] + params['eval_episodes'] - 1}: use other seeds")
+            evals, vals = eval_seeds(params), select_seeds(lp)
+            if seed in evals or seed in vals:
+                also = f" or validation seeds {vals[0]}..{vals[-1]}" if vals else ""
+                raise ValueError(f"training seed {seed} is one of the evaluation seeds {evals[0]}..{evals[-1]}{also}: "
+                                 "use other seeds")
+            if set(vals) & set(evals):
+                raise ValueError(f"validation seeds {vals[0]}..{vals[-1]} (select_seed, select_episodes) overlap the "
+                                 f"evaluation seeds {evals[0]}..{evals[-1]}: choose another select_seed")
             result = _ppo(params, lp, seed)
         else:
             result = _scripted(params, spec["learner"], lp)
-        for e in result["episodes"]:
-            if e["time_to_exit"] is not None and not math.isfinite(e["time_to_exit"]):
-                e["time_to_exit"] = None
         out.append((result, {"fit_s": result["train_time_s"], "evaluate_s": time.perf_counter() - t0
                              - result["train_time_s"]}))
     return out
