@@ -543,10 +543,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         ap.error(str(exc))
     if args.dry_run:
-        from pirl_sim.sweep.run import _plan
+        from pirl_sim.sweep.run import plan_cells
         from pirl_sim.sweep.store import ResultStore
 
-        _, _, unique, records, _ = _plan(sweep_config(cfg), ResultStore(args.out))
+        _, _, unique, records, _ = plan_cells(sweep_config(cfg), ResultStore(args.out))
         print(f"agents experiment: {len(unique)} runs, {len(records)} already in {args.out}/, "
               f"{len(unique) - len(records)} to run")
         return 0

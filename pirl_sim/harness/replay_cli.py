@@ -49,7 +49,7 @@ from pirl_sim.sweep.config import parse_config, preset_text
 from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
 from pirl_sim.sweep.recorded import (ReplayProtocol, decode_method, load_scene, method_id, recorded_files,
                                      usable_tracks)
-from pirl_sim.sweep.run import _plan, run_sweep
+from pirl_sim.sweep.run import plan_cells, run_sweep
 from pirl_sim.sweep.store import ResultStore
 from pirl_sim.validation import positive_float_arg, positive_int_arg
 
@@ -356,7 +356,7 @@ def _replay(a, settings, out, say) -> tuple:
     config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
     proto = _protocol(a, settings)
     if a.dry_run:
-        version, _, unique, records, _ = _plan(config, ResultStore(out))
+        version, _, unique, records, _ = plan_cells(config, ResultStore(out))
         print(f"replay of {a.tracks}: {len(unique)} cells, {len(records)} already in {out}/, "
               f"{len(unique) - len(records)} to run (code {version})")
         return None, None, proto

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .config import load_config
 from .report import write_report
-from .run import _plan, _simulations, run_sweep
+from .run import plan_cells, _simulations, run_sweep
 from .store import ResultStore
 
 __all__ = ["add_sweep_parsers", "run_sweep_command", "run_report_command", "interrupted", "command_line"]
@@ -87,7 +87,7 @@ def run_sweep_command(args) -> int:
         return 2
     if args.dry_run:
         store = ResultStore(args.out)
-        version, _, unique, stored, todo = _plan(config, store)  # a damaged cell file is not stored: it runs again
+        version, _, unique, stored, todo = plan_cells(config, store)  # a damaged cell file is not stored: it runs again
         sims, _ = _simulations(unique, todo, store, version)
         sim_part = f" and {len(sims)} simulation{'s' if len(sims) != 1 else ''}" if sims else ""
         print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(unique)} distinct), "

@@ -35,8 +35,8 @@ from .progress import Progress
 from .scenarios import scenario_spec
 from .store import ResultStore, code_version, simulation_key
 
-__all__ = ["SweepRun", "run_sweep", "cell_keys", "assemble_table", "read_table", "weights_table", "TIMING_COLUMNS",
-           "SCORE_COLUMNS", "TABLE_COLUMNS", "WEIGHT_COLUMNS"]
+__all__ = ["SweepRun", "run_sweep", "plan_cells", "cell_keys", "assemble_table", "read_table", "weights_table",
+           "TIMING_COLUMNS", "SCORE_COLUMNS", "TABLE_COLUMNS", "WEIGHT_COLUMNS"]
 
 #: wall-clock timings [s]: differ from run to run (everything else in the table does not)
 TIMING_COLUMNS = ("generate_s", "fit_s", "evaluate_s", "cell_s", "cpu_s")
@@ -157,7 +157,7 @@ def run_sweep(
     t_start = time.perf_counter()
     out = Path(out_dir)
     store = ResultStore(out)
-    version, keys, unique, records, todo = _plan(config, store)
+    version, keys, unique, records, todo = plan_cells(config, store)
     out.mkdir(parents=True, exist_ok=True)
 
     bar = None
@@ -173,7 +173,7 @@ def run_sweep(
             ex.warm_up()
             startup_s = time.perf_counter() - t0
             if code_version() != version:  # the sources changed while the workers started: plan again
-                version, keys, unique, records, todo = _plan(config, store)
+                version, keys, unique, records, todo = plan_cells(config, store)
             atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
             sims, waiting = _simulations(unique, todo, store, version)
             bar = Progress(len(unique), len(records), stream=stream, enabled=progress)
@@ -308,7 +308,7 @@ def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str
     return sims, waiting
 
 
-def _plan(config: SweepConfig, store: ResultStore):
+def plan_cells(config: SweepConfig, store: ResultStore):
     """Keys under the current code version, the stored records, and the cells to run (in submission order)."""
     version = code_version()
     keys = cell_keys(config, version)
