@@ -38,6 +38,13 @@ def test_bad_settings_are_rejected(kwargs, match):
         AgentsConfig(**kwargs)
 
 
+def test_the_residual_observation_goes_to_the_residual_runs_only():
+    cfg = agents.sweep_config(AgentsConfig(observe_residual=True, direct_modes=("none",)))
+    seen = {(c.learner_params["action"], c.learner_params["observe_residual"]) for c in cfg.cells
+            if c.learner == "ppo"}
+    assert seen == {("shielded-residual-idm", True), ("direct", False)}
+
+
 def test_intervals():
     m, lo, hi = agents._t_interval([1.0, 2.0, 3.0])
     assert m == 2.0 and lo == pytest.approx(2 - 4.302653 / math.sqrt(3)) and hi == pytest.approx(2 + 4.302653 / math.sqrt(3))

@@ -183,3 +183,45 @@ def test_shielded_residual_never_exceeds_the_traffics_limits():
         if terminated or truncated:
             break
     assert capped > 0, "the limit never bound: the test does not test the shield"
+
+
+def test_residual_observation_shows_what_the_step_will_apply():
+    """``observe=True``: the observation's ``residual`` entry is the baseline's action and the shield's cap the next
+    step applies, and the correction in force; the env passes gymnasium's and SB3's checkers; the actions applied
+    are those without the observation."""
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    from pirl_sim.envs.baselines import ResidualAction, action_of, interaction_limit
+
+    def residual(observe):
+        return ResidualAction(gym.make(ENV_ID, config={"reward": "exit", **DENSE}), "idm", scale=0.5, shield=True,
+                              max_change=0.1, observe=observe)
+
+    env = residual(True)
+    check_env(env, skip_render_check=True)
+    sb3_check_env(gym.wrappers.FlattenObservation(residual(True)))
+    assert set(env.observation_space.spaces) == {"kinematics", "residual"}
+    obs, _ = env.reset(seed=1004)
+    plain = residual(False)
+    plain_obs, _ = plain.reset(seed=1004)
+    np.testing.assert_array_equal(obs["kinematics"], plain_obs)
+    base = env.unwrapped
+    capped = 0
+    for k in range(80):
+        cap = interaction_limit(base)
+        bound = float(action_of(cap, base.action_type.acceleration_range)[0]) if np.isfinite(cap) else 1.0
+        assert obs["residual"][2] == pytest.approx(bound)
+        capped += bound < 1.0
+        action = np.array([np.sin(k / 4)], dtype=np.float32)
+        shown = obs["residual"][0]
+        obs, _, terminated, truncated, info = env.step(action)
+        _, _, _, _, plain_info = plain.step(action)
+        assert info["baseline_action"] == pytest.approx(shown)
+        assert info["applied_action"] == plain_info["applied_action"]
+        assert obs["residual"][1] == pytest.approx(env.correction / 0.5)
+        if terminated or truncated:
+            break
+    assert capped > 0, "the cap never bound: the test does not test the cap's column"
+    with pytest.raises(TypeError, match=r"observe must be True or False, got 1"):
+        ResidualAction(env.env, "idm", observe=1)

@@ -27,6 +27,8 @@ def _config(learners, scenario="agents", protocols=("paper",), params=None):
     ([{"name": "ppo", "params": {"action": "teleport"}}], "agents", ("paper",), None,
      r"action must be one of \('residual-idm', 'shielded-residual-idm', 'direct'\), got 'teleport'"),
     ([{"name": "ppo", "params": {"steps": 0}}], "agents", ("paper",), None, r"steps must be an integer >= 1, got 0"),
+    ([{"name": "ppo", "params": {"action": "direct", "observe_residual": True}}], "agents", ("paper",), None,
+     r"observe_residual shows the agent the action it corrects: it needs a residual action, not 'direct'"),
     ([{"name": "ppo", "params": {"gamma": 0.0}}], "agents", ("paper",), None, r"gamma must be in \(0, 1\], got 0.0"),
     ([{"name": "mpc", "params": {"acc_sq": -1.0}}], "agents", ("paper",), None,
      r"acc_sq must be a finite number > 0, got -1.0"),
@@ -82,7 +84,8 @@ def test_model_selection_evaluates_the_best_checked_policy():
               "eval_seed": 1000, "learner_seed": 7}
     lp = {"style_observation": "none", "action": "shielded-residual-idm", "residual_scale": 1.0, "max_change": 0.1,
           "steps": 192, "n_steps": 64, "batch_size": 64, "n_epochs": 2, "gamma": 0.99, "learning_rate": 3e-3,
-          "log_std_init": 0.0, "use_sde": False, "select_every": 64, "select_episodes": 2, "select_seed": 2000}
+          "log_std_init": 0.0, "use_sde": False, "observe_residual": True, "select_every": 64, "select_episodes": 2,
+          "select_seed": 2000}
     selected = _ppo(params, lp, 0)
     assert [s for s, _ in selected["selection"]] == [64, 128, 192]
     best = max(selected["selection"], key=lambda c: c[1])

@@ -19,7 +19,8 @@ The accelerations are mapped to actions by :func:`action_of` (the inverse of the
 :class:`ResidualAction` is a gymnasium wrapper for agents that learn a correction to a baseline (residual
 reinforcement learning): the applied action is ``clip(baseline action + scale * agent action, -1, 1)``, so an
 agent whose actions are 0 drives exactly as the baseline does; with ``shield`` it is also capped by the traffic's
-leader and yielding limits (:func:`interaction_limit`).
+leader and yielding limits (:func:`interaction_limit`); with ``observe`` the agent also sees the baseline's action,
+its correction in force and the cap.
 """
 
 from __future__ import annotations
@@ -182,13 +183,13 @@ def make_baseline(name: str, theta: Mapping[str, float] | None = None):
     raise ValueError(f"baseline must be one of {BASELINES}, got {name!r}")
 
 
-def _wrapper_base():
+def _wrapper_bases():
     import gymnasium as gym
 
-    return gym.Wrapper
+    return gym.Wrapper, gym.utils.RecordConstructorArgs  # the latter: gymnasium can recreate the wrapped env
 
 
-class ResidualAction(_wrapper_base()):
+class ResidualAction(*_wrapper_bases()):
     """The agent's action as a correction to a baseline ego's (see the module docstring).
 
     Parameters
@@ -208,12 +209,22 @@ class ResidualAction(_wrapper_base()):
         > 0: the correction moves towards ``scale * action`` by at most this much per agent step (action units;
         the agent sets a target, the correction follows it at a bounded rate, so its jerk is bounded); None:
         at once.
+    observe : bool
+        Let the agent see what it corrects (residual policy learning gives the residual policy the base
+        policy's action): the observation becomes a ``Dict`` of the env's (``"kinematics"``) and
+        ``"residual"``, a ``Box(-1, 1, (3,))`` of the baseline's action for the coming step, the correction
+        in force divided by ``scale`` (with ``max_change`` the agent's action only moves it), and the shield's
+        cap in action units (1 where nothing caps: no shield, or no leader and no stop line).
 
     ``info["baseline_action"]`` and ``info["applied_action"]`` give both actions of each step.
     """
 
     def __init__(self, env, baseline="idm", scale: float = 0.5, shield: bool = False,
-                 max_change: float | None = None) -> None:
+                 max_change: float | None = None, observe: bool = False) -> None:
+        from gymnasium.utils import RecordConstructorArgs
+
+        RecordConstructorArgs.__init__(self, baseline=baseline, scale=scale, shield=shield, max_change=max_change,
+                                       observe=observe)
         super().__init__(env)
         self.baseline = make_baseline(baseline) if isinstance(baseline, str) else baseline
         if not (hasattr(self.baseline, "act") and hasattr(self.baseline, "reset")):
@@ -229,27 +240,52 @@ class ResidualAction(_wrapper_base()):
                                        or not np.isfinite(max_change) or max_change <= 0):
             raise ValueError(f"max_change must be a finite number > 0 (action units) or None, got {max_change!r}")
         self.max_change = None if max_change is None else float(max_change)
+        if not isinstance(observe, bool):
+            raise TypeError(f"observe must be True or False, got {observe!r}")
+        self.observe = observe
+        if observe:
+            from gymnasium import spaces
+
+            self.observation_space = spaces.Dict({"kinematics": env.observation_space,
+                                                  "residual": spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)})
         self.correction = 0.0  #: the correction applied in the last step (action units)
+        self._next = None  # (baseline action, cap in action units) of the coming step, once computed
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
         self.baseline.reset(self.env.unwrapped)
         self.correction = 0.0
-        return obs, info
+        self._next = None
+        return self._observation(obs), info
+
+    def _actions(self) -> tuple[float, float]:
+        """(the baseline's action, the shield's cap in action units, 1 where none) in the env's state now,
+        computed once per state: the observation shows what the next step applies."""
+        if self._next is None:
+            base = float(self.baseline.act(self.env.unwrapped)[0])
+            cap = interaction_limit(self.env) if self.shield else math.inf
+            cap = float(action_of(cap, self.env.unwrapped.action_type.acceleration_range)[0]) \
+                if math.isfinite(cap) else 1.0
+            self._next = (base, cap)
+        return self._next
+
+    def _observation(self, obs):
+        if not self.observe:
+            return obs
+        base, cap = self._actions()
+        extra = np.clip([base, self.correction / self.scale, cap], -1.0, 1.0).astype(np.float32)
+        return {"kinematics": obs, "residual": extra}
 
     def step(self, action):
         x = check_action(action)
-        base = float(self.baseline.act(self.env.unwrapped)[0])
+        base, cap = self._actions()
         target = self.scale * x
         if self.max_change is not None:
             target = min(max(target, self.correction - self.max_change), self.correction + self.max_change)
         self.correction = target
-        a = base + target
-        if self.shield:
-            cap = interaction_limit(self.env)
-            if math.isfinite(cap):
-                a = min(a, float(action_of(cap, self.env.unwrapped.action_type.acceleration_range)[0]))
+        a = min(base + target, cap)
         applied = np.array([min(max(a, -1.0), 1.0)], dtype=np.float32)
         obs, reward, terminated, truncated, info = self.env.step(applied)
+        self._next = None
         info = {**info, "baseline_action": base, "applied_action": float(applied[0])}
-        return obs, reward, terminated, truncated, info
+        return self._observation(obs), reward, terminated, truncated, info

@@ -126,6 +126,9 @@ class AgentsConfig:
         Generalised state-dependent exploration (SB3's gSDE): the exploration noise is a function of the
         observation, redrawn every rollout, so the explored accelerations change smoothly. With independent
         noise every 0.2 s the jerk of the exploration alone costs more than the rest of the comfort term.
+    observe_residual : bool
+        PPO (residual action) also observes the IDM ego's action, its correction in force and the shield's cap
+        (`pirl_sim.envs.baselines.ResidualAction`'s ``observe``); the direct runs never do.
     select_every : int or None
         Model selection: every this many environment steps (and at the end) the policy is scored on
         ``select_episodes`` validation episodes (env seeds from ``select_seed``, disjoint from ``eval_seeds`` and
@@ -154,6 +157,7 @@ class AgentsConfig:
     learning_rate: float = 3e-4
     log_std_init: float = -2.0
     use_sde: bool = True
+    observe_residual: bool = True
     select_every: int | None = None
     select_episodes: int = 10
     select_seed: int = 2000
@@ -182,7 +186,7 @@ class AgentsConfig:
 
 #: AgentsConfig fields that are `pirl_sim.sweep.agents.PPOEgo` parameters of the same name
 PPO_FIELDS = ("residual_scale", "max_change", "steps", "n_steps", "batch_size", "n_epochs", "gamma", "learning_rate",
-              "log_std_init", "use_sde", "select_every", "select_episodes", "select_seed")
+              "log_std_init", "use_sde", "observe_residual", "select_every", "select_episodes", "select_seed")
 
 
 def ppo_params(cfg) -> dict:
@@ -233,7 +237,8 @@ def sweep_config(cfg: AgentsConfig):
     learners = [{"name": "ppo", "label": f"ppo {cfg.action}", "params": {**ppo, "action": cfg.action},
                  "grid": {"style_observation": list(cfg.modes)}}]
     if cfg.direct_modes and cfg.action != "direct":
-        learners.append({"name": "ppo", "label": "ppo direct", "params": {**ppo, "action": "direct"},
+        learners.append({"name": "ppo", "label": "ppo direct", "params": {**ppo, "action": "direct",
+                                                                          "observe_residual": False},
                          "grid": {"style_observation": list(cfg.direct_modes)}})
     experiments = [{"scenario": "agents", "label": "ppo", "params": params, "seeds": list(cfg.seeds),
                     "protocols": ["paper"], "learners": learners}]
@@ -515,12 +520,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=_csv_list(int), default=AgentsConfig.seeds, help="training seeds, e.g. 0,1,2")
     ap.add_argument("--steps", type=int, default=AgentsConfig.steps, help="PPO steps per run")
     ap.add_argument("--episodes", type=int, default=len(AgentsConfig.eval_seeds),
-                    help="evaluation episodes (seeds 1000, 1001, ...)")
+                    help="evaluation episodes (env seeds --eval-seed, --eval-seed + 1, ...)")
     ap.add_argument("--baselines", type=_csv_list(str), default=BASELINE_POLICIES)
     ap.add_argument("--n-steps", type=int, default=AgentsConfig.n_steps, help="PPO rollout length")
     ap.add_argument("--gamma", type=float, default=AgentsConfig.gamma, help="PPO's discount (default %(default)s)")
     ap.add_argument("--learning-rate", type=float, default=AgentsConfig.learning_rate,
                     help="PPO's learning rate (default %(default)s)")
+    ap.add_argument("--observe-residual", action=argparse.BooleanOptionalAction, default=AgentsConfig.observe_residual,
+                    help="PPO (residual action) also observes the IDM ego's action, its correction and the cap "
+                         "(default %(default)s)")
+    ap.add_argument("--eval-seed", type=int, default=AgentsConfig.eval_seeds[0],
+                    help="env seed of the first evaluation episode (default %(default)s; design choices are better "
+                         "made on other seeds than the committed evaluation's)")
     ap.add_argument("--select-every", type=_optional_int, default=AgentsConfig.select_every,
                     help="environment steps between checks of PPO's policy on validation episodes (the best "
                          "check's policy is evaluated), or 'none': the last policy (default %(default)s)")
@@ -536,7 +547,8 @@ def main(argv: list[str] | None = None) -> int:
         cfg = AgentsConfig(modes=args.modes, action=args.action, direct_modes=args.direct_modes,
                            residual_scale=args.residual_scale, max_change=args.max_change, seeds=args.seeds,
                            steps=args.steps, baselines=args.baselines,
-                           eval_seeds=tuple(range(1000, 1000 + args.episodes)), n_steps=args.n_steps,
+                           eval_seeds=tuple(range(args.eval_seed, args.eval_seed + args.episodes)),
+                           n_steps=args.n_steps, observe_residual=args.observe_residual,
                            gamma=args.gamma, learning_rate=args.learning_rate, select_every=args.select_every,
                            select_episodes=args.select_episodes,
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))

@@ -165,6 +165,9 @@ class PPOEgo(_Policy):
     use_sde : bool
         Generalised state-dependent exploration (gSDE): smooth exploration noise, redrawn every rollout. With
         independent noise every 0.2 s the exploration's jerk alone costs more than the rest of the comfort term.
+    observe_residual : bool
+        With a residual action: the agent also observes the IDM ego's action, its correction in force and the
+        shield's cap (:class:`~pirl_sim.envs.baselines.ResidualAction` ``observe``).
     select_every : int or None
         Model selection on validation episodes: every ``select_every`` environment steps of training (rounded
         up to whole rollouts of ``n_steps``) and at its end, the deterministic policy is scored on
@@ -184,12 +187,13 @@ class PPOEgo(_Policy):
 
     def __init__(self, style_observation="none", action="residual-idm", residual_scale=0.25, max_change=None,
                  steps=16_000, n_steps=1024, batch_size=128, n_epochs=10, gamma=0.99, learning_rate=3e-4,
-                 log_std_init=-2.0, use_sde=True, select_every=None, select_episodes=10, select_seed=2000,
-                 random_state=None, model=None, window=None, windows="first") -> None:
+                 log_std_init=-2.0, use_sde=True, observe_residual=False, select_every=None, select_episodes=10,
+                 select_seed=2000, random_state=None, model=None, window=None, windows="first") -> None:
         self.style_observation, self.action, self.residual_scale = style_observation, action, residual_scale
         self.max_change = max_change
         self.steps, self.n_steps, self.batch_size, self.n_epochs = steps, n_steps, batch_size, n_epochs
         self.gamma, self.learning_rate, self.log_std_init, self.use_sde = gamma, learning_rate, log_std_init, use_sde
+        self.observe_residual = observe_residual
         self.select_every, self.select_episodes, self.select_seed = select_every, select_episodes, select_seed
         self.random_state = random_state
         self.model, self.window, self.windows = model, window, windows
@@ -217,8 +221,12 @@ class PPOEgo(_Policy):
         g = self.gamma
         if isinstance(g, bool) or not isinstance(g, (int, float)) or not 0 < g <= 1:
             raise ValueError(f"gamma must be in (0, 1], got {g!r}")
-        if not isinstance(self.use_sde, bool):
-            raise ValueError(f"use_sde must be true or false, got {self.use_sde!r}")
+        for name in ("use_sde", "observe_residual"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        if self.observe_residual and self.action == "direct":
+            raise ValueError("observe_residual shows the agent the action it corrects: it needs a residual action, "
+                             f"not {self.action!r}")
 
 
 #: sweep name -> policy class (pseudo-learners of this scenario, `pirl_sim.sweep.config.sweep_learners`)
@@ -314,7 +322,7 @@ def _ppo_run(params: dict, lp: dict, seed: int) -> dict:
         env = gym.make(ENV_ID, config=env_config(params, mode, learner))
         if lp["action"] != "direct":
             env = ResidualAction(env, "idm", lp["residual_scale"], shield=lp["action"].startswith("shielded"),
-                                 max_change=lp["max_change"])
+                                 max_change=lp["max_change"], observe=lp["observe_residual"])
         return gym.wrappers.FlattenObservation(env)
 
     t0 = time.perf_counter()
