@@ -33,13 +33,22 @@ training seed (``--seeds 0 --episodes 10 --modes none --direct-modes '' --baseli
 options; IDM ego: return -16.9, 9 of 10 arrive, 29.6 s to exit, no crash): the plain residual ended below the
 IDM (``--action residual-idm --max-change none``, scale 0.25: -18.4, one crash; scale 0.5: -19.7, 26.5 s, two
 crashes); capped at scale 1 without the rate limit (``--max-change none``) it arrived 10 of 10 in 26.2 s without
-a crash but scored -17.8; with the rate limit (the default) -11.4, 27.0 s.
+a crash but scored -17.8; with the rate limit (the default) -11.4, 27.0 s (these probes: the agent without the
+residual observation below).
+
+Residual observation (``--observe-residual``, the default; ``--no-observe-residual``): the residual agent also
+observes what it corrects, the IDM ego's action for the coming step, its correction in force and the shield's cap
+(``ResidualAction(observe=True)``; with the rate limit the correction is state the agent could not see otherwise).
+Chosen on design-probe seeds, not on the evaluation seeds: ``--modes none --direct-modes '' --baselines idm
+--eval-seed 3000`` (3 training seeds, 20 episodes of env seeds 3000-3019; 275 s and 295 s) gave return -12.3
+[-25.4, 0.8] with it against -15.4 [-27.1, -3.7] without (IDM ego -16.1), Δreturn vs IDM +3.9 [-3.9, 11.7] against
++0.7 [-5.3, 6.8], 58 against 54 of 60 episodes arriving, one collision against none.
 
 Model selection (``--select-every N``, off by default): PPO's policy is checked every N environment steps on
 ``--select-episodes`` validation episodes (env seeds 2000, 2001, ...) and the best check's policy is evaluated.
 Measured with ``--modes none --direct-modes '' --baselines idm --jobs 2 --select-every 5000`` (3 training seeds,
-10 validation episodes, 8 checks per run; 379 s): return -17.8 against -16.6 for the last policies of the same
-training runs (the committed table), Δreturn vs IDM -0.76 [-4.31, 2.79], one collision in 60 episodes: 10
+10 validation episodes, 8 checks per run; 379 s; without the residual observation): return -17.8 against -16.6
+for the last policies of the same training runs (the table committed before the residual observation), Δreturn vs IDM -0.76 [-4.31, 2.79], one collision in 60 episodes: 10
 validation episodes rank these policies no better than chance (training seed 0's last policy scored -15.6 on
 them, worst of its checks, and -14.2 on the evaluation episodes, better than the selected check's -15.3).
 
@@ -487,22 +496,16 @@ def _csv_list(kind):
     return parse
 
 
-def _optional_float(text: str) -> float | None:
-    if text.strip().lower() == "none":
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number or 'none', got {text!r}") from None
-
-
-def _optional_int(text: str) -> int | None:
-    if text.strip().lower() == "none":
-        return None
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number or 'none', got {text!r}") from None
+def _optional(kind, what: str):
+    """An argparse type: ``kind(text)``, or None for 'none'."""
+    def parse(text: str):
+        if text.strip().lower() == "none":
+            return None
+        try:
+            return kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what} or 'none', got {text!r}") from None
+    return parse
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -514,7 +517,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="modes in which PPO also learns the direct action (default none; '' for no such run)")
     ap.add_argument("--residual-scale", type=float, default=AgentsConfig.residual_scale,
                     help="largest residual correction in action units (default %(default)s)")
-    ap.add_argument("--max-change", type=_optional_float, default=AgentsConfig.max_change,
+    ap.add_argument("--max-change", type=_optional(float, "a number"), default=AgentsConfig.max_change,
                     help="largest change of the residual per agent step in action units, or 'none' "
                          "(default %(default)s)")
     ap.add_argument("--seeds", type=_csv_list(int), default=AgentsConfig.seeds, help="training seeds, e.g. 0,1,2")
@@ -532,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-seed", type=int, default=AgentsConfig.eval_seeds[0],
                     help="env seed of the first evaluation episode (default %(default)s; design choices are better "
                          "made on other seeds than the committed evaluation's)")
-    ap.add_argument("--select-every", type=_optional_int, default=AgentsConfig.select_every,
+    ap.add_argument("--select-every", type=_optional(int, "a whole number"), default=AgentsConfig.select_every,
                     help="environment steps between checks of PPO's policy on validation episodes (the best "
                          "check's policy is evaluated), or 'none': the last policy (default %(default)s)")
     ap.add_argument("--select-episodes", type=int, default=AgentsConfig.select_episodes,
