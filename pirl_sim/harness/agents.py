@@ -48,9 +48,10 @@ Model selection (``--select-every N``, off by default): PPO's policy is checked 
 ``--select-episodes`` validation episodes (env seeds 2000, 2001, ...) and the best check's policy is evaluated.
 Measured with ``--modes none --direct-modes '' --baselines idm --jobs 2 --select-every 5000`` (3 training seeds,
 10 validation episodes, 8 checks per run; 379 s; without the residual observation): return -17.8 against -16.6
-for the last policies of the same training runs (the table committed before the residual observation), Δreturn vs IDM -0.76 [-4.31, 2.79], one collision in 60 episodes: 10
-validation episodes rank these policies no better than chance (training seed 0's last policy scored -15.6 on
-them, worst of its checks, and -14.2 on the evaluation episodes, better than the selected check's -15.3).
+for the last policies of the same training runs (the table committed before the residual observation), Δreturn
+vs IDM -0.76 [-4.31, 2.79], one collision in 60 episodes: 10 validation episodes rank these policies no better
+than chance (training seed 0's last policy scored -15.6 on them, worst of its checks, and -14.2 on the
+evaluation episodes, better than the selected check's -15.3).
 
 Intervals. Returns and times: Student-t 95 % intervals; for PPO over the training seeds' mean returns (each
 seed's mean over the evaluation episodes: the seeds are the independent replicates), for the baselines over

@@ -53,7 +53,8 @@ WEIGHT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol",
 _INT_COLUMNS = ("history_steps", "horizon", "k", "seed", "n_styles", "n_train", "n_test", "n_predictions", "n_warnings",
                 "k_futures")
 _FLOAT_SCORES = ("med", "med_std", "fde", "weight_error", "ari", *(c for c in ONLINE_SCORES if c != "k_futures"))
-_COST = {"cv": 0, "ca": 0, "tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3, "ppo": 20}  # rough relative cost: long cells go first
+#: rough relative cost of a learner's cells: long cells go first
+_COST = {"cv": 0, "ca": 0, "tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3, "ppo": 20}
 
 
 @dataclass
