@@ -35,6 +35,15 @@ comparison), next-steps costs looked up by speed and acceleration now, 0.5 s and
 length with 0.79 / 0.50 / 0.93 x the error of constant acceleration (DR_USA_Roundabout_EP / _FT /
 DR_CHN_Roundabout_LN), against 0.89 / 0.51 / 1.02 x by features and the last speed and acceleration: how a driver
 got to the present says more about the next seconds than the history's feature averages.
+
+Two more options make the costs fit what an online prediction does with them (issue 12). ``segment_start="history"``
+fits each next-steps cost from the state the prediction will start from, the history's own estimate
+(``lookup_history``), instead of the smoothed track's state at that step: a cost fitted from the smoother's start
+and rolled out from the online estimate carries that estimate's error in speed and acceleration through the
+whole horizon, however well the cost explains the segment (the segment is re-started there with the controls that
+follow its positions and speeds best, `steer_segment`). ``lookup_ahead`` adds the road's curvature some metres
+ahead to the look-up: histories that end before the same bend. Measured on the development roundabouts in the
+README (section "Replaying recorded driving").
 """
 
 from __future__ import annotations
@@ -45,17 +54,24 @@ import numpy as np
 from sklearn.neighbors import NearestNeighbors
 from sklearn.preprocessing import StandardScaler
 
+from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
 from .base import BaseLearner, population_prior
 
-__all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes"]
+__all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes", "steer_segment"]
 
 AVERAGES = ("log", "linear")
 PRIORS = (None, "population")
 WEIGHTINGS = ("distance", "likelihood")
 TARGETS = ("demo", "next")
 AGGREGATES = ("weights", "futures")
+SEGMENT_STARTS = ("track", "history")
+#: how ``segment_start="history"`` re-starts a next-steps segment (`pirl_sim.dynamics.LinearDynamics.steer`):
+#: weights on the position [1/m^2] and speed [s^2/m^2] along the path, ridge on the controls (jerk, [s^6/m^2])
+STEER = {"weights": (1.0, 1.0), "ridge": 1e-2}
+#: held-out training windows (evenly spaced) on which several ``ahead_weights`` are compared
+AHEAD_VALIDATION = 1000
 
 
 class PIRLKNN(BaseLearner):
@@ -90,7 +106,25 @@ class PIRLKNN(BaseLearner):
     lookup_history : bool
         With ``target="next"``: the training histories' look-up values from `Trajectory.history_window` (each
         history's states estimated from its own observations, as an online query's are) instead of the
-        training track's smoothed states. The next-steps segments keep the smoothed states.
+        training track's smoothed states. The next-steps segments keep the smoothed states unless
+        ``segment_start="history"``.
+    segment_start : {"track", "history"}
+        With ``target="next"``: where each next-steps segment whose cost the IRL fits starts. "track": the
+        training track's own (smoothed) states; "history": the last state of its history as
+        ``lookup_history`` estimates it (what an online prediction starts from), with the controls that then
+        follow the track's positions and speeds best (`pirl_sim.dynamics.LinearDynamics.steer`, `STEER`). A
+        cost fitted from the smoothed start, rolled out from the online estimate, inherits that estimate's
+        error in speed and acceleration (module doc); needs ``lookup_history=True``.
+    lookup_ahead : tuple of float
+        Distances ahead [m] at which the road's |curvature| (the model's, `PathDriverModel.curvature`) at the
+        window's end enters the look-up space, standardised with the rest; () none. What the road ahead does
+        decides much of what a driver does next (module doc).
+    ahead_weights : tuple of float
+        Weights >= 0 of the road-ahead coordinates (after standardising; 0 leaves the road out, 1 weighs each
+        distance as one speed or acceleration). One: that weight. Several (``target="next"``): the one whose
+        look-up predicts the positions over the next steps of up to `AHEAD_VALIDATION` held-out training
+        windows best, each window's neighbours taken from other recorded tracks only (``ahead_scores_``); how
+        much the road ahead tells differs between roundabouts (README).
     model, window, stride, feature_transform, log_bounds, irl_max_iter : see `BaseLearner`.
 
     Attributes
@@ -101,6 +135,9 @@ class PIRLKNN(BaseLearner):
     n_weights_at_bound_ : int      demonstrations with a normalised weight at the log bound
     n_scale_at_bound_ : int        demonstrations whose scale (rationality) reached the bound
     control_rms_, episode_steps_   (``weighting="likelihood"``) as `PIRLGMM`'s, for the likelihoods
+    ahead_weight_ : float          the road-ahead weight in use (the chosen one of ``ahead_weights``)
+    ahead_scores_ : dict           {candidate weight: held-out mean |error| along the path [m]} (several only)
+    key_scale_ : array (d,)        factors on the standardised look-up coordinates
     """
 
     def __init__(
@@ -127,6 +164,9 @@ class PIRLKNN(BaseLearner):
         lookup_features=True,
         aggregate="weights",
         lookup_history=False,
+        segment_start="track",
+        lookup_ahead=(),
+        ahead_weights=(1.0,),
         irl_max_iter=100,
     ):
         self.model = model
@@ -150,6 +190,9 @@ class PIRLKNN(BaseLearner):
         self.lookup_features = lookup_features
         self.aggregate = aggregate
         self.lookup_history = lookup_history
+        self.segment_start = segment_start
+        self.lookup_ahead = lookup_ahead
+        self.ahead_weights = ahead_weights
         self.irl_max_iter = irl_max_iter
 
     def _check_target(self, model) -> tuple[int, ...]:
@@ -189,13 +232,43 @@ class PIRLKNN(BaseLearner):
             raise TypeError(f"lookup_history must be True or False, got {self.lookup_history!r}")
         if self.lookup_history and self.target != "next":
             raise ValueError("lookup_history=True applies to target='next' only")
-        if not self.lookup_features and not idx:
-            raise ValueError("lookup_features=False looks up by state_features alone; give some, e.g. (1, 2)")
+        if self.segment_start not in SEGMENT_STARTS:
+            raise ValueError(f"segment_start must be one of {SEGMENT_STARTS}, got {self.segment_start!r}")
+        if self.segment_start == "history" and not (self.target == "next" and self.lookup_history):
+            raise ValueError("segment_start='history' starts each next-steps segment from its history's own "
+                             "estimate: it needs target='next' and lookup_history=True")
+        if self.segment_start == "history" and n_x < 2:
+            raise ValueError(f"segment_start='history' follows positions and speeds (state entries 0 and 1); this "
+                             f"model has {n_x} state entries")
+        try:
+            ahead = tuple(float(d) for d in self.lookup_ahead)
+        except (TypeError, ValueError):
+            raise TypeError(f"lookup_ahead must be a sequence of distances [m], got {self.lookup_ahead!r}") from None
+        if any(isinstance(d, bool) for d in self.lookup_ahead) or not all(np.isfinite(d) and d >= 0 for d in ahead):
+            raise ValueError(f"lookup_ahead must be finite distances >= 0 m, got {self.lookup_ahead!r}")
+        try:
+            aw = tuple(float(w) for w in self.ahead_weights)
+        except (TypeError, ValueError):
+            raise TypeError(f"ahead_weights must be a sequence of weights, got {self.ahead_weights!r}") from None
+        if (not aw or any(isinstance(w, bool) for w in self.ahead_weights)
+                or not all(np.isfinite(w) and w >= 0 for w in aw) or len(set(aw)) != len(aw)):
+            raise ValueError(f"ahead_weights must be distinct finite weights >= 0, at least one, got "
+                             f"{self.ahead_weights!r}")
+        if len(aw) > 1 and ahead and self.target != "next":
+            raise ValueError("several ahead_weights are chosen on the training windows' next steps: they need "
+                             "target='next'")
+        if ahead and not callable(getattr(model, "curvature", None)):
+            raise ValueError(f"lookup_ahead needs a model along a path with a curvature (PathDriverModel), got "
+                             f"{type(model).__name__}")
+        if not self.lookup_features and not idx and not ahead:
+            raise ValueError("lookup_features=False looks up by state_features alone (and lookup_ahead); give "
+                             "some, e.g. state_features=(1, 2)")
         return idx
 
     def _lookup_values(self, model, windows) -> np.ndarray:
         """Look-up coordinates before standardising: transformed features (unless ``lookup_features`` is
-        False), then the chosen state entries at each lag before the window's end."""
+        False), the chosen state entries at each lag before the window's end, then the road's |curvature| at
+        ``lookup_ahead`` metres beyond the window's end."""
         parts = [self._raw_to_space(model.feature_values(windows))] if self.lookup_features else []
         idx = list(self.state_idx_)
         if idx:
@@ -205,21 +278,37 @@ class PIRLKNN(BaseLearner):
                 raise ValueError(f"state_lags reach {max(lags)} steps back, but window {short[0]} has "
                                  f"{windows[short[0]].n_steps} steps")
             parts.append(np.stack([np.concatenate([w.states[-1 - lag, idx] for lag in lags]) for w in windows]))
+        ahead = np.asarray(self.lookup_ahead, dtype=float)
+        if ahead.size:
+            s_end = np.array([w.states[-1, 0] for w in windows])
+            parts.append(model.curvature(s_end[:, None] + ahead))
         return np.hstack(parts)
 
-    def _next_pairs(self, trajectories) -> tuple[list, list]:
-        """(history windows, the ``target_steps`` steps after each), every ``stride`` steps."""
+    def _next_pairs(self, model, trajectories) -> tuple[list, list, np.ndarray, np.ndarray]:
+        """(history windows, the ``target_steps`` steps after each, every ``stride`` steps; with
+        ``segment_start="history"`` each segment re-started from its history's last state), the recorded
+        track of each pair (int labels: metadata ``file`` and ``track_id``, else the trajectory) and the
+        track's positions over each segment's steps (P, target_steps)."""
         T, F = int(self.window), int(self.target_steps)
-        hist, nxt = [], []
-        for t in trajectories:
+        hist, nxt, tracks, truth = [], [], [], []
+        for i, t in enumerate(trajectories):
+            track = (str(t.metadata.get("file")), str(t.metadata.get("track_id", f"#{i}")))
             for start in range(0, t.n_steps - T - F + 1, int(self.stride)):
-                hist.append(t.history_window(start, start + T) if self.lookup_history else t.window(start, start + T))
-                nxt.append(t.window(start + T, start + T + F))
+                h = t.history_window(start, start + T) if self.lookup_history else t.window(start, start + T)
+                seg = t.window(start + T, start + T + F)
+                truth.append(seg.states[1:, 0])
+                if self.segment_start == "history":
+                    seg = steer_segment(model.dynamics, h.states[-1], seg)
+                hist.append(h)
+                nxt.append(seg)
+                tracks.append(track)
         if not hist:
             longest = max(t.n_steps for t in trajectories)
             raise ValueError(f"target='next': no training trajectory has window + target_steps = {T + F} steps "
                              f"(longest {longest})")
-        return hist, nxt
+        ids: dict = {}
+        labels = np.array([ids.setdefault(track, len(ids)) for track in tracks])
+        return hist, nxt, labels, np.stack(truth)
 
     def _fit(self, model, trajectories):
         k = self.n_neighbors
@@ -232,8 +321,8 @@ class PIRLKNN(BaseLearner):
         if self.weighting not in WEIGHTINGS:
             raise ValueError(f"weighting must be one of {WEIGHTINGS}, got {self.weighting!r}")
         self.state_idx_ = self._check_target(model)
-        if self.target == "next":
-            samples, trajectories = self._next_pairs(trajectories)  # each next-steps segment a demonstration
+        if self.target == "next":  # each next-steps segment a demonstration
+            samples, trajectories, groups, truth = self._next_pairs(model, trajectories)
             owners = np.arange(len(samples))
         else:
             samples, owners = self._training_windows(trajectories)
@@ -257,8 +346,12 @@ class PIRLKNN(BaseLearner):
         self.sample_owner_ = owners
         values = self._lookup_values(model, samples)
         self.scaler_ = StandardScaler().fit(values)
-        Z = self.scaler_.transform(values)
-        self.neighbors_ = NearestNeighbors(n_neighbors=int(k)).fit(Z)
+        self.lookup_z_ = self.scaler_.transform(values)
+        if len(self._ahead_weights()) > 1:  # held-out training windows to choose the road's weight
+            pick = np.unique(np.linspace(0, len(samples) - 1, min(AHEAD_VALIDATION, len(samples))).astype(int))
+            self.ahead_validation_ = {"pick": pick, "groups": groups, "truth": truth[pick],
+                                      "x0": np.stack([samples[i].states[-1] for i in pick])}
+        self._index(int(k))
         if self.weighting == "likelihood":
             self.control_rms_ = float(np.sqrt(np.mean(np.concatenate([np.square(t.controls).ravel()
                                                                        for t in trajectories]))))
@@ -293,11 +386,64 @@ class PIRLKNN(BaseLearner):
             raise ValueError(f"n_neighbors={n_neighbors} is larger than the number of training samples ({len(Z)})")
         out = copy.copy(self)
         out.n_neighbors = n_neighbors
-        out.neighbors_ = clone(self.neighbors_).set_params(n_neighbors=int(n_neighbors)).fit(Z)
+        if hasattr(self, "lookup_z_"):
+            out._index(int(n_neighbors))  # the road's weight is chosen for this k, as a fit does
+        else:  # fitted before the road's weight existed
+            out.neighbors_ = clone(self.neighbors_).set_params(n_neighbors=int(n_neighbors)).fit(Z)
         return out
 
+    def _ahead_weights(self) -> tuple[float, ...]:
+        return tuple(float(w) for w in self.ahead_weights) if len(self.lookup_ahead) else (1.0,)
+
+    def _index(self, k: int) -> None:
+        """The look-up index over ``lookup_z_`` with the road-ahead block weighted: the one candidate of
+        ``ahead_weights``, or the one whose look-up predicts the held-out training windows best
+        (`ahead_scores_`)."""
+        weights = self._ahead_weights()
+        n_ahead = len(self.lookup_ahead)
+        Z = self.lookup_z_
+
+        def scaled(w: float) -> np.ndarray:
+            scale = np.ones(Z.shape[1])
+            if n_ahead:
+                scale[-n_ahead:] = w
+            return scale
+
+        if len(weights) > 1:
+            self.ahead_scores_ = {w: self._held_out_error(Z * scaled(w), k) for w in weights}
+            chosen = min(weights, key=lambda w: (self.ahead_scores_[w], w))
+        else:
+            chosen = weights[0]
+        self.ahead_weight_ = chosen
+        self.key_scale_ = scaled(chosen)
+        self.neighbors_ = NearestNeighbors(n_neighbors=k).fit(Z * self.key_scale_)
+
+    def _held_out_error(self, Z: np.ndarray, k: int) -> float:
+        """Mean |error| [m] of the look-up's prediction of the position along the path over the next steps of
+        the held-out training windows (`ahead_validation_`), each predicted from its history's last state by
+        its k nearest windows of *other* tracks, as `predict_states` predicts."""
+        val = self.ahead_validation_
+        groups, pick = val["groups"], val["pick"]
+        n_query = min(len(Z), k + int(np.bincount(groups).max()))
+        dist, idx = NearestNeighbors(n_neighbors=n_query).fit(Z).kneighbors(Z[pick])
+        other = groups[idx] != groups[pick][:, None]
+        if (other.sum(axis=1) < k).any():
+            raise ValueError(f"ahead_weights: fewer than k={k} training windows of other tracks to validate with")
+        order = np.argsort(~other, axis=1, kind="stable")[:, :k]  # the k nearest of other tracks
+        dist, idx = np.take_along_axis(dist, order, 1), np.take_along_axis(idx, order, 1)
+        F = val["truth"].shape[1]
+        if self.aggregate == "futures":
+            votes = inverse_distance_votes(dist)
+            flat = self.model_.predict_states(np.repeat(val["x0"], k, axis=0), self.demo_theta_[idx.ravel()], F)
+            s_pred = np.einsum("mk,mkf->mf", votes, flat[:, 1:, 0].reshape(len(pick), k, F))
+        else:
+            theta = knn_average(dist, self.sample_theta_[idx], self.average)
+            s_pred = self.model_.predict_states(val["x0"], theta, F)[:, 1:, 0]
+        return float(np.abs(s_pred - val["truth"]).mean())
+
     def _lookup(self, histories) -> np.ndarray:
-        return self.scaler_.transform(self._lookup_values(self.model_, self._query_windows(histories)))
+        z = self.scaler_.transform(self._lookup_values(self.model_, self._query_windows(histories)))
+        return z * getattr(self, "key_scale_", 1.0)
 
     def _infer(self, histories):
         dist, idx = self.neighbors_.kneighbors(self._lookup(histories))
@@ -396,6 +542,16 @@ class PIRLKNN(BaseLearner):
         if self.average == "log":
             return np.exp(np.einsum("mk,mkd->md", w, np.log(theta)))
         return np.einsum("mk,mkd->md", w, theta)
+
+
+def steer_segment(dynamics, x0: np.ndarray, segment: Trajectory) -> Trajectory:
+    """``segment`` re-started from the state ``x0`` (n_x,): the trajectory of ``dynamics`` from ``x0`` whose
+    controls follow the segment's positions and speeds (state entries 0 and 1) best, weighted as `STEER` says
+    (`pirl_sim.dynamics.LinearDynamics.steer`); same length, dt and metadata."""
+    weights = np.zeros(dynamics.n_x)
+    weights[:2] = STEER["weights"]
+    states, controls = dynamics.steer(x0, segment.states[1:], weights, STEER["ridge"])
+    return Trajectory(states, controls, segment.dt, segment.metadata)
 
 
 def knn_average(dist: np.ndarray, theta: np.ndarray, average: str = "log", exact_tol: float = 1e-12) -> np.ndarray:

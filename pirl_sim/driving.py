@@ -422,6 +422,23 @@ class PathDriverModel(DriverModel):
         """As `DriverModel.predict_states`, from `physical_starts` (x0)."""
         return super().predict_states(physical_starts(x0), theta, horizon)
 
+    def curvature(self, s: np.ndarray) -> np.ndarray:
+        """|kappa| [1/m] that the desired speed sees at arc lengths s [m] (any shape): the curvature of the
+        ``speed_dev`` feature's `SpeedProfile` (e.g. to look drivers up by the road ahead,
+        `pirl_sim.learners.PIRLKNN` ``lookup_ahead``).
+
+        Raises
+        ------
+        ValueError
+            A model without a ``speed_dev`` feature on a `SpeedProfile`.
+        """
+        for feature in self.features.features:
+            profile = getattr(feature.residual, "profile", None)
+            if feature.name == "speed_dev" and isinstance(profile, SpeedProfile):
+                return np.abs(profile.curvature(np.asarray(s, dtype=float))[0])
+        raise ValueError(f"this model has no speed_dev feature on a SpeedProfile (features {self.features.names}), "
+                         "so no curvature ahead")
+
     def positions(self, states: np.ndarray, offset: np.ndarray | float = 0.0) -> np.ndarray:
         """Cartesian positions (..., 2) [m] of states (..., n_x) at lateral offset d [m] from the path."""
         s = np.asarray(states)[..., 0]

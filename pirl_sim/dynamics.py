@@ -116,6 +116,54 @@ class LinearDynamics:
         future = np.einsum("iab,...b->...ia", phi, x0) + np.einsum("iajc,...jc->...ia", gamma, controls)
         return np.concatenate([x0[..., None, :], future], axis=-2)
 
+    def steer(self, x0: np.ndarray, targets: np.ndarray, weights, ridge: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
+        """Controls that carry the fixed start ``x0`` as near as they can to target states: least squares
+        ``sum_k sum_i weights[i] (x_k,i - targets[k-1, i])^2 + ridge sum_k |u_k|^2`` over k = 1 .. N.
+
+        Used to re-start a recorded segment from another estimate of its first state (e.g. the one an online
+        predictor has, `pirl_sim.learners.PIRLKNN` with ``segment_start="history"``): the result is a
+        trajectory of these dynamics from ``x0`` that follows the segment.
+
+        Parameters
+        ----------
+        x0 : array (n_x,)               the start, kept exactly
+        targets : array (N, n_x)        states x_1 .. x_N to follow (entries with weight 0 are ignored)
+        weights : array (n_x,)          >= 0, per state entry [1 / unit^2]; at least one > 0
+        ridge : float                   > 0, on the controls [1 / unit^2]
+
+        Returns
+        -------
+        states : array (N + 1, n_x), starting at ``x0``
+        controls : array (N, n_u)
+
+        Raises
+        ------
+        ValueError
+            Shapes that do not match the dynamics, non-finite values where the weight is positive, negative
+            weights, or a ridge that is not > 0.
+        """
+        x0 = np.asarray(x0, dtype=float)
+        targets = np.asarray(targets, dtype=float)
+        w = np.asarray(weights, dtype=float)
+        if x0.shape != (self.n_x,) or targets.ndim != 2 or targets.shape[1] != self.n_x or len(targets) < 1:
+            raise ValueError(f"expected x0 ({self.n_x},) and targets (N >= 1, {self.n_x}), got {x0.shape} and "
+                             f"{targets.shape}")
+        if w.shape != (self.n_x,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+            raise ValueError(f"weights must be {self.n_x} finite values >= 0, at least one > 0, got {weights!r}")
+        if isinstance(ridge, bool) or not np.isfinite(ridge) or ridge <= 0:
+            raise ValueError(f"ridge must be a finite number > 0, got {ridge!r}")
+        used = w > 0
+        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(targets[:, used]))):
+            raise ValueError("x0 and the weighted entries of targets must be finite")
+        n, n_u = len(targets), self.n_u
+        phi, gamma = self.condensed(n)
+        G = gamma[:, used].transpose(1, 0, 2, 3).reshape(-1, n * n_u)  # (entries x steps, controls)
+        r = (targets[:, used] - phi[:, used] @ x0).T.ravel()
+        sw = np.repeat(np.sqrt(w[used]), n)
+        G, r = G * sw[:, None], r * sw
+        U = np.linalg.solve(G.T @ G + ridge * np.eye(n * n_u), G.T @ r).reshape(n, n_u)
+        return self.rollout(x0, U), U
+
     def residual(self, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
         """x_{k+1} - (A x_k + B u_k), shape (..., N, n_x): zero for a consistent trajectory."""
         states = np.asarray(states, dtype=float)

@@ -1,6 +1,7 @@
 """The roundabout driving model (issue 3): path features, sequential MPC, Boltzmann demos, styles, switches."""
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -194,3 +195,18 @@ def test_a_style_switch_is_followed_within_five_steps(passage):
     assert before < np.log(0.5)  # calm: small speed_dev weight
     assert after > np.log(1.0)  # five steps after the switch the eager style is inferred
     assert np.array_equal(trajs[0].metadata["theta_schedule"][switch], eager)
+
+
+def test_model_curvature_is_its_speed_profiles():
+    """`PathDriverModel.curvature`: |kappa| of the speed_dev feature's profile; a model without one says so."""
+    from pirl_sim.driving import SpeedProfile
+    from pirl_sim.features import FeatureSet, squared_control
+
+    path = ReferencePath.from_polyline(passage_polyline(20.0, 20.0, 90.0, 10.0))
+    model = roundabout_model(path)
+    s = np.linspace(0.0, path.length, 50)
+    np.testing.assert_allclose(model.curvature(s), np.abs(SpeedProfile(path).curvature(s)[0]))
+    assert model.curvature(s).max() > 0.01
+    bare = replace(model, features=FeatureSet((squared_control("jerk_sq"),), reference="jerk_sq"))
+    with pytest.raises(ValueError, match="no speed_dev feature"):
+        bare.curvature(s)

@@ -142,6 +142,34 @@ def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_orderin
     assert main([*args, "--rollout", "closed", "--mpc-horizon", "15", "--out", str(tmp_path / "bad")]) == 2
 
 
+def test_replay_cli_sets_the_next_learners_segments_and_road_ahead(tmp_path, capsys):
+    """pirl-knn-next: segments re-started at the history estimates and the curvature 0-45 m ahead in the
+    look-up by default; --next-segments history needs history starts; bad distances are named."""
+    from pirl_sim.cli import build_parser, main
+    from pirl_sim.harness.replay_cli import replay_config, replay_settings
+
+    args = _replay_args(tmp_path, 5, "pirl-knn-next", "3")
+    ns = build_parser().parse_args(args)
+    config = replay_config(ns, replay_settings(ns), ns.tracks, ns.map)
+    (nxt,) = [e for e in config.experiments[0].learners if e.params.get("target") == "next"]
+    assert nxt.params["segment_start"] == "history" and nxt.params["lookup_history"] is True
+    assert list(nxt.params["lookup_ahead"]) == [0.0, 10.0, 20.0, 30.0, 45.0]
+    assert list(nxt.params["ahead_weights"]) == [0.0, 0.5, 1.0]
+    ns = build_parser().parse_args([*args, "--next-segments", "track", "--lookup-ahead", ""])
+    config = replay_config(ns, replay_settings(ns), ns.tracks, ns.map)
+    (nxt,) = [e for e in config.experiments[0].learners if e.params.get("target") == "next"]
+    assert nxt.params["segment_start"] == "track" and list(nxt.params["lookup_ahead"]) == []
+    assert main([*args, "--start", "track", "--next-segments", "history", "--out", str(tmp_path / "bad")]) == 2
+    assert "--next-segments history" in capsys.readouterr().err
+    for bad in ("-1", "5,far", "inf"):
+        for option in ("--lookup-ahead", "--ahead-weights"):
+            with pytest.raises(SystemExit):
+                build_parser().parse_args([*args, f"{option}={bad}"])
+    # an empty weight list is refused by the learner's check, named
+    assert main([*args, "--ahead-weights=", "--out", str(tmp_path / "bad2")]) == 2
+    assert "ahead_weights" in capsys.readouterr().err
+
+
 def test_replay_scores_k_futures_of_each_learner(tmp_path):
     import pandas as pd
 

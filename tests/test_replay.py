@@ -577,3 +577,125 @@ def test_a_recorded_sweep_config_reads_history_starts_with_speeds(scene_dir):
     assert track.estimate == "positions"
     asked = load_scene({**params, "load": {"estimate": "positions"}}).trajectories[0].metadata["estimator"]
     assert asked.estimate == "positions"
+
+
+def test_next_segments_restarted_at_the_history_estimate_follow_the_track(scene_dir):
+    """segment_start="history": every training segment whose cost the IRL fits starts exactly at its history's
+    own estimate (the state an online prediction starts from) and follows the track's positions and speeds; the
+    look-up keys are unchanged, the costs differ; it needs lookup_history."""
+    from pirl_sim.learners import PIRLKNN
+
+    out, _ = scene_dir
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
+    train = scene.trajectories[:30]
+    kw = dict(model=scene.model, window=10, n_neighbors=1, stride=5, target="next", target_steps=15,
+              state_features=(1, 2), lookup_features=False, aggregate="futures", lookup_history=True)
+    restarted = PIRLKNN(segment_start="history", **kw)
+    restarted.state_idx_ = restarted._check_target(scene.model)
+    hist, seg, groups, truth = restarted._next_pairs(scene.model, train)
+    plain_seg = PIRLKNN(**kw)._next_pairs(scene.model, train)[1]
+    np.testing.assert_array_equal(truth, np.stack([p.states[1:, 0] for p in plain_seg]))
+    assert groups.shape == (len(seg),) and groups.dtype.kind == "i"
+    starts = np.stack([h.states[-1] for h in hist])
+    np.testing.assert_array_equal(np.stack([s.states[0] for s in seg]), starts)
+    assert np.abs(np.stack([s.states[0] for s in plain_seg]) - starts).max() > 1e-3  # the smoother's differ
+    gap = np.abs(np.stack([s.states[1:, 0] - p.states[1:, 0] for s, p in zip(seg, plain_seg)]))
+    assert gap.mean() < 0.1 and gap.max() < 1.0, (gap.mean(), gap.max())  # [m]: it follows the track
+    for s in seg:  # trajectories of the model's dynamics
+        np.testing.assert_allclose(scene.model.dynamics.residual(s.states, s.controls), 0.0, atol=1e-9)
+    a, b = PIRLKNN(segment_start="history", **kw).fit(train), PIRLKNN(**kw).fit(train)
+    np.testing.assert_array_equal(a.neighbors_._fit_X, b.neighbors_._fit_X)
+    assert not np.allclose(a.demo_theta_, b.demo_theta_)
+    with pytest.raises(ValueError, match="lookup_history=True"):
+        PIRLKNN(**{**kw, "lookup_history": False}, segment_start="history").fit(train)
+    with pytest.raises(ValueError, match="segment_start must be one of"):
+        PIRLKNN(**kw, segment_start="smoothed").fit(train)
+
+
+def test_the_road_ahead_enters_the_look_up(scene_dir):
+    """lookup_ahead: |curvature| of the model's speed profile at those distances beyond each window's end are
+    look-up keys, standardised with the rest."""
+    from pirl_sim.learners import PIRLKNN
+    from pirl_sim.model import synthetic_model
+    from pirl_sim.trajectory import Trajectory
+
+    out, _ = scene_dir
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
+    train = scene.trajectories[:20]
+    kw = dict(model=scene.model, window=10, n_neighbors=1, stride=5, target="next", target_steps=15,
+              state_features=(1, 2), lookup_features=False, aggregate="futures")
+    ahead = PIRLKNN(lookup_ahead=(0.0, 20.0), **kw).fit(train)
+    hist = [t.window(0, 10) for t in train[:5]]
+    s_end = np.array([h.states[-1, 0] for h in hist])
+    raw = np.column_stack([np.stack([h.states[-1, 1:3] for h in hist]),
+                           scene.model.curvature(s_end[:, None] + np.array([0.0, 20.0]))])
+    np.testing.assert_allclose(ahead._lookup(hist), ahead.scaler_.transform(raw))
+    assert raw[:, 2:].max() > 0.01 and np.all(raw[:, 2:] >= 0)  # [1/m]: the scene's roundabout bends
+    assert ahead.predict_states(hist, 15).shape == (5, 16, 3)
+    for bad, error in (((-1.0,), ValueError), ((np.inf,), ValueError), ("far", TypeError), ((True,), ValueError)):
+        with pytest.raises(error, match="lookup_ahead"):
+            PIRLKNN(**{**kw, "lookup_ahead": bad}).fit(train)
+    with pytest.raises(ValueError, match="lookup_ahead needs a model along a path"):
+        synth = synthetic_model()
+        PIRLKNN(model=synth, window=10, lookup_ahead=(5.0,), target="next", target_steps=5,
+                state_features=(1,), lookup_features=False).fit(
+                    [Trajectory(np.zeros((31, 2)), np.zeros((30, 1)), 0.1)])
+
+
+def test_several_road_weights_are_chosen_on_held_out_windows_of_other_tracks(scene_dir):
+    """ahead_weights with several candidates: each scored by the look-up's error along the path on held-out
+    training windows whose neighbours come from other tracks; the best is used, also after with_neighbors."""
+    from pirl_sim.learners import PIRLKNN
+
+    out, _ = scene_dir
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
+    train = scene.trajectories[:30]
+    kw = dict(model=scene.model, window=10, n_neighbors=3, stride=5, target="next", target_steps=15,
+              state_features=(1, 2), lookup_features=False, aggregate="futures", lookup_ahead=(0.0, 20.0))
+    chosen = PIRLKNN(ahead_weights=(0.0, 1.0, 3.0), **kw).fit(train)
+    scores = chosen.ahead_scores_
+    assert set(scores) == {0.0, 1.0, 3.0} and all(np.isfinite(v) and v > 0 for v in scores.values())
+    assert chosen.ahead_weight_ == min(scores, key=scores.get)
+    np.testing.assert_array_equal(chosen.key_scale_, [1.0, 1.0, chosen.ahead_weight_, chosen.ahead_weight_])
+    for w in (0.0, 3.0):  # one weight: no selection, and its look-up is the selection's with that weight
+        single = PIRLKNN(ahead_weights=(w,), **kw).fit(train)
+        assert not hasattr(single, "ahead_scores_") and single.ahead_weight_ == w
+        np.testing.assert_allclose(single.neighbors_._fit_X, chosen.lookup_z_ * [1.0, 1.0, w, w])
+    # the score by hand: k nearest windows of other tracks, inverse-distance mean of their futures
+    val, Z = chosen.ahead_validation_, chosen.lookup_z_ * [1.0, 1.0, 3.0, 3.0]
+    errs = []
+    for m, i in enumerate(val["pick"]):
+        d = np.linalg.norm(Z - Z[i], axis=1)
+        d[val["groups"] == val["groups"][i]] = np.inf
+        near = np.argsort(d, kind="stable")[:3]
+        v = 1.0 / d[near] / np.sum(1.0 / d[near])
+        fut = scene.model.predict_states(np.repeat(val["x0"][m : m + 1], 3, axis=0), chosen.demo_theta_[near], 15)
+        errs.append(np.abs(v @ fut[:, 1:, 0] - val["truth"][m]).mean())
+    assert scores[3.0] == pytest.approx(np.mean(errs), rel=1e-6)
+    # with_neighbors chooses again for its k, as a fit with that k does
+    five = chosen.with_neighbors(5)
+    refit = PIRLKNN(ahead_weights=(0.0, 1.0, 3.0), **{**kw, "n_neighbors": 5}).fit(train)
+    assert five.ahead_scores_ == pytest.approx(refit.ahead_scores_) and five.ahead_weight_ == refit.ahead_weight_
+    for bad, error in (((), ValueError), ((1.0, 1.0), ValueError), ((-1.0, 1.0), ValueError), ("x", TypeError)):
+        with pytest.raises(error, match="ahead_weights"):
+            PIRLKNN(**{**kw, "ahead_weights": bad}).fit(train)
+    with pytest.raises(ValueError, match="need target='next'"):
+        PIRLKNN(model=scene.model, window=10, lookup_ahead=(5.0,), ahead_weights=(0.0, 1.0)).fit(train)
+
+
+def test_a_next_learner_with_restarted_segments_and_the_road_ahead_saves_and_loads(scene_dir, tmp_path):
+    from pirl_sim.learners import PIRLKNN
+    from pirl_sim.learners.model_io import load_learner, save_learner
+
+    out, _ = scene_dir
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
+    train = scene.trajectories[:30]
+    fitted = PIRLKNN(model=scene.model, window=10, n_neighbors=3, stride=5, target="next", target_steps=15,
+                     state_features=(1, 2), lookup_features=False, aggregate="futures", lookup_history=True,
+                     segment_start="history", lookup_ahead=(0.0, 20.0), ahead_weights=(0.0, 1.0)).fit(train)
+    loaded = load_learner(save_learner(fitted, tmp_path / "next.npz"))
+    hist = [t.window(0, 10) for t in train[:4]]
+    np.testing.assert_array_equal(loaded.predict_states(hist, 15), fitted.predict_states(hist, 15))
+    assert loaded.ahead_scores_ == fitted.ahead_scores_ and loaded.ahead_weight_ == fitted.ahead_weight_
+    np.testing.assert_array_equal(loaded.with_neighbors(5).predict_states(hist, 15),
+                                  fitted.with_neighbors(5).predict_states(hist, 15))

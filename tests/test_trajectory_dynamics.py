@@ -77,3 +77,44 @@ def test_dynamics_validation():
         LinearDynamics(np.eye(3), np.ones((2, 1)), 0.1, ("p", "v"), ("a",))
     with pytest.raises(ValueError, match="dt must be"):
         LinearDynamics(np.eye(2), np.ones((2, 1)), -1.0, ("p", "v"), ("a",))
+
+
+def test_steer_keeps_the_start_and_follows_the_targets():
+    """`LinearDynamics.steer`: from a start it cannot change, the controls that follow target states best."""
+    dyn = longitudinal(0.2)
+    rng = np.random.default_rng(0)
+    x0 = np.array([3.0, 6.0, 0.4])
+    U = rng.normal(scale=0.5, size=(15, 1))
+    truth = dyn.rollout(x0, U)
+    states, controls = dyn.steer(x0, truth[1:], [1.0, 1.0, 0.0], ridge=1e-10)  # reachable: recovered
+    np.testing.assert_allclose(states, truth, atol=1e-4)
+    np.testing.assert_allclose(controls, U, atol=1e-2)
+    moved = x0 + np.array([0.0, 0.4, -0.8])  # another estimate of the start: kept, and the positions followed
+    states, controls = dyn.steer(moved, truth[1:], [1.0, 1.0, 0.0])
+    np.testing.assert_array_equal(states[0], moved)
+    np.testing.assert_allclose(dyn.rollout(moved, controls), states)
+    assert np.abs(states[1:, 0] - truth[1:, 0]).mean() < 0.1
+    # the same start and targets without the correction drift away: CA from the moved start
+    drift = dyn.rollout(moved, np.zeros_like(U))
+    assert np.abs(drift[1:, 0] - truth[1:, 0]).mean() > 0.5
+    # a NaN where the weight is 0 is ignored
+    masked = truth[1:].copy()
+    masked[:, 2] = np.nan
+    np.testing.assert_allclose(dyn.steer(x0, masked, [1.0, 1.0, 0.0])[0], dyn.steer(x0, truth[1:], [1.0, 1.0, 0.0])[0])
+
+
+@pytest.mark.parametrize("args, match", [
+    (dict(x0=np.zeros(2)), "expected x0"),
+    (dict(targets=np.zeros((0, 3))), "expected x0"),
+    (dict(weights=[1.0, -1.0, 0.0]), "weights must be"),
+    (dict(weights=[0.0, 0.0, 0.0]), "weights must be"),
+    (dict(weights=[1.0, 1.0]), "weights must be"),
+    (dict(ridge=0.0), "ridge must be"),
+    (dict(ridge=np.nan), "ridge must be"),
+    (dict(targets=np.full((5, 3), np.nan)), "must be finite"),
+])
+def test_steer_rejects_bad_input(args, match):
+    dyn = longitudinal(0.2)
+    kw = {**dict(x0=np.zeros(3), targets=np.zeros((5, 3)), weights=[1.0, 1.0, 0.0], ridge=1e-2), **args}
+    with pytest.raises(ValueError, match=match):
+        dyn.steer(kw["x0"], kw["targets"], kw["weights"], kw["ridge"])

@@ -90,6 +90,17 @@ def _positive_ints(text: str) -> list[int]:
     return values
 
 
+def _distances(text: str) -> tuple[float, ...]:
+    """Comma-separated finite numbers >= 0 (distances [m], weights); '' none."""
+    try:
+        out = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers >= 0, got {text!r}") from None
+    if not all(np.isfinite(d) and d >= 0 for d in out):
+        raise argparse.ArgumentTypeError(f"expected finite numbers >= 0, got {text!r}")
+    return out
+
+
 def add_replay_parser(sub) -> argparse.ArgumentParser:
     """The ``replay`` subcommand on an argparse subparsers object."""
     rp = sub.add_parser(
@@ -144,8 +155,21 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
                          "with costs of what followed each training window, looked up by the speed and acceleration "
-                         "now, 0.5 s and 1 s ago, its neighbours' futures averaged: learners/knn.py) (default "
+                         "now, 0.5 s and 1 s ago and the road ahead, its neighbours' futures averaged: "
+                         "learners/knn.py) (default "
                          "tirl,pirl-gmm,pirl-knn)")
+    rp.add_argument("--next-segments", choices=["history", "track"], default=None,
+                    help="pirl-knn-next: where each training segment whose cost the IRL fits starts: at its history's "
+                         "own estimate, the state an online prediction starts from ('history'), or at the smoothed "
+                         "track's state ('track', the replays before this option) (default: history with --start "
+                         "history)")
+    rp.add_argument("--lookup-ahead", type=_distances, default="0,10,20,30,45", metavar="M1,M2,...",
+                    help="pirl-knn-next: distances ahead [m] at which the road's curvature joins the look-up keys "
+                         "('' none, the replays before this option) (default 0,10,20,30,45)")
+    rp.add_argument("--ahead-weights", type=_distances, default="0,0.5,1", metavar="W1,W2,...",
+                    help="pirl-knn-next: candidate weights of the road ahead in the look-up; with several, each split "
+                         "chooses the one that predicts held-out training windows best (learners/knn.py) "
+                         "(default 0,0.5,1)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
     rp.add_argument("--knn-k", type=_positive_ints, default="10",
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
@@ -313,7 +337,13 @@ def replay_config(args, settings: dict, tracks, map_path):
             if key == "pirl-gmm":
                 params["n_components"] = args.gmm_k
             if key == NEXT_KNN:
-                params.update(target_steps=p.horizon, state_lags=lags, lookup_history=p.start == "history")
+                segments = args.next_segments or ("history" if p.start == "history" else "track")
+                if segments == "history" and p.start != "history":
+                    raise ValueError("--next-segments history starts the training segments at their histories' "
+                                     "own estimates, which --start track does not make: use --start history")
+                params.update(target_steps=p.horizon, state_lags=lags, lookup_history=p.start == "history",
+                              segment_start=segments, lookup_ahead=list(args.lookup_ahead),
+                              ahead_weights=list(args.ahead_weights))
             if entry["name"] == "pirl-knn":
                 entry["grid"] = {"n_neighbors": list(args.knn_k)}
             entry["params"] = params

@@ -23,7 +23,9 @@ compared with the recorded positions. Baselines (pseudo-learners, `METHODS`) use
   is, one with v <= 0 and a > 0 starts from standstill (the start-state rule of `PathDriverModel.predict_states`);
 - ``cv-xy``, ``CV (x, y)``: constant velocity in the plane from the last two recorded positions;
 - ``hindsight`` (`HINDSIGHT`): not a predictor: each test window under the cost the IRL fits on its own
-  recorded future.
+  recorded future; with history starts (``ReplayProtocol.start``) that future re-started from the history's
+  estimated state (`pirl_sim.dynamics.LinearDynamics.steer`, as `pirl_sim.learners.PIRLKNN`'s
+  ``segment_start="history"``), so that the cost is fitted from the state its prediction starts from.
 
 Rollouts (``ReplayProtocol.rollout``). ``"open"``: one MPC plan from the state at t under the inferred weights
 over ``max(horizon, mpc_horizon)`` steps, its first ``horizon`` steps (the paper's prediction). ``"closed"``:
@@ -441,6 +443,7 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
         tracks, or no test window.
     """
     from pirl_sim.learners import LEARNERS, make_learner
+    from pirl_sim.learners.knn import steer_segment
 
     unknown = [key for _, key, _ in methods if key not in METHODS and key not in LEARNERS]
     if unknown:
@@ -474,6 +477,8 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             predicted[name] = (s_pred, 0.0, 0.0, {})
         elif key == "hindsight":
             futures = [test[j].window(step, step + proto.horizon) for j, step in windows]
+            if proto.start == "history":  # fitted from the state its prediction starts from
+                futures = [steer_segment(model.dynamics, x, f) for x, f in zip(x0, futures)]
             oracle = make_learner("pirl-knn", model=model, n_neighbors=1, irl_max_iter=400)
             diag = _fit_with_diagnostics(lambda: oracle.fit(futures))
             fit_s = time.perf_counter() - t0
