@@ -139,6 +139,7 @@ def test_replay_cli_runs_the_next_learner_and_keeps_it_out_of_the_papers_orderin
     assert (nxt["irl_converged"] == nxt["irl_groups"]).all() and (nxt["irl_groups"] > 30).all()
     assert nxt["med"].notna().all() and (nxt["med"] > 0).all()
     assert nxt.set_index("method").loc["PIRL-kNN next (k=5)", "irl_from"] == "PIRL-kNN next (k=3)"
+    assert nxt["ahead_weight"].isin([0.0, 0.5, 1.0]).all()  # the road's weight each split chose
     assert main([*args, "--rollout", "closed", "--mpc-horizon", "15", "--out", str(tmp_path / "bad")]) == 2
 
 

@@ -41,6 +41,8 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
         if "irl_groups" in g and g["irl_groups"].notna().all():
             methods[m]["converged"] = ", ".join(f"{int(c)}/{int(n)}" for c, n in zip(g["irl_converged"],
                                                                                       g["irl_groups"]))
+        if "ahead_weight" in g and g["ahead_weight"].notna().all():
+            methods[m]["ahead_weight"] = ", ".join(f"{w:g}" for w in g["ahead_weight"])
     pirl = [m for m in methods if m.startswith("PIRL")]
     best = min(pirl, key=lambda m: methods[m]["med"]) if pirl else None
     paired = result["paired_ca"].set_index("method")
@@ -106,6 +108,10 @@ def table_markdown(rows: list[dict]) -> str:
     conv_methods = [m for m in methods if any("converged" in r["methods"].get(m, {}) for r in rows)]
     lines += ["", "IRL groups converged / fitted per split seed:", "",
               *by_method(conv_methods, lambda v: v.get("converged", ""))]
+    road = [m for m in methods if any("ahead_weight" in r["methods"].get(m, {}) for r in rows)]
+    if road:
+        lines += ["", "Weight of the road ahead in the look-up, chosen per split seed on held-out training windows:",
+                  "", *by_method(road, lambda v: v.get("ahead_weight", ""))]
     lines += ["", "Matched car tracks usable per selection rule (min_steps: a training window = history; "
               "a test window = history + horizon):", "",
               "| roundabout | rule | selection | min_steps | usable / matched | share |", "|---|---|---|---|---|---|"]

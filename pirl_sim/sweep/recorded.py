@@ -502,6 +502,8 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
                 s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
                                              mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
             extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
+            if len(getattr(learner, "lookup_ahead", ())):  # the road-ahead weight in use (chosen or given)
+                extra["ahead_weight"] = float(learner.ahead_weight_)
             if n_futures:
                 fut, proba = learner.predict_futures(histories, plan, n_futures=int(n_futures), random_state=seed)
                 extra.update(_future_scores(model, test, windows, fut[:, :, 1 : proto.horizon + 1, 0], proba,
