@@ -20,6 +20,7 @@ from pirl_sim.harness import figures
 from pirl_sim.harness.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.scenarios.replay import selection_counts, track_key
+from pirl_sim.sweep.direct import DIRECT
 from pirl_sim.sweep.recorded import (  # noqa: F401  (ReplayProtocol, predict_path_states: the replay's names)
     _IRL_WARNINGS,
     HINDSIGHT,
@@ -31,11 +32,11 @@ from pirl_sim.sweep.recorded import (  # noqa: F401  (ReplayProtocol, predict_pa
 )
 
 __all__ = ["ReplayProtocol", "run_replay", "collect_replay", "paired_differences", "summarize", "selection_table",
-           "write_replay_results", "predict_path_states", "HINDSIGHT"]
+           "write_replay_results", "predict_path_states", "HINDSIGHT", "DIRECT"]
 
 
 def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, desired_speed=None,
-               hindsight: bool = False, n_futures: int = 0) -> dict:
+               hindsight: bool = False, direct: bool = False, n_futures: int = 0) -> dict:
     """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene` in this process, one split seed after
     another (`pirl_sim.sweep.recorded.replay_seed`; ``pirl-sim replay`` runs the same through the sweep engine).
 
@@ -50,6 +51,9 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
         Adds the row ``HINDSIGHT``: every test window predicted from its start under the cost the IRL fits on
         the window's own recorded future. It sees what it predicts, so it is no predictor; it is what the model
         class could reach with a perfect online inference of the weights.
+    direct : bool
+        Adds the row ``DIRECT``: the arc lengths ahead regressed on the history and the place, without a cost
+        (`pirl_sim.sweep.direct.DirectRegression`), fitted on each split's training tracks.
     n_futures : int
         K > 0 scores every learner's K predicted futures (drawn with the split seed): ``min_ade@K``,
         ``min_fde@K``, ``miss_rate@K`` (INTERACTION's rule) and ``nll_per_step@K`` (mixture NLL, sigma 1 m).
@@ -65,7 +69,8 @@ def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *
     their pieces) and the S-T figure's ``examples``.
     """
     methods = [("CV (path)", "cv", {}), ("CA (path)", "ca", {}), *learner_specs,  # the order of the rows
-               *([(HINDSIGHT, "hindsight", {})] if hindsight else []), ("CV (x, y)", "cv-xy", {})]
+               *([(HINDSIGHT, "hindsight", {})] if hindsight else []), *([(DIRECT, "direct", {})] if direct else []),
+               ("CV (x, y)", "cv-xy", {})]
     per_seed = {seed: replay_seed(scene, seed, methods, proto, desired_speed=desired_speed, n_futures=n_futures)
                 for seed in proto.seeds}
     return collect_replay(scene, proto, per_seed, learner_specs)

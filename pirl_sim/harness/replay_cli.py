@@ -127,6 +127,11 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="also score each test window under the cost fitted on its own recorded future (an oracle "
                          "row, 'hindsight cost (oracle)': what the model class reaches with perfect weights; not a "
                          "predictor, never the best PIRL learner)")
+    rp.add_argument("--direct", action="store_true",
+                    help="also score a regression without a cost: the arc lengths over the horizon regressed on the "
+                         "history's speeds and accelerations, the road ahead and the place (row 'direct regression "
+                         "(no cost)', pirl_sim.sweep.direct): how much the history and the map tell; never the best "
+                         "PIRL learner")
     rp.add_argument("--desired-speed", choices=["fit", "fixed"], default="fixed",
                     help="the desired speed's a_lat and v_max: 'fit' on each split's training tracks (robust fit of "
                          "speeds against curvature, pirl_sim.speed_fit) or 'fixed' (--a-lat, --v-max) "
@@ -328,7 +333,8 @@ def replay_config(args, settings: dict, tracks, map_path):
     learners = []
     for entry in ({"name": e} if isinstance(e, str) else dict(e) for e in exp["learners"]):
         key = _cli_key(entry)
-        if key not in (*ALWAYS, *keys) and not (key == "hindsight" and args.hindsight):
+        if key not in (*ALWAYS, *keys) and not (key == "hindsight" and args.hindsight) \
+                and not (key == "direct" and args.direct):
             continue
         if key in keys:
             params = {**entry.get("params", {}), **irl}

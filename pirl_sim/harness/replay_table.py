@@ -8,7 +8,8 @@ car tracks usable under each selection rule (`pirl_sim.scenarios.replay.selectio
 ordering TIRL > PIRL-GMM > PIRL-kNN in MED as measured; the desired-speed parameters per seed; the wall time.
 Where the rows have them (`pirl_sim.harness.replay`): the ratio along the path (``med_path``: predictions at
 the recorded lateral offsets) and the lateral floor relative to CA (recorded arc lengths under the protocol's
-lateral model: the best ratio any prediction along the path could reach).
+lateral model: the best ratio any prediction along the path could reach); with ``--direct`` the direct
+regression's MED relative to CA (`pirl_sim.sweep.direct`: no cost, what the history and the map tell).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pirl_sim.harness.replay import selection_table
+from pirl_sim.harness.replay import DIRECT, selection_table
 from pirl_sim.io.atomic import atomic_write_text
 
 __all__ = ["table_row", "write_table", "table_markdown"]
@@ -59,6 +60,9 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
             path = rows.pivot(index="seed", columns="method", values="med_path")
             out["ratio_path"] = methods[best]["med_path"] / methods["CA (path)"]["med_path"]
             out["ratio_path_se"] = _se(path[best] / path["CA (path)"])
+        if DIRECT in methods:  # the reference without a cost, on the same scale
+            out["direct_ratio"] = methods[DIRECT]["med"] / methods["CA (path)"]["med"]
+            out["direct_ratio_se"] = _se(per_seed[DIRECT] / per_seed["CA (path)"])
         if "lateral_floor" in rows:
             floor = rows.groupby("seed")["lateral_floor"].first()
             out["floor_ratio"] = float(floor.mean()) / methods["CA (path)"]["med"]
@@ -95,15 +99,16 @@ def table_markdown(rows: list[dict]) -> str:
              *by_method(methods, lambda v: f"{_pm(v['med'], v['med_se'])} ({_pm(v['fde'], v['fde_se'])})"
                         if v else "")]
     lines += ["", "| roundabout | files | seeds | windows | best PIRL | best − CA (path) [m] | MED_best / MED_CA | "
-              "along the path: best / CA | lateral floor / CA | "
+              "along the path: best / CA | lateral floor / CA | direct regression (no cost) / CA | "
               "ordering (MED, high to low) | paper's TIRL > GMM > kNN | a_lat / v_max per seed | time [s] |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['roundabout']} | {', '.join(r['files'])} | {r['seeds']} | {r['n_windows']} | {r['best']} | "
                      f"{_pm(r.get('best_minus_ca', np.nan), r.get('best_minus_ca_se', np.nan))} | "
                      f"{_pm(r.get('ratio', np.nan), r.get('ratio_se', np.nan))} | "
                      f"{_pm(r.get('ratio_path', np.nan), r.get('ratio_path_se', np.nan))} | "
-                     f"{_pm(r.get('floor_ratio', np.nan), r.get('floor_ratio_se', np.nan))} | {r['ordering']} | "
+                     f"{_pm(r.get('floor_ratio', np.nan), r.get('floor_ratio_se', np.nan))} | "
+                     f"{_pm(r.get('direct_ratio', np.nan), r.get('direct_ratio_se', np.nan))} | {r['ordering']} | "
                      f"{'yes' if r['paper_ordering_holds'] else 'no'} | {r.get('speed', '')} | {r['elapsed_s']:.0f} |")
     conv_methods = [m for m in methods if any("converged" in r["methods"].get(m, {}) for r in rows)]
     lines += ["", "IRL groups converged / fitted per split seed:", "",

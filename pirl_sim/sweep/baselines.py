@@ -26,7 +26,8 @@ from __future__ import annotations
 import numpy as np
 from sklearn.base import BaseEstimator
 
-__all__ = ["BASELINES", "ConstantVelocity", "ConstantAcceleration", "PlaneVelocity", "Hindsight", "KinematicModel"]
+__all__ = ["BASELINES", "ConstantVelocity", "ConstantAcceleration", "PlaneVelocity", "Hindsight", "Direct",
+           "KinematicModel"]
 
 _POSITION_NAMES = ("s [m]", "p [m]")
 
@@ -126,5 +127,13 @@ class Hindsight(_Baseline):
     scenarios = ("recorded", "replay")
 
 
+class Direct(_Baseline):
+    """The arc lengths ahead regressed on the history and the place (module doc; the ``recorded`` scenario's)."""
+
+    kind = "direct"
+    scenarios = ("recorded", "replay")
+
+
 #: sweep name -> class (the learners of `pirl_sim.learners.LEARNERS` are the others)
-BASELINES = {"cv": ConstantVelocity, "ca": ConstantAcceleration, "cv-xy": PlaneVelocity, "hindsight": Hindsight}
+BASELINES = {"cv": ConstantVelocity, "ca": ConstantAcceleration, "cv-xy": PlaneVelocity, "hindsight": Hindsight,
+             "direct": Direct}

@@ -25,7 +25,10 @@ compared with the recorded positions. Baselines (pseudo-learners, `METHODS`) use
 - ``hindsight`` (`HINDSIGHT`): not a predictor: each test window under the cost the IRL fits on its own
   recorded future; with history starts (``ReplayProtocol.start``) that future re-started from the history's
   estimated state (`pirl_sim.dynamics.LinearDynamics.steer`, as `pirl_sim.learners.PIRLKNN`'s
-  ``segment_start="history"``), so that the cost is fitted from the state its prediction starts from.
+  ``segment_start="history"``), so that the cost is fitted from the state its prediction starts from;
+- ``direct`` (`pirl_sim.sweep.direct.DIRECT`): no cost: the arc lengths ahead regressed on the history's
+  speeds and accelerations, the road ahead and the place (`pirl_sim.sweep.direct.DirectRegression`), fitted
+  on the split's training tracks: how much the history and the map tell, whatever a cost makes of it.
 
 Rollouts (``ReplayProtocol.rollout``). ``"open"``: one MPC plan from the state at t under the inferred weights
 over ``max(horizon, mpc_horizon)`` steps, its first ``horizon`` steps (the paper's prediction). ``"closed"``:
@@ -80,6 +83,7 @@ from pirl_sim.speed_fit import fit_desired_speed
 from pirl_sim.validation import check_keys, is_positive_int
 
 from .baselines import KinematicModel
+from .direct import DirectRegression
 from .scenarios import SCENARIOS, Param, ScenarioSpec, TrainShape, _split, register_scenario
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
@@ -88,7 +92,7 @@ __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_file
            "HINDSIGHT", "ROLLOUTS", "RECORDED_PARAMS"]
 
 #: pseudo-learners of this scenario (module doc); every other method is a learner of `pirl_sim.learners.LEARNERS`
-METHODS = ("cv", "ca", "cv-xy", "hindsight")
+METHODS = ("cv", "ca", "cv-xy", "hindsight", "direct")
 HINDSIGHT = "hindsight cost (oracle)"  #: not a predictor: each window's cost fitted on its own future
 ROLLOUTS = ("open", "closed")
 STARTS = ("history", "track")  #: start states of a prediction (`ReplayProtocol.start`)
@@ -484,6 +488,13 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             fit_s = time.perf_counter() - t0
             s_pred = predict_path_states(model, x0, oracle.demo_theta_, proto.horizon)[:, 1:, 0]
             predicted[name] = (s_pred, fit_s, 0.0, diag)
+        elif key == "direct":
+            lags = sorted({min(int(round(back / dt)), proto.history) for back in (0.0, 0.5, 1.0)})  # as kNN next
+            reg = DirectRegression(model, proto.history, proto.horizon, lags=lags,
+                                   online=proto.start == "history").fit(train)
+            fit_s = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            predicted[name] = (reg.predict_s(histories), fit_s, time.perf_counter() - t0, {})
         elif key != "cv-xy":
             if i in reuse:
                 base, diag = fitted[reuse[i]]
