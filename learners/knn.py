@@ -240,20 +240,9 @@ class PIRLKNN(BaseLearner):
         if self.segment_start == "history" and n_x < 2:
             raise ValueError(f"segment_start='history' follows positions and speeds (state entries 0 and 1); this "
                              f"model has {n_x} state entries")
-        try:
-            ahead = tuple(float(d) for d in self.lookup_ahead)
-        except (TypeError, ValueError):
-            raise TypeError(f"lookup_ahead must be a sequence of distances [m], got {self.lookup_ahead!r}") from None
-        if any(isinstance(d, bool) for d in self.lookup_ahead) or not all(np.isfinite(d) and d >= 0 for d in ahead):
-            raise ValueError(f"lookup_ahead must be finite distances >= 0 m, got {self.lookup_ahead!r}")
-        try:
-            aw = tuple(float(w) for w in self.ahead_weights)
-        except (TypeError, ValueError):
-            raise TypeError(f"ahead_weights must be a sequence of weights, got {self.ahead_weights!r}") from None
-        if (not aw or any(isinstance(w, bool) for w in self.ahead_weights)
-                or not all(np.isfinite(w) and w >= 0 for w in aw) or len(set(aw)) != len(aw)):
-            raise ValueError(f"ahead_weights must be distinct finite weights >= 0, at least one, got "
-                             f"{self.ahead_weights!r}")
+        ahead = _nonnegative_numbers("lookup_ahead", self.lookup_ahead, "distances [m]", "finite distances >= 0 m")
+        aw = _nonnegative_numbers("ahead_weights", self.ahead_weights, "weights",
+                               "distinct finite weights >= 0, at least one", distinct=True)
         if len(aw) > 1 and ahead and self.target != "next":
             raise ValueError("several ahead_weights are chosen on the training windows' next steps: they need "
                              "target='next'")
@@ -363,7 +352,8 @@ class PIRLKNN(BaseLearner):
 
         Everything PIRL-kNN learns except its nearest-neighbour index is independent of k (the IRL result and
         per-demonstration weights, the look-up samples and their owners, the feature scaling): the copy shares
-        those and gets a new index over the same look-up points, built as `fit` builds it. Its predictions are
+        those and gets a new index over the same look-up points, built as `fit` builds it, including the choice
+        of the road ahead's weight among several ``ahead_weights``, which depends on k. Its predictions are
         identical to fitting with ``n_neighbors`` (tested); a sweep over k fits once.
 
         Parameters
@@ -433,9 +423,8 @@ class PIRLKNN(BaseLearner):
         dist, idx = np.take_along_axis(dist, order, 1), np.take_along_axis(idx, order, 1)
         F = val["truth"].shape[1]
         if self.aggregate == "futures":
-            votes = inverse_distance_votes(dist)
-            flat = self.model_.predict_states(np.repeat(val["x0"], k, axis=0), self.demo_theta_[idx.ravel()], F)
-            s_pred = np.einsum("mk,mkf->mf", votes, flat[:, 1:, 0].reshape(len(pick), k, F))
+            futures = self._futures(val["x0"], self.sample_owner_[idx], F)
+            s_pred = np.einsum("mk,mkf->mf", inverse_distance_votes(dist), np.ascontiguousarray(futures[:, :, 1:, 0]))
         else:
             theta = knn_average(dist, self.sample_theta_[idx], self.average)
             s_pred = self.model_.predict_states(val["x0"], theta, F)[:, 1:, 0]
@@ -498,10 +487,15 @@ class PIRLKNN(BaseLearner):
             chosen[m] = np.concatenate([demos[order], np.full(pad, demos[order[0]])])
             pv = np.concatenate([v[order], np.zeros(pad)])
             proba[m] = pv / pv.sum()
-        x0 = np.stack([h.states[-1] for h in histories])
-        flat = self.model_.predict_states(np.repeat(x0, K, axis=0), self.demo_theta_[chosen.ravel()], horizon)
-        states = flat.reshape((M, K) + flat.shape[1:])
+        states = self._futures(np.stack([h.states[-1] for h in histories]), chosen, horizon)
         return (states[0], proba[0]) if single else (states, proba)
+
+    def _futures(self, x0: np.ndarray, demos: np.ndarray, horizon: int) -> np.ndarray:
+        """The MPC's futures (M, K, horizon + 1, n_x) from the starts x0 (M, n_x), each under the weights
+        ``demo_theta_`` of the demonstrations ``demos`` (M, K) of its row."""
+        M, K = demos.shape
+        flat = self.model_.predict_states(np.repeat(x0, K, axis=0), self.demo_theta_[demos.ravel()], horizon)
+        return flat.reshape((M, K) + flat.shape[1:])
 
     def predict_states(self, histories, horizon: int) -> np.ndarray:
         """Predicted states after each history, (M, horizon + 1, n_x) or (horizon + 1, n_x): with
@@ -542,6 +536,19 @@ class PIRLKNN(BaseLearner):
         if self.average == "log":
             return np.exp(np.einsum("mk,mkd->md", w, np.log(theta)))
         return np.einsum("mk,mkd->md", w, theta)
+
+
+def _nonnegative_numbers(name: str, values, items: str, allowed: str, *, distinct: bool = False) -> tuple[float, ...]:
+    """``values`` as a tuple of finite floats >= 0 (non-empty and without repeats with ``distinct``); TypeError
+    unless a sequence of numbers, ValueError naming ``name`` and ``allowed`` otherwise."""
+    try:
+        out = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a sequence of {items}, got {values!r}") from None
+    if (any(isinstance(v, bool) for v in values) or not all(np.isfinite(v) and v >= 0 for v in out)
+            or (distinct and (not out or len(set(out)) != len(out)))):
+        raise ValueError(f"{name} must be {allowed}, got {values!r}")
+    return out
 
 
 def steer_segment(dynamics, x0: np.ndarray, segment: Trajectory) -> Trajectory:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["is_positive_int", "number", "int_at_least", "check_keys", "positive_int_arg", "seed_arg",
+__all__ = ["is_positive_int", "number", "int_at_least", "check_keys", "positive_int_arg", "seed_arg", "list_arg",
            "check_output_dir", "SEED_LIMIT"]
 
 SEED_LIMIT = 2**31  #: seeds are integers in [0, SEED_LIMIT): numpy and scikit-learn both take them
@@ -72,6 +72,28 @@ def positive_float_arg(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value
+
+
+def list_arg(kind=float, *, low: float | None = None, empty: bool = False):
+    """An argparse type for comma-separated lists: ``kind`` (``int``, ``float`` or ``str``) of each item, blank
+    items skipped; numbers finite and >= ``low`` (no bound when None); no item at all (``''``) only when
+    ``empty``. The parsed option is a tuple. E.g. ``list_arg(int, low=1)`` for ``--knn-k 10,20``."""
+    if kind not in (int, float, str):
+        raise TypeError(f"kind must be int, float or str, got {kind!r}")
+    what = {int: "integers", float: "numbers", str: "names"}[kind] + ("" if low is None else f" >= {low:g}")
+
+    def parse(text: str) -> tuple:
+        try:
+            values = tuple(kind(x.strip()) for x in text.split(",") if x.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what}, got {text!r}") from None
+        bad = kind is not str and any(not math.isfinite(v) or (low is not None and v < low) for v in values)
+        if bad or (not values and not empty):
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what}, got {text!r}")
+        return values
+
+    parse.__name__ = f"list of {what}"  # argparse names the type in some messages
+    return parse
 
 
 def seed_arg(text: str) -> int:

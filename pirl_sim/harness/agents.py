@@ -80,7 +80,7 @@ import numpy as np
 import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_text
-from pirl_sim.validation import positive_int_arg
+from pirl_sim.validation import list_arg, positive_int_arg
 from pirl_sim.sweep.agents import ACTIONS, MODES, PPOEgo
 
 __all__ = ["AgentsConfig", "MODES", "ACTIONS", "BASELINE_POLICIES", "sweep_config", "run_experiment",
@@ -488,15 +488,6 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
 
 # ------------------------------------------------------------------------------------------ command line
 
-def _csv_list(kind):
-    def parse(text: str):
-        try:
-            return tuple(kind(x) for x in text.split(",") if x.strip())
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}") from None
-    return parse
-
-
 def _optional(kind, what: str):
     """An argparse type: ``kind(text)``, or None for 'none'."""
     def parse(text: str):
@@ -512,20 +503,20 @@ def _optional(kind, what: str):
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python3 -m pirl_sim.harness.agents", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="results/agents", help="output directory (default results/agents)")
-    ap.add_argument("--modes", type=_csv_list(str), default=MODES, help="observation modes, e.g. none,truth")
+    ap.add_argument("--modes", type=list_arg(str, empty=True), default=MODES, help="observation modes, e.g. none,truth")
     ap.add_argument("--action", default=AgentsConfig.action, help=f"PPO's action, one of {ACTIONS}")
-    ap.add_argument("--direct-modes", type=_csv_list(str), default=AgentsConfig.direct_modes,
+    ap.add_argument("--direct-modes", type=list_arg(str, empty=True), default=AgentsConfig.direct_modes,
                     help="modes in which PPO also learns the direct action (default none; '' for no such run)")
     ap.add_argument("--residual-scale", type=float, default=AgentsConfig.residual_scale,
                     help="largest residual correction in action units (default %(default)s)")
     ap.add_argument("--max-change", type=_optional(float, "a number"), default=AgentsConfig.max_change,
                     help="largest change of the residual per agent step in action units, or 'none' "
                          "(default %(default)s)")
-    ap.add_argument("--seeds", type=_csv_list(int), default=AgentsConfig.seeds, help="training seeds, e.g. 0,1,2")
+    ap.add_argument("--seeds", type=list_arg(int, empty=True), default=AgentsConfig.seeds, help="training seeds, e.g. 0,1,2")
     ap.add_argument("--steps", type=int, default=AgentsConfig.steps, help="PPO steps per run")
     ap.add_argument("--episodes", type=int, default=len(AgentsConfig.eval_seeds),
                     help="evaluation episodes (env seeds --eval-seed, --eval-seed + 1, ...)")
-    ap.add_argument("--baselines", type=_csv_list(str), default=BASELINE_POLICIES)
+    ap.add_argument("--baselines", type=list_arg(str, empty=True), default=BASELINE_POLICIES)
     ap.add_argument("--n-steps", type=int, default=AgentsConfig.n_steps, help="PPO rollout length")
     ap.add_argument("--gamma", type=float, default=AgentsConfig.gamma, help="PPO's discount (default %(default)s)")
     ap.add_argument("--learning-rate", type=float, default=AgentsConfig.learning_rate,

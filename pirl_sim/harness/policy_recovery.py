@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pirl_sim.validation import list_arg
+
 __all__ = ["ENV_ID", "ego_demonstration", "mpc_ego_demonstrations", "mpc_ego_report",
            "PpoRecoveryConfig", "ppo_ego_report", "main"]
 
@@ -417,16 +419,6 @@ def write_results(result: dict, cfg: PpoRecoveryConfig, out, command: str, wall_
     return {name: atomic_write_text(out / name, text) for name, text in files.items()}
 
 
-def _int_list(text: str) -> list[int]:
-    try:
-        values = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if not values:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
-    return values
-
-
 def main(argv: list[str] | None = None) -> int:
     """``python3 -m pirl_sim.harness.policy_recovery [--out DIR] [--steps N] [--seeds 0,1,2] ...``"""
     from pirl_sim.progress import reporter
@@ -437,8 +429,8 @@ def main(argv: list[str] | None = None) -> int:
     d = PpoRecoveryConfig()
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--steps", type=int, default=d.steps, help=f"PPO training steps per seed (default {d.steps})")
-    p.add_argument("--seeds", type=_int_list, default=list(d.seeds), help="training seeds, comma-separated")
-    p.add_argument("--eval-seeds", type=_int_list, default=list(d.eval_seeds), help="evaluation env seeds")
+    p.add_argument("--seeds", type=list_arg(int), default=list(d.seeds), help="training seeds, comma-separated")
+    p.add_argument("--eval-seeds", type=list_arg(int), default=list(d.eval_seeds), help="evaluation env seeds")
     p.add_argument("--n-steps", type=int, default=d.n_steps, help=f"PPO rollout length (default {d.n_steps})")
     p.add_argument("--n-vehicles", type=int, default=d.n_vehicles,
                    help=f"vehicles of the traffic per episode (default {d.n_vehicles})")

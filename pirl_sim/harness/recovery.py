@@ -606,22 +606,9 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
 DEFAULT_OUT = Path("results") / "recovery"
 
 
-def _float_list(text: str) -> list[float]:
-    """argparse type: comma-separated numbers >= 0."""
-    import argparse
-
-    try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if not values or any(not (math.isfinite(v) and v >= 0) for v in values):
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers >= 0, got {text!r}")
-    return values
-
-
 def add_recover_parser(subparsers) -> None:
     """Add ``recover`` to the command's subparsers."""
-    from pirl_sim.validation import positive_int_arg, seed_arg
+    from pirl_sim.validation import list_arg, positive_int_arg, seed_arg
 
     p = subparsers.add_parser(
         "recover",
@@ -640,7 +627,7 @@ def add_recover_parser(subparsers) -> None:
     p.add_argument("--stride", type=positive_int_arg, default=1, help="score every STRIDE-th step (default 1)")
     p.add_argument("--min-steps", type=positive_int_arg, default=10,
                    help="usable steps a PIRL track needs to be fitted (default 10)")
-    p.add_argument("--control-noise", type=_float_list, default=[], metavar="LEVELS",
+    p.add_argument("--control-noise", type=list_arg(float, low=0), default=[], metavar="LEVELS",
                    help="noise study: comma-separated control-noise levels [m/s^3], e.g. 0,0.1,0.3,1 "
                         "(written to noise.csv/.md)")
     p.add_argument("--noise-seeds", type=seed_arg, nargs="+", default=None,

@@ -51,7 +51,7 @@ from pirl_sim.sweep.recorded import (ReplayProtocol, decode_method, load_scene, 
                                      usable_tracks)
 from pirl_sim.sweep.run import plan_cells, run_sweep
 from pirl_sim.sweep.store import ResultStore
-from pirl_sim.validation import positive_float_arg, positive_int_arg
+from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
 
 __all__ = ["add_replay_parser", "run_replay_command", "replay_settings", "seconds_to_steps"]
 
@@ -77,28 +77,6 @@ def _horizon_arg(text: str) -> int:
         return positive_int_arg(text)
     except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"--mpc-horizon must be a positive number of steps, got {text!r}") from None
-
-
-def _positive_ints(text: str) -> list[int]:
-    """argparse type of --knn-k and --scan-horizon: positive integers separated by commas."""
-    try:
-        values = [int(k) for k in text.split(",")]
-    except ValueError:
-        values = []
-    if not values or any(k < 1 for k in values):
-        raise argparse.ArgumentTypeError(f"expected positive integers separated by commas, got {text!r}")
-    return values
-
-
-def _distances(text: str) -> tuple[float, ...]:
-    """Comma-separated finite numbers >= 0 (distances [m], weights); '' none."""
-    try:
-        out = tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers >= 0, got {text!r}") from None
-    if not all(np.isfinite(d) and d >= 0 for d in out):
-        raise argparse.ArgumentTypeError(f"expected finite numbers >= 0, got {text!r}")
-    return out
 
 
 def add_replay_parser(sub) -> argparse.ArgumentParser:
@@ -168,15 +146,15 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "own estimate, the state an online prediction starts from ('history'), or at the smoothed "
                          "track's state ('track', the replays before this option) (default: history with --start "
                          "history)")
-    rp.add_argument("--lookup-ahead", type=_distances, default="0,10,20,30,45", metavar="M1,M2,...",
+    rp.add_argument("--lookup-ahead", type=list_arg(float, low=0, empty=True), default="0,10,20,30,45", metavar="M1,M2,...",
                     help="pirl-knn-next: distances ahead [m] at which the road's curvature joins the look-up keys "
                          "('' none, the replays before this option) (default 0,10,20,30,45)")
-    rp.add_argument("--ahead-weights", type=_distances, default="0,0.5,1", metavar="W1,W2,...",
+    rp.add_argument("--ahead-weights", type=list_arg(float, low=0, empty=True), default="0,0.5,1", metavar="W1,W2,...",
                     help="pirl-knn-next: candidate weights of the road ahead in the look-up; with several, each split "
                          "chooses the one that predicts held-out training windows best (learners/knn.py) "
                          "(default 0,0.5,1)")
     rp.add_argument("--gmm-k", type=positive_int_arg, default=3, help="clusters of PIRL-GMM (default 3)")
-    rp.add_argument("--knn-k", type=_positive_ints, default="10",
+    rp.add_argument("--knn-k", type=list_arg(int, low=1), default="10",
                     help="neighbours of PIRL-kNN; several comma-separated values run one learner each and draw MED vs k "
                          "(default 10)")
     rp.add_argument("--seeds", type=positive_int_arg, default=3, help="number of train/test split seeds (default 3)")
@@ -219,7 +197,7 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="learners' predictions: 'open' (one MPC plan) or 'closed' (re-plan every step over "
                          "--mpc-horizon steps, as the drivers) (default: closed with --likelihood receding, open "
                          "otherwise)")
-    rp.add_argument("--scan-horizon", type=_positive_ints, default=None, metavar="H1,H2,...",
+    rp.add_argument("--scan-horizon", type=list_arg(int, low=1), default=None, metavar="H1,H2,...",
                     help="instead of the replay: for each MPC horizon [steps], fit TIRL with the receding likelihood "
                          "on the training tracks and report the held-out residual NLL per step and MED "
                          "(horizon_scan.csv/.md)")
