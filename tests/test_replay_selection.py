@@ -130,13 +130,19 @@ def test_run_replay_fits_the_desired_speed_per_split(passage_root):
 def test_table_command_end_to_end(passage_root, tmp_path, capsys):
     out = tmp_path / "table"
     assert main(["replay", "--table", str(passage_root), "--roundabouts", "SIM_Roundabout_A", "--seeds", "2",
-                 "--learners", "tirl,pirl-knn", "--knn-k", "5", "--desired-speed", "fit", "--out", str(out),
-                 "--quiet"]) == 0
+                 "--learners", "tirl,pirl-knn", "--knn-k", "5", "--desired-speed", "fit", "--direct", "--out",
+                 str(out), "--quiet"]) == 0
     text = (out / "table.md").read_text()
     assert "| SIM_Roundabout_A |" in text and "MED_best / MED_CA" in text and "free-flow runs" in text
     assert (out / "SIM_Roundabout_A" / "summary.csv").is_file()
     table = pd.read_csv(out / "table.csv")
+    # the direct regression has its row and its ratio to CA, but is never the best PIRL learner
     assert table["best"].sum() == 1 and table.loc[table["best"], "method"].item() == "PIRL-kNN (k=5)"
+    med = table.set_index("method")["med"]
+    header, row = [line for line in text.splitlines() if "direct regression (no cost) / CA" in line
+                   or line.startswith("| SIM_Roundabout_A | vehicle_tracks")]
+    ratio = row.split(" | ")[header.split(" | ").index("direct regression (no cost) / CA")]
+    assert float(ratio.split(" ")[0]) == pytest.approx(med["direct regression (no cost)"] / med["CA (path)"], abs=1e-3)
     assert main(["replay", "--table", str(passage_root), "--roundabouts", "DR_USA_Roundabout_SR",
                  "--out", str(out)]) == 2
     assert "held-out" in capsys.readouterr().err
