@@ -59,7 +59,7 @@ from pirl_sim.validation import is_positive_int
 
 from .base import BaseLearner, population_prior
 
-__all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes", "steer_segment"]
+__all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes", "steer_segment", "history_keys"]
 
 AVERAGES = ("log", "linear")
 PRIORS = (None, "population")
@@ -242,7 +242,7 @@ class PIRLKNN(BaseLearner):
                              f"model has {n_x} state entries")
         ahead = _nonnegative_numbers("lookup_ahead", self.lookup_ahead, "distances [m]", "finite distances >= 0 m")
         aw = _nonnegative_numbers("ahead_weights", self.ahead_weights, "weights",
-                               "distinct finite weights >= 0, at least one", distinct=True)
+                                  "distinct finite weights >= 0, at least one", distinct=True)
         if len(aw) > 1 and ahead and self.target != "next":
             raise ValueError("several ahead_weights are chosen on the training windows' next steps: they need "
                              "target='next'")
@@ -259,18 +259,13 @@ class PIRLKNN(BaseLearner):
         False), the chosen state entries at each lag before the window's end, then the road's |curvature| at
         ``lookup_ahead`` metres beyond the window's end."""
         parts = [self._raw_to_space(model.feature_values(windows))] if self.lookup_features else []
-        idx = list(self.state_idx_)
-        if idx:
-            lags = [int(lag) for lag in self.state_lags]
+        lags = [int(lag) for lag in self.state_lags]
+        if self.state_idx_:
             short = [j for j, w in enumerate(windows) if w.n_steps < max(lags)]
             if short:
                 raise ValueError(f"state_lags reach {max(lags)} steps back, but window {short[0]} has "
                                  f"{windows[short[0]].n_steps} steps")
-            parts.append(np.stack([np.concatenate([w.states[-1 - lag, idx] for lag in lags]) for w in windows]))
-        ahead = np.asarray(self.lookup_ahead, dtype=float)
-        if ahead.size:
-            s_end = np.array([w.states[-1, 0] for w in windows])
-            parts.append(model.curvature(s_end[:, None] + ahead))
+        parts.append(history_keys(model, windows, self.state_idx_, lags, self.lookup_ahead))
         return np.hstack(parts)
 
     def _next_pairs(self, model, trajectories) -> tuple[list, list, np.ndarray, np.ndarray]:
@@ -536,6 +531,21 @@ class PIRLKNN(BaseLearner):
         if self.average == "log":
             return np.exp(np.einsum("mk,mkd->md", w, np.log(theta)))
         return np.einsum("mk,mkd->md", w, theta)
+
+
+def history_keys(model, windows, state_idx, lags, ahead) -> np.ndarray:
+    """Keys of windows by how they ended, (M, len(lags) * len(state_idx) + len(ahead)): the state entries
+    ``state_idx`` at each of ``lags`` [steps] before each window's end (lag by lag), then the road's |curvature|
+    [1/m] (``model.curvature``, e.g. `pirl_sim.driving.PathDriverModel.curvature`) ``ahead`` metres beyond the
+    window's end. The kinematic part of PIRL-kNN's look-up and of the replay's direct regression."""
+    idx = list(state_idx)
+    parts = [np.stack([np.concatenate([w.states[-1 - lag, idx] for lag in lags]) for w in windows])
+             if idx else np.empty((len(windows), 0))]
+    ahead = np.asarray(ahead, dtype=float)
+    if ahead.size:
+        s_end = np.array([w.states[-1, 0] for w in windows])
+        parts.append(model.curvature(s_end[:, None] + ahead))
+    return np.hstack(parts)
 
 
 def _nonnegative_numbers(name: str, values, items: str, allowed: str, *, distinct: bool = False) -> tuple[float, ...]:

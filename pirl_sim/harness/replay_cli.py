@@ -47,8 +47,8 @@ from pirl_sim.scenarios.replay import (
 from pirl_sim.sweep.cli import command_line, interrupted
 from pirl_sim.sweep.config import parse_config, preset_text
 from pirl_sim.sweep.executors import InlineExecutor, LocalExecutor
-from pirl_sim.sweep.recorded import (ReplayProtocol, decode_method, load_scene, method_id, recorded_files,
-                                     usable_tracks)
+from pirl_sim.sweep.recorded import (ReplayProtocol, decode_method, history_lags, load_scene, method_id,
+                                     recorded_files, usable_tracks)
 from pirl_sim.sweep.run import plan_cells, run_sweep
 from pirl_sim.sweep.store import ResultStore
 from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
@@ -146,10 +146,12 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                          "own estimate, the state an online prediction starts from ('history'), or at the smoothed "
                          "track's state ('track', the replays before this option) (default: history with --start "
                          "history)")
-    rp.add_argument("--lookup-ahead", type=list_arg(float, low=0, empty=True), default="0,10,20,30,45", metavar="M1,M2,...",
+    rp.add_argument("--lookup-ahead", type=list_arg(float, low=0, empty=True), default="0,10,20,30,45",
+                    metavar="M1,M2,...",
                     help="pirl-knn-next: distances ahead [m] at which the road's curvature joins the look-up keys "
                          "('' none, the replays before this option) (default 0,10,20,30,45)")
-    rp.add_argument("--ahead-weights", type=list_arg(float, low=0, empty=True), default="0,0.5,1", metavar="W1,W2,...",
+    rp.add_argument("--ahead-weights", type=list_arg(float, low=0, empty=True), default="0,0.5,1",
+                    metavar="W1,W2,...",
                     help="pirl-knn-next: candidate weights of the road ahead in the look-up; with several, each split "
                          "chooses the one that predicts held-out training windows best (learners/knn.py) "
                          "(default 0,0.5,1)")
@@ -307,7 +309,6 @@ def replay_config(args, settings: dict, tracks, map_path):
     exp["protocols"] = [{"kind": "rolling", "history_steps": p.history, "horizon": p.horizon, "stride": p.stride}]
     receding = settings["likelihood"] == "receding"
     irl = {"likelihood": "receding", "horizon": int(settings["mpc_horizon"])} if receding else {}
-    lags = sorted({min(int(round(back / dt)), p.history) for back in (0.0, 0.5, 1.0)})  # for pirl-knn-next
     learners = []
     for entry in ({"name": e} if isinstance(e, str) else dict(e) for e in exp["learners"]):
         key = _cli_key(entry)
@@ -325,7 +326,8 @@ def replay_config(args, settings: dict, tracks, map_path):
                 if segments == "history" and p.start != "history":
                     raise ValueError("--next-segments history starts the training segments at their histories' "
                                      "own estimates, which --start track does not make: use --start history")
-                params.update(target_steps=p.horizon, state_lags=lags, lookup_history=p.start == "history",
+                params.update(target_steps=p.horizon, state_lags=history_lags(dt, p.history),
+                              lookup_history=p.start == "history",
                               segment_start=segments, lookup_ahead=list(args.lookup_ahead),
                               ahead_weights=list(args.ahead_weights))
             if entry["name"] == "pirl-knn":

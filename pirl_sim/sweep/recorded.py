@@ -88,14 +88,21 @@ from .scenarios import SCENARIOS, Param, ScenarioSpec, TrainShape, _split, regis
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
            "load_scene", "method_id", "decode_method", "predict_path_states", "split_by_track", "usable_tracks",
-           "fit_lateral_profile", "desired_speed_model", "fit_scene_speed", "start_histories", "METHODS",
-           "HINDSIGHT", "ROLLOUTS", "RECORDED_PARAMS"]
+           "fit_lateral_profile", "desired_speed_model", "fit_scene_speed", "start_histories", "history_lags",
+           "METHODS", "HINDSIGHT", "ROLLOUTS", "RECORDED_PARAMS"]
 
 #: pseudo-learners of this scenario (module doc); every other method is a learner of `pirl_sim.learners.LEARNERS`
 METHODS = ("cv", "ca", "cv-xy", "hindsight", "direct")
 HINDSIGHT = "hindsight cost (oracle)"  #: not a predictor: each window's cost fitted on its own future
 ROLLOUTS = ("open", "closed")
 STARTS = ("history", "track")  #: start states of a prediction (`ReplayProtocol.start`)
+#: how far back [s] PIRL-kNN next's look-up and the direct regression read speed and acceleration
+LAG_SECONDS = (0.0, 0.5, 1.0)
+
+
+def history_lags(dt: float, history: int) -> list[int]:
+    """`LAG_SECONDS` in steps of ``dt`` [s] (rounded, at most ``history`` steps back, repeats merged)."""
+    return sorted({min(int(round(back / dt)), history) for back in LAG_SECONDS})
 
 
 @dataclass(frozen=True)
@@ -489,8 +496,7 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             s_pred = predict_path_states(model, x0, oracle.demo_theta_, proto.horizon)[:, 1:, 0]
             predicted[name] = (s_pred, fit_s, 0.0, diag)
         elif key == "direct":
-            lags = sorted({min(int(round(back / dt)), proto.history) for back in (0.0, 0.5, 1.0)})  # as kNN next
-            reg = DirectRegression(model, proto.history, proto.horizon, lags=lags,
+            reg = DirectRegression(model, proto.history, proto.horizon, lags=history_lags(dt, proto.history),
                                    online=proto.start == "history").fit(train)
             fit_s = time.perf_counter() - t0
             t0 = time.perf_counter()
