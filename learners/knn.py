@@ -44,6 +44,12 @@ whole horizon, however well the cost explains the segment (the segment is re-sta
 follow its positions and speeds best, `steer_segment`). ``lookup_ahead`` adds the road's curvature some metres
 ahead to the look-up: histories that end before the same bend. Measured on the development roundabouts in the
 README (section "Replaying recorded driving").
+
+``aggregate="selected"`` replaces the look-up's votes by a learned choice among a bank of ``n_candidates`` of the
+next-steps costs (`pirl_sim.learners.selector`): each bank cost's error when rolled out from a training window's
+start is regressed on the window's look-up keys, and online the bank costs are weighted by
+``softmin(predicted error / temperature)``. Which cost predicts a situation well is learned from what the costs
+predicted, not inferred from which histories are near.
 """
 
 from __future__ import annotations
@@ -58,6 +64,7 @@ from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
 
 from .base import BaseLearner, population_prior
+from .selector import ErrorRegression, cost_bank, rollout_errors, softmin
 
 __all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes", "steer_segment", "history_keys"]
 
@@ -65,13 +72,17 @@ AVERAGES = ("log", "linear")
 PRIORS = (None, "population")
 WEIGHTINGS = ("distance", "likelihood")
 TARGETS = ("demo", "next")
-AGGREGATES = ("weights", "futures")
+AGGREGATES = ("weights", "futures", "selected")
 SEGMENT_STARTS = ("track", "history")
 #: how ``segment_start="history"`` re-starts a next-steps segment (`pirl_sim.dynamics.LinearDynamics.steer`):
 #: weights on the position [1/m^2] and speed [s^2/m^2] along the path, ridge on the controls (jerk, [s^6/m^2])
 STEER = {"weights": (1.0, 1.0), "ridge": 1e-2}
 #: held-out training windows (evenly spaced) on which several ``ahead_weights`` are compared
 AHEAD_VALIDATION = 1000
+#: ``aggregate="selected"``: training windows (evenly spaced) on which the bank costs' errors are learned, and
+#: boosting iterations of each bank cost's error regression
+SELECTION_WINDOWS = 4000
+SELECTOR_ITER = 100
 
 
 class PIRLKNN(BaseLearner):
@@ -100,9 +111,17 @@ class PIRLKNN(BaseLearner):
         Whether the window's (transformed) cost features are in the look-up space; False looks up by
         ``state_features`` alone (needs some). On the development roundabouts the next-steps costs are
         found better by how the history moved than by its features (module doc).
-    aggregate : {"weights", "futures"}
+    aggregate : {"weights", "futures", "selected"}
         How `predict_states` uses the neighbours: one future under their averaged weights, or the vote-weighted
-        mean of their futures, each under its own cost (module doc).
+        mean of their futures, each under its own cost (module doc); "selected" (``target="next"``): no
+        neighbours, the mean of the futures of a bank of ``n_candidates`` costs weighted by their learned
+        predicted errors (module doc, `pirl_sim.learners.selector`); such a learner cannot be saved (its
+        error regressions are tree ensembles, which `save`'s pickle-free format does not hold: a TypeError).
+    n_candidates : int
+        ``aggregate="selected"``: size of the bank of costs (k-means medoids of the next-steps costs' log
+        weights; fewer when medoids coincide).
+    temperature : float
+        ``aggregate="selected"``: [m] > 0, the softmin's scale over the predicted mean |error| along the path.
     lookup_history : bool
         With ``target="next"``: the training histories' look-up values from `Trajectory.history_window` (each
         history's states estimated from its own observations, as an online query's are) instead of the
@@ -138,6 +157,10 @@ class PIRLKNN(BaseLearner):
     ahead_weight_ : float          the road-ahead weight in use (the chosen one of ``ahead_weights``)
     ahead_scores_ : dict           {candidate weight: held-out mean |error| along the path [m]} (several only)
     key_scale_ : array (d,)        factors on the standardised look-up coordinates
+    bank_ : array (C,)             (``aggregate="selected"``) the look-up samples whose costs form the bank
+    selector_ : ErrorRegression    (``aggregate="selected"``) their errors [m] regressed on the look-up keys
+    bank_errors_ : array (N, C)    (``aggregate="selected"``) the bank's rollout errors [m] on the training
+                                   windows the selector learned from
     """
 
     def __init__(
@@ -167,6 +190,8 @@ class PIRLKNN(BaseLearner):
         segment_start="track",
         lookup_ahead=(),
         ahead_weights=(1.0,),
+        n_candidates=32,
+        temperature=0.05,
         irl_max_iter=100,
     ):
         self.model = model
@@ -193,6 +218,8 @@ class PIRLKNN(BaseLearner):
         self.segment_start = segment_start
         self.lookup_ahead = lookup_ahead
         self.ahead_weights = ahead_weights
+        self.n_candidates = n_candidates
+        self.temperature = temperature
         self.irl_max_iter = irl_max_iter
 
     def _check_target(self, model) -> tuple[int, ...]:
@@ -211,6 +238,17 @@ class PIRLKNN(BaseLearner):
             if self.weighting == "likelihood":
                 raise ValueError("weighting='likelihood' scores a history under its neighbours' costs of whole "
                                  "demonstrations; with target='next' use weighting='distance'")
+        if self.aggregate == "selected":
+            if self.target != "next":
+                raise ValueError("aggregate='selected' chooses among costs of what followed training windows: it "
+                                 "needs target='next'")
+            if not is_positive_int(self.n_candidates):
+                raise ValueError(f"n_candidates must be a positive integer (costs in the bank), got "
+                                 f"{self.n_candidates!r}")
+            t = self.temperature
+            if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not np.isfinite(t) \
+                    or t <= 0:
+                raise ValueError(f"temperature must be a finite number > 0 [m], got {t!r}")
         try:
             idx = tuple(int(i) for i in self.state_features)
         except (TypeError, ValueError):
@@ -336,11 +374,31 @@ class PIRLKNN(BaseLearner):
             self.ahead_validation_ = {"pick": pick, "groups": groups, "truth": truth[pick],
                                       "x0": np.stack([samples[i].states[-1] for i in pick])}
         self._index(int(k))
+        if self.aggregate == "selected":
+            self._fit_selector(samples, truth)
         if self.weighting == "likelihood":
             self.control_rms_ = float(np.sqrt(np.mean(np.concatenate([np.square(t.controls).ravel()
                                                                        for t in trajectories]))))
             first = self.window is not None and self.windows == "first"
             self.episode_steps_ = int(min(t.n_steps for t in trajectories)) if first else None
+
+    def _fit_selector(self, samples, truth: np.ndarray) -> None:
+        """The bank of costs and the regression of their rollout errors on the look-up keys (module doc), from
+        up to `SELECTION_WINDOWS` evenly spaced training windows, each rolled out from its history's last state
+        and scored against the track's positions along the path over the next steps ``truth`` (P, F) [m]."""
+        if int(self.n_candidates) > len(self.demo_theta_):
+            raise ValueError(f"n_candidates={self.n_candidates} is larger than the number of next-steps costs "
+                             f"({len(self.demo_theta_)})")
+        self.bank_ = cost_bank(np.log(self.demo_theta_), int(self.n_candidates))
+        pick = np.unique(np.linspace(0, len(samples) - 1, min(SELECTION_WINDOWS, len(samples))).astype(int))
+        x0 = np.stack([samples[i].states[-1] for i in pick])
+        self.bank_errors_ = rollout_errors(self.model_, x0, self.demo_theta_[self.bank_], truth[pick])
+        self.selector_ = ErrorRegression(SELECTOR_ITER).fit(self.lookup_z_[pick], self.bank_errors_)
+
+    def _selection(self, histories) -> np.ndarray:
+        """The bank's probabilities (M, C) for each history (``aggregate="selected"``)."""
+        keys = self.scaler_.transform(self._lookup_values(self.model_, self._query_windows(histories)))
+        return softmin(self.selector_.predict(keys), self.temperature)
 
     def with_neighbors(self, n_neighbors: int) -> PIRLKNN:
         """This fitted learner with another number of neighbours k, without refitting its IRL.
@@ -394,6 +452,8 @@ class PIRLKNN(BaseLearner):
                 scale[-n_ahead:] = w
             return scale
 
+        if self.aggregate == "selected":  # the selector's trees see every key; a key's scale does not matter
+            weights = (1.0,)
         if len(weights) > 1:
             self.ahead_scores_ = {w: self._held_out_error(Z * scaled(w), k) for w in weights}
             chosen = min(weights, key=lambda w: (self.ahead_scores_[w], w))
@@ -430,6 +490,8 @@ class PIRLKNN(BaseLearner):
         return z * getattr(self, "key_scale_", 1.0)
 
     def _infer(self, histories):
+        if self.aggregate == "selected":  # the most probable bank cost
+            return self.demo_theta_[self.bank_[self._selection(histories).argmax(axis=1)]]
         dist, idx = self.neighbors_.kneighbors(self._lookup(histories))
         if self.weighting == "likelihood":
             return self._likelihood_average(histories, idx)
@@ -443,7 +505,9 @@ class PIRLKNN(BaseLearner):
         `infer_weights` averages (1 / distance, or the likelihood of the history with
         ``weighting="likelihood"``; a demonstration that is a neighbour through several windows gets the sum
         of its votes). ``n_futures=None``: one future per neighbouring demonstration, in order of vote, padded
-        as below to K = k. ``n_futures=K``: min(K, ``n_neighbors``) demonstrations drawn without replacement
+        as below to K = k. With ``aggregate="selected"`` the bank's costs take the neighbours' place (k = the
+        bank's size), with the learned probabilities as votes. ``n_futures=K``: min(K, k) demonstrations drawn
+        without replacement
         with probabilities proportional to their votes (Gumbel top-K with ``random_state``, an int, a
         `numpy.random.Generator` or None). Each future is the MPC's prediction under its demonstration's
         weights ``demo_theta_``, with probability its vote renormalised over the K chosen. When fewer than K
@@ -460,11 +524,16 @@ class PIRLKNN(BaseLearner):
 
         check_is_fitted(self)
         self._check_futures_args(horizon, n_futures)
-        k = int(self.n_neighbors)
         histories, single = self._as_histories(histories)
-        dist, idx = self.neighbors_.kneighbors(self._lookup(histories))
-        votes = self._likelihood_votes(histories, idx) if self.weighting == "likelihood" else inverse_distance_votes(dist)
-        owners = self.sample_owner_[idx]  # (M, k)
+        if self.aggregate == "selected":  # the bank's costs, with their learned probabilities
+            votes = self._selection(histories)
+            owners = np.broadcast_to(self.bank_, votes.shape)
+        else:
+            dist, idx = self.neighbors_.kneighbors(self._lookup(histories))
+            votes = (self._likelihood_votes(histories, idx) if self.weighting == "likelihood"
+                     else inverse_distance_votes(dist))
+            owners = self.sample_owner_[idx]  # (M, k)
+        k = owners.shape[1]
         M = len(histories)
         K = k if n_futures is None else min(int(n_futures), k)
         rng = None if n_futures is None else np.random.default_rng(random_state)
@@ -499,7 +568,7 @@ class PIRLKNN(BaseLearner):
         from sklearn.utils.validation import check_is_fitted
 
         check_is_fitted(self)
-        if self.aggregate != "futures":
+        if self.aggregate == "weights":
             return super().predict_states(histories, horizon)
         states, proba = self.predict_futures(histories, horizon)
         if states.ndim == 3:

@@ -171,6 +171,27 @@ def test_replay_cli_sets_the_next_learners_segments_and_road_ahead(tmp_path, cap
     assert "ahead_weights" in capsys.readouterr().err
 
 
+def test_replay_cli_runs_the_selected_bank_once_whatever_the_k_grid(tmp_path):
+    """pirl-select: the next-segment costs of pirl-knn-next, chosen by predicted error (learners/selector.py);
+    one row per split (no k), the same segment and road-ahead settings as pirl-knn-next."""
+    import pandas as pd
+
+    from pirl_sim.cli import build_parser, main
+    from pirl_sim.harness.replay_cli import replay_config, replay_settings
+
+    args = _replay_args(tmp_path, 5, "tirl,pirl-knn-next,pirl-select", "3,5")
+    ns = build_parser().parse_args(args)
+    config = replay_config(ns, replay_settings(ns), ns.tracks, ns.map)
+    (sel,) = [e for e in config.experiments[0].learners if e.params.get("aggregate") == "selected"]
+    assert sel.params["target"] == "next" and sel.params["segment_start"] == "history"
+    assert sel.params["target_steps"] == 15 and list(sel.params["lookup_ahead"]) == [0.0, 10.0, 20.0, 30.0, 45.0]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 0
+    rows = pd.read_csv(tmp_path / "out" / "rows.csv").set_index("method")
+    assert "PIRL-select" in rows.index and not any(m.startswith("PIRL-select (") for m in rows.index)
+    assert rows.loc["PIRL-select", "irl_converged"] == rows.loc["PIRL-select", "irl_groups"] > 30
+    assert 0 < rows.loc["PIRL-select", "med"] < rows.loc["CV (path)", "med"]
+
+
 def test_replay_scores_k_futures_of_each_learner(tmp_path):
     import pandas as pd
 

@@ -139,17 +139,17 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
                          "with costs of what followed each training window, looked up by the speed and acceleration "
                          "now, 0.5 s and 1 s ago and the road ahead, its neighbours' futures averaged: "
-                         "learners/knn.py) (default "
-                         "tirl,pirl-gmm,pirl-knn)")
+                         "learners/knn.py), pirl-select (the same costs, a bank of 32 weighted by their errors "
+                         "predicted from the same keys: learners/selector.py) (default tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--next-segments", choices=["history", "track"], default=None,
-                    help="pirl-knn-next: where each training segment whose cost the IRL fits starts: at its history's "
-                         "own estimate, the state an online prediction starts from ('history'), or at the smoothed "
-                         "track's state ('track', the replays before this option) (default: history with --start "
-                         "history)")
+                    help="pirl-knn-next, pirl-select: where each training segment whose cost the IRL fits starts: "
+                         "at its history's own estimate, the state an online prediction starts from ('history'), or "
+                         "at the smoothed track's state ('track', the replays before this option) (default: history "
+                         "with --start history)")
     rp.add_argument("--lookup-ahead", type=list_arg(float, low=0, empty=True), default="0,10,20,30,45",
                     metavar="M1,M2,...",
-                    help="pirl-knn-next: distances ahead [m] at which the road's curvature joins the look-up keys "
-                         "('' none, the replays before this option) (default 0,10,20,30,45)")
+                    help="pirl-knn-next, pirl-select: distances ahead [m] at which the road's curvature joins the "
+                         "look-up keys ('' none, the replays before this option) (default 0,10,20,30,45)")
     rp.add_argument("--ahead-weights", type=list_arg(float, low=0, empty=True), default="0,0.5,1",
                     metavar="W1,W2,...",
                     help="pirl-knn-next: candidate weights of the road ahead in the look-up; with several, each split "
@@ -277,12 +277,16 @@ def _steps(seconds: float, dt: float) -> int:
 
 
 NEXT_KNN = "pirl-knn-next"  #: PIRL-kNN with target="next" (learners/knn.py), a key of --learners only
+SELECT = "pirl-select"  #: the same costs chosen by predicted error (aggregate="selected"), a key of --learners only
 ALWAYS = ("cv", "ca", "cv-xy")  #: the baselines of every replay (pseudo-learners of the preset)
 
 
 def _cli_key(entry: dict) -> str:
     """The --learners key of a preset learner entry."""
-    return NEXT_KNN if entry.get("params", {}).get("target") == "next" else entry["name"]
+    params = entry.get("params", {})
+    if params.get("target") == "next":
+        return SELECT if params.get("aggregate") == "selected" else NEXT_KNN
+    return entry["name"]
 
 
 def replay_config(args, settings: dict, tracks, map_path):
@@ -295,7 +299,7 @@ def replay_config(args, settings: dict, tracks, map_path):
         Unknown learners, a bad --knn-k, or anything the sweep config rejects (named there).
     """
     keys = [k.strip() for k in args.learners.split(",") if k.strip()]
-    known = sorted([*LEARNERS, NEXT_KNN])
+    known = sorted([*LEARNERS, NEXT_KNN, SELECT])
     unknown = [k for k in keys if k not in known]
     if unknown or not keys:
         raise ValueError(f"unknown learners {unknown or keys}; choose from {known}")
@@ -321,7 +325,7 @@ def replay_config(args, settings: dict, tracks, map_path):
                 params.pop("prior", None)  # a prior of the trajectory likelihood's Laplace fit
             if key == "pirl-gmm":
                 params["n_components"] = args.gmm_k
-            if key == NEXT_KNN:
+            if key in (NEXT_KNN, SELECT):
                 segments = args.next_segments or ("history" if p.start == "history" else "track")
                 if segments == "history" and p.start != "history":
                     raise ValueError("--next-segments history starts the training segments at their histories' "
@@ -330,7 +334,7 @@ def replay_config(args, settings: dict, tracks, map_path):
                               lookup_history=p.start == "history",
                               segment_start=segments, lookup_ahead=list(args.lookup_ahead),
                               ahead_weights=list(args.ahead_weights))
-            if entry["name"] == "pirl-knn":
+            if entry["name"] == "pirl-knn" and key != SELECT:  # the bank's choice has no neighbours
                 entry["grid"] = {"n_neighbors": list(args.knn_k)}
             entry["params"] = params
         learners.append(entry)

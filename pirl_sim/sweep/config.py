@@ -397,7 +397,7 @@ class Cell:
 
 def _learner_label(grid: LearnerGrid, params: dict, varied: list[tuple[str, str]]) -> tuple[str, int | None]:
     kname = K_PARAMS.get(grid.name)
-    k = params.get(kname) if kname else None
+    k = params.get(kname) if kname and params.get("aggregate") != "selected" else None  # a bank's choice: no k
     parts = [] if k is None else [f"k={k}"]
     parts += [f"{n}={lab}" for n, lab in varied if n != kname]
     return grid.label + (f" ({', '.join(parts)})" if parts else ""), (k if isinstance(k, int) else None)
