@@ -46,10 +46,12 @@ ahead to the look-up: histories that end before the same bend. Measured on the d
 README (section "Replaying recorded driving").
 
 ``aggregate="selected"`` replaces the look-up's votes by a learned choice among a bank of ``n_candidates`` of the
-next-steps costs (`pirl_sim.learners.selector`): each bank cost's error when rolled out from a training window's
-start is regressed on the window's look-up keys, and online the bank costs are weighted by
-``softmin(predicted error / temperature)``. Which cost predicts a situation well is learned from what the costs
-predicted, not inferred from which histories are near.
+next-steps costs (`pirl_sim.learners.selector`), learned from the look-up keys and the place where the window
+ends: with ``selector="forecast"`` (the default) the positions over the next steps are regressed on them and
+online the bank's futures from the query's state are mixed to come nearest to that forecast; with
+``selector="errors"`` each bank cost's error when rolled out from a training window's start is regressed on them,
+and online the bank costs are weighted by ``softmin(predicted error / temperature)``. Which costs predict a
+situation well is learned from what drivers did next, not inferred from which histories are near.
 """
 
 from __future__ import annotations
@@ -60,19 +62,22 @@ import numpy as np
 from sklearn.neighbors import NearestNeighbors
 from sklearn.preprocessing import StandardScaler
 
+from pirl_sim.dynamics import constant_acceleration
 from pirl_sim.trajectory import Trajectory
-from pirl_sim.validation import is_positive_int
+from pirl_sim.validation import is_positive_int, number
 
 from .base import BaseLearner, population_prior
-from .selector import ErrorRegression, cost_bank, rollout_errors, softmin
+from .selector import ErrorRegression, FutureRegression, cost_bank, mixture_weights, rollout_errors, softmin
 
-__all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes", "steer_segment", "history_keys"]
+__all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes", "steer_segment", "history_keys", "place_keys"]
 
 AVERAGES = ("log", "linear")
 PRIORS = (None, "population")
 WEIGHTINGS = ("distance", "likelihood")
 TARGETS = ("demo", "next")
 AGGREGATES = ("weights", "futures", "selected")
+MIXTURES = ("futures", "selected")  #: aggregates whose prediction is a mixture of several costs' futures
+SELECTORS = ("forecast", "errors")  #: how ``aggregate="selected"`` learns its choice of costs
 SEGMENT_STARTS = ("track", "history")
 #: how ``segment_start="history"`` re-starts a next-steps segment (`pirl_sim.dynamics.LinearDynamics.steer`):
 #: weights on the position [1/m^2] and speed [s^2/m^2] along the path, ridge on the controls (jerk, [s^6/m^2])
@@ -117,11 +122,19 @@ class PIRLKNN(BaseLearner):
         neighbours, the mean of the futures of a bank of ``n_candidates`` costs weighted by their learned
         predicted errors (module doc, `pirl_sim.learners.selector`); such a learner cannot be saved (its
         error regressions are tree ensembles, which `save`'s pickle-free format does not hold: a TypeError).
+    selector : {"forecast", "errors"}
+        ``aggregate="selected"``: how the choice among the bank's costs is learned, both from the look-up keys
+        and the place (the path's point [m] and heading at the window's end, `place_keys`). "forecast": one
+        regression of the positions over the next ``target_steps`` steps (`FutureRegression`, on every
+        training window), and online the mixture of the bank's futures from the query's state nearest to that
+        forecast (`mixture_weights`); "errors": one regression of each bank cost's rollout error
+        (`ErrorRegression`, on up to `SELECTION_WINDOWS` training windows), and online ``softmin(predicted
+        error / temperature)`` (module doc of `pirl_sim.learners.selector`).
     n_candidates : int
         ``aggregate="selected"``: size of the bank of costs (k-means medoids of the next-steps costs' log
-        weights; fewer when medoids coincide).
+        weights; fewer when medoids coincide, every cost when there are no more than ``n_candidates``).
     temperature : float
-        ``aggregate="selected"``: [m] > 0, the softmin's scale over the predicted mean |error| along the path.
+        ``aggregate="selected"``, ``selector="errors"``: [m] > 0, the softmin's scale over the predicted mean |error| along the path.
     lookup_history : bool
         With ``target="next"``: the training histories' look-up values from `Trajectory.history_window` (each
         history's states estimated from its own observations, as an online query's are) instead of the
@@ -158,8 +171,9 @@ class PIRLKNN(BaseLearner):
     ahead_scores_ : dict           {candidate weight: held-out mean |error| along the path [m]} (several only)
     key_scale_ : array (d,)        factors on the standardised look-up coordinates
     bank_ : array (C,)             (``aggregate="selected"``) the look-up samples whose costs form the bank
-    selector_ : ErrorRegression    (``aggregate="selected"``) their errors [m] regressed on the look-up keys
-    bank_errors_ : array (N, C)    (``aggregate="selected"``) the bank's rollout errors [m] on the training
+    selector_ : FutureRegression or ErrorRegression  (``aggregate="selected"``) the positions over the next
+                                   steps, or each bank cost's errors [m], regressed on the selector's keys
+    bank_errors_ : array (N, C)    (``selector="errors"``) the bank's rollout errors [m] on the training
                                    windows the selector learned from
     """
 
@@ -190,6 +204,7 @@ class PIRLKNN(BaseLearner):
         segment_start="track",
         lookup_ahead=(),
         ahead_weights=(1.0,),
+        selector="forecast",
         n_candidates=32,
         temperature=0.05,
         irl_max_iter=100,
@@ -218,6 +233,7 @@ class PIRLKNN(BaseLearner):
         self.segment_start = segment_start
         self.lookup_ahead = lookup_ahead
         self.ahead_weights = ahead_weights
+        self.selector = selector
         self.n_candidates = n_candidates
         self.temperature = temperature
         self.irl_max_iter = irl_max_iter
@@ -245,10 +261,9 @@ class PIRLKNN(BaseLearner):
             if not is_positive_int(self.n_candidates):
                 raise ValueError(f"n_candidates must be a positive integer (costs in the bank), got "
                                  f"{self.n_candidates!r}")
-            t = self.temperature
-            if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not np.isfinite(t) \
-                    or t <= 0:
-                raise ValueError(f"temperature must be a finite number > 0 [m], got {t!r}")
+            if self.selector not in SELECTORS:
+                raise ValueError(f"selector must be one of {SELECTORS}, got {self.selector!r}")
+            number("temperature", self.temperature, low=0.0, allow_equal=False)
         try:
             idx = tuple(int(i) for i in self.state_features)
         except (TypeError, ValueError):
@@ -383,22 +398,40 @@ class PIRLKNN(BaseLearner):
             self.episode_steps_ = int(min(t.n_steps for t in trajectories)) if first else None
 
     def _fit_selector(self, samples, truth: np.ndarray) -> None:
-        """The bank of costs and the regression of their rollout errors on the look-up keys (module doc), from
-        up to `SELECTION_WINDOWS` evenly spaced training windows, each rolled out from its history's last state
-        and scored against the track's positions along the path over the next steps ``truth`` (P, F) [m]."""
-        if int(self.n_candidates) > len(self.demo_theta_):
-            raise ValueError(f"n_candidates={self.n_candidates} is larger than the number of next-steps costs "
-                             f"({len(self.demo_theta_)})")
+        """The bank of costs and the regression its choice is learned from (``selector``, module doc): the
+        positions over the next steps ``truth`` (P, F) [m] of every training window, or the bank's errors on up
+        to `SELECTION_WINDOWS` evenly spaced ones, each rolled out from its history's last state."""
         self.bank_ = cost_bank(np.log(self.demo_theta_), int(self.n_candidates))
+        keys = np.hstack([self.lookup_z_, place_keys(self.model_, samples)])
+        x0 = np.stack([h.states[-1] for h in samples])
+        if self.selector == "forecast":
+            self.selector_ = FutureRegression().fit(keys, self._forecast_base(x0, truth.shape[1]), truth)
+            return
         pick = np.unique(np.linspace(0, len(samples) - 1, min(SELECTION_WINDOWS, len(samples))).astype(int))
-        x0 = np.stack([samples[i].states[-1] for i in pick])
-        self.bank_errors_ = rollout_errors(self.model_, x0, self.demo_theta_[self.bank_], truth[pick])
-        self.selector_ = ErrorRegression(SELECTOR_ITER).fit(self.lookup_z_[pick], self.bank_errors_)
+        self.bank_errors_ = rollout_errors(self.model_, x0[pick], self.demo_theta_[self.bank_], truth[pick])
+        self.selector_ = ErrorRegression(SELECTOR_ITER).fit(keys[pick], self.bank_errors_)
 
-    def _selection(self, histories) -> np.ndarray:
-        """The bank's probabilities (M, C) for each history (``aggregate="selected"``)."""
-        keys = self.scaler_.transform(self._lookup_values(self.model_, self._query_windows(histories)))
-        return softmin(self.selector_.predict(keys), self.temperature)
+    def _forecast_base(self, x0: np.ndarray, steps: int) -> np.ndarray:
+        """The forecast's base (M, steps) [m]: the position at constant acceleration until a stop
+        (`pirl_sim.dynamics.constant_acceleration`) from each start x0 (M, n_x), by the state's names ("v [m/s]",
+        "a [m/s^2]"; constant speed without an acceleration, held without a speed)."""
+        names = tuple(self.model_.dynamics.state_names)
+        zero = np.zeros((len(x0), 1))
+        v = x0[:, [names.index("v [m/s]")]] if "v [m/s]" in names else zero
+        a = x0[:, [names.index("a [m/s^2]")]] if "a [m/s^2]" in names else zero
+        return constant_acceleration(x0[:, :1], v, a, self.model_.dynamics.dt * np.arange(1, steps + 1)[None])[0]
+
+    def _selection(self, histories, bank_states: np.ndarray | None = None) -> np.ndarray:
+        """The bank's probabilities (M, C) for each history (``aggregate="selected"``); ``bank_states``: the
+        bank's futures (M, C, target_steps + 1, n_x) from the histories' last states, if already rolled out."""
+        keys = np.hstack([self._lookup(histories), place_keys(self.model_, self._query_windows(histories))])
+        if self.selector == "errors":
+            return softmin(self.selector_.predict(keys), self.temperature)
+        F = int(self.target_steps)
+        x0 = np.stack([h.states[-1] for h in histories])
+        if bank_states is None:
+            bank_states = self._futures(x0, np.broadcast_to(self.bank_, (len(x0), len(self.bank_))), F)
+        return mixture_weights(bank_states[:, :, 1:, 0], self.selector_.predict(keys, self._forecast_base(x0, F)))
 
     def with_neighbors(self, n_neighbors: int) -> PIRLKNN:
         """This fitted learner with another number of neighbours k, without refitting its IRL.
@@ -525,8 +558,12 @@ class PIRLKNN(BaseLearner):
         check_is_fitted(self)
         self._check_futures_args(horizon, n_futures)
         histories, single = self._as_histories(histories)
+        x0 = np.stack([h.states[-1] for h in histories])
+        bank_states = None
         if self.aggregate == "selected":  # the bank's costs, with their learned probabilities
-            votes = self._selection(histories)
+            if self.selector == "forecast" and horizon == int(self.target_steps):  # roll the bank out once
+                bank_states = self._futures(x0, np.broadcast_to(self.bank_, (len(x0), len(self.bank_))), horizon)
+            votes = self._selection(histories, bank_states)
             owners = np.broadcast_to(self.bank_, votes.shape)
         else:
             dist, idx = self.neighbors_.kneighbors(self._lookup(histories))
@@ -551,7 +588,10 @@ class PIRLKNN(BaseLearner):
             chosen[m] = np.concatenate([demos[order], np.full(pad, demos[order[0]])])
             pv = np.concatenate([v[order], np.zeros(pad)])
             proba[m] = pv / pv.sum()
-        states = self._futures(np.stack([h.states[-1] for h in histories]), chosen, horizon)
+        if bank_states is not None:  # the chosen bank costs' futures, already rolled out (bank_ is sorted)
+            states = np.take_along_axis(bank_states, np.searchsorted(self.bank_, chosen)[:, :, None, None], axis=1)
+        else:
+            states = self._futures(x0, chosen, horizon)
         return (states[0], proba[0]) if single else (states, proba)
 
     def _futures(self, x0: np.ndarray, demos: np.ndarray, horizon: int) -> np.ndarray:
@@ -615,6 +655,20 @@ def history_keys(model, windows, state_idx, lags, ahead) -> np.ndarray:
         s_end = np.array([w.states[-1, 0] for w in windows])
         parts.append(model.curvature(s_end[:, None] + ahead))
     return np.hstack(parts)
+
+
+def place_keys(model, windows) -> np.ndarray:
+    """Where windows end, (M, 4): the model's reference path's point [m] at each window's last arc length and its
+    unit heading there; (M, 0) for a model without a path. The place part of PIRL-select's keys and of the
+    replay's direct regression."""
+    path = getattr(model, "path", None)
+    if path is None:
+        return np.empty((len(windows), 0))
+    s_end = np.array([w.states[-1, 0] for w in windows])
+    zero = np.zeros_like(s_end)
+    p0 = path.to_cartesian(s_end, zero)
+    step = path.to_cartesian(s_end + 1.0, zero) - p0
+    return np.hstack([p0, step / np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-9)])
 
 
 def _nonnegative_numbers(name: str, values, items: str, allowed: str, *, distinct: bool = False) -> tuple[float, ...]:

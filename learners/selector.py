@@ -12,24 +12,35 @@ cost is rolled out from the start of each of a set of training windows and score
 (`rollout_errors`); one regression per bank cost learns that error from the window's look-up keys
 (`ErrorRegression`); online, the bank costs get probabilities ``softmin(predicted error / temperature)``
 (`softmin`), a posterior over costs whose futures are averaged (or drawn) like the neighbours' futures.
-The prediction is still the MPC under learned costs; only the choice of cost is learned from predictive error.
+
+The errors of the bank's costs are all functions of one unknown, the driver's next seconds, so they can also be
+predicted through it (``selector="forecast"`` of `pirl_sim.learners.PIRLKNN`): one regression of the positions
+over the next steps on the keys (`FutureRegression`, fitted on every training window, not one regression per
+cost), and online the mixture of the bank's futures, rolled out from the query's own state, that comes nearest
+to that forecast (`mixture_weights`: least squares over the probability simplex). On the development
+roundabouts the single cost of least predicted error cannot follow the forecast where a mixture can (README).
+Either way the prediction is the MPC under learned costs; only the choice of costs is learned from predictive
+error.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cost_bank", "rollout_errors", "ErrorRegression", "softmin"]
+__all__ = ["cost_bank", "rollout_errors", "ErrorRegression", "softmin", "FutureRegression", "mixture_weights"]
 
 
 def cost_bank(log_theta: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
     """Indices (n',) of up to ``n`` rows of ``log_theta`` (S, K) that span them: for each centre of a k-means
-    clustering (``n`` clusters, ``seed``), the row nearest to it; duplicates removed, so n' <= n. Sorted."""
+    clustering (``n`` clusters, ``seed``), the row nearest to it; duplicates removed, so n' <= n; every row
+    when n >= S. Sorted."""
     from sklearn.cluster import KMeans
 
     log_theta = np.asarray(log_theta, dtype=float)
-    if not 1 <= n <= len(log_theta):
-        raise ValueError(f"a bank of n={n!r} costs needs 1 <= n <= {len(log_theta)} (the costs fitted)")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"a bank of n={n!r} costs needs a whole number n >= 1")
+    if n >= len(log_theta):
+        return np.arange(len(log_theta))
     centres = KMeans(n_clusters=int(n), n_init=4, random_state=seed).fit(log_theta).cluster_centers_
     dist = ((log_theta[:, None, :] - centres[None]) ** 2).sum(axis=-1)  # (S, n)
     return np.unique(dist.argmin(axis=0))
@@ -76,3 +87,53 @@ def softmin(errors: np.ndarray, temperature: float) -> np.ndarray:
     z = -(errors - errors.min(axis=1, keepdims=True)) / float(temperature)
     w = np.exp(z)
     return w / w.sum(axis=1, keepdims=True)
+
+
+class FutureRegression:
+    """The positions over the next F steps regressed on keys: per step k, a gradient-boosted ensemble
+    (`sklearn.ensemble.HistGradientBoostingRegressor`, no early stopping, seed 0) of the position minus a
+    given base (e.g. constant speed from the window's end), ``s_k = base_k + g_k(keys)``.
+
+    Attributes
+    ----------
+    models_ : list of F fitted regressors
+    """
+
+    def __init__(self, max_iter: int = 200, learning_rate: float = 0.05) -> None:
+        self.max_iter, self.learning_rate = int(max_iter), float(learning_rate)
+
+    def fit(self, keys: np.ndarray, base: np.ndarray, truth: np.ndarray) -> FutureRegression:
+        """keys (N, d); base and truth (N, F) [m]."""
+        from sklearn.ensemble import HistGradientBoostingRegressor
+
+        y = np.asarray(truth, dtype=float) - np.asarray(base, dtype=float)
+        self.models_ = [HistGradientBoostingRegressor(max_iter=self.max_iter, learning_rate=self.learning_rate,
+                                                      early_stopping=False, random_state=0).fit(keys, y[:, k])
+                        for k in range(y.shape[1])]
+        return self
+
+    def predict(self, keys: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """Forecast positions (M, F) [m] for keys (M, d) and the base (M, F) [m]."""
+        return np.asarray(base, dtype=float) + np.stack([m.predict(keys) for m in self.models_], axis=1)
+
+
+def mixture_weights(futures: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Probabilities (M, C), rows summing to 1, of the mixture of ``futures`` (M, C, F) [m] nearest to ``target``
+    (M, F) [m] in least squares: ``min_w || sum_c w_c futures[m, c] - target[m] ||`` over ``w >= 0``,
+    ``sum w = 1`` (`scipy.optimize.nnls` with the sum as a heavily weighted extra equation, then normalised;
+    a row whose solution vanishes gets the single nearest future)."""
+    from scipy.optimize import nnls
+
+    futures, target = np.asarray(futures, dtype=float), np.asarray(target, dtype=float)
+    M, C, F = futures.shape
+    out = np.zeros((M, C))
+    for m in range(M):
+        diff = futures[m] - target[m]  # (C, F): the mixture's error is sum_c w_c diff_c when sum w = 1
+        scale = 1e3 * max(1.0, float(np.abs(diff).max()))
+        w, _ = nnls(np.vstack([diff.T, np.full((1, C), scale)]), np.concatenate([np.zeros(F), [scale]]))
+        total = w.sum()
+        if total > 0:
+            out[m] = w / total
+        else:
+            out[m, np.abs(diff).sum(axis=1).argmin()] = 1.0
+    return out

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 
-__all__ = ["LinearDynamics", "point_mass", "longitudinal", "following"]
+__all__ = ["LinearDynamics", "point_mass", "longitudinal", "following", "constant_acceleration"]
 
 
 @dataclass(frozen=True)
@@ -233,3 +233,13 @@ def following(dt: float = 0.2) -> LinearDynamics:
     B[3] = -lon.B[0]
     return LinearDynamics(A=A, B=B, dt=dt, state_names=(*lon.state_names, "g [m]", "v_L [m/s]"),
                           control_names=lon.control_names, position_index=(0,))
+
+
+def constant_acceleration(s0: np.ndarray, v0: np.ndarray, a0: np.ndarray, t: np.ndarray):
+    """Positions, speeds and accelerations at times ``t`` (1, T) [s] of starts (M, 1) at position ``s0`` [m],
+    speed ``v0`` [m/s] (negative taken as 0) and acceleration ``a0`` [m/s^2] held until a braking start stops
+    (it does not reverse): three arrays (M, T). ``a0 = 0`` is constant speed."""
+    v0 = np.maximum(v0, 0.0)
+    t_stop = np.where(a0 < 0, v0 / np.where(a0 < 0, -a0, 1.0), np.inf)  # [s] when braking reaches v = 0
+    tc = np.minimum(t, t_stop)
+    return s0 + v0 * tc + 0.5 * a0 * tc**2, v0 + a0 * tc, np.where(t < t_stop, a0, 0.0)

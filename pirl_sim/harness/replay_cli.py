@@ -139,8 +139,9 @@ def add_replay_parser(sub) -> argparse.ArgumentParser:
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
                          "with costs of what followed each training window, looked up by the speed and acceleration "
                          "now, 0.5 s and 1 s ago and the road ahead, its neighbours' futures averaged: "
-                         "learners/knn.py), pirl-select (the same costs, a bank of 32 weighted by their errors "
-                         "predicted from the same keys: learners/selector.py) (default tirl,pirl-gmm,pirl-knn)")
+                         "learners/knn.py), pirl-select (the same costs, a bank of 256 mixed to come nearest to a "
+                         "forecast of the next seconds from the same keys and the place: learners/selector.py) "
+                         "(default tirl,pirl-gmm,pirl-knn)")
     rp.add_argument("--next-segments", choices=["history", "track"], default=None,
                     help="pirl-knn-next, pirl-select: where each training segment whose cost the IRL fits starts: "
                          "at its history's own estimate, the state an online prediction starts from ('history'), or "
@@ -277,7 +278,7 @@ def _steps(seconds: float, dt: float) -> int:
 
 
 NEXT_KNN = "pirl-knn-next"  #: PIRL-kNN with target="next" (learners/knn.py), a key of --learners only
-SELECT = "pirl-select"  #: the same costs chosen by predicted error (aggregate="selected"), a key of --learners only
+SELECT = "pirl-select"  #: the same costs chosen by a learned forecast (aggregate="selected"), a key of --learners only
 ALWAYS = ("cv", "ca", "cv-xy")  #: the baselines of every replay (pseudo-learners of the preset)
 
 

@@ -26,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 from sklearn.base import BaseEstimator
 
+from pirl_sim.dynamics import constant_acceleration
+
 __all__ = ["BASELINES", "ConstantVelocity", "ConstantAcceleration", "PlaneVelocity", "Hindsight", "Direct",
            "KinematicModel"]
 
@@ -66,13 +68,8 @@ class KinematicModel:
             if self._a is not None:
                 out[:, 1:, self._a] = 0.0
             return out
-        a0 = x0[:, self._a, None]
-        v0 = np.maximum(v0, 0.0)
-        t_stop = np.where(a0 < 0, v0 / np.where(a0 < 0, -a0, 1.0), np.inf)  # [s] when braking reaches v = 0
-        tc = np.minimum(t, t_stop)
-        out[:, :, self._s] = s0 + v0 * tc + 0.5 * a0 * tc**2
-        out[:, :, self._v] = v0 + a0 * tc
-        out[:, 1:, self._a] = np.where(t[:, 1:] < t_stop, a0, 0.0)
+        s, v, a = constant_acceleration(s0, v0, x0[:, self._a, None], t)
+        out[:, :, self._s], out[:, :, self._v], out[:, 1:, self._a] = s, v, a[:, 1:]
         return out
 
 

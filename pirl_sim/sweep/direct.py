@@ -80,14 +80,10 @@ class DirectRegression:
         """Keys (M, 2 len(lags) + len(ahead) + 4) of histories (each with at least max(lags) + 1 states):
         v and a [m/s, m/s^2] at each lag, |curvature| [1/m] ahead, the path's point [m] and unit heading at
         the history's end."""
-        from pirl_sim.learners.knn import history_keys
+        from pirl_sim.learners.knn import history_keys, place_keys
 
-        s_end = np.array([h.states[-1, 0] for h in histories])
-        zero = np.zeros_like(s_end)
-        p0 = self.model.path.to_cartesian(s_end, zero)
-        step = self.model.path.to_cartesian(s_end + 1.0, zero) - p0
-        return np.hstack([history_keys(self.model, histories, (1, 2), self.lags, self.ahead), p0,
-                          step / np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-9)])
+        return np.hstack([history_keys(self.model, histories, (1, 2), self.lags, self.ahead),
+                          place_keys(self.model, histories)])
 
     def _base(self, histories) -> np.ndarray:
         x0 = np.stack([h.states[-1] for h in histories])

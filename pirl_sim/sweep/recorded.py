@@ -454,12 +454,12 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
         tracks, or no test window.
     """
     from pirl_sim.learners import LEARNERS, make_learner
-    from pirl_sim.learners.knn import steer_segment
+    from pirl_sim.learners.knn import MIXTURES, steer_segment
 
     unknown = [key for _, key, _ in methods if key not in METHODS and key not in LEARNERS]
     if unknown:
         raise ValueError(f"unknown replay method(s) {unknown}; choose from {sorted([*METHODS, *LEARNERS])}")
-    averaging = [name for name, _, params in methods if params.get("aggregate") in ("futures", "selected")]
+    averaging = [name for name, _, params in methods if params.get("aggregate") in MIXTURES]
     if proto.rollout != "open" and (n_futures or averaging):
         what = f"n_futures={n_futures!r}" if n_futures else f"{averaging[0]} (it averages its neighbours' futures)"
         raise ValueError(f"{what} predicts open-loop plans; rollout {proto.rollout!r} is not available for it")
@@ -513,7 +513,7 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             fit_s = time.perf_counter() - t0
             t0 = time.perf_counter()
             theta = learner.infer_weights(histories)
-            if getattr(learner, "aggregate", "weights") in ("futures", "selected"):  # the mean of several futures
+            if getattr(learner, "aggregate", "weights") in MIXTURES:  # the mean of several futures
                 s_pred = learner.predict_states(histories, plan)[:, 1 : proto.horizon + 1, 0]
             else:
                 s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
