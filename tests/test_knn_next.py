@@ -172,7 +172,7 @@ def test_replay_cli_sets_the_next_learners_segments_and_road_ahead(tmp_path, cap
 
 
 def test_replay_cli_runs_the_selected_bank_once_whatever_the_k_grid(tmp_path):
-    """pirl-select: the next-segment costs of pirl-knn-next, chosen by predicted error (learners/selector.py);
+    """pirl-select: the next-segment costs of pirl-knn-next, mixed to follow a forecast (learners/selector.py);
     one row per split (no k), the same segment and road-ahead settings as pirl-knn-next."""
     import pandas as pd
 
