@@ -62,7 +62,7 @@ import numpy as np
 from sklearn.neighbors import NearestNeighbors
 from sklearn.preprocessing import StandardScaler
 
-from pirl_sim.dynamics import constant_acceleration
+from pirl_sim.dynamics import constant_acceleration_positions
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int, number
 
@@ -119,9 +119,9 @@ class PIRLKNN(BaseLearner):
     aggregate : {"weights", "futures", "selected"}
         How `predict_states` uses the neighbours: one future under their averaged weights, or the vote-weighted
         mean of their futures, each under its own cost (module doc); "selected" (``target="next"``): no
-        neighbours, the mean of the futures of a bank of ``n_candidates`` costs weighted by their learned
-        predicted errors (module doc, `pirl_sim.learners.selector`); such a learner cannot be saved (its
-        error regressions are tree ensembles, which `save`'s pickle-free format does not hold: a TypeError).
+        neighbours, the futures of a bank of ``n_candidates`` costs weighted as ``selector`` learned (below;
+        module doc, `pirl_sim.learners.selector`); such a learner cannot be saved (its regressions are tree
+        ensembles, which `save`'s pickle-free format does not hold: a TypeError).
     selector : {"forecast", "errors"}
         ``aggregate="selected"``: how the choice among the bank's costs is learned, both from the look-up keys
         and the place (the path's point [m] and heading at the window's end, `place_keys`). "forecast": one
@@ -405,33 +405,29 @@ class PIRLKNN(BaseLearner):
         keys = np.hstack([self.lookup_z_, place_keys(self.model_, samples)])
         x0 = np.stack([h.states[-1] for h in samples])
         if self.selector == "forecast":
-            self.selector_ = FutureRegression().fit(keys, self._forecast_base(x0, truth.shape[1]), truth)
+            base = constant_acceleration_positions(self.model_.dynamics, x0, truth.shape[1])
+            self.selector_ = FutureRegression().fit(keys, base, truth)
             return
         pick = np.unique(np.linspace(0, len(samples) - 1, min(SELECTION_WINDOWS, len(samples))).astype(int))
         self.bank_errors_ = rollout_errors(self.model_, x0[pick], self.demo_theta_[self.bank_], truth[pick])
         self.selector_ = ErrorRegression(SELECTOR_ITER).fit(keys[pick], self.bank_errors_)
 
-    def _forecast_base(self, x0: np.ndarray, steps: int) -> np.ndarray:
-        """The forecast's base (M, steps) [m]: the position at constant acceleration until a stop
-        (`pirl_sim.dynamics.constant_acceleration`) from each start x0 (M, n_x), by the state's names ("v [m/s]",
-        "a [m/s^2]"; constant speed without an acceleration, held without a speed)."""
-        names = tuple(self.model_.dynamics.state_names)
-        zero = np.zeros((len(x0), 1))
-        v = x0[:, [names.index("v [m/s]")]] if "v [m/s]" in names else zero
-        a = x0[:, [names.index("a [m/s^2]")]] if "a [m/s^2]" in names else zero
-        return constant_acceleration(x0[:, :1], v, a, self.model_.dynamics.dt * np.arange(1, steps + 1)[None])[0]
-
-    def _selection(self, histories, bank_states: np.ndarray | None = None) -> np.ndarray:
-        """The bank's probabilities (M, C) for each history (``aggregate="selected"``); ``bank_states``: the
-        bank's futures (M, C, target_steps + 1, n_x) from the histories' last states, if already rolled out."""
+    def _selection(self, histories, x0: np.ndarray, bank_states: np.ndarray | None = None) -> np.ndarray:
+        """The bank's probabilities (M, C) for each history (``aggregate="selected"``) with last states ``x0``
+        (M, n_x); ``bank_states``: the bank's futures (M, C, target_steps + 1, n_x) from x0, if already rolled
+        out."""
         keys = np.hstack([self._lookup(histories), place_keys(self.model_, self._query_windows(histories))])
         if self.selector == "errors":
             return softmin(self.selector_.predict(keys), self.temperature)
         F = int(self.target_steps)
-        x0 = np.stack([h.states[-1] for h in histories])
         if bank_states is None:
-            bank_states = self._futures(x0, np.broadcast_to(self.bank_, (len(x0), len(self.bank_))), F)
-        return mixture_weights(bank_states[:, :, 1:, 0], self.selector_.predict(keys, self._forecast_base(x0, F)))
+            bank_states = self._bank_futures(x0, F)
+        forecast = self.selector_.predict(keys, constant_acceleration_positions(self.model_.dynamics, x0, F))
+        return mixture_weights(bank_states[:, :, 1:, 0], forecast)
+
+    def _bank_futures(self, x0: np.ndarray, horizon: int) -> np.ndarray:
+        """Every bank cost's future (M, C, horizon + 1, n_x) from each start x0 (M, n_x)."""
+        return self._futures(x0, np.broadcast_to(self.bank_, (len(x0), len(self.bank_))), horizon)
 
     def with_neighbors(self, n_neighbors: int) -> PIRLKNN:
         """This fitted learner with another number of neighbours k, without refitting its IRL.
@@ -524,7 +520,8 @@ class PIRLKNN(BaseLearner):
 
     def _infer(self, histories):
         if self.aggregate == "selected":  # the most probable bank cost
-            return self.demo_theta_[self.bank_[self._selection(histories).argmax(axis=1)]]
+            x0 = np.stack([h.states[-1] for h in histories])
+            return self.demo_theta_[self.bank_[self._selection(histories, x0).argmax(axis=1)]]
         dist, idx = self.neighbors_.kneighbors(self._lookup(histories))
         if self.weighting == "likelihood":
             return self._likelihood_average(histories, idx)
@@ -562,8 +559,8 @@ class PIRLKNN(BaseLearner):
         bank_states = None
         if self.aggregate == "selected":  # the bank's costs, with their learned probabilities
             if self.selector == "forecast" and horizon == int(self.target_steps):  # roll the bank out once
-                bank_states = self._futures(x0, np.broadcast_to(self.bank_, (len(x0), len(self.bank_))), horizon)
-            votes = self._selection(histories, bank_states)
+                bank_states = self._bank_futures(x0, horizon)
+            votes = self._selection(histories, x0, bank_states)
             owners = np.broadcast_to(self.bank_, votes.shape)
         else:
             dist, idx = self.neighbors_.kneighbors(self._lookup(histories))

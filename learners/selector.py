@@ -91,16 +91,17 @@ def softmin(errors: np.ndarray, temperature: float) -> np.ndarray:
 
 class FutureRegression:
     """The positions over the next F steps regressed on keys: per step k, a gradient-boosted ensemble
-    (`sklearn.ensemble.HistGradientBoostingRegressor`, no early stopping, seed 0) of the position minus a
-    given base (e.g. constant speed from the window's end), ``s_k = base_k + g_k(keys)``.
+    (`sklearn.ensemble.HistGradientBoostingRegressor`, no early stopping, seed ``random_state``) of the position
+    minus a given base (e.g. constant acceleration from the window's end), ``s_k = base_k + g_k(keys)``. PIRL-select's
+    forecast and the replay's direct regression (`pirl_sim.sweep.direct`) are both this.
 
     Attributes
     ----------
     models_ : list of F fitted regressors
     """
 
-    def __init__(self, max_iter: int = 200, learning_rate: float = 0.05) -> None:
-        self.max_iter, self.learning_rate = int(max_iter), float(learning_rate)
+    def __init__(self, max_iter: int = 200, learning_rate: float = 0.05, random_state: int = 0) -> None:
+        self.max_iter, self.learning_rate, self.random_state = int(max_iter), float(learning_rate), int(random_state)
 
     def fit(self, keys: np.ndarray, base: np.ndarray, truth: np.ndarray) -> FutureRegression:
         """keys (N, d); base and truth (N, F) [m]."""
@@ -108,7 +109,8 @@ class FutureRegression:
 
         y = np.asarray(truth, dtype=float) - np.asarray(base, dtype=float)
         self.models_ = [HistGradientBoostingRegressor(max_iter=self.max_iter, learning_rate=self.learning_rate,
-                                                      early_stopping=False, random_state=0).fit(keys, y[:, k])
+                                                      early_stopping=False, random_state=self.random_state)
+                        .fit(keys, y[:, k])
                         for k in range(y.shape[1])]
         return self
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 
-__all__ = ["LinearDynamics", "point_mass", "longitudinal", "following", "constant_acceleration"]
+__all__ = ["LinearDynamics", "point_mass", "longitudinal", "following", "constant_acceleration",
+           "constant_acceleration_positions"]
 
 
 @dataclass(frozen=True)
@@ -243,3 +244,15 @@ def constant_acceleration(s0: np.ndarray, v0: np.ndarray, a0: np.ndarray, t: np.
     t_stop = np.where(a0 < 0, v0 / np.where(a0 < 0, -a0, 1.0), np.inf)  # [s] when braking reaches v = 0
     tc = np.minimum(t, t_stop)
     return s0 + v0 * tc + 0.5 * a0 * tc**2, v0 + a0 * tc, np.where(t < t_stop, a0, 0.0)
+
+
+def constant_acceleration_positions(dynamics: LinearDynamics, x0: np.ndarray, steps: int) -> np.ndarray:
+    """Positions (M, steps) [m] over the ``steps`` steps after starts ``x0`` (M, n_x) of ``dynamics`` whose first
+    component is the position: `constant_acceleration` from the components named "v [m/s]" and "a [m/s^2]"
+    (constant speed without an acceleration, held without a speed)."""
+    names = tuple(dynamics.state_names)
+    x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+    zero = np.zeros((len(x0), 1))
+    v = x0[:, [names.index("v [m/s]")]] if "v [m/s]" in names else zero
+    a = x0[:, [names.index("a [m/s^2]")]] if "a [m/s^2]" in names else zero
+    return constant_acceleration(x0[:, :1], v, a, dynamics.dt * np.arange(1, steps + 1)[None])[0]

@@ -49,7 +49,7 @@ def test_it_predicts_held_out_tracks_better_than_constant_acceleration_and_repea
     sc, _ = scene
     train, test = sc.trajectories[:45], sc.trajectories[45:]
     reg = DirectRegression(sc.model, 10, 15).fit(train)
-    assert reg.n_samples_ > 100 and len(reg.models_) == 15
+    assert reg.n_samples_ > 100 and len(reg.regression_.models_) == 15
     hist, truth = _windows(test)
     s = reg.predict_s(hist)
     assert s.shape == truth.shape and np.all(np.isfinite(s))

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from pirl_sim.dynamics import LinearDynamics, longitudinal, point_mass
+from pirl_sim.dynamics import LinearDynamics, constant_acceleration_positions, longitudinal, point_mass
 from pirl_sim.trajectory import Trajectory, stack_trajectories
 
 
@@ -118,3 +118,16 @@ def test_steer_rejects_bad_input(args, match):
     kw = {**dict(x0=np.zeros(3), targets=np.zeros((5, 3)), weights=[1.0, 1.0, 0.0], ridge=1e-2), **args}
     with pytest.raises(ValueError, match=match):
         dyn.steer(kw["x0"], kw["targets"], kw["weights"], kw["ridge"])
+
+
+def test_constant_acceleration_positions_hold_the_acceleration_until_a_stop_and_read_states_by_name():
+    """Along a path (s, v, a): s0 + v t + a t^2 / 2 until a braking start stops; a point mass (p, v) has no
+    acceleration, so its base is constant speed."""
+    x0 = np.array([[10.0, 5.0, 1.0], [0.0, 4.0, -2.0]])
+    got = constant_acceleration_positions(longitudinal(0.5), x0, 6)
+    t = 0.5 * np.arange(1, 7)
+    np.testing.assert_allclose(got[0], 10 + 5 * t + 0.5 * t**2)
+    tc = np.minimum(t, 2.0)  # 4 m/s at -2 m/s^2 stops after 2 s, 4 m on
+    np.testing.assert_allclose(got[1], 4 * tc - tc**2)
+    np.testing.assert_allclose(constant_acceleration_positions(point_mass(0.1), [[1.0, 2.0]], 3),
+                               [[1.2, 1.4, 1.6]])

@@ -22,9 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pirl_sim.dynamics import constant_acceleration_positions
 from pirl_sim.validation import is_positive_int
-
-from .baselines import KinematicModel
 
 __all__ = ["DirectRegression", "DIRECT"]
 
@@ -49,7 +48,7 @@ class DirectRegression:
 
     Attributes
     ----------
-    models_ : list of fitted regressors, one per step ahead
+    regression_ : FutureRegression  one fitted ensemble per step ahead (`pirl_sim.learners.selector`)
     n_samples_ : int               training windows
     """
 
@@ -74,7 +73,6 @@ class DirectRegression:
         self.model, self.window, self.horizon = model, int(window), int(horizon)
         self.lags, self.ahead, self.stride, self.online = lags, ahead, int(stride), bool(online)
         self.max_iter, self.learning_rate, self.random_state = int(max_iter), float(learning_rate), int(random_state)
-        self._ca = KinematicModel(model, "ca")
 
     def keys(self, histories) -> np.ndarray:
         """Keys (M, 2 len(lags) + len(ahead) + 4) of histories (each with at least max(lags) + 1 states):
@@ -87,7 +85,7 @@ class DirectRegression:
 
     def _base(self, histories) -> np.ndarray:
         x0 = np.stack([h.states[-1] for h in histories])
-        return self._ca.predict_states(x0, None, self.horizon)[:, 1:, 0]
+        return constant_acceleration_positions(self.model.dynamics, x0, self.horizon)
 
     def fit(self, trajectories) -> "DirectRegression":
         """Fit on training tracks (`pirl_sim.trajectory.Trajectory` of the model's states).
@@ -97,7 +95,7 @@ class DirectRegression:
         ValueError
             No track has window + horizon steps, or fewer windows than 2.
         """
-        from sklearn.ensemble import HistGradientBoostingRegressor
+        from pirl_sim.learners.selector import FutureRegression
 
         T, F = self.window, self.horizon
         hist, truth = [], []
@@ -108,16 +106,13 @@ class DirectRegression:
         if len(hist) < 2:
             raise ValueError(f"DirectRegression needs at least 2 training windows of window + horizon = {T + F} "
                              f"steps, got {len(hist)}")
-        X, y = self.keys(hist), np.stack(truth) - self._base(hist)
-        self.models_ = [HistGradientBoostingRegressor(max_iter=self.max_iter, learning_rate=self.learning_rate,
-                                                      early_stopping=False, random_state=self.random_state)
-                        .fit(X, y[:, k]) for k in range(F)]
+        self.regression_ = FutureRegression(self.max_iter, self.learning_rate, self.random_state).fit(
+            self.keys(hist), self._base(hist), np.stack(truth))
         self.n_samples_ = len(hist)
         return self
 
     def predict_s(self, histories) -> np.ndarray:
         """Arc lengths (M, horizon) [m] over the steps after each history's end."""
-        if not hasattr(self, "models_"):
+        if not hasattr(self, "regression_"):
             raise ValueError("DirectRegression is not fitted: call fit(trajectories) first")
-        X = self.keys(histories)
-        return self._base(histories) + np.stack([m.predict(X) for m in self.models_], axis=1)
+        return self.regression_.predict(self.keys(histories), self._base(histories))
