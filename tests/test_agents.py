@@ -50,7 +50,8 @@ def test_intervals():
     assert m == 2.0 and lo == pytest.approx(2 - 4.302653 / math.sqrt(3)) and hi == pytest.approx(2 + 4.302653 / math.sqrt(3))
     assert np.isnan(agents._t_interval([5.0])[1])
     p, lo, hi = agents._wilson(0, 10)
-    assert p == 0 and lo == pytest.approx(0, abs=1e-12) and hi == pytest.approx(0.2775, abs=1e-4)
+    assert p == 0 and lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)  # a bound of 0, not a rounding error
+    assert agents._wilson(10, 10)[2] == 1.0
     p, lo, hi = agents._wilson(5, 10)
     assert p == 0.5 and lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
 

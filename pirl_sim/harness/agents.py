@@ -153,8 +153,8 @@ class AgentsConfig:
     residual_scale: float = 1.0
     max_change: float | None = 0.1
     seeds: tuple[int, ...] = (0, 1, 2)
-    steps: int = 40_000
-    eval_seeds: tuple[int, ...] = tuple(range(1000, 1020))
+    steps: int = 80_000
+    eval_seeds: tuple[int, ...] = tuple(range(1000, 1050))
     baselines: tuple[str, ...] = BASELINE_POLICIES
     initial_vehicles: int = 12
     depart_interval: float = 2.0
@@ -325,7 +325,7 @@ def _wilson(k: int, n: int) -> tuple[float, float, float]:
     p = k / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return p, centre - half, centre + half
+    return p, (0.0 if k == 0 else centre - half), (1.0 if k == n else centre + half)  # 0 and 1 exactly, not 1e-18 off
 
 
 def episodes_table(records: Sequence[dict]) -> pd.DataFrame:
