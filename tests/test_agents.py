@@ -86,6 +86,34 @@ def test_paired_time_to_exit_counts_seeds_where_both_arrived():
     assert "Δtime to exit vs idm [s]" in agents.markdown_table(table.reset_index())
 
 
+def test_return_terms_add_up_to_the_return_of_real_episodes():
+    """The logged terms, weighted as the exit reward weighs them, give back each episode's return: an IDM
+    episode that arrives and a hold-speed episode that crashes (env seeds 1000 and 1004 of the committed
+    evaluation, where hold speed arrives and crashes)."""
+    import gymnasium as gym
+
+    from pirl_sim.envs.baselines import make_baseline
+    from pirl_sim.sweep import agents as cells
+
+    params = {name: p.default for name, p in cells._PARAMS.items()}
+    env = gym.make(cells.ENV_ID, config=cells.env_config(params)).unwrapped
+    rows = []
+    for name, seed in (("idm", 1000), ("hold-speed", 1004)):
+        policy = make_baseline(name)
+        e = cells.episode(env, lambda obs: policy.act(env), seed, policy.reset)
+        rows.append({"policy": name, "mode": "", "train_seed": -1, **e})
+    env.close()
+    episodes = pd.DataFrame(rows)
+    assert list(episodes["arrived"]) == [True, False] and list(episodes["crashed"]) == [False, True]
+    terms = agents.terms_table(episodes).set_index("policy")
+    assert terms["total"].to_numpy() == pytest.approx(terms["return"].to_numpy(), abs=1e-6)
+    assert terms.loc["hold-speed", "collision"] == -50.0 and terms.loc["idm", "arrival"] == 10.0
+    assert (terms[["time", "acceleration", "jerk", "lateral", "near miss"]] <= 0).all().all()
+    assert "| idm | +" in agents.terms_markdown(terms.reset_index())
+    # episodes stored before the terms were logged: no decomposition, no error
+    assert agents.terms_table(episodes.drop(columns="comfort_jerk_time")).empty
+
+
 @pytest.mark.slow
 def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeypatch):
     import tempfile
@@ -106,7 +134,8 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
         assert torch.get_num_threads() == 2  # training runs on one thread and gives the caller's setting back
     finally:
         torch.set_num_threads(threads)
-    for name in ("episodes.csv", "table.csv", "table.md", "learning_curves.png", "README.md", "sweep.json"):
+    for name in ("episodes.csv", "table.csv", "table.md", "terms.csv", "learning_curves.png", "README.md",
+                 "sweep.json"):
         assert (out / name).stat().st_size > 0
     cells = sorted((out / "cells").glob("*.json"))
     assert len(cells) == 3  # the sweep engine's store: one file per run

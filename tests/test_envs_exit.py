@@ -42,6 +42,8 @@ def test_exit_reward_is_its_terms_in_seconds():
         t = info["rewards"]
         assert t["time"] == pytest.approx(0.2) and 0.0 <= t["near_miss_time"] <= 0.2
         assert t["comfort_time"] > 0  # the ego accelerates or drives round the ring
+        parts = [t["comfort_acc_time"], t["comfort_jerk_time"], t["comfort_lateral_time"]]
+        assert min(parts) >= 0 and sum(parts) == pytest.approx(t["comfort_time"])
         expected = (t["progress_time"] - t["time"] - w["comfort"] * t["comfort_time"]
                     - w["near_miss"] * t["near_miss_time"] + w["arrival"] * t["arrival"])
         assert reward == pytest.approx(expected)

@@ -36,7 +36,7 @@ from .common import EGO_ID, check_action, reward_weights
 
 IDM_DELTA = 4.0  #: highway-env's IDM exponent (IDMVehicle.DELTA), also the env's background traffic's
 
-__all__ = ["BASELINES", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "drive_episode",
+__all__ = ["BASELINES", "EPISODE_TERMS", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "drive_episode",
            "interaction_limit", "make_baseline"]
 
 #: baseline names of :func:`make_baseline`
@@ -152,23 +152,31 @@ class MpcEgo:
         return action_of(a, base.action_type.acceleration_range)
 
 
+#: the ``"exit"`` reward's terms [s] an episode of :func:`drive_episode` sums (``info["rewards"]`` keys)
+EPISODE_TERMS = ("progress_time", "near_miss_time", "comfort_acc_time", "comfort_jerk_time", "comfort_lateral_time")
+
+
 def drive_episode(env, act, seed: int, *, options: dict | None = None, on_reset=None) -> dict:
     """One episode: ``act(obs) -> action`` every step after ``env.reset(seed=seed, options=options)`` and
     ``on_reset(env)`` (a scripted ego's ``reset``); returns ``seed``, ``return``, ``arrived``, ``crashed``,
-    ``time`` [s], ``steps`` and ``near_miss_time`` [s] (the reward's ``near_miss_time`` summed)."""
+    ``time`` [s], ``steps``, and the ``"exit"`` reward's terms summed over the episode (:data:`EPISODE_TERMS`,
+    unweighted, in seconds: ``progress_time``, ``near_miss_time``, ``comfort_acc_time``, ``comfort_jerk_time``,
+    ``comfort_lateral_time``; see the env's docstring), whatever reward the env pays."""
     obs, _ = env.reset(seed=int(seed), options=options)
     if on_reset is not None:
         on_reset(env)
-    total, near, steps = 0.0, 0.0, 0
+    total, steps = 0.0, 0
+    sums = dict.fromkeys(EPISODE_TERMS, 0.0)
     while True:
         obs, reward, terminated, truncated, info = env.step(act(obs))
         total += float(reward)
-        near += info["rewards"]["near_miss_time"]
+        for k in EPISODE_TERMS:
+            sums[k] += info["rewards"][k]
         steps += 1
         if terminated or truncated:
             break
     return {"seed": int(seed), "return": total, "arrived": bool(info["arrived"]), "crashed": bool(info["crashed"]),
-            "time": float(info["time"]), "steps": steps, "near_miss_time": near}
+            "time": float(info["time"]), "steps": steps, **sums}
 
 
 def make_baseline(name: str, theta: Mapping[str, float] | None = None):

@@ -64,7 +64,9 @@ Every step (``simulation_frequency / policy_frequency`` frames of 0.1 s; default
   (duration - t)`` (``crash_cost_to_go``): otherwise ending the episode by a crash would save the agent
   the rest of its cost, and a cost-only reward would teach it to crash.
 
-``info["rewards"]`` holds every term of both. The episode terminates when the ego crashes or reaches the
+``info["rewards"]`` holds every term of all three, and the ``"exit"`` reward's comfort term split into its parts
+(``comfort_acc_time``, ``comfort_jerk_time``, ``comfort_lateral_time`` [s]: the step's mean of each squared ratio
+times ``T``; they sum to ``comfort_time``). The episode terminates when the ego crashes or reaches the
 end of its route, and is truncated after ``duration`` [s].
 
 Info

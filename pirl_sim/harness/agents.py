@@ -14,10 +14,13 @@ speed" weights), and writes under ``--out``. The runs are cells of the sweep eng
   finishes (evaluation episodes, training curve, timings, the settings it ran with). A rerun keeps finished
   runs, so an interrupted experiment resumes where it stopped; a run whose settings or code changed is redone.
 - ``episodes.csv``: every evaluation episode (policy, mode, training seed, evaluation seed, return, arrived,
-  crashed, time [s], time to exit [s] for arriving episodes, near-miss time [s]).
+  crashed, time [s], time to exit [s] for arriving episodes, and the exit reward's unweighted terms summed
+  over the episode [s]: progress time, near-miss time, the comfort term's acceleration, jerk and lateral parts).
 - ``table.csv`` / ``table.md``: per policy, mean return, success rate, time to exit, collision rate and
   near-miss time with 95 % intervals, and PPO's paired difference in return against each baseline on the
   same evaluation seeds.
+- ``terms.csv``: where each policy's return comes from: the mean of each weighted term of the exit reward
+  (progress, time, acceleration, jerk, lateral acceleration, near misses, collision, arrival) per episode.
 - ``learning_curves.png``: training-episode returns against environment steps, per mode (mean over training
   seeds, band min to max), with the baselines' mean evaluation returns as lines.
 - ``README.md``: settings, table, wall time.
@@ -84,7 +87,7 @@ from pirl_sim.validation import list_arg, positive_int_arg
 from pirl_sim.sweep.agents import ACTIONS, MODES, PPOEgo
 
 __all__ = ["AgentsConfig", "MODES", "ACTIONS", "BASELINE_POLICIES", "sweep_config", "run_experiment",
-           "write_results", "main"]
+           "write_results", "terms_table", "terms_markdown", "main"]
 
 BASELINE_POLICIES = ("hold-speed", "idm", "mpc")  #: scripted egos (:data:`pirl_sim.envs.baselines.BASELINES`)
 DEFAULT_COMMAND = "python3 -m pirl_sim.harness.agents --out results/agents"  #: the committed experiment's command
@@ -114,7 +117,9 @@ class AgentsConfig:
         Environment steps of PPO training per run (agent steps of 0.2 s).
     eval_seeds : tuple of int
         Env seeds of the evaluation episodes (the same for every policy): consecutive integers, disjoint from
-        ``seeds``.
+        ``seeds``. 200 by default: with 50 the paired interval of PPO's return against the IDM ego's was
+        about +-1.7 wide, wider than the differences it had to decide, as the baselines' rare missed exits
+        (-10 each) dominate the spread.
     baselines : tuple of str
         Scripted egos to evaluate (:data:`BASELINE_POLICIES`).
     initial_vehicles : int
@@ -154,7 +159,7 @@ class AgentsConfig:
     max_change: float | None = 0.1
     seeds: tuple[int, ...] = (0, 1, 2)
     steps: int = 80_000
-    eval_seeds: tuple[int, ...] = tuple(range(1000, 1050))
+    eval_seeds: tuple[int, ...] = tuple(range(1000, 1200))
     baselines: tuple[str, ...] = BASELINE_POLICIES
     initial_vehicles: int = 12
     depart_interval: float = 2.0
@@ -370,6 +375,44 @@ def summary_table(episodes: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+#: columns of :func:`terms_table`: (name, episode column, sign, exit_reward weight) of each term of the return
+_TERMS = (("progress", "progress_time", 1.0, "progress"), ("time", "time", -1.0, "time"),
+          ("acceleration", "comfort_acc_time", -1.0, "comfort"), ("jerk", "comfort_jerk_time", -1.0, "comfort"),
+          ("lateral", "comfort_lateral_time", -1.0, "comfort"), ("near miss", "near_miss_time", -1.0, "near_miss"),
+          ("collision", "crashed", -1.0, "collision"), ("arrival", "arrived", 1.0, "arrival"))
+
+
+def terms_table(episodes: pd.DataFrame, weights=None) -> pd.DataFrame:
+    """Where each policy's return comes from: per policy the mean over its evaluation episodes (pooled over
+    training seeds) of each weighted term of the ``"exit"`` reward (signed: a cost is negative), their sum
+    (``total``, equal to ``return`` up to rounding) and the mean ``return``. ``weights``: the env's
+    ``exit_reward`` (default :data:`~pirl_sim.envs.common.EXIT_REWARD_DEFAULTS`, the experiment's). Empty
+    when the episodes lack the terms (cells stored before they were logged)."""
+    from pirl_sim.envs.common import EXIT_REWARD_DEFAULTS
+
+    w = dict(EXIT_REWARD_DEFAULTS if weights is None else weights)
+    if any(col not in episodes.columns for _, col, _, _ in _TERMS):
+        return pd.DataFrame()
+    rows = []
+    for policy, g in episodes.groupby("policy", sort=False):
+        row = {"policy": policy, "episodes": len(g)}
+        for name, col, sign, weight in _TERMS:
+            row[name] = sign * w[weight] * float(g[col].astype(float).mean())
+        row["total"] = sum(row[name] for name, *_ in _TERMS)
+        row["return"] = float(g["return"].mean())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def terms_markdown(terms: pd.DataFrame) -> str:
+    """:func:`terms_table` as a Markdown table ([s] per episode)."""
+    names = [name for name, *_ in _TERMS] + ["total", "return"]
+    lines = ["| policy | " + " | ".join(names) + " |", "|" + "---|" * (len(names) + 1)]
+    for _, r in terms.iterrows():
+        lines.append(f"| {r['policy']} | " + " | ".join(f"{r[n]:+.2f}" for n in names) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def _fmt(x, lo=None, hi=None, digits=3) -> str:
     if x is None or not np.isfinite(x):
         return "–"
@@ -458,6 +501,9 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
              "table": atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))}
     md = markdown_table(table)
     files["table_md"] = atomic_write_text(out / "table.md", md)
+    terms = terms_table(episodes)
+    if len(terms):
+        files["terms"] = atomic_write_text(out / "terms.csv", terms.to_csv(index=False, float_format="%.6g"))
     files["figure"] = learning_curves(records, out / "learning_curves.png", cfg.steps)
     compute = sum(r["wall_time_s"] for r in records)
     ppo_times = [r["train_time_s"] for r in records if r["policy"].startswith("ppo")]
@@ -475,13 +521,17 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
         "averaged over its training seeds), t over the evaluation seeds; Δtime to exit likewise over the "
         "evaluation seeds on which both arrived. Time to exit counts arriving episodes only.", "",
         md,
+        *(["Where the return comes from (`terms.csv`): per policy the mean over its evaluation episodes of each "
+           "weighted term of the exit reward [s] (progress along the route at v_max, minus the time, the comfort "
+           "term's three parts, near misses and collisions, plus the arrival bonus); `total` is their sum, equal "
+           "to the mean return up to rounding.", "", terms_markdown(terms)] if len(terms) else []),
         f"Compute: {compute:.0f} s summed over the {len(records)} runs' wall times (PPO training "
         f"{np.sum(ppo_times):.0f} s, {np.mean(ppo_times) if ppo_times else 0:.0f} s per run"
         + (f"; style learner fits {learner_time:.0f} s" if learner_time else "")
         + f"); this invocation {result.wall_time_s:.0f} s, ran {len(result.ran)}, kept {len(result.skipped)} "
         "finished runs. Shared 2-core machine, one thread for torch and BLAS per worker.", "",
         "Files: `cells/*.json` (the sweep's store, one per run), `sweep.json`, `episodes.csv`, `table.csv`, "
-        "`table.md`, `learning_curves.png`.", ""]
+        "`table.md`, " + ("`terms.csv`, " if len(terms) else "") + "`learning_curves.png`.", ""]
     files["readme"] = atomic_write_text(out / "README.md", "\n".join(readme))
     return files
 
@@ -521,6 +571,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gamma", type=float, default=AgentsConfig.gamma, help="PPO's discount (default %(default)s)")
     ap.add_argument("--learning-rate", type=float, default=AgentsConfig.learning_rate,
                     help="PPO's learning rate (default %(default)s)")
+    ap.add_argument("--log-std-init", type=float, default=AgentsConfig.log_std_init,
+                    help="initial log standard deviation of PPO's exploration noise (default %(default)s)")
     ap.add_argument("--observe-residual", action=argparse.BooleanOptionalAction, default=AgentsConfig.observe_residual,
                     help="PPO (residual action) also observes the IDM ego's action, its correction and the cap "
                          "(default %(default)s)")
@@ -544,7 +596,8 @@ def main(argv: list[str] | None = None) -> int:
                            steps=args.steps, baselines=args.baselines,
                            eval_seeds=tuple(range(args.eval_seed, args.eval_seed + args.episodes)),
                            n_steps=args.n_steps, observe_residual=args.observe_residual,
-                           gamma=args.gamma, learning_rate=args.learning_rate, select_every=args.select_every,
+                           gamma=args.gamma, learning_rate=args.learning_rate, log_std_init=args.log_std_init,
+                           select_every=args.select_every,
                            select_episodes=args.select_episodes,
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))
     except ValueError as exc:

@@ -29,7 +29,8 @@ here): ``"hold-speed"``, ``"idm"``, ``"mpc"`` (weights ``speed_dev``, ``acc_sq``
 
 A cell's scores (the stored ``result``): ``policy`` (e.g. ``"ppo residual-idm"``), ``mode`` (the observation
 mode, "" for scripted egos), ``episodes`` (one dict per evaluation episode: eval_seed, return, arrived, crashed,
-time [s], time_to_exit [s] or None, near_miss_time [s]), ``curve`` ([environment steps, return] of every
+time [s], time_to_exit [s] or None, and the exit reward's summed terms: progress_time, near_miss_time,
+comfort_acc_time, comfort_jerk_time, comfort_lateral_time [s]), ``curve`` ([environment steps, return] of every
 finished training episode), ``train_time_s`` (with model selection including the validation episodes) and, for
 PPO, ``learner_time_s`` (the style learner's fit, when this cell fitted it) [s]; with model selection
 (``select_every``) also ``selection`` ([environment steps, mean validation return] of every check),
@@ -264,14 +265,16 @@ def fit_style_learner(learner_seed: int, depart_interval: float):
 
 def episode(env, act, seed: int, on_reset=None) -> dict:
     """One evaluation episode (`pirl_sim.envs.baselines.drive_episode`) as a cell stores it: ``eval_seed``,
-    ``return``, ``arrived``, ``crashed``, ``time`` [s], ``time_to_exit`` [s] (None unless it arrived),
-    ``near_miss_time`` [s]."""
-    from pirl_sim.envs.baselines import drive_episode
+    ``return``, ``arrived``, ``crashed``, ``time`` [s], ``time_to_exit`` [s] (None unless it arrived), and the
+    exit reward's terms summed over the episode, unweighted (`pirl_sim.envs.baselines.EPISODE_TERMS`:
+    ``progress_time``, ``near_miss_time``, ``comfort_acc_time``, ``comfort_jerk_time``,
+    ``comfort_lateral_time`` [s])."""
+    from pirl_sim.envs.baselines import EPISODE_TERMS, drive_episode
 
     e = drive_episode(env, act, seed, on_reset=on_reset)
     return {"eval_seed": e["seed"], "return": e["return"], "arrived": e["arrived"], "crashed": e["crashed"],
             "time": e["time"], "time_to_exit": e["time"] if e["arrived"] else None,
-            "near_miss_time": e["near_miss_time"]}
+            **{k: e[k] for k in EPISODE_TERMS}}
 
 
 def _scripted(params: dict, name: str, lp: dict) -> dict:
