@@ -21,6 +21,11 @@ reinforcement learning): the applied action is ``clip(baseline action + scale * 
 agent whose actions are 0 drives exactly as the baseline does; with ``shield`` it is also capped by the traffic's
 leader and yielding limits (:func:`interaction_limit`); with ``observe`` the agent also sees the baseline's action,
 its correction in force and the cap.
+
+:class:`DesiredSpeedAction` is a gymnasium wrapper for agents that steer the IDM ego instead of correcting its
+acceleration: the agent's action sets the factor on the IDM's desired speed, ``1 + scale * action`` times
+v_des(s), and the acceleration is the IDM's towards it, behind the ego's leader and with the traffic's yielding
+(:func:`idm_action`): every action keeps the IDM's gaps and gap acceptance, and action 0 is the IDM ego itself.
 """
 
 from __future__ import annotations
@@ -36,8 +41,8 @@ from .common import EGO_ID, check_action, reward_weights
 
 IDM_DELTA = 4.0  #: highway-env's IDM exponent (IDMVehicle.DELTA), also the env's background traffic's
 
-__all__ = ["BASELINES", "EPISODE_TERMS", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "drive_episode",
-           "interaction_limit", "make_baseline"]
+__all__ = ["BASELINES", "EPISODE_TERMS", "DesiredSpeedAction", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "drive_episode",
+           "idm_action", "interaction_limit", "make_baseline"]
 
 #: baseline names of :func:`make_baseline`
 BASELINES = ("hold-speed", "idm", "mpc")
@@ -81,11 +86,19 @@ class IdmEgo:
         _highway(env, self.name)
 
     def act(self, env) -> np.ndarray:
-        base = _highway(env, self.name)
-        traffic, ego = base.road, base.vehicle
-        others = traffic.vehicles
-        a = traffic._limit(ego, others, traffic._occupancy(others), free_v0=traffic.v_des(ego), delta=IDM_DELTA)
-        return action_of(a, base.action_type.acceleration_range)
+        return idm_action(env)
+
+
+def idm_action(env, speed_factor: float = 1.0) -> np.ndarray:
+    """The IDM ego's action (highway backend): highway-env's IDM towards ``speed_factor`` times the route's
+    desired speed v_des(s), behind the ego's leader on its route and, when it must yield, before the entry's
+    stop line (the traffic's rules, as its background vehicles of that speed factor drive)."""
+    base = _highway(env, "idm")
+    traffic, ego = base.road, base.vehicle
+    others = traffic.vehicles
+    a = traffic._limit(ego, others, traffic._occupancy(others), free_v0=speed_factor * traffic.v_des(ego),
+                       delta=IDM_DELTA)
+    return action_of(a, base.action_type.acceleration_range)
 
 
 def interaction_limit(env) -> float:
@@ -296,4 +309,73 @@ class ResidualAction(*_wrapper_bases()):
         obs, reward, terminated, truncated, info = self.env.step(applied)
         self._next = None
         info = {**info, "baseline_action": base, "applied_action": float(applied[0])}
+        return self._observation(obs), reward, terminated, truncated, info
+
+
+class DesiredSpeedAction(*_wrapper_bases()):
+    """The agent's action as the IDM ego's desired-speed factor (see the module docstring; highway backend).
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        ``pirl_sim/Roundabout-v0`` on the highway backend (possibly wrapped).
+    scale : float
+        In (0, 1): the agent's action in [-1, 1] sets the factor ``1 + scale * action`` on v_des(s), so the
+        IDM ego drives towards between ``1 - scale`` and ``1 + scale`` times the route's desired speed.
+    max_change : float or None
+        > 0: the factor moves towards ``1 + scale * action`` by at most this much per agent step (the agent
+        sets a target); None: at once.
+    observe : bool
+        The observation becomes a ``Dict`` of the env's (``"kinematics"``) and ``"speed"``, a
+        ``Box(-1, 1, (2,))``: the factor in force as ``(factor - 1) / scale`` and v_des(s) / v_max here.
+
+    ``info["speed_factor"]`` and ``info["applied_action"]`` give the factor and the acceleration action of each
+    step.
+    """
+
+    def __init__(self, env, scale: float = 0.3, max_change: float | None = None, observe: bool = False) -> None:
+        from gymnasium.utils import RecordConstructorArgs
+
+        RecordConstructorArgs.__init__(self, scale=scale, max_change=max_change, observe=observe)
+        super().__init__(env)
+        _highway(env, "desired-speed action")
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale < 1:
+            raise ValueError(f"scale must be a number in (0, 1) (the largest change of the desired-speed factor), "
+                             f"got {scale!r}")
+        self.scale = float(scale)
+        if max_change is not None and (isinstance(max_change, bool) or not isinstance(max_change, (int, float))
+                                       or not np.isfinite(max_change) or max_change <= 0):
+            raise ValueError(f"max_change must be a finite number > 0 (factor per step) or None, got {max_change!r}")
+        self.max_change = None if max_change is None else float(max_change)
+        if not isinstance(observe, bool):
+            raise TypeError(f"observe must be True or False, got {observe!r}")
+        self.observe = observe
+        if observe:
+            from gymnasium import spaces
+
+            self.observation_space = spaces.Dict({"kinematics": env.observation_space,
+                                                  "speed": spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)})
+        self.factor = 1.0  #: the desired-speed factor applied in the last step
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.factor = 1.0
+        return self._observation(obs), info
+
+    def _observation(self, obs):
+        if not self.observe:
+            return obs
+        base = self.env.unwrapped
+        v_des = base.road.v_des(base.vehicle) / base.config["drivers"].v_max
+        extra = np.clip([(self.factor - 1.0) / self.scale, v_des], -1.0, 1.0).astype(np.float32)
+        return {"kinematics": obs, "speed": extra}
+
+    def step(self, action):
+        target = 1.0 + self.scale * check_action(action)
+        if self.max_change is not None:
+            target = min(max(target, self.factor - self.max_change), self.factor + self.max_change)
+        self.factor = target
+        applied = idm_action(self.env, self.factor)
+        obs, reward, terminated, truncated, info = self.env.step(applied)
+        info = {**info, "speed_factor": self.factor, "applied_action": float(applied[0])}
         return self._observation(obs), reward, terminated, truncated, info

@@ -60,8 +60,9 @@ ENV_ID = "pirl_sim/Roundabout-v0"
 MODES = ("none", "truth", "inferred")  #: observation modes (the env's ``style_observation``)
 #: PPO's action: ``"residual-idm"`` a correction to the IDM ego's action
 #: (:class:`~pirl_sim.envs.baselines.ResidualAction`), ``"shielded-residual-idm"`` the same capped by the
-#: traffic's leader and yielding limits (``shield``), ``"direct"`` the env's acceleration itself
-ACTIONS = ("residual-idm", "shielded-residual-idm", "direct")
+#: traffic's leader and yielding limits (``shield``), ``"idm-speed"`` the IDM ego's desired-speed factor
+#: (:class:`~pirl_sim.envs.baselines.DesiredSpeedAction`), ``"direct"`` the env's acceleration itself
+ACTIONS = ("residual-idm", "shielded-residual-idm", "idm-speed", "direct")
 REWARDS = ("exit", "task")  #: the env's rewards an experiment can train on (``"theta"`` needs weights)
 
 _PARAMS = {
@@ -150,10 +151,11 @@ class PPOEgo(_Policy):
         :data:`ACTIONS`.
     residual_scale : float
         With a residual action: the largest correction in action units (> 0; 1 is ``a_max`` up or ``-a_min``
-        down).
+        down); with ``"idm-speed"``: the largest change of the desired-speed factor, in (0, 1).
     max_change : float or None
         With a residual action: the largest change of the correction per agent step (action units, > 0; the
-        action sets its target), None: unbounded (:class:`~pirl_sim.envs.baselines.ResidualAction`).
+        action sets its target), None: unbounded (:class:`~pirl_sim.envs.baselines.ResidualAction`); with
+        ``"idm-speed"`` the same for the factor (:class:`~pirl_sim.envs.baselines.DesiredSpeedAction`).
     steps : int
         Environment steps of training (agent steps of 0.2 s).
     n_steps, batch_size, n_epochs : int
@@ -168,7 +170,8 @@ class PPOEgo(_Policy):
         independent noise every 0.2 s the exploration's jerk alone costs more than the rest of the comfort term.
     observe_residual : bool
         With a residual action: the agent also observes the IDM ego's action, its correction in force and the
-        shield's cap (:class:`~pirl_sim.envs.baselines.ResidualAction` ``observe``).
+        shield's cap (:class:`~pirl_sim.envs.baselines.ResidualAction` ``observe``); with ``"idm-speed"``: the
+        factor in force and the desired speed here (:class:`~pirl_sim.envs.baselines.DesiredSpeedAction`).
     select_every : int or None
         Model selection on validation episodes: every ``select_every`` environment steps of training (rounded
         up to whole rollouts of ``n_steps``) and at its end, the deterministic policy is scored on
@@ -217,6 +220,9 @@ class PPOEgo(_Policy):
         for name in ("residual_scale", "learning_rate"):
             number(name, getattr(self, name), low=0.0, allow_equal=False)
         number("log_std_init", self.log_std_init)
+        if self.action == "idm-speed" and not self.residual_scale < 1:
+            raise ValueError(f"residual_scale is the largest change of the desired-speed factor with action "
+                             f"'idm-speed': it must be in (0, 1), got {self.residual_scale!r}")
         if self.max_change is not None:
             number("max_change", self.max_change, low=0.0, allow_equal=False)
         g = self.gamma
@@ -226,8 +232,8 @@ class PPOEgo(_Policy):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.observe_residual and self.action == "direct":
-            raise ValueError("observe_residual shows the agent the action it corrects: it needs a residual action, "
-                             f"not {self.action!r}")
+            raise ValueError("observe_residual shows the agent what its action changes: it needs a residual or the "
+                             f"'idm-speed' action, not {self.action!r}")
 
 
 #: sweep name -> policy class (pseudo-learners of this scenario, `pirl_sim.sweep.config.sweep_learners`)
@@ -310,7 +316,7 @@ def _ppo_run(params: dict, lp: dict, seed: int) -> dict:
     from stable_baselines3.common.monitor import Monitor
 
     import pirl_sim.envs  # noqa: F401  (registers the env)
-    from pirl_sim.envs.baselines import ResidualAction
+    from pirl_sim.envs.baselines import DesiredSpeedAction, ResidualAction
 
     mode = lp["style_observation"]
     learner_time = 0.0
@@ -323,7 +329,10 @@ def _ppo_run(params: dict, lp: dict, seed: int) -> dict:
 
     def make_env():
         env = gym.make(ENV_ID, config=env_config(params, mode, learner))
-        if lp["action"] != "direct":
+        if lp["action"] == "idm-speed":
+            env = DesiredSpeedAction(env, lp["residual_scale"], max_change=lp["max_change"],
+                                     observe=lp["observe_residual"])
+        elif lp["action"] != "direct":
             env = ResidualAction(env, "idm", lp["residual_scale"], shield=lp["action"].startswith("shielded"),
                                  max_change=lp["max_change"], observe=lp["observe_residual"])
         return gym.wrappers.FlattenObservation(env)
