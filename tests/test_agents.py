@@ -32,6 +32,9 @@ from pirl_sim.harness.agents import AgentsConfig  # noqa: E402
      r"seeds; both have \[1000, 1001, 1002, 1003, 1004\]"),
     ({"select_every": 0}, r"select_every must be an integer >= 1 \(environment steps\) or None, got 0"),
     ({"max_change": -0.1}, r"max_change must be a finite number > 0, got -0.1"),
+    ({"residual_scale": 1.0}, r"residual_scale is the largest change of the desired-speed factor with action "
+                              r"'idm-speed': it must be in \(0, 1\), got 1.0"),
+    ({"action": "steer"}, r"action must be one of \('residual-idm', 'shielded-residual-idm', 'idm-speed', 'direct'\)"),
 ])
 def test_bad_settings_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -39,10 +42,11 @@ def test_bad_settings_are_rejected(kwargs, match):
 
 
 def test_the_residual_observation_goes_to_the_residual_runs_only():
-    cfg = agents.sweep_config(AgentsConfig(observe_residual=True, direct_modes=("none",)))
-    seen = {(c.learner_params["action"], c.learner_params["observe_residual"]) for c in cfg.cells
-            if c.learner == "ppo"}
-    assert seen == {("shielded-residual-idm", True), ("direct", False)}
+    for action, scale in (("idm-speed", 0.5), ("shielded-residual-idm", 1.0)):
+        cfg = agents.sweep_config(AgentsConfig(action=action, observe_residual=True, direct_modes=("none",)))
+        seen = {(c.learner_params["action"], c.learner_params["observe_residual"], c.learner_params["residual_scale"])
+                for c in cfg.cells if c.learner == "ppo"}
+        assert seen == {(action, True, scale), ("direct", False, scale)}  # the action's default scale
 
 
 def test_intervals():
@@ -140,7 +144,7 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     cells = sorted((out / "cells").glob("*.json"))
     assert len(cells) == 3  # the sweep engine's store: one file per run
     table = pd.read_csv(out / "table.csv")
-    assert list(table["policy"]) == ["hold-speed", "ppo shielded-residual-idm (none)", "ppo shielded-residual-idm (truth)"]
+    assert list(table["policy"]) == ["hold-speed", "ppo idm-speed (none)", "ppo idm-speed (truth)"]
     episodes = pd.read_csv(out / "episodes.csv")
     assert set(episodes["eval_seed"]) == {1000} and len(episodes) == 3
     for c in cells:  # PPO's runs checked their policy twice on the validation episode and kept the better one
@@ -158,15 +162,15 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     torn = next(c for c in cells if '"mode": "none"' in c.read_text() or '"mode":"none"' in c.read_text())
     torn.write_text('{"policy": "pp')
     again = agents.run_experiment(cfg, out)
-    assert again.ran == ["ppo shielded-residual-idm (none) seed 0"]
+    assert again.ran == ["ppo idm-speed (none) seed 0"]
     assert [r["episodes"] for r in again.records] == [r["episodes"] for r in first.records]  # same seed, same result
     cfg = AgentsConfig(modes=("truth",), direct_modes=("none",), seeds=(0,), steps=128, n_steps=64, batch_size=64,
                        eval_seeds=(1000, 1001), baselines=("hold-speed",), select_every=None)
     result = agents.run_experiment(cfg, out)
-    assert sorted(result.ran) == ["hold-speed", "ppo direct (none) seed 0", "ppo shielded-residual-idm (truth) seed 0"]
+    assert sorted(result.ran) == ["hold-speed", "ppo direct (none) seed 0", "ppo idm-speed (truth) seed 0"]
     agents.write_results(cfg, result, out, "test")
     table = pd.read_csv(out / "table.csv")
-    assert list(table["policy"]) == ["hold-speed", "ppo direct (none)", "ppo shielded-residual-idm (truth)"]
+    assert list(table["policy"]) == ["hold-speed", "ppo direct (none)", "ppo idm-speed (truth)"]
     assert not list(scratch.glob("SB3-*"))  # SB3's logger made no folder in the temporary directory
 
 

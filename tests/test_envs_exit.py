@@ -227,3 +227,63 @@ def test_residual_observation_shows_what_the_step_will_apply():
     assert capped > 0, "the cap never bound: the test does not test the cap's column"
     with pytest.raises(TypeError, match=r"observe must be True or False, got 1"):
         ResidualAction(env.env, "idm", observe=1)
+
+
+def test_desired_speed_action_zero_drives_as_the_idm_ego_and_a_factor_changes_its_target():
+    """``DesiredSpeedAction``: action 0 is the IDM ego step for step; +1 drives towards (1 + scale) v_des (faster
+    on the free road, the factor moving at most ``max_change`` per step); the observation shows the factor and
+    v_des; the env passes gymnasium's and SB3's checkers; bad settings are refused."""
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    from pirl_sim.envs.baselines import DesiredSpeedAction, idm_action
+
+    def wrapped(**kw):
+        return DesiredSpeedAction(gym.make(ENV_ID, config={"reward": "exit", **DENSE}), **kw)
+
+    env = wrapped(scale=0.3)
+    env.reset(seed=1004)
+    plain = make(**DENSE)
+    plain.reset(seed=1004)
+    idm = IdmEgo()
+    idm.reset(plain)
+    for _ in range(60):
+        expected = idm.act(plain)
+        _, reward, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        _, r, _, _, plain_info = plain.step(expected)
+        assert info["speed_factor"] == 1.0 and info["applied_action"] == pytest.approx(float(expected[0]))
+        assert reward == pytest.approx(r) and info["speed"] == pytest.approx(plain_info["speed"])
+        if terminated or truncated:
+            break
+    # full factor: the IDM towards 1.3 v_des accelerates at least as hard as towards v_des, and ends faster
+    fast = wrapped(scale=0.3, max_change=0.05)
+    fast.reset(seed=1004)
+    env.reset(seed=1004)
+    factors, higher = [], 0
+    for _ in range(40):
+        slow_info = env.step(np.zeros(1, dtype=np.float32))[4]
+        at_v_des = float(idm_action(fast.unwrapped, 1.0)[0])  # the IDM ego's action in the same state
+        _, _, terminated, truncated, info = fast.step(np.ones(1, dtype=np.float32))
+        factors.append(info["speed_factor"])
+        assert info["applied_action"] >= at_v_des - 1e-6
+        higher += info["speed"] > slow_info["speed"] + 1e-6
+        if terminated or truncated:
+            break
+    np.testing.assert_allclose(factors[:6], [1.05, 1.1, 1.15, 1.2, 1.25, 1.3])
+    assert higher > 0
+    obs_env = wrapped(scale=0.3, max_change=0.05, observe=True)
+    check_env(obs_env, skip_render_check=True)
+    sb3_check_env(gym.wrappers.FlattenObservation(wrapped(scale=0.3, observe=True)))
+    obs, _ = obs_env.reset(seed=1004)
+    assert set(obs) == {"kinematics", "speed"} and obs["speed"][0] == 0.0
+    obs, *_ = obs_env.step(np.ones(1, dtype=np.float32))
+    base = obs_env.unwrapped
+    assert obs["speed"][0] == pytest.approx(0.05 / 0.3)
+    assert obs["speed"][1] == pytest.approx(base.road.v_des(base.vehicle) / base.config["drivers"].v_max)
+    for bad in (0.0, 1.0, True, "0.3"):
+        with pytest.raises(ValueError, match=r"scale must be a number in \(0, 1\)"):
+            wrapped(scale=bad)
+    with pytest.raises(ValueError, match=r"max_change must be a finite number > 0"):
+        wrapped(max_change=-1.0)
+    with pytest.raises(TypeError, match=r"observe must be True or False"):
+        wrapped(observe="yes")

@@ -25,7 +25,7 @@ def _config(learners, scenario="agents", protocols=("paper",), params=None):
     ([{"name": "ppo", "params": {"style_observation": "psychic"}}], "agents", ("paper",), None,
      r"style_observation must be one of \('none', 'truth', 'inferred'\), got 'psychic'"),
     ([{"name": "ppo", "params": {"action": "teleport"}}], "agents", ("paper",), None,
-     r"action must be one of \('residual-idm', 'shielded-residual-idm', 'direct'\), got 'teleport'"),
+     r"action must be one of \('residual-idm', 'shielded-residual-idm', 'idm-speed', 'direct'\), got 'teleport'"),
     ([{"name": "ppo", "params": {"steps": 0}}], "agents", ("paper",), None, r"steps must be an integer >= 1, got 0"),
     ([{"name": "ppo", "params": {"action": "direct", "observe_residual": True}}], "agents", ("paper",), None,
      r"observe_residual shows the agent the action it corrects: it needs a residual action, not 'direct'"),

@@ -333,7 +333,7 @@ class DesiredSpeedAction(*_wrapper_bases()):
     step.
     """
 
-    def __init__(self, env, scale: float = 0.3, max_change: float | None = None, observe: bool = False) -> None:
+    def __init__(self, env, scale: float = 0.5, max_change: float | None = None, observe: bool = False) -> None:
         from gymnasium.utils import RecordConstructorArgs
 
         RecordConstructorArgs.__init__(self, scale=scale, max_change=max_change, observe=observe)
