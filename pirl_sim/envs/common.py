@@ -242,9 +242,10 @@ class EgoReward:
         period = 1.0 / c["policy_frequency"]
         f = np.array(self._frames) if self._frames else np.zeros((1, 5))
         self.features = np.array([f[:, 0].mean(), (f[:, 1] ** 2).mean(), (f[:, 2] ** 2).mean()])
-        comfort = float(((f[:, 1] / ACC_REF) ** 2 + (f[:, 2] / JERK_REF) ** 2).mean()) if self._frames else 0.0
-        lateral = float(((f[:, 3] / LAT_ACC_REF) ** 2).mean()) if self._frames else 0.0
-        acc_part = float(((f[:, 1] / ACC_REF) ** 2).mean()) if self._frames else 0.0  # comfort's longitudinal split
+        # the comfort index's parts, mean over the step's frames: acceleration, jerk, lateral acceleration
+        acc_part, jerk_part, lateral = (float(((f[:, i] / ref) ** 2).mean()) if self._frames else 0.0
+                                        for i, ref in ((1, ACC_REF), (2, JERK_REF), (3, LAT_ACC_REF)))
+        comfort = acc_part + jerk_part
         cost_to_go = 0.0
         if crashed and not self._crash_charged:
             # a crashed vehicle stands still: over the rest of the episode it would cost speed_dev = v_des^2
@@ -264,7 +265,7 @@ class EgoReward:
             "comfort_time": (comfort + lateral) * period,
             # comfort_time's three parts (they sum to it up to rounding): acceleration, jerk, lateral acceleration
             "comfort_acc_time": acc_part * period,
-            "comfort_jerk_time": (comfort - acc_part) * period,
+            "comfort_jerk_time": jerk_part * period,
             "comfort_lateral_time": lateral * period,
             "near_miss_time": float(f[:, 4].mean()) * period if self._frames else 0.0,
         }
