@@ -210,6 +210,31 @@ def _wrapper_bases():
     return gym.Wrapper, gym.utils.RecordConstructorArgs  # the latter: gymnasium can recreate the wrapped env
 
 
+def _rate_and_observation(wrapper, env, max_change, observe: bool, key: str, size: int, unit: str) -> None:
+    """Check and set an action wrapper's ``max_change`` (> 0 in ``unit`` per step, or None) and ``observe``; with
+    ``observe`` its observation space becomes a ``Dict`` of the env's (``"kinematics"``) and ``key``, a
+    ``Box(-1, 1, (size,))``."""
+    if max_change is not None and (isinstance(max_change, bool) or not isinstance(max_change, (int, float))
+                                   or not np.isfinite(max_change) or max_change <= 0):
+        raise ValueError(f"max_change must be a finite number > 0 ({unit} per step) or None, got {max_change!r}")
+    wrapper.max_change = None if max_change is None else float(max_change)
+    if not isinstance(observe, bool):
+        raise TypeError(f"observe must be True or False, got {observe!r}")
+    wrapper.observe = observe
+    if observe:
+        from gymnasium import spaces
+
+        wrapper.observation_space = spaces.Dict({"kinematics": env.observation_space,
+                                                 key: spaces.Box(-1.0, 1.0, shape=(size,), dtype=np.float32)})
+
+
+def _towards(current: float, target: float, max_change: float | None) -> float:
+    """``target``, or with ``max_change`` the value at most that far from ``current`` on the way to it."""
+    if max_change is None:
+        return target
+    return min(max(target, current - max_change), current + max_change)
+
+
 class ResidualAction(*_wrapper_bases()):
     """The agent's action as a correction to a baseline ego's (see the module docstring).
 
@@ -257,18 +282,7 @@ class ResidualAction(*_wrapper_bases()):
         if not isinstance(shield, bool):
             raise TypeError(f"shield must be True or False, got {shield!r}")
         self.shield = shield
-        if max_change is not None and (isinstance(max_change, bool) or not isinstance(max_change, (int, float))
-                                       or not np.isfinite(max_change) or max_change <= 0):
-            raise ValueError(f"max_change must be a finite number > 0 (action units) or None, got {max_change!r}")
-        self.max_change = None if max_change is None else float(max_change)
-        if not isinstance(observe, bool):
-            raise TypeError(f"observe must be True or False, got {observe!r}")
-        self.observe = observe
-        if observe:
-            from gymnasium import spaces
-
-            self.observation_space = spaces.Dict({"kinematics": env.observation_space,
-                                                  "residual": spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)})
+        _rate_and_observation(self, env, max_change, observe, "residual", 3, "action units")
         self.correction = 0.0  #: the correction applied in the last step (action units)
         self._next = None  # (baseline action, cap in action units) of the coming step, once computed
 
@@ -300,11 +314,8 @@ class ResidualAction(*_wrapper_bases()):
     def step(self, action):
         x = check_action(action)
         base, cap = self._actions()
-        target = self.scale * x
-        if self.max_change is not None:
-            target = min(max(target, self.correction - self.max_change), self.correction + self.max_change)
-        self.correction = target
-        a = min(base + target, cap)
+        self.correction = _towards(self.correction, self.scale * x, self.max_change)
+        a = min(base + self.correction, cap)
         applied = np.array([min(max(a, -1.0), 1.0)], dtype=np.float32)
         obs, reward, terminated, truncated, info = self.env.step(applied)
         self._next = None
@@ -343,18 +354,7 @@ class DesiredSpeedAction(*_wrapper_bases()):
             raise ValueError(f"scale must be a number in (0, 1) (the largest change of the desired-speed factor), "
                              f"got {scale!r}")
         self.scale = float(scale)
-        if max_change is not None and (isinstance(max_change, bool) or not isinstance(max_change, (int, float))
-                                       or not np.isfinite(max_change) or max_change <= 0):
-            raise ValueError(f"max_change must be a finite number > 0 (factor per step) or None, got {max_change!r}")
-        self.max_change = None if max_change is None else float(max_change)
-        if not isinstance(observe, bool):
-            raise TypeError(f"observe must be True or False, got {observe!r}")
-        self.observe = observe
-        if observe:
-            from gymnasium import spaces
-
-            self.observation_space = spaces.Dict({"kinematics": env.observation_space,
-                                                  "speed": spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)})
+        _rate_and_observation(self, env, max_change, observe, "speed", 2, "factor")
         self.factor = 1.0  #: the desired-speed factor applied in the last step
 
     def reset(self, **kwargs):
@@ -371,10 +371,7 @@ class DesiredSpeedAction(*_wrapper_bases()):
         return {"kinematics": obs, "speed": extra}
 
     def step(self, action):
-        target = 1.0 + self.scale * check_action(action)
-        if self.max_change is not None:
-            target = min(max(target, self.factor - self.max_change), self.factor + self.max_change)
-        self.factor = target
+        self.factor = _towards(self.factor, 1.0 + self.scale * check_action(action), self.max_change)
         applied = idm_action(self.env, self.factor)
         obs, reward, terminated, truncated, info = self.env.step(applied)
         info = {**info, "speed_factor": self.factor, "applied_action": float(applied[0])}
