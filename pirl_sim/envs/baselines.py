@@ -41,8 +41,8 @@ from .common import EGO_ID, check_action, reward_weights
 
 IDM_DELTA = 4.0  #: highway-env's IDM exponent (IDMVehicle.DELTA), also the env's background traffic's
 
-__all__ = ["BASELINES", "EPISODE_TERMS", "DesiredSpeedAction", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction", "action_of", "drive_episode",
-           "idm_action", "interaction_limit", "make_baseline"]
+__all__ = ["BASELINES", "EPISODE_TERMS", "DesiredSpeedAction", "HoldSpeed", "IdmEgo", "MpcEgo", "ResidualAction",
+           "action_of", "drive_episode", "idm_action", "interaction_limit", "make_baseline"]
 
 #: baseline names of :func:`make_baseline`
 BASELINES = ("hold-speed", "idm", "mpc")
