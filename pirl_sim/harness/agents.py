@@ -49,7 +49,8 @@ arrived 10 of 10 in 26.2 s without a crash but scored -17.8; with the rate limit
 
 Observation of what the action changes (``--observe-residual``, the default; ``--no-observe-residual``): with
 ``"idm-speed"`` the agent also sees the desired-speed factor in force and v_des(s) / v_max here
-(``DesiredSpeedAction(observe=True)``; not probed without). The residual agent also observes what it corrects, the IDM ego's action for the coming step, its correction in force and the shield's cap
+(``DesiredSpeedAction(observe=True)``; not probed without). The residual agent also observes what it corrects,
+the IDM ego's action for the coming step, its correction in force and the shield's cap
 (``ResidualAction(observe=True)``; with the rate limit the correction is state the agent could not see otherwise).
 Chosen on design-probe seeds, not on the evaluation seeds: ``--modes none --direct-modes '' --baselines idm
 --eval-seed 3000`` (3 training seeds, 20 episodes of env seeds 3000-3019; 275 s and 295 s) gave return -12.3
@@ -580,7 +581,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-change", type=_optional(float, "a number"), default=AgentsConfig.max_change,
                     help="largest change of the residual (or factor) per agent step, or 'none' "
                          "(default %(default)s)")
-    ap.add_argument("--seeds", type=list_arg(int, empty=True), default=AgentsConfig.seeds, help="training seeds, e.g. 0,1,2")
+    ap.add_argument("--seeds", type=list_arg(int, empty=True), default=AgentsConfig.seeds,
+                    help="training seeds, e.g. 0,1,2")
     ap.add_argument("--steps", type=int, default=AgentsConfig.steps, help="PPO steps per run")
     ap.add_argument("--episodes", type=int, default=len(AgentsConfig.eval_seeds),
                     help="evaluation episodes (env seeds --eval-seed, --eval-seed + 1, ...)")
