@@ -256,7 +256,7 @@ def test_desired_speed_action_zero_drives_as_the_idm_ego_and_a_factor_changes_it
         if terminated or truncated:
             break
     # full factor: the IDM towards 1.3 v_des accelerates at least as hard as towards v_des, and ends faster
-    fast = wrapped(scale=0.3, max_change=0.05)
+    fast = wrapped(scale=0.3, max_change=0.05, on_approach=True)
     fast.reset(seed=1004)
     env.reset(seed=1004)
     factors, higher = [], 0
@@ -271,6 +271,21 @@ def test_desired_speed_action_zero_drives_as_the_idm_ego_and_a_factor_changes_it
             break
     np.testing.assert_allclose(factors[:6], [1.05, 1.1, 1.15, 1.2, 1.25, 1.3])
     assert higher > 0
+    # by default the factor applies from the ring on: on the approach the IDM ego's own action
+    ring = wrapped(scale=0.3)
+    ring.reset(seed=1004)
+    phases = set()
+    for _ in range(150):
+        entering = ring.unwrapped.vehicle.entering
+        expected = idm_action(ring.unwrapped, 1.0 if entering else 1.3)
+        _, _, terminated, truncated, info = ring.step(np.ones(1, dtype=np.float32))
+        assert info["speed_factor"] == pytest.approx(1.3)
+        assert info["applied_factor"] == (1.0 if entering else pytest.approx(1.3))
+        assert info["applied_action"] == pytest.approx(float(expected[0]))
+        phases.add(entering)
+        if terminated or truncated:
+            break
+    assert phases == {True, False}, "the episode never reached the ring: the test does not test the rule"
     obs_env = wrapped(scale=0.3, max_change=0.05, observe=True)
     check_env(obs_env, skip_render_check=True)
     sb3_check_env(gym.wrappers.FlattenObservation(wrapped(scale=0.3, observe=True)))
@@ -287,3 +302,5 @@ def test_desired_speed_action_zero_drives_as_the_idm_ego_and_a_factor_changes_it
         wrapped(max_change=-1.0)
     with pytest.raises(TypeError, match=r"observe must be True or False"):
         wrapped(observe="yes")
+    with pytest.raises(TypeError, match=r"on_approach must be True or False, got 1"):
+        wrapped(on_approach=1)

@@ -26,6 +26,9 @@ its correction in force and the cap.
 acceleration: the agent's action sets the factor on the IDM's desired speed, ``1 + scale * action`` times
 v_des(s), and the acceleration is the IDM's towards it, behind the ego's leader and with the traffic's yielding
 (:func:`idm_action`): every action keeps the IDM's gaps and gap acceptance, and action 0 is the IDM ego itself.
+By default the factor applies from the ring on: on the approach the ego drives as the IDM ego, since the
+traffic's gap acceptance sends a vehicle that can no longer stop before the line into the ring whatever the
+conflict, and a faster approach gets there more often.
 """
 
 from __future__ import annotations
@@ -339,15 +342,22 @@ class DesiredSpeedAction(*_wrapper_bases()):
     observe : bool
         The observation becomes a ``Dict`` of the env's (``"kinematics"``) and ``"speed"``, a
         ``Box(-1, 1, (2,))``: the factor in force as ``(factor - 1) / scale`` and v_des(s) / v_max here.
+    on_approach : bool
+        False (default): the factor applies once the ego is in the ring (its route past the entry's S-bend);
+        before, it drives at the IDM's desired speed whatever the action (the factor still follows the
+        actions). True: everywhere (the approach's collisions at the entry showed up in design probes with
+        factors above 1 on it; the IDM ego had none on the same episodes).
 
-    ``info["speed_factor"]`` and ``info["applied_action"]`` give the factor and the acceleration action of each
-    step.
+    ``info["speed_factor"]`` (the factor set), ``info["applied_factor"]`` (the one the IDM drove with) and
+    ``info["applied_action"]`` (the acceleration action) describe each step.
     """
 
-    def __init__(self, env, scale: float = 0.5, max_change: float | None = None, observe: bool = False) -> None:
+    def __init__(self, env, scale: float = 0.3, max_change: float | None = None, observe: bool = False,
+                 on_approach: bool = False) -> None:
         from gymnasium.utils import RecordConstructorArgs
 
-        RecordConstructorArgs.__init__(self, scale=scale, max_change=max_change, observe=observe)
+        RecordConstructorArgs.__init__(self, scale=scale, max_change=max_change, observe=observe,
+                                       on_approach=on_approach)
         super().__init__(env)
         _highway(env, "desired-speed action")
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale < 1:
@@ -355,6 +365,9 @@ class DesiredSpeedAction(*_wrapper_bases()):
                              f"got {scale!r}")
         self.scale = float(scale)
         _rate_and_observation(self, env, max_change, observe, "speed", 2, "factor")
+        if not isinstance(on_approach, bool):
+            raise TypeError(f"on_approach must be True or False, got {on_approach!r}")
+        self.on_approach = on_approach
         self.factor = 1.0  #: the desired-speed factor applied in the last step
 
     def reset(self, **kwargs):
@@ -372,7 +385,8 @@ class DesiredSpeedAction(*_wrapper_bases()):
 
     def step(self, action):
         self.factor = _towards(self.factor, 1.0 + self.scale * check_action(action), self.max_change)
-        applied = idm_action(self.env, self.factor)
+        factor = self.factor if self.on_approach or not self.env.unwrapped.vehicle.entering else 1.0
+        applied = idm_action(self.env, factor)
         obs, reward, terminated, truncated, info = self.env.step(applied)
-        info = {**info, "speed_factor": self.factor, "applied_action": float(applied[0])}
+        info = {**info, "speed_factor": self.factor, "applied_factor": factor, "applied_action": float(applied[0])}
         return self._observation(obs), reward, terminated, truncated, info

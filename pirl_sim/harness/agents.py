@@ -102,7 +102,7 @@ __all__ = ["AgentsConfig", "MODES", "ACTIONS", "BASELINE_POLICIES", "sweep_confi
 BASELINE_POLICIES = ("hold-speed", "idm", "mpc")  #: scripted egos (:data:`pirl_sim.envs.baselines.BASELINES`)
 DEFAULT_COMMAND = "python3 -m pirl_sim.harness.agents --out results/agents"  #: the committed experiment's command
 #: PPO's action -> its default ``residual_scale`` (the residuals' in action units, the desired-speed factor's)
-DEFAULT_SCALES = {"residual-idm": 1.0, "shielded-residual-idm": 1.0, "idm-speed": 0.5, "direct": 1.0}
+DEFAULT_SCALES = {"residual-idm": 1.0, "shielded-residual-idm": 1.0, "idm-speed": 0.3, "direct": 1.0}
 
 
 @dataclass(frozen=True)
