@@ -44,7 +44,7 @@ def test_bad_settings_are_rejected(kwargs, match):
 def test_the_residual_observation_goes_to_the_residual_runs_only():
     for action, scale in (("idm-speed", 0.3), ("shielded-residual-idm", 1.0)):
         cfg = agents.sweep_config(AgentsConfig(action=action, observe_residual=True, direct_modes=("none",)))
-        seen = {(c.learner_params["action"], c.learner_params["observe_residual"], c.learner_params["residual_scale"])
+        seen = {tuple(c.learner_params[k] for k in ("action", "observe_residual", "residual_scale"))
                 for c in cfg.cells if c.learner == "ppo"}
         assert seen == {(action, True, scale), ("direct", False, scale)}  # the action's default scale
 

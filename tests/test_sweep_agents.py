@@ -28,7 +28,8 @@ def _config(learners, scenario="agents", protocols=("paper",), params=None):
      r"action must be one of \('residual-idm', 'shielded-residual-idm', 'idm-speed', 'direct'\), got 'teleport'"),
     ([{"name": "ppo", "params": {"steps": 0}}], "agents", ("paper",), None, r"steps must be an integer >= 1, got 0"),
     ([{"name": "ppo", "params": {"action": "direct", "observe_residual": True}}], "agents", ("paper",), None,
-     r"observe_residual shows the agent what its action changes: it needs a residual or the 'idm-speed' action, not 'direct'"),
+     r"observe_residual shows the agent what its action changes: it needs a residual or the 'idm-speed' action, "
+     r"not 'direct'"),
     ([{"name": "ppo", "params": {"gamma": 0.0}}], "agents", ("paper",), None, r"gamma must be in \(0, 1\], got 0.0"),
     ([{"name": "mpc", "params": {"acc_sq": -1.0}}], "agents", ("paper",), None,
      r"acc_sq must be a finite number > 0, got -1.0"),

@@ -35,11 +35,12 @@ factor applied everywhere (``--modes none --direct-modes '' --baselines idm --ev
 --action idm-speed --residual-scale S``, commit fef0bc4's code; 3 training seeds, env seeds 3000-3049, where
 the IDM ego scores -13.2 and misses 5 exits): S = 0.3: -10.3, Δreturn vs IDM +2.9 [0.4, 5.4]; S = 0.5: -9.0,
 +4.2 [0.5, 8.0]; S = 0.7: -9.5, +3.7 [0.4, 7.0]; no collision in those 450 episodes. The first full run with
-S = 0.5 applied everywhere then beat the IDM ego's return on the evaluation seeds but collided in 1 or 2 of
-200 episodes per training seed, at the entry 6-8 s in: the traffic's gap acceptance sends a vehicle that can no
-longer stop before the line into the ring whatever the conflict, and a faster approach gets there more often.
-Constant factors on env seeds 3000-3199 showed the same at the entry and, above 1.4, at the exit's diverge;
-hence the ring-only factor and S = 0.3.
+S = 0.5 applied everywhere then beat the IDM ego's return on the evaluation seeds but collided in up to 2 of
+200 episodes per training seed (9 in the 1,600 episodes of the 8 runs it finished), at the entry 6-8 s in: the
+traffic's gap acceptance sends a vehicle that can no longer stop before the line into the ring whatever the
+conflict, and a faster approach gets there more often. That result on the evaluation seeds prompted the
+ring-only factor; ad-hoc scans with constant factors on env seeds 3000-3199 (not in the repository) showed the
+same collisions at the entry and, at the highest factors, at the exit's diverge, and set S = 0.3.
 
 ``"shielded-residual-idm"`` (:class:`~pirl_sim.envs.baselines.ResidualAction`, the default until session 18): a
 correction of at most ``residual_scale`` (1 action unit: 3 m/s^2 up, 4 m/s^2 down) to the IDM ego's
