@@ -1,7 +1,7 @@
 """Replay speed: 1,000 recorded tracks, fit + predict every learner, and where the time goes.
 
     python benchmarks/bench_replay.py [--tracks 1000]              # issue 6: one split, four learners
-    python benchmarks/bench_replay.py --command [--jobs 1,2]        # issue 16: the replay command itself
+    python benchmarks/bench_replay.py --command [--workers 1,2]     # issue 16: the replay command itself
 
 The scene is simulated (roundabout passage drivers of three styles, written in the INTERACTION format with a
 Lanelet2 map), because real recordings may not be redistributed.
@@ -10,9 +10,9 @@ Default (issue 6): one train/test split (75/25 by track), 2 s history, 3 s horiz
 along each test track. Target: under 60 s in total.
 
 ``--command`` (issue 16): the wall time of the command a user runs on a real-data-sized recording,
-``pirl-sim replay --tracks T --map M --knn-k 5,10,19,30 --seeds 4 [--jobs J]`` (default learners TIRL,
+``pirl-sim replay --tracks T --map M --knn-k 5,10,19,30 --seeds 4 [--workers J]`` (default learners TIRL,
 PIRL-GMM, PIRL-kNN; a fresh process per run, output in a temporary directory so that nothing is resumed), for
-each ``--jobs`` value, with the load average at the start. Target: under 120 s. BLAS threads: the command's
+each ``--workers`` value, with the load average at the start. Target: under 120 s. BLAS threads: the command's
 own policy (one thread, `pirl_sim.threads`).
 """
 
@@ -26,7 +26,7 @@ import tempfile
 import time
 import warnings
 
-from pirl_sim.harness.replay import ReplayProtocol, run_replay
+from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
 from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
 from pirl_sim.scenarios.replay import load_replay
 
@@ -42,7 +42,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tracks", type=int, default=1000)
     ap.add_argument("--command", action="store_true", help="time the replay command (issue 16) instead")
-    ap.add_argument("--jobs", default="1,2", help="--command: comma-separated --jobs values to time")
+    ap.add_argument("--workers", default="1,2", help="--command: comma-separated --workers values to time")
     args = ap.parse_args(argv)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
@@ -50,7 +50,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as tmp:
         paths = write_scene(data, tmp)
         if args.command:
-            return _time_command(paths, [int(j) for j in args.jobs.split(",")], tmp)
+            return _time_command(paths, [int(j) for j in args.workers.split(",")], tmp)
         t0 = time.perf_counter()
         scene = load_replay([paths["tracks"]], paths["map"])
         t_load = time.perf_counter() - t0
@@ -69,18 +69,18 @@ def main(argv=None):
     print(f"  total                                          : {total:6.1f} s  (target < 60 s: {'met' if total < 60 else 'NOT met'})")
 
 
-def _time_command(paths, jobs: list[int], tmp: str) -> None:
-    """Issue 16: wall time of ``pirl-sim replay ... --knn-k 5,10,19,30 --seeds 4 --jobs J`` per J."""
+def _time_command(paths, workers: list[int], tmp: str) -> None:
+    """Issue 16: wall time of ``pirl-sim replay ... --knn-k 5,10,19,30 --seeds 4 --workers J`` per J."""
     print(f"replay command on {len(data_tracks(paths))} simulated tracks, --knn-k 5,10,19,30 --seeds 4 "
           f"(load average at the start {os.getloadavg()[0]:.1f}):")
-    for j in jobs:
-        out = os.path.join(tmp, f"out_jobs{j}")
+    for j in workers:
+        out = os.path.join(tmp, f"out_workers{j}")
         cmd = [sys.executable, "-m", "pirl_sim", "replay", "--tracks", str(paths["tracks"]), "--map",
-               str(paths["map"]), "--knn-k", "5,10,19,30", "--seeds", "4", "--jobs", str(j), "--out", out]
+               str(paths["map"]), "--knn-k", "5,10,19,30", "--seeds", "4", "--workers", str(j), "--out", out]
         t0 = time.perf_counter()
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         wall = time.perf_counter() - t0
-        print(f"  --jobs {j}: {wall:6.1f} s  (target < 120 s: {'met' if wall < 120 else 'NOT met'})")
+        print(f"  --workers {j}: {wall:6.1f} s  (target < 120 s: {'met' if wall < 120 else 'NOT met'})")
 
 
 def data_tracks(paths) -> list:

@@ -27,7 +27,7 @@ import time
 import tomllib
 from pathlib import Path
 
-from pirl_sim.sweep import default_config, parse_config, run_sweep
+from pirl_sim.engine import default_config, parse_config, run_sweep
 
 OVERHEAD_GRID = """
 name = "overhead"
@@ -109,7 +109,7 @@ def throughput(config, repeats: int, tmp: Path, title: str) -> None:
 
 
 def kgrid(repeats: int) -> None:
-    from pirl_sim.sweep.cell import run_cell, run_cells, single_threaded
+    from pirl_sim.engine.worker import run_cell, run_cells, single_threaded
 
     specs = [c.spec() for c in _config(KGRID).cells]
     print(f"PIRL-kNN k-grid ({len(specs)} cells, passage, rolling), in this process, medians of {repeats}:")

@@ -4,7 +4,7 @@
     python examples/ppo_roundabout.py [--steps 5000] [--reward exit|task|theta] [--seed 0]
 
 A quick look only; the full experiment (PPO per observation mode over several training seeds against the
-hold-speed and IDM egos, with intervals, resumable) is ``python3 -m pirl_sim.harness.agents`` (README, "Agents
+hold-speed and IDM egos, with intervals, resumable) is ``pirl-sim agents`` (README, "Agents
 in a crowd of known styles"). ``--reward exit`` (the default here) is the env's reward in seconds: reach the exit
 soon, without near misses or a crash, comfortably (stated term by term in ``pirl_sim/envs/roundabout.py``);
 ``task`` is the earlier per-metre reward, on which the notes below were measured.

@@ -3,9 +3,11 @@
 from .base import BaseLearner
 from .gmm import PIRLDPGMM, PIRLGMM
 from .knn import PIRLKNN
+from .model_io import SavableLearner, load_learner, save_learner
 from .tirl import TIRL
 
-__all__ = ["BaseLearner", "TIRL", "PIRLGMM", "PIRLDPGMM", "PIRLKNN", "LEARNERS", "make_learner"]
+__all__ = ["BaseLearner", "SavableLearner", "TIRL", "PIRLGMM", "PIRLDPGMM", "PIRLKNN", "LEARNERS", "make_learner",
+           "load_learner", "save_learner"]
 
 LEARNERS = {"tirl": TIRL, "pirl-gmm": PIRLGMM, "pirl-dpgmm": PIRLDPGMM, "pirl-knn": PIRLKNN}
 

@@ -7,6 +7,19 @@ Online use: ``infer_weights(history)`` gives the normalised weights (reference f
 `pirl_sim.features.FeatureSet.normalize`) that explain a (partial) trajectory, and ``predict(history, horizon)``
 rolls the MPC forward from the last state of the history under those weights.
 
+Batches. ``infer_weights``, ``predict_states``, ``predict`` and ``score`` take one `Trajectory` or a sequence of
+them (a batch); one history gives one result, a sequence a result per history.
+
+Inputs and ``n_features_in_``. The inputs are trajectories, not a feature matrix: a learner computes its cost
+features from each trajectory itself (the model's `pirl_sim.features.FeatureSet`). So ``n_features_in_`` is the
+number K of cost features (the length of the weight vectors ``infer_weights`` returns) and ``feature_names_in_``
+their names, in the model's order; neither is the number of columns of an input array.
+
+scikit-learn model selection. ``fit(histories, futures)`` learns from the demonstrations history + future
+(``futures=None``: from the histories alone) and ``score(histories, futures)`` is the negative mean Euclidean
+distance (MED, [m]) between the predicted and the true futures, so ``GridSearchCV`` and ``cross_val_score`` run on
+lists of trajectories without a custom scorer.
+
 Feature windows. With ``window=None`` a trajectory is described by the features of the whole of it (the
 paper's protocol). With ``window=T`` a history is described by the features of its last T steps, and training
 trajectories by all their windows of T steps (every ``stride`` steps), so that look-ups compare like with like.
@@ -16,13 +29,18 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import math
+import warnings
+
 import numpy as np
 from sklearn.base import BaseEstimator
 from sklearn.preprocessing import StandardScaler
 from sklearn.utils.validation import check_is_fitted
 
 from pirl_sim.irl import IRLResult, LogNormalPrior, attach_gauss_newton, fit_weights
+from pirl_sim.metrics import med
 from pirl_sim.model import DriverModel, synthetic_model
+from pirl_sim.mpc import MAX_HORIZON
 from pirl_sim.receding import fit_receding
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int
@@ -36,11 +54,34 @@ WINDOW_MODES = ("sliding", "first")
 _LOG_FLOOR = 1e-12  # features are sums of squares: floor before the log so that exact zeros stay finite
 
 
-class BaseLearner(BaseEstimator):
-    """Shared machinery; subclasses implement ``_fit`` and ``_infer``.
+def check_log_bounds(value) -> tuple[float, float]:
+    """``log_bounds`` as (low, high) floats; ValueError naming it and the allowed form unless it is a pair of
+    finite numbers with low < high (e.g. ``(-20.0, 20.0)``)."""
+    ok = (not isinstance(value, (str, bytes, dict)) and hasattr(value, "__len__") and len(value) == 2
+          and all(not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v)
+                  for v in value))
+    if not ok or not value[0] < value[1]:
+        raise ValueError(f"log_bounds must be a pair (low, high) of finite numbers with low < high, the box on the "
+                         f"IRL's log-weights, e.g. (-20.0, 20.0); got {value!r}")
+    return float(value[0]), float(value[1])
 
-    Common parameters
-    -----------------
+
+def check_horizon(horizon) -> int:
+    """``horizon`` as an int; ValueError unless it is a whole number of steps from 1 to `MAX_HORIZON`."""
+    if not is_positive_int(horizon):
+        raise ValueError(f"horizon must be a positive number of steps, got {horizon!r}")
+    if horizon > MAX_HORIZON:
+        raise ValueError(f"horizon must be at most {MAX_HORIZON} steps (MAX_HORIZON: the MPC's matrices grow with "
+                         f"the square of the horizon), got {horizon!r}")
+    return int(horizon)
+
+
+class BaseLearner(BaseEstimator):
+    """Shared machinery; subclasses implement ``_fit`` and ``_infer``. The parameters below are common to every
+    learner.
+
+    Parameters
+    ----------
     model : DriverModel or None
         Dynamics, features and predictor. None: the paper's synthetic point-mass LQR model.
     window : int or None
@@ -102,6 +143,26 @@ class BaseLearner(BaseEstimator):
             raise ValueError(f"step_stride must be a positive number of steps, got {self.step_stride!r}")
         if not is_positive_int(self.irl_max_iter):
             raise ValueError(f"irl_max_iter must be a positive number of iterations, got {self.irl_max_iter!r}")
+        check_log_bounds(self.log_bounds)
+
+    def _check_params(self, model: DriverModel) -> None:
+        """Every check of the parameters that needs no data (what `fit` checks before it looks at the
+        trajectories; `pirl_sim.learners.model_io` runs it on a learner read from a file). Subclasses add
+        theirs."""
+        self._check_common()
+
+    def _check_data_scale(self, model: DriverModel, trajectories: list[Trajectory]) -> None:
+        """ValueError when a training trajectory's features are not finite numbers (states or controls so large
+        that their squares overflow float64): the IRL cannot weigh them."""
+        with np.errstate(all="ignore"):
+            values = model.feature_values(trajectories)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            i, k = (int(j) for j in np.argwhere(bad)[0])
+            t = trajectories[i]
+            size = max(float(np.max(np.abs(t.states))), float(np.max(np.abs(t.controls), initial=0.0)))
+            raise ValueError(f"training trajectory {i}: feature {model.features.names[k]!r} overflows float64 "
+                             f"(states or controls up to {size:.3g}); rescale the data (SI units: m, m/s, ...)")
 
     # ------------------------------------------------------------------ windows and feature space
     def _training_windows(self, trajectories: list[Trajectory]) -> tuple[list[Trajectory], np.ndarray]:
@@ -147,6 +208,21 @@ class BaseLearner(BaseEstimator):
     def _irl(
         self, model: DriverModel, samples: list[Trajectory], labels: np.ndarray, n_groups: int, prior=None
     ) -> IRLResult:
+        # numpy's overflow (and the invalid operations that follow it) become one warning that says what to do
+        errors = []
+        with np.errstate(over="call", invalid="call", call=lambda kind, flag: errors.append(kind)):
+            res = self._irl_fit(model, samples, labels, n_groups, prior)
+        if errors:
+            with np.errstate(all="ignore"):
+                top = np.max(np.abs(model.feature_values(samples)), axis=0)
+            k = int(np.argmax(top))
+            warnings.warn(f"{type(self).__name__}: floating-point overflow or invalid values in the IRL "
+                          f"({len(errors)} operations): its weights are not reliable. The features reach {top[k]:.3g} "
+                          f"({model.features.names[k]!r}); rescale the states and controls (SI units: m, m/s, ...) so "
+                          "that the features' sums stay far below the float64 limit 1.8e308", UserWarning, stacklevel=3)
+        return res
+
+    def _irl_fit(self, model, samples, labels, n_groups, prior):
         if self.likelihood == "receding":
             if prior is not None:
                 raise ValueError("a prior on the weights is not available with likelihood='receding'")
@@ -168,11 +244,24 @@ class BaseLearner(BaseEstimator):
         )
 
     # ------------------------------------------------------------------ public API
-    def fit(self, trajectories: Sequence[Trajectory], y=None) -> "BaseLearner":
-        """Learn from demonstrations; returns self."""
-        self._check_common()
+    def fit(self, trajectories: Sequence[Trajectory], y: Sequence[Trajectory] | None = None) -> "BaseLearner":
+        """Learn from demonstrations; returns self.
+
+        Parameters
+        ----------
+        trajectories : sequence of M Trajectory
+            The demonstrations, or (with ``y``) their histories.
+        y : sequence of M Trajectory or None
+            The futures of the histories (scikit-learn's targets, as `score` takes them): demonstration i is
+            ``trajectories[i]`` followed by ``y[i]``, whose first state must be the history's last. None: the
+            trajectories are the demonstrations.
+        """
         model = self._model()
+        self._check_params(model)
+        if y is not None:
+            trajectories = _join(model.check(trajectories), model.check(y))
         trajectories = model.check(trajectories)
+        self._check_data_scale(model, trajectories)
         self.model_ = model
         self.n_features_in_ = model.features.n_features
         self.feature_names_in_ = np.array(model.features.names, dtype=object)
@@ -194,6 +283,7 @@ class BaseLearner(BaseEstimator):
         """Predicted states after each history: (horizon + 1, n_x) or (M, horizon + 1, n_x); row 0 is the
         last state of the history."""
         check_is_fitted(self)
+        check_horizon(horizon)
         histories, single = self._as_histories(histories)
         theta = self._infer(histories)
         x0 = np.stack([h.states[-1] for h in histories])
@@ -229,35 +319,66 @@ class BaseLearner(BaseEstimator):
 
     @staticmethod
     def _check_futures_args(horizon, n_futures) -> None:
-        if not is_positive_int(horizon):
-            raise ValueError(f"horizon must be a positive number of steps, got {horizon!r}")
+        check_horizon(horizon)
         if n_futures is not None and not is_positive_int(n_futures):
             raise ValueError(f"n_futures (K, the number of predicted futures) must be an integer >= 1 or None, "
                              f"got {n_futures!r}")
 
-    def predict(self, history: Trajectory, horizon: int) -> Trajectory:
-        """The predicted future of one history as a `Trajectory` (metadata: the weights used)."""
+    def predict(self, history: Trajectory | Sequence[Trajectory], horizon: int) -> Trajectory | list[Trajectory]:
+        """The predicted future of a history as a `Trajectory` (metadata: the weights used), the MPC's from the
+        history's last state under `infer_weights`' weights; for a sequence of histories, a list of them.
+
+        Parameters
+        ----------
+        history : Trajectory or sequence of M Trajectory
+        horizon : int   predicted steps, 1 to `pirl_sim.mpc.MAX_HORIZON`
+        """
+        check_horizon(horizon)
         if not isinstance(history, Trajectory):
-            raise TypeError(f"history must be a Trajectory, got {type(history).__name__}")
+            if isinstance(history, (str, bytes)) or not hasattr(history, "__len__"):
+                raise TypeError(f"history must be a Trajectory or a sequence of them, got {type(history).__name__}")
+            histories = list(history)
+            if not all(isinstance(h, Trajectory) for h in histories):
+                odd = next(type(h).__name__ for h in histories if not isinstance(h, Trajectory))
+                raise TypeError(f"history must be a Trajectory or a sequence of them, got a sequence holding a {odd}")
+            theta = self.infer_weights(histories)
+            x0 = np.stack([h.states[-1] for h in histories])
+            states = self.model_.predict_states(x0, theta, horizon)
+            return [Trajectory(s, self.model_.dynamics.controls_from_states(s), h.dt,
+                               {"theta": th, "predicted_by": type(self).__name__})
+                    for h, s, th in zip(histories, states, theta)]
         theta = self.infer_weights(history)
         states = self.model_.predict_states(history.states[-1][None], theta, horizon)[0]
         controls = self.model_.dynamics.controls_from_states(states)
         return Trajectory(states, controls, history.dt, {"theta": theta, "predicted_by": type(self).__name__})
 
-    # ------------------------------------------------------------------ files
-    def save(self, path) -> "Path":
-        """Write the fitted learner to a versioned ``.npz`` file that needs no pickle to read
-        (`pirl_sim.learners.model_io`); returns the path written."""
-        from .model_io import save_learner
+    def score(self, histories: Trajectory | Sequence[Trajectory], futures: Trajectory | Sequence[Trajectory]) -> float:
+        """Negative mean Euclidean distance (MED) [m] between the predicted and the true positions of the futures
+        (higher is better, scikit-learn's convention; 0 for perfect predictions).
 
-        return save_learner(self, path)
+        Each history's future is predicted by `predict_states` over as many steps as its true future has, from
+        the history's last state; MED = (1/M) sum_i (1/N_i) sum_j |p_hat_ij - p_ij| over the N_i predicted
+        positions (`pirl_sim.metrics.med`, the model's ``positions``).
 
-    @staticmethod
-    def load(path) -> "BaseLearner":
-        """A learner written by `save` (of any learner class); ValueError for a file of another format version."""
-        from .model_io import load_learner
-
-        return load_learner(path)
+        Parameters
+        ----------
+        histories : Trajectory or sequence of M Trajectory
+        futures : Trajectory or sequence of M Trajectory   what followed each history (states[0] its last state)
+        """
+        check_is_fitted(self)
+        histories, _ = self._as_histories(histories)
+        futures = self.model_.check([futures] if isinstance(futures, Trajectory) else futures)
+        if len(futures) != len(histories):
+            raise ValueError(f"score needs one future per history, got {len(histories)} histories and "
+                             f"{len(futures)} futures")
+        lengths = np.array([f.n_steps for f in futures])
+        predicted = [None] * len(futures)
+        for n in np.unique(lengths):
+            idx = np.flatnonzero(lengths == n)
+            states = self.predict_states([histories[i] for i in idx], int(n))
+            for j, i in enumerate(idx):
+                predicted[i] = self.model_.positions(states[j, 1:])
+        return -med(predicted, [self.model_.positions(f.states[1:]) for f in futures])
 
     # subclasses
     def _fit(self, model: DriverModel, trajectories: list[Trajectory]) -> None:  # pragma: no cover
@@ -265,6 +386,25 @@ class BaseLearner(BaseEstimator):
 
     def _infer(self, histories: list[Trajectory]) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError
+
+
+def _join(histories: list[Trajectory], futures: list[Trajectory]) -> list[Trajectory]:
+    """Each history followed by its future (metadata of the history)."""
+    if len(histories) != len(futures):
+        raise ValueError(f"fit with futures needs one future per history, got {len(histories)} histories and "
+                         f"{len(futures)} futures")
+    out = []
+    for i, (h, f) in enumerate(zip(histories, futures)):
+        if h.dt != f.dt or not np.allclose(f.states[0], h.states[-1], rtol=1e-9, atol=1e-9):
+            raise ValueError(f"future {i} does not start where history {i} ends (its first state and dt must be "
+                             f"the history's last state and dt)")
+        meta = dict(h.metadata)
+        if "step_mask" in h.metadata or "step_mask" in f.metadata:  # one flag per step: both parts' flags
+            meta["step_mask"] = np.concatenate([np.asarray(t.metadata.get("step_mask", np.ones(t.n_steps, bool)))
+                                                for t in (h, f)])
+        out.append(Trajectory(np.concatenate([h.states, f.states[1:]]), np.concatenate([h.controls, f.controls]),
+                              h.dt, meta))
+    return out
 
 
 def population_prior(

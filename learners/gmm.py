@@ -60,7 +60,8 @@ from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
 from pirl_sim.deconvolution import dp_deconvolution, extreme_deconvolution
 from pirl_sim.validation import is_positive_int
 
-from .base import BaseLearner, population_prior
+from .base import population_prior
+from .model_io import SavableLearner
 from .weight_space import demo_posteriors, style_log_likelihoods
 
 __all__ = ["PIRLGMM", "PIRLDPGMM", "SPACES", "INITS", "WEIGHT_MIXTURES"]
@@ -86,7 +87,7 @@ def _merge_rows(result, sub, rows: np.ndarray):
     return replace(result, **changes)
 
 
-class _MixtureLearner(BaseLearner):
+class _MixtureLearner(SavableLearner):
     def _make_mixture(self, Z: np.ndarray):  # pragma: no cover - abstract
         raise NotImplementedError
 
@@ -94,6 +95,21 @@ class _MixtureLearner(BaseLearner):
         m = self.min_cluster_size
         if not is_positive_int(m):
             raise ValueError(f"min_cluster_size must be a positive integer, got {m!r}")
+
+    def _check_params(self, model) -> None:
+        super()._check_params(model)
+        self._check_min_size()
+        if self.space not in SPACES:
+            raise ValueError(f"space must be one of {SPACES}, got {self.space!r}")
+        if not is_positive_int(self.n_init):
+            raise ValueError(f"n_init must be a positive integer (restarts), got {self.n_init!r}")
+        if self.space == "weights":
+            refine = self.refine
+            if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
+                raise ValueError(f"refine must be a non-negative integer, got {refine!r}")
+            init = getattr(self, "init", "deconvolution")
+            if init not in INITS:
+                raise ValueError(f"init must be one of {INITS}, got {init!r}")
 
     def _fit(self, model, trajectories):
         self._check_min_size()
@@ -318,6 +334,11 @@ class _MixtureLearner(BaseLearner):
         return out[0] if single else out
 
     def _style_log_likelihood(self, histories) -> np.ndarray:
+        missing = [n for n in ("control_rms_", "episode_steps_") if not hasattr(self, n)]
+        if missing:  # a model file of format version 1 from before the style posterior, converted on reading
+            raise ValueError(f"{type(self).__name__}: the style likelihoods need {', '.join(missing)} (the training "
+                             "data's control scale and episode length), which this learner's model file does not "
+                             "hold: it was written before predict_proba existed; refit the learner to use them")
         res = self.irl_result_
         out = style_log_likelihoods(
             self.model_, histories, likelihood=self.likelihood, theta=res.theta, normalized=res.normalized,
@@ -407,14 +428,26 @@ class _MixtureLearner(BaseLearner):
         return proba.argmax(axis=1)
 
     def predict_style(self, histories) -> np.ndarray:
-        """Index of the most probable style (row of ``theta_``) of each history, shape (M,) or scalar: by the
-        feature-space mixture (``space="features"``, the paper's) or by `predict_proba` (``space="weights"``)."""
+        """Index of the style (row of ``theta_``) whose weights `infer_weights` gives each history, shape (M,) or
+        scalar.
+
+        With ``space="weights"`` it is the most probable style under `predict_proba`. With ``space="features"``
+        (the paper's algorithm) it is the most probable component of the feature-space mixture ``mixture_`` given
+        the history's features, which is how the paper assigns a style online; `predict_proba` is instead the
+        posterior under each style's IRL likelihood of the whole history, and the two can disagree (a history's
+        features near one cluster, its steps better explained by another style's cost). The most probable style
+        under `predict_proba` in both spaces is `most_probable_style`."""
         from sklearn.utils.validation import check_is_fitted
 
         check_is_fitted(self)
         histories, single = self._as_histories(histories)
         labels = self._styles(histories)
         return labels[0] if single else labels
+
+    def most_probable_style(self, histories) -> np.ndarray:
+        """``argmax(predict_proba(histories))``: the style with the highest posterior given each history, shape (M,)
+        or scalar (ties: the lowest index). Equal to `predict_style` with ``space="weights"``."""
+        return np.argmax(self.predict_proba(histories), axis=-1)
 
     def _styles(self, histories):
         if self.space == "weights":
@@ -512,6 +545,15 @@ class PIRLGMM(_MixtureLearner):
         self.space = space
         self.refine = refine
         self.init = init
+
+    def _check_params(self, model) -> None:
+        super()._check_params(model)
+        k = self.n_components
+        if k == "bic":
+            if not is_positive_int(self.max_components):
+                raise ValueError(f"max_components must be a positive integer, got {self.max_components!r}")
+        elif not is_positive_int(k):
+            raise ValueError(f"n_components must be a positive integer or 'bic', got {k!r}")
 
     def _make_mixture(self, Z):
         n = Z.shape[0]
@@ -627,6 +669,16 @@ class PIRLDPGMM(_MixtureLearner):
         self.space = space
         self.refine = refine
         self.weight_mixture = weight_mixture
+
+    def _check_params(self, model) -> None:
+        super()._check_params(model)
+        if not is_positive_int(self.max_components):
+            raise ValueError(f"max_components must be a positive integer, got {self.max_components!r}")
+        if not is_positive_int(self.max_iter):
+            raise ValueError(f"max_iter must be a positive number of iterations of the mixture's fit, got "
+                             f"{self.max_iter!r}")
+        if self.space == "weights" and self.weight_mixture not in WEIGHT_MIXTURES:
+            raise ValueError(f"weight_mixture must be one of {WEIGHT_MIXTURES}, got {self.weight_mixture!r}")
 
     def _xd(self, X, S, rng):
         k = self.max_components

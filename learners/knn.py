@@ -66,7 +66,8 @@ from pirl_sim.dynamics import constant_acceleration_positions
 from pirl_sim.trajectory import Trajectory
 from pirl_sim.validation import is_positive_int, number
 
-from .base import BaseLearner, population_prior
+from .base import population_prior
+from .model_io import SavableLearner
 from .selector import ErrorRegression, FutureRegression, cost_bank, mixture_weights, rollout_errors, softmin
 
 __all__ = ["PIRLKNN", "knn_average", "inverse_distance_votes", "steer_segment", "history_keys", "place_keys"]
@@ -90,7 +91,7 @@ SELECTION_WINDOWS = 4000
 SELECTOR_ITER = 100
 
 
-class PIRLKNN(BaseLearner):
+class PIRLKNN(SavableLearner):
     """PIRL with a k-nearest-neighbour prior over per-demonstration costs.
 
     Parameters
@@ -347,16 +348,20 @@ class PIRLKNN(BaseLearner):
         labels = np.array([ids.setdefault(track, len(ids)) for track in tracks])
         return hist, nxt, labels, np.stack(truth)
 
-    def _fit(self, model, trajectories):
-        k = self.n_neighbors
-        if not is_positive_int(k):
-            raise ValueError(f"n_neighbors must be a positive integer, got {k!r}")
+    def _check_params(self, model) -> None:
+        super()._check_params(model)
+        if not is_positive_int(self.n_neighbors):
+            raise ValueError(f"n_neighbors must be a positive integer, got {self.n_neighbors!r}")
         if self.average not in AVERAGES:
             raise ValueError(f"average must be one of {AVERAGES}, got {self.average!r}")
         if self.prior not in PRIORS:
             raise ValueError(f"prior must be one of {PRIORS}, got {self.prior!r}")
         if self.weighting not in WEIGHTINGS:
             raise ValueError(f"weighting must be one of {WEIGHTINGS}, got {self.weighting!r}")
+        self._check_target(model)
+
+    def _fit(self, model, trajectories):
+        k = self.n_neighbors  # the parameters are checked by fit (`_check_params`)
         self.state_idx_ = self._check_target(model)
         if self.target == "next":  # each next-steps segment a demonstration
             samples, trajectories, groups, truth = self._next_pairs(model, trajectories)

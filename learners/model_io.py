@@ -1,12 +1,13 @@
 """Saving and loading fitted learners in a versioned file that needs no pickle to read.
 
-File format ``pirl_sim.learner``, version 1
+File format ``pirl_sim.learner``, version 2
 -------------------------------------------
 One NumPy ``.npz`` archive (a zip of ``.npy`` arrays; read it with ``numpy.load(path, allow_pickle=False)``):
 
 - ``header``: a uint8 array holding UTF-8 JSON, the whole description of the learner::
 
-      {"format": "pirl_sim.learner", "format_version": 1, "pirl_sim_version": "...",
+      {"format": "pirl_sim.learner", "format_version": 2,
+       "pirl_sim_version": "...", "numpy_version": "...", "scikit_learn_version": "...",  # what wrote it
        "learner": "PIRLGMM",                      # class name, one of pirl_sim.learners.LEARNERS
        "params": {...},                           # the constructor's arguments (get_params), model excluded
        "model": {...},                            # the DriverModel: dynamics, features, bounds, path
@@ -34,16 +35,35 @@ high]) and, for a `pirl_sim.driving.PathDriverModel`, ``path`` and ``n_iter``. A
 smoothed). Features defined elsewhere (other residual callables) pickle but cannot be written here: saving
 such a learner is a TypeError naming the feature.
 
-A file whose ``format_version`` is not in `SUPPORTED_VERSIONS` is refused with a ValueError naming both.
-Loaded learners predict exactly what the saved ones did (tested).
+Versions. The format version changes whenever a learner's parameters or fitted state change (names, meaning or
+shape): `LEARNER_PARAMS` and `LEARNER_STATE` list them for `FORMAT_VERSION`, `save_learner` refuses a learner
+whose parameters or fitted attributes are not those (so a change cannot be saved under the old version), and the
+tests compare the lists with the learners. Reading checks a file against the lists of its version.
+
+- Version 1 files (every revision before version 2 wrote "format_version": 1, whatever its learners' parameters
+  and state) are converted on reading: parameters added since take their defaults, which do what the earlier code
+  did (``weight_mixture="mml"`` for a weight-space PIRL-DPGMM that predates the choice), and the fitted state is
+  completed as `fit` would have set it (PIRL-kNN's ``state_idx_`` from ``state_features``, its look-up points
+  ``lookup_z_`` with unit ``key_scale_``; PIRL-GMM's ``style_weights_`` from the mixture). What cannot be rebuilt
+  from the file stays missing and its use says so (a mixture's ``predict_proba`` without the training controls'
+  scale or, for histories at the start of episodes, their length). A parameter the current learners no longer
+  have is refused. Golden files of earlier revisions are tested (``tests/learners/data``).
+- A file of a newer version, or of one never released, is refused with a ValueError naming its version and the
+  pirl_sim that wrote it, this pirl_sim's version and the versions it reads: upgrade pirl_sim or refit.
+
+A file's header must hold ``learner``, ``params``, ``model`` and ``state``; its parameters must pass the learner's
+own checks and its fitted arrays must fit together (shapes, finite and positive weights, indices in range), or
+reading it is a ValueError naming the file. Loaded learners predict exactly what the saved ones did (tested).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import io
 import json
 import math
+import platform
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -63,19 +83,51 @@ from pirl_sim.driving import (
 )
 from pirl_sim.dynamics import LinearDynamics
 from pirl_sim.features import Feature, FeatureSet, SquaredControlResidual, SquaredStateResidual
+from pirl_sim.io.atomic import atomic_write_bytes
 from pirl_sim.irl import IRLResult, LogNormalPrior
 from pirl_sim.model import DriverModel
 from pirl_sim.mpc import Bounds
 from pirl_sim.paths import ReferencePath
 from pirl_sim.receding import RecedingResult
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "SUPPORTED_VERSIONS", "save_learner", "load_learner", "read_header",
-           "model_to_config", "model_from_config"]
+from .base import BaseLearner
+
+__all__ = ["SavableLearner", "FORMAT", "FORMAT_VERSION", "SUPPORTED_VERSIONS", "LEARNER_PARAMS", "LEARNER_STATE", "save_learner",
+           "load_learner", "read_header", "model_to_config", "model_from_config"]
 
 FORMAT = "pirl_sim.learner"
-FORMAT_VERSION = 1
-SUPPORTED_VERSIONS = (1,)
+FORMAT_VERSION = 2
+SUPPORTED_VERSIONS = (1, 2)  #: 1 is converted on reading (module doc)
 HEADER_KEY = "header"
+HEADER_KEYS = ("learner", "params", "model", "state")  #: what a header must hold besides format and version
+
+_COMMON = ("feature_transform", "horizon", "irl_hessian", "irl_max_iter", "likelihood", "log_bounds", "model",
+           "step_stride", "stride", "window", "windows")
+_MIXTURE = ("covariance_type", "min_cluster_size", "n_init", "random_state", "refine", "space", "max_components")
+#: the constructor parameters of each learner in format version `FORMAT_VERSION`
+LEARNER_PARAMS = {
+    "TIRL": _COMMON,
+    "PIRLGMM": _COMMON + _MIXTURE + ("n_components", "init"),
+    "PIRLDPGMM": _COMMON + _MIXTURE + ("max_iter", "weight_concentration_prior", "weight_mixture"),
+    "PIRLKNN": _COMMON + ("aggregate", "ahead_weights", "average", "lookup_ahead", "lookup_features", "lookup_history",
+                          "n_candidates", "n_neighbors", "prior", "segment_start", "selector", "state_features",
+                          "state_lags", "target", "target_steps", "temperature", "weighting"),
+}
+_FITTED = ("model_", "n_features_in_", "feature_names_in_", "irl_result_")
+_MIXTURE_STATE = (("theta_", "labels_", "n_styles_", "components_", "style_weights_", "cluster_sizes_"),
+                  ("control_rms_", "episode_steps_", "mixture_", "scaler_", "sample_labels_", "demo_theta_",
+                   "demo_log_weights_", "demo_log_covariances_", "n_demos_with_prior_", "style_log_means_",
+                   "style_log_covariances_", "xd_log_likelihood_", "n_refined_", "em_collapse_sizes_"))
+#: the fitted attributes of each learner in format version `FORMAT_VERSION`: (always there, there for some options)
+LEARNER_STATE = {
+    "TIRL": (_FITTED + ("theta_", "beta_"), ()),
+    "PIRLGMM": (_FITTED + _MIXTURE_STATE[0], _MIXTURE_STATE[1] + ("bic_", "classification_log_likelihood_")),
+    "PIRLDPGMM": (_FITTED + _MIXTURE_STATE[0], _MIXTURE_STATE[1]),
+    "PIRLKNN": (_FITTED + ("demo_theta_", "sample_theta_", "sample_owner_", "scaler_", "neighbors_", "state_idx_",
+                           "n_weights_at_bound_", "n_scale_at_bound_", "lookup_z_", "key_scale_", "ahead_weight_"),
+                ("prior_", "ahead_scores_", "ahead_validation_", "bank_", "selector_", "bank_errors_", "control_rms_",
+                 "episode_steps_")),
+}
 #: residual kinds a model file describes
 _RESIDUAL_KINDS = ("squared_state", "squared_control", "speed_deviation", "speed_target", "headway")
 
@@ -83,10 +135,30 @@ _DATACLASSES = {c.__name__: c for c in (IRLResult, RecedingResult, LogNormalPrio
 _ESTIMATORS = {c.__name__: c for c in (StandardScaler, GaussianMixture, BayesianGaussianMixture, NearestNeighbors)}
 
 
-def _learner_classes() -> dict[str, type]:
-    from . import LEARNERS
+class SavableLearner(BaseLearner):
+    """A learner that writes itself to a model file: the base of every learner class this format holds."""
 
-    return {cls.__name__: cls for cls in LEARNERS.values()}
+    def save(self, path) -> Path:
+        """Write the fitted learner to a versioned ``.npz`` file that needs no pickle to read (`save_learner`);
+        returns the path written."""
+        return save_learner(self, path)
+
+    @staticmethod
+    def load(path) -> BaseLearner:
+        """A learner written by `save` (of any learner class, `load_learner`); ValueError for a file this code
+        cannot read."""
+        return load_learner(path)
+
+
+def _learner_classes() -> dict[str, type]:
+    """{class name: class} of every learner class (the subclasses of `SavableLearner`, defined when
+    `pirl_sim.learners` is imported)."""
+    out, todo = {}, [SavableLearner]
+    while todo:
+        for sub in todo.pop().__subclasses__():
+            out[sub.__name__] = sub
+            todo.append(sub)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- encoding
@@ -318,35 +390,56 @@ def save_learner(learner, path: str | Path) -> Path:
     """
     from sklearn.utils.validation import check_is_fitted
 
-    from .base import BaseLearner
-
     if not isinstance(learner, BaseLearner):
         raise TypeError(f"expected a pirl_sim learner, got {type(learner).__name__}")
+    name = type(learner).__name__
+    if _learner_classes().get(name) is not type(learner):
+        raise TypeError(f"cannot save a {name}: a {FORMAT} file holds the learners {sorted(LEARNER_PARAMS)}")
     check_is_fitted(learner)
     enc = _Encoder()
     params = learner.get_params(deep=False)
+    state = {k: v for k, v in vars(learner).items() if k.endswith("_") and not k.startswith("_")}
+    _check_schema(name, set(params), set(state))
     model = params.pop("model")
     header = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "pirl_sim_version": _package_version(),
-        "learner": type(learner).__name__,
+        **_versions(),
+        "learner": name,
         "params": enc.value(params, "params"),
         "model": None if model is None else enc.model(model, "params.model"),
-        "state": {k: enc.value(v, f"state.{k}") for k, v in vars(learner).items()
-                  if k.endswith("_") and not k.startswith("_")},
+        "state": {k: enc.value(v, f"state.{k}") for k, v in state.items()},
     }
     text = json.dumps(header, indent=1, allow_nan=False)
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
-    path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
     np.savez(buf, **{HEADER_KEY: np.frombuffer(text.encode("utf-8"), dtype=np.uint8)}, **enc.arrays)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(buf.getvalue())
-    tmp.replace(path)
-    return path
+    return atomic_write_bytes(path, buf.getvalue())  # nothing but the finished file is ever left at or beside path
+
+
+def _check_schema(name: str, params: set, state: set) -> None:
+    """RuntimeError unless a learner's parameters and fitted attributes are those of `FORMAT_VERSION`: a change of
+    them needs a new format version (module doc)."""
+    required, optional = LEARNER_STATE[name]
+    wrong = []
+    if params != set(LEARNER_PARAMS[name]):
+        wrong.append(f"parameters {sorted(params ^ set(LEARNER_PARAMS[name]))} differ")
+    if not set(required) <= state <= set(required) | set(optional):
+        wrong.append(f"fitted attributes {sorted((set(required) - state) | (state - set(required) - set(optional)))} "
+                     "differ")
+    if wrong:
+        raise RuntimeError(f"{name}: {' and '.join(wrong)} from format version {FORMAT_VERSION}'s (LEARNER_PARAMS, "
+                           f"LEARNER_STATE in {__name__}): a change of a learner's parameters or fitted state needs a "
+                           "new FORMAT_VERSION and a converter from the last one")
+
+
+def _versions() -> dict[str, str]:
+    import sklearn
+
+    return {"pirl_sim_version": _package_version(), "numpy_version": np.__version__,
+            "scikit_learn_version": sklearn.__version__, "python_version": platform.python_version()}
 
 
 def read_header(path: str | Path) -> dict:
@@ -369,28 +462,115 @@ def load_learner(path: str | Path):
     source = str(path)
     with _open(path) as data:
         header = _header(data, source)
-        arrays = {k: data[k] for k in data.files if k != HEADER_KEY}
+        try:
+            arrays = {k: data[k] for k in data.files if k != HEADER_KEY}
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{source}: an array of the file cannot be read ({exc})") from None
     classes = _learner_classes()
-    name = header.get("learner")
+    name = header["learner"]
     if name not in classes:
         raise ValueError(f"{source}: unknown learner {name!r}; this pirl_sim reads {sorted(classes)}")
     dec = _Decoder(arrays, source)
-    params = dec.value(header["params"])
-    params["model"] = None if header["model"] is None else dec.model(header["model"])
-    learner = classes[name](**params)
-    for k, v in header["state"].items():
-        setattr(learner, k, dec.value(v))
+    try:
+        params = dec.value(header["params"])
+        model = None if header["model"] is None else dec.model(header["model"])
+        state = {k: dec.value(v) for k, v in header["state"].items()}
+    except Exception as exc:  # a damaged header: say which file, and which packages wrote it
+        raise ValueError(f"{source}: the header cannot be decoded ({_explain(exc, source)}){_written_with(header)}"
+                         ) from None
+    if not isinstance(params, dict) or not all(isinstance(k, str) for k in params):
+        raise ValueError(f"{source}: 'params' is not a mapping of parameter names to values")
+    version = header["format_version"]
+    if version == 1:
+        params, state = _convert_v1(name, params, state, source)
+    known = set(LEARNER_PARAMS[name]) - {"model"}
+    if set(params) != known:
+        raise ValueError(f"{source}: the {name}'s parameters {sorted(set(params) ^ known)} are not those of format "
+                         f"version {version} (missing or unknown); the file is damaged or was edited")
+    required, optional = LEARNER_STATE[name]
+    missing = [k for k in required if k not in state]
+    unknown = [k for k in state if k not in required and k not in optional]
+    if missing or unknown:
+        raise ValueError(f"{source}: the fitted state of the {name} " + " and ".join(
+            ([f"lacks {missing}"] if missing else []) + ([f"has unknown attributes {unknown}"] if unknown else []))
+            + f" (format version {version}); the file is damaged or was edited")
+    learner = classes[name](model=model, **params)
+    try:
+        learner._check_params(state["model_"])
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{source}: invalid parameters of the {name}: {exc}") from None
+    for k, v in state.items():
+        setattr(learner, k, v)
+    _check_fitted(learner, source)
     return learner
+
+
+def _explain(exc: Exception, source: str) -> str:
+    text = str(exc)
+    if text.startswith(f"{source}: "):
+        text = text[len(source) + 2:]
+    return f"{type(exc).__name__}: {text}"
+
+
+def _written_with(header: dict) -> str:
+    """'; written with ...' when the file's numpy or scikit-learn differs from this one's."""
+    import sklearn
+
+    theirs = {"numpy": header.get("numpy_version"), "scikit-learn": header.get("scikit_learn_version")}
+    ours = {"numpy": np.__version__, "scikit-learn": sklearn.__version__}
+    diff = [f"{k} {theirs[k]} (here {ours[k]})" for k in theirs if theirs[k] is not None and theirs[k] != ours[k]]
+    return f"; written with {', '.join(diff)}" if diff else ""
+
+
+def _convert_v1(name: str, params: dict, state: dict, source: str) -> tuple[dict, dict]:
+    """A version-1 learner's parameters and fitted state as version 2 has them (module doc)."""
+    cls = _learner_classes()[name]
+    defaults = {k: p.default for k, p in inspect.signature(cls.__init__).parameters.items()
+                if k not in ("self", "model") and p.default is not inspect.Parameter.empty}
+    unknown = sorted(set(params) - set(defaults))
+    if unknown:
+        raise ValueError(f"{source}: this format version 1 file holds a {name} with parameter(s) {unknown}, which "
+                         f"the {name} of pirl_sim {_package_version()} (format version {FORMAT_VERSION}) does not "
+                         "have; read it with the pirl_sim that wrote it, or refit the learner with this one")
+    if name == "PIRLDPGMM" and params.get("space") == "weights" and "weight_mixture" not in params:
+        params = {**params, "weight_mixture": "mml"}  # the only weight-space mixture before the choice existed
+    params = {**defaults, **params}
+    state = dict(state)
+    try:
+        if name == "PIRLKNN":
+            state.setdefault("state_idx_", tuple(int(i) for i in params["state_features"]))
+            if "lookup_z_" not in state:  # fitted before the road's weight: the index's points are the look-up's
+                Z = np.array(state["neighbors_"]._fit_X)
+                state["lookup_z_"] = Z
+                state.setdefault("key_scale_", np.ones(Z.shape[1]))
+                state.setdefault("ahead_weight_", 1.0)
+        if name in ("PIRLGMM", "PIRLDPGMM"):
+            if "style_weights_" not in state and "mixture_" in state:
+                w = state["mixture_"].weights_[state["components_"]]
+                state["style_weights_"] = w / w.sum()
+            if "episode_steps_" not in state and not (params["window"] is not None and params["windows"] == "first"):
+                state["episode_steps_"] = None  # histories are not the first steps of episodes
+            if "control_rms_" not in state and params["likelihood"] == "trajectory":
+                state["control_rms_"] = math.nan  # floors the receding likelihood's noise only: unused
+    except (KeyError, AttributeError, IndexError, TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: this format version 1 file's {name} cannot be converted to version "
+                         f"{FORMAT_VERSION} ({type(exc).__name__}: {exc}); refit the learner") from None
+    return params, state
 
 
 def _open(path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no learner file {path}")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: not a {FORMAT} file (the file is empty)")
     try:
-        return np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, ValueError, OSError) as exc:
+        data = np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
         raise ValueError(f"{path}: not a {FORMAT} file (not a NumPy .npz archive: {exc})") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: not a {FORMAT} file (a single NumPy array, not an .npz archive)")
+    return data
 
 
 def _header(data, source: str) -> dict:
@@ -398,16 +578,121 @@ def _header(data, source: str) -> dict:
         raise ValueError(f"{source}: not a {FORMAT} file (no {HEADER_KEY!r} entry)")
     try:
         header = json.loads(bytes(data[HEADER_KEY]).decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (UnicodeDecodeError, json.JSONDecodeError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{source}: the {HEADER_KEY!r} entry is not UTF-8 JSON ({exc})") from None
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         found = header.get("format") if isinstance(header, dict) else type(header).__name__
         raise ValueError(f"{source}: not a {FORMAT} file (format {found!r})")
     version = header.get("format_version")
     if version not in SUPPORTED_VERSIONS:
-        raise ValueError(f"{source}: {FORMAT} format version {version!r} is not supported; this pirl_sim "
-                         f"({_package_version()}) reads version(s) {', '.join(map(str, SUPPORTED_VERSIONS))}")
+        newer = isinstance(version, int) and not isinstance(version, bool) and version > FORMAT_VERSION
+        raise ValueError(
+            f"{source}: {FORMAT} format version {version!r} is not supported"
+            + (f" (written by pirl_sim {header.get('pirl_sim_version', 'unknown')})" if newer else "")
+            + f"; this pirl_sim ({_package_version()}) writes version {FORMAT_VERSION} and reads version(s) "
+            + ", ".join(map(str, SUPPORTED_VERSIONS))
+            + (": upgrade pirl_sim to the version that wrote the file, or refit the learner with this one" if newer
+               else ": refit the learner with this pirl_sim"))
+    missing = [k for k in HEADER_KEYS if k not in header]
+    if missing:
+        raise ValueError(f"{source}: the header of this {FORMAT} file lacks {', '.join(map(repr, missing))} "
+                         f"(it needs {', '.join(HEADER_KEYS)}); the file is damaged or was edited")
+    kinds = {"learner": (str,), "params": (dict,), "model": (dict, type(None)), "state": (dict,)}
+    wrong = [k for k, types in kinds.items() if not isinstance(header[k], types)]
+    if wrong:
+        raise ValueError(f"{source}: the header's {', '.join(map(repr, wrong))} "
+                         f"{'is' if len(wrong) == 1 else 'are'} not of the right kind (learner: a name, params and "
+                         "state: mappings, model: a mapping or null); the file is damaged or was edited")
     return header
+
+
+def _check_fitted(learner, source: str) -> None:
+    """ValueError naming ``source`` unless the fitted arrays of a learner read from it fit together: shapes, finite
+    and positive weights, indices in range (what a damaged or edited file breaks, later, as an IndexError or a
+    LinAlgError deep inside a prediction)."""
+
+    def fail(what: str):
+        raise ValueError(f"{source}: {what}; the file is damaged or was edited")
+
+    def array(name, value, shape, *, integer=False, positive=False, nonnegative=False, finite=True, high=None):
+        a = np.asarray(value)
+        if a.dtype.kind not in ("iu" if integer else "biuf"):
+            fail(f"{name} holds {a.dtype} values, expected {'integers' if integer else 'numbers'}")
+        if a.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, a.shape)):
+            dims = ["any" if n is None else str(n) for n in shape]
+            want = "(" + ", ".join(dims) + ("," if len(shape) == 1 else "") + ")"
+            fail(f"{name} has shape {a.shape}, expected {want}")
+        if finite and a.size and not np.all(np.isfinite(a)):
+            fail(f"{name} holds values that are not finite")
+        if positive and a.size and not np.all(a > 0):
+            fail(f"{name} holds values <= 0 (weights are positive)")
+        if (nonnegative or integer) and a.size and not np.all(a >= 0):
+            fail(f"{name} holds negative values")
+        if high is not None and a.size and not np.all(a < high):
+            fail(f"{name} holds values >= {high} (indices into {high} entries)")
+        return a
+
+    def count(name, value, low=0):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            fail(f"{name} is {value!r}, expected an integer >= {low}")
+        return int(value)
+
+    model = learner.model_
+    if not isinstance(model, DriverModel):
+        fail(f"model_ is a {type(model).__name__}, not a DriverModel")
+    K, n_x = model.features.n_features, model.dynamics.n_x
+    names = [str(n) for n in np.ravel(learner.feature_names_in_)]
+    if learner.n_features_in_ != K or names != list(model.features.names):
+        fail(f"n_features_in_ / feature_names_in_ ({learner.n_features_in_}, {names}) "
+             f"differ from the model's {K} features {list(model.features.names)}")
+    res = learner.irl_result_
+    if not isinstance(res, (IRLResult, RecedingResult)):
+        fail(f"irl_result_ is a {type(res).__name__}, not an IRLResult or RecedingResult")
+    G = array("irl_result_.theta", res.theta, (None, K), positive=True).shape[0]
+    array("irl_result_.normalized", res.normalized, (G, K), positive=True)
+    name = type(learner).__name__
+    if name == "TIRL":
+        array("theta_", learner.theta_, (K,), positive=True)
+        array("beta_", learner.beta_, ())
+    elif name in ("PIRLGMM", "PIRLDPGMM"):
+        J = count("n_styles_", learner.n_styles_, 1)
+        array("theta_", learner.theta_, (J, K), positive=True)
+        array("style_weights_", learner.style_weights_, (J,), nonnegative=True)
+        array("labels_", learner.labels_, (None,), integer=True, high=J)
+        array("cluster_sizes_", learner.cluster_sizes_, (J,), integer=True)
+        comps = array("components_", learner.components_, (J,), integer=True)
+        if learner.space == "features":
+            mix, scaler = getattr(learner, "mixture_", None), getattr(learner, "scaler_", None)
+            if mix is None or scaler is None:
+                fail("a feature-space mixture without its mixture_ or scaler_")
+            C = count("mixture_.n_components", getattr(mix, "n_components", None), 1)
+            array("components_", comps, (J,), integer=True, high=C)
+            array("mixture_.weights_", mix.weights_, (C,), nonnegative=True)
+            array("mixture_.means_", mix.means_, (C, K))
+            shapes = {"full": (C, K, K), "tied": (K, K), "diag": (C, K), "spherical": (C,)}
+            if mix.covariance_type not in shapes:
+                fail(f"mixture_.covariance_type is {mix.covariance_type!r}")
+            array("mixture_.precisions_cholesky_", mix.precisions_cholesky_, shapes[mix.covariance_type])
+            array("scaler_.mean_", scaler.mean_, (K,))
+            array("scaler_.scale_", scaler.scale_, (K,), positive=True)
+        else:
+            array("style_log_means_", learner.style_log_means_, (J, K - 1))
+            array("style_log_covariances_", learner.style_log_covariances_, (J, K - 1, K - 1))
+    elif name == "PIRLKNN":
+        D = array("demo_theta_", learner.demo_theta_, (None, K), positive=True).shape[0]
+        S = array("sample_theta_", learner.sample_theta_, (None, K), positive=True).shape[0]
+        array("sample_owner_", learner.sample_owner_, (S,), integer=True, high=D)
+        Z = learner.neighbors_._fit_X
+        d = array("neighbors_ (its look-up points)", Z, (S, None)).shape[1]
+        array("lookup_z_", learner.lookup_z_, (S, d))
+        array("key_scale_", learner.key_scale_, (d,), nonnegative=True)
+        array("scaler_.mean_", learner.scaler_.mean_, (d,))
+        array("scaler_.scale_", learner.scaler_.scale_, (d,), positive=True)
+        array("state_idx_", np.asarray(learner.state_idx_, dtype=int), (None,), integer=True, high=n_x)
+        if learner.n_neighbors > S:
+            fail(f"n_neighbors={learner.n_neighbors} exceeds the {S} look-up samples")
+        if hasattr(learner, "bank_"):
+            array("bank_", learner.bank_, (None,), integer=True, high=D)
 
 
 def _package_version() -> str:

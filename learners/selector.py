@@ -93,7 +93,7 @@ class FutureRegression:
     """The positions over the next F steps regressed on keys: per step k, a gradient-boosted ensemble
     (`sklearn.ensemble.HistGradientBoostingRegressor`, no early stopping, seed ``random_state``) of the position
     minus a given base (e.g. constant acceleration from the window's end), ``s_k = base_k + g_k(keys)``. PIRL-select's
-    forecast and the replay's direct regression (`pirl_sim.sweep.direct`) are both this.
+    forecast and the replay's direct regression (`pirl_sim.evaluation.direct`) are both this.
 
     Attributes
     ----------

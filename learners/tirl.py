@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BaseLearner
+from .model_io import SavableLearner
 
 __all__ = ["TIRL"]
 
 
-class TIRL(BaseLearner):
+class TIRL(SavableLearner):
     """Traditional IRL: a single weight vector maximises the Laplace likelihood of all demonstrations.
 
     Attributes

@@ -1,7 +1,7 @@
 """pirl_sim: an evaluation harness for probabilistic inverse reinforcement learning of diverse drivers.
 
 Core types and maths live here (pure array functions, no simulator); learners in `pirl_sim.learners`,
-scenarios in `pirl_sim.scenarios`, experiments in `pirl_sim.harness`.
+scenarios in `pirl_sim.scenarios`, experiments in `pirl_sim.experiments`.
 """
 
 from .dynamics import LinearDynamics, longitudinal, point_mass

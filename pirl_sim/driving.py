@@ -529,9 +529,9 @@ def estimate_longitudinal_states(
     doubles the jerk error), sigma_j = 3 m/s^3, sigma_a = 0.01 m/s^2. Errors (RMS / max), estimate minus
     truth:
 
-    ======================================== ============= ============= ============ ===========
+    ======================================== ============= ============= ============= ===========
     data (driver steps of the recording)      s [m]         v [m/s]       a [m/s^2]    j [m/s^3]
-    ======================================== ============= ============= ============ ===========
+    ======================================== ============= ============= ============= ===========
     39 tracks without interaction, positions  0.025 / 0.10  0.045 / 0.23  0.087 / 0.41 0.22 / 1.4
     (``fit_longitudinal_states``, 1e-2)
     same, positions and speeds (defaults)     0.024 / 0.05  3e-5 / 2e-4   6e-4 / 0.008 0.012 / 0.14
@@ -539,7 +539,7 @@ def estimate_longitudinal_states(
     all 64, positions + speeds + restarts     0.022 / 0.06  3e-5 / 1e-3   0.005 / 0.17 0.13 / 2.3
     (``step_mask`` breaks, ``a_obs``)
     all 64, positions + speeds, one fit       0.026 / 0.08  4e-4 / 0.016  0.067 / 2.8  1.5 / 63
-    ======================================== ============= ============= ============ ===========
+    ======================================== ============= ============= ============= ===========
 
     The remaining error on interacting tracks sits at the first steps of short runs between overrides (a
     run's start acceleration is pinned only by its restart observation and a few speeds). With noisy

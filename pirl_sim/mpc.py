@@ -21,7 +21,7 @@ from .dynamics import LinearDynamics
 from .features import FeatureSet
 from .validation import is_positive_int
 
-__all__ = ["QuadraticCost", "LQPredictor", "ConstrainedLQPredictor", "SequentialMPC", "BoxQP", "Bounds"]
+__all__ = ["QuadraticCost", "LQPredictor", "ConstrainedLQPredictor", "SequentialMPC", "BoxQP", "Bounds", "MAX_HORIZON"]
 
 
 @dataclass(frozen=True)
@@ -122,11 +122,20 @@ def _cho_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     return scipy.linalg.cho_solve((L, True), B)
 
 
+#: the longest horizon [steps] a predictor plans over, 1,000 s at dt = 0.1 s: the condensed matrices of a horizon
+#: of N steps (`LinearDynamics.condensed`'s Gamma, N n_x x N n_u, and the K features' Hessians, K x (N n_u)^2) grow
+#: with N^2 (N = 10,000, n_x = 3, n_u = 1, K = 3: about 5 GB), so longer ones are refused before any allocation
+MAX_HORIZON = 10_000
+
+
 def _check_horizon(n_steps) -> int:
     if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)):
         raise TypeError(f"horizon must be an integer number of steps, got {n_steps!r}")
     if n_steps < 1:
         raise ValueError(f"horizon must be >= 1 step, got {n_steps}")
+    if n_steps > MAX_HORIZON:
+        raise ValueError(f"horizon must be at most {MAX_HORIZON} steps (MAX_HORIZON: the MPC's matrices grow with "
+                         f"the square of the horizon), got {n_steps}")
     return int(n_steps)
 
 

@@ -28,6 +28,8 @@ from .validation import is_positive_int
 __all__ = ["Style", "Population", "optimal_controls", "sample_boltzmann_controls", "generate_demonstrations"]
 
 _MAX_REDRAWS = 1000
+#: largest style mixture weight, mean weight and std: beyond, sums and the drivers' costs overflow
+STYLE_VALUE_MAX = 1e6
 
 
 @dataclass(frozen=True)
@@ -58,11 +60,18 @@ class Style:
             raise ValueError(f"style name must be a non-empty string, got {self.name!r}")
         if not np.isfinite(self.weight) or self.weight <= 0:
             raise ValueError(f"style {self.name!r}: weight must be > 0, got {self.weight!r}")
+        if self.weight > STYLE_VALUE_MAX:
+            raise ValueError(f"style {self.name!r}: weight must be in (0, {STYLE_VALUE_MAX:g}], got {self.weight!r}")
         if self.cov is not None and self.std:
             raise ValueError(f"style {self.name!r}: give std or cov, not both")
         for k, v in self.std.items():
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"style {self.name!r}: std of {k!r} must be >= 0, got {v!r}")
+            if v > STYLE_VALUE_MAX:
+                raise ValueError(f"style {self.name!r}: std of {k!r} must be in [0, {STYLE_VALUE_MAX:g}], got {v!r}")
+        for k, v in self.mean.items():
+            if isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and abs(v) > STYLE_VALUE_MAX:
+                raise ValueError(f"style {self.name!r}: mean of {k!r} must be in (0, {STYLE_VALUE_MAX:g}], got {v!r}")
 
     def moments(self, features: FeatureSet) -> tuple[np.ndarray, np.ndarray]:
         """Mean (K,) and covariance (K, K) in feature order, validated against the feature names."""

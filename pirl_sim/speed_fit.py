@@ -7,7 +7,7 @@ driving by least squares with a Cauchy loss on v - v_des(kappa) in the log-param
 accelerating away from a stop are far from their desired speed and would pull a squared loss down, the robust
 loss lets them count little. Speeds below ``min_speed`` are left out (stops are not a choice of speed).
 
-Pure array maths; the replay (`pirl_sim.sweep.recorded`) fits it on each split's training tracks.
+Pure array maths; the replay (`pirl_sim.experiments.recorded`) fits it on each split's training tracks.
 """
 
 from __future__ import annotations

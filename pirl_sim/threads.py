@@ -30,7 +30,7 @@ from contextlib import contextmanager
 from collections.abc import Iterator
 
 __all__ = ["ENV_VAR", "AUTO", "DEFAULT_THREADS", "THREAD_VARS", "parse_blas_threads", "blas_threads_arg",
-           "resolve_blas_threads", "apply_thread_policy", "thread_policy", "blas_threads", "add_blas_threads_option",
+           "resolve_blas_threads", "apply_thread_policy", "thread_policy", "blas_threads",
            "current_blas_threads"]
 
 ENV_VAR = "PIRL_SIM_BLAS_THREADS"  #: the environment variable of the policy (a positive integer or "auto")
@@ -181,20 +181,3 @@ def current_blas_threads() -> dict[str, int]:
         key = lib["internal_api"]
         out[key] = max(out.get(key, 0), int(lib["num_threads"]))
     return out
-
-
-_OPTION_HELP = (f"BLAS/OpenMP threads of this process (default {DEFAULT_THREADS}, or ${ENV_VAR} if set; "
-                f"'{AUTO}': the libraries' own defaults). Small solves run fastest on one thread, above all when "
-                "the machine is loaded; use processes (--workers) for parallelism")
-
-
-def add_blas_threads_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--blas-threads`` to ``parser`` and, recursively, to each of its subcommands' parsers (so it may
-    come before or after a command's name). Absent from the namespace unless given."""
-    if not any("--blas-threads" in a.option_strings for a in parser._actions):
-        parser.add_argument("--blas-threads", type=blas_threads_arg, default=argparse.SUPPRESS, metavar="N",
-                            help=_OPTION_HELP)
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for sub in action.choices.values():
-                add_blas_threads_option(sub)

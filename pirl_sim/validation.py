@@ -22,16 +22,16 @@ def is_positive_int(value) -> bool:
     return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= 1
 
 
-def number(label: str, value, *, low: float | None = None, allow_equal: bool = True) -> float:
+def number(label: str, value, *, low: float | None = None, allow_equal: bool = True, finite: bool = True) -> float:
     """``value`` as a float, or ``ValueError`` naming ``label`` unless it is a finite number (>= ``low``, or
-    > ``low`` when not ``allow_equal``; no bound when ``low`` is None)."""
+    > ``low`` when not ``allow_equal``; no bound when ``low`` is None; ``finite=False`` also allows +-inf)."""
     ok = not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating)) \
-        and math.isfinite(value)
+        and (math.isfinite(value) or (not finite and not math.isnan(value)))
     if ok and low is not None:
         ok = value > low or (allow_equal and value == low)
     if not ok:
         bound = "" if low is None else f" {'>=' if allow_equal else '>'} {low:g}"
-        raise ValueError(f"{label} must be a finite number{bound}, got {value!r}")
+        raise ValueError(f"{label} must be a {'finite ' if finite else ''}number{bound}, got {value!r}")
     return float(value)
 
 
@@ -43,7 +43,10 @@ def int_at_least(label: str, value, low: int) -> int:
 
 
 def check_keys(label: str, given: Mapping[str, Any], valid: Iterable[str]) -> None:
-    """``ValueError`` listing the keys of ``given`` that are not ``valid``, and the valid ones."""
+    """``ValueError`` unless ``given`` is a mapping whose keys are all ``valid`` (naming the unknown ones and
+    listing the valid ones)."""
+    if not isinstance(given, Mapping):
+        raise ValueError(f"{label} must be a table, got {given!r}")
     valid = tuple(valid)
     unknown = [k for k in given if k not in valid]
     if unknown:

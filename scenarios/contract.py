@@ -12,6 +12,8 @@ What they share is declared here, once:
   ``commands(time, {vehicle id: observation}) -> {vehicle id: speed [m/s] one step ahead, or None}`` (None
   hands the vehicle back to the simulator's own model for that step). The PIRL drivers
   (:class:`~pirl_sim.scenarios.drivers.PirlDrivers`) implement it.
+- An agent's vehicle: :class:`EgoSpec`, an extra vehicle ``adapter.start`` adds to a simulation for a caller
+  that drives it (the gymnasium envs of :mod:`pirl_sim.envs` build and step their simulations this way).
 - The ground truth: :func:`ground_truth_table` builds ``ground_truth.csv``'s table from per-track columns,
   with the conventions for non-PIRL tracks applied in one place.
 - The run: :func:`run_scenario` ``(adapter, config, seed)`` plans, steps, records and (optionally) writes a run
@@ -27,7 +29,7 @@ Units: SI throughout (m, s, m/s, m/s^2).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -35,13 +37,15 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import pandas as pd
 
+from pirl_sim.validation import number
+
 from .planning import check_seed
 from .population_config import FEATURE_NAMES
 from .recording import FRAME_DT_S, GROUND_TRUTH_COLUMNS, ScenarioRecording
 from .scenario_config import Progress, run_timing
 
 __all__ = ["STEP", "EXTRA_TIME_S", "VehicleView", "DriverObservation", "EgoView", "EgoObservation", "BatchController",
-           "Simulation", "SimulatorAdapter", "ground_truth_table", "run_scenario"]
+           "EgoSpec", "ControllerWrapper", "Simulation", "SimulatorAdapter", "ground_truth_table", "run_scenario"]
 
 STEP = FRAME_DT_S  #: [s] simulation step = driver-model step = INTERACTION frame
 EXTRA_TIME_S = 300.0  #: [s] simulated after the last departure when a config gives no ``max_duration``
@@ -95,6 +99,49 @@ class BatchController(Protocol):
         ...  # pragma: no cover - protocol
 
 
+@dataclass(frozen=True)
+class EgoSpec:
+    """An extra vehicle, not in the plan, that the caller drives (an env's agent); validated on construction.
+
+    Attributes
+    ----------
+    route_id : str
+        Its route, one of the simulation's catalogue.
+    speed : float
+        [m/s] at insertion, >= 0.
+    depart : float
+        [s] insertion time, >= 0. SUMO inserts it at the start of its route then, once the entry has room;
+        highway-env places it when the simulation starts (0 only).
+    route_s : float
+        [m] route coordinate where highway-env places it (at most 10 m before the route's end), >= 0; SUMO
+        inserts at the route's start (0 only).
+    speed_mode : int or None
+        SUMO speed mode of this vehicle, in [0, 127]; None: the scenario's. highway-env has none (None only).
+    vehicle_id : str
+    """
+
+    route_id: str
+    speed: float
+    depart: float = 0.0
+    route_s: float = 0.0
+    speed_mode: int | None = None
+    vehicle_id: str = "ego"
+
+    def __post_init__(self) -> None:
+        for name in ("route_id", "vehicle_id"):
+            if not isinstance(getattr(self, name), str) or not getattr(self, name):
+                raise ValueError(f"ego {name} must be a non-empty string, got {getattr(self, name)!r}")
+        for name in ("speed", "depart", "route_s"):
+            object.__setattr__(self, name, number(f"ego {name}", getattr(self, name), low=0.0))
+        m = self.speed_mode
+        if m is not None and (isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 0 <= m < 128):
+            raise ValueError(f"ego speed_mode must be None or an integer bitset in [0, 127], got {m!r}")
+
+
+#: ``wrap(drivers) -> controller``: what a simulation asks for commands instead of its PIRL drivers
+ControllerWrapper = Callable[[BatchController], BatchController]
+
+
 class Simulation(Protocol):
     """One running simulation (a context manager; leaving it releases the simulator).
 
@@ -143,8 +190,28 @@ class SimulatorAdapter(Protocol):
         """The vehicles to run (one row each; ``depart`` [s], ``is_pirl``, route, style and weights), drawn from
         ``seed`` before anything runs."""
 
-    def start(self, config, seed: int, plan: pd.DataFrame) -> AbstractContextManager[Simulation]:
-        """The simulation of ``plan``, ready to step."""
+    def start(self, config, seed: int, plan: pd.DataFrame, *, ego: EgoSpec | None = None,
+              wrap_controller: ControllerWrapper | None = None,
+              cache_network: bool = False) -> AbstractContextManager[Simulation]:
+        """The simulation of ``plan``, ready to step once entered.
+
+        Parameters
+        ----------
+        config : config_type
+        seed : int
+            Seeds the drivers' control noise, background behaviour and the simulator.
+        plan : pandas.DataFrame
+            From :meth:`plan`.
+        ego : EgoSpec, optional
+            An extra vehicle the caller drives; recorded as a non-PIRL track with style name ``"ego"``.
+        wrap_controller : callable, optional
+            ``wrap_controller(drivers)``: the batch controller the simulator asks every step instead of the
+            PIRL drivers (e.g. one that also commands the ego); the simulation's ``controller`` stays the
+            drivers.
+        cache_network : bool
+            Reuse the road and reference paths built for an equal network earlier in this process (an env's
+            resets); False builds them afresh.
+        """
 
     def info(self, config) -> tuple[dict[str, Any], dict[str, Any]]:
         """The simulator's own entries of ``run.json``: those written after ``simulator`` and those written after

@@ -90,7 +90,7 @@ class CompiledDriverMPC:
         from pirl_sim.driving import SpeedDeviationResidual
         from pirl_sim.features import SquaredControlResidual, SquaredStateResidual
 
-        from .drivers import RouteSetProfile
+        from .route_set import RouteSetProfile
 
         feats = model.features
         dyn = model.dynamics
@@ -225,7 +225,7 @@ class CompiledDriverMPC:
         ValueError
             As `RouteSet.project`: mismatched lengths, or no convergence.
         """
-        from .drivers import _MIN_SLOPE, _NEWTON_MAX_ITER
+        from .route_set import MIN_SLOPE as _MIN_SLOPE, NEWTON_MAX_ITER as _NEWTON_MAX_ITER
 
         r = np.ascontiguousarray(np.asarray(route_index, dtype=np.int64).reshape(-1))
         q = np.ascontiguousarray(np.asarray(xy, dtype=float).reshape(-1, 2))

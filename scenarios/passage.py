@@ -17,6 +17,7 @@ from pirl_sim.driving import PathDriverModel, roundabout_model
 from pirl_sim.paths import ReferencePath
 from pirl_sim.population import Population, Style, generate_demonstrations
 from pirl_sim.trajectory import Trajectory
+from pirl_sim.scenarios.synthetic import MAX_STEPS, MAX_TRAJECTORIES
 
 __all__ = [
     "PassageConfig",
@@ -74,28 +75,37 @@ class PassageConfig:
     seed : int
     """
 
-    radius: float = 20.0
-    approach: float = 50.0
-    ring_angle_deg: float = 270.0
-    exit_length: float = 50.0
-    styles: tuple[Style, ...] = field(default=THREE_STYLES)
-    rationality: float | None = 100.0
-    n_trajectories: int = 600
-    n_train: int = 500
-    n_steps: int = 40
-    dt: float = 0.2
-    start_s: tuple[float, float] = (10.0, 40.0)
-    start_v: tuple[float, float] = (9.0, 12.0)
+    radius: float = field(default=20.0, metadata={"doc": "ring radius [m]"})
+    approach: float = field(default=50.0, metadata={"doc": "straight approach [m]"})
+    ring_angle_deg: float = field(default=270.0, metadata={"doc": "part of the ring driven [deg]"})
+    exit_length: float = field(default=50.0, metadata={"doc": "straight exit [m]"})
+    styles: tuple[Style, ...] = field(
+        default=THREE_STYLES, metadata={"doc": "styles over (speed_dev, acc_sq, jerk_sq); default: the three user-study styles"})
+    rationality: float | None = field(default=100.0, metadata={"doc": "Boltzmann beta; inf: exactly optimal drivers"})
+    n_trajectories: int = field(default=600, metadata={"doc": "passages in all (train + test)"})
+    n_train: int = field(default=500, metadata={"doc": "training passages; the rest are the test set"})
+    n_steps: int = field(default=40, metadata={"doc": "steps per passage"})
+    dt: float = field(default=0.2, metadata={"doc": "step [s]"})
+    start_s: tuple[float, float] = field(default=(10.0, 40.0), metadata={"doc": "start positions along the path [m]"})
+    start_v: tuple[float, float] = field(default=(9.0, 12.0), metadata={"doc": "start speeds [m/s]"})
     seed: int = 0
 
     def __post_init__(self) -> None:
+        for name in ("n_trajectories", "n_train", "n_steps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise TypeError(f"{name} must be an integer, got {v!r}")
+        if not 2 <= self.n_trajectories <= MAX_TRAJECTORIES:
+            raise ValueError(f"n_trajectories must be in [2, {MAX_TRAJECTORIES}], got {self.n_trajectories}")
+        if self.n_steps > MAX_STEPS:
+            raise ValueError(f"n_steps must be in [2, {MAX_STEPS}], got {self.n_steps}")
         if not 1 <= self.n_train < self.n_trajectories:
             raise ValueError(f"n_train must be in [1, n_trajectories - 1], got {self.n_train} of {self.n_trajectories}")
         if self.n_steps < 2:
             raise ValueError(f"n_steps must be >= 2, got {self.n_steps}")
         for name in ("start_s", "start_v"):
             lo, hi = getattr(self, name)
-            if not lo <= hi:
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
                 raise ValueError(f"{name} must be (low, high) with low <= high, got {(lo, hi)}")
         if self.start_v[0] < 0:
             raise ValueError(f"start speeds must be >= 0 m/s, got {self.start_v}")

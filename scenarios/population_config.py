@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import enum
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +53,8 @@ from typing import Any
 import numpy as np
 
 from pirl_sim.features import Feature, FeatureSet, squared_control, squared_state
-from pirl_sim.population import Population, Style
+from pirl_sim.population import STYLE_VALUE_MAX, Population, Style
+from pirl_sim.io import toml_text
 from pirl_sim.validation import check_keys, number
 
 from .passage import THREE_STYLES
@@ -183,6 +183,8 @@ class StyleConfig:
         weight = number(f"{label}: weight", self.weight)
         if weight <= 0:
             raise ValueError(f"{label}: weight must be > 0, got {weight!r}")
+        if weight > STYLE_VALUE_MAX:
+            raise ValueError(f"{label}: weight must be in (0, {STYLE_VALUE_MAX:g}], got {weight!r}")
         mean = _feature_mapping(f"{label}: mean", self.mean, allow_reference=True)
         missing = [n for n in FREE_FEATURES if n not in mean]
         if missing:
@@ -196,10 +198,14 @@ class StyleConfig:
         for n, v in mean.items():
             if v <= 0:
                 raise ValueError(f"{label}: mean[{n!r}] must be > 0 (weights are positive), got {v!r}")
+            if v > STYLE_VALUE_MAX:
+                raise ValueError(f"{label}: mean[{n!r}] must be in (0, {STYLE_VALUE_MAX:g}], got {v!r}")
         std = _feature_mapping(f"{label}: std", self.std, allow_reference=False)
         for n, v in std.items():
             if v < 0:
                 raise ValueError(f"{label}: std[{n!r}] must be >= 0, got {v!r}")
+            if v > STYLE_VALUE_MAX:
+                raise ValueError(f"{label}: std[{n!r}] must be in [0, {STYLE_VALUE_MAX:g}], got {v!r}")
         cov = None
         if self.cov is not None:
             if std:
@@ -528,11 +534,7 @@ def _style_from_dict(data: Any, label: str) -> StyleConfig:
 
 def population_from_toml(text: str, *, source: str = "<toml>") -> PopulationConfig:
     """Parse TOML text into a :class:`PopulationConfig` (see :func:`population_from_dict`)."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{source}: not valid TOML: {exc}") from None
-    return population_from_dict(data, source=source)
+    return population_from_dict(toml_text.loads(text, source), source=source)
 
 
 def load_population(path) -> PopulationConfig:
@@ -552,16 +554,8 @@ def load_population(path) -> PopulationConfig:
 
 
 def read_toml_text(path: Path, what: str) -> str:
-    """The text of a TOML file; ``ValueError`` naming the file when it is not UTF-8 text (e.g. binary)."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise ValueError(f"{what} {path}: cannot be read ({exc.strerror or type(exc).__name__})") from None
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: the {what} is not UTF-8 text (byte {exc.start}: "
-                         f"{data[exc.start:exc.start + 1]!r})") from None
+    """The text of a TOML file (`pirl_sim.io.toml_text.read_text`)."""
+    return toml_text.read_text(path, what)
 
 
 #: the embedded default: the paper's three user-study styles in equal shares, 20 % background traffic

@@ -38,6 +38,7 @@ written again only once everything else is complete, so a crash while writing le
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +50,7 @@ import pandas as pd
 
 from pirl_sim.io.atomic import atomic_write_text
 from pirl_sim.io.interaction import FRAME_DT_MS, VEHICLE_COLUMNS, read_tracks, write_tracks
+from pirl_sim.io.tables import read_csv_table
 
 __all__ = [
     "TRACK_COLUMNS",
@@ -382,6 +384,11 @@ def read_recording(directory) -> ScenarioRecording:
         raise ValueError(f"{d}: no {INFO_FILE}: the recording is incomplete (a run that crashed while "
                          "writing) or not a pirl_sim recording")
     info = json.loads(info_path.read_text(encoding="utf-8"))
+    if "step_length_s" in info:
+        step = info["step_length_s"]
+        if isinstance(step, bool) or not isinstance(step, (int, float)) or not math.isfinite(step) or step <= 0:
+            raise ValueError(f"{info_path}: step_length_s must be a finite number of seconds > 0 (the simulation "
+                             f"step), got {step!r}")
     raw = read_tracks(d / TRACKS_FILE, kind="vehicle")
     tracks = pd.DataFrame({
         "track_id": raw["track_id"], "time_s": raw["frame_id"] * FRAME_DT_S, "agent_type": raw["agent_type"],
@@ -413,8 +420,12 @@ def read_recording(directory) -> ScenarioRecording:
         steps_path = d / steps_name
         if not steps_path.is_file():
             raise FileNotFoundError(f"driver steps listed in {INFO_FILE} not found: {steps_path}")
-        steps = pd.read_csv(steps_path, dtype={"track_id": np.int64, "frame_id": np.int64, "commanded": bool,
-                                               "overridden": bool, "collided": bool, "command_error": float})
+        steps = read_csv_table(steps_path, dtype={"track_id": np.int64, "frame_id": np.int64, "commanded": bool,
+                                                  "overridden": bool, "collided": bool, "command_error": float})
+        missing = [c for c in DRIVER_STEP_COLUMNS if c not in steps.columns and c != "command_error"]
+        if missing:
+            raise ValueError(f"{steps_path}: missing column(s) {', '.join(missing)}; driver steps need the columns "
+                             f"{', '.join(DRIVER_STEP_COLUMNS)}")
         if "command_error" not in steps.columns:  # written before the column existed
             steps["command_error"] = np.nan
     keep = {k: v for k, v in info.items() if k not in ("format", "format_version", "files", "n_tracks",

@@ -30,8 +30,10 @@ without a jump is kept. The counts are in ``ReplayScene.repairs``.
 
 Simulated scenes written by pirl_sim carry a ``ground_truth.csv`` sidecar beside the tracks (track_id,
 style, theta_<feature> ...); its values go into each trajectory's metadata. A sidecar that is there but
-unusable (empty, not CSV, no ``track_id``, a ``track_id`` twice, a weight that is not a number) is a ValueError
-naming it: a replay never runs with wrong or silently missing truth.
+unusable (empty, not CSV, no ``track_id``, a ``track_id`` twice, a weight that is not a number, NaN or <= 0 where
+the row has a style >= 0 or other weights, no row for a track, weights without a column of the replay's features)
+is a ValueError naming it: a replay never runs with wrong or silently missing truth. Rows that match no track read
+from their directory (other files' tracks) are ignored with a logged warning naming their count.
 
 A track file that fails `pirl_sim.io.interaction.read_tracks` is read again with
 `pirl_sim.io.interaction.read_tracks_lenient`: its broken tracks (and rows whose ``track_id`` is not a whole
@@ -58,6 +60,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -102,6 +105,8 @@ SELECTIONS = ("tracks", "steps", "free", "all")  #: whole non-interacting tracks
 #: all: for the ``following`` features, which see the vehicle ahead)
 DRIVER_STEPS_FILE = "driver_steps.csv"  #: per-step driver flags of a pirl_sim recording, beside the tracks
 RUN_INFO_FILE = "run.json"  #: a pirl_sim recording's run information (drivers' horizon, step, ...)
+#: columns of ``driver_steps.csv`` that the replay reads
+DRIVER_STEP_FLAGS = ("track_id", "frame_id", "commanded", "overridden", "collided")
 
 
 @dataclass(frozen=True)
@@ -183,6 +188,15 @@ def recording_settings(tracks: str | Path) -> DriverSettings | None:
     if data is None or "drivers" not in data.get("config", {}) or "step_length_s" not in data:
         return None
     drv = data["config"]["drivers"]
+    info = (Path(tracks) if Path(tracks).is_dir() else Path(tracks).parent) / RUN_INFO_FILE
+    step = data["step_length_s"]
+    if isinstance(step, bool) or not isinstance(step, (int, float)) or not math.isfinite(step) or step <= 0:
+        raise ValueError(f"{info}: step_length_s must be a finite number of seconds > 0 (the drivers' re-planning "
+                         f"step), got {step!r}")
+    horizon = drv.get("horizon")
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, float)) or not math.isfinite(horizon) \
+            or horizon < 1 or horizon != int(horizon):
+        raise ValueError(f"{info}: config.drivers.horizon must be a positive integer [steps], got {horizon!r}")
     return DriverSettings(horizon=int(drv["horizon"]), dt=float(data["step_length_s"]),
                           smoothing=float(drv["smoothing"]), speed_smoothing=float(drv["speed_smoothing"]),
                           a_lat=float(drv["a_lat"]), v_max=float(drv["v_max"]))
@@ -509,7 +523,35 @@ def _sidecar(track_file: Path) -> pd.DataFrame | None:
         if wrong.any():
             raise ValueError(f"{path}: column {col} must hold numbers, got {table[col][wrong].tolist()[:5]!r}")
         table[col] = values
+    theta_cols = [c for c in table.columns if str(c).startswith("theta_")]
+    if theta_cols:
+        theta = table[theta_cols].to_numpy(dtype=float)
+        known = np.isfinite(theta)
+        bad = ~np.isnan(theta) & ~(known & (theta > 0))  # -inf, inf, 0 or negative
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            raise ValueError(f"{path}: weights must be finite and > 0 (empty where unknown), got "
+                             f"{theta_cols[j]} = {float(theta[i, j])!r} for track {int(table['track_id'].iloc[i])} "
+                             f"({int(bad.any(axis=1).sum())} track(s) with such weights)")
+        partly = known.any(axis=1) & ~known.all(axis=1)
+        styled = table["style"].to_numpy(dtype=float) >= 0 if "style" in table else np.zeros(len(table), bool)
+        unknown = (partly | (styled & ~known.all(axis=1)))
+        if unknown.any():
+            i = int(np.argmax(unknown))
+            raise ValueError(f"{path}: track {int(table['track_id'].iloc[i])} has a style >= 0 or some weights but "
+                             f"misses weights (empty {[c for c, k in zip(theta_cols, known[i]) if not k]}); "
+                             f"{int(unknown.sum())} track(s) so; a PIRL driver (style >= 0) needs every "
+                             f"theta column, background traffic (style -1) none")
     return table.set_index("track_id")
+
+
+def _check_truth_rows(path: Path, truth: pd.DataFrame, track_ids: np.ndarray) -> None:
+    """ValueError naming the sidecar when a track of the file ``path`` has no row in it (its weight errors
+    would silently leave it out)."""
+    without_row = sorted(set(int(t) for t in np.unique(track_ids)) - set(int(t) for t in truth.index))
+    if without_row:
+        raise ValueError(f"{path.parent / GROUND_TRUTH_FILE}: no row for {len(without_row)} track(s) of "
+                         f"{path.name} (e.g. {without_row[:5]}); the sidecar needs one row per track")
 
 
 def load_replay(
@@ -615,6 +657,7 @@ def load_replay(
     pending = []  # (segment, s_local (n,), d (n,), xy (n, 2), meta)
     n_tracks = 0
     n_steps_counts: Counter = Counter()
+    truth_ids: dict[Path, tuple[set, set]] = {}  # sidecar directory -> (its track ids, ids of tracks read)
     for file in (Path(f) for f in track_files):
         steps_flags = None
         if selection == "steps":
@@ -635,6 +678,10 @@ def load_replay(
                 if not n_bad:
                     skipped["unreadable file"] += 1
                 continue
+        if truth is not None:
+            _check_truth_rows(file, truth, df["track_id"].to_numpy())
+            truth_ids.setdefault(file.parent, (set(int(t) for t in truth.index), set()))[1].update(
+                int(t) for t in df["track_id"].unique())
         df = df[df["agent_type"].isin(rule.agent_types)].reset_index(drop=True)
         lead = leader_frames(df, rule)
         lead_centre = leader_frames(df, CENTRE_RULE)
@@ -723,6 +770,11 @@ def load_replay(
                 extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)
                 extra["settled"] = _frame_steps(settled(usable, settle_frames), restart, speed, stride)[0]
             pending.append((paths[key], s_local[sel], d[sel], xy[sel], dict(meta, _extra=extra)))
+    for directory, (rows, read) in truth_ids.items():
+        unmatched = sorted(rows - read)
+        if unmatched:  # other files' tracks, or tracks dropped as broken: no truth goes missing
+            log.warning("%s: %d ground-truth row(s) match no track read from this directory (e.g. %s); ignored",
+                        directory / GROUND_TRUTH_FILE, len(unmatched), unmatched[:5])
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
     composite = CompositePath(tuple(path_list))
@@ -786,6 +838,11 @@ def load_replay(
         if mask is not None:
             meta["step_mask"] = mask
         truth = meta.pop("truth", None)
+        given = [] if truth is None else [k for k in truth if str(k).startswith("theta_")]
+        if given and not all(f"theta_{n}" in truth for n in names):
+            missing = [f"theta_{n}" for n in names if f"theta_{n}" not in truth]
+            raise ValueError(f"{Path(meta['file']).parent / GROUND_TRUTH_FILE}: weights without the column(s) "
+                             f"{', '.join(missing)}; the replay's features need {', '.join(f'theta_{n}' for n in names)}")
         if truth is not None and all(f"theta_{n}" in truth for n in names):
             theta = np.array([float(truth[f"theta_{n}"]) for n in names])
             if np.all(np.isfinite(theta)) and np.all(theta > 0):
@@ -868,7 +925,7 @@ def _profile_path(composite, speed_smoothing: float):
     ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`), or ``composite`` itself."""
     if speed_smoothing <= 0:
         return composite
-    from .drivers import _smoothed
+    from .route_set import _smoothed
 
     kappa = composite.kappa.copy()
     for p, off in zip(composite.segments, composite.offsets):
@@ -930,8 +987,14 @@ def _driver_steps(track_file: Path) -> dict[int, pd.DataFrame]:
     if not path.is_file():
         raise ValueError(f"selection='steps' needs per-step driver flags ({DRIVER_STEPS_FILE}) beside "
                          f"{track_file}; real data have none: use selection='tracks'")
-    steps = pd.read_csv(path, dtype={"track_id": np.int64, "frame_id": np.int64, "commanded": bool,
-                                     "overridden": bool, "collided": bool})
+    from pirl_sim.io.tables import read_csv_table
+
+    steps = read_csv_table(path, dtype={"track_id": np.int64, "frame_id": np.int64, "commanded": bool,
+                                        "overridden": bool, "collided": bool})
+    missing = [c for c in DRIVER_STEP_FLAGS if c not in steps.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; per-step driver flags need the columns "
+                         f"{', '.join(DRIVER_STEP_FLAGS)}")
     return _frame_flags(SimpleNamespace(driver_steps=steps))
 
 

@@ -12,18 +12,17 @@
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pirl_sim.io import toml_text
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
 from pirl_sim.validation import check_keys, int_at_least, number
 
-from .population_config import PopulationConfig, population_from_dict, read_toml_text
+from .population_config import PopulationConfig, population_from_dict
 
 __all__ = ["Progress", "run_timing", "MpcDriverConfig", "config_table", "from_table", "scenario_from_table",
            "load_toml"]
@@ -164,10 +163,4 @@ def scenario_from_table(cls, data: Any, source: str, population: PopulationConfi
 def load_toml(path) -> dict[str, Any]:
     """A TOML file's contents; ``FileNotFoundError`` / ``ValueError`` (naming the file) when missing or
     invalid."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"scenario config not found: {path}")
-    try:
-        return tomllib.loads(read_toml_text(path, "scenario config"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    return toml_text.load(path, "scenario config")[0]

@@ -21,6 +21,13 @@ from pirl_sim.trajectory import Trajectory
 
 __all__ = ["SyntheticConfig", "SyntheticData", "PAPER_STYLES", "generate"]
 
+#: largest n_trajectories [trajectories]: the data set is held in memory
+MAX_TRAJECTORIES = 10**6
+#: largest n_steps [steps] per trajectory
+MAX_STEPS = 10**5
+#: largest |start position| [m] and |start velocity| [m/s]: beyond, the quadratic features overflow
+MAX_START = 1e6
+
 PAPER_STYLES = (
     Style("kernel 1 (mu=4, sigma=1)", 0.5, {"state_sq": 4.0}, {"state_sq": 1.0}),
     Style("kernel 2 (mu=0.4, sigma=0.1)", 0.5, {"state_sq": 0.4}, {"state_sq": 0.1}),
@@ -43,14 +50,18 @@ class SyntheticConfig:
     seed : int
     """
 
-    n_trajectories: int = 2000
-    n_train: int = 1800
-    n_steps: int = 50
-    dt: float = 0.1
-    position_range: tuple[float, float] = (1.0, 1.0)
-    velocity_range: tuple[float, float] = (0.0, 0.0)
-    styles: tuple[Style, ...] = field(default=PAPER_STYLES)
-    rationality: float | None = None
+    n_trajectories: int = field(default=2000, metadata={"doc": "trajectories in all (train + test)"})
+    n_train: int = field(default=1800, metadata={"doc": "training trajectories; the rest are the test set"})
+    n_steps: int = field(default=50, metadata={"doc": "steps N per trajectory"})
+    dt: float = field(default=0.1, metadata={"doc": "step [s]"})
+    position_range: tuple[float, float] = field(
+        default=(1.0, 1.0), metadata={"doc": "start positions [m], drawn uniformly"})
+    velocity_range: tuple[float, float] = field(
+        default=(0.0, 0.0), metadata={"doc": "start velocities [m/s], drawn uniformly"})
+    styles: tuple[Style, ...] = field(
+        default=PAPER_STYLES, metadata={"doc": "styles over (state_sq, control_sq); default: the paper's two kernels"})
+    rationality: float | None = field(
+        default=None, metadata={"doc": "Boltzmann beta; inf: exact LQR optima (the paper's)"})
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -58,18 +69,20 @@ class SyntheticConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
                 raise TypeError(f"{name} must be an integer, got {v!r}")
-        if self.n_trajectories < 2:
-            raise ValueError(f"n_trajectories must be >= 2, got {self.n_trajectories}")
+        if not 2 <= self.n_trajectories <= MAX_TRAJECTORIES:
+            raise ValueError(f"n_trajectories must be in [2, {MAX_TRAJECTORIES}], got {self.n_trajectories}")
         if not 1 <= self.n_train < self.n_trajectories:
             raise ValueError(f"n_train must be in [1, n_trajectories - 1] = [1, {self.n_trajectories - 1}], got {self.n_train}")
-        if self.n_steps < 2:
-            raise ValueError(f"n_steps must be >= 2, got {self.n_steps}")
+        if not 2 <= self.n_steps <= MAX_STEPS:
+            raise ValueError(f"n_steps must be in [2, {MAX_STEPS}], got {self.n_steps}")
         if not np.isfinite(self.dt) or self.dt <= 0:
             raise ValueError(f"dt must be > 0 s, got {self.dt!r}")
         for name in ("position_range", "velocity_range"):
             lo, hi = getattr(self, name)
             if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
                 raise ValueError(f"{name} must be (low, high) with low <= high, got {(lo, hi)}")
+            if max(abs(lo), abs(hi)) > MAX_START:
+                raise ValueError(f"{name} must lie within [-{MAX_START:g}, {MAX_START:g}], got {(lo, hi)}")
 
     def model(self) -> DriverModel:
         return synthetic_model(self.dt)

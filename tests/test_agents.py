@@ -1,4 +1,4 @@
-"""The agents experiment (:mod:`pirl_sim.harness.agents`): config checks, intervals, a tiny end-to-end run that
+"""The agents experiment (:mod:`pirl_sim.experiments.agents_study`): config checks, intervals, a tiny end-to-end run that
 writes every file, and resuming (finished runs kept, changed settings redone, a torn file redone)."""
 
 import json
@@ -12,8 +12,10 @@ pytest.importorskip("gymnasium")
 pytest.importorskip("highway_env")
 pytest.importorskip("stable_baselines3")
 
-from pirl_sim.harness import agents  # noqa: E402
-from pirl_sim.harness.agents import AgentsConfig  # noqa: E402
+from pirl_sim.experiments import agents_study as agents  # noqa: E402
+from pirl_sim.experiments.agents_study import AgentsConfig  # noqa: E402
+from pirl_sim.engine.presets import agents_config, run_agents  # noqa: E402
+from pirl_sim.cli import main  # noqa: E402
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -43,7 +45,7 @@ def test_bad_settings_are_rejected(kwargs, match):
 
 def test_the_residual_observation_goes_to_the_residual_runs_only():
     for action, scale in (("idm-speed", 0.3), ("shielded-residual-idm", 1.0)):
-        cfg = agents.sweep_config(AgentsConfig(action=action, observe_residual=True, direct_modes=("none",)))
+        cfg = agents_config(AgentsConfig(action=action, observe_residual=True, direct_modes=("none",)))
         seen = {tuple(c.learner_params[k] for k in ("action", "observe_residual", "residual_scale"))
                 for c in cfg.cells if c.learner == "ppo"}
         assert seen == {(action, True, scale), ("direct", False, scale)}  # the action's default scale
@@ -97,7 +99,7 @@ def test_return_terms_add_up_to_the_return_of_real_episodes():
     import gymnasium as gym
 
     from pirl_sim.envs.baselines import make_baseline
-    from pirl_sim.sweep import agents as cells
+    from pirl_sim.experiments import agents as cells
 
     params = {name: p.default for name, p in cells._PARAMS.items()}
     env = gym.make(cells.ENV_ID, config=cells.env_config(params)).unwrapped
@@ -128,13 +130,13 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     import torch
 
     out = tmp_path / "agents"
-    argv = ["--out", str(out), "--steps", "128", "--n-steps", "64", "--seeds", "0", "--episodes", "1",
+    argv = ["agents", "--out", str(out), "--steps", "128", "--n-steps", "64", "--seeds", "0", "--episodes", "1",
             "--modes", "none,truth", "--direct-modes", "", "--baselines", "hold-speed", "--quiet",
             "--select-every", "64", "--select-episodes", "1"]
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        assert agents.main(argv) == 0
+        assert main(argv) == 0
         assert torch.get_num_threads() == 2  # training runs on one thread and gives the caller's setting back
     finally:
         torch.set_num_threads(threads)
@@ -157,16 +159,16 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
     # a rerun keeps every finished run; a torn cell file is redone; other evaluation seeds redo every run
     cfg = AgentsConfig(modes=("none", "truth"), direct_modes=(), seeds=(0,), steps=128, n_steps=64, batch_size=64,
                        eval_seeds=(1000,), baselines=("hold-speed",), select_every=64, select_episodes=1)
-    first = agents.run_experiment(cfg, out)
+    first = run_agents(cfg, out)
     assert first.ran == [] and len(first.skipped) == 3
     torn = next(c for c in cells if '"mode": "none"' in c.read_text() or '"mode":"none"' in c.read_text())
     torn.write_text('{"policy": "pp')
-    again = agents.run_experiment(cfg, out)
+    again = run_agents(cfg, out)
     assert again.ran == ["ppo idm-speed (none) seed 0"]
     assert [r["episodes"] for r in again.records] == [r["episodes"] for r in first.records]  # same seed, same result
     cfg = AgentsConfig(modes=("truth",), direct_modes=("none",), seeds=(0,), steps=128, n_steps=64, batch_size=64,
                        eval_seeds=(1000, 1001), baselines=("hold-speed",), select_every=None)
-    result = agents.run_experiment(cfg, out)
+    result = run_agents(cfg, out)
     assert sorted(result.ran) == ["hold-speed", "ppo direct (none) seed 0", "ppo idm-speed (truth) seed 0"]
     agents.write_results(cfg, result, out, "test")
     table = pd.read_csv(out / "table.csv")
@@ -175,11 +177,11 @@ def test_tiny_experiment_writes_everything_and_resumes(tmp_path, capsys, monkeyp
 
 
 def test_committed_agents_results_match_the_code(capsys):
-    """Fails after a change to the agents' cell code (the envs, `pirl_sim.sweep.agents`, the cell code of every
-    sweep) until ``python3 -m pirl_sim.harness.agents --out results/agents --jobs 2`` is rerun and committed."""
+    """Fails after a change to the agents' cell code (the envs, `pirl_sim.experiments.agents`, the cell code of every
+    sweep) until ``pirl-sim agents --out results/agents --workers 2`` is rerun and committed."""
     from pathlib import Path
 
     results = Path(__file__).resolve().parents[1] / "results" / "agents"
-    assert agents.main(["--out", str(results), "--dry-run"]) == 0
+    assert main(["agents", "--out", str(results), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert out.rstrip().endswith(" 0 to run"), out

@@ -14,6 +14,7 @@ from pirl_sim.scenarios.contract import (
     BatchController,
     DriverObservation,
     EgoObservation,
+    EgoSpec,
     EgoView,
     VehicleView,
     ground_truth_table,
@@ -105,3 +106,31 @@ def test_ground_truth_table_applies_the_conventions_once():
                            style_name=["x", "y"], theta=np.ones((2, 3)), interacted=[True, True],
                            collided=[False, False], removed_early=[False, False], overridden_fraction=[0, 0],
                            status=["a", "a"], n_frames=[1, 1])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"route_id": ""}, "ego route_id must be a non-empty string"),
+    ({"speed": -1.0}, r"ego speed must be a finite number >= 0"),
+    ({"depart": float("nan")}, r"ego depart must be a finite number >= 0"),
+    ({"route_s": -5.0}, r"ego route_s must be a finite number >= 0"),
+    ({"speed_mode": 128}, r"ego speed_mode must be None or an integer bitset in \[0, 127\]"),
+    ({"speed_mode": True}, r"ego speed_mode must be None or an integer bitset"),
+    ({"vehicle_id": 3}, "ego vehicle_id must be a non-empty string"),
+])
+def test_ego_spec_rejects_bad_values(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        EgoSpec(**{"route_id": "arm0_to_arm2", "speed": 8.0, **kwargs})
+
+
+def test_adapters_reject_ego_settings_their_simulator_cannot_honour():
+    from pirl_sim.scenarios.highway.scenario import HighwayAdapter, HighwayScenarioConfig
+    from pirl_sim.scenarios.sumo.scenario import SumoAdapter, SumoScenarioConfig
+
+    highway, sumo = _small(HighwayScenarioConfig, 2), _small(SumoScenarioConfig, 2)
+    with pytest.raises(ValueError, match="depart must be 0 and speed_mode None"):
+        HighwayAdapter().start(highway, 0, HighwayAdapter().plan(highway, 0),
+                               ego=EgoSpec("arm0_to_arm2", 8.0, depart=3.0))
+    with pytest.raises(ValueError, match="initial_vehicles must be an integer >= 0"):
+        HighwayAdapter().start(highway, 0, HighwayAdapter().plan(highway, 0), initial_vehicles=-1)
+    with pytest.raises(ValueError, match="route_s must be 0"):
+        SumoAdapter().start(sumo, 0, SumoAdapter().plan(sumo, 0), ego=EgoSpec("arm0_to_arm2", 8.0, route_s=20.0))

@@ -1,4 +1,4 @@
-"""The replay's reference without a cost (`pirl_sim.sweep.direct`): the arc lengths ahead regressed on the history
+"""The replay's reference without a cost (`pirl_sim.evaluation.direct`): the arc lengths ahead regressed on the history
 and the place, on generated roundabout-passage data."""
 
 import warnings
@@ -9,8 +9,8 @@ import pytest
 
 from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
 from pirl_sim.scenarios.replay import load_replay
-from pirl_sim.sweep.baselines import KinematicModel
-from pirl_sim.sweep.direct import DIRECT, DirectRegression
+from pirl_sim.evaluation.baselines import KinematicModel
+from pirl_sim.evaluation.direct import DIRECT, DirectRegression
 
 
 @pytest.fixture(scope="module")

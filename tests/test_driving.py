@@ -13,7 +13,7 @@ from pirl_sim.driving import (
     smooth_desired_speed,
 )
 from pirl_sim.dynamics import longitudinal
-from pirl_sim.harness.experiment import Protocol, evaluate
+from pirl_sim.evaluation.protocols import Protocol, evaluate
 from pirl_sim.learners import TIRL, PIRLGMM, PIRLKNN
 from pirl_sim.metrics import adjusted_rand_index, match_styles
 from pirl_sim.mpc import Bounds

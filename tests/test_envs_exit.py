@@ -12,7 +12,7 @@ from pirl_sim.envs.baselines import BASELINES, HoldSpeed, IdmEgo, MpcEgo, action
 from pirl_sim.envs.common import EXIT_REWARD_DEFAULTS, VEHICLE_LENGTH, clearance  # noqa: E402
 
 ENV_ID = "pirl_sim/Roundabout-v0"
-#: the dense traffic of the training experiment (pirl_sim.harness.agents)
+#: the dense traffic of the training experiment (pirl_sim.experiments.agents_study)
 DENSE = {"initial_vehicles": 12, "population": {"depart_interval": 2.0}}
 
 

@@ -125,12 +125,12 @@ def _bad_outputs(tmp_path):
 
 @pytest.mark.parametrize("experiment", ["synthetic", "passage"])
 def test_reproduce_checks_the_output_directory_before_the_work(tmp_path, capsys, monkeypatch, experiment):
-    import pirl_sim.harness.reproduce as reproduce
+    import pirl_sim.engine.presets as presets
 
     def no_work(*args, **kwargs):  # the check must come first: the work is never started
         raise AssertionError("the work started although the output directory is unusable")
 
-    monkeypatch.setattr(reproduce, "run_sweep", no_work)
+    monkeypatch.setattr(presets, "run_sweep", no_work)
     for out, message in _bad_outputs(tmp_path):
         code = main(["reproduce", experiment, "--n-trajectories", "150", "--n-train", "120", "--quiet",
                      "--out", str(out)])
@@ -139,12 +139,12 @@ def test_reproduce_checks_the_output_directory_before_the_work(tmp_path, capsys,
 
 
 def test_reproduce_api_checks_the_output_directory_first(tmp_path, monkeypatch):
-    import pirl_sim.harness.reproduce as reproduce
+    import pirl_sim.engine.presets as presets
 
-    monkeypatch.setattr(reproduce, "run_sweep", lambda *a, **k: pytest.fail("ran the cells before the check"))
+    monkeypatch.setattr(presets, "run_sweep", lambda *a, **k: pytest.fail("ran the cells before the check"))
     for out, message in _bad_outputs(tmp_path):
         with pytest.raises(ValueError, match=f"out_dir .* {message}"):
-            reproduce.reproduce("synthetic", out, progress=False)
+            presets.run_preset("synthetic", out, progress=False)
 
 
 def test_report_checks_its_output_directory(tmp_path, capsys):
@@ -204,7 +204,7 @@ def test_a_binary_toml_error_names_the_file(tmp_path, loader):
     elif loader == "scenario":
         from pirl_sim.scenarios.scenario_config import load_toml as load
     else:
-        from pirl_sim.sweep.config import load_config as load
+        from pirl_sim.engine.config import load_config as load
     with pytest.raises(ValueError, match=rf"{re.escape(str(path))}: not valid TOML: .*not UTF-8"):
         load(path)
 
@@ -230,8 +230,8 @@ def _sweep(tmp_path, learner: str, name: str = "s.toml") -> Path:
 @pytest.mark.parametrize("learner, message", [
     ('{ name = "pirl-gmm", params = { covariance_type = "weird" } }', "covariance_type"),
     ('{ name = "pirl-dpgmm", params = { covariance_type = "weird" } }', "covariance_type"),
-    ('{ name = "pirl-gmm", params = { log_bounds = [5.0, -5.0] } }', r"log_bounds must be \[low, high\]"),
-    ('{ name = "tirl", params = { log_bounds = [1.0] } }', r"log_bounds must be \[low, high\]"),
+    ('{ name = "pirl-gmm", params = { log_bounds = [5.0, -5.0] } }', r"log_bounds must be (\[low, high\]|a pair \(low, high\))"),
+    ('{ name = "tirl", params = { log_bounds = [1.0] } }', r"log_bounds must be (\[low, high\]|a pair \(low, high\))"),
     ('{ name = "pirl-gmm", params = { log_bounds = [nan, 5.0] } }',
      r"learners\[0\]\.params\.log_bounds\[0\]: nan is not allowed"),
     ('{ name = "pirl-gmm", params = { random_state = 4294967296 } }', r"random_state must be an integer in \[0, 2\*\*31\)"),
@@ -269,8 +269,8 @@ learners = ["tirl"]
 
 
 def test_dry_run_does_not_count_corrupted_cell_files_as_stored(tmp_path, capsys):
-    from pirl_sim.sweep.config import load_config
-    from pirl_sim.sweep.store import code_version
+    from pirl_sim.engine.config import load_config
+    from pirl_sim.engine.store import code_version
 
     path = _sweep(tmp_path, '"tirl"')
     out = tmp_path / "out"

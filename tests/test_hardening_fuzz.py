@@ -235,7 +235,7 @@ def sweep_dicts(draw):
 @FUZZ
 @given(data=sweep_dicts())
 def test_fuzz_sweep_config(data):
-    from pirl_sim.sweep.config import parse_config
+    from pirl_sim.engine.config import parse_config
 
     try:
         cfg = parse_config(data)
@@ -250,7 +250,7 @@ def test_fuzz_sweep_config(data):
 @FUZZ
 @given(data=st.binary(max_size=200))
 def test_fuzz_sweep_toml_bytes(tmp_path_factory, data):
-    from pirl_sim.sweep.config import load_config
+    from pirl_sim.engine.config import load_config
 
     path = tmp_path_factory.mktemp("toml") / "sweep.toml"
     path.write_bytes(data)

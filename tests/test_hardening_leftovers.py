@@ -49,7 +49,7 @@ def test_sigkill_of_sweep_main_process_leaves_no_worker(tmp_path, busy):
     cfg.write_text(_ORPHAN_CONFIG)
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pirl_sim.sweep", "sweep", str(cfg), "--out", str(out), "--workers", "2", "--quiet"],
+        [sys.executable, "-m", "pirl_sim", "sweep", str(cfg), "--out", str(out), "--workers", "2", "--quiet"],
         start_new_session=True,  # its own process group, so that the test can find (and at the end clean up) children
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
     )
@@ -81,7 +81,7 @@ def test_sigkill_of_sweep_main_process_leaves_no_worker(tmp_path, busy):
 
 
 def test_watch_parent_rejects_bad_arguments():
-    from pirl_sim.sweep.executors import watch_parent
+    from pirl_sim.engine.executors import watch_parent
 
     with pytest.raises(ValueError, match="parent_pid"):
         watch_parent(0)
@@ -138,7 +138,7 @@ def _assert_legends_clear(fig):
 
 
 def _sweep_summary():
-    from pirl_sim.sweep.report import best_variants, summary_table
+    from pirl_sim.experiments.sweep_report import best_variants, summary_table
 
     summary = summary_table(pd.read_csv(SWEEP_TABLE))
     return summary, best_variants(summary)
@@ -179,8 +179,8 @@ def _assert_tick_below_data(ax):
 
 
 def test_learners_figure_legend_clear_and_colours_per_learner():
-    from pirl_sim.harness.figures import pyplot
-    from pirl_sim.sweep.report import learners_side_by_side_figure
+    from pirl_sim.evaluation.figures import pyplot
+    from pirl_sim.experiments.sweep_report import learners_side_by_side_figure
 
     _, best = _sweep_summary()
     fig = learners_side_by_side_figure(best)
@@ -194,8 +194,8 @@ def test_learners_figure_legend_clear_and_colours_per_learner():
 
 
 def test_med_vs_k_figure_legend_colours_and_what_k_counts():
-    from pirl_sim.harness.figures import pyplot
-    from pirl_sim.sweep.report import med_vs_k_figure
+    from pirl_sim.evaluation.figures import pyplot
+    from pirl_sim.experiments.sweep_report import med_vs_k_figure
 
     summary, _ = _sweep_summary()
     fig = med_vs_k_figure(summary)
@@ -221,8 +221,8 @@ def test_med_vs_k_figure_legend_colours_and_what_k_counts():
 def test_recovery_figure_one_colour_per_feature():
     from matplotlib.colors import to_hex
 
-    from pirl_sim.harness.figures import pyplot
-    from pirl_sim.sweep.report import recovery_figure
+    from pirl_sim.evaluation.figures import pyplot
+    from pirl_sim.experiments.sweep_report import recovery_figure
 
     summary, best = _sweep_summary()
     recovery = pd.read_parquet(SWEEP_TABLE.with_name("recovery.parquet"))
@@ -244,7 +244,7 @@ def test_recovery_figure_one_colour_per_feature():
 def test_knn_vs_k_draws_no_band_through_zero_on_a_log_axis():
     from matplotlib.container import ErrorbarContainer
 
-    from pirl_sim.harness.figures import knn_vs_k_figure, pyplot
+    from pirl_sim.evaluation.figures import knn_vs_k_figure, pyplot
 
     ktable = pd.DataFrame({"protocol": ["paper"] * 3 + ["online"] * 3, "k": [1, 3, 10] * 2,
                            "med": [6e-5, 4e-5, 9e-5, 1.4e-5, 9e-6, 2e-5],
@@ -268,7 +268,7 @@ def test_knn_vs_k_draws_no_band_through_zero_on_a_log_axis():
 
 
 def test_label_log_axis_rejects_bad_limits():
-    from pirl_sim.harness.figures import label_log_axis, pyplot
+    from pirl_sim.evaluation.figures import label_log_axis, pyplot
 
     fig, ax = pyplot().subplots()
     try:
@@ -320,22 +320,22 @@ learners = ["tirl"]
 def test_failed_cells_are_reported_through_logging(tmp_path, monkeypatch, caplog, capsys):
     import logging
 
+    import pirl_sim.engine.run as engine_run
     from pirl_sim.cli import main
-    from pirl_sim.sweep import cli as cli_module
 
     class FakeRun:
         table = pd.DataFrame({"key": ["abc"]})
         computed, cached, failed, wall_s = ["abc"], [], {"abc": "ValueError: boom"}, 0.1
 
-    monkeypatch.setattr(cli_module, "run_sweep", lambda *a, **k: FakeRun())
+    monkeypatch.setattr(engine_run, "run_sweep", lambda *a, **k: FakeRun())
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(_TINY_SWEEP)
     with caplog.at_level(logging.WARNING, logger="pirl_sim"):
         code = main(["sweep", str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
     assert code == 1
-    messages = [r.getMessage() for r in caplog.records if r.name == "pirl_sim.sweep.cli"]
+    messages = [r.getMessage() for r in caplog.records if r.name == "pirl_sim.cli.sweep"]
     assert any("cell abc failed: ValueError: boom" in m for m in messages), messages
-    assert all(r.levelno == logging.WARNING for r in caplog.records if r.name == "pirl_sim.sweep.cli")
+    assert all(r.levelno == logging.WARNING for r in caplog.records if r.name == "pirl_sim.cli.sweep")
     err = capsys.readouterr().err
     assert "cell abc failed: ValueError: boom" in err  # and shown on stderr by the command's handler
     assert "1 cells failed" in err
@@ -345,8 +345,8 @@ def test_cli_logging_shows_library_warnings_and_leaves_no_handler(tmp_path, caps
     import logging
 
     from pirl_sim.cli import main
-    from pirl_sim.sweep.config import load_config
-    from pirl_sim.sweep.store import code_version
+    from pirl_sim.engine.config import load_config
+    from pirl_sim.engine.store import code_version
 
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(_TINY_SWEEP)

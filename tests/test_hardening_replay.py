@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from pirl_sim.cli import main
-from pirl_sim.harness.replay import ReplayProtocol, run_replay, write_replay_results
-from pirl_sim.harness.replay_cli import seconds_to_steps
+from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay, write_replay_results
+from pirl_sim.cli.common import seconds_to_steps
 from pirl_sim.io.interaction import write_tracks
 from pirl_sim.scenarios.replay import load_replay
 
@@ -183,7 +183,7 @@ def test_replay_writes_summary_md(mixed_result, tmp_path):
 
 def test_cluster_figure_uses_gmm_k_and_marks_background_tracks(mixed_result, tmp_path, monkeypatch):
     import pirl_sim.learners as learners
-    from pirl_sim.harness import figures
+    from pirl_sim.evaluation import figures
 
     scene, result = mixed_result
     seen = {}

@@ -1,6 +1,5 @@
 """highway-env roundabout scenarios: plan -> simulate -> record through the one writer -> read back."""
 
-import argparse
 import filecmp
 
 import numpy as np
@@ -9,7 +8,7 @@ import pytest
 pytest.importorskip("highway_env")
 pytest.importorskip("lanelet2")
 
-from pirl_sim.scenarios.highway.cli import add_highway_parser, run_simulate_highway  # noqa: E402
+from pirl_sim.cli import main  # noqa: E402
 from pirl_sim.scenarios.highway.scenario import (  # noqa: E402
     HighwayScenarioConfig,
     load_highway_run,
@@ -130,13 +129,9 @@ def test_cli_runs_a_tiny_scenario_and_reports(tmp_path, capsys):
     toml.write_text('max_duration = 60.0\n[geometry]\nradius = 25.0\n[population]\nn_vehicles = 3\n'
                     'depart_interval = 5.0\nbackground_share = 0.0\n', encoding="utf-8")
     assert load_scenario(toml).geometry.radius == 25.0
-    parser = argparse.ArgumentParser()
-    add_highway_parser(parser.add_subparsers(dest="simulator"))
-    args = parser.parse_args(["highway", "--scenario", str(toml), "--out", str(tmp_path / "out"), "--quiet"])
-    assert run_simulate_highway(args) == 0
+    assert main(["simulate", "highway", "--scenario", str(toml), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "3 tracks (3 PIRL, 0 background)" in printed and "collided: 0" in printed
     assert (tmp_path / "out" / INFO_FILE).is_file()
-    bad = parser.parse_args(["highway", "--scenario", str(tmp_path / "missing.toml"), "--quiet"])
-    assert run_simulate_highway(bad) == 2
+    assert main(["simulate", "highway", "--scenario", str(tmp_path / "missing.toml"), "--quiet"]) == 2
     assert "scenario config not found" in capsys.readouterr().err

@@ -147,7 +147,7 @@ def test_replay_cli_sets_the_next_learners_segments_and_road_ahead(tmp_path, cap
     """pirl-knn-next: segments re-started at the history estimates and the curvature 0-45 m ahead in the
     look-up by default; --next-segments history needs history starts; bad distances are named."""
     from pirl_sim.cli import build_parser, main
-    from pirl_sim.harness.replay_cli import replay_config, replay_settings
+    from pirl_sim.cli.replay import replay_config, replay_settings
 
     args = _replay_args(tmp_path, 5, "pirl-knn-next", "3")
     ns = build_parser().parse_args(args)
@@ -177,7 +177,7 @@ def test_replay_cli_runs_the_selected_bank_once_whatever_the_k_grid(tmp_path):
     import pandas as pd
 
     from pirl_sim.cli import build_parser, main
-    from pirl_sim.harness.replay_cli import replay_config, replay_settings
+    from pirl_sim.cli.replay import replay_config, replay_settings
 
     args = _replay_args(tmp_path, 5, "tirl,pirl-knn-next,pirl-select", "3,5")
     ns = build_parser().parse_args(args)

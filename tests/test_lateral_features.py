@@ -7,7 +7,7 @@ import pytest
 
 from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
 from pirl_sim.dynamics import longitudinal
-from pirl_sim.harness.replay import ReplayProtocol, run_replay
+from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
 from pirl_sim.lateral import MeanOffsetProfile, NeighbourOffsets, predict_offsets
 from pirl_sim.paths import ReferencePath
 from pirl_sim.scenarios.replay import load_replay
@@ -203,7 +203,7 @@ def test_a_learner_on_the_following_features_round_trips_through_the_model_file(
 
 
 def test_horizon_scan_fits_the_desired_speed_per_split(tmp_path):
-    from pirl_sim.harness.horizon_scan import scan_horizons
+    from pirl_sim.experiments.horizon_scan import scan_horizons
 
     tracks, osm = _weaving_scene(tmp_path)
     scene = load_replay([tracks], osm, smoothing=0.0, features="speed-level")

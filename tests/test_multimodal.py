@@ -6,7 +6,7 @@ import warnings
 import numpy as np
 import pytest
 
-from pirl_sim.harness.experiment import PAPER_PROTOCOL, Protocol, evaluate
+from pirl_sim.evaluation.protocols import PAPER_PROTOCOL, Protocol, evaluate
 from pirl_sim.learners import PIRLDPGMM, PIRLGMM, PIRLKNN, TIRL
 from pirl_sim.metrics import (
     interaction_longitudinal_threshold,

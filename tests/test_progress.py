@@ -43,7 +43,7 @@ class _Clock:
 def test_sweep_progress_eta_from_computed_cells_with_cached_counted_as_done(monkeypatch):
     import tqdm.std
 
-    from pirl_sim.sweep.progress import Progress
+    from pirl_sim.engine.progress import Progress
 
     clock = _Clock()
     monkeypatch.setattr(tqdm.std, "time", clock)
@@ -66,7 +66,7 @@ def test_sweep_progress_eta_from_computed_cells_with_cached_counted_as_done(monk
 def test_sweep_progress_not_a_terminal_writes_a_line_every_few_seconds_and_nothing_when_disabled(monkeypatch):
     import tqdm.std
 
-    from pirl_sim.sweep.progress import Progress
+    from pirl_sim.engine.progress import Progress
 
     clock = _Clock()
     monkeypatch.setattr(tqdm.std, "time", clock)
@@ -91,7 +91,7 @@ def test_sweep_progress_not_a_terminal_writes_a_line_every_few_seconds_and_nothi
 
 
 def test_sweep_progress_redraws_in_place_on_a_terminal():
-    from pirl_sim.sweep.progress import Progress
+    from pirl_sim.engine.progress import Progress
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -108,7 +108,7 @@ def test_sweep_progress_redraws_in_place_on_a_terminal():
 
 
 def test_simulate_progress_bar_counts_vehicles_through_tqdm_in_whole_lines():
-    from pirl_sim.scenarios.simulate_cli import ProgressBar
+    from pirl_sim.cli.simulate import ProgressBar
 
     out = io.StringIO()
     bar_ = ProgressBar(out, every=0.0)

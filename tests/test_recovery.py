@@ -1,4 +1,4 @@
-"""Weight recovery of the receding-horizon IRL on simulated runs (`pirl-sim recover`, pirl_sim.harness.recovery).
+"""Weight recovery of the receding-horizon IRL on simulated runs (`pirl-sim recover`, pirl_sim.experiments.recovery).
 
 The slow tests run the command itself on small populations (24 vehicles, one seed) of both simulators; the
 full study (80 vehicles, seeds 0-3) is the committed results/recovery/.
@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from pirl_sim.cli import main
-from pirl_sim.harness.recovery import (
+from pirl_sim.experiments.recovery import (
     FREE_FEATURES,
     RecoveryJob,
     check_targets,

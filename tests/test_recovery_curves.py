@@ -1,5 +1,5 @@
 """Recovery curves (issue 13 item 3): the recovery_curves.toml preset, the simulated scenarios' n_train parameter,
-and the report's curves (pirl_sim.sweep.curves), on a hand-made table and on a tiny real SUMO sweep."""
+and the report's curves (pirl_sim.experiments.recovery_curves), on a hand-made table and on a tiny real SUMO sweep."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.sweep import load_config, parse_config, run_sweep
-from pirl_sim.sweep.curves import CURVE_AXES, curves_markdown, curves_summary, curves_table, recovery_curves_figure
-from pirl_sim.sweep.report import _fmt, write_report
+from pirl_sim.engine import load_config, parse_config, run_sweep, write_report
+from pirl_sim.experiments.recovery_curves import CURVE_AXES, curves_markdown, curves_summary, curves_table, recovery_curves_figure
+from pirl_sim.experiments.sweep_report import _fmt
 
 
 def _config(text: str):
@@ -21,7 +21,7 @@ def _config(text: str):
 
 
 def test_the_preset_varies_one_recovery_parameter_per_experiment():
-    path = resources.files("pirl_sim.sweep") / "recovery_curves.toml"
+    path = resources.files("pirl_sim.experiments") / "configs" / "recovery_curves.toml"
     cfg = load_config(str(path))
     by_exp: dict[str, list] = {}
     for cell in cfg.cells:

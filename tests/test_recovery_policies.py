@@ -66,7 +66,7 @@ EGO_TOLERANCES = {"median": {"*": 0.01}, "p90": {"*": 0.02}}
 @pytest.fixture(scope="module")
 def mpc_ego():
     pytest.importorskip("highway_env")
-    from pirl_sim.harness.policy_recovery import STYLES, mpc_ego_report
+    from pirl_sim.experiments.policy_recovery import STYLES, mpc_ego_report
 
     return mpc_ego_report(STYLES, seeds=(0, 1, 2, 3), ego_speeds=(5.0, 8.0, 11.0, 13.0))
 
@@ -87,7 +87,7 @@ def test_mpc_ego_weights_are_recovered_from_its_recorded_tracks(mpc_ego):
 
 
 def test_policy_recovery_rejects_bad_settings():
-    from pirl_sim.harness.policy_recovery import PpoRecoveryConfig, mpc_ego_demonstrations
+    from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, mpc_ego_demonstrations
 
     with pytest.raises(ValueError, match="training seeds and evaluation seeds must differ; both have \\[1\\]"):
         PpoRecoveryConfig(seeds=(0, 1), eval_seeds=(1, 2))
@@ -111,7 +111,7 @@ def test_policy_recovery_rejects_bad_settings():
 @pytest.mark.slow
 def test_ppo_recovery_experiment_runs_end_to_end(tmp_path):
     pytest.importorskip("stable_baselines3")
-    from pirl_sim.harness.policy_recovery import PpoRecoveryConfig, ppo_ego_report, write_results
+    from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, ppo_ego_report, write_results
 
     cfg = PpoRecoveryConfig(seeds=(0,), steps=128, n_steps=64, batch_size=32, n_epochs=1, eval_seeds=(1000,),
                             duration=8.0)

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from pirl_sim.cli import main
-from pirl_sim.harness.replay import ReplayProtocol, run_replay
+from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
 from pirl_sim.io.interaction import read_tracks
 from pirl_sim.scenarios.passage import PassageConfig, generate, recording, write_scene
 from pirl_sim.scenarios.replay import SelectionRule, _estimate, interaction_flags, load_replay
@@ -190,7 +190,7 @@ def test_track_starting_before_its_route_stays_on_its_route(tmp_path):
     xy = scene.model.positions(t.states, t.metadata["d"])
     assert np.abs(xy - t.metadata["xy"]).max() < 0.1
     # the replay scores on the same axis: CV along the path from the first window is exact on this track
-    from pirl_sim.sweep.recorded import _errors
+    from pirl_sim.experiments.recorded import _errors
 
     proto = ReplayProtocol(history=2, horizon=10, fde_steps=(10,))
     x0 = t.states[2]
@@ -210,7 +210,7 @@ def test_counts_are_tracks_and_pieces_separately(tmp_path):
     # the last piece of each track (24 steps) is shorter than history + horizon (25 steps): 2 pieces per track
     assert set(rows["n_train_pieces"]) == {12} and set(rows["n_test_pieces"]) == {4}
     assert result["selected"] == 8 and result["selected_pieces"] == 16
-    from pirl_sim.harness.replay import write_replay_results
+    from pirl_sim.experiments.replay_report import write_replay_results
 
     write_replay_results(result, scene, tmp_path / "res", "test")
     text = (tmp_path / "res" / "README.md").read_text()
@@ -222,7 +222,7 @@ def test_ca_baseline_never_reverses():
     from types import SimpleNamespace
 
     from pirl_sim.dynamics import longitudinal
-    from pirl_sim.sweep.baselines import KinematicModel
+    from pirl_sim.evaluation.baselines import KinematicModel
 
     x0 = np.array([
         [10.0, -0.5, -1.0],  # reversing estimate, braking: stays
@@ -295,7 +295,7 @@ def test_replay_fits_knn_once_per_split_for_all_k(scene_dir, monkeypatch):
 
 
 def test_replay_reports_irl_convergence_and_passes_other_warnings_on(scene_dir, monkeypatch):
-    from pirl_sim.harness.replay import summarize
+    from pirl_sim.experiments.replay_report import summarize
     from pirl_sim.irl import IRLConvergenceWarning
     from pirl_sim.learners import TIRL
 
@@ -347,11 +347,11 @@ def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(
     args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
             "tirl,pirl-knn", "--knn-k", "3", "--lateral", "neighbours", "--quiet", "--out"]
     assert main(args + [str(tmp_path / "one")]) == 0
-    assert main(args + [str(tmp_path / "two"), "--jobs", "2"]) == 0
+    assert main(args + [str(tmp_path / "two"), "--workers", "2"]) == 0
     cells = [json.loads(p.read_text()) for p in (tmp_path / "one" / "cells").glob("*.json")]
     assert sorted((c["cell"]["seed"], c["cell"]["learner"]) for c in cells) == sorted(
         (seed, m) for seed in range(3) for m in ("cv", "ca", "tirl", "pirl-knn", "cv-xy"))
-    from pirl_sim.sweep.recorded import load_scene
+    from pirl_sim.experiments.recorded import load_scene
 
     scene = load_scene(cells[0]["cell"]["scenario_params"])  # as the cells read it (a pirl_sim recording)
     direct = run_replay(scene, [("TIRL", "tirl", {}), ("PIRL-kNN (k=3)", "pirl-knn",
@@ -363,7 +363,7 @@ def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(
     pd.testing.assert_frame_equal(one[cols], two[cols])
     pd.testing.assert_frame_equal(one[cols], direct[cols].astype(one[cols].dtypes.to_dict()), rtol=1e-5)  # %.6g
     with pytest.raises(SystemExit):
-        main(args + [str(tmp_path / "none"), "--jobs", "0"])
+        main(args + [str(tmp_path / "none"), "--workers", "0"])
 
 
 def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_path, monkeypatch, capsys):
@@ -372,7 +372,7 @@ def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_pa
     aside)."""
     import json
 
-    import pirl_sim.sweep.recorded as recorded
+    import pirl_sim.experiments.recorded as recorded
 
     out, _ = scene_dir
     args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
@@ -414,14 +414,14 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(scene_dir, tm
     import argparse
     import shutil
 
-    from pirl_sim.harness.replay_cli import add_replay_parser, replay_config, replay_settings
-    from pirl_sim.sweep.recorded import recorded_fingerprint
+    from pirl_sim.cli.replay import add_parser, replay_config, replay_settings
+    from pirl_sim.experiments.recorded import recorded_fingerprint
 
     out, _ = scene_dir
     scene = tmp_path / "scene"
     shutil.copytree(out, scene)
     parser = argparse.ArgumentParser()
-    add_replay_parser(parser.add_subparsers())
+    add_parser(parser.add_subparsers())
 
     def keys(*extra):
         args = parser.parse_args(["replay", "--tracks", str(scene), "--map", str(scene / "map.osm"), *extra])
@@ -454,8 +454,8 @@ def test_replay_cli_refuses_a_scene_with_too_few_tracks_before_any_cell(tmp_path
 def test_a_sweep_config_runs_the_recorded_scenario_into_the_tidy_table(scene_dir, tmp_path):
     """The replay's scenario is a sweep scenario like the others: a config of its own gives the tidy table's MED and
     FDE of the in-process replay."""
-    from pirl_sim.sweep import load_config, run_sweep
-    from pirl_sim.sweep.recorded import load_scene
+    from pirl_sim.engine import load_config, run_sweep
+    from pirl_sim.experiments.recorded import load_scene
 
     out, _ = scene_dir
     cfg = tmp_path / "recorded.toml"
@@ -567,7 +567,7 @@ def test_a_recorded_sweep_config_reads_history_starts_with_speeds(scene_dir):
     """A hand-written ``recorded`` config that names no ``load.estimate`` replays with history starts (the
     default) and gets the speed-aided estimate, as ``pirl-sim replay`` does; with ``start = "track"`` (or an
     explicit estimate) it is read as asked."""
-    from pirl_sim.sweep.recorded import load_scene
+    from pirl_sim.experiments.recorded import load_scene
 
     out, _ = scene_dir
     params = {"tracks": str(out), "map": str(out / "map.osm"), "files": 0, "load": {}, "replay": {}}

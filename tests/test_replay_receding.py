@@ -78,7 +78,7 @@ def test_receding_fit_on_the_replay_recovers_the_drivers_weights(sumo_run):
 
 
 def test_closed_loop_rollout_is_the_receding_horizon_simulation(sumo_run):
-    from pirl_sim.harness.replay import predict_path_states
+    from pirl_sim.experiments.replay_report import predict_path_states
     from pirl_sim.simulate import simulate_receding_horizon
 
     scene, _ = _load(sumo_run)
@@ -119,8 +119,8 @@ def test_replay_cli_receding_beats_constant_acceleration(tmp_path):
 
 @pytest.mark.slow
 def test_horizon_scan_prefers_the_drivers_horizon(sumo_run, tmp_path):
-    from pirl_sim.harness.horizon_scan import scan_horizons, summarize_scan
-    from pirl_sim.harness.replay import ReplayProtocol
+    from pirl_sim.experiments.horizon_scan import scan_horizons, summarize_scan
+    from pirl_sim.experiments.replay_report import ReplayProtocol
 
     scene, _ = _load(sumo_run, max_steps=200)
     proto = ReplayProtocol(history=20, horizon=30, stride=10, fde_steps=(10, 30), seeds=(0,), rollout="closed",
@@ -175,7 +175,7 @@ def test_receding_without_a_horizon_on_real_data_names_the_option(real_like, cap
 
 
 def test_load_replay_rejects_bad_options(real_like):
-    from pirl_sim.harness.replay import ReplayProtocol
+    from pirl_sim.experiments.replay_report import ReplayProtocol
     from pirl_sim.scenarios.replay import EstimateNoise, load_replay
 
     files, osm = [real_like / "vehicle_tracks_000.csv"], real_like / "map.osm"

@@ -9,7 +9,7 @@ import pytest
 
 from pirl_sim.cli import main
 from pirl_sim.driving import smooth_desired_speed
-from pirl_sim.harness.replay import ReplayProtocol, run_replay
+from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
 from pirl_sim.scenarios.replay import (
     CENTRE_RULE,
     SelectionRule,

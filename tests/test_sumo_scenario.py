@@ -1,6 +1,5 @@
 """SUMO roundabout populations end to end: planning, bad input, determinism, flags, files, replay, CLI."""
 
-import argparse
 import dataclasses
 import json
 
@@ -29,8 +28,7 @@ from pirl_sim.scenarios.sumo import (  # noqa: E402
     scenario_from_dict,
     speed_mode,
 )
-from pirl_sim.scenarios.simulate_cli import add_simulate_parser  # noqa: E402
-from pirl_sim.scenarios.sumo.cli import add_sumo_parser, run_simulate_sumo  # noqa: E402
+from pirl_sim.cli import build_parser, main  # noqa: E402
 
 SMALL = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=16)
 FILES = ("vehicle_tracks_000.csv", "ground_truth.csv", "map.osm", "run.json", "network/roundabout.net.xml",
@@ -249,9 +247,7 @@ def test_runs_in_a_spawned_worker_process(tmp_path):
 # ----------------------------------------------------------------------------------------------
 
 def _cli(argv):
-    parser = argparse.ArgumentParser(prog="pirl-sim")
-    add_sumo_parser(add_simulate_parser(parser.add_subparsers(dest="command")))
-    return run_simulate_sumo(parser.parse_args(argv))
+    return main(argv)
 
 
 def test_cli_runs_and_reports(tmp_path, capsys):
@@ -267,8 +263,7 @@ def test_cli_runs_and_reports(tmp_path, capsys):
 
 
 def test_cli_defaults_and_errors(tmp_path, capsys, no_sumo):
-    parser = argparse.ArgumentParser(prog="pirl-sim")
-    add_sumo_parser(add_simulate_parser(parser.add_subparsers(dest="command")))
+    parser = build_parser()
     args = parser.parse_args(["simulate", "sumo"])
     assert (args.population, args.seed, str(args.out), args.backend) == (None, 0, "results/sumo_run", "libsumo")
     assert _cli(["simulate", "sumo", "--print-default-population"]) == 0

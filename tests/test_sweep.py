@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.sweep import (
+from pirl_sim.engine import (
     SCENARIOS,
     TIMING_COLUMNS,
     ResultStore,
@@ -23,9 +23,9 @@ from pirl_sim.sweep import (
     run_sweep,
     write_report,
 )
-from pirl_sim.sweep.cell import run_cell, single_threaded
+from pirl_sim.engine.worker import run_cell, single_threaded
 from pirl_sim.cli import main as sweep_main
-from pirl_sim.sweep.scenarios import Param, TrainShape
+from pirl_sim.experiments.spec import Param, TrainShape
 
 def _threads():
     import os
@@ -298,7 +298,7 @@ def test_a_failing_cell_is_reported_and_the_others_are_kept(failing_scenario, tm
 
 
 def test_worker_with_other_code_refuses_the_cell():
-    from pirl_sim.sweep import cell as cell_module
+    from pirl_sim.engine import worker as cell_module
 
     cell_module._VERSION = None
     cell = _config().cells[0]
@@ -402,7 +402,7 @@ def test_sweep_tests_leave_the_process_multi_threaded():
 
     from threadpoolctl import threadpool_info
 
-    from pirl_sim.sweep import cell as cell_module
+    from pirl_sim.engine import worker as cell_module
 
     now = {i["filepath"]: i["num_threads"] for i in threadpool_info()}
     assert {f: n for f, n in now.items() if f in _THREADS_AT_START} == _THREADS_AT_START
@@ -416,8 +416,8 @@ def test_knn_k_grid_runs_as_one_fit_with_each_cells_own_numbers(tmp_path, monkey
     cell's stored result equals the cell run on its own, warnings included; a k larger than the training set
     (which the config check rejects) fails alone."""
     from pirl_sim.learners import PIRLKNN
-    from pirl_sim.sweep.cell import knn_group, run_cells
-    from pirl_sim.sweep.run import _tasks
+    from pirl_sim.engine.worker import knn_group, run_cells
+    from pirl_sim.engine.run import _tasks
 
     text = TINY.replace("seeds = [0, 1]", "seeds = [0]").replace("n_neighbors = [1, 4]", "n_neighbors = [4, 1]")
     cfg = _config(text)
@@ -452,7 +452,7 @@ def test_knn_k_grid_runs_as_one_fit_with_each_cells_own_numbers(tmp_path, monkey
 
 
 def test_local_executor_start_method_is_spawn_or_fork():
-    from pirl_sim.sweep.executors import LocalExecutor
+    from pirl_sim.engine.executors import LocalExecutor
 
     with pytest.raises(ValueError, match="start_method must be 'spawn' or 'fork', got 'forkserver'"):
         LocalExecutor(1, start_method="forkserver")

@@ -1,4 +1,4 @@
-"""The sweep engine's ``agents`` scenario (`pirl_sim.sweep.agents`): what a config may put where, checked before any
+"""The sweep engine's ``agents`` scenario (`pirl_sim.experiments.agents`): what a config may put where, checked before any
 work starts, and one scripted cell run and stored like any sweep cell."""
 
 import pytest
@@ -6,7 +6,7 @@ import pytest
 pytest.importorskip("gymnasium")
 pytest.importorskip("highway_env")
 
-from pirl_sim.sweep.config import parse_config  # noqa: E402
+from pirl_sim.engine.config import parse_config  # noqa: E402
 
 
 def _config(learners, scenario="agents", protocols=("paper",), params=None):
@@ -51,7 +51,7 @@ def test_ppo_seed_is_the_cells_and_labels_follow_the_grid():
 
 
 def test_a_training_seed_among_the_evaluation_seeds_fails_the_cell():
-    from pirl_sim.sweep.agents import run_agent_cells
+    from pirl_sim.experiments.agents import run_agent_cells
 
     cfg = parse_config({"seeds": [1000], "experiments": [{"scenario": "agents", "protocols": ["paper"],
                                                           "learners": ["ppo"]}]})
@@ -60,7 +60,7 @@ def test_a_training_seed_among_the_evaluation_seeds_fails_the_cell():
 
 
 def test_validation_seeds_must_avoid_the_evaluation_and_training_seeds():
-    from pirl_sim.sweep.agents import run_agent_cells
+    from pirl_sim.experiments.agents import run_agent_cells
 
     def cell(seed, **params):
         cfg = parse_config({"seeds": [seed], "experiments": [{"scenario": "agents", "protocols": ["paper"],
@@ -79,7 +79,7 @@ def test_model_selection_evaluates_the_best_checked_policy():
     """With checks every 64 steps, the evaluated policy is the one of the best check: its evaluation equals that of
     a run trained for the selected number of steps without selection (chunked training is the same training)."""
     pytest.importorskip("stable_baselines3")
-    from pirl_sim.sweep.agents import _ppo
+    from pirl_sim.experiments.agents import _ppo
 
     params = {"initial_vehicles": 4, "depart_interval": 4.0, "duration": 10.0, "reward": "exit", "eval_episodes": 2,
               "eval_seed": 1000, "learner_seed": 7}
@@ -98,8 +98,8 @@ def test_model_selection_evaluates_the_best_checked_policy():
 
 
 def test_scripted_cell_runs_through_the_sweep_and_is_kept(tmp_path):
-    from pirl_sim.sweep.executors import InlineExecutor
-    from pirl_sim.sweep.run import run_sweep
+    from pirl_sim.engine.executors import InlineExecutor
+    from pirl_sim.engine.run import run_sweep
 
     cfg = _config(["hold-speed"], params={"eval_episodes": 2, "initial_vehicles": 4})
     with InlineExecutor() as ex:

@@ -4,8 +4,8 @@ SUMO simulation included (issue 13)."""
 import pandas as pd
 import pytest
 
-from pirl_sim.sweep import TIMING_COLUMNS, parse_config, run_sweep
-from pirl_sim.sweep.executors import DaskExecutor, LocalExecutor
+from pirl_sim.engine import TIMING_COLUMNS, parse_config, run_sweep
+from pirl_sim.engine.executors import DaskExecutor, LocalExecutor
 
 distributed = pytest.importorskip("dask.distributed")
 

@@ -28,7 +28,7 @@ def replay_out(tmp_path_factory):
 
 
 def test_report_reads_the_cells_of_a_replay_and_keeps_its_readme(replay_out, capsys):
-    from pirl_sim.sweep import read_table
+    from pirl_sim.engine import read_table
 
     readme = (replay_out / "README.md").read_bytes()
     table = read_table(replay_out)  # no table files: the cells listed in sweep.json
@@ -46,7 +46,7 @@ def test_report_reads_the_cells_of_a_replay_and_keeps_its_readme(replay_out, cap
 
 
 def test_a_missing_simulator_extra_fails_the_config_check_naming_the_extra(tmp_path, capsys, monkeypatch):
-    from pirl_sim.sweep import scenarios
+    from pirl_sim.experiments import simulated as scenarios
 
     def import_module(name):
         raise ModuleNotFoundError(f"No module named {'highway_env'!r}", name="highway_env")

@@ -7,12 +7,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.harness.experiment import Protocol, evaluate
+from pirl_sim.evaluation.protocols import Protocol, evaluate
 from pirl_sim.learners import PIRLGMM
 from pirl_sim.metrics import adjusted_rand_index, match_styles
-from pirl_sim.sweep import parse_config, run_sweep, write_report
-from pirl_sim.sweep.cell import ONLINE_FUTURES, ONLINE_SCORES, _data, run_cell, single_threaded
-from pirl_sim.sweep.run import TABLE_COLUMNS, read_table
+from pirl_sim.engine import parse_config, run_sweep, write_report
+from pirl_sim.engine.worker import ONLINE_FUTURES, ONLINE_SCORES, _data, run_cell, single_threaded
+from pirl_sim.engine.run import TABLE_COLUMNS, read_table
 
 TINY_PASSAGE = """
 name = "tiny online"

@@ -9,7 +9,7 @@ import time
 import pandas as pd
 import pytest
 
-from pirl_sim.sweep import TIMING_COLUMNS, load_config, run_sweep
+from pirl_sim.engine import TIMING_COLUMNS, load_config, run_sweep
 
 CONFIG = """
 name = "resume"
@@ -36,7 +36,7 @@ def test_sigkill_halfway_then_resume(tmp_path):
     out = tmp_path / "killed"
     cells = out / "cells"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pirl_sim.sweep", "sweep", str(cfg_path), "--out", str(out), "--workers", "1",
+        [sys.executable, "-m", "pirl_sim", "sweep", str(cfg_path), "--out", str(out), "--workers", "1",
          "--quiet"],
         start_new_session=True,  # its own process group: the driver and its worker die together
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -84,7 +84,7 @@ def test_sigkilled_sumo_sweep_resumes_without_simulating_or_computing_again(tmp_
     out = tmp_path / "killed"
     cells, sims = out / "cells", out / "simulations"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pirl_sim.sweep", "sweep", str(cfg_path), "--out", str(out), "--workers", "1",
+        [sys.executable, "-m", "pirl_sim", "sweep", str(cfg_path), "--out", str(out), "--workers", "1",
          "--quiet"],
         start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
     )

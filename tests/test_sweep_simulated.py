@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.sweep import load_config, parse_config, run_sweep
-from pirl_sim.sweep.baselines import ConstantAcceleration, ConstantVelocity, KinematicModel
+from pirl_sim.engine import load_config, parse_config, run_sweep
+from pirl_sim.evaluation.baselines import ConstantAcceleration, ConstantVelocity, KinematicModel
 from pirl_sim.cli import main as sweep_main
 
 SUMO = """
@@ -151,7 +151,7 @@ def test_baselines_predict_constant_velocity_and_acceleration():
 
 
 def test_ci95_is_the_student_t_half_width():
-    from pirl_sim.sweep.report import ci95
+    from pirl_sim.evaluation.stats import ci95
 
     assert np.isnan(ci95([1.0])) and np.isnan(ci95([]))
     # n = 3, sd = 1: t(0.975, 2) = 4.3027 -> 4.3027 / sqrt(3)
@@ -161,7 +161,7 @@ def test_ci95_is_the_student_t_half_width():
 
 @pytest.mark.slow
 def test_report_of_a_simulator_sweep_has_intervals_and_weight_tables(tmp_path):
-    from pirl_sim.sweep import write_report
+    from pirl_sim.engine import write_report
 
     text = _with_learners(SUMO.replace("seeds = [0]", "seeds = [0, 1]"),
                           '["cv", { name = "tirl", params = { likelihood = "receding", step_stride = 2 } }]')

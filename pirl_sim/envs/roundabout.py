@@ -7,7 +7,9 @@ and styles are drawn from the ``population`` (a :class:`~pirl_sim.scenarios.popu
 the same as the SUMO and highway-env scenarios'), each re-planning with its MPC every 0.1 s, plus
 highway-env IDM background traffic; vehicles yield at entries, leave at exits, and crashed ones are
 removed after ``rules.crash_removal_delay``. ``initial_vehicles`` of the plan are on the road at reset, the
-others arrive at the entries at their planned departure times (counted from the reset).
+others arrive at the entries at their planned departure times (counted from the reset). Every reset starts
+the highway-env scenario's simulation (:meth:`~pirl_sim.scenarios.highway.scenario.HighwayAdapter.start`, the
+ego added as an :class:`~pirl_sim.scenarios.contract.EgoSpec`), and every frame is one of its steps.
 
 This is the default backend (``backend = "highway"``); ``config={"backend": "sumo"}`` makes the same task
 on a SUMO roundabout (:mod:`pirl_sim.envs.sumo_roundabout`), with the same action, reward and info
@@ -91,8 +93,10 @@ population plan, placement and noise from ``s``.
 from __future__ import annotations
 
 import copy
+import functools
 import inspect
 from collections.abc import Mapping
+from contextlib import ExitStack
 
 import numpy as np
 from gymnasium import spaces
@@ -116,18 +120,20 @@ from pirl_sim.envs.common import (
 )
 from pirl_sim.envs.observation import RoundaboutKinematics, StyleKinematics
 from pirl_sim.envs.styles import StyleObserver, check_style_config
-from pirl_sim.scenarios.highway.network import (
-    RoundaboutGeometry,
-    build_network,
-    lane_graph,
-    route_catalogue,
-    route_set,
+from pirl_sim.scenarios.contract import EgoSpec
+from pirl_sim.scenarios.highway.network import RoundaboutGeometry, build_network, route_catalogue
+from pirl_sim.scenarios.highway.scenario import (
+    EGO_END_MARGIN,
+    ROUTE_IDS,
+    HighwayAdapter,
+    HighwayScenarioConfig,
+    build_routes,
+    drivers_from_dict,
+    rules_from_dict,
 )
-from pirl_sim.scenarios.planning import plan_population, random_streams
-from pirl_sim.scenarios.highway.scenario import ROUTE_IDS, drivers_from_dict, rules_from_dict
 from pirl_sim.scenarios.highway.traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
-from pirl_sim.scenarios.highway.vehicles import EGO, EgoVehicle
-from pirl_sim.scenarios.population_config import FEATURE_NAMES, PopulationConfig
+from pirl_sim.scenarios.highway.vehicles import EgoVehicle
+from pirl_sim.scenarios.population_config import FEATURE_NAMES
 from pirl_sim.validation import check_keys, number
 
 __all__ = ["PirlRoundaboutEnv", "LongitudinalAction", "REWARDS", "EGO_ID"]
@@ -152,18 +158,18 @@ _KINEMATICS_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "s
 #: Kinematics features that stay in [-1, 1] after normalisation and clipping
 _BOUNDED_FEATURES = {"presence", "cos_h", "sin_h", "cos_d", "sin_d"}
 
-# network, route catalogue and reference paths are the same for equal settings: built once per process
-_ROUTES_CACHE: dict[tuple, tuple] = {}
+
+@functools.lru_cache(maxsize=32)
+def _route_length(radius: float, route_id: str) -> float:
+    """Length [m] of route ``route_id`` of the roundabout of ring radius ``radius`` [m]."""
+    return route_catalogue(build_network(RoundaboutGeometry(radius)))[route_id].length
 
 
 def _routes_for(radius: float, smoothing: float, speed_smoothing: float):
-    key = (radius, smoothing, speed_smoothing)
-    if key not in _ROUTES_CACHE:
-        net = build_network(RoundaboutGeometry(radius))
-        catalogue = route_catalogue(net)
-        _ROUTES_CACHE[key] = (net, catalogue, route_set(net, catalogue, smoothing=smoothing,
-                                                         speed_smoothing=speed_smoothing))
-    return _ROUTES_CACHE[key]
+    """(network, route catalogue, RouteSet) the env's simulations run on for a ring radius [m] and path
+    smoothing [m] (the highway-env adapter's per-process cache)."""
+    drivers = DriverConfig(smoothing=smoothing, speed_smoothing=speed_smoothing)
+    return build_routes(HighwayScenarioConfig(RoundaboutGeometry(radius), drivers=drivers), cache=True)
 
 
 class LongitudinalAction(ActionType):
@@ -209,6 +215,11 @@ class PirlRoundaboutEnv(AbstractEnv):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
+        self._stack = ExitStack()  # holds the running simulation (the highway-env adapter's)
+        self._sim = None
+        super().__init__(config=config, render_mode=render_mode)
 
     @classmethod
     def default_config(cls) -> dict:
@@ -285,6 +296,10 @@ class PirlRoundaboutEnv(AbstractEnv):
         if c["ego_route"] not in ROUTE_IDS:
             raise ValueError(f"ego_route must be one of {', '.join(ROUTE_IDS)}, got {c['ego_route']!r}")
         number("ego_start", c["ego_start"], low=0.0)
+        length = _route_length(c["roundabout_radius"], c["ego_route"])
+        if c["ego_start"] > length - EGO_END_MARGIN:
+            raise ValueError(f"ego_start must be in [0, {length - EGO_END_MARGIN:.1f}] m on route {c['ego_route']!r} "
+                             f"(its length {length:.1f} m less {EGO_END_MARGIN:g} m), got {c['ego_start']!r}")
 
     @property
     def reward_weights(self) -> np.ndarray:
@@ -338,29 +353,20 @@ class PirlRoundaboutEnv(AbstractEnv):
 
     def _reset(self) -> None:
         c = self.config
-        drv: DriverConfig = c["drivers"]
-        net, catalogue, routes = _routes_for(c["roundabout_radius"], drv.smoothing, drv.speed_smoothing)
+        scenario = HighwayScenarioConfig(RoundaboutGeometry(c["roundabout_radius"]), population=c["population"],
+                                         drivers=c["drivers"], rules=c["rules"])
+        adapter = HighwayAdapter()
         seed = int(self.np_random.integers(2**31))
-        pop: PopulationConfig = c["population"]
-        plan = plan_population(pop, ROUTE_IDS, seed)
-        _, noise_rng, behaviour_rng = random_streams(seed)
-        traffic = RoundaboutTraffic(net, catalogue, routes, plan, drivers=drv, rules=c["rules"],
-                                    control_noise=pop.control_noise, noise_rng=noise_rng,
-                                    behaviour_rng=behaviour_rng, np_random=self.np_random,
-                                    record=c["record_tracks"], record_history=c["show_trajectories"])
-        self.road = traffic
-        route = catalogue[c["ego_route"]]
-        start = min(float(c["ego_start"]), route.length - 10.0)
-        ego = traffic.add_vehicle(EGO, EGO_ID, c["ego_route"], start, float(c["ego_speed"]))
-        ego.color = _EGO_COLOR
-        self.vehicle = ego
-        n0 = int(c["initial_vehicles"])
-        if n0:
-            traffic.place_initial(n0)
-        first = plan["depart"].iloc[n0] if n0 < len(plan) else 0.0
-        traffic.shift_departures(float(first))
-        traffic.insert_due()
-        self._ego_cost = EgoReward(c, routes, traffic.profile, c["ego_route"], ego.position)
+        plan = adapter.plan(scenario, seed)
+        ego = EgoSpec(c["ego_route"], float(c["ego_speed"]), route_s=float(c["ego_start"]), vehicle_id=EGO_ID)
+        self._stack.close()
+        self._sim = sim = self._stack.enter_context(adapter.start(
+            scenario, seed, plan, ego=ego, cache_network=True, initial_vehicles=int(c["initial_vehicles"]),
+            np_random=self.np_random, record=c["record_tracks"], record_history=c["show_trajectories"]))
+        traffic = self.road = sim.traffic
+        self.vehicle = sim.ego_vehicle
+        self.vehicle.color = _EGO_COLOR
+        self._ego_cost = EgoReward(c, sim.routes, traffic.profile, c["ego_route"], self.vehicle.position)
         traffic.step_callbacks.append(self._log_ego)
         self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
         if self._style.mode == "inferred":
@@ -380,9 +386,19 @@ class PirlRoundaboutEnv(AbstractEnv):
     # -- stepping -------------------------------------------------------------------------------------
 
     def _simulate(self, action=None) -> None:
+        """highway-env's frame loop (the action, then one frame, rendering in between), each frame one step of
+        the simulation."""
         start = self.vehicle.route_s
         self._ego_cost.begin_step()
-        super()._simulate(action)
+        frames = int(self.config["simulation_frequency"] // self.config["policy_frequency"])
+        for frame in range(frames):
+            if action is not None and not self.config["manual_control"] and self.steps % frames == 0:
+                self.action_type.act(action)
+            self._sim.step()
+            self.steps += 1
+            if frame < frames - 1:  # the last frame renders through render() as usual
+                self._automatic_rendering()
+        self.enable_auto_render = False
         self._ego_cost.step_terms(progress=self.vehicle.route_s - start, crashed=self.vehicle.crashed,
                                 arrived=self._arrived, time=self.time)
 
@@ -437,9 +453,11 @@ class PirlRoundaboutEnv(AbstractEnv):
     def recording(self):
         """The episode so far as a :class:`~pirl_sim.scenarios.recording.ScenarioRecording` (needs
         ``record_tracks=True``; the ego is a track with ``agent_id`` "ego" and style name "ego")."""
-        net, _, _ = _routes_for(self.config["roundabout_radius"], self.config["drivers"].smoothing,
-                                self.config["drivers"].speed_smoothing)
-        lanes, successors = lane_graph(net)
         info = {"simulator": "highway-env (pirl_sim/Roundabout-v0)", "ego_route": self.config["ego_route"],
                 "step_length_s": STEP_LENGTH}
-        return self.road.recording(info, lanes, successors)
+        return self._sim.recording(info)
+
+    def close(self) -> None:
+        """Close the viewer and leave the simulation."""
+        self._stack.close()
+        super().close()

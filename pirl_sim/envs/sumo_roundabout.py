@@ -5,7 +5,9 @@ by default) among the SUMO scenario's traffic: the population plan of
 :func:`~pirl_sim.scenarios.planning.plan_population` (the same draws as the highway-env backend and the
 SUMO scenario for a seed), PIRL drivers re-planning every 0.1 s in one batched MPC call
 (:class:`~pirl_sim.scenarios.drivers.PirlDrivers`, SUMO keeping right of way and safe gaps for them, speed
-mode 31) and SUMO's Krauss drivers as background, run by :class:`~pirl_sim.scenarios.sumo.runner.SumoRun`.
+mode 31) and SUMO's Krauss drivers as background: the scenario's own simulation
+(:meth:`~pirl_sim.scenarios.sumo.scenario.SumoAdapter.start`, the ego added as an
+:class:`~pirl_sim.scenarios.contract.EgoSpec`), stepped by the env.
 It shares with the highway-env backend the action, the reward (:class:`~pirl_sim.envs.common.EgoReward`),
 the info (:func:`~pirl_sim.envs.common.neighbour_info`) and the ``Kinematics`` rows
 (:func:`~pirl_sim.envs.observation.kinematics_rows`); what differs:
@@ -30,32 +32,25 @@ the info (:func:`~pirl_sim.envs.common.neighbour_info`) and the ``Kinematics`` r
 from __future__ import annotations
 
 import copy
-import tempfile
 from collections.abc import Mapping
+from contextlib import ExitStack
 from dataclasses import dataclass
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-import pandas as pd
 from gymnasium import spaces
 
-from pirl_sim.io.atomic import atomic_write_text
-from pirl_sim.scenarios.contract import STEP as CONTRACT_STEP
-from pirl_sim.scenarios.drivers import PirlDrivers, RouteSetProfile, route_set_model
-from pirl_sim.scenarios.planning import plan_population, random_streams
+from pirl_sim.scenarios.contract import STEP as CONTRACT_STEP, EgoSpec
+from pirl_sim.scenarios.drivers import PirlDrivers, RouteSetProfile
 from pirl_sim.scenarios.population_config import FEATURE_NAMES
-from pirl_sim.scenarios.recording import BACKGROUND_STYLE
-from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph, load_net, route_set, routes
-from pirl_sim.scenarios.sumo.runner import BACKENDS, SPEED_MODE_ALL_CHECKS, SumoRun, VehicleSpec
+from pirl_sim.scenarios.sumo.network import RoundaboutSpec, routes
+from pirl_sim.scenarios.sumo.runner import BACKENDS
 from pirl_sim.scenarios.sumo.scenario import (
-    BACKGROUND_VTYPE,
     DEFAULT_NETWORK,
-    PIRL_VTYPE,
     DriverConfig,
+    SumoAdapter,
+    SumoScenarioConfig,
     scenario_from_dict,
-    scenario_recording,
-    vehicle_types_xml,
 )
 from pirl_sim.validation import check_keys, number
 
@@ -81,20 +76,6 @@ _MAX_WAIT = 60.0  # [s] longest wait for the ego's insertion after the warm-up
 _KINEMATICS_KEYS = ("type", "features", "vehicles_count", "features_range", "absolute", "normalize", "clip",
                     "see_behind", "order")
 _BOUNDED = {"presence", "cos_h", "sin_h"}
-
-# network files and reference paths of a network spec and path smoothing, built once per process
-_NETWORKS: dict[tuple, tuple] = {}
-
-
-def _network(spec: RoundaboutSpec, smoothing: float, speed_smoothing: float):
-    key = (spec, smoothing, speed_smoothing)
-    if key not in _NETWORKS:
-        tmp = tempfile.TemporaryDirectory(prefix="pirl_env_sumo_")
-        files = build_network(spec, tmp.name)
-        catalogue = {rid: tuple(edges) for rid, edges in routes(spec)}
-        paths = route_set(load_net(files.net), catalogue, smoothing=smoothing, speed_smoothing=speed_smoothing)
-        _NETWORKS[key] = (tmp, files, catalogue, paths)  # the TemporaryDirectory lives as long as the entry
-    return _NETWORKS[key][1:]
 
 
 @dataclass(frozen=True)
@@ -146,8 +127,9 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self.render_mode = None
         self.config = self.default_config()
         self.configure(config)
-        self._run: SumoRun | None = None
-        self._last_run: SumoRun | None = None  # kept after close() for recording()
+        self._sim = None  # the running simulation (the SUMO adapter's), None when closed
+        self._last_sim = None  # kept after close() for recording()
+        self._stack = ExitStack()
         self.time = 0.0
         self._define_spaces()
 
@@ -245,50 +227,41 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self.close()
         c = self.config
         drv: DriverConfig = c["drivers"]
-        files, catalogue, paths = _network(c["network"], drv.smoothing, drv.speed_smoothing)
+        scenario = SumoScenarioConfig(network=c["network"], population=c["population"], drivers=drv,
+                                      collision_action="remove")
+        adapter = SumoAdapter(c["sumo_binding"])
         plan_seed = int(self.np_random.integers(2**31))
-        plan = plan_population(c["population"], list(catalogue), plan_seed)
-        _, noise_rng, _ = random_streams(plan_seed)
-        model = route_set_model(paths, dt=STEP, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
-                                n_qp_iter=drv.n_qp_iter)
-        pirl = plan[plan["is_pirl"]]
-        theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
-        drivers = PirlDrivers(model, {r.vehicle_id: (r.route_id, np.array([getattr(r, t) for t in theta_cols]))
-                                      for r in pirl.itertuples(index=False)},
-                              horizon=drv.horizon, control_noise=c["population"].control_noise, rng=noise_rng,
-                              stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
-        self._controller = _Controller(drivers)
+        plan = adapter.plan(scenario, plan_seed)
         self._route_of = dict(zip(plan["vehicle_id"], plan["route_id"]))
         self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
+        theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
         self._who = {r.vehicle_id: _Neighbour(r.vehicle_id, "pirl" if r.is_pirl else "background", int(r.style),
                                               np.array([getattr(r, t) for t in theta_cols]))
                      for r in plan.itertuples(index=False)}
         warmup = float(c["warmup"])
-        specs = [VehicleSpec(r.vehicle_id, r.route_id, float(r.depart),
-                             depart_speed=drv.depart_speed if r.is_pirl else "max",
-                             type_id=PIRL_VTYPE if r.is_pirl else BACKGROUND_VTYPE)
-                 for r in plan.itertuples(index=False)]
-        specs.append(VehicleSpec(EGO_ID, c["ego_route"], warmup, depart_speed=float(c["ego_speed"]),
-                                 type_id=PIRL_VTYPE))
-        vtypes = Path(files.net).with_name("vtypes.add.xml")
-        atomic_write_text(vtypes, vehicle_types_xml(drv))
-        self._run = SumoRun(files.net, catalogue, specs, pirl_ids={*pirl["vehicle_id"], EGO_ID},
-                            controller=self._controller, seed=plan_seed, step_length=STEP,
-                            backend=c["sumo_binding"], speed_mode=SPEED_MODE_ALL_CHECKS,
-                            speed_modes={EGO_ID: int(c["ego_speed_mode"])}, collision_action="remove",
-                            extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true"))
-        self._run.start()
-        self._last_run, self._plan, self._files = self._run, plan, files
+        ego = EgoSpec(c["ego_route"], float(c["ego_speed"]), depart=warmup, speed_mode=int(c["ego_speed_mode"]),
+                      vehicle_id=EGO_ID)
+        try:
+            self._sim = self._stack.enter_context(adapter.start(scenario, plan_seed, plan, ego=ego,
+                                                                wrap_controller=_Controller, cache_network=True))
+        except RuntimeError as exc:
+            if c["sumo_binding"] == "libsumo" and "one simulation per process" in str(exc):
+                raise RuntimeError("libsumo runs one simulation per process and another SUMO run of this process "
+                                   "holds it: close that env or run first, or make this env with "
+                                   "sumo_binding='traci'") from exc
+            raise
+        self._last_sim, self._controller = self._sim, self._sim.batch_controller
         while self._controller.ego is None:  # the traffic's warm-up, then the ego's insertion
             self._sumo_step()
-            if self._run.time > warmup + _MAX_WAIT:
+            if self._sim.run.time > warmup + _MAX_WAIT:
                 self.close()
                 raise RuntimeError(f"the ego could not enter {c['ego_route']!r} within {_MAX_WAIT:.0f} s after the "
                                    "warm-up (its entry stayed blocked)")
-        self._t0 = self._run.time
+        self._t0 = self._sim.run.time
         self.time = 0.0
         self._controller.acceleration = 0.0
         ego = self._controller.ego.ego
+        paths = self._sim.routes
         self._ego_cost = EgoReward(c, paths, RouteSetProfile(paths, drv.a_lat, drv.v_max), c["ego_route"],
                                  (ego.x, ego.y))
         self._crashed = self._arrived = False
@@ -298,7 +271,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         return obs, self._info()
 
     def step(self, action):
-        if self._run is None:
+        if self._sim is None:
             raise RuntimeError("call reset() before step()")
         if self._crashed or self._arrived:
             raise RuntimeError("the episode has ended: call reset()")
@@ -307,12 +280,12 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self._guard.before_step()
         self._controller.acceleration = a
         ego = self._controller.ego.ego
-        self._run.set_command(EGO_ID, max(ego.speed + a * STEP, 0.0))  # the new action from this frame on
+        self._sim.run.set_command(EGO_ID, max(ego.speed + a * STEP, 0.0))  # the new action from this frame on
         s0 = self._ego_cost.s_path
         self._ego_cost.begin_step()
         for _ in range(round(10 / c["policy_frequency"])):
             self._sumo_step()
-            if EGO_ID in self._run.colliding:
+            if EGO_ID in self._sim.run.colliding:
                 self._crashed = True
             now = self._controller.ego
             if now is None:  # left the network: at its route's end unless taken out by a crash
@@ -326,7 +299,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
             self._ego_cost.log_frame((now.ego.x, now.ego.y), now.ego.speed, now.ego.accel, gap)
             if self._crashed:
                 break
-        self.time = round(self._run.time - self._t0, 9)
+        self.time = round(self._sim.run.time - self._t0, 9)
         self._ego_cost.step_terms(progress=self._ego_cost.s_path - s0, crashed=self._crashed, arrived=self._arrived,
                                 time=self.time)
         terminated = self._crashed or self._arrived
@@ -338,7 +311,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
     def _sumo_step(self) -> None:
         # the controller sees the ego only in steps it is asked (some controlled vehicle in the network)
         self._controller.ego = None
-        self._run.step()
+        self._sim.step()
 
     # -- observation and info -----------------------------------------------------------------------
 
@@ -381,7 +354,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
             "progress": float(self._ego_cost.s_path),
             "features": self._ego_cost.features.copy(),
             "rewards": dict(self._ego_cost.terms),
-            "n_vehicles": (len(now.others) + 1) if now is not None else self._run.n_present,
+            "n_vehicles": (len(now.others) + 1) if now is not None else self._sim.n_present,
             **neighbour_info(self._rows),
             "style_names": self.config["population"].style_names,
             "feature_names": FEATURE_NAMES,
@@ -392,21 +365,13 @@ class PirlRoundaboutSumoEnv(gym.Env):
         (needs ``record_tracks=True``; the ego is a non-PIRL track with ``agent_id`` and style name "ego")."""
         if not self.config["record_tracks"]:
             raise ValueError("this env was made with record_tracks=False; set it to True to record")
-        if self._last_run is None:
+        if self._last_sim is None:
             raise RuntimeError("nothing to record: call reset() first")
-        ego = {"vehicle_id": EGO_ID, "depart": float(self.config["warmup"]), "route_id": self.config["ego_route"],
-               "is_pirl": False, "style": BACKGROUND_STYLE, "style_name": EGO_ID,
-               **{f"theta_{f}": np.nan for f in FEATURE_NAMES}}
-        plan = pd.concat([self._plan, pd.DataFrame([ego])], ignore_index=True)
-        lanes, successors = lane_graph(load_net(self._files.net))
-        info = {"simulator": "sumo (pirl_sim/Roundabout-v0)", "ego_route": self.config["ego_route"],
+        info = {"simulator": "sumo (pirl_sim/Roundabout-v0)", "ego_route": self._last_sim.ego_spec.route_id,
                 "step_length_s": STEP}
-        return scenario_recording(plan, self._last_run.recording(), lanes, successors, info,
-                                  set(self._controller.drivers.handbacks))
+        return self._last_sim.recording(info)
 
     def close(self) -> None:
         """End the SUMO run (also at every reset)."""
-        if self._run is not None:
-            self._run.close()
-            self._run = None
-
+        self._stack.close()
+        self._sim = None

@@ -4,10 +4,13 @@ Vehicle files (``vehicle_tracks_NNN.csv``) have the header::
 
     track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width
 
-Pedestrian/bicycle files (``pedestrian_tracks_NNN.csv``) have only the first eight of these columns.
+Pedestrian/bicycle files (``pedestrian_tracks_NNN.csv``) have only the first eight of these columns; their
+``track_id`` is a name such as ``P1`` in the INTERACTION dataset (kept as a string) or a whole number.
 Units: ``timestamp_ms`` in milliseconds, ``x``, ``y``, ``length``, ``width`` in metres (local map frame),
 ``vx``, ``vy`` in m/s, ``psi_rad`` in radians. Frames are 100 ms apart; in the real data
 ``frame_id`` starts at 1 and ``timestamp_ms = 100 * frame_id``.
+
+Vehicle sizes must be positive and at most `MAX_LENGTH_M` long and `MAX_WIDTH_M` wide.
 
 Errors in a file are reported as ``ValueError`` naming the file, the 1-based line of the text file
 (the header is line 1) and the column.
@@ -29,6 +32,8 @@ __all__ = [
     "VEHICLE_COLUMNS",
     "PEDESTRIAN_COLUMNS",
     "FRAME_DT_MS",
+    "MAX_LENGTH_M",
+    "MAX_WIDTH_M",
     "read_tracks",
     "read_tracks_lenient",
     "write_tracks",
@@ -43,6 +48,11 @@ VEHICLE_COLUMNS: tuple[str, ...] = (
 )
 PEDESTRIAN_COLUMNS: tuple[str, ...] = VEHICLE_COLUMNS[:8]
 FRAME_DT_MS = 100  #: time between consecutive frames, ms
+#: the largest vehicle sizes read [m]: beyond the longest road trains (about 53.5 m) and the widest oversize
+#: loads; a size <= 0 or above these is an error in the file
+MAX_LENGTH_M = 60.0
+MAX_WIDTH_M = 10.0
+_SIZE_LIMITS = {"length": MAX_LENGTH_M, "width": MAX_WIDTH_M}
 
 _KINDS = {"vehicle": VEHICLE_COLUMNS, "pedestrian": PEDESTRIAN_COLUMNS}
 _INT_COLUMNS = ("track_id", "frame_id", "timestamp_ms")
@@ -69,7 +79,8 @@ def read_tracks(path, *, kind: str = "auto") -> pd.DataFrame:
     -------
     pandas.DataFrame
         One row per line of the file, in file order, columns as in the header.
-        ``track_id``, ``frame_id``, ``timestamp_ms`` [ms] are int64, ``agent_type`` is str,
+        ``track_id``, ``frame_id``, ``timestamp_ms`` [ms] are int64 (a pedestrian file's ``track_id`` is str
+        when any id is not a whole number, e.g. ``P1``), ``agent_type`` is str,
         ``x``, ``y`` [m], ``vx``, ``vy`` [m/s], ``psi_rad`` [rad], ``length``, ``width`` [m] are float64.
 
     Raises
@@ -77,8 +88,9 @@ def read_tracks(path, *, kind: str = "auto") -> pd.DataFrame:
     FileNotFoundError
         If ``path`` does not exist.
     ValueError
-        If ``kind`` is invalid or the file is malformed: wrong header, rows with the wrong number
-        of fields, values that are not numbers or not finite, duplicated ``(track_id, frame_id)``,
+        If ``kind`` is invalid or the file is malformed: not UTF-8 text, wrong header, rows with the wrong
+        number of fields, values that are not numbers or not finite, a vehicle ``length`` or ``width`` <= 0 or
+        above `MAX_LENGTH_M` / `MAX_WIDTH_M`, duplicated ``(track_id, frame_id)``,
         frames not strictly increasing within a track, ``timestamp_ms`` not ``100 ms * frame_id``
         plus one constant offset, or no rows at all. The message names the file, the line
         (header = line 1) and the column.
@@ -109,10 +121,24 @@ def read_tracks(path, *, kind: str = "auto") -> pd.DataFrame:
                 lines.append(reader.line_num)
         except csv.Error as exc:
             raise ValueError(f"{path}: line {reader.line_num}: malformed CSV: {exc}") from None
+        except UnicodeDecodeError:
+            raise ValueError(_not_utf8(path)) from None
     if not rows:
         raise ValueError(f"{path}: has no rows (header only)")
     raw = dict(zip(columns, (np.array(col) for col in zip(*rows))))
     return _validated_frame(raw, columns, str(path), lambda i: f"line {lines[i]}")
+
+
+def _not_utf8(path: Path) -> str:
+    """The message for a track file that is not UTF-8 text: the file, the line and the byte."""
+    raw = path.read_bytes()
+    try:
+        raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        return (f"{path}: line {line}: not UTF-8 text (byte {raw[exc.start:exc.start + 1]!r} at offset {exc.start}: "
+                f"{exc.reason}); track files are UTF-8 CSV")
+    return f"{path}: not UTF-8 text; track files are UTF-8 CSV"  # pragma: no cover - decoded above
 
 
 def read_tracks_lenient(path) -> tuple[pd.DataFrame | None, int]:
@@ -126,7 +152,8 @@ def read_tracks_lenient(path) -> tuple[pd.DataFrame | None, int]:
       float columns, a non-empty ``agent_type``;
     - repeats a ``frame_id`` of the track, or its frames do not increase strictly in file order;
     - has a ``timestamp_ms`` that is not ``100 ms * frame_id`` plus the file's offset (the offset most
-      rows have), e.g. timestamps running backwards.
+      rows have), e.g. timestamps running backwards;
+    - has a ``length`` or ``width`` <= 0 or above `MAX_LENGTH_M` / `MAX_WIDTH_M`.
 
     Parameters
     ----------
@@ -205,7 +232,7 @@ def _lenient_row(row: list[str], n: int) -> list | None:
                 value = float(text)
             except ValueError:
                 return None
-            if not np.isfinite(value):
+            if not np.isfinite(value) or (name in _SIZE_LIMITS and not 0.0 < value <= _SIZE_LIMITS[name]):
                 return None
             out.append(value)
     return out
@@ -267,13 +294,14 @@ def split_tracks(df: pd.DataFrame) -> dict[int, pd.DataFrame]:
 
     Returns
     -------
-    dict of int to pandas.DataFrame
+    dict of int (or str) to pandas.DataFrame
         ``{track_id: rows of that track sorted by frame_id}``, keys ascending, each with a fresh
-        0-based index.
+        0-based index; keys are int, or str for a pedestrian file's named tracks (``P1``).
     """
     _require_columns(df, ("track_id", "frame_id"))
     return {
-        int(track_id): rows.sort_values("frame_id", kind="stable").reset_index(drop=True)
+        (track_id if isinstance(track_id, str) else int(track_id)):
+            rows.sort_values("frame_id", kind="stable").reset_index(drop=True)
         for track_id, rows in df.groupby("track_id", sort=True)
     }
 
@@ -288,7 +316,7 @@ def iter_track_arrays(df: pd.DataFrame) -> Iterator[tuple[int, np.ndarray, np.nd
 
     Yields
     ------
-    track_id : int
+    track_id : int (str for a pedestrian file's named tracks)
     t_s : numpy.ndarray, shape (n,)
         Time stamps [s] (``timestamp_ms / 1000``), increasing.
     xy : numpy.ndarray, shape (n, 2)
@@ -395,12 +423,16 @@ def _validated_frame(
 
     data = {}
     for name in columns:
-        if name in _INT_COLUMNS:
+        if name == "track_id" and columns == PEDESTRIAN_COLUMNS:
+            data[name] = _pedestrian_ids(raw[name], name, where)
+        elif name in _INT_COLUMNS:
             data[name] = _int_column(raw[name], name, where)
         elif name in _STR_COLUMNS:
             data[name] = _str_column(raw[name], name, where)
         else:
             data[name] = _float_column(raw[name], name, where)
+            if name in _SIZE_LIMITS:
+                _check_sizes(data[name], name, where)
     df = pd.DataFrame(data, columns=list(columns))
     df["agent_type"] = df["agent_type"].astype(str)
     _check_structure(df, where, loc)
@@ -420,6 +452,35 @@ def _int_column(values: np.ndarray, name: str, where: Where) -> np.ndarray:
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"{where(i)}, column '{name}': expected an integer, found {_show(v)}") from None
     return out
+
+
+def _pedestrian_ids(values: np.ndarray, name: str, where: Where):
+    """A pedestrian file's track ids: int64 when every id is a whole number (as a vehicle file's), else the ids as
+    non-empty strings (the INTERACTION dataset names pedestrian tracks ``P1``, ``P2``, ...)."""
+    try:
+        return _int_column(values, name, where)
+    except ValueError:
+        pass
+    out = np.empty(len(values), dtype=object)
+    for i, v in enumerate(values):
+        if isinstance(v, str) and v.strip():
+            out[i] = v.strip()
+        else:
+            try:
+                out[i] = str(_parse_int(v))
+            except (TypeError, ValueError, OverflowError):
+                raise ValueError(f"{where(i)}, column '{name}': expected a track name or an integer, found "
+                                 f"{_show(v)}") from None
+    return out
+
+
+def _check_sizes(values: np.ndarray, name: str, where: Where) -> None:
+    high = _SIZE_LIMITS[name]
+    bad = np.flatnonzero(~((values > 0.0) & (values <= high)))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{where(i)}, column '{name}': {values[i]:g} m is not a vehicle {name} (must be > 0 and "
+                         f"at most {high:g} m)")
 
 
 def _parse_int(v) -> int:

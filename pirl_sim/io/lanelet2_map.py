@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import errno
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -41,6 +42,12 @@ __all__ = [
 ]
 
 JOINT_TOLERANCE = 0.01  #: [m] largest gap between a lane's end and its successor's start that write_map joins
+
+# What lanelet2 (pugixml's as_double, i.e. strtod) and Python read alike: ASCII digits only, no digit separators
+# ("0.00_0906" is 0.000906 to Python, 0.00 to strtod), no other scripts' digits (Python reads Arabic-Indic and
+# full-width digits, strtod stops at them); leading and trailing ASCII blanks are skipped by both.
+_DECIMAL = re.compile(r"[ \t\r\n]*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?[ \t\r\n]*")
+_INTEGER = re.compile(r"[ \t\r\n]*-?[0-9]+[ \t\r\n]*")
 
 # Costs of the route search, in units of the cost of one point lying max_offset from its lanelet's centerline.
 _COST_SUCCESSOR = 1.0  # entering a following lanelet
@@ -169,9 +176,12 @@ def load_map(path) -> LaneletMap:
     FileNotFoundError
         If ``path`` does not exist.
     ValueError
-        If the file is not well-formed XML, a node's ``lat`` or ``lon`` is missing, not a number or out of
-        range (the message names the node; lanelet2 would read it as 0 silently), lanelet2 reports any error while reading it (a broken reference,
-        a lanelet without exactly one left and right border, ...) or it has no lanelets; the message
+        If the file is not well-formed XML or has a DTD (``<!DOCTYPE``: lanelet2 does not expand its entities), a
+        node's ``lat`` or ``lon`` is missing, not a plain ASCII decimal number (digit separators, other scripts'
+        digits) or out of range (the message names the node; lanelet2 would read another value silently),
+        lanelet2 reports any error while reading it (a broken reference, a lanelet without exactly one left and
+        right border, ...), a lanelet is degenerate (a border of fewer than two nodes, or left and right
+        borders on the same points) or it has no lanelets; the message
         names the file and the reason. lanelet2 would return a partial map in the error case, whose
         broken lanelets crash the process (segmentation fault) when their centerline is computed, so it
         is never used. ``lanelet2.io.load`` rejects the same files.
@@ -193,6 +203,7 @@ def load_map(path) -> LaneletMap:
         raise ValueError(f"{path}: lanelet2 reported errors, the map would be incomplete: {detail}")
     if len(lmap.laneletLayer) == 0:
         raise ValueError(f"{path}: the map has no lanelets")
+    _check_lanelets(path, lmap)
 
     rules = lanelet2.traffic_rules.create(
         lanelet2.traffic_rules.Locations.Germany, lanelet2.traffic_rules.Participants.Vehicle
@@ -216,29 +227,47 @@ def _check_nodes(path: Path) -> None:
     """
     import xml.etree.ElementTree as ET
 
+    if b"<!DOCTYPE" in path.read_bytes():
+        raise ValueError(f"{path}: the file has a DTD (<!DOCTYPE ...>); lanelet2 does not expand its entities, so "
+                         "coordinates written with them would be read differently: write the values themselves")
     try:
         for _, elem in ET.iterparse(path, events=("end",)):
             if elem.tag == "node":
                 node_id = elem.get("id")
-                try:
-                    int(node_id)
-                except (TypeError, ValueError):
-                    raise ValueError(f"{path}: a <node> has id {node_id!r}; ids must be integers") from None
+                if node_id is None or not _INTEGER.fullmatch(node_id):
+                    raise ValueError(f"{path}: a <node> has id {node_id!r}; ids must be integers (ASCII digits)")
                 for attr, bound in (("lat", 90.0), ("lon", 180.0)):
                     text = elem.get(attr)
                     if text is None:
                         raise ValueError(f"{path}: node {node_id} has no {attr} attribute; nodes need lat and lon "
                                          "in degrees")
-                    try:
-                        value = float(text)
-                    except ValueError:
-                        value = math.nan
+                    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
                     if not (math.isfinite(value) and -bound <= value <= bound):
                         raise ValueError(f"{path}: node {node_id} has {attr}={text!r}; expected a number of "
-                                         f"degrees in [-{bound:g}, {bound:g}]")
+                                         f"degrees in [-{bound:g}, {bound:g}] written with ASCII digits, an optional "
+                                         "sign, point and exponent (no digit separators)")
             elem.clear()
     except ET.ParseError as exc:
         raise ValueError(f"{path}: not a readable Lanelet2 map: not well-formed XML: {exc}") from None
+
+
+def _check_lanelets(path: Path, lmap) -> None:
+    """``ValueError`` naming the file and the lanelet unless every lanelet has two borders of at least two nodes
+    each that do not lie on the same points (lanelet2 loads such lanelets without a word; their centerline is a
+    point or the border itself). Runs before anything computes a centerline."""
+    for ll in lmap.laneletLayer:
+        left, right = ll.leftBound, ll.rightBound
+        for side, bound in (("left", left), ("right", right)):
+            if len(bound) < 2:
+                raise ValueError(f"{path}: lanelet {ll.id} has a {side} border (line {bound.id}) of {len(bound)} "
+                                 "node(s); a border needs at least two")
+        a = np.array([[p.x, p.y] for p in left], dtype=float)
+        b = np.array([[p.x, p.y] for p in right], dtype=float)
+        same = left.id == right.id or {p.id for p in left} == {p.id for p in right} or (
+            a.shape == b.shape and (np.allclose(a, b, rtol=0, atol=1e-9) or np.allclose(a, b[::-1], rtol=0, atol=1e-9)))
+        if same:
+            raise ValueError(f"{path}: lanelet {ll.id} has its left border (line {left.id}) and its right border "
+                             f"(line {right.id}) on the same points; a lanelet needs two distinct borders")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -6,8 +6,9 @@ One call, :func:`run_highway_scenario`, does everything for a :class:`HighwaySce
    :func:`~pirl_sim.scenarios.sumo.scenario.plan_vehicles` for the same population and seed): departure
    times, background vehicles, each PIRL driver's style and weights, routes.
 2. **Road**: highway-env's ``roundabout-generic-v0`` network with one ring lane
-   (:func:`~.network.build_network`), the 12 entry-to-exit routes (:func:`~.network.route_catalogue`, the
-   SUMO scenario's route ids) and their reference paths (:func:`~.network.route_set`).
+   (:func:`~pirl_sim.scenarios.highway.network.build_network`), the 12 entry-to-exit routes
+   (:func:`~pirl_sim.scenarios.highway.network.route_catalogue`, the SUMO scenario's route ids) and their
+   reference paths (:func:`~pirl_sim.scenarios.highway.network.route_set`).
 3. **Simulate** :class:`~.traffic.RoundaboutTraffic` (a highway-env ``Road``) at 0.1 s steps until every
    vehicle has left or ``max_duration``: PIRL drivers re-plan every step in one batched MPC call,
    background drivers are highway-env's IDM, entering vehicles yield to the ring (see
@@ -35,18 +36,18 @@ import numpy as np
 import pandas as pd
 
 from pirl_sim.trajectory import Trajectory
-from pirl_sim.validation import number
+from pirl_sim.validation import int_at_least, number
 
 from ..demonstrations import RecordedRun, recorded_demonstrations
 from ..drivers import RouteSet, RouteSetDriverModel, route_set_model
 from ..planning import check_routes, plan_population, random_streams, route_id
 from ..population_config import DEFAULT_POPULATION, PopulationConfig
 from ..recording import INFO_FILE, RecordingFiles, ScenarioRecording, read_recording, write_recording
-from ..contract import run_scenario
+from ..contract import ControllerWrapper, EgoSpec, run_scenario
 from ..scenario_config import Progress, config_table, from_table, load_toml, scenario_from_table
 from .network import ARMS, LANE_WIDTH, RoundaboutGeometry, build_network, lane_graph, route_catalogue, route_set
 from .traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
-from .vehicles import PIRL
+from .vehicles import EGO, PIRL
 
 __all__ = [
     "SIMULATOR",
@@ -215,14 +216,27 @@ class HighwayScenarioResult:
         return recorded_demonstrations(self.recording, self.routes, **kwargs)
 
 
-def build_routes(config: HighwayScenarioConfig):
-    """(network, route catalogue, RouteSet) of a configuration."""
+#: [m] the ego starts at least this far before its route's end
+EGO_END_MARGIN = 10.0
+
+#: build_routes' results kept with ``cache=True``, by (geometry, smoothing [m], speed smoothing [m])
+_ROUTES: dict[tuple, tuple] = {}
+
+
+def build_routes(config: HighwayScenarioConfig, *, cache: bool = False):
+    """(network, route catalogue, RouteSet) of a configuration; with ``cache``, built once per process for
+    equal geometry and path smoothing (shared: nothing may change them)."""
+    key = (config.geometry, config.drivers.smoothing, config.drivers.speed_smoothing)
+    if cache and key in _ROUTES:
+        return _ROUTES[key]
     net = build_network(config.geometry)
     catalogue = route_catalogue(net)
     if tuple(catalogue) != ROUTE_IDS:  # pragma: no cover - guards the constant against the network
         raise AssertionError(f"route catalogue {tuple(catalogue)} differs from ROUTE_IDS")
     routes = route_set(net, catalogue, smoothing=config.drivers.smoothing,
                        speed_smoothing=config.drivers.speed_smoothing)
+    if cache:
+        _ROUTES[key] = (net, catalogue, routes)
     return net, catalogue, routes
 
 
@@ -259,8 +273,27 @@ class HighwayAdapter:
         return plan_population(config.population, ROUTE_IDS, seed, pirl_routes=config.pirl_routes,
                                background_routes=config.background_routes)
 
-    def start(self, config: HighwayScenarioConfig, seed: int, plan: pd.DataFrame) -> _HighwaySimulation:
-        return _HighwaySimulation(config, seed, plan)
+    def start(self, config: HighwayScenarioConfig, seed: int, plan: pd.DataFrame, *, ego: EgoSpec | None = None,
+              wrap_controller: ControllerWrapper | None = None, cache_network: bool = False,
+              initial_vehicles: int | None = None, np_random: np.random.Generator | None = None,
+              record: bool = True, record_history: bool = False) -> _HighwaySimulation:
+        """The highway-env run of ``plan`` (see :meth:`~pirl_sim.scenarios.contract.SimulatorAdapter.start`).
+
+        highway-env's own parameters: the ego, if any, is placed at ``ego.route_s`` when the simulation starts
+        and follows its ``command_acceleration`` [m/s^2] (the caller's); ``initial_vehicles``: that many
+        vehicles of the plan are placed on the road at once (:meth:`~.traffic.RoundaboutTraffic.place_initial`)
+        and the others depart counted from the next planned departure (None: the plan's own clock);
+        ``np_random`` is highway-env's road generator (default: seeded by ``seed``); ``record`` keeps every
+        frame for the recording, ``record_history`` highway-env's trajectory display.
+        """
+        if ego is not None and (ego.depart != 0.0 or ego.speed_mode is not None):
+            raise ValueError(f"highway-env places the ego when the simulation starts and has no speed modes: "
+                             f"depart must be 0 and speed_mode None, got {ego.depart!r} and {ego.speed_mode!r}")
+        if initial_vehicles is not None:
+            initial_vehicles = int_at_least("initial_vehicles", initial_vehicles, 0)
+        return _HighwaySimulation(config, seed, plan, ego=ego, wrap_controller=wrap_controller,
+                                  cache_network=cache_network, initial_vehicles=initial_vehicles,
+                                  np_random=np_random, record=record, record_history=record_history)
 
     def info(self, config: HighwayScenarioConfig) -> tuple[dict, dict]:
         import highway_env
@@ -278,21 +311,43 @@ class HighwayAdapter:
 
 class _HighwaySimulation:
     """One highway-env run of a plan (:class:`~pirl_sim.scenarios.contract.Simulation`) on
-    :class:`~.traffic.RoundaboutTraffic`."""
+    :class:`~.traffic.RoundaboutTraffic` (``traffic``, the highway-env road); ``ego_vehicle`` is the vehicle of
+    ``ego_spec``, if one was given, ``controller`` the PIRL drivers."""
 
-    def __init__(self, config: HighwayScenarioConfig, seed: int, plan: pd.DataFrame):
+    def __init__(self, config: HighwayScenarioConfig, seed: int, plan: pd.DataFrame, *, ego: EgoSpec | None = None,
+                 wrap_controller: ControllerWrapper | None = None, cache_network: bool = False,
+                 initial_vehicles: int | None = None, np_random: np.random.Generator | None = None,
+                 record: bool = True, record_history: bool = False):
         self.config, self.seed, self.plan = config, seed, plan
+        self.ego_spec, self.wrap_controller, self.cache_network = ego, wrap_controller, cache_network
+        self.initial_vehicles, self.np_random = initial_vehicles, np_random
+        self.record, self.record_history = record, record_history
+        self.ego_vehicle = None
 
     def __enter__(self) -> _HighwaySimulation:
-        config = self.config
+        config, plan = self.config, self.plan
         _, noise_rng, behaviour_rng = random_streams(self.seed)
-        self.net, _, self.routes = net, catalogue, routes = build_routes(config)
-        self.traffic = RoundaboutTraffic(net, catalogue, routes, self.plan, drivers=config.drivers, rules=config.rules,
-                                         control_noise=config.population.control_noise, noise_rng=noise_rng,
-                                         behaviour_rng=behaviour_rng, np_random=np.random.default_rng(self.seed))
-        self.controller = self.traffic.controller
+        net, catalogue, routes = build_routes(config, cache=self.cache_network)
+        self.net, self.routes = net, routes
+        np_random = np.random.default_rng(self.seed) if self.np_random is None else self.np_random
+        self.traffic = traffic = RoundaboutTraffic(
+            net, catalogue, routes, plan, drivers=config.drivers, rules=config.rules,
+            control_noise=config.population.control_noise, noise_rng=noise_rng, behaviour_rng=behaviour_rng,
+            np_random=np_random, record=self.record, record_history=self.record_history)
+        self.controller = traffic.controller
+        if self.wrap_controller is not None:
+            traffic.controller = self.wrap_controller(self.controller)
+        ego = self.ego_spec
+        if ego is not None:
+            route_s = min(ego.route_s, catalogue[ego.route_id].length - EGO_END_MARGIN)
+            self.ego_vehicle = traffic.add_vehicle(EGO, ego.vehicle_id, ego.route_id, route_s, ego.speed)
+        n0 = self.initial_vehicles
+        if n0 is not None:
+            if n0:
+                traffic.place_initial(n0)
+            traffic.shift_departures(float(plan["depart"].iloc[n0]) if n0 < len(plan) else 0.0)
         self._t0 = _time.perf_counter()
-        self.traffic.insert_due()
+        traffic.insert_due()
         return self
 
     def __exit__(self, *exc) -> None:

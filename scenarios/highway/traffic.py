@@ -103,7 +103,7 @@ class DriverConfig(MpcDriverConfig):
     Attributes
     ----------
     speed_smoothing : float
-        Default 8 m (see :mod:`~.network` for why).
+        Default 8 m (see :mod:`~pirl_sim.scenarios.highway.network` for why).
     depart_speed : float
         Speed [m/s] at insertion (capped by the desired speed there).
     stop_speed, resume_speed : float
@@ -281,11 +281,12 @@ class RoundaboutTraffic(Road):
     Parameters
     ----------
     network : highway_env.road.road.RoadNetwork
-        From :func:`~.network.build_network`.
+        From :func:`~pirl_sim.scenarios.highway.network.build_network`.
     routes : mapping route id -> RouteLanes
-        The route catalogue (:func:`~.network.route_catalogue`); every planned route must be in it.
+        The route catalogue (:func:`~pirl_sim.scenarios.highway.network.route_catalogue`); every planned route
+        must be in it.
     route_set : RouteSet
-        Reference paths of the same routes (:func:`~.network.route_set`).
+        Reference paths of the same routes (:func:`~pirl_sim.scenarios.highway.network.route_set`).
     plan : pandas.DataFrame
         Vehicles to insert (:func:`~.planning.plan_population` columns), departing at ``depart`` [s] of
         this traffic's clock (which starts at 0).

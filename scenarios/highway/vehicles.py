@@ -200,10 +200,11 @@ class RouteFollowing:
 
 class PirlVehicle(RouteFollowing, IDMVehicle):
     """A PIRL driver's vehicle: its MPC under its own weights sets the acceleration (through the traffic);
-    highway-env's IDM drives it only when it was handed back at a standstill.
+    highway-env's IDM drives it only when it was handed back at a standstill. Its attributes besides
+    :class:`RouteFollowing`'s:
 
-    Attributes (besides :class:`RouteFollowing`'s)
-    ----------------------------------------------
+    Attributes
+    ----------
     theta : numpy.ndarray
         Normalised weights (3,) over (speed_dev, acc_sq, jerk_sq).
     style : int

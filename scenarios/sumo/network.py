@@ -62,6 +62,11 @@ _NETCONVERT_TIMEOUT_S = 120.0  # [s] a roundabout converts in well under a secon
 _DUPLICATE_TOL = 1e-3  # [m] consecutive shape points closer than this are one point
 _MIN_RING_EDGE = 1.0  # [m] shortest ring edge left between two arm junctions
 LANE_JOINT_SNAP = 0.05  #: [m] largest gap between a lane's end and its successor's start that lane_graph closes
+#: allowed ranges of the roundabout's geometry (`RoundaboutSpec`), [low, high]: beyond, netconvert and the route
+#: paths take minutes or the geometry is no roundabout
+GEOMETRY_RANGES = {"radius": (5.0, 500.0), "approach_length": (1.0, 2000.0), "lane_width": (2.0, 10.0),
+                   "splitter_width": (0.0, 50.0), "junction_radius": (0.5, 100.0), "n_arms": (3, 12),
+                   "lanes": (1, 6), "ring_segments": (3, 1024)}
 
 
 @dataclass(frozen=True)
@@ -71,7 +76,7 @@ class RoundaboutSpec:
     Attributes
     ----------
     radius : float
-        Ring centre-line radius [m], > 0.
+        Ring centre-line radius [m], in [5, 500] (`GEOMETRY_RANGES` bounds every length and count).
     n_arms : int
         Number of arms, >= 3, evenly spaced.
     lanes : int
@@ -163,6 +168,11 @@ class RoundaboutSpec:
                 f"lanes = {self.lanes}, lane_width = {self.lane_width} m, splitter_width = "
                 f"{self.splitter_width} m each arm takes {math.degrees(2 * self.arm_half_angle):.1f} deg "
                 f"of the ring's {math.degrees(sector):.1f} deg per arm; use a larger radius or fewer arms")
+        for name, (low, high) in GEOMETRY_RANGES.items():
+            v = getattr(self, name)
+            if not low <= v <= high:
+                unit = "" if name in ("n_arms", "lanes", "ring_segments") else " m"
+                raise ValueError(f"{name} must be in [{low:g}, {high:g}]{unit}, got {v!r}")
 
     @property
     def arm_offset(self) -> float:

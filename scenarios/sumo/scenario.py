@@ -8,9 +8,9 @@ One call, :func:`run_sumo_scenario`, does everything for a :class:`SumoScenarioC
    (:meth:`pirl_sim.population.Population.sample_weights`), and every vehicle's route, all from
    ``numpy.random.SeedSequence(seed)``. Every input is validated here or when the configs are built:
    bad configs raise ``ValueError`` before netconvert or SUMO start.
-2. **Network**: :func:`~.network.build_network` into a temporary directory; every route is checked
-   against it (:func:`~.network.validate_route`: an unreachable route raises before SUMO starts); the
-   reference paths of all routes go into one :class:`~pirl_sim.scenarios.drivers.RouteSet`.
+2. **Network**: :func:`~pirl_sim.scenarios.sumo.network.build_network` into a temporary directory; every
+   route is checked against it (:func:`~.network.validate_route`: an unreachable route raises before SUMO
+   starts); the reference paths of all routes go into one :class:`~pirl_sim.scenarios.drivers.RouteSet`.
 3. **Simulate** with :class:`~.runner.SumoRun` (libsumo by default) at 0.1 s steps, SUMO seeded with
    ``seed``, the ballistic position update (``--step-method.ballistic``: positions advance by the mean of
    the speeds at both ends of a step, as in the driver model's constant-jerk dynamics), until every vehicle
@@ -58,6 +58,7 @@ from ..drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_mode
 from ..planning import check_routes, plan_population, random_streams
 from ..population_config import DEFAULT_POPULATION, FEATURE_NAMES, PopulationConfig
 from ..recording import (
+    BACKGROUND_STYLE,
     DRIVER_STEP_COLUMNS,
     INFO_FILE,
     TRACK_COLUMNS,
@@ -66,10 +67,10 @@ from ..recording import (
     read_recording,
     write_recording,
 )
-from ..contract import STEP, ground_truth_table, run_scenario
+from ..contract import STEP, ControllerWrapper, EgoSpec, ground_truth_table, run_scenario
 from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, scenario_from_table
-from .network import RoundaboutSpec, build_network, lane_graph, load_net, route_set, routes as network_routes, \
-    validate_route
+from .network import NetworkFiles, RoundaboutSpec, build_network, lane_graph, load_net, route_set, \
+    routes as network_routes, validate_route
 from .runner import BACKENDS, COLLISION_ACTIONS, SPEED_MODE_ALL_CHECKS, SumoRecording, SumoRun, VehicleSpec
 
 __all__ = [
@@ -420,8 +421,15 @@ class SumoAdapter:
     def plan(self, config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
         return plan_vehicles(config, seed)
 
-    def start(self, config: SumoScenarioConfig, seed: int, plan: pd.DataFrame) -> _SumoSimulation:
-        return _SumoSimulation(config, seed, plan, self.backend)
+    def start(self, config: SumoScenarioConfig, seed: int, plan: pd.DataFrame, *, ego: EgoSpec | None = None,
+              wrap_controller: ControllerWrapper | None = None, cache_network: bool = False) -> _SumoSimulation:
+        """The SUMO run of ``plan`` (see :meth:`~pirl_sim.scenarios.contract.SimulatorAdapter.start`): the ego,
+        if any, is a ``pirl``-type vehicle inserted at its route's start at ``ego.depart`` [s], commanded by
+        ``wrap_controller``'s controller, with its own speed mode; collisions as ``config.collision_action``."""
+        if ego is not None and ego.route_s != 0.0:
+            raise ValueError(f"SUMO inserts the ego at its route's start: route_s must be 0, got {ego.route_s!r}")
+        return _SumoSimulation(config, seed, plan, self.backend, ego=ego, wrap_controller=wrap_controller,
+                               cache_network=cache_network)
 
     def info(self, config: SumoScenarioConfig) -> tuple[dict, dict]:
         return ({"backend": self.backend},
@@ -443,29 +451,81 @@ class SumoAdapter:
                                   learner_model, timing, files)
 
 
+@dataclass(frozen=True)
+class _Network:
+    """A built network: its files in ``directory``, the loaded net, the route catalogue (every route checked
+    against the net) and the routes' reference paths."""
+
+    directory: tempfile.TemporaryDirectory
+    files: NetworkFiles
+    net: Any
+    catalogue: dict[str, tuple[str, ...]]
+    routes: RouteSet
+
+
+#: networks built with ``cache_network``, by (spec, catalogue, smoothing [m], speed smoothing [m]); their
+#: temporary directories live as long as the process
+_NETWORKS: dict[tuple, _Network] = {}
+
+
+def _built_network(config: SumoScenarioConfig, cache: bool) -> _Network:
+    """The network of ``config`` built into a temporary directory (from :data:`_NETWORKS` when ``cache``)."""
+    drv = config.drivers
+    catalogue = config.route_catalogue()
+    key = (config.network, tuple(catalogue.items()), drv.smoothing, drv.speed_smoothing)
+    if cache and key in _NETWORKS:
+        return _NETWORKS[key]
+    tmp = tempfile.TemporaryDirectory(prefix="pirl_sumo_")
+    try:
+        files = build_network(config.network, tmp.name, name=_NET_NAME)
+        net = load_net(files.net)
+        for rid, edges in catalogue.items():
+            validate_route(net, edges, route_id=rid)
+        routes = route_set(net, catalogue, smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
+    except BaseException:
+        tmp.cleanup()
+        raise
+    built = _Network(tmp, files, net, catalogue, routes)
+    if cache:
+        _NETWORKS[key] = built
+    return built
+
+
 class _SumoSimulation:
     """One SUMO run of a plan (:class:`~pirl_sim.scenarios.contract.Simulation`): the network built in a
-    temporary directory, every route checked against it, PIRL drivers on :class:`~.runner.SumoRun`."""
+    temporary directory (or taken from the process's cache), every route checked against it, PIRL drivers
+    (and an ego, if given) on :class:`~.runner.SumoRun`.
 
-    def __init__(self, config: SumoScenarioConfig, seed: int, plan: pd.DataFrame, backend: str):
+    Attributes
+    ----------
+    ego_spec : EgoSpec or None
+    run : SumoRun
+        Once entered: the running simulation (its clock, collisions and command overrides).
+    controller : PirlDrivers
+        The PIRL drivers.
+    batch_controller : BatchController
+        What SUMO asks every step: the drivers, or what ``wrap_controller`` made of them.
+    """
+
+    def __init__(self, config: SumoScenarioConfig, seed: int, plan: pd.DataFrame, backend: str, *,
+                 ego: EgoSpec | None = None, wrap_controller: ControllerWrapper | None = None,
+                 cache_network: bool = False):
         self.config, self.seed, self.plan, self.backend = config, seed, plan, backend
+        self.ego_spec, self.wrap_controller, self.cache_network = ego, wrap_controller, cache_network
         self.sumo_recording: SumoRecording | None = None
+        self._owned: tempfile.TemporaryDirectory | None = None  # the network's directory, when not cached
 
     def __enter__(self) -> _SumoSimulation:
-        config, plan = self.config, self.plan
+        config, plan, ego = self.config, self.plan, self.ego_spec
         _, noise_rng, _ = random_streams(self.seed)
         drv = config.drivers
-        self._tmp = tempfile.TemporaryDirectory(prefix="pirl_sumo_")
+        built = _built_network(config, self.cache_network)
+        self._owned = None if self.cache_network else built.directory
         try:
-            tmp = self._tmp.name
-            files = build_network(config.network, tmp, name=_NET_NAME)
-            self.net = load_net(files.net)
-            catalogue = config.route_catalogue()
-            for rid, edges in catalogue.items():
-                validate_route(self.net, edges, route_id=rid)
-            self.routes = route_set(self.net, catalogue, smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
-            vtypes = Path(tmp) / "vtypes.add.xml"
+            self.net, self.routes = built.net, built.routes
+            vtypes = built.files.net.with_name("vtypes.add.xml")
             atomic_write_text(vtypes, vehicle_types_xml(drv))
+            files = built.files
             self.network_files = (files.nodes, files.edges, files.connections, files.net, vtypes)
             model = route_set_model(self.routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
                                     n_qp_iter=drv.n_qp_iter)
@@ -480,23 +540,37 @@ class _SumoSimulation:
                                       depart_speed=drv.depart_speed if r.is_pirl else "max",
                                       type_id=PIRL_VTYPE if r.is_pirl else BACKGROUND_VTYPE)
                           for r in plan.itertuples(index=False)]
-            self.run = SumoRun(files.net, catalogue, self.specs, pirl_ids=set(pirl["vehicle_id"]),
-                               controller=self.controller, seed=self.seed, step_length=STEP_LENGTH,
+            driven, speed_modes = set(pirl["vehicle_id"]), None
+            if ego is not None:
+                self.specs.append(VehicleSpec(ego.vehicle_id, ego.route_id, ego.depart, depart_speed=ego.speed,
+                                              type_id=PIRL_VTYPE))
+                driven.add(ego.vehicle_id)
+                if ego.speed_mode is not None:
+                    speed_modes = {ego.vehicle_id: int(ego.speed_mode)}
+            self.batch_controller = (self.controller if self.wrap_controller is None
+                                     else self.wrap_controller(self.controller))
+            self.run = SumoRun(files.net, built.catalogue, self.specs, pirl_ids=driven,
+                               controller=self.batch_controller, seed=self.seed, step_length=STEP_LENGTH,
                                backend=self.backend, speed_mode=config.speed_mode, override_tol=config.override_tol,
-                               collision_action=config.collision_action,
+                               collision_action=config.collision_action, speed_modes=speed_modes,
                                extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true"))
             self.run.__enter__()
         except BaseException:
-            self._tmp.cleanup()
+            self._release()
             raise
         return self
+
+    def _release(self) -> None:
+        if self._owned is not None:
+            self._owned.cleanup()
+            self._owned = None
 
     def __exit__(self, *exc) -> None:
         try:
             if self.sumo_recording is None:
                 self.run.__exit__(*exc)
         finally:
-            self._tmp.cleanup()
+            self._release()
 
     def step(self) -> None:
         self.run.step()
@@ -528,9 +602,17 @@ class _SumoSimulation:
         self.own_times = {"control_time_s": self.controller.control_time_s}
 
     def recording(self, info) -> ScenarioRecording:
+        """The run (before :meth:`finish`: so far) as a recording; the ego is a non-PIRL track named by its id
+        with style name "ego"."""
         lanes, successors = lane_graph(self.net)
-        return scenario_recording(self.plan, self.sumo_recording, lanes, successors, info,
-                                  set(self.controller.handbacks))
+        plan, spec = self.plan, self.ego_spec
+        if spec is not None:
+            ego = {"vehicle_id": spec.vehicle_id, "depart": spec.depart, "route_id": spec.route_id,
+                   "is_pirl": False, "style": BACKGROUND_STYLE, "style_name": "ego",
+                   **{f"theta_{f}": np.nan for f in FEATURE_NAMES}}
+            plan = pd.concat([plan, pd.DataFrame([ego])], ignore_index=True)
+        sumo = self.sumo_recording if self.sumo_recording is not None else self.run.recording()
+        return scenario_recording(plan, sumo, lanes, successors, info, set(self.controller.handbacks))
 
 
 def _without_generator_comment(xml: str) -> str:

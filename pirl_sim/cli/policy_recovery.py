@@ -1,0 +1,66 @@
+"""``pirl-sim policy-recovery``: train PPO on the env's theta reward and measure how close the weights
+recovered from its driving come to the reward's weights (`pirl_sim.experiments.policy_recovery`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pirl_sim.validation import list_arg
+
+from .common import command_line, error
+
+__all__ = ["add_parser", "run", "DEFAULT_OUT", "DEFAULTS"]
+
+DEFAULT_OUT = Path("results") / "policy_recovery"
+#: `pirl_sim.experiments.policy_recovery.PpoRecoveryConfig`'s defaults of the options, named here so that building
+#: the parser does not import the study (a test checks they agree)
+DEFAULTS = {"steps": 30_000, "seeds": (0, 1, 2), "eval_seeds": tuple(range(1000, 1010)), "n_steps": 2048,
+            "n_vehicles": 8, "initial_vehicles": 2, "speed_dev": 3.0, "acc_sq": 0.3}
+
+
+def add_parser(subparsers) -> None:
+    """Add ``policy-recovery`` to the command's subparsers."""
+    d = DEFAULTS
+    p = subparsers.add_parser(
+        "policy-recovery",
+        help="weights recovered from a PPO agent trained on the theta reward, against the reward's",
+        description="Train PPO on the env's theta reward and measure how close the weights recovered from its "
+                    "driving come to the reward's weights.")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    p.add_argument("--steps", type=int, default=d["steps"], help=f"PPO training steps per seed (default {d['steps']})")
+    p.add_argument("--seeds", type=list_arg(int), default=list(d["seeds"]), help="training seeds, comma-separated")
+    p.add_argument("--eval-seeds", type=list_arg(int), default=list(d["eval_seeds"]), help="evaluation env seeds")
+    p.add_argument("--n-steps", type=int, default=d["n_steps"], help=f"PPO rollout length (default {d['n_steps']})")
+    p.add_argument("--n-vehicles", type=int, default=d["n_vehicles"],
+                   help=f"vehicles of the traffic per episode (default {d['n_vehicles']})")
+    p.add_argument("--initial-vehicles", type=int, default=d["initial_vehicles"],
+                   help=f"of them on the road at reset (default {d['initial_vehicles']})")
+    p.add_argument("--no-normalize-reward", action="store_true", help="train on the unscaled theta reward")
+    p.add_argument("--speed-dev", type=float, default=d["speed_dev"], help="reward weight of speed_dev")
+    p.add_argument("--acc-sq", type=float, default=d["acc_sq"], help="reward weight of acc_sq")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def run(args) -> int:
+    """``pirl-sim policy-recovery``: 0, or 2 for a bad setting."""
+    import time
+
+    from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, ppo_ego_report, write_results
+    from pirl_sim.progress import reporter
+
+    try:
+        cfg = PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=tuple(args.seeds),
+                                steps=args.steps, eval_seeds=tuple(args.eval_seeds), n_steps=args.n_steps,
+                                batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
+                                n_vehicles=args.n_vehicles, initial_vehicles=args.initial_vehicles,
+                                normalize_reward=not args.no_normalize_reward)
+    except ValueError as exc:
+        return error(exc)
+    say = reporter(not args.quiet)
+    t0 = time.perf_counter()
+    result = ppo_ego_report(cfg, log=say)
+    wall = time.perf_counter() - t0
+    write_results(result, cfg, args.out, command_line("policy-recovery", []), wall)
+    print(result["reports"]["ppo"].to_markdown())
+    print(f"wrote {args.out}/ in {wall:.0f} s")
+    return 0

@@ -1,0 +1,80 @@
+"""``pirl-sim recover``: weight recovery of the receding-horizon IRL on simulated runs
+(`pirl_sim.experiments.recovery`)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from pirl_sim.validation import list_arg, positive_int_arg, seed_arg
+
+from .common import error
+
+__all__ = ["add_parser", "run", "DEFAULT_OUT", "SIMULATORS"]
+
+DEFAULT_OUT = Path("results") / "recovery"
+#: `pirl_sim.experiments.recovery.SIMULATORS`, named here so that the parser does not import the study
+SIMULATORS = ("sumo", "highway")
+
+
+def add_parser(subparsers) -> None:
+    """Add ``recover`` to the command's subparsers."""
+    p = subparsers.add_parser(
+        "recover",
+        help="weight recovery of the receding-horizon IRL on simulated runs (table of errors per seed)",
+        description="Simulate each seed (or reuse its run under OUT/runs), fit the receding-horizon IRL to every "
+                    "PIRL track with enough usable steps and TIRL per style, and write table.csv/.md, "
+                    "styles.csv, tracks.csv, selection.csv, times.csv, README.md (and noise.csv/.md with "
+                    "--control-noise) to --out.")
+    p.add_argument("--simulator", choices=[*SIMULATORS, "both"], default="sumo",
+                   help="sumo (default), highway, or both")
+    p.add_argument("--seeds", type=seed_arg, nargs="+", default=[0, 1, 2, 3], help="seeds (default 0 1 2 3)")
+    p.add_argument("--population", type=Path, default=None, metavar="CONFIG",
+                   help="population TOML (default: the embedded one)")
+    p.add_argument("--n-vehicles", type=positive_int_arg, default=None,
+                   help="override the population's number of vehicles")
+    p.add_argument("--stride", type=positive_int_arg, default=1, help="score every STRIDE-th step (default 1)")
+    p.add_argument("--min-steps", type=positive_int_arg, default=10,
+                   help="usable steps a PIRL track needs to be fitted (default 10)")
+    p.add_argument("--control-noise", type=list_arg(float, low=0), default=[], metavar="LEVELS",
+                   help="noise study: comma-separated control-noise levels [m/s^3], e.g. 0,0.1,0.3,1 "
+                        "(written to noise.csv/.md)")
+    p.add_argument("--noise-seeds", type=seed_arg, nargs="+", default=None,
+                   help="seeds of the noise study (default: --seeds)")
+    p.add_argument("--workers", type=positive_int_arg, default=1,
+                   help="runs simulated and fitted at once, each in its own process (default 1)")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    p.add_argument("--runs", type=Path, default=None, help="where runs are recorded and reused (default OUT/runs)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def run(args) -> int:
+    """``pirl-sim recover``: 0 on success, 2 for a bad configuration."""
+    from pirl_sim.experiments.recovery import check_targets, compact_table, run_recovery, write_recovery
+    from pirl_sim.io.atomic import atomic_write_text
+    from pirl_sim.progress import reporter
+
+    say = reporter(not args.quiet)  # progress lines on stderr; the table on stdout
+    sims = list(SIMULATORS) if args.simulator == "both" else [args.simulator]
+    runs = args.runs if args.runs is not None else args.out / "runs"
+    try:
+        result = run_recovery(sims, args.seeds, runs_dir=runs, population=args.population,
+                              n_vehicles=args.n_vehicles, control_noise=args.control_noise,
+                              noise_seeds=args.noise_seeds, min_steps=args.min_steps, stride=args.stride,
+                              workers=args.workers, progress=say)
+    except (ValueError, FileNotFoundError) as exc:
+        return error(exc)
+    command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
+    if runs == args.out / "runs":
+        atomic_write_text(args.out / ".gitignore", "runs/\n")
+    write_recovery(result, args.out, command)
+    table = compact_table(result.table())
+    print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    for sim in sims:
+        sub = result.table()
+        sub = sub[sub["simulator"] == sim]
+        row = sub.iloc[-1].to_dict()
+        missed = [f"{c} = {v:.3g} (target {op} {lim:g})" for c, op, lim, v, ok in check_targets(row, sim) if not ok]
+        print(f"{sim} (seed {row['seed']}): " + ("every target met" if not missed else "NOT met: " + "; ".join(missed)))
+    print(f"wrote {args.out}/")
+    return 0

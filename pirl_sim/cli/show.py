@@ -1,0 +1,157 @@
+"""``pirl-sim show``: a recording on its map as a PNG (one frame, or every track) or an animation (GIF, MP4)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pirl_sim.validation import positive_float_arg
+
+from .common import error
+
+__all__ = ["add_parser", "run"]
+
+DEFAULT_OUT = "show.png"
+_STYLE = "style"  #: --color-by value that reads the styles from the recording's ground_truth.csv
+
+
+def _size(text: str) -> tuple[int, int]:
+    """argparse type: ``WIDTHxHEIGHT`` in pixels, each in [100, 4000]."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels (e.g. 800x600), got {text!r}") from None
+    if not (100 <= w <= 4000 and 100 <= h <= 4000):
+        raise argparse.ArgumentTypeError(f"width and height must be in [100, 4000] px, got {text!r}")
+    return w, h
+
+
+def add_parser(subparsers) -> None:
+    """Add ``show`` to the command's subparsers."""
+    p = subparsers.add_parser(
+        "show",
+        help="draw a recording on its map: one frame, every track, or an animation",
+        description="Draw an INTERACTION-format recording (a track CSV file, a folder of them, or a pirl_sim "
+        "simulated run) on its Lanelet2 map: one frame (--frame or --time) with the vehicles as oriented boxes, "
+        "every track (the default), or an animation over a time span (--span, written as .gif or .mp4 by the "
+        "suffix of --out). Tracks are coloured by --color-by: a column of the track file, 'speed', or 'style' "
+        "(the drivers' styles from the run's ground_truth.csv).",
+    )
+    p.add_argument("tracks", type=Path, help="a vehicle_tracks_*.csv file, or a folder with one (a simulated run)")
+    p.add_argument("--map", type=Path, default=None,
+                   help="Lanelet2 map (.osm); default: map.osm beside the tracks when there is one, else no road")
+    p.add_argument("--file", type=int, default=0, metavar="N",
+                   help="which vehicle_tracks_*.csv of a folder, in name order (default 0: the first)")
+    when = p.add_mutually_exclusive_group()
+    when.add_argument("--frame", type=int, default=None, help="draw this frame_id")
+    when.add_argument("--time", type=float, default=None, metavar="S", help="draw the frame at this time [s]")
+    when.add_argument("--span", type=float, nargs=2, default=None, metavar=("START", "END"),
+                      help="animate from START to END [s of the recording]")
+    p.add_argument("--color-by", default=None, metavar="COLUMN",
+                   help="colour tracks by a column of the track file, 'speed' [m/s] or 'style' (default: one "
+                   "colour per track)")
+    p.add_argument("--fps", type=positive_float_arg, default=10.0, help="animation frames per second (default 10)")
+    p.add_argument("--speed", type=positive_float_arg, default=1.0,
+                   help="recording seconds per animation second (default 1: real time)")
+    p.add_argument("--size", type=_size, default=(800, 600), metavar="WxH", help="image size [px] (default 800x600)")
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"output .png (frames, tracks) or .gif/.mp4 (--span); default {DEFAULT_OUT}, or show.gif "
+                   "with --span")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _track_file(path: Path, index: int) -> Path:
+    from pirl_sim.io.interaction import find_track_files
+
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise ValueError(f"tracks {str(path)!r}: no such file or folder")
+    files = find_track_files(path)
+    if not files:
+        raise ValueError(f"{path}: no vehicle_tracks_*.csv in this folder")
+    if not 0 <= index < len(files):
+        raise ValueError(f"--file {index}: the folder has {len(files)} track file(s), so it must be in "
+                         f"[0, {len(files) - 1}]")
+    return files[index]
+
+
+def _styles(folder: Path) -> dict:
+    """{track_id: style name} from a simulated run's ground_truth.csv."""
+    import pandas as pd
+
+    from pirl_sim.scenarios.recording import GROUND_TRUTH_FILE
+
+    path = folder / GROUND_TRUTH_FILE
+    if not path.is_file():
+        raise ValueError(f"--color-by style reads the styles from {path}, which does not exist (use a column of "
+                         "the track file or 'speed')")
+    truth = pd.read_csv(path, usecols=["track_id", "style_name"], dtype={"style_name": str}, keep_default_na=False)
+    return dict(zip(truth["track_id"], truth["style_name"]))
+
+
+def _outputs(args, inputs: list[Path]) -> Path:
+    animated = args.span is not None
+    out = args.out if args.out is not None else Path("show.gif" if animated else DEFAULT_OUT)
+    suffix = out.suffix.lower()
+    allowed = (".gif", ".mp4") if animated else (".png",)
+    if suffix not in allowed:
+        what = "an animation (--span)" if animated else "a picture"
+        raise ValueError(f"--out {str(out)!r}: {what} is written as {' or '.join(allowed)}")
+    for i in inputs:
+        if i.exists() and out.exists() and out.resolve() == i.resolve():
+            raise ValueError(f"--out {str(out)!r} is an input file: choose another name")
+    if out.exists() and out.is_dir():
+        raise ValueError(f"--out {str(out)!r} is a folder: give a file name")
+    if not out.resolve().parent.is_dir():
+        raise ValueError(f"--out {str(out)!r}: the folder {str(out.resolve().parent)!r} does not exist")
+    return out
+
+
+def run(args) -> int:
+    """``pirl-sim show``: 0, or 2 for a bad input (an unknown column, a frame outside the recording, ...)."""
+    from pirl_sim.io.interaction import read_tracks
+
+    try:
+        track_file = _track_file(args.tracks, args.file)
+        folder = track_file.parent
+        map_path = args.map if args.map is not None else (folder / "map.osm" if (folder / "map.osm").is_file()
+                                                           else None)
+        out = _outputs(args, [track_file, *([map_path] if map_path is not None else [])])
+        tracks = read_tracks(track_file)
+        road = None
+        if map_path is not None:
+            from pirl_sim.viz import road_from_lanelet2
+
+            road = road_from_lanelet2(map_path)
+        color, options = args.color_by, {}
+        if color == _STYLE and _STYLE not in tracks.columns:
+            color, options = _styles(folder), {"categorical": True, "label": "style"}
+        title = track_file.name
+        if args.span is not None:
+            from pirl_sim.viz import animate_scene
+
+            written = animate_scene(tracks, out, start_s=args.span[0], end_s=args.span[1], fps=args.fps,
+                                    speed=args.speed, progress=not args.quiet, road=road, color_by=color,
+                                    size_px=args.size, title=title, **options)
+        elif args.frame is not None or args.time is not None:
+            from pirl_sim.viz import TrackFrames, draw_scene
+
+            frames = TrackFrames(tracks)
+            frame = args.frame if args.frame is not None else frames.frame_at(args.time)
+            fig = draw_scene(frames, frame, road=road, color_by=color, size_px=args.size,
+                             title=f"{title}, frame {frame}", **options)
+            fig.savefig(out)
+            written = out
+        else:
+            from pirl_sim.viz import draw_recording
+
+            fig = draw_recording(tracks, road=road, color_by=color, size_px=args.size, title=title, **options)
+            fig.savefig(out)
+            written = out
+    except (ValueError, TypeError, FileNotFoundError, RuntimeError) as exc:
+        return error(exc)
+    except OSError as exc:
+        return error(f"cannot write {args.out}: {exc.strerror or exc}")
+    print(f"wrote {written}")
+    return 0

@@ -1,0 +1,224 @@
+"""``pirl-sim simulate SIMULATOR``: record a driver population of known weights in INTERACTION format.
+
+Every simulator has the common options (`add_simulator_parser`) and runs through `run_simulator`
+(configuration, progress bar, errors, summary): ``sumo`` (a SUMO roundabout, libsumo or TraCI) and
+``highway`` (highway-env's roundabout). Both run with no arguments (the embedded default population).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
+
+from .common import error
+
+__all__ = ["add_parser", "run", "add_simulator_parser", "run_simulator", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT",
+           "SUMO_BACKENDS"]
+
+SUMO_OUT = Path("results") / "sumo_run"
+HIGHWAY_OUT = Path("results") / "highway_run"
+#: `pirl_sim.scenarios.sumo.runner.BACKENDS`, named here so that the parser does not import the simulator
+SUMO_BACKENDS = ("libsumo", "traci")
+
+
+def add_parser(subparsers) -> None:
+    """Add ``simulate`` and its simulators to the command's subparsers."""
+    sim = subparsers.add_parser(
+        "simulate",
+        help="simulate a driver population of known cost weights and record it in INTERACTION format",
+        description="Simulate a mixed-style driver population whose cost weights are known and record it: "
+                    "INTERACTION tracks, a ground-truth table and a Lanelet2 map.",
+    )
+    simulators = sim.add_subparsers(dest="simulator", metavar="SIMULATOR")
+    simulators.required = True
+    sumo = add_simulator_parser(
+        simulators, "sumo",
+        help="a SUMO roundabout (libsumo)",
+        description="Run a SUMO roundabout with PIRL drivers (the paper's roundabout model, each with its own "
+                    "sampled weights, re-planning every 0.1 s) and SUMO background traffic; write "
+                    "vehicle_tracks_000.csv, ground_truth.csv, map.osm, run.json and network/ to --out. "
+                    "Runs with no arguments (embedded default population and network).",
+        default_out=SUMO_OUT,
+        scenario_help="scenario TOML with [network], [drivers] and route settings (default: the default 4-arm "
+                      "roundabout)",
+        seed_help="seed of every draw and of SUMO (default 0)",
+    )
+    sumo.add_argument("--backend", choices=SUMO_BACKENDS, default="libsumo",
+                      help="libsumo (default, in-process) or traci (a SUMO process over a socket, slower)")
+    sumo.add_argument("--demand", type=_positive_float, default=None, metavar="VEH_PER_H",
+                      help="traffic demand [vehicles per hour per arm]: sets the time between departures "
+                           "(3600 / (demand * arms) s; overrides the population's depart_interval); with "
+                           "--n-vehicles it sets how long the demand lasts")
+    sumo.add_argument("--lanes", type=positive_int_arg, default=None, metavar="N",
+                      help="lanes of the ring and of every arm (default: the scenario's, 1); 2 for a two-lane "
+                           "roundabout")
+    add_simulator_parser(
+        simulators, "highway",
+        help="highway-env's roundabout",
+        description="Run highway-env's roundabout (roundabout-generic-v0, one ring lane) with PIRL drivers (the "
+                    "paper's roundabout model, each with its own sampled weights, re-planning every 0.1 s) and "
+                    "highway-env IDM background traffic; write vehicle_tracks_000.csv, ground_truth.csv, "
+                    "map.osm and run.json to --out. Runs with no arguments.",
+        default_out=HIGHWAY_OUT,
+        scenario_help="scenario TOML with [geometry], [drivers], [rules] and route settings",
+    )
+
+
+def add_simulator_parser(simulators, name: str, *, help: str, description: str, default_out: Path,
+                         scenario_help: str, seed_help: str = "seed of every draw (default 0)"
+                         ) -> argparse.ArgumentParser:
+    """Add the simulator ``name`` to ``simulate`` with the options every simulator has; returns its parser
+    (for options of its own)."""
+    p = simulators.add_parser(name, help=help, description=description)
+    p.add_argument("--population", type=Path, default=None, metavar="CONFIG",
+                   help="population TOML (default: the embedded one, see --print-default-population)")
+    p.add_argument("--scenario", type=Path, default=None, metavar="CONFIG", help=scenario_help)
+    p.add_argument("--seed", type=seed_arg, default=0, help=seed_help)
+    p.add_argument("--out", type=Path, default=default_out,
+                   help=f"output directory (default: {default_out.as_posix()})")
+    p.add_argument("--n-vehicles", type=positive_int_arg, default=None,
+                   help="override the population's number of vehicles")
+    p.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--print-default-population", action="store_true",
+                   help="print the embedded default population as TOML and exit")
+    return p
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
+def run(args: argparse.Namespace) -> int:
+    """``pirl-sim simulate SIMULATOR``: 0 on success, 2 for a bad configuration."""
+    if args.simulator == "sumo":
+        return _run_sumo(args)
+    return _run_highway(args)
+
+
+def _sumo_options(config, args: argparse.Namespace):
+    """``config`` with the command line's --demand and --lanes applied (ValueError for bad combinations)."""
+    changes = {}
+    if getattr(args, "lanes", None) is not None:
+        changes["network"] = dataclasses.replace(config.network, lanes=args.lanes)
+    if getattr(args, "demand", None) is not None:
+        changes["demand_per_arm"] = args.demand
+    return dataclasses.replace(config, **changes) if changes else config
+
+
+def _run_sumo(args: argparse.Namespace) -> int:
+    from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_scenario, run_sumo_scenario
+
+    def run_(config, seed, **kwargs):
+        return run_sumo_scenario(config, seed, backend=args.backend, **kwargs)
+
+    def default_config(**kwargs):
+        return _sumo_options(SumoScenarioConfig(**kwargs), args)
+
+    def scenario(path, **kwargs):
+        return _sumo_options(load_scenario(path, **kwargs), args)
+
+    return run_simulator(args, default_config=default_config, load_scenario=scenario, run=run_)
+
+
+def _run_highway(args: argparse.Namespace) -> int:
+    from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig, load_scenario, run_highway_scenario
+
+    return run_simulator(args, default_config=HighwayScenarioConfig, load_scenario=load_scenario,
+                         run=run_highway_scenario)
+
+
+class ProgressBar:
+    """The simulation's progress, ``progress(time_s, n_done, n_total)``, as a bar of vehicles done on a stream
+    (stderr by default), drawn by tqdm through `pirl_sim.progress.bar` with the simulated time and an ETA: on a
+    terminal redrawn in place; otherwise a line at most every ``every`` seconds."""
+
+    def __init__(self, stream=None, every: float = 5.0):
+        self.stream = sys.stderr if stream is None else stream
+        self.every = every
+        self._bar = None
+
+    def __call__(self, time_s: float, n_done: int, n_total: int) -> None:
+        if self._bar is None:
+            from pirl_sim.progress import bar
+
+            self._bar = bar(n_total, "vehicles done", unit="veh", stream=self.stream, every=self.every)
+        self._bar.set_postfix_str(f"{time_s:.1f} s simulated", refresh=False)
+        self._bar.update(n_done - self._bar.n)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def run_simulator(args: argparse.Namespace, *, default_config: Callable[..., Any],
+                  load_scenario: Callable[..., Any], run: Callable[..., Any]) -> int:
+    """Run a simulator's command parsed by :func:`add_simulator_parser`.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    default_config : callable
+        ``default_config(population=...)``: the simulator's scenario configuration without ``--scenario``.
+    load_scenario : callable
+        ``load_scenario(path, population=...)``: the configuration from ``--scenario``.
+    run : callable
+        ``run(config, seed, out_dir=..., progress=...)``: runs and records; returns a result with
+        ``recording`` and ``timing``.
+
+    Returns
+    -------
+    int
+        0 on success; 2 for a bad configuration (the reason on stderr, nothing written).
+    """
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, DEFAULT_POPULATION_TOML, load_population
+
+    if args.print_default_population:
+        sys.stdout.write(DEFAULT_POPULATION_TOML)
+        return 0
+    try:
+        population = load_population(args.population) if args.population is not None else None
+        if args.scenario is not None:
+            config = load_scenario(args.scenario, population=population)
+        else:
+            config = default_config(population=population or DEFAULT_POPULATION)
+        if args.n_vehicles is not None:
+            config = dataclasses.replace(
+                config, population=dataclasses.replace(config.population, n_vehicles=args.n_vehicles))
+        check_output_dir(args.out)  # before the run, not after it
+        bar = None if args.quiet else ProgressBar()
+        try:
+            result = run(config, args.seed, out_dir=args.out, progress=bar)
+        finally:
+            if bar is not None:
+                bar.close()
+    except (ValueError, FileNotFoundError) as exc:
+        return error(exc)
+    gt = result.recording.ground_truth
+    pirl = gt[gt["is_pirl"]]
+    clean = pirl[~pirl["interacted"].fillna(False).astype(bool)]
+    t = result.timing
+    print(f"{len(gt)} tracks ({len(pirl)} PIRL, {len(gt) - len(pirl)} background), "
+          f"{t['sim_time_s']:.1f} s simulated in {t['wall_time_s']:.1f} s ({t['real_time_factor']:.0f}x real time)")
+    if "mean_pirl" in t:
+        print(f"  PIRL drivers in the network at once: mean {t['mean_pirl']:.1f}, max {t['max_pirl']}")
+    for name in config.population.style_names:
+        n_style = int((pirl["style_name"] == name).sum())
+        n_clean = int((clean["style_name"] == name).sum())
+        print(f"  {name}: {n_style} PIRL tracks, {n_clean} without interaction")
+    print(f"  collided: {int(gt['collided'].sum())}, removed early: {int(gt['removed_early'].sum())}")
+    print(f"wrote {args.out}/")
+    return 0

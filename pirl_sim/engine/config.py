@@ -1,0 +1,641 @@
+"""Sweep configs: TOML -> frozen, validated dataclasses -> the grid's cells.
+
+Schema (every table rejects unknown keys, naming the valid ones)::
+
+    name = "paper"                       # optional; the report's title
+    description = "..."                  # optional
+    seeds = [0]                          # default seeds of every experiment (data and learner seeds)
+
+    [[experiments]]                      # one block of the grid; the sweep is the union of its blocks
+    scenario = "passage"                 # a registered scenario (`pirl_sim.experiments.registry.SCENARIOS`)
+    label = "passage"                    # optional, default: the scenario name
+    seeds = [0, 1]                       # optional, overrides the top-level seeds
+    params = { n_trajectories = 600 }    # fixed scenario parameters (the rest: the scenario's defaults)
+    grid = { rationality = [20.0, 100.0] }   # scenario parameters to vary: a list of values, or a table
+                                         # {variant label = value} for values that need a short name
+    protocols = [
+        { kind = "paper" },
+        { kind = "online", history_steps = 10 },                       # [steps]
+        { kind = "rolling", history_steps = 10, horizon = 15, stride = 5, grid = { history_steps = [5, 10] } },
+    ]
+    learners = [
+        "tirl",                                                        # a name alone: default parameters
+        { name = "pirl-gmm", params = { n_components = 3 } },
+        { name = "pirl-knn", params = { prior = "population", stride = 2 }, grid = { n_neighbors = [1, 10] } },
+    ]
+
+Cells are the grid points: scenario variant x protocol x learner variant x seed, for every experiment; a cell
+appearing in two experiments is computed once (same key) and listed under both. The learners' ``window`` and
+``windows`` come from the protocol and their ``model`` from the scenario (so these three keys are rejected);
+``random_state``, where a learner has one, is the cell's seed unless given.
+
+Everything is checked when the config is built, before any work starts: unknown scenario, learner, protocol
+kind or key; an empty grid (no experiment, learner, protocol, seed, or an empty list of values); bad scenario
+or protocol values; a history or horizon longer than the trajectories; and a k (``n_neighbors``,
+``n_components``) larger than the training samples the learner will see.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from pirl_sim.evaluation.protocols import PROTOCOL_KINDS, Protocol
+from pirl_sim.io import toml_text
+from pirl_sim.validation import SEED_LIMIT, check_keys, is_positive_int
+
+from pirl_sim.evaluation.baselines import BASELINES
+from pirl_sim.experiments.registry import resolve_scenario_params, scenario_spec
+
+__all__ = [
+    "Choice",
+    "GridAxis",
+    "LearnerGrid",
+    "ProtocolGrid",
+    "Experiment",
+    "Cell",
+    "SweepConfig",
+    "LEARNER_DISPLAY",
+    "load_config",
+    "parse_config",
+    "default_config",
+    "DEFAULT_CONFIG_TEXT",
+    "preset_text",
+    "canonical_json",
+    "sweep_learners",
+]
+
+TOP_KEYS = ("name", "description", "seeds", "experiments")
+EXPERIMENT_KEYS = ("scenario", "label", "seeds", "params", "grid", "protocols", "learners")
+LEARNER_KEYS = ("name", "label", "params", "grid")
+PROTOCOL_FIELDS = ("kind", "history_steps", "horizon", "stride", "window_mode")
+PROTOCOL_KEYS = PROTOCOL_FIELDS + ("grid",)
+#: set by the sweep: the model by the scenario, the feature window by the protocol
+RESERVED_LEARNER_PARAMS = ("model", "window", "windows")
+#: learner parameters that are the "k" of the paper's figures
+K_PARAMS = {"pirl-knn": "n_neighbors", "pirl-gmm": "n_components"}
+LEARNER_DISPLAY = {"tirl": "TIRL", "pirl-gmm": "PIRL-GMM", "pirl-dpgmm": "PIRL-DPGMM", "pirl-knn": "PIRL-kNN",
+                   "cv": "CV", "ca": "CA", "ppo": "PPO"}
+
+
+def sweep_learners() -> dict:
+    """Learners a sweep runs, by name: `pirl_sim.learners.LEARNERS`, the kinematic baselines
+    (`pirl_sim.evaluation.baselines.BASELINES`) and the policies of the ``agents`` scenario
+    (`pirl_sim.experiments.agents.POLICIES`)."""
+    from pirl_sim.learners import LEARNERS
+
+    from pirl_sim.experiments.agents import POLICIES
+
+    return {**LEARNERS, **BASELINES, **POLICIES}
+
+
+def canonical_json(obj) -> str:
+    """Sorted keys, no spaces, no NaN: the same object always gives the same string (what keys hash)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def _jsonable(label: str, value):
+    """TOML value -> JSON value (tuples as lists); dates, times and nan are rejected, naming the key (``label``
+    and the path to the value inside it)."""
+    if isinstance(value, (bool, int, str)) or value is None:
+        return value
+    if isinstance(value, float):
+        if math.isnan(value):  # inf has uses (e.g. rationality = inf: exact optima); nan never does
+            raise ValueError(f"{label}: nan is not allowed; give a number")
+        return value
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(f"{label}[{i}]", v) for i, v in enumerate(value)]
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(f"{label}.{k}", v) for k, v in value.items()}
+    raise ValueError(f"{label}: unsupported value {value!r} ({type(value).__name__})")
+
+
+def _fmt(value) -> str:
+    """A short label for a grid value."""
+    if isinstance(value, float):
+        return "inf" if value == math.inf else f"{value:g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{k}: {_fmt(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def _seeds(label: str, value) -> tuple[int, ...]:
+    if not isinstance(value, (list, tuple)):
+        raise ValueError(f"{label} must be a list of integers, got {value!r}")
+    if not value:
+        raise ValueError(f"empty grid: {label} is an empty list")
+    for s in value:
+        if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s < SEED_LIMIT:
+            raise ValueError(f"{label} must hold integers in [0, 2**31), got {s!r}")
+    if len(set(value)) != len(value):
+        raise ValueError(f"{label} repeats a seed: {list(value)}")
+    return tuple(value)
+
+
+# ------------------------------------------------------------------------------------------ grid pieces
+@dataclass(frozen=True)
+class Choice:
+    """One value of a grid axis and its label in tables and figures."""
+
+    label: str
+    value: Any
+
+
+@dataclass(frozen=True)
+class GridAxis:
+    """A parameter and the values the grid takes for it (in order)."""
+
+    name: str
+    choices: tuple[Choice, ...]
+
+    def __post_init__(self) -> None:
+        if not self.choices:
+            raise ValueError(f"empty grid: no value for {self.name!r}")
+
+    @classmethod
+    def parse(cls, label: str, name: str, value) -> "GridAxis":
+        """A list of values (labelled by the values) or a table {variant label: value}."""
+        if isinstance(value, Mapping):
+            choices = tuple(Choice(str(k), _jsonable(f"{label}.{name}.{k}", v)) for k, v in value.items())
+        elif isinstance(value, (list, tuple)):
+            choices = tuple(Choice(_fmt(v), _jsonable(f"{label}.{name}[{i}]", v)) for i, v in enumerate(value))
+        else:
+            raise ValueError(f"{label}.{name} must be a list of values or a table of named values, got {value!r}")
+        if not choices:
+            raise ValueError(f"empty grid: {label}.{name} has no value")
+        if len({c.label for c in choices}) != len(choices):
+            raise ValueError(f"{label}.{name} repeats a value: {[c.label for c in choices]}")
+        return cls(name, choices)
+
+
+def _parse_grid(label: str, grid, fixed: Mapping) -> tuple[GridAxis, ...]:
+    if grid is None:
+        return ()
+    if not isinstance(grid, Mapping):
+        raise ValueError(f"{label} must be a table {{parameter = [values]}}, got {grid!r}")
+    both = [k for k in grid if k in fixed]
+    if both:
+        raise ValueError(f"{label}: {both} given both as fixed parameters and in the grid")
+    return tuple(GridAxis.parse(label, str(k), v) for k, v in grid.items())
+
+
+def _points(axes: tuple[GridAxis, ...]):
+    """Every combination of the axes' choices: list of ({name: value}, [(name, label)]) (no axes: one, empty)."""
+    return [({a.name: c.value for a, c in zip(axes, combo)}, [(a.name, c.label) for a, c in zip(axes, combo)])
+            for combo in itertools.product(*(a.choices for a in axes))]
+
+
+@dataclass(frozen=True)
+class LearnerGrid:
+    """A learner and the values of its parameters (fixed ones and a grid)."""
+
+    name: str
+    label: str
+    params: Mapping[str, Any]
+    grid: tuple[GridAxis, ...] = ()
+
+    def __post_init__(self) -> None:
+        LEARNERS = sweep_learners()
+        if self.name not in LEARNERS:
+            raise ValueError(f"unknown learner {self.name!r}; choose one of {', '.join(sorted(LEARNERS))}")
+        valid = tuple(k for k in LEARNERS[self.name]().get_params() if k not in RESERVED_LEARNER_PARAMS)
+        for key in [*self.params, *(a.name for a in self.grid)]:
+            if key in RESERVED_LEARNER_PARAMS:
+                raise ValueError(
+                    f"learner {self.name!r}: {key!r} is set by the sweep (model: the scenario; window, windows: the "
+                    "protocol)"
+                )
+            if key not in valid:
+                raise ValueError(
+                    f"learner {self.name!r}: unknown parameter {key!r}; valid parameters: {', '.join(valid)}"
+                )
+        object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
+
+    @classmethod
+    def parse(cls, label: str, entry) -> "LearnerGrid":
+        if isinstance(entry, str):
+            entry = {"name": entry}
+        check_keys(label, entry, LEARNER_KEYS)
+        if "name" not in entry:
+            raise ValueError(f"{label} needs a name (one of {', '.join(LEARNER_DISPLAY)})")
+        name = entry["name"]
+        params = entry.get("params", {})
+        if not isinstance(params, Mapping):
+            raise ValueError(f"{label}.params must be a table, got {params!r}")
+        params = {str(k): _jsonable(f"{label}.params.{k}", v) for k, v in params.items()}
+        display = entry.get("label", LEARNER_DISPLAY.get(name, str(name)))
+        return cls(name, str(display), params, _parse_grid(f"{label}.grid", entry.get("grid"), params))
+
+
+@dataclass(frozen=True)
+class ProtocolGrid:
+    """A protocol (`pirl_sim.evaluation.protocols.Protocol` fields, steps) and a grid over its fields."""
+
+    fields: Mapping[str, Any]
+    grid: tuple[GridAxis, ...] = ()
+
+    def __post_init__(self) -> None:
+        kind = self.fields.get("kind")
+        if kind not in PROTOCOL_KINDS:
+            raise ValueError(f"unknown protocol kind {kind!r}; choose one of {', '.join(PROTOCOL_KINDS)}")
+        for a in self.grid:
+            if a.name not in PROTOCOL_FIELDS[1:]:
+                raise ValueError(f"protocol grid: unknown key {a.name!r}; valid keys: {', '.join(PROTOCOL_FIELDS[1:])}")
+        object.__setattr__(self, "fields", MappingProxyType(dict(self.fields)))
+
+    @classmethod
+    def parse(cls, label: str, entry) -> "ProtocolGrid":
+        if isinstance(entry, str):
+            entry = {"kind": entry}
+        check_keys(label, entry, PROTOCOL_KEYS)
+        fields = {k: _jsonable(f"{label}.{k}", v) for k, v in entry.items() if k != "grid"}
+        return cls(fields, _parse_grid(f"{label}.grid", entry.get("grid"), fields))
+
+    def points(self) -> list[dict]:
+        """Complete Protocol fields for every grid point."""
+        out = []
+        for values, _ in _points(self.grid):
+            f = {**self.fields, **values}
+            f.setdefault("window_mode", "sliding" if f["kind"] == "rolling" else "first")
+            f.setdefault("stride", 1)
+            f.setdefault("history_steps", None)
+            f.setdefault("horizon", None)
+            out.append({k: f[k] for k in PROTOCOL_FIELDS})
+        return out
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One block of the grid: a scenario (and a grid over its parameters) x protocols x learners x seeds."""
+
+    scenario: str
+    label: str
+    params: Mapping[str, Any]
+    grid: tuple[GridAxis, ...]
+    protocols: tuple[ProtocolGrid, ...]
+    learners: tuple[LearnerGrid, ...]
+    seeds: tuple[int, ...]
+    base_dir: str | None = None
+
+    def __post_init__(self) -> None:
+        spec = scenario_spec(self.scenario)  # unknown scenario: ValueError naming the registered ones
+        for a in self.grid:
+            if a.name not in spec.params:
+                raise ValueError(
+                    f"scenario {self.scenario!r}: unknown parameter {a.name!r} in the grid; valid parameters: "
+                    f"{', '.join(spec.params)}"
+                )
+        if not self.protocols:
+            raise ValueError(f"empty grid: experiment {self.label!r} has no protocol")
+        if not self.learners:
+            raise ValueError(f"empty grid: experiment {self.label!r} has no learner")
+        if not self.seeds:
+            raise ValueError(f"empty grid: experiment {self.label!r} has no seed")
+        object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
+
+    @classmethod
+    def parse(cls, label: str, entry, default_seeds, base_dir: Path | None) -> "Experiment":
+        check_keys(label, entry, EXPERIMENT_KEYS)
+        if "scenario" not in entry:
+            raise ValueError(f"{label} needs a scenario")
+        scenario = entry["scenario"]
+        scenario_spec(scenario)
+        params = entry.get("params", {})
+        if not isinstance(params, Mapping):
+            raise ValueError(f"{label}.params must be a table, got {params!r}")
+        params = {str(k): _jsonable(f"{label}.params.{k}", v) for k, v in params.items()}
+        grid = _parse_grid(f"{label}.grid", entry.get("grid"), params)
+        seeds = entry.get("seeds", default_seeds)
+        if seeds is None:
+            raise ValueError(f"{label} has no seeds (give seeds here or at the top level)")
+        protocols = entry.get("protocols", [])
+        learners = entry.get("learners", [])
+        for key, v in (("protocols", protocols), ("learners", learners)):
+            if not isinstance(v, list):
+                raise ValueError(f"{label}.{key} must be a list, got {v!r}")
+        return cls(
+            scenario=scenario,
+            label=str(entry.get("label", scenario)),
+            params=params,
+            grid=grid,
+            protocols=tuple(ProtocolGrid.parse(f"{label}.protocols[{i}]", p) for i, p in enumerate(protocols)),
+            learners=tuple(LearnerGrid.parse(f"{label}.learners[{i}]", lg) for i, lg in enumerate(learners)),
+            seeds=_seeds(f"{label}.seeds", seeds),
+            base_dir=None if base_dir is None else str(base_dir),
+        )
+
+
+# ------------------------------------------------------------------------------------------ cells
+@dataclass(frozen=True)
+class Cell:
+    """One grid point: everything a worker needs (``spec()``) and how it is labelled in tables.
+
+    Attributes
+    ----------
+    scenario : str                       registered scenario name
+    scenario_params : mapping            complete, normalised parameters
+    data_fingerprint : str or None       hash of the files the scenario reads
+    protocol : mapping                   `Protocol` fields (steps)
+    learner : str                        `pirl_sim.learners.LEARNERS` name
+    learner_params : mapping             complete parameters (without model, window, windows)
+    seed : int                           data seed (and learner random_state unless given)
+    experiment : str                     label of the experiment block
+    scenario_label, protocol_label, learner_label : str
+    k : int or None                      n_neighbors (kNN) or n_components (GMM)
+    """
+
+    scenario: str
+    scenario_params: Mapping[str, Any]
+    data_fingerprint: str | None
+    protocol: Mapping[str, Any]
+    learner: str
+    learner_params: Mapping[str, Any]
+    seed: int
+    experiment: str
+    scenario_label: str
+    protocol_label: str
+    learner_label: str
+    k: int | None = None
+
+    def spec(self) -> dict:
+        """The cell's full configuration as plain JSON data: what a worker runs and what the key hashes."""
+        return {
+            "scenario": self.scenario,
+            "scenario_params": json.loads(canonical_json(dict(self.scenario_params))),
+            "data_fingerprint": self.data_fingerprint,
+            "protocol": dict(self.protocol),
+            "learner": self.learner,
+            "learner_params": json.loads(canonical_json(dict(self.learner_params))),
+            "seed": self.seed,
+        }
+
+    def key(self, code_version: str) -> str:
+        """sha256 of the full configuration and the code version (32 hex digits)."""
+        blob = canonical_json({"cell": self.spec(), "code_version": code_version})
+        return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+    def labels(self) -> dict:
+        return {"experiment": self.experiment, "scenario_label": self.scenario_label,
+                "protocol_label": self.protocol_label, "learner_label": self.learner_label, "k": self.k}
+
+
+def _learner_label(grid: LearnerGrid, params: dict, varied: list[tuple[str, str]]) -> tuple[str, int | None]:
+    kname = K_PARAMS.get(grid.name)
+    k = params.get(kname) if kname and params.get("aggregate") != "selected" else None  # a bank's choice: no k
+    parts = [] if k is None else [f"k={k}"]
+    parts += [f"{n}={lab}" for n, lab in varied if n != kname]
+    return grid.label + (f" ({', '.join(parts)})" if parts else ""), (k if isinstance(k, int) else None)
+
+
+def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) -> None:
+    """Values we can check without data: k against the training samples, windows, enums."""
+    LEARNERS = sweep_learners()
+    learner = LEARNERS[grid.name](**params, **proto.learner_params())
+    try:
+        learner._check_common()
+    except ValueError as exc:
+        raise ValueError(f"{label}: {exc}") from None
+    for name, ok in (("n_neighbors", "int"), ("n_components", "int|bic"), ("max_components", "int")):
+        if name not in params:
+            continue
+        v = params[name]
+        if not (is_positive_int(v) or (ok == "int|bic" and v == "bic")):
+            allowed = "a positive integer" + (' or "bic"' if ok == "int|bic" else "")
+            raise ValueError(f"{label}: {name} must be {allowed}, got {v!r}")
+    kname = K_PARAMS.get(grid.name)
+    k = params.get(kname) if kname else None
+    window = proto.learner_params()["window"]
+    if isinstance(k, int) and (shape.lengths or window is None or proto.learner_params().get("windows") == "first"):
+        n = shape.n_samples(window, proto.learner_params().get("windows", "first"), params.get("stride", 1))
+        what = "trajectories" if window is None else f"windows of {window} steps"
+        bound = "" if shape.exact else "at most "
+        if k > n:
+            raise ValueError(
+                f"{label}: k = {kname} = {k} is larger than the training set ({bound}{n} training {what} from "
+                f"{bound}{shape.n_train} trajectories)"
+            )
+    if "log_bounds" in params:
+        lb = params["log_bounds"]
+        ok = isinstance(lb, (list, tuple)) and len(lb) == 2 and all(
+            not isinstance(b, bool) and isinstance(b, (int, float)) and math.isfinite(b) for b in lb) and lb[0] < lb[1]
+        if not ok:
+            raise ValueError(f"{label}: log_bounds must be [low, high], two finite numbers with low < high, got "
+                             f"{list(lb) if isinstance(lb, tuple) else lb!r}")
+    if "random_state" in params:
+        rs = params["random_state"]
+        if rs is not None and (isinstance(rs, bool) or not isinstance(rs, int) or not 0 <= rs < SEED_LIMIT):
+            raise ValueError(f"{label}: random_state must be an integer in [0, 2**31) or absent, got {rs!r}")
+    if grid.name in ("pirl-gmm", "pirl-dpgmm"):
+        _check_mixture(label, grid.name, params)
+    if grid.name == "pirl-knn":
+        from pirl_sim.learners.knn import AGGREGATES, AVERAGES, PRIORS, SEGMENT_STARTS, SELECTORS, TARGETS, WEIGHTINGS
+
+        for key, choices in (("average", AVERAGES), ("prior", PRIORS), ("weighting", WEIGHTINGS), ("target", TARGETS),
+                             ("aggregate", AGGREGATES), ("selector", SELECTORS), ("segment_start", SEGMENT_STARTS)):
+            if key == "selector" and params.get("aggregate") != "selected":
+                continue  # the learner reads its selector only with aggregate="selected"
+            if key in params and params[key] not in choices:
+                raise ValueError(f"{label}: {key} must be one of {choices}, got {params[key]!r}")
+
+
+def _check_mixture(label: str, name: str, params: dict) -> None:
+    """The scikit-learn mixture's own parameter check (``covariance_type``, ``n_init``, ``max_iter``, ...), run
+    on the parameters the learner passes to it, so that a bad value fails when the config is built."""
+    from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
+
+    if name == "pirl-gmm":
+        k = params.get("n_components", 2)
+        mixture = GaussianMixture(n_components=k if isinstance(k, int) else 1,
+                                  covariance_type=params.get("covariance_type", "full"),
+                                  n_init=params.get("n_init", 1), random_state=params.get("random_state"))
+    else:
+        mixture = BayesianGaussianMixture(
+            n_components=params.get("max_components", 1) if isinstance(params.get("max_components"), int) else 1,
+            weight_concentration_prior=params.get("weight_concentration_prior"),
+            covariance_type=params.get("covariance_type", "full"), n_init=params.get("n_init", 1),
+            max_iter=params.get("max_iter", 100), random_state=params.get("random_state"))
+    try:
+        mixture._validate_params()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{label}: {exc}") from None
+    if "min_cluster_size" in params and not is_positive_int(params["min_cluster_size"]):
+        raise ValueError(f"{label}: min_cluster_size must be a positive integer, got {params['min_cluster_size']!r}")
+
+
+def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
+    LEARNERS = sweep_learners()
+
+    cells: list[Cell] = []
+    for e_idx, exp in enumerate(experiments):
+        elabel = f"experiment {e_idx + 1} ({exp.label})"
+        seen: set[str] = set()
+        spec = scenario_spec(exp.scenario)
+        for lgrid in exp.learners:
+            _check_runs_here(elabel, exp.scenario, lgrid.name)
+        base = None if exp.base_dir is None else Path(exp.base_dir)
+        for values, varied in _points(exp.grid):
+            try:
+                params = resolve_scenario_params(exp.scenario, {**exp.params, **values}, base)
+            except ValueError as exc:
+                raise ValueError(f"{elabel}: {exc}") from None
+            try:
+                shape = spec.train_shape(params)
+                fingerprint = spec.fingerprint(params)
+            except (OSError, ValueError, KeyError) as exc:
+                raise ValueError(f"{elabel}: scenario {exp.scenario!r} cannot read its data: {exc}") from None
+            slabel = exp.label + (f" ({', '.join(f'{n}={lab}' for n, lab in varied)})" if varied else "")
+            longest = max(shape.lengths, default=0)
+            for pgrid in exp.protocols:
+                for fields in pgrid.points():
+                    try:
+                        proto = Protocol(**fields)
+                    except (TypeError, ValueError) as exc:
+                        raise ValueError(f"{elabel}: protocol {dict(fields)}: {exc}") from None
+                    try:
+                        (spec.check_protocol or (lambda *_: None))(params, dict(fields))
+                    except (TypeError, ValueError) as exc:
+                        raise ValueError(f"{elabel}: scenario {exp.scenario!r} {exc}") from None
+                    if shape.lengths and proto.steps_needed() > longest:
+                        raise ValueError(
+                            f"{elabel}: the {proto.name} protocol needs trajectories of at least "
+                            f"{proto.steps_needed()} steps; the scenario's have at most {longest}"
+                        )
+                    for lgrid in exp.learners:
+                        defaults = {k: v for k, v in LEARNERS[lgrid.name]().get_params().items()
+                                    if k not in RESERVED_LEARNER_PARAMS}
+                        for lvalues, lvaried in _points(lgrid.grid):
+                            given = {**lgrid.params, **lvalues}
+                            llabel, k = _learner_label(lgrid, {**defaults, **given}, lvaried)
+                            for seed in exp.seeds:
+                                lparams = {**defaults, **given}
+                                if "random_state" in lparams and "random_state" not in given:
+                                    lparams["random_state"] = seed
+                                if (lparams.get("likelihood") == "receding" and lparams.get("horizon") is None
+                                        and spec.driver_horizon is not None):
+                                    lparams["horizon"] = spec.driver_horizon(params)  # the drivers' own
+                                lparams = _jsonable(llabel, lparams)
+                                _check_learner(f"{elabel}: {llabel} under the {proto.name} protocol", lgrid,
+                                               _tuples(lparams), proto, shape)
+                                cell = Cell(exp.scenario, params, fingerprint, fields, lgrid.name, lparams, seed,
+                                            exp.label, slabel, proto.name, llabel, k)
+                                ident = canonical_json(cell.spec())
+                                if ident not in seen:  # the same point twice in one experiment runs once
+                                    seen.add(ident)
+                                    cells.append(cell)
+    if not cells:  # pragma: no cover - every empty part is rejected above
+        raise ValueError("empty grid: the sweep has no cell")
+    return tuple(cells)
+
+
+def _check_runs_here(label: str, scenario: str, learner: str) -> None:
+    """ValueError unless ``scenario`` runs ``learner``: its `ScenarioSpec.learners` when it names them, else any
+    learner that is not another scenario's own (a class attribute ``scenarios``)."""
+    spec = scenario_spec(scenario)
+    own = getattr(sweep_learners()[learner], "scenarios", None)
+    if spec.learners is not None and learner not in spec.learners:
+        raise ValueError(f"{label}: scenario {scenario!r} runs the learners {list(spec.learners)} only, got "
+                         f"{learner!r}")
+    if spec.learners is None and own is not None and scenario not in own:
+        raise ValueError(f"{label}: {learner!r} runs in the scenario(s) {list(own)} only, not in {scenario!r}")
+
+
+def _tuples(params: dict) -> dict:
+    """JSON lists back to the tuples learners expect (log_bounds)."""
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """A validated sweep: its experiments and the cells they expand to (checked when built).
+
+    Attributes
+    ----------
+    name, description : str
+    experiments : tuple of Experiment
+    source : str          where the config came from (a path or "<default>")
+    text : str            the TOML text (kept with the results)
+    cells : tuple of Cell (computed)
+    """
+
+    name: str
+    description: str
+    experiments: tuple[Experiment, ...]
+    source: str = "<dict>"
+    text: str = ""
+    cells: tuple[Cell, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not self.experiments:
+            raise ValueError("empty grid: the sweep has no [[experiments]]")
+        labels = [e.label for e in self.experiments]
+        for i, lab in enumerate(labels):
+            if lab in labels[:i]:
+                raise ValueError(
+                    f"experiments {labels.index(lab) + 1} and {i + 1} are both labelled {lab!r}: give one a label"
+                )
+        object.__setattr__(self, "cells", _expand(self.experiments))
+
+
+def parse_config(data: Mapping[str, Any], *, base_dir=None, source: str = "<dict>", text: str = "") -> SweepConfig:
+    """Validate a config given as a mapping (parsed TOML) into a `SweepConfig`.
+
+    Parameters
+    ----------
+    data : mapping                see the module doc for the schema
+    base_dir : path or None       directory that relative scenario paths are taken from
+    source, text : str            recorded with the results
+
+    Raises
+    ------
+    ValueError
+        Naming the problem: unknown keys (with the valid ones), scenario, learner or protocol kind, an empty
+        grid, a bad value, or a k larger than the training set.
+    """
+    check_keys("sweep config", data, TOP_KEYS)
+    default_seeds = data.get("seeds")
+    if default_seeds is not None:
+        default_seeds = _seeds("seeds", default_seeds)
+    exps = data.get("experiments", [])
+    if not isinstance(exps, list):
+        raise ValueError(f"experiments must be an array of tables ([[experiments]]), got {exps!r}")
+    base = None if base_dir is None else Path(base_dir)
+    experiments = tuple(
+        Experiment.parse(f"experiments[{i}]", e, default_seeds, base) for i, e in enumerate(exps)
+    )
+    name = data.get("name", Path(source).stem if source.endswith(".toml") else "sweep")
+    return SweepConfig(str(name), str(data.get("description", "")), experiments, source, text)
+
+
+def load_config(path) -> SweepConfig:
+    """Read and validate a TOML sweep config; ``"default"`` is the embedded `default_config`."""
+    if str(path) == "default":
+        return default_config()
+    path = Path(path)
+    try:
+        data, text = toml_text.load(path, "sweep config")
+    except FileNotFoundError:
+        raise ValueError(f"sweep config {str(path)!r} not found") from None
+    return parse_config(data, base_dir=path.resolve().parent, source=str(path), text=text)
+
+
+def preset_text(name: str) -> str:
+    """The embedded sweep config ``pirl_sim/experiments/configs/<name>.toml`` (default, synthetic, passage, replay) as text."""
+    return resources.files("pirl_sim.experiments").joinpath("configs", f"{name}.toml").read_text(encoding="utf-8")
+
+
+DEFAULT_CONFIG_TEXT = preset_text("default")
+
+
+def default_config() -> SweepConfig:
+    """The embedded default sweep (`pirl_sim/experiments/configs/default.toml`): the paper's experiments on the simulators."""
+    return parse_config(toml_text.loads(DEFAULT_CONFIG_TEXT, "<default>"), source="<default>", text=DEFAULT_CONFIG_TEXT)

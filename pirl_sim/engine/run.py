@@ -1,0 +1,506 @@
+"""Run a sweep: cells missing from the store go to an executor, each result is stored as it finishes, and
+the tidy table is assembled from the store.
+
+A killed sweep loses only the cells that were running: run the same command again and only the missing cells
+run (a cell's key is its full config and the code version, see `pirl_sim.engine.store`). A cell that raises is
+reported (``errors/<key>.json``, the exit status) and the others go on; it runs again next time.
+
+Simulated scenarios (``sumo``, ``highway``): the runs the missing cells need and the store does not hold are
+simulated first, each (simulation parameters, seed) once, beside the cells of the other scenarios; the cells
+that read a run are submitted once the runs are done (`pirl_sim.engine.worker.run_simulation`). A simulation that
+fails fails its cells. Simulations need the results directory on a file system the workers share (local
+workers, or Dask workers on this machine).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+from pirl_sim.progress import reporter
+
+from .worker import ONLINE_SCORES, knn_group, run_cells, run_simulation
+from .config import SweepConfig, canonical_json
+from .executors import make_executor
+from .progress import Progress
+from pirl_sim.experiments.registry import scenario_spec
+from .store import ResultStore, code_version, simulation_key
+
+__all__ = ["SweepRun", "run_sweep", "plan_cells", "cell_keys", "assemble_table", "read_table", "weights_table",
+           "TIMING_COLUMNS", "SCORE_COLUMNS", "TABLE_COLUMNS", "WEIGHT_COLUMNS"]
+
+#: wall-clock timings [s]: differ from run to run (everything else in the table does not)
+TIMING_COLUMNS = ("generate_s", "fit_s", "evaluate_s", "cell_s", "cpu_s")
+SCORE_COLUMNS = ("med", "med_std", "fde", "weight_error", "ari", "n_styles", "n_train", "n_test", "n_predictions",
+                 "n_warnings", *ONLINE_SCORES)  # the online protocol's (`pirl_sim.engine.worker`): empty elsewhere
+TABLE_COLUMNS = (
+    "key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "history_steps", "horizon",
+    "learner", "learner_label", "k", "seed", *SCORE_COLUMNS, *TIMING_COLUMNS, "scenario_params", "learner_params",
+    "code_version",
+)
+#: columns of ``weights.csv``: weight recovery per cell, free feature and true style ("all": every test history)
+WEIGHT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "learner_label", "seed", "feature",
+                  "style", "n", "median_abs_log_err", "p90_abs_log_err", "spearman")
+_INT_COLUMNS = ("history_steps", "horizon", "k", "seed", "n_styles", "n_train", "n_test", "n_predictions", "n_warnings",
+                "k_futures")
+_FLOAT_SCORES = ("med", "med_std", "fde", "weight_error", "ari", *(c for c in ONLINE_SCORES if c != "k_futures"))
+#: rough relative cost of a learner's cells: long cells go first
+_COST = {"cv": 0, "ca": 0, "tirl": 1, "pirl-knn": 2, "pirl-gmm": 2, "pirl-dpgmm": 3, "ppo": 20}
+
+
+@dataclass
+class SweepRun:
+    """What `run_sweep` did.
+
+    Attributes
+    ----------
+    out : Path                  results directory
+    table : DataFrame           one row per finished cell (`TABLE_COLUMNS`)
+    computed : list of str      keys computed by this run, in the order they finished
+    cached : list of str        keys found in the store
+    failed : dict {key: str}    cells that raised (not in the table)
+    code_version : str
+    executor : str              where the cells ran
+    wall_s : float [s]          the whole call
+    startup_s : float [s]       starting and warming up the workers
+    work_s : float [s]          sum of the computed cells' own time (``cell_s``)
+    cpu_s : float [s]           sum of their CPU time (``cpu_s``)
+    simulated : list of str     simulation keys simulated by this run
+    records : dict {key: dict}  the stored record of every finished cell (`pirl_sim.engine.store`)
+    keys : list of str          every cell's key, in the config's order (`cell_keys`)
+    """
+
+    out: Path
+    table: pd.DataFrame
+    computed: list = field(default_factory=list)
+    cached: list = field(default_factory=list)
+    failed: dict = field(default_factory=dict)
+    code_version: str = ""
+    executor: str = ""
+    wall_s: float = 0.0
+    startup_s: float = 0.0
+    work_s: float = 0.0
+    cpu_s: float = 0.0
+    simulated: list = field(default_factory=list)
+    records: dict = field(default_factory=dict)
+    keys: list = field(default_factory=list)
+
+    def check_failed(self, what: str) -> None:
+        """RuntimeError when cells failed, naming how many of ``what`` and the first error (a report template's
+        run: its files need every cell); the finished cells are kept, so the same call retries the others."""
+        if self.failed:
+            raise RuntimeError(f"{len(self.failed)} of {what} failed (first: {next(iter(self.failed.values()))}; "
+                               f"details in {self.out}/errors/); the finished cells are kept: run the same command "
+                               "again to retry the others")
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _manifest(config: SweepConfig, keys: list[str], version: str, command: str | None) -> str:
+    cells = [{"key": k, **c.labels(), "learner": c.learner, "scenario": c.scenario, "seed": c.seed}
+             for c, k in zip(config.cells, keys)]
+    return json.dumps({
+        "name": config.name,
+        "description": config.description,
+        "source": config.source,
+        "command": command,
+        "code_version": version,
+        "n_cells": len(cells),
+        "n_unique_cells": len(set(keys)),
+        "cells": cells,
+        "config": config.text,
+    }, indent=1) + "\n"
+
+
+def run_sweep(
+    config: SweepConfig,
+    out_dir,
+    *,
+    executor=None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+    command: str | None = None,
+    stream=None,
+    tables: bool = True,
+) -> SweepRun:
+    """Run the cells of ``config`` that ``out_dir`` does not hold yet, then write the tables.
+
+    Parameters
+    ----------
+    config : SweepConfig        validated (see `pirl_sim.engine.config.load_config`)
+    out_dir : path              results directory (created); reused: finished cells are not run again
+    executor : executor or None an object of `pirl_sim.engine.executors` (kept open); None: made from
+                                ``workers`` / ``scheduler`` and closed at the end
+    workers : int or None       local worker processes (None: the usable cores; 0: in this process)
+    scheduler : str or None     Dask scheduler address ``tcp://HOST:PORT``
+    progress : bool             progress bar with ETA on ``stream`` (default stderr)
+    command : str or None       recorded in ``sweep.json``
+    tables : bool               write the tidy tables (``table.parquet``, ``table.csv``, ``recovery.parquet``,
+                                ``weights.csv``); False: only the store and ``sweep.json`` (a report template
+                                writes its own files, `pirl_sim.experiments.reproduce`)
+
+    Returns
+    -------
+    SweepRun
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    store = ResultStore(out)
+    version, keys, unique, records, todo = plan_cells(config, store)
+    out.mkdir(parents=True, exist_ok=True)
+
+    bar = None
+    computed, failed, simulated = [], {}, []
+    startup_s = work_s = cpu_s = 0.0
+    description = "nothing to run"
+    if todo:
+        ex = make_executor(workers, scheduler) if executor is None else executor
+        futures = {}
+        try:
+            description = ex.describe()
+            t0 = time.perf_counter()
+            ex.warm_up()
+            startup_s = time.perf_counter() - t0
+            if code_version() != version:  # the sources changed while the workers started: plan again
+                version, keys, unique, records, todo = plan_cells(config, store)
+            atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
+            sims, waiting = _simulations(unique, todo, store, version)
+            bar = Progress(len(unique), len(records), stream=stream, enabled=progress)
+            extra = f" and {len(sims)} simulations" if sims else ""
+            reporter(progress, stream=stream)(f"sweep {config.name!r}: {len(todo)} of {len(unique)} cells{extra} to "
+                                              f"run on {description} (code {version}); results in {out}/")
+            bar.start()
+            root = str(out.resolve())
+
+            def cells_done(ks, fut):
+                try:
+                    results = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a failing cell must not stop the others
+                    for k in ks:
+                        fail(k, f"{type(exc).__name__}: {exc}")
+                    return
+                for k, res in zip(ks, results):
+                    if "error" in res:
+                        fail(k, res["error"])
+                    else:
+                        cell_done(k, res)
+
+            def cell_done(k, res):
+                nonlocal work_s, cpu_s
+                record = {"key": k, "code_version": version, "cell": unique[k].spec(), "result": res["scores"],
+                          "timings": res["timings"], "recovery": res["recovery"], "weights": res.get("weights"),
+                          "warnings": res["warnings"], "worker": res["worker"], "finished_at": _now()}
+                store.write(record)
+                records[k] = record
+                computed.append(k)
+                work_s += res["timings"]["cell_s"]
+                cpu_s += res["timings"]["cpu_s"]
+                bar.update()
+
+            def fail(k, message):
+                failed[k] = message
+                store.write_error(k, {"key": k, "cell": unique[k].spec(), "error": message, "at": _now(),
+                                      "code_version": version})
+                bar.update(failed=True)
+
+            def submit(ks):
+                return ex.submit(run_cells, [unique[k].spec() for k in ks], version, root)
+
+            # first: the simulations, and the cells that need none (PIRL-kNN cells differing only in k: one task)
+            tasks = _tasks(unique, todo)
+            futures.update({ex.submit(run_simulation, *sims[sk], str(store.simulation_dir(sk)), version): ("sim", sk)
+                            for sk in sims})
+            futures.update({submit(ks): ("cells", ks) for ks in tasks if ks[0] not in waiting})
+            sim_errors = {}
+            for fut in ex.as_completed(futures):
+                what, k = futures[fut]
+                if what == "cells":
+                    cells_done(k, fut)
+                    continue
+                try:
+                    fut.result()
+                    simulated.append(k)
+                except Exception as exc:  # noqa: BLE001 - its cells fail, the others go on
+                    sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
+            # then the cells that read the simulations
+            later = {}
+            for ks in tasks:
+                if ks[0] in waiting:
+                    if waiting[ks[0]] in sim_errors:
+                        for k in ks:
+                            fail(k, sim_errors[waiting[k]])
+                    else:
+                        later[submit(ks)] = ("cells", ks)
+            futures.update(later)
+            for fut in ex.as_completed(later):
+                cells_done(later[fut][1], fut)
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            if executor is None:
+                ex.close(cancel=True)
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        if executor is None:
+            ex.close()
+    else:
+        atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
+
+    cached = [k for k in records if k not in set(computed)]
+    table = assemble_table(config, keys, records)
+    if tables:
+        _write_parquet(table, out / "table.parquet")
+        atomic_write_text(out / "table.csv", table.to_csv(index=False))
+        _write_recovery(config, keys, records, out)
+        _write_weights(config, keys, records, out)
+    return SweepRun(out, table, computed, cached, failed, version, description,
+                    time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated, records, keys)
+
+
+def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
+    """The cells to run as tasks, in ``todo``'s order (of each task's first cell): PIRL-kNN cells that differ only
+    in ``n_neighbors`` form one task (`pirl_sim.engine.worker.run_cells`: one IRL fit for the whole k-grid, smallest
+    k first), every other cell its own; a scenario with a ``task_group`` groups its cells itself (the
+    ``recorded`` scenario: the methods of one split seed)."""
+    tasks, by_group = [], {}
+    for k in todo:
+        group = (scenario_spec(unique[k].scenario).task_group or knn_group)(unique[k].spec())
+        if group is None:
+            tasks.append([k])
+        elif group in by_group:
+            by_group[group].append(k)
+        else:
+            by_group[group] = [k]
+            tasks.append(by_group[group])
+    for ks in tasks:
+        ks.sort(key=lambda k: unique[k].learner_params.get("n_neighbors", 0))
+    return tasks
+
+
+def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str):
+    """The simulations the cells to run need and the store lacks ({simulation key: (scenario, simulation
+    parameters, seed)}), and {cell key: simulation key} of those cells."""
+    sims, waiting = {}, {}
+    for k in todo:
+        cell = unique[k]
+        spec = scenario_spec(cell.scenario)
+        if spec.simulation is None:
+            continue
+        params = spec.simulation(json.loads(canonical_json(dict(cell.scenario_params))))
+        sk = simulation_key(cell.scenario, params, cell.seed, version)
+        if store.has_simulation(sk):
+            continue
+        sims.setdefault(sk, (cell.scenario, params, cell.seed))
+        waiting[k] = sk
+    return sims, waiting
+
+
+def plan_cells(config: SweepConfig, store: ResultStore):
+    """Keys under the current code version, the stored records, and the cells to run (in submission order)."""
+    version = code_version()
+    keys = cell_keys(config, version)
+    unique = dict(zip(keys, config.cells))  # first occurrence of every key
+    present = store.finished()  # one listing; a file that does not load is not stored: its cell runs again
+    records = {k: rec for k in unique if k in present and (rec := store.load(k)) is not None}
+    todo = [k for k in unique if k not in records]
+
+    def data_set(k):
+        c = unique[k]
+        return canonical_json([c.scenario, dict(c.scenario_params), c.seed])
+
+    first = {}
+    for k in todo:  # group the cells of one data set (worker caches), long learners first
+        first.setdefault(data_set(k), len(first))
+    todo.sort(key=lambda k: (first[data_set(k)],
+                             -_COST.get(unique[k].learner, 1) * (2 if unique[k].protocol["kind"] == "rolling" else 1)))
+    return version, keys, unique, records, todo
+
+
+def cell_keys(config: SweepConfig, version: str) -> list[str]:
+    """The key of every cell of ``config`` (in order) under the code version ``version``, or, for a scenario with
+    code of its own (`pirl_sim.experiments.spec.ScenarioSpec.code`), under the version that includes it."""
+    versions = {}
+    for name in dict.fromkeys(c.scenario for c in config.cells):
+        extra = scenario_spec(name).code
+        versions[name] = code_version(extra) if extra else version
+    return [c.key(versions[c.scenario]) for c in config.cells]
+
+
+def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
+    """One row per cell of ``config`` whose result is in ``records`` (key -> stored record), in config order."""
+    rows = []
+    for cell, k in zip(config.cells, keys):
+        rec = records.get(k)
+        if rec is None:
+            continue
+        p = cell.protocol
+        row = {"key": k, "experiment": cell.experiment, "scenario": cell.scenario,
+               "scenario_label": cell.scenario_label, "protocol": cell.protocol_label, "protocol_kind": p["kind"], "history_steps": p["history_steps"],
+               "horizon": p["horizon"], "learner": cell.learner, "learner_label": cell.learner_label, "k": cell.k,
+               "seed": cell.seed}
+        row.update({c: rec["result"].get(c) for c in SCORE_COLUMNS})
+        row.update({c: rec["timings"].get(c) for c in TIMING_COLUMNS})
+        row["scenario_params"] = canonical_json(rec["cell"]["scenario_params"])
+        row["learner_params"] = canonical_json(rec["cell"]["learner_params"])
+        row["code_version"] = rec["code_version"]
+        rows.append(row)
+    table = pd.DataFrame(rows, columns=list(TABLE_COLUMNS))
+    for c in _INT_COLUMNS:
+        table[c] = pd.array(table[c].tolist(), dtype="Int64")
+    for c in (*_FLOAT_SCORES, *TIMING_COLUMNS):
+        table[c] = pd.to_numeric(table[c], errors="coerce").astype(float)
+    return table
+
+
+def _write_parquet(frame: pd.DataFrame, path: Path) -> None:
+    buf = io.BytesIO()
+    frame.to_parquet(buf, index=False)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:
+    frames = []
+    for cell, k in zip(config.cells, keys):
+        rec = records.get(k)
+        if rec is None or not rec.get("recovery"):
+            continue
+        r = rec["recovery"]
+        true, inferred = np.asarray(r["true"], dtype=float), np.asarray(r["inferred"], dtype=float)
+        for j, name in enumerate(r["features"]):
+            frames.append(pd.DataFrame({
+                "key": k, "experiment": cell.experiment, "scenario_label": cell.scenario_label,
+                "protocol": cell.protocol_label, "learner_label": cell.learner_label, "seed": cell.seed,
+                "feature": f"{name} / {r['reference']}", "point": np.arange(len(true)),
+                "true": true[:, j], "inferred": inferred[:, j],
+            }))
+    path = out / "recovery.parquet"
+    if not frames:
+        path.unlink(missing_ok=True)
+        return
+    _write_parquet(pd.concat(frames, ignore_index=True), path)
+
+
+def weights_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
+    """Weight recovery per cell, free feature and true style (`WEIGHT_COLUMNS`), from the stored records."""
+    rows = []
+    for cell, k in zip(config.cells, keys):
+        rec = records.get(k)
+        if rec is None or not rec.get("weights"):
+            continue
+        for w in rec["weights"]:
+            rows.append({"key": k, "experiment": cell.experiment, "scenario": cell.scenario,
+                         "scenario_label": cell.scenario_label, "protocol": cell.protocol_label,
+                         "learner_label": cell.learner_label, "seed": cell.seed, **w})
+    table = pd.DataFrame(rows, columns=list(WEIGHT_COLUMNS))
+    for c in ("median_abs_log_err", "p90_abs_log_err", "spearman"):
+        table[c] = pd.to_numeric(table[c], errors="coerce").astype(float)
+    return table
+
+
+def _write_weights(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:
+    table = weights_table(config, keys, records)
+    path = out / "weights.csv"
+    if table.empty:
+        path.unlink(missing_ok=True)
+        return
+    atomic_write_text(path, table.to_csv(index=False))
+
+
+def read_table(results) -> pd.DataFrame:
+    """The tidy table of a results directory (``table.parquet``, else ``table.csv``) or of a table file."""
+    path = Path(results)
+    if path.is_dir() and template_run(path):
+        return _stored_table(path)
+    if path.is_dir():
+        for name in ("table.parquet", "table.csv"):
+            if (path / name).exists():
+                path = path / name
+                break
+        else:
+            raise ValueError(f"{results}: no table.parquet or table.csv (run pirl-sim sweep first)")
+    if not path.exists():
+        raise ValueError(f"{results}: no such file or directory")
+    if path.suffix not in (".parquet", ".csv"):
+        raise ValueError(f"{results}: expected a results directory, table.parquet or table.csv")
+    try:
+        table = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+    except Exception as exc:  # ParserError, EmptyDataError are ValueErrors; pyarrow's own for a damaged parquet
+        if not (isinstance(exc, (OSError, ValueError)) or type(exc).__module__.startswith("pyarrow")):
+            raise
+        raise ValueError(f"{path}: not a readable sweep table ({type(exc).__name__}: {exc}); run pirl-sim sweep "
+                         "again to rewrite it") from None
+    for c in ONLINE_SCORES:  # a table written before these scores existed: empty columns
+        if c not in table.columns:
+            table.insert(list(TABLE_COLUMNS).index(c), c, pd.array([None] * len(table), dtype="Int64")
+                         if c in _INT_COLUMNS else np.full(len(table), np.nan))
+    _check_table(table, path)
+    return table
+
+
+def template_run(path: Path) -> bool:
+    """Whether ``path`` is a report template's results directory (``pirl-sim replay``, ``reproduce``): the sweep's
+    store and ``sweep.json`` without the sweep's ``table.parquet`` (a template writes tables of its own)."""
+    return (path / "sweep.json").is_file() and (path / "cells").is_dir() and not (path / "table.parquet").exists()
+
+
+def _stored_table(path: Path) -> pd.DataFrame:
+    """The tidy table of a report template's results directory (`template_run`): the cells its ``sweep.json``
+    lists whose records are in ``cells/``."""
+    listed = json.loads((path / "sweep.json").read_text(encoding="utf-8"))["cells"]
+    store = ResultStore(path)
+    records = {c["key"]: rec for c in listed if (rec := store.load(c["key"])) is not None}
+    cells = [SimpleNamespace(**c, protocol=records[c["key"]]["cell"]["protocol"] if c["key"] in records else None)
+             for c in listed]
+    return assemble_table(SimpleNamespace(cells=cells), [c["key"] for c in listed], records)
+
+
+#: columns every row of a finished cell has (a row cut short loses the last ones)
+_REQUIRED = ("key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "learner",
+             "learner_label", "seed", "cell_s", "scenario_params", "learner_params", "code_version")
+_TEXT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "learner",
+                 "learner_label", "scenario_params", "learner_params", "code_version")
+
+
+def _check_table(table: pd.DataFrame, path: Path) -> None:
+    """``ValueError`` naming the file and the first bad row unless ``table`` has every column of `TABLE_COLUMNS`,
+    the required ones filled in every row, text where text belongs and numbers in the score and timing columns."""
+    missing = [c for c in TABLE_COLUMNS if c not in table.columns]
+    if missing:
+        raise ValueError(f"{path}: not a sweep table: missing column(s) {', '.join(missing)} (expected "
+                         f"{', '.join(TABLE_COLUMNS)})")
+    line = 2 if path.suffix == ".csv" else None  # header = line 1 of a CSV file
+
+    def where(i: int) -> str:
+        return f"row {i}" + (f" (line {i + line})" if line else "")
+
+    for c in _REQUIRED:
+        empty = table[c].isna().to_numpy()
+        if empty.any():
+            i = int(empty.argmax())
+            raise ValueError(f"{path}: {where(i)} has no {c} (a truncated or damaged table?); run pirl-sim sweep "
+                             "again to rewrite it")
+    for c in _TEXT_COLUMNS:
+        wrong = [not isinstance(v, str) for v in table[c]]
+        if any(wrong):
+            i = wrong.index(True)
+            raise ValueError(f"{path}: {where(i)}, column {c!r}: expected text, found {table[c].iloc[i]!r}")
+    for c in (*_INT_COLUMNS, *_FLOAT_SCORES, *TIMING_COLUMNS):
+        values = pd.to_numeric(table[c], errors="coerce")
+        wrong = (values.isna() & table[c].notna()).to_numpy()
+        if wrong.any():
+            i = int(wrong.argmax())
+            raise ValueError(f"{path}: {where(i)}, column {c!r}: expected a number, found {table[c].iloc[i]!r}")

@@ -1,0 +1,1 @@
+"""Evaluation: protocols, the kinematic baselines and the direct regression, and the table and figure writers."""

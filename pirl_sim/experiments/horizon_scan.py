@@ -1,0 +1,171 @@
+"""Which MPC horizon H explains recorded driving best: held-out receding-horizon likelihood and MED per H.
+
+For each split seed (by track, as the replay) and each H: TIRL with the receding-horizon likelihood
+(`pirl_sim.receding.fit_receding`, one group, Cauchy residuals) is fitted on the training tracks; the test
+tracks' residuals u_t - pi_theta(x_t) at the fitted weights are scored under the *training* fit's residual
+model (Cauchy with the scale the fit ends with, `pirl_sim.receding.cauchy_nll`): the held-out negative log-likelihood per
+scored control. The same weights predict every test window closed-loop with that H (re-plan every step,
+`pirl_sim.experiments.recorded.predict_path_states`), scored as MED [m]. Per H the table gives means and standard
+errors over the split seeds, and the held-out NLL paired against the best H (per seed).
+
+Shared weights mix the styles of a population, so their residuals are dominated by the style misfit and
+barely depend on H (measured on ``simulate sumo --seed 0``). The scan therefore also scores per-track weights:
+each test track's weights are fitted on the first half of its scored steps and its second half is scored
+under them (``own_nll``), which isolates how well H explains a driver's controls.
+
+Scoring given weights on given trajectories is `pirl_sim.receding.receding_residuals` and `cauchy_nll`.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.receding import cauchy_nll, cauchy_scale, fit_receding, receding_residuals
+from pirl_sim.trajectory import Trajectory
+
+__all__ = ["scan_horizons", "summarize_scan", "write_scan"]
+
+
+def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1, progress=None,
+                  desired_speed=None) -> pd.DataFrame:
+    """Fit, score and predict per split seed and horizon (module doc).
+
+    Parameters
+    ----------
+    scene : pirl_sim.scenarios.replay.ReplayScene
+    horizons : sequence of int          MPC horizons H [steps of the scene's dt]
+    proto : pirl_sim.experiments.recorded.ReplayProtocol   split seeds, test fraction, prediction windows
+    step_stride : int                   score every ``step_stride``-th recorded step in the fit
+    desired_speed : None, "fit" or (a_lat, v_max)
+        The scene's desired speed, one fitted per split seed on the training tracks
+        (`pirl_sim.experiments.recorded.fit_scene_speed`), or given [m/s^2, m/s] (as `run_replay`).
+
+    Returns
+    -------
+    DataFrame, one row per (seed, horizon): ``horizon``, ``horizon_s``, ``train_nll``, ``test_nll`` (per
+    scored control, under the training fit's Cauchy scale), ``test_rms`` (RMS residual [m/s^3]), ``sigma``
+    (training fit), ``med`` (closed-loop, [m]), ``med_open`` (open-loop plan over max(H, prediction horizon)),
+    the fitted weights ``theta_<feature>``, step counts and ``fit_s``.
+    """
+    from pirl_sim.experiments.recorded import (
+        _errors,
+        _windows,
+        desired_speed_model,
+        predict_path_states,
+        split_by_track,
+        start_histories,
+        usable_tracks,
+    )
+
+    say = progress or (lambda msg: None)
+    horizons = [int(h) for h in horizons]
+    if not horizons or any(h < 1 for h in horizons):
+        raise ValueError(f"horizons must be positive numbers of steps, got {horizons!r}")
+    model, speed, _ = desired_speed_model(scene, None if desired_speed == "fit" else desired_speed)
+    names = model.features.names
+    tracks = usable_tracks(scene, proto)
+    rows = []
+    for seed in proto.seeds:
+        train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
+        if desired_speed == "fit":
+            model, speed, _ = desired_speed_model(scene, "fit", train)
+        windows = _windows(test, proto)
+        if not windows:
+            raise ValueError("no test window: tracks are too short for the protocol")
+        x0 = np.stack([h.states[-1] for h in start_histories(scene, test, windows, proto)])
+        u_train = np.concatenate([t.controls for t in train])
+        for H in horizons:
+            t0 = time.perf_counter()
+            res = fit_receding(model, train, np.zeros(len(train), dtype=int), horizon=H, stride=step_stride)
+            fit_s = time.perf_counter() - t0
+            theta = res.normalized[0]
+            scale = float(cauchy_scale(float(res.sigma[0]), u_train))
+            r_train, _ = receding_residuals(model, train, theta, H, stride=step_stride)
+            r_test, _ = receding_residuals(model, test, theta, H)
+            # per-track weights: each test track fitted on the first half of its steps, scored on the second
+            first, second = zip(*(_halves(t) for t in test))
+            own = fit_receding(model, list(first), horizon=H, stride=step_stride)
+            r_own_fit, _ = receding_residuals(model, list(first), own.normalized, H, stride=step_stride)
+            r_own, _ = receding_residuals(model, list(second), own.normalized, H)
+            own_scale = float(cauchy_scale(1.4826 * float(np.median(np.abs(r_own_fit))), u_train))
+            th = np.broadcast_to(theta, (len(windows), theta.size))
+            med = {}
+            for rollout in ("closed", "open"):
+                s_pred = predict_path_states(model, x0, th, proto.horizon, rollout=rollout, mpc_horizon=H)[:, 1:, 0]
+                med[rollout] = float(_errors(model, test, windows, s_pred, proto).mean())
+            row = {"seed": seed, "horizon": H, "horizon_s": H * model.dynamics.dt,
+                   "train_nll": cauchy_nll(r_train, scale), "test_nll": cauchy_nll(r_test, scale),
+                   "test_rms": float(np.sqrt(np.mean(r_test**2))), "sigma": float(res.sigma[0]),
+                   "own_nll": cauchy_nll(r_own, own_scale), "own_rms": float(np.sqrt(np.mean(r_own**2))),
+                   "med": med["closed"], "med_open": med["open"], "converged": bool(res.converged[0]),
+                   "n_train_steps": int(r_train.shape[0]), "n_test_steps": int(r_test.shape[0]),
+                   "n_windows": len(windows), **counts, **speed, "fit_s": fit_s,
+                   **{f"theta_{n}": float(v) for n, v in zip(names, theta)}}
+            rows.append(row)
+            say(f"seed {seed}, H = {H}: held-out NLL {row['test_nll']:.4f} (shared weights) / {row['own_nll']:.4f} "
+                f"(per-track weights) per step, MED {med['closed']:.3f} m "
+                f"(closed) / {med['open']:.3f} m (open), fitted in {fit_s:.1f} s")
+    return pd.DataFrame(rows)
+
+
+def _halves(t: Trajectory) -> tuple[Trajectory, Trajectory]:
+    """The trajectory twice, its ``step_mask`` keeping the first / the second half of its steps."""
+    mask = np.asarray(t.metadata.get("step_mask", np.ones(t.n_steps, dtype=bool)), dtype=bool)
+    early = np.arange(t.n_steps) < t.n_steps // 2
+    return t.with_metadata(step_mask=mask & early), t.with_metadata(step_mask=mask & ~early)
+
+
+def summarize_scan(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per horizon: mean and standard error over seeds of the scores, and the held-out NLL minus that of the
+    best horizon (paired by seed)."""
+    seeds = rows["seed"].nunique()
+    se = (lambda x: x.std(ddof=1) / np.sqrt(len(x))) if seeds > 1 else (lambda x: np.nan)
+    cols = ["own_nll", "own_rms", "test_nll", "train_nll", "test_rms", "med", "med_open"]
+    g = rows.groupby("horizon")
+    out = g[["horizon_s"]].first()
+    for c in cols:
+        out[c] = g[c].mean()
+        out[f"{c}_se"] = g[c].agg(se)
+    for c in ("own_nll", "test_nll"):
+        best = out[c].idxmin()
+        base = rows[rows["horizon"] == best].set_index("seed")[c]
+        diff = rows.assign(d=rows[c].to_numpy() - base.loc[rows["seed"]].to_numpy()).groupby("horizon")["d"]
+        out[f"{c}_minus_best"] = diff.mean()
+        out[f"{c}_minus_best_se"] = diff.agg(se)
+    theta_cols = [c for c in rows.columns if c.startswith("theta_")]
+    for c in theta_cols:
+        out[c] = g[c].mean()
+    out["fit_s"] = g["fit_s"].mean()
+    out["n_seeds"] = seeds
+    return out.reset_index()
+
+
+def write_scan(rows: pd.DataFrame, out_dir, command: str) -> pd.DataFrame:
+    """horizon_scan_rows.csv, horizon_scan.csv and horizon_scan.md in ``out_dir``; returns the summary."""
+    from pathlib import Path
+
+    from pirl_sim.evaluation.tables import markdown
+    from pirl_sim.io.atomic import atomic_write_text
+
+    out = Path(out_dir)
+    table = summarize_scan(rows)
+    atomic_write_text(out / "horizon_scan_rows.csv", rows.to_csv(index=False, float_format="%.6g"))
+    atomic_write_text(out / "horizon_scan.csv", table.to_csv(index=False, float_format="%.6g"))
+    best = int(table.loc[table["own_nll"].idxmin(), "horizon"])
+    best_shared = int(table.loc[table["test_nll"].idxmin(), "horizon"])
+    lines = ["# MPC horizon scan", "", f"Made by `{command}`.", "",
+             "Per horizon H [steps]: own_nll: per-track weights, each test track's fitted on the first half of "
+             "its steps, negative log-likelihood per scored control of the second half [nats] (Cauchy, scale from "
+             "the first halves' residuals); test_nll: TIRL (one shared weight vector) with the receding-horizon "
+             "likelihood fitted on the training tracks, scored on the test tracks under the training fit's "
+             "Cauchy scale; med: MED [m] of closed-loop predictions with the shared weights and H (med_open: one "
+             "open-loop plan); means and standard errors (_se) over the split seeds; *_minus_best: paired by "
+             "seed against the best H.", "",
+             f"Best held-out likelihood at H = {best} (per-track weights), H = {best_shared} (shared weights).",
+             "", markdown(table), ""]
+    atomic_write_text(out / "horizon_scan.md", "\n".join(lines))
+    return table

@@ -1,0 +1,602 @@
+"""Weight recovery of the receding-horizon IRL on simulated roundabouts whose drivers' weights are known.
+
+:func:`recovery_report` takes one recorded run (:class:`~pirl_sim.scenarios.demonstrations.RecordedRun`,
+SUMO or highway-env), fits the receding-horizon IRL (:func:`pirl_sim.recovery.fit_track_weights`) to every
+PIRL track with at least ``min_steps`` usable steps (``selection="steps"``: the steps whose jerk is the
+driver's own), one weight vector per track, and one TIRL (``likelihood="receding"``) per style, and compares
+them with the true weights (:class:`RunRecovery`; its ``weights`` is the per-track
+:class:`pirl_sim.recovery.RecoveryReport`, with intervals). :func:`summary_row` condenses per-track and
+per-style rows (of one run, or pooled over runs) into one row of the recovery table; :func:`check_targets`
+compares such a row with the issue's targets (:data:`TARGETS`). :func:`run_recovery` simulates (or reuses) runs over seeds and control-noise
+levels in worker processes and :func:`write_recovery` writes ``table.csv``/``table.md``, ``styles.csv``,
+``selection.csv``, ``noise.csv``/``noise.md``, ``times.csv`` and ``README.md``; ``pirl-sim recover`` is the
+command.
+
+Everything but ``times.csv`` (wall times) is a deterministic function of the runs: the same seeds give the
+same bytes (floats are written with 4 significant digits).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import multiprocessing
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from pirl_sim.evaluation.tables import markdown
+from pirl_sim.io.atomic import atomic_write_text
+
+__all__ = ["SIMULATORS", "TARGETS", "RunRecovery", "recovery_report", "summary_row", "check_targets",
+           "RecoveryJob", "run_recovery", "RecoveryResult", "write_recovery", "compact_table", "FREE_FEATURES"]
+
+#: simulators of ``pirl-sim recover`` (the ``simulator`` entry of a run's ``run.json`` in brackets):
+#: sumo ("sumo"), highway ("highway-env")
+SIMULATORS: tuple[str, ...] = ("sumo", "highway")
+_RUN_SIMULATOR = {"sumo": "sumo", "highway-env": "highway"}
+#: the features whose weights differ between drivers (jerk_sq is the reference, 1 for everybody)
+FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
+_FLOAT = "%.4g"
+
+#: the issue's targets, per simulator: (column of a summary row, "<=" or ">=", threshold)
+TARGETS: dict[str, tuple[tuple[str, str, float], ...]] = {
+    "sumo": (
+        ("median_abs_log_err_speed_dev", "<=", 0.05),
+        ("median_abs_log_err_acc_sq", "<=", 0.05),
+        ("p90_abs_log_err_speed_dev", "<=", 0.3),
+        ("p90_abs_log_err_acc_sq", "<=", 0.3),
+        ("spearman_speed_dev", ">=", 0.9),
+        ("tirl_max_abs_log_err_speed_dev", "<=", 0.05),
+        ("tirl_max_abs_log_err_acc_sq", "<=", 0.05),
+        ("usable_fraction", ">=", 0.9),
+    ),
+    "highway": (
+        ("median_abs_log_err_speed_dev", "<=", 0.01),
+        ("median_abs_log_err_acc_sq", "<=", 0.01),
+    ),
+}
+
+
+# ---------------------------------------------------------------------------------------------- one run
+@dataclass(frozen=True, eq=False)
+class RunRecovery:
+    """Recovered weights of one run: per track (``tracks``, and ``weights`` as a
+    :class:`pirl_sim.recovery.RecoveryReport`) and per style (TIRL).
+
+    Attributes
+    ----------
+    simulator : str                 "sumo" or "highway"
+    seed : int
+    control_noise : float           [m/s^3] standard deviation of the noise on every applied jerk
+    n_pirl_tracks : int             PIRL tracks in the run (usable or not)
+    tracks : pandas.DataFrame
+        One row per usable PIRL track: ``track_id``, ``style_name``, ``steps`` (of the track),
+        ``usable_steps`` (its step mask), ``fitted_steps`` (scored with the stride), for each free feature f
+        ``theta_f`` (true, normalised), ``theta_hat_f`` and ``log_err_f`` = log(theta_hat_f / theta_f),
+        ``sigma`` [m/s^3] (fitted residual scale), ``converged``, ``at_bound`` (a log weight at its bound).
+    styles : pandas.DataFrame
+        One row per style: ``style_name``, ``tracks``, ``fitted_steps``, ``theta_mean_f`` (mean true
+        normalised weight of the style's usable tracks), ``theta_tirl_f`` (TIRL on those tracks),
+        ``log_err_f`` = log(theta_tirl_f / theta_mean_f), ``sigma``, ``converged``.
+    selection : pandas.DataFrame
+        :meth:`RecordedRun.step_selection_summary` (rows per style and "all").
+    fit_time_s, tirl_time_s : float
+        Wall time [s] of the per-track fit and of the per-style TIRL fits.
+    weights : pirl_sim.recovery.RecoveryReport
+        The per-track weights as the recovery API's report (errors per feature and style with intervals).
+    """
+
+    simulator: str
+    seed: int
+    control_noise: float
+    n_pirl_tracks: int
+    tracks: pd.DataFrame
+    styles: pd.DataFrame
+    selection: pd.DataFrame
+    fit_time_s: float
+    tirl_time_s: float
+    weights: Any = None
+
+    def summary(self) -> dict[str, Any]:
+        """This run's row of the recovery table (:func:`summary_row`)."""
+        return summary_row(self.tracks, self.styles, self.n_pirl_tracks)
+
+
+def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery:
+    """Fit per-track and per-style receding-horizon IRL to a recorded run and compare with the truth.
+
+    Parameters
+    ----------
+    run : RecordedRun
+        A run read back by ``load_sumo_run`` / ``load_highway_run`` (it needs ``driver_steps``).
+    min_steps : int
+        A PIRL track is usable when its step mask keeps at least this many steps (0.1 s each).
+    stride : int
+        Score every ``stride``-th usable step (:func:`pirl_sim.receding.fit_receding`).
+
+    Returns
+    -------
+    RunRecovery
+    """
+    from pirl_sim.learners import TIRL
+    from pirl_sim.receding import STEP_MASK
+    from pirl_sim.recovery import RecoveryReport, fit_track_weights, run_demonstrations
+    from pirl_sim.validation import is_positive_int
+
+    demos = run_demonstrations(run, min_steps)  # the tracks RecoveryReport.from_run fits
+    if not is_positive_int(stride):
+        raise ValueError(f"stride must be a positive integer, got {stride!r}")
+    info = run.recording.info
+    simulator = _RUN_SIMULATOR.get(info.get("simulator"))
+    if simulator is None:
+        raise ValueError(f"unknown simulator {info.get('simulator')!r} in the run's info")
+    names = tuple(run.model.features.names)
+    free = [names.index(f) for f in FREE_FEATURES]
+    gt = run.recording.ground_truth
+    n_pirl = int(gt["is_pirl"].sum())
+    selection = run.step_selection_summary(min_steps=min_steps)
+    t0 = time.perf_counter()
+    res = fit_track_weights(run.model, demos, likelihood="receding", horizon=run.horizon, stride=stride)
+    fit_time = time.perf_counter() - t0
+    truth = np.array([d.metadata["theta"] for d in demos])
+    rows = {
+        "track_id": [d.metadata["track_id"] for d in demos],
+        "style_name": [d.metadata["style_name"] for d in demos],
+        "steps": [d.n_steps for d in demos],
+        "usable_steps": [int(np.sum(d.metadata[STEP_MASK])) for d in demos],
+        "fitted_steps": res.fitted_steps,
+    }
+    for f, k in zip(FREE_FEATURES, free):
+        rows[f"theta_{f}"] = truth[:, k]
+        rows[f"theta_hat_{f}"] = res.normalized[:, k]
+        rows[f"log_err_{f}"] = np.log(res.normalized[:, k] / truth[:, k])
+    rows["sigma"] = res.sigma
+    rows["converged"] = res.converged
+    rows["at_bound"] = res.at_bound
+    tracks = pd.DataFrame(rows)
+    weights = RecoveryReport(FREE_FEATURES, truth[:, free], res.normalized[:, free], np.asarray(rows["track_id"]),
+                             tuple(rows["style_name"]), res.converged, res.fitted_steps,
+                             reference=names[run.model.features.reference_index],
+                             source=f"{simulator} seed {int(info['seed'])}")
+
+    style_rows = []
+    t0 = time.perf_counter()
+    for name in sorted(set(tracks["style_name"])):
+        members = [d for d in demos if d.metadata["style_name"] == name]
+        tirl = TIRL(run.model, likelihood="receding", horizon=run.horizon, step_stride=stride).fit(members)
+        mean = np.mean([d.metadata["theta"] for d in members], axis=0)
+        row = {"style_name": name, "tracks": len(members),
+               "fitted_steps": int(tirl.irl_result_.n_steps[0])}
+        for f, k in zip(FREE_FEATURES, free):
+            row[f"theta_mean_{f}"] = mean[k]
+            row[f"theta_tirl_{f}"] = tirl.theta_[k]
+            row[f"log_err_{f}"] = float(np.log(tirl.theta_[k] / mean[k]))
+        row["sigma"] = float(tirl.irl_result_.sigma[0])
+        row["converged"] = bool(tirl.irl_result_.converged[0])
+        style_rows.append(row)
+    tirl_time = time.perf_counter() - t0
+    return RunRecovery(simulator, int(info["seed"]), float(run.control_noise), n_pirl, tracks,
+                       pd.DataFrame(style_rows), selection, fit_time, tirl_time, weights)
+
+
+def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) -> dict[str, Any]:
+    """One row of the recovery table from per-track and per-style rows (one run's, or several runs'
+    concatenated: then medians, percentiles and Spearman are over the pooled tracks and the TIRL error is
+    the largest over every run's styles).
+
+    Keys: ``pirl_tracks``, ``usable_tracks``, ``usable_fraction``, ``usable_steps``, ``fitted_steps``; per
+    free feature f: ``median_abs_log_err_f``, ``p90_abs_log_err_f``, ``max_abs_log_err_f``, ``spearman_f``
+    (true vs fitted over the usable tracks), ``tirl_max_abs_log_err_f`` (largest over styles); ``converged``
+    / ``groups`` (per-track fits), ``at_bound`` (tracks with a log weight at its bound), ``tirl_converged`` /
+    ``tirl_groups``, ``sigma_median`` [m/s^3] (of the per-track fits).
+    """
+    from pirl_sim.recovery import spearman
+
+    n = len(tracks)
+    row: dict[str, Any] = {
+        "pirl_tracks": int(n_pirl_tracks),
+        "usable_tracks": int(n),
+        "usable_fraction": n / n_pirl_tracks if n_pirl_tracks else math.nan,
+        "usable_steps": int(tracks["usable_steps"].sum()),
+        "fitted_steps": int(tracks["fitted_steps"].sum()),
+    }
+    for f in FREE_FEATURES:
+        err = np.abs(tracks[f"log_err_{f}"].to_numpy())
+        row[f"median_abs_log_err_{f}"] = float(np.median(err)) if n else math.nan
+        row[f"p90_abs_log_err_{f}"] = float(np.percentile(err, 90)) if n else math.nan
+        row[f"max_abs_log_err_{f}"] = float(err.max()) if n else math.nan
+        row[f"spearman_{f}"] = spearman(tracks[f"theta_{f}"].to_numpy(), tracks[f"theta_hat_{f}"].to_numpy())
+    for f in FREE_FEATURES:
+        row[f"tirl_max_abs_log_err_{f}"] = float(np.abs(styles[f"log_err_{f}"]).max()) if len(styles) else math.nan
+    row["converged"] = int(tracks["converged"].sum())
+    row["groups"] = int(n)
+    row["at_bound"] = int(tracks["at_bound"].sum())
+    row["tirl_converged"] = int(styles["converged"].sum())
+    row["tirl_groups"] = int(len(styles))
+    row["sigma_median"] = float(tracks["sigma"].median()) if n else math.nan
+    return row
+
+
+def check_targets(row: dict[str, Any], simulator: str) -> list[tuple[str, str, float, float, bool]]:
+    """The targets of :data:`TARGETS` for ``simulator`` against a summary row: (column, op, threshold,
+    value, met) each."""
+    if simulator not in TARGETS:
+        raise ValueError(f"simulator must be one of {tuple(TARGETS)}, got {simulator!r}")
+    out = []
+    for col, op, limit in TARGETS[simulator]:
+        value = float(row[col])
+        met = value <= limit if op == "<=" else value >= limit
+        out.append((col, op, limit, value, bool(met)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- many runs
+@dataclass(frozen=True)
+class RecoveryJob:
+    """One run of the study: simulate (unless ``run_dir`` already holds it) and report.
+
+    Attributes
+    ----------
+    simulator : {"sumo", "highway"}
+    seed : int
+    control_noise : float or None     [m/s^3]; None: the population's own
+    run_dir : str                     where the run is (or will be) recorded
+    population : str or None          population TOML (None: the embedded default)
+    n_vehicles : int or None          override the population's number of vehicles
+    min_steps, stride : int           as :func:`recovery_report`
+    """
+
+    simulator: str
+    seed: int
+    control_noise: float | None
+    run_dir: str
+    population: str | None = None
+    n_vehicles: int | None = None
+    min_steps: int = 10
+    stride: int = 1
+
+    def __post_init__(self) -> None:
+        if self.simulator not in SIMULATORS:
+            raise ValueError(f"simulator must be one of {SIMULATORS}, got {self.simulator!r}")
+        if self.control_noise is not None and not (math.isfinite(self.control_noise) and self.control_noise >= 0):
+            raise ValueError(f"control_noise must be >= 0 m/s^3, got {self.control_noise!r}")
+
+    def config(self):
+        """The scenario configuration of this job."""
+        from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, load_population
+
+        pop = load_population(self.population) if self.population is not None else DEFAULT_POPULATION
+        changes = {}
+        if self.control_noise is not None:
+            changes["control_noise"] = float(self.control_noise)
+        if self.n_vehicles is not None:
+            changes["n_vehicles"] = int(self.n_vehicles)
+        pop = dataclasses.replace(pop, **changes) if changes else pop
+        if self.simulator == "sumo":
+            from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig
+
+            return SumoScenarioConfig(population=pop)
+        from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig
+
+        return HighwayScenarioConfig(population=pop)
+
+
+def _recorded(run_dir: Path, config, seed: int) -> bool:
+    """True when ``run_dir`` holds a finished run (its ``run.json`` is written last) of this config and seed,
+    recorded with every per-step column the current recording writer writes (a run recorded before a
+    column was added is simulated again). Changes to the simulators themselves are not detected: delete
+    the runs after such changes."""
+    from pirl_sim.scenarios.recording import DRIVER_STEP_COLUMNS, DRIVER_STEPS_FILE, INFO_FILE
+
+    info_path = run_dir / INFO_FILE
+    if not info_path.is_file():
+        return False
+    info = json.loads(info_path.read_text("utf-8"))
+    wanted = json.loads(json.dumps(config.to_dict()))
+    if info.get("seed") != seed or info.get("config") != wanted:
+        return False
+    steps = run_dir / DRIVER_STEPS_FILE
+    if not steps.is_file():
+        return False
+    with steps.open("r", encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+    return set(DRIVER_STEP_COLUMNS) <= set(header)
+
+
+def run_job(job: RecoveryJob) -> tuple[RunRecovery, bool, float]:
+    """Simulate ``job`` unless its run directory already holds the run, then :func:`recovery_report`.
+
+    Runs in a fresh process per job (:func:`run_recovery`): libsumo holds one simulation per process.
+
+    Returns
+    -------
+    (RunRecovery, simulated, simulation wall time [s])
+    """
+    config = job.config()
+    run_dir = Path(job.run_dir)
+    simulated, sim_time = False, 0.0
+    if not _recorded(run_dir, config, job.seed):
+        t0 = time.perf_counter()
+        if job.simulator == "sumo":
+            from pirl_sim.scenarios.sumo.scenario import run_sumo_scenario
+
+            run_sumo_scenario(config, job.seed, out_dir=run_dir)
+        else:
+            from pirl_sim.scenarios.highway.scenario import run_highway_scenario
+
+            run_highway_scenario(config, job.seed, out_dir=run_dir)
+        simulated, sim_time = True, time.perf_counter() - t0
+    if job.simulator == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import load_sumo_run as load
+    else:
+        from pirl_sim.scenarios.highway.scenario import load_highway_run as load
+    report = recovery_report(load(run_dir), min_steps=job.min_steps, stride=job.stride)
+    return report, simulated, sim_time
+
+
+@dataclass(frozen=True, eq=False)
+class RecoveryResult:
+    """Reports of every job of :func:`run_recovery`, in job order."""
+
+    jobs: tuple[RecoveryJob, ...]
+    reports: tuple[RunRecovery, ...]
+    simulated: tuple[bool, ...]
+    sim_time_s: tuple[float, ...]
+    stride: int
+    min_steps: int
+    workers: int
+    blas_threads: str
+
+    def _rows(self, noise_study: bool) -> pd.DataFrame:
+        """Summary rows of the jobs with (``noise_study``) or without an explicit control noise: per
+        simulator and noise level, one row per seed and, with several seeds, a pooled one."""
+        groups: dict[tuple[str, float], list[RunRecovery]] = {}
+        for r, j in zip(self.reports, self.jobs):
+            if (j.control_noise is not None) == noise_study:
+                groups.setdefault((r.simulator, r.control_noise), []).append(r)
+        rows = []
+        for (sim, noise), reps in sorted(groups.items(), key=lambda kv: (SIMULATORS.index(kv[0][0]), kv[0][1])):
+            for r in sorted(reps, key=lambda r: r.seed):
+                rows.append({"simulator": sim, "control_noise": noise, "seed": str(r.seed), **r.summary()})
+            if len(reps) > 1:
+                tracks = pd.concat([r.tracks for r in reps], ignore_index=True)
+                styles = pd.concat([r.styles for r in reps], ignore_index=True)
+                rows.append({"simulator": sim, "control_noise": noise, "seed": "pooled",
+                             **summary_row(tracks, styles, sum(r.n_pirl_tracks for r in reps))})
+        return pd.DataFrame(rows)
+
+    def table(self) -> pd.DataFrame:
+        """The recovery table: one row per simulator and seed, and pooled, at the population's own noise
+        (the jobs with ``control_noise=None``)."""
+        return self._rows(noise_study=False)
+
+    def noise_table(self) -> pd.DataFrame:
+        """Rows per simulator, control-noise level and seed (and pooled over seeds) of the noise study (the
+        jobs with an explicit ``control_noise``); empty without them."""
+        return self._rows(noise_study=True)
+
+    def _unique(self) -> list[RunRecovery]:
+        """Each report once (a noise level equal to the population's own shares the main job's report)."""
+        out, seen = [], set()
+        for r in self.reports:
+            if id(r) not in seen:
+                seen.add(id(r))
+                out.append(r)
+        return out
+
+    def styles(self) -> pd.DataFrame:
+        """Per-style TIRL rows of every job (simulator, control_noise, seed first)."""
+        return pd.concat([r.styles.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
+                          for r in self._unique()], ignore_index=True)[
+            ["simulator", "control_noise", "seed", *self.reports[0].styles.columns]]
+
+    def tracks(self) -> pd.DataFrame:
+        """Per-track rows of every job (simulator, control_noise, seed first)."""
+        return pd.concat([r.tracks.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
+                          for r in self._unique()], ignore_index=True)[
+            ["simulator", "control_noise", "seed", *self.reports[0].tracks.columns]]
+
+    def selection(self) -> pd.DataFrame:
+        """Step-selection counts per rule and style of every job."""
+        frames = []
+        for r in self._unique():
+            s = r.selection.reset_index().rename(columns={"index": "style_name"})
+            frames.append(s.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed))
+        out = pd.concat(frames, ignore_index=True)
+        first = ["simulator", "control_noise", "seed", "style_name"]
+        return out[first + [c for c in out.columns if c not in first]]
+
+    def times(self) -> pd.DataFrame:
+        """Wall times per job (not deterministic: kept apart from the other tables)."""
+        rows, seen = [], set()
+        for r, s, t in zip(self.reports, self.simulated, self.sim_time_s):
+            if id(r) in seen:  # a noise level that is the main run's
+                continue
+            seen.add(id(r))
+            rows.append({"simulator": r.simulator, "control_noise": r.control_noise, "seed": r.seed,
+                         "fitted_steps": int(r.tracks["fitted_steps"].sum()), "fit_time_s": r.fit_time_s,
+                         "tirl_time_s": r.tirl_time_s, "simulated": s, "sim_time_s": t})
+        return pd.DataFrame(rows)
+
+
+def _run_dir(root: Path, simulator: str, seed: int, noise: float | None) -> Path:
+    tag = "" if noise is None else f"-noise{noise:g}"
+    return root / f"{simulator}-seed{seed}{tag}"
+
+
+def run_recovery(simulators: Sequence[str], seeds: Sequence[int], *, runs_dir, population=None,
+                 n_vehicles: int | None = None, control_noise: Sequence[float] = (),
+                 noise_seeds: Sequence[int] | None = None, min_steps: int = 10, stride: int = 1,
+                 workers: int = 1, progress: Callable[[str], None] | None = None) -> RecoveryResult:
+    """Simulate (or reuse) and report every (simulator, seed) at the population's own noise and, for the
+    noise study, every (simulator, noise level, noise seed).
+
+    Each job runs in a fresh spawned process (libsumo holds one simulation per process), ``workers`` at a
+    time. A run directory under ``runs_dir`` that already holds the same configuration and seed is reused.
+    """
+    from pirl_sim.validation import is_positive_int
+
+    unknown = [s for s in simulators if s not in SIMULATORS]
+    if unknown or not simulators:
+        raise ValueError(f"simulators must be some of {SIMULATORS}, got {list(simulators)}")
+    if not seeds:
+        raise ValueError("at least one seed is needed")
+    if not is_positive_int(workers):
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    root = Path(runs_dir)
+    pop = None if population is None else os.fspath(population)
+    noise_seeds = list(seeds) if noise_seeds is None else list(noise_seeds)
+    jobs = []
+    for sim in simulators:
+        for seed in seeds:
+            jobs.append(RecoveryJob(sim, int(seed), None, os.fspath(_run_dir(root, sim, seed, None)), pop,
+                                    n_vehicles, min_steps, stride))
+        for noise in control_noise:
+            for seed in noise_seeds:
+                jobs.append(RecoveryJob(sim, int(seed), float(noise),
+                                        os.fspath(_run_dir(root, sim, seed, float(noise))), pop, n_vehicles,
+                                        min_steps, stride))
+    # a bad population fails here, before anything runs; a noise level equal to the population's own
+    # noise is the same run as the main job's: simulated and fitted once
+    keys = [(j.simulator, j.seed, json.dumps(j.config().to_dict(), sort_keys=True)) for j in jobs]
+    first = {}
+    for i, k in enumerate(keys):
+        first.setdefault(k, i)
+    todo = sorted(set(first.values()))
+    say = progress or (lambda m: None)
+    ctx = multiprocessing.get_context("spawn")
+    done: dict[int, Any] = {}
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1) as pool:
+        futures = {pool.submit(run_job, jobs[i]): i for i in todo}
+        for n, fut in enumerate(as_completed(futures), 1):
+            i = futures[fut]
+            rep, simulated, sim_t = done[i] = fut.result()
+            j = jobs[i]
+            noise = "" if j.control_noise is None else f", noise {j.control_noise:g}"
+            say(f"[{n}/{len(todo)}] {j.simulator} seed {j.seed}{noise}: "
+                f"{'simulated' if simulated else 'reused'} run, {len(rep.tracks)}/{rep.n_pirl_tracks} tracks "
+                f"fitted in {rep.fit_time_s:.1f} s")
+    results = [done[first[k]] for k in keys]
+    return RecoveryResult(tuple(jobs), tuple(r[0] for r in results), tuple(r[1] for r in results),
+                          tuple(r[2] for r in results), stride, min_steps, workers,
+                          os.environ.get("OPENBLAS_NUM_THREADS", "default"))
+
+
+# ---------------------------------------------------------------------------------------------- output
+def _csv(df: pd.DataFrame) -> str:
+    return df.to_csv(index=False, float_format=_FLOAT, lineterminator="\n")
+
+
+_SHORT = {"median_abs_log_err_speed_dev": "med sd", "median_abs_log_err_acc_sq": "med acc",
+          "p90_abs_log_err_speed_dev": "p90 sd", "p90_abs_log_err_acc_sq": "p90 acc",
+          "spearman_speed_dev": "rho sd", "spearman_acc_sq": "rho acc",
+          "tirl_max_abs_log_err_speed_dev": "TIRL sd", "tirl_max_abs_log_err_acc_sq": "TIRL acc",
+          "sigma_median": "sigma"}
+
+
+def compact_table(table: pd.DataFrame) -> pd.DataFrame:
+    """The columns of the Markdown tables (full precision and the rest in the CSV)."""
+    if not len(table):
+        return table
+    out = table[["simulator", "control_noise", "seed"]].copy()
+    out["tracks usable/PIRL"] = [f"{u}/{p}" for u, p in zip(table["usable_tracks"], table["pirl_tracks"])]
+    out["steps"] = table["usable_steps"]
+    for col, short in _SHORT.items():
+        if col == "sigma_median":
+            continue
+        out[short] = table[col]
+    out["conv"] = [f"{c}/{g}" for c, g in zip(table["converged"], table["groups"])]
+    out["at bound"] = table["at_bound"]
+    out["TIRL conv"] = [f"{c}/{g}" for c, g in zip(table["tirl_converged"], table["tirl_groups"])]
+    out["sigma"] = table["sigma_median"]
+    return out
+
+
+def _targets_text(table: pd.DataFrame) -> str:
+    lines = []
+    for sim in table["simulator"].unique():
+        sub = table[table["simulator"] == sim]
+        pooled = sub[sub["seed"] == "pooled"]
+        rows = pooled if len(pooled) else sub
+        for _, row in rows.iterrows():
+            lines.append(f"{sim}, seed {row['seed']}:")
+            for col, op, limit, value, met in check_targets(row.to_dict(), sim):
+                lines.append(f"- {'met' if met else '**NOT met**'}: {col} = {value:.3g} (target {op} {limit:g})")
+        failing = [(r["seed"], col, value) for _, r in sub[sub["seed"] != "pooled"].iterrows()
+                   for col, _, _, value, met in check_targets(r.to_dict(), sim) if not met]
+        if failing:
+            lines.append("- single seeds missing a target: "
+                         + "; ".join(f"seed {s} {c} = {v:.3g}" for s, c, v in failing))
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]:
+    """Write the study's files into ``out`` (atomically, each), return them by name."""
+    out = Path(out)
+    table = result.table()
+    noise = result.noise_table()
+    files = {
+        "table.csv": _csv(table),
+        "table.md": markdown(compact_table(table)),
+        "styles.csv": _csv(result.styles()),
+        "tracks.csv": _csv(result.tracks()),
+        "selection.csv": _csv(result.selection()),
+        "times.csv": result.times().to_csv(index=False, float_format="%.3f", lineterminator="\n"),
+    }
+    if len(noise):
+        files["noise.csv"] = _csv(noise)
+        files["noise.md"] = markdown(compact_table(noise))
+    sel = result.selection()
+    sel_all = sel[sel["style_name"] == "all"].drop(columns=["style_name"])
+    styles = result.styles()
+    noise_part = ""
+    if len(noise):
+        nt = noise[noise["seed"] == "pooled"] if (noise["seed"] == "pooled").any() else noise
+        cols = ["simulator", "control_noise", "seed", "usable_tracks", "sigma_median",
+                "median_abs_log_err_speed_dev", "median_abs_log_err_acc_sq", "p90_abs_log_err_speed_dev",
+                "p90_abs_log_err_acc_sq", "spearman_speed_dev", "tirl_max_abs_log_err_speed_dev",
+                "tirl_max_abs_log_err_acc_sq"]
+        noise_part = (
+            "## Control noise\n\nGaussian noise of standard deviation `control_noise` [m/s^3] on every applied "
+            "jerk (population key `control_noise`); `sigma_median` is the median fitted residual scale of the "
+            "per-track fits. Per seed: `noise.csv` / `noise.md`.\n\n" + markdown(nt[cols]) + "\n")
+    readme = (
+        "# Weight recovery of the receding-horizon IRL on simulated roundabouts\n\n"
+        f"Made by `{command}` (per-track fit stride {result.stride}, tracks with at least {result.min_steps} "
+        "usable steps). Every file here but `times.csv` is the same for the same seeds.\n\n"
+        "Per run: every PIRL track whose step mask keeps enough steps (`selection=\"steps\"`: the steps whose "
+        "jerk is the driver's own) is fitted on its own (`pirl_sim.receding.fit_receding`, one weight vector "
+        "per track); per style, TIRL (`likelihood=\"receding\"`) on the style's usable tracks. Errors are "
+        "|log(theta_hat / theta)| of the normalised weights (jerk_sq = 1); TIRL is compared with the mean "
+        "true weights of the style's usable tracks. `pooled`: medians, 90th percentiles and Spearman over "
+        "the tracks of all seeds, TIRL the largest error over all seeds' styles.\n\n"
+        "Columns of `table.md`: med / p90 = median / 90th percentile |log error| (sd = speed_dev, acc = "
+        "acc_sq), rho = Spearman of true vs fitted weights, TIRL = largest per-style TIRL |log error|, conv "
+        "= converged / fitted groups, at bound = tracks with a log weight at its bound, sigma = median fitted "
+        "residual scale [m/s^3].\n\n"
+        "## Targets\n\n" + _targets_text(table) + "\n"
+        "## Recovery\n\n" + markdown(compact_table(table)) + "\n"
+        "## Per-style TIRL\n\n" + markdown(styles.drop(columns=["fitted_steps"])) + "\n"
+        + noise_part +
+        "## Step selection\n\nSteps per rule, all styles (per style: `selection.csv`; the rules overlap). "
+        "`usable`: steps the mask keeps; `tracks_few_usable`: tracks with fewer than "
+        f"{result.min_steps} usable steps (left out).\n\n" + markdown(sel_all) + "\n"
+        "## Files\n\n`table.csv` (every column), `styles.csv` (per-style TIRL), `tracks.csv` (per-track "
+        "weights), `selection.csv`, `noise.csv`, `times.csv` (wall times of this machine: "
+        f"{result.workers} worker process(es), OPENBLAS_NUM_THREADS={result.blas_threads}). The simulated "
+        "runs are kept under `runs/` (not committed) so that a rerun does not simulate again.\n"
+    )
+    files["README.md"] = readme
+    written = {}
+    for name, text in files.items():
+        written[name] = atomic_write_text(out / name, text)
+    return written

@@ -1,0 +1,72 @@
+"""The experiment kinds the engine can run, by name: every `ScenarioSpec` of the experiments package."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from . import agents, recorded, simulated
+from .spec import ScenarioSpec, convert_param
+
+__all__ = ["SCENARIOS", "register_scenario", "scenario_spec", "resolve_scenario_params"]
+
+SCENARIOS: dict[str, ScenarioSpec] = {
+    s.name: s for s in (*simulated.SPECS, *recorded.SPECS, agents.SPEC)
+}
+
+
+def register_scenario(spec: ScenarioSpec) -> ScenarioSpec:
+    """Add a scenario to `SCENARIOS`; a name can be registered once."""
+    if not isinstance(spec, ScenarioSpec):
+        raise TypeError(f"expected a ScenarioSpec, got {type(spec).__name__}")
+    if spec.name in SCENARIOS:
+        raise ValueError(f"scenario {spec.name!r} is already registered")
+    SCENARIOS[spec.name] = spec
+    return spec
+
+
+def scenario_spec(name: str) -> ScenarioSpec:
+    """The registered scenario ``name``; ValueError listing the registered ones otherwise."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; registered scenarios: {', '.join(sorted(SCENARIOS))}")
+    return SCENARIOS[name]
+
+
+def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path | None = None) -> dict:
+    """Validate the parameters of scenario ``name`` and complete them with its defaults.
+
+    Parameters
+    ----------
+    name : str                   a registered scenario
+    given : mapping              parameters from a config (TOML values)
+    base_dir : Path or None      directory that relative paths are taken from
+
+    Returns
+    -------
+    dict
+        Normalised, JSON-serialisable parameters: what a cell key hashes and what ``build`` receives.
+
+    Raises
+    ------
+    ValueError
+        Unknown scenario or parameter (the valid ones are listed), or a bad value.
+    """
+    spec = scenario_spec(name)
+    unknown = [k for k in given if k not in spec.params]
+    if unknown:
+        raise ValueError(
+            f"scenario {name!r}: unknown parameter(s) {', '.join(map(repr, unknown))}; valid parameters: "
+            f"{', '.join(spec.params)}"
+        )
+    full = {key: convert_param(p.kind, f"scenario {name!r} parameter {key!r}", given.get(key, p.default), base_dir,
+                          p.choices) for key, p in spec.params.items()}
+    try:
+        return spec.check(full)
+    except TypeError as exc:  # the scenario config's own type checks
+        raise ValueError(f"scenario {name!r}: {exc}") from None
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith(f"scenario {name!r}") else f"scenario {name!r}: {msg}") from None
+
+

@@ -1,1 +1,0 @@
-"""Experiments: scenario x learner x protocol -> tidy rows, and the paper reproductions."""
