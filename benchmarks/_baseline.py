@@ -21,7 +21,7 @@ from io import BytesIO
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-#: the last commit of main before issue 16's MPC, env and SUMO speed work of 2026-12-01 afternoon
+#: the baseline revision: the code without the compiled drivers and the MPC and env speed-ups
 BEFORE = "45532b2"
 
 

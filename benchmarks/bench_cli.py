@@ -8,10 +8,6 @@ start-up). ``import pirl_sim`` is timed beside them: the package root (core type
 command imports before its parser is built. ``--revision REV`` also times ``--help`` of a git revision of the
 package, exported with `_baseline.export_revision`. Target: ``--help`` under 1 s. The children inherit this
 process's environment (its ``OPENBLAS_NUM_THREADS`` is printed); the load average at the start is printed too.
-
-Measured on this 2-core machine (load average 1.0, OPENBLAS_NUM_THREADS=1, 5 repeats): ``--help`` 0.59 s against
-0.067 s for the baseline (8.7x); ``import pirl_sim`` alone 0.47 s, so the package root is most of it (scipy.linalg
-through `pirl_sim.irl`); building the parser imports no numerical library.
 """
 
 from __future__ import annotations

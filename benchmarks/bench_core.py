@@ -1,4 +1,4 @@
-"""Speed targets of the core issue, measured in one run and printed as ratios against named baselines.
+"""Speed targets of the core (IRL, MPC, learners), measured in one run and printed as ratios against named baselines.
 
     python benchmarks/bench_core.py [--repeats 5] [--baseline-demos 1800]
 

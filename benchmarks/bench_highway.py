@@ -14,20 +14,14 @@ of 0.1 s per step — the PIRL env's fixed 10 Hz — so that one env step is the
   lane: the same road with 20 of highway-env's IDM drivers (plus the ego): the like-for-like baseline.
 - **baseline, roundabout-v0**: highway-env's ``roundabout-v0`` as shipped (4 IDM drivers plus the ego) but
   at the PIRL env's 10 frames per second (shipped: 15, which would make each of its steps 1.5x dearer):
-  the issue's baseline.
+  the named baseline.
 
 The ego keeps its speed (PIRL: action 0; highway-env: IDLE). Only ``env.step`` is timed; episodes that end
 (the ego crashes into traffic it does not yield to, or time runs out) are reset outside the timed region.
 Steps/s are medians of ``--repeats`` rounds, each round measuring every workload once (interleaved, so
 that other load on the machine hits all of them alike). Targets: the PIRL env no more than 1.5x slower than
-the bare ``roundabout-v0`` (issue 16; the baseline named in the output), nor than the 20-IDM one. The load
+the bare ``roundabout-v0`` (the baseline named in the output), nor than the 20-IDM one. The load
 average is printed before and after.
-
-Last run (issue 16, 2026-12-01 16:41 UTC, ``--repeats 3 --steps 100``, load average 2.3-2.7 on 2 cores, with
-the compiled PIRL-driver kernel, `pirl_sim.scenarios.driver_kernel`): PIRL env 22.8 ms/step (MPC 0.41 ms per
-batched call for ~20 drivers), bare roundabout-v0 26.3 ms/step: 0.86x (target 1.5x met); 0.27x the 20-IDM road.
-Before the kernel (14:43 UTC, load 4.5-5.0): 46.3 vs 29.1 ms/step, 1.59x, the MPC ~2.7 ms per frame; 1.86x when
-the issue was filed.
 """
 
 from __future__ import annotations
@@ -39,7 +33,7 @@ import warnings
 
 import numpy as np
 
-TARGET_SLOWDOWN = 1.5  # issue 16: <= 1.5x the bare roundabout-v0 (was 2x)
+TARGET_SLOWDOWN = 1.5  # <= 1.5x the bare roundabout-v0
 
 
 def timed_steps(env, action, n_steps: int, seed: int) -> tuple[float, float]:

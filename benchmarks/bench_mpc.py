@@ -1,4 +1,4 @@
-"""Speed of the roundabout MPC (issue 3), measured in one run against casadi Opti + IPOPT.
+"""Speed of the roundabout MPC, measured in one run against casadi Opti + IPOPT.
 
     python benchmarks/bench_mpc.py [--starts 500] [--ipopt-solves 20]
 
@@ -13,18 +13,11 @@ casadi B-spline of the same table, the same smooth desired-speed formula) solved
 Target: >= 2,000 predictions/s and >= 10x faster than the baseline. Medians of --repeats.
 
 Cold starts are timed in child processes, alternately on the working tree and on a baseline revision of the
-package (``--baseline``, default `_baseline.BEFORE`: main before this afternoon's issue-16 speed work; the
+package (``--baseline``, default `_baseline.BEFORE`, the named baseline revision; the
 package is exported with ``git archive``), ``--repeats`` times each, so that both see the same load; the
 medians and their ratio are printed, with the largest difference between the two codes' plans. In-process
 figures (warm receding horizon, IPOPT) follow. BLAS threads: ``--blas-threads`` (default 1, through
 threadpoolctl and the thread variables of the children; printed), and the load average.
-
-Last runs (issue 16, 2026-12-01, this 2-core machine shared with three other sessions' jobs, one BLAS thread;
-cold Newton steps of batches >= 96 starts by the Riccati recursion, Newton systems by Cholesky (dposv), the
-desired speed from one interval search): cold starts 2,520/s against 1,578/s for the baseline 45532b2 in the
-same run (1.60x; load average 4.2-4.4, 14:43 UTC), 2,604/s against 1,608/s (1.62x, load 4.7) and 1,849/s against
-1,102/s (1.68x, load 6.0) on earlier commits of the same afternoon; plans equal to 1e-12. Warm receding horizon
-1,886/s, IPOPT 68/s (36.8x cold).
 """
 
 from __future__ import annotations

@@ -17,15 +17,6 @@ batched solver), on ``--per-step-tracks`` tracks, scaled by steps.
 
 Times of our fit are medians over ``--repeats``; the machine is shared, so read the ratio. The BLAS thread
 setting is printed; run it with OPENBLAS_NUM_THREADS=1 and without.
-
-Measured (shared 2-core machine, 64 tracks, 12,698 steps): OPENBLAS_NUM_THREADS=1: ours 8.8-9.1 s (target
-< 10 s met), the loop 25.7-43.1 s scaled from 8 tracks (~7 residual evaluations per track): 2.9-4.7x (target
->= 20x NOT met); default threads (2): ours 14.8 s, loop 29.8 s: 2.0x. The loop is cheap because each of its
-residual evaluations already solves all of a track's ~200 steps in one batched call and only 2 weights are
-free (a 2-point Jacobian costs 2 extra evaluations); the MPC solves dominate both. The loop stopped early on
-one of the 8 tracks (|log err| 0.074 vs ours 0.0017). Last run, quiet machine, OPENBLAS_NUM_THREADS=1, after the
-fit's tolerance became 1e-3: ours 7.58 s (median of 3), 3.4x the batched loop, 48.8x the loop that solves the MPC
-step by step (2 tracks, 380 steps, scaled by steps).
 """
 
 from __future__ import annotations

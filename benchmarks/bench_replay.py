@@ -1,15 +1,15 @@
 """Replay speed: 1,000 recorded tracks, fit + predict every learner, and where the time goes.
 
-    python benchmarks/bench_replay.py [--tracks 1000]              # issue 6: one split, four learners
-    python benchmarks/bench_replay.py --command [--workers 1,2]     # issue 16: the replay command itself
+    python benchmarks/bench_replay.py [--tracks 1000]              # one split, four learners
+    python benchmarks/bench_replay.py --command [--workers 1,2]     # the replay command itself
 
 The scene is simulated (roundabout passage drivers of three styles, written in the INTERACTION format with a
 Lanelet2 map), because real recordings may not be redistributed.
 
-Default (issue 6): one train/test split (75/25 by track), 2 s history, 3 s horizon, a prediction every 1 s
+Default: one train/test split (75/25 by track), 2 s history, 3 s horizon, a prediction every 1 s
 along each test track. Target: under 60 s in total.
 
-``--command`` (issue 16): the wall time of the command a user runs on a real-data-sized recording,
+``--command``: the wall time of the command a user runs on a real-data-sized recording,
 ``pirl-sim replay --tracks T --map M --knn-k 5,10,19,30 --seeds 4 [--workers J]`` (default learners TIRL,
 PIRL-GMM, PIRL-kNN; a fresh process per run, output in a temporary directory so that nothing is resumed), for
 each ``--workers`` value, with the load average at the start. Target: under 120 s. BLAS threads: the command's
@@ -41,7 +41,7 @@ SPECS = [
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tracks", type=int, default=1000)
-    ap.add_argument("--command", action="store_true", help="time the replay command (issue 16) instead")
+    ap.add_argument("--command", action="store_true", help="time the replay command instead")
     ap.add_argument("--workers", default="1,2", help="--command: comma-separated --workers values to time")
     args = ap.parse_args(argv)
     with warnings.catch_warnings():
@@ -70,7 +70,7 @@ def main(argv=None):
 
 
 def _time_command(paths, workers: list[int], tmp: str) -> None:
-    """Issue 16: wall time of ``pirl-sim replay ... --knn-k 5,10,19,30 --seeds 4 --workers J`` per J."""
+    """Wall time of ``pirl-sim replay ... --knn-k 5,10,19,30 --seeds 4 --workers J`` per J."""
     print(f"replay command on {len(data_tracks(paths))} simulated tracks, --knn-k 5,10,19,30 --seeds 4 "
           f"(load average at the start {os.getloadavg()[0]:.1f}):")
     for j in workers:

@@ -12,7 +12,7 @@ paper's three styles, 20 % SUMO background traffic; seed 0):
   ``--repeats`` runs with libsumo and with TraCI, and the libsumo / TraCI ratios (all, and SUMO's side
   alone: the stepping without the drivers' time);
 - ``crowded``: a two-lane roundabout with 400 m arms, 750 vehicles per hour per arm, 200 vehicles, stopped
-  at 240 s when the last one has departed (issue 16's target: >= 40 PIRL drivers at once on average at
+  at 240 s when the last one has departed (target: >= 40 PIRL drivers at once on average at
   >= 50x real time, every one re-planning every 0.1 s);
 - ``very crowded``: two lanes, 1 km arms, 800 vehicles per hour per arm, 400 vehicles, 450 s (target:
   >= 100 at once at >= 20x); both crowded ones with libsumo, medians of ``--crowded-repeats`` runs.
@@ -26,23 +26,9 @@ by SUMO), all vehicles at once, simulated seconds per wall second of the steppin
 observations and the drivers; SUMO start-up, network building and writing excluded) with a breakdown per
 step and per re-plan, and whether the targets are met.
 
-The crowded scenarios also run on a baseline revision (``--baseline``, default e4e91c3: main before the
+The crowded scenarios also run on a baseline revision (``--baseline``, default e4e91c3: the code without the
 compiled drivers; ``none`` skips it), in child processes alternating with this code so that both see the same
 load (`_baseline.py`), and the speed-up is printed.
-
-Last runs (issue 16, 2026-12-01 16:30-16:38 UTC, ``--crowded-repeats 3``, load average 2.2 at the start and
-3.1 at the end from other sessions' jobs on the 2-core machine; the pinned processes got 98-99 % of their
-core; BLAS 1 thread): crowded 46.5 PIRL drivers at once (40.1 re-planning per step) at 57.1x real time
-(target >= 40 at >= 50x: met), against 24.9x for e4e91c3 in the same run: 2.29x faster (1.75 against 4.01 ms
-per step; the drivers 3.59x, SUMO's side 1.14x). Very crowded 100.2 at once (90.1 re-planning) at 28.9x
-(target >= 100 at >= 20x: met; the demand keeps the mean only just above 100), against 13.8x: 2.10x (drivers
-3.47x). A crowded step: SUMO and the recording 0.93 ms (of which libsumo's simulationStep ~0.5 ms and its
-subscription results ~0.12 ms), the drivers 0.82 ms, of which the MPC 0.48 ms (~12 us per re-plan: the
-compiled Newton step ~6.5 us, the rest the ~1 bounded QP per step through DAQP and the call's set-up), the
-projection ~0.1 ms (first positions by ``to_frenet`` included) and the per-step gathering ~0.2 ms. The default
-scenario: 298x with libsumo, 149x with TraCI (2.0x; 3.8x on SUMO's side). This docstring's previous runs (the
-code before the compiled drivers, 14:45 UTC, load ~5): crowded 16.3x (~24.8x on a core of its own), very
-crowded 9.2x (~13.9x).
 """
 
 from __future__ import annotations
@@ -65,7 +51,7 @@ from _baseline import export_revision, run_worker  # noqa: E402
 REPEATS = 3
 N_VEHICLES = 40
 SEED = 0
-#: the code before issue 16's compiled drivers (main on 2026-12-01, 16:09 UTC): the default baseline
+#: the default baseline revision: the code without the compiled drivers
 BASELINE = "e4e91c3"
 
 

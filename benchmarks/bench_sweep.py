@@ -1,4 +1,4 @@
-"""Sweep speed (issue 7): the machinery's overhead per cell, and the throughput of 2 workers against 1.
+"""Sweep speed: the machinery's overhead per cell, and the throughput of 2 workers against 1.
 
     python benchmarks/bench_sweep.py [--repeats 3] [--part all|overhead|throughput|kgrid|none] [--default-grid]
 

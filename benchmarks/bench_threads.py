@@ -1,11 +1,11 @@
-"""Thread policy (issue 16, item 2): single-process commands on a quiet and on a loaded machine, one run.
+"""Thread policy: single-process commands on a quiet and on a loaded machine, one run.
 
     python benchmarks/bench_threads.py [--repeats 1] [--commands simulate,replay,reproduce]
 
 Each command runs as ``python -m pirl_sim --blas-threads T COMMAND ...`` in a fresh process, with
 
-- T = ``auto`` (the baseline: numpy/scipy's own BLAS threads, 2 on this 2-core machine; what every command did
-  before the policy) and T = 1 (the policy's default);
+- T = ``auto`` (the baseline: numpy/scipy's own BLAS threads, 2 on a 2-core machine: the commands without the
+  policy) and T = 1 (the policy's default);
 - quiet (no load of ours) and loaded (one busy process ``python -c 'while True: pass'`` started by this script
   for the duration of the run and killed after it, by its pid).
 
@@ -16,18 +16,11 @@ The commands (small versions of the real ones, each a few seconds):
 - ``reproduce``: ``reproduce synthetic --n-trajectories 1000 --n-train 900``.
 
 Prints the median wall time [s] of ``--repeats`` runs per command and condition (conditions interleaved per
-repeat), the ratios loaded / quiet per setting (issue 16's target: <= 1.3 for ``replay`` and ``simulate`` with
+repeat), the ratios loaded / quiet per setting (target: <= 1.3 for ``replay`` and ``simulate`` with
 the policy) and auto / 1 per load, and whether both settings wrote the same results (timing columns,
 ``run.json`` and figures aside). OPENBLAS_NUM_THREADS and
 friends are removed from the children's environment, so ``auto`` really is the libraries' default. The machine
 is shared: "quiet" means no load of this script's, and the load average at the start is printed.
-
-Last run (issue 16, 2026-12-01 17:34 UTC, ``--commands simulate,replay --repeats 3``, no other jobs of ours,
-load average 1.3 at the start): with the policy, loaded / quiet is 0.95x for ``simulate`` and 1.05x for
-``replay`` (target <= 1.3x met; 1.06x and 0.91x with the libraries' own threads); the policy is 1.22x faster
-for ``replay`` quiet and 1.04x loaded, ``simulate`` unchanged (0.96x / 1.08x); same results with both settings.
-Earlier runs while other sessions' jobs loaded the machine (load 1.3-4.1) gave loaded / quiet 2.6-2.8x: the busy
-process plus those jobs left a single-threaded command well under one core.
 """
 
 from __future__ import annotations

@@ -15,11 +15,6 @@ extrapolated from the measured rate. The load average is printed before and afte
 
 The generated vehicles follow fixed paths at constant speeds and may overlap: they load the drawing, they are
 not traffic.
-
-Measured on 2026-12-03 (2 cores shared with other work, load average 2.6-4.3, OPENBLAS_NUM_THREADS=1,
-``--span 60 --repeats 3``): generated scene 113.6 frames/s as arrays (10-minute animation ~53 s), 42.6 frames/s
-as MP4 (~141 s); DR_USA_Roundabout_FT ``vehicle_tracks_000`` with its map 164.7 and 49.9 frames/s (~36 s and
-~120 s). Target met by 4x or more.
 """
 
 from __future__ import annotations

@@ -1,28 +1,17 @@
 """The learner contract shared by TIRL, PIRL-GMM, PIRL-kNN and PIRL-DPGMM.
 
 scikit-learn conventions: ``__init__`` only stores its arguments, ``fit(trajectories)`` validates and returns
-``self``, learned state ends in ``_``, using an unfitted learner raises ``NotFittedError``.
+``self``, learned state ends in ``_``, using an unfitted learner raises ``NotFittedError``. Online,
+``infer_weights(history)`` gives the normalised weights (reference feature = 1) that explain a (partial)
+trajectory and ``predict(history, horizon)`` rolls the MPC forward from its last state under them; both, and
+``predict_states`` and ``score``, take one `Trajectory` or a sequence of them.
 
-Online use: ``infer_weights(history)`` gives the normalised weights (reference feature = 1, see
-`pirl_sim.features.FeatureSet.normalize`) that explain a (partial) trajectory, and ``predict(history, horizon)``
-rolls the MPC forward from the last state of the history under those weights.
+The inputs are trajectories, not a feature matrix: ``n_features_in_`` is the number K of cost features and
+``feature_names_in_`` their names. ``fit(histories, futures)`` and ``score(histories, futures)`` (minus the MED
+[m]) let ``GridSearchCV`` run on lists of trajectories. ``window=None`` describes a trajectory by the features of
+the whole of it; ``window=T`` by those of its last T steps (training trajectories: all their T-step windows).
 
-Batches. ``infer_weights``, ``predict_states``, ``predict`` and ``score`` take one `Trajectory` or a sequence of
-them (a batch); one history gives one result, a sequence a result per history.
-
-Inputs and ``n_features_in_``. The inputs are trajectories, not a feature matrix: a learner computes its cost
-features from each trajectory itself (the model's `pirl_sim.features.FeatureSet`). So ``n_features_in_`` is the
-number K of cost features (the length of the weight vectors ``infer_weights`` returns) and ``feature_names_in_``
-their names, in the model's order; neither is the number of columns of an input array.
-
-scikit-learn model selection. ``fit(histories, futures)`` learns from the demonstrations history + future
-(``futures=None``: from the histories alone) and ``score(histories, futures)`` is the negative mean Euclidean
-distance (MED, [m]) between the predicted and the true futures, so ``GridSearchCV`` and ``cross_val_score`` run on
-lists of trajectories without a custom scorer.
-
-Feature windows. With ``window=None`` a trajectory is described by the features of the whole of it (the
-paper's protocol). With ``window=T`` a history is described by the features of its last T steps, and training
-trajectories by all their windows of T steps (every ``stride`` steps), so that look-ups compare like with like.
+See the documentation's "The learners" page.
 """
 
 from __future__ import annotations
@@ -292,7 +281,7 @@ class BaseLearner(BaseEstimator):
 
     def predict_futures(self, histories: Trajectory | Sequence[Trajectory], horizon: int, n_futures: int | None = None,
                         random_state=None) -> tuple[np.ndarray, np.ndarray]:
-        """K predicted futures of each history with their probabilities (issue 14 item 3, multi-modal prediction).
+        """K predicted futures of each history with their probabilities (multi-modal prediction).
 
         This base version has a single future, the point prediction of `predict_states`, with probability 1
         (K = 1 whatever ``n_futures`` asks: a learner with one cost per history has nothing else to offer, e.g.

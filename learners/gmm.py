@@ -1,53 +1,16 @@
-"""PIRL-GMM and PIRL-DPGMM: cluster demonstrations in feature space, one cost per cluster.
+"""PIRL-GMM and PIRL-DPGMM: cluster demonstrations, one cost per cluster.
 
 The paper's Algorithm 1-2: an EM-fitted Gaussian mixture over (transformed, standardised) features groups the
 demonstrations; continuous-domain IRL on each group gives that style's weights; online, a history takes the
-weights of its most probable cluster. PIRL-DPGMM replaces the fixed k by a truncated Dirichlet-process mixture
-(`sklearn.mixture.BayesianGaussianMixture`), which finds the number of styles itself.
+weights of its most probable cluster. PIRL-DPGMM replaces the fixed k by a truncated Dirichlet-process mixture.
+Components with fewer than ``min_cluster_size`` training samples are dropped.
 
-Degenerate clusters: a component holding fewer than ``min_cluster_size`` training samples is dropped; its
-samples, and any later query, go to the most probable remaining component.
+``space="weights"`` clusters per-demonstration weight posteriors (`pirl_sim.learners.weight_space`) by extreme
+deconvolution (`pirl_sim.deconvolution`), refits each cluster's cost jointly and runs ``refine`` passes of hard
+EM over the IRL likelihoods (after Babeș-Vroman et al. 2011); PIRL-GMM's ``init="random"`` starts that hard EM
+from random clusters. Style posterior (`predict_proba`): p(style j | history) ∝ pi_j p(history | theta_j).
 
-Weight space (``space="weights"``, issue 14). Feature-space clusters lose the styles as soon as the features
-depend on more than the weights (e.g. spread start states). With ``space="weights"``:
-
-1. Every demonstration is fitted on its own, and its Laplace (trajectory likelihood) or Gauss-Newton (receding
-   likelihood) posterior over the log normalised weights is formed
-   (`pirl_sim.learners.weight_space.demo_posteriors`: a mean and a covariance per demonstration).
-   With the whole-trajectory likelihood, a demonstration whose normalised weight reached the box's bound (its
-   likelihood keeps rising beyond it, so no Gaussian there describes it) is refitted as MAP under a log-normal
-   prior fitted to the interior estimates (`pirl_sim.learners.base.population_prior`, as PIRL-kNN's
-   ``prior="population"``), and its posterior is the Laplace posterior of that fit (prior included;
-   ``n_demos_with_prior_`` counts them). On the roundabout passage (``reproduce passage``, seed 0) 50 of 500
-   demonstrations hit the bound (``acc_sq`` -> 0); without the refit their ``speed_dev`` estimate, conditional
-   on ``acc_sq`` = 0, put 10 of them in the wrong style (ARI 0.938; with it 0.988).
-2. The posteriors are clustered by extreme deconvolution (`pirl_sim.deconvolution`, Bovy, Hogg & Roweis 2011),
-   EM that weighs every demonstration by what its posterior really pins down. PIRL-GMM takes k fixed or by BIC.
-   PIRL-DPGMM (``weight_mixture="dirichlet-process"``, the default) puts a Dirichlet process over the same
-   measurement model, truncated at ``max_components`` sticks and fitted by variational inference
-   (`pirl_sim.deconvolution.dp_deconvolution`); with ``weight_mixture="mml"`` it starts from ``max_components``
-   and lets Figueiredo & Jain's (2002) minimum-message-length rule remove the components that too few
-   demonstrations support (it counts Gaussian components, so a skewed style may take two).
-3. Each cluster's weights are refitted jointly by IRL on its members.
-4. ``refine`` passes of hard EM over the IRL likelihoods (the alternative the issue names, after Babeș-Vroman
-   et al. 2011, "Apprenticeship learning about multiple intentions", ICML): every demonstration moves to its
-   most probable style under `predict_proba` (the style's likelihood of the whole demonstration, not its
-   Gaussian summary), the mixture weights become the styles' shares, and the styles are refitted; passes stop
-   when no label changes. On the passage the one default pass moves the 2 demonstrations that the
-   deconvolution left in the wrong style (posteriors too vague to decide: speed_dev -1.8 +- 0.4 between styles
-   at -2.3 and -1.2): ARI 0.988 -> 1.0, worst per-style weight error 0.30 -> 0.065.
-
-PIRL-GMM's ``init="random"`` skips steps 1-3: the styles start as random equal-size clusters of the
-demonstrations, each fitted by IRL, and the hard EM of step 4 runs for up to ``refine`` passes (Babeș-Vroman et
-al.'s algorithm from a plain start; ``n_init`` restarts, the highest classification log-likelihood kept). No
-per-demonstration posterior is formed, so the styles' spread is unknown: ``style_log_covariances_`` are zero and
-the futures drawn in weight space are the styles' own.
-
-A history's style is then the most probable one under `predict_proba`.
-
-Style posterior (`predict_proba`, both spaces): p(style j | history) ∝ pi_j p(history | theta_j), each style's
-likelihood of the history under its fitted weights (the likelihood the IRL maximised,
-`pirl_sim.learners.weight_space.style_log_likelihoods`) times its mixture weight.
+The steps and their options are explained in the documentation's "The learners" page.
 """
 
 from __future__ import annotations
@@ -356,7 +319,7 @@ class _MixtureLearner(SavableLearner):
 
     def predict_futures(self, histories, horizon: int, n_futures: int | None = None,
                         random_state=None) -> tuple[np.ndarray, np.ndarray]:
-        """K predicted futures of each history with their probabilities (issue 14 item 3).
+        """K predicted futures of each history with their probabilities.
 
         - ``n_futures=None``: one future per style, K = ``n_styles_``, under each style's weights ``theta_[j]``,
           with probability p(style | history) (`predict_proba`).

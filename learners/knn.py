@@ -1,57 +1,15 @@
 """PIRL-kNN: one cost per demonstration offline, inverse-distance k-nearest-neighbour regression online.
 
-Offline, continuous-domain IRL runs on every training demonstration at once (batched Newton, see
-`pirl_sim.irl`). Online, the k training samples nearest to a history in the standardised feature space vote
-with weights 1 / distance (the paper's Algorithm 3, normalised). A history that matches samples exactly takes
-the mean of those exact matches only. Averaging is done on log weights by default (weights are positive and
-spread over orders of magnitude); ``average="linear"`` averages the weights themselves.
+Offline, continuous-domain IRL runs on every training demonstration at once (batched Newton, `pirl_sim.irl`).
+Online, the k training samples nearest to a history in the standardised feature space vote with weights
+1 / distance (the paper's Algorithm 3), on log weights by default (``average="linear"``: the weights).
+Options: ``prior="population"`` (MAP refits under a log-normal prior), ``weighting="likelihood"`` (votes by
+p(history | theta_i)), ``target="next"`` (costs fitted to what followed each training window; look-up keys from
+the last states, ``state_features``, ``state_lags``, ``lookup_ahead``; ``segment_start``), ``aggregate`` =
+``"weights"``, ``"futures"`` (the neighbours' futures averaged) or ``"selected"`` (a learned choice among a bank
+of costs, `pirl_sim.learners.selector`).
 
-Per-demonstration weights can be weakly identified: ``prior="population"`` refits every demonstration as MAP
-under a log-normal prior fitted to the first-pass estimates that did not reach a bound.
-
-``weighting="likelihood"`` (issue 14 item 2): the k neighbours vote with weights proportional to how well their
-own cost explains the history, p(history | theta_i) (`pirl_sim.learners.weight_space.paired_log_likelihoods`:
-the IRL's likelihood at the neighbour's fitted weights; the Boltzmann prefix marginal for the first steps of an
-episode), instead of 1 / distance: the analogue of PIRL-GMM's style posterior. The feature look-up then only
-proposes candidates, so a larger k lets the likelihood choose among more of them. A demonstration that is the
-neighbour through several windows votes once per window.
-
-``target="next"`` (issue 12): the costs are learned for what drivers did *next*, not for whole demonstrations.
-Every training window of ``window`` steps that is followed by ``target_steps`` more becomes a pair (history,
-next steps), and the IRL fits one cost per next-steps segment; online, the histories nearest to a query vote
-for the costs of what followed them. On recorded roundabouts the cost that explains a driver's whole track (or
-their own history) does not predict their next seconds: a car that waited and now accelerates has one cost over
-the track and another for the next 3 s. The cost fitted on each window's own future is what a perfect online
-inference could reach (on two files of DR_USA_Roundabout_EP it predicts the arc length with 0.33 x the error of
-constant acceleration, while the whole-track costs of the nearest histories reach 0.98 x). Two options make
-the look-up fit that use: ``state_features`` appends components of the history's last state (e.g. speed and
-acceleration along the path) to the look-up space, so that the neighbours are histories that end in the same
-situation, and ``aggregate="futures"`` predicts the neighbours' futures under their own costs from the query's
-state and averages them with the votes (`predict_states`), instead of one future under their averaged weights:
-neighbours who will stop and ones who will go have costs whose average does neither. ``state_lags`` takes the
-state entries also some steps before the window's end, and ``lookup_features=False`` leaves the history's cost
-features out of the look-up: on the three development roundabouts (5 files each, one split, a throwaway
-comparison), next-steps costs looked up by speed and acceleration now, 0.5 s and 1 s ago predicted the arc
-length with 0.79 / 0.50 / 0.93 x the error of constant acceleration (DR_USA_Roundabout_EP / _FT /
-DR_CHN_Roundabout_LN), against 0.89 / 0.51 / 1.02 x by features and the last speed and acceleration: how a driver
-got to the present says more about the next seconds than the history's feature averages.
-
-Two more options make the costs fit what an online prediction does with them (issue 12). ``segment_start="history"``
-fits each next-steps cost from the state the prediction will start from, the history's own estimate
-(``lookup_history``), instead of the smoothed track's state at that step: a cost fitted from the smoother's start
-and rolled out from the online estimate carries that estimate's error in speed and acceleration through the
-whole horizon, however well the cost explains the segment (the segment is re-started there with the controls that
-follow its positions and speeds best, `steer_segment`). ``lookup_ahead`` adds the road's curvature some metres
-ahead to the look-up: histories that end before the same bend. Measured on the development roundabouts in the
-README (section "Replaying recorded driving").
-
-``aggregate="selected"`` replaces the look-up's votes by a learned choice among a bank of ``n_candidates`` of the
-next-steps costs (`pirl_sim.learners.selector`), learned from the look-up keys and the place where the window
-ends: with ``selector="forecast"`` (the default) the positions over the next steps are regressed on them and
-online the bank's futures from the query's state are mixed to come nearest to that forecast; with
-``selector="errors"`` each bank cost's error when rolled out from a training window's start is regressed on them,
-and online the bank costs are weighted by ``softmin(predicted error / temperature)``. Which costs predict a
-situation well is learned from what drivers did next, not inferred from which histories are near.
+The options and what they are for are explained in the documentation's "The learners" page.
 """
 
 from __future__ import annotations
@@ -534,7 +492,7 @@ class PIRLKNN(SavableLearner):
 
     def predict_futures(self, histories, horizon: int, n_futures: int | None = None,
                         random_state=None) -> tuple[np.ndarray, np.ndarray]:
-        """K predicted futures of each history with their probabilities (issue 14 item 3).
+        """K predicted futures of each history with their probabilities.
 
         The posterior over the weights is the neighbours' vote: the k neighbours' demonstrations with the weights
         `infer_weights` averages (1 / distance, or the likelihood of the history with

@@ -1,59 +1,14 @@
 """Saving and loading fitted learners in a versioned file that needs no pickle to read.
 
-File format ``pirl_sim.learner``, version 2
--------------------------------------------
-One NumPy ``.npz`` archive (a zip of ``.npy`` arrays; read it with ``numpy.load(path, allow_pickle=False)``):
+`save_learner` (``learner.save(path)``) and `load_learner` write and read format ``pirl_sim.learner`` version
+`FORMAT_VERSION`: one NumPy ``.npz`` archive whose ``header`` entry is UTF-8 JSON (versions, the learner's class,
+its constructor parameters, its `pirl_sim.model.DriverModel` and every fitted attribute) and whose other entries
+are the numeric arrays the JSON refers to. `LEARNER_PARAMS` and `LEARNER_STATE` list, per format version, the
+parameters and fitted attributes a file holds; a learner that does not match them cannot be saved, and a file of
+an unknown version is refused with a ValueError naming the versions this code reads. Version 1 files are
+converted on reading.
 
-- ``header``: a uint8 array holding UTF-8 JSON, the whole description of the learner::
-
-      {"format": "pirl_sim.learner", "format_version": 2,
-       "pirl_sim_version": "...", "numpy_version": "...", "scikit_learn_version": "...",  # what wrote it
-       "learner": "PIRLGMM",                      # class name, one of pirl_sim.learners.LEARNERS
-       "params": {...},                           # the constructor's arguments (get_params), model excluded
-       "model": {...},                            # the DriverModel: dynamics, features, bounds, path
-       "state": {...}}                            # every fitted attribute (name ends in "_")
-
-- every other entry is a numeric array that the JSON refers to by its entry name, ``{"__array__": "<name>"}``
-  (names are the attribute paths, e.g. ``state.theta_``, ``state.mixture_.means_``).
-
-JSON values carry their type where JSON alone would lose it: ``{"__tuple__": [...]}``,
-``{"__dict__": [[key, value], ...]}``, ``{"__float__": "nan" | "inf" | "-inf"}``,
-``{"__str_array__": [...]}`` (arrays of strings), ``{"__dataclass__": "IRLResult", "fields": {...}}``
-(results and priors of `pirl_sim.irl` and `pirl_sim.receding`), ``{"__estimator__": "GaussianMixture",
-"params": {...}, "state": {...}}`` (scikit-learn's StandardScaler, GaussianMixture, BayesianGaussianMixture,
-NearestNeighbors; a NearestNeighbors index is rebuilt from its training points, ``_fit_X``) and
-``{"__model__": {...}}``. Only the classes named here are ever built when a file is read.
-
-The model: ``dynamics`` (``A`` (n_x, n_x), ``B`` (n_x, n_u), ``dt`` [s], state and control names,
-``position_index``), ``features`` (``reference`` and, per feature, ``name``, ``reduction``, ``quadratic`` and
-its ``residual``: ``squared_state`` with ``index``, ``squared_control``, ``speed_deviation`` with its speed
-profile: ``path``, ``a_lat`` [m/s^2], ``v_max`` [m/s], ``speed_target`` with ``v_target`` [m/s], or ``headway``
-with ``standstill`` [m], ``time_gap`` [s], ``softness`` [m]), ``bounds`` (``state``/``control``: name -> [low,
-high]) and, for a `pirl_sim.driving.PathDriverModel`, ``path`` and ``n_iter``. A path is a ``reference`` table
-(``s``, ``x``, ``y``, ``heading`` [rad], ``kappa`` [1/m], ``closed``) or a ``composite`` of reference paths
-(``segments``, ``gap`` [m], ``spacing`` [m], and its curvature table ``kappa``, which a replay may have
-smoothed). Features defined elsewhere (other residual callables) pickle but cannot be written here: saving
-such a learner is a TypeError naming the feature.
-
-Versions. The format version changes whenever a learner's parameters or fitted state change (names, meaning or
-shape): `LEARNER_PARAMS` and `LEARNER_STATE` list them for `FORMAT_VERSION`, `save_learner` refuses a learner
-whose parameters or fitted attributes are not those (so a change cannot be saved under the old version), and the
-tests compare the lists with the learners. Reading checks a file against the lists of its version.
-
-- Version 1 files (every revision before version 2 wrote "format_version": 1, whatever its learners' parameters
-  and state) are converted on reading: parameters added since take their defaults, which do what the earlier code
-  did (``weight_mixture="mml"`` for a weight-space PIRL-DPGMM that predates the choice), and the fitted state is
-  completed as `fit` would have set it (PIRL-kNN's ``state_idx_`` from ``state_features``, its look-up points
-  ``lookup_z_`` with unit ``key_scale_``; PIRL-GMM's ``style_weights_`` from the mixture). What cannot be rebuilt
-  from the file stays missing and its use says so (a mixture's ``predict_proba`` without the training controls'
-  scale or, for histories at the start of episodes, their length). A parameter the current learners no longer
-  have is refused. Golden files of earlier revisions are tested (``tests/learners/data``).
-- A file of a newer version, or of one never released, is refused with a ValueError naming its version and the
-  pirl_sim that wrote it, this pirl_sim's version and the versions it reads: upgrade pirl_sim or refit.
-
-A file's header must hold ``learner``, ``params``, ``model`` and ``state``; its parameters must pass the learner's
-own checks and its fitted arrays must fit together (shapes, finite and positive weights, indices in range), or
-reading it is a ValueError naming the file. Loaded learners predict exactly what the saved ones did (tested).
+The full specification (JSON encoding, the model, versions) is in the documentation's "File formats" page.
 """
 
 from __future__ import annotations

@@ -1,26 +1,15 @@
-"""A bank of costs and a learned choice among them: PIRL-kNN's ``aggregate="selected"`` (issue 12).
+"""A bank of costs and a learned choice among them: PIRL-kNN's ``aggregate="selected"``.
 
-PIRL-kNN with ``target="next"`` fits one cost to what followed every training window and, online, averages the
-futures of the costs whose histories look most like the query's. On the development roundabouts the cost
-family can represent the next seconds (the cost fitted on each test window's own future predicts far better
-than constant acceleration), but the nearest histories' costs rolled out from the query's state often do not:
-which cost predicts a situation well is not the same as which histories are near in the look-up space.
+A *bank* of ``n`` costs is taken from the per-segment costs of PIRL-kNN with ``target="next"`` (`cost_bank`: the
+segment nearest each k-means centre of the log weights). ``selector="errors"``: every bank cost is rolled out
+from the start of training windows (`rollout_errors`), one regression per bank cost learns that error from the
+window's look-up keys (`ErrorRegression`), and online the bank costs get probabilities
+``softmin(predicted error / temperature)`` (`softmin`). ``selector="forecast"``: one regression of the positions
+over the next steps on the keys (`FutureRegression`), and online the mixture of the bank's futures nearest to that
+forecast (`mixture_weights`: least squares over the probability simplex). Either way the prediction is the MPC
+under learned costs; only the choice of costs is learned from predictive error.
 
-The selection learns that directly. A *bank* of ``n`` costs is taken from the per-segment costs (`cost_bank`:
-the segment nearest each k-means centre of the log weights, so the bank spans the fitted costs); every bank
-cost is rolled out from the start of each of a set of training windows and scored against what the driver did
-(`rollout_errors`); one regression per bank cost learns that error from the window's look-up keys
-(`ErrorRegression`); online, the bank costs get probabilities ``softmin(predicted error / temperature)``
-(`softmin`), a posterior over costs whose futures are averaged (or drawn) like the neighbours' futures.
-
-The errors of the bank's costs are all functions of one unknown, the driver's next seconds, so they can also be
-predicted through it (``selector="forecast"`` of `pirl_sim.learners.PIRLKNN`): one regression of the positions
-over the next steps on the keys (`FutureRegression`, fitted on every training window, not one regression per
-cost), and online the mixture of the bank's futures, rolled out from the query's own state, that comes nearest
-to that forecast (`mixture_weights`: least squares over the probability simplex). On the development
-roundabouts the single cost of least predicted error cannot follow the forecast where a mixture can (README).
-Either way the prediction is the MPC under learned costs; only the choice of costs is learned from predictive
-error.
+The selection is explained in the documentation's "The learners" page.
 """
 
 from __future__ import annotations

@@ -1,44 +1,15 @@
 """Costs as distributions over the weights: per-demonstration posteriors and per-style likelihoods of histories.
 
-Coordinates. A demonstration's weights are described by the log of its normalised weights except the
-reference one, ``z = log(theta_k / theta_ref)`` for k != ref (D = K - 1 numbers); the scale (the rationality
-beta for the whole-trajectory likelihood, the noise for the receding-horizon one) is marginalised out.
+A demonstration's weights are described by ``z = log(theta_k / theta_ref)`` for k != ref (D = K - 1 numbers),
+the scale (rationality or noise) marginalised out. `demo_posteriors` gives a Gaussian posterior over z per
+demonstration (flat prior inside the IRL's box ``log_bounds``): the Laplace posterior of the per-demonstration
+IRL for ``likelihood="trajectory"``, the Gauss-Newton information of the receding-horizon fit for
+``likelihood="receding"``; coordinates at a bound of the box are dropped and a weak prior of one box width keeps
+every covariance finite. `style_log_likelihoods` evaluates, per style, the likelihood the IRL maximised at the
+style's fitted weights (for the first T steps of an episode, ``episode_steps=N``: the Boltzmann prefix marginal);
+`paired_log_likelihoods` does so for paired histories and weights.
 
-Per-demonstration posterior (`demo_posteriors`), flat prior inside the IRL's box ``log_bounds``:
-
-- ``likelihood="trajectory"``: the Laplace posterior of the per-demonstration IRL (`pirl_sim.irl`). The
-  Hessian of the negative log-likelihood in theta (exact, from `pirl_sim.irl.laplace_nll`, with the
-  Gauss-Newton cost Hessian for demonstrations fitted with it) is chained to the IRL's coordinates
-  w = (log beta, z) and inverted; the z block of the inverse is the marginal covariance.
-- ``likelihood="receding"``: the Gauss-Newton information of the receding-horizon fit,
-  ``sum_t J_t^T J_t / s^2`` with J_t = d pi_theta(x_t) / d z (`pirl_sim.receding.RecedingPolicy`) and s^2 the
-  variance per residual: sigma^2 (the fit's robust residual scale) for the Gaussian loss, sigma^2 / 0.95 for the
-  Cauchy loss (its scale 2.385 sigma is chosen for 95 % efficiency at Gaussian residuals). Measured on LQ
-  drivers who re-plan with Gaussian control noise: z-scores of the true log weights have standard deviation
-  ~1 with this variance, ~0.3 with the Cauchy location's own Fisher information 1 / (2 c^2). Steps whose MPC
-  plan did not converge are left out: their implicit derivative is not the policy's (on a SUMO run of 24
-  vehicles, seed 0, one of 4,275 steps did not converge and had |J| = 7e9 against a median of 0.8, which made
-  its demonstration's information singular in floating point).
-
-A coordinate at a bound of the box carries no Gaussian information (the likelihood's maximum lies beyond the
-box): its rows and columns of the information are dropped. Every information matrix gets the weak prior
-``I / (high - low)^2`` (one box width of standard deviation), so that the covariance exists; negative
-eigenvalues (a fit stopped short of its optimum) are clipped to zero first.
-
-Per-style likelihood of a history (`style_log_likelihoods`): the same likelihood the IRL maximised, evaluated
-at each style's fitted weights.
-
-- ``likelihood="trajectory"``, a whole demonstration: the Laplace log-likelihood of the history under the
-  style's absolute weights theta_j = beta_j x normalised (`pirl_sim.irl.laplace_nll`).
-- ``likelihood="trajectory"``, the first T steps of an episode of N > T steps (``episode_steps=N``: the online
-  protocol, histories that start where the driver's plan started): the driver's N-step controls are
-  Boltzmann-distributed, U ~ N(U*_j, (sum_k theta_jk hess f_k)^-1) around the style's optimal plan U*_j from the
-  history's first state (exact for quadratic features; the Laplace approximation otherwise, with the
-  Gauss-Newton Hessian at U*_j for non-quadratic features), so the observed prefix has the marginal
-  ``N(U*_j[:T], [H_j^-1]_{:T,:T})``. The Laplace likelihood of a window on its own would treat the first T
-  steps as the optimum of a T-step problem, which they are not.
-- ``likelihood="receding"``: the sum over the history's steps of the Cauchy (or Gaussian) log-density of
-  u_t - pi_theta_j(x_t) with the style's fitted noise.
+The posteriors and likelihoods are explained in the documentation's "The learners" page.
 """
 
 from __future__ import annotations

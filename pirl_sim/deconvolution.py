@@ -1,49 +1,15 @@
 """Gaussian mixtures of noisy measurements with known per-point covariances ("extreme deconvolution").
 
-Each point i is a noisy measurement ``x_i = v_i + e_i`` of an unseen ``v_i`` drawn from the mixture
-``sum_j alpha_j N(m_j, V_j)``, with ``e_i ~ N(0, S_i)`` and S_i known, so that
-``p(x_i) = sum_j alpha_j N(x_i | m_j, V_j + S_i)``. The EM algorithm of Bovy, Hogg & Roweis (2011), "Extreme
-deconvolution: inferring complete distribution functions from noisy, heterogeneous and incomplete
-observations", Annals of Applied Statistics 5(2B), 1657-1677 (their section 2, equations (8)-(15)), written
-here from the paper with numpy:
+Each point i is a noisy measurement ``x_i = v_i + e_i`` of an unseen ``v_i`` drawn from a mixture
+``sum_j alpha_j N(m_j, V_j)``, with ``e_i ~ N(0, S_i)`` and S_i known, so ``p(x_i) = sum_j alpha_j
+N(x_i | m_j, V_j + S_i)``: per-demonstration weight estimates of very different precision cluster on what they
+really tell. Fitted by the EM algorithm of Bovy, Hogg & Roweis (2011, Annals of Applied Statistics 5(2B)), with
+optional minimum-message-length pruning of components (``prune=True``, Figueiredo & Jain 2002), or under a
+Dirichlet-process prior by truncated stick-breaking variational inference (`dp_deconvolution`; Blei & Jordan
+2006, Normal-Wishart priors as Bishop 2006, section 10.2; prior strengths `MEAN_PRECISION_PRIOR`,
+`COVARIANCE_PRIOR_SCALE`).
 
-- E-step: ``T_ij = V_j + S_i``, ``q_ij ∝ alpha_j N(x_i | m_j, T_ij)``, and the posterior of v_i under
-  component j, mean ``b_ij = m_j + V_j T_ij^-1 (x_i - m_j)``, covariance ``B_ij = V_j - V_j T_ij^-1 V_j``;
-- M-step: ``alpha_j = sum_i q_ij / N``, ``m_j = sum_i q_ij b_ij / q_j``,
-  ``V_j = sum_i q_ij [(m_j - b_ij)(m_j - b_ij)^T + B_ij] / q_j + reg_covar I``.
-
-A point with a large S_i pulls its component's mean and covariance little, which is the point: per-demonstration
-weight estimates of very different precision cluster on what they really tell.
-
-Pruning (``prune=True``): Figueiredo & Jain's (2002, "Unsupervised learning of finite mixture models", IEEE
-TPAMI 24(3)) minimum-message-length search for the number of components. The weights' update becomes their
-equation (17), ``alpha_j ∝ max(0, sum_i q_ij - P / 2)`` with P the parameters of one component, which
-annihilates components that too few points support; after convergence the least probable component is removed
-and EM resumes, down to one component (their outer loop), and the fit with the shortest message length
-(their equation (15): minus the log-likelihood plus ``P/2 sum_j log(N alpha_j / 12) + J/2 log(N / 12) +
-J (P + 1) / 2``) is kept.
-
-
-Dirichlet process (`dp_deconvolution`): the same measurement model under a Dirichlet-process prior over the
-mixture, fitted by truncated stick-breaking variational inference (Blei & Jordan 2006, "Variational inference for
-Dirichlet process mixtures", Bayesian Analysis 1(1), 121-144), with Normal-Wishart priors on every component
-(Bishop 2006, "Pattern Recognition and Machine Learning", section 10.2, equations (10.40)-(10.63)) and the
-noise-free points v_i as latent variables (the deconvolution). The factorisation is
-q(sticks) q(mu, Lambda) prod_i q(z_i) q(v_i | z_i); for z_i = j the optimal q(v_i | j) is Gaussian, precision
-``P_ij = E[Lambda_j] + S_i^-1``, mean ``b_ij = P_ij^-1 (E[Lambda_j mu_j] + S_i^-1 x_i)``, so every update is in
-closed form:
-
-- responsibilities ``log r_ij = E[log pi_j] + E[log N(v_i | mu_j, Lambda_j^-1)] + E[log N(x_i | v_i, S_i)] +
-  H[q(v_i | j)]`` (expectations under q), with ``E[log pi_j] = E[log w_j] + sum_{l<j} E[log(1 - w_l)]`` of the
-  stick fractions w_j ~ Beta(1 + N_j, alpha + sum_{l>j} N_l) (the last stick takes what is left);
-- Normal-Wishart posteriors from the expected statistics of the v_i: ``N_j = sum_i r_ij``, their mean and
-  scatter ``sum_i r_ij [(b_ij - vbar_j)(b_ij - vbar_j)^T + P_ij^-1]``, as Bishop's (10.60)-(10.63).
-
-Priors (on the well-measured points): mean prior the points' mean with precision factor `MEAN_PRECISION_PRIOR`,
-Wishart with D degrees of freedom and inverse scale `COVARIANCE_PRIOR_SCALE` times the points' covariance
-(scikit-learn's `BayesianGaussianMixture` defaults: 1 and 1; see the constants for why they are weaker here). A
-component the data do not support keeps N_j -> 0: the Dirichlet process's own choice of the number of
-components, unlike the pruning above (which removes components that fewer than P / 2 points support).
+The mixtures in weight space of the learners are explained in the documentation's "The learners" page.
 """
 
 from __future__ import annotations

@@ -1,24 +1,13 @@
 """The roundabout driver model of the paper: longitudinal motion along a reference path, three features.
 
 State (s [m], v [m/s], a [m/s^2]) along a `ReferencePath`, control jerk [m/s^3] (`dynamics.longitudinal`).
-Features (means over the N steps, as in the paper):
+Features (means over the N steps, as in the paper): ``speed_dev`` = (v - v_des(s))^2, ``acc_sq`` = a^2 and
+``jerk_sq`` = j^2 (the reference feature: reported weights are relative to it).
 
-- ``speed_dev``: (v - v_des(s))^2, the squared deviation from a curvature-limited desired speed,
-- ``acc_sq``:    a^2,
-- ``jerk_sq``:   j^2 (the reference feature: reported weights are relative to it).
-
-Desired speed. The paper's ``sqrt(a_des * kappa)`` has a slip (see shared/data/README.md): a lateral
-acceleration limit gives ``sqrt(a_lat / |kappa|)``, capped by a speed limit where kappa is near 0. We use the
-smooth cap
-
-    v_des(kappa) = (v_c^-8 + v_max^-8)^(-1/8) = (q^2 + v_max^-8)^(-1/8),   v_c = sqrt(a_lat / |kappa|),
-                                                                      q = kappa^2 / a_lat^2,
-
-which is within 0.3 % of v_c wherever v_c < 0.6 v_max, equals v_max at kappa = 0, dips to
-2^(-1/8) = 0.917 of the hard cap min(v_c, v_max) at the crossover, and is infinitely differentiable —
-so the features have exact, continuous gradients and Hessians (the IRL needs the second derivatives).
-Curvature along s is a cubic spline through the path's tabulated kappa (periodic on closed paths); beyond the
-ends of an open path it is held at the end value (straight-line extension of the speed profile).
+The desired speed is the lateral-acceleration limit ``sqrt(a_lat / |kappa|)`` capped smoothly by ``v_max``,
+``v_des = (kappa^4 / a_lat^4 + v_max^-8)^(-1/8)`` (`smooth_desired_speed`), infinitely differentiable so that the
+features have exact gradients and Hessians; curvature along s is a cubic spline through the path's tabulated
+kappa (`SpeedProfile`). The model is explained in the documentation's "The cost model and its features" page.
 """
 
 from __future__ import annotations

@@ -1,54 +1,16 @@
 """Continuous-domain maximum-entropy IRL with a Laplace approximation (Levine & Koltun, ICML 2012).
 
-For a demonstration with stacked controls U (length d) and a linear cost C = theta . f(U), the second-order
-expansion of C around U gives the approximate log-likelihood
+A demonstration with stacked controls U is one open-loop optimum of its linear cost C = theta . f(U), up to
+Boltzmann noise; its Laplace log-likelihood is ``-1/2 g^T H^-1 g + 1/2 log|H| - d/2 log(2 pi)`` with g, H the
+gradient and Hessian of C in U. `fit_weights` maximises it over groups of demonstrations tied by integer
+``labels`` (one group per demonstration, one for all, or one per cluster) in one batched, damped Newton iteration
+in the coordinates ``w = (log beta, log(theta_k / theta_ref))``, bounded by ``log_bounds``; weights are reported
+normalised (reference weight 1). ``hessian="auto"`` (the default) refits with the Gauss-Newton cost Hessian the
+groups whose exact Hessian needed a regularisation (`HessianRegularizationWarning`) or did not converge;
+`IRLResult` holds the weights, the convergence flags and the final projected gradient.
 
-    log P(U | theta) ~= -1/2 g^T H^-1 g + 1/2 log|H| - d/2 log(2 pi),
-
-with g = sum_k theta_k grad f_k and H = sum_k theta_k hess f_k (this is the CIOC formula with the cost in place
-of the reward). For positive weights and convex features the negative log-likelihood is convex in theta:
-1/2 g^T H^-1 g is a matrix-fractional function of an affine map and -log|H| is convex.
-
-Identifiability. The overall scale of theta plays the role of the paper's rationality beta. On noise-free optimal
-demonstrations (g = 0 at the true direction) the likelihood grows without bound along the scale, so only the
-direction is identifiable. We therefore parametrise
-
-    w[ref] = log theta[ref] = log beta,   w[k] = log(theta[k] / theta[ref]) for k != ref,
-
-bound every w inside ``log_bounds`` (a scale at its bound is reported, never a divergence), and report weights
-normalised so that the reference feature's weight is 1 (``FeatureSet.normalize``). On Boltzmann-rational demos
-the scale is identified too.
-
-Indefinite Hessians (possible for non-convex features, e.g. a desired speed that depends on position): as in
-CIOC the Hessian is regularised, here by the smallest diagonal shift that makes it positive definite
-(``-lambda_min + eps``); a `HessianRegularizationWarning` reports how many demonstrations needed it and the most
-negative eigenvalue. The shifted likelihood is not a smooth function of theta (its gradient ignores the shift),
-and where the shift is needed for most demonstrations it freezes the fit: measured on real roundabout tracks and
-on generated ones that brake to a stop (``tests/test_irl_convergence.py``), the speed_dev feature's second
-derivative term ``2 r d2r`` (r = v - v_des(s), large where a car stops at an entry) has eigenvalues down to
--1e4 against the jerk term's 2/N, the shifted H is nearly singular, g^T H^-1 g explodes, and the fit stops at its
-start (theta = [1, 1, 1]) with beta at its lower bound.
-
-Gauss-Newton form (``hessian="gauss_newton"``, and the fallback of ``hessian="auto"``, the default). The cost
-Hessian in the likelihood is replaced by its Gauss-Newton part, sum_k theta_k 2 J_k^T J_k (the residuals'
-second derivatives dropped, as `pirl_sim.features.FeatureSet.derivatives` with ``gauss_newton=True``), which
-is positive definite for every theta > 0 when the reference feature's is; the gradient g stays exact. The
-negative log-likelihood is then convex in theta on the whole positive orthant, so the damped Newton iteration
-in w has no stationary point but the optimum and beta cannot be pinned by a regularisation. It equals the exact
-likelihood wherever the residuals vanish (quadratic features: always). ``"auto"`` fits every group with the
-exact Hessians first (the paper's likelihood; results unchanged wherever it is well posed) and refits with the
-Gauss-Newton Hessians each group that needed a regularisation at its solution or did not converge, when its
-blocks carry them (`attach_gauss_newton`); `IRLResult.gauss_newton` marks those groups.
-
-Convergence. A group has converged when its accepted Newton step is below ``tol`` (Gauss-Newton fits also stop
-when their projected gradient in w, bound coordinates pushed outwards left out, is at most 1e-6 per
-demonstration); a group whose line search stalled (damping at its maximum) counts as converged only if that
-gradient is at most 1e-3 per demonstration (before, every stalled group counted as converged: that is how the
-fits frozen at their start were reported converged). The final projected gradient is
-in `IRLResult.gradient_norm`.
-
-Every objective is batched: M demonstrations share one vectorised evaluation, and parameters are tied through
-integer ``labels`` (one group per demonstration for per-demo IRL, one group for all, or one per cluster).
+The likelihood, its identifiability, the Hessian regularisation and the convergence rules are explained in the
+documentation's "The two likelihoods" page.
 """
 
 from __future__ import annotations

@@ -1,34 +1,15 @@
 """Lateral offsets of predictions along a reference path: hold the last offset, or follow the driven mean path.
 
-The roundabout model predicts motion *along* a path (s, v, a); where a car is across the path, its lateral
-offset d [m], is not modelled by the cost. On recorded roundabouts the lateral part dominates the error in the
-plane: cars do not drive on the lane centreline (they cut the circle, swing wide at exits), so holding the last
-offset (``"hold"``, the paper's choice) drifts off as the path curves. ``"mean-path"`` predicts the offset
-that training tracks of the same route drove at the predicted arc length, keeping the car's own deviation from
-it at the start:
+The roundabout model predicts motion *along* a path (s, v, a); the lateral offset d [m] across it comes from one
+of the rules of `predict_offsets`, shared by every path-based predictor (baselines and learners alike):
+``"hold"`` (the last offset, the paper's choice), ``"mean-path"`` (the median offset training tracks of the same
+route drove at the predicted arc length, `MeanOffsetProfile`, plus the car's own deviation from it at the start),
+``"plane"`` (as mean-path, pooled over every training track that drove there where the route's own are too few,
+`MeanOffsetProfile.fit_plane`) and ``"neighbours"`` (as plane, the deviation changing as it did after the
+nearest training windows, `NeighbourOffsets`). Offsets of a recorded track are read at its observed arc lengths
+(`observed_s`).
 
-    d(t) = dbar(s(t)) + (d_0 - dbar(s_0)),
-
-where ``dbar`` is the median offset of the training tracks in bins of ``bin_width`` metres of arc length,
-averaged over a window of ``2 * smooth + 1`` bins (`MeanOffsetProfile`). Where a route has too few training
-tracks at s_0 or along the prediction, the offset is held. ``"plane"`` is the same rule with ``dbar`` per route where the
-route's own training tracks give it, and elsewhere pooled over every training track that drove *there*,
-whatever its route (`MeanOffsetProfile.fit_plane`, `MeanOffsetProfile.backed_by`): on a roundabout with many
-lanes most routes are driven by one or two tracks, and per route the profile has data for few windows (on the
-development roundabout DR_CHN_Roundabout_LN, 30 % of test windows; the rest fell back to holding), while the
-lanes that routes share are driven by many. Pooling alone is worse where routes have their own data: the
-pooled median mixes neighbouring lanes (DR_USA_Roundabout_FT). ``"neighbours"`` adds to the ``"plane"`` rule what drivers did across the path at the same place
-(`NeighbourOffsets`): the deviation from the mean path is not held but changed as it changed after the
-``n_neighbors`` training windows nearest in position, heading and deviation now and over the last second
-(inverse-distance mean over their recorded futures, by time step):
-
-    d(t) = dbar(s(t)) + (d_0 - dbar(s_0)) + sum_k w_k (delta_k(t) - delta_k(0)),   delta = d - dbar(s).
-
-Where cars change lanes or cut across the circle at a place, the neighbours carry that. Offsets and deviations of
-a recorded track are read at its observed arc lengths (`observed_s`), not at its smoothed states' s, which
-depend on the recorded future. All of these are shared
-by every path-based predictor (baselines and learners alike), so that comparisons between them stay about the
-motion along the path.
+The rules are explained in the documentation's "The cost model and its features" page (lateral offsets).
 """
 
 from __future__ import annotations

@@ -1,27 +1,12 @@
 """Scores: mean Euclidean distance, ADE/FDE, weight recovery, clustering agreement, and multi-modal scores.
 
-All are pure functions over arrays. Positions are (..., T, P) arrays in metres.
+All are pure functions over arrays. Positions are (..., T, P) arrays in metres. Multi-modal scores take K
+predicted futures per case, ``futures`` (M, K, T, P), with their probabilities ``proba`` (M, K) where needed,
+against the true futures ``truth`` (M, T, P), T the predicted steps only: `min_ade`, `min_fde` and
+`interaction_miss` follow the INTERACTION prediction challenge (INTERPRET, single-agent track); `mixture_nll`
+[nats] scores the true future under an isotropic Gaussian mixture around the K futures.
 
-Multi-modal scores (issue 14 item 3) take K predicted futures per case, ``futures`` (M, K, T, P), with their
-probabilities ``proba`` (M, K) where needed, against the true futures ``truth`` (M, T, P); T counts the
-predicted steps only (not the last observed state). They follow the INTERACTION prediction challenge
-(INTERPRET, single-agent track of the ICCV21 stage; definitions in
-https://github.com/interaction-dataset/INTERPRET_challenge_single-agent, README "Metrics"):
-
-- `min_ade`: per case, min over the K futures of the Euclidean error averaged over the T steps;
-- `min_fde`: per case, min over the K futures of the Euclidean error at the last step T;
-- `interaction_miss`: a future misses when, at the last step, the prediction is more than 1 m from the truth
-  laterally or more than a speed-dependent threshold longitudinally (both in the frame of the true heading at
-  T; `interaction_longitudinal_threshold`: 1 m below 1.4 m/s, 2 m above 11 m/s, linear in between, the true
-  speed at T); a case misses when all its K futures miss; the miss rate is the share of missed cases.
-  The challenge evaluates at T = 30 steps (3 s at 10 Hz); here the rule is applied at whatever last step the
-  protocol predicts.
-  The challenge averages every score over cases; callers here do the same (``.mean()``).
-- `mixture_nll`: not a challenge metric; the negative log-likelihood [nats] of the whole true future under an
-  isotropic Gaussian mixture around the K futures (weights ``proba``, standard deviation ``sigma`` [m] per
-  step and coordinate). A fixed sigma scores every learner's futures with the same kernel, including the
-  deterministic ones (TIRL, one future), for which the learners' own Boltzmann densities would not exist or
-  would not be comparable (they depend on each learner's fitted rationality).
+Definitions and thresholds are in the documentation's "Protocols and metrics" page.
 """
 
 from __future__ import annotations

@@ -1,37 +1,14 @@
 """`ReferencePath`: a smoothed, arc-length-parametrised lane centerline with signed curvature.
 
-Map centerlines are noisy polylines; finite-difference curvature of their vertices is useless (on a 23.6 m
-ring it scatters from -0.09 to 0.05 1/m around the true 0.042 1/m). `ReferencePath.from_polyline` turns
-such a polyline into a table ``s, x, y, heading, kappa`` on a uniform arc-length grid:
+`ReferencePath.from_polyline` turns a noisy map polyline into a table ``s, x, y, heading, kappa`` on a uniform
+arc-length grid (s [m], heading [rad], kappa [1/m], positive = turning left): a cubic smoothing spline per
+coordinate whose smoothing parameter is a length ``ell`` [m] (``smoothing``; a low-pass filter with gain
+``1 / (1 + (k * ell)**4)`` at wavenumber k [rad/m]), open paths padded by circular arcs and closed ones by their
+periodic continuation before the fit. Queries (`ReferencePath.position`, `heading_at`, `curvature`,
+`to_cartesian`, `to_frenet`) interpolate the table linearly; ``to_cartesian(*to_frenet(p)) == p`` to round-off
+for ``|d| < 1 / |kappa|``.
 
-1. drop consecutive duplicate points and resample the polyline uniformly by its arc length ``t``
-   (step ``h <= spacing``);
-2. fit one cubic smoothing spline per coordinate, ``x(t)`` and ``y(t)``, with
-   `scipy.interpolate.make_smoothing_spline`, which minimises
-   ``sum_i (x_i - x(t_i))^2 + lam * integral x''(t)^2 dt``;
-3. re-parametrise by the true arc length of the smoothed curve and tabulate position, heading and the
-   signed curvature ``kappa = (x' y'' - y' x'') / (x'^2 + y'^2)^1.5`` from the spline derivatives
-   (positive = turning left, counter-clockwise).
-
-The smoothing parameter is a length ``ell`` [m] (``smoothing``), with ``lam = ell**4 / h``. For uniformly
-spaced data this penalised fit is a linear low-pass filter with gain ``1 / (1 + (k * ell)**4)`` at spatial
-angular wavenumber ``k`` [rad/m]: wiggles of wavelength ``2 pi ell`` are halved, much shorter ones removed,
-much longer ones kept. It is chosen instead of a noise-level smoothing factor (``splprep(s=...)``) because
-the response does not depend on the data or on knot placement, and its bias is known: a circle of radius
-``R`` comes out with curvature too large by a factor ``~ 1 + (ell / R)**4`` (0.16 % for ``ell = 4 m``,
-``R = 20 m``; 2.6 % at ``R = 10 m``). The curvature noise left from positional noise ``sigma`` [m] on
-vertices every ``delta`` [m] has standard deviation ``~ 0.3 * sigma * sqrt(delta) / ell**2.5`` [1/m].
-
-A smoothing spline has natural end conditions (``x'' = 0``), which would pull the curvature to zero near
-the ends of an open path. Open paths are therefore padded by ``12 ell`` before the fit with circular arcs
-continuing their ends (position, heading and curvature from a least-squares cubic over the last
-``4 ell``); closed paths are padded with their own periodic continuation. The padding is dropped after the
-fit. Within a few metres of an open end the curvature is still noisier (one-sided data) and slightly biased
-on tight curves.
-
-Queries (`ReferencePath.position`, `heading_at`, `curvature`, `to_cartesian`, `to_frenet`) interpolate
-the table linearly. The Frenet frame uses the interpolated position and the interpolated heading, so
-``to_cartesian(*to_frenet(p)) == p`` to round-off for ``|d| < 1 / |kappa|``.
+The smoothing, its bias and noise are explained in the documentation's "The cost model and its features" page.
 """
 
 from __future__ import annotations

@@ -1,30 +1,14 @@
 """Receding-horizon IRL: the weights of drivers who re-plan every step.
 
-The paper's likelihood (`pirl_sim.irl`) treats a whole demonstration as one open-loop optimum. A driver who
-re-plans every step over a horizon of H steps is not optimal for any cost over the whole track: what is
-optimal is each step's *first control* given the state at that step. This module scores exactly that:
+A driver who re-plans every step over H steps is modelled step by step: ``u_t = pi_theta(x_t) + e_t``, with
+``pi_theta(x)`` the first control of the converged (bounded) MPC over H steps from x under the cost
+``theta . f`` (`RecedingPolicy`). `fit_receding` fits groups of steps (one per track, one for all, or one per
+cluster) by batched Levenberg-Marquardt in the log weights, the MPC's derivatives in theta by implicit
+differentiation of its optimality conditions with the active bounds. The MPC ignores the scale of theta, so only
+the normalised weights are identified; the fitted sigma is the control noise (``beta = 1 / sigma^2`` in results).
+`STEP_MASK` metadata leaves out steps whose control was not the driver's own.
 
-    u_t = pi_theta(x_t) + e_t,   e_t ~ N(0, sigma^2 I)   (independent over the recorded steps t),
-
-where ``pi_theta(x)`` is the first control of the converged (bounded) MPC over H steps from state x under the
-cost ``theta . f``. The negative log-likelihood of a group of steps with the noise scale profiled out is
-
-    NLL = n/2 (log(2 pi sigma^2) + 1),   sigma^2 = (1 / n) sum_t ||u_t - pi_theta(x_t)||^2,   n = n_t * n_u,
-
-so maximum likelihood is least squares on the residuals. The MPC is invariant to the scale of theta, so only
-the normalised weights (the reference feature's weight = 1) are identified; the fitted sigma is the
-"rationality" of this model (``beta = 1 / sigma^2`` in results, for code that expects a scale).
-
-Derivatives. At the MPC's solution U* the optimality conditions are ``grad_U C(U*, theta) + C_A^T lambda = 0``
-with the active bounds ``C_A U* = c_A``. Differentiating them in theta (implicit function theorem, as in
-differentiable MPC, Amos et al. 2018) gives
-
-    dU*/dtheta_k = -Z (Z^T H Z)^-1 Z^T grad f_k,     H = sum_k theta_k hess f_k,  Z a basis of null(C_A),
-
-and d pi / d theta is its first block. With no active bound Z = I, and one triangular solve per step serves
-every feature. The fit is batched Levenberg-Marquardt over groups of steps (one group per track for per-track
-weights, one for all, or one per cluster) in the log weights, every step of every group solved in one
-vectorised Newton iteration of the MPC, warm-started from the previous iterate's plans.
+The model, its derivatives and its fit are explained in the documentation's "The two likelihoods" page.
 """
 
 from __future__ import annotations

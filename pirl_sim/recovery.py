@@ -1,23 +1,14 @@
 """Weight recovery as an API: how close fitted weights come to known ones, per feature, per style and per track.
 
-A :class:`RecoveryReport` holds, for ``n`` tracks (demonstrations) whose normalised weights are known, the
-true and the fitted weights of the free features (every feature but the reference one, whose weight is 1),
-and summarises the errors |log(theta_hat / theta)| per feature, over all tracks and per style: median, 90th
-percentile and mean, each with a confidence interval (percentile bootstrap with a seeded
-:class:`numpy.random.Generator`, or analytic: order statistics for the quantiles, Student t for the mean),
-and Spearman's rank correlation of true vs fitted weights. It is built
+A :class:`RecoveryReport` holds the true and fitted normalised weights of the free features of ``n`` tracks and
+summarises the errors |log(theta_hat / theta)| per feature, over all tracks and per style (median, 90th
+percentile and mean with confidence intervals, Spearman's rank correlation). It is built from arrays
+(:meth:`RecoveryReport.from_weights`), from trajectories with known weights
+(:meth:`RecoveryReport.from_trajectories`) or from a recorded simulator run (:meth:`RecoveryReport.from_run`).
+:func:`pirl_sim.testing.assert_recovered` asserts a report within stated tolerances. The same statistics serve
+the sweep (:func:`weight_scores`) and ``pirl-sim recover`` (:func:`spearman`).
 
-- from arrays of true and fitted weights (:meth:`RecoveryReport.from_weights`),
-- from trajectories with known weights (``metadata["theta"]``), fitting one weight vector per trajectory by the
-  receding-horizon or the whole-trajectory likelihood (:meth:`RecoveryReport.from_trajectories`), or
-- from a recorded simulator run (:meth:`RecoveryReport.from_run`: a
-  :class:`~pirl_sim.scenarios.demonstrations.RecordedRun` of SUMO or highway-env, every PIRL track's steps
-  whose control is the driver's own, the drivers' own MPC horizon).
-
-:func:`pirl_sim.testing.assert_recovered` asserts a report within stated tolerances (a pytest helper).
-
-The same statistics serve the sweep (:func:`weight_scores`, the ``weights`` of every cell) and ``pirl-sim
-recover`` (:func:`spearman`).
+See the documentation's "Recovery tests" page.
 """
 
 from __future__ import annotations

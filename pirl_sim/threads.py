@@ -1,25 +1,17 @@
 """Thread policy of single-process commands: one BLAS/OpenMP thread unless the user says otherwise.
 
-pirl_sim's heavy work is many small dense solves (MPC Newton steps on 40x40 Hessians, per-demo IRL, QPs).
-For matrices that small a second BLAS thread buys nothing on a quiet machine and costs multiples on a loaded
-one: OpenBLAS's threads spin-wait for each other, and when another process holds a core they wait for the
-scheduler instead (issue 16: a per-demo IRL loop took 55 s with numpy's default 2 threads and 7.9 s with one,
-under the same load). Parallelism comes from processes instead (the sweep's workers, ``recover --workers``).
+pirl_sim's heavy work is many small dense solves, for which extra BLAS threads buy nothing on a quiet machine and
+cost multiples on a loaded one (OpenBLAS's threads spin-wait for each other); parallelism comes from processes
+(the sweep's workers, ``recover --workers``). The ``pirl-sim`` command line applies the policy to every command
+(:func:`thread_policy`; :func:`apply_thread_policy` applies it to the rest of a process):
 
-The policy, applied by the ``pirl-sim`` command line to every command while it runs (:func:`thread_policy`;
-:func:`apply_thread_policy` applies it to the rest of a process, e.g. in a benchmark script):
+- default: **1 thread** per BLAS/OpenMP library in this process (threadpoolctl), and ``OMP_NUM_THREADS``,
+  ``OPENBLAS_NUM_THREADS``, ... set to 1 for the child processes it starts;
+- ``--blas-threads N`` (any command) or ``PIRL_SIM_BLAS_THREADS=N``: N threads (the option wins);
+- ``auto`` as N: leave the libraries to their own defaults.
 
-- default: **1 thread** per BLAS/OpenMP library in this process (through threadpoolctl), and the standard
-  thread variables (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ...) set to 1 for the child processes it
-  starts (a spawned worker reads them when it loads numpy);
-- ``--blas-threads N`` (any command, before or after the command's name) or the environment variable
-  ``PIRL_SIM_BLAS_THREADS=N``: N threads instead (the option wins over the variable);
-- ``auto`` as N: leave the libraries alone (their own defaults, which honour ``OPENBLAS_NUM_THREADS`` and
-  friends if you set them).
-
-Numbers do not depend on the setting beyond floating-point rounding (a multi-threaded BLAS may sum in another
-order). Library code (learners, the MPC, the envs) never changes threads itself: a program that imports
-pirl_sim decides, e.g. with :func:`blas_threads` as a context manager.
+Results do not depend on the setting beyond floating-point rounding. Library code never changes threads itself:
+a program that imports pirl_sim decides, e.g. with :func:`blas_threads` as a context manager.
 """
 
 from __future__ import annotations

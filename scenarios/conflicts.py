@@ -1,29 +1,15 @@
 """Yielding at conflict points: where another car will cross or merge into a car's path ahead.
 
-A car entering a roundabout waits for the circulating traffic; nothing in its own motion says so, and no
-vehicle is *ahead* of it on its path. This module finds, per recorded step of a car (the *ego*), whether it has
-to yield and how far the point is that it has to stop before, from what the recording shows at that frame:
-
-1. every other matched car is extrapolated along its *own* matched path at its current speed for
-   ``horizon`` seconds (around the circle, not along a straight line);
-2. the first point of the ego's path within ``look_ahead`` metres that such an extrapolation comes within
-   ``radius`` of is a conflict, reached by the other car after t_j and by the ego after
-   t_i = distance / max(v, 0.5 m/s);
-3. the ego yields to cars on its left (right-hand traffic: the circulating traffic of a counter-clockwise
-   roundabout comes from the entering car's left), moving at ``min_speed`` or more, not already on the ego's
-   path (those are vehicles ahead or behind, `pirl_sim.scenarios.replay.leader_gaps_and_speeds`), unless it
-   passes the point ``clearance`` seconds before the other car arrives;
-4. ``obstacle="stop"``: the car yields to a standing obstacle at the nearest such conflict point less
-   ``stop_margin`` (the front half of the car and a margin), gap >= 0; ``"merge"`` (default): to the other
-   car projected onto the ego's path, a *virtual vehicle ahead* that reaches the conflict point when the
-   other car does and drives on at its speed (gap = distance - v_j t_j - stop_margin, possibly negative:
-   the ego has to fall back behind it), so that the way is free again once the other car has passed; the
-   nearest (smallest gap) over the cars it yields to; inf when the ego need not yield.
-
+Per recorded step of a car (the *ego*), whether it has to yield and the gap [m] to the point it has to stop
+before (inf when it need not yield), from what the recording shows at that frame: other matched cars are
+extrapolated along their own paths for ``horizon`` seconds, the first point of the ego's path within
+``look_ahead`` metres they come within ``radius`` of is a conflict, and the ego yields to cars on its left unless
+it passes ``clearance`` seconds ahead of them; ``obstacle="stop"`` (a standing obstacle at the point) or
+``"merge"`` (default: a virtual vehicle ahead that reaches the point when the other car does).
 `pirl_sim.scenarios.replay.load_replay` with ``features="following"`` treats a yield gap as a standing vehicle
-ahead (speed 0) wherever it is shorter than the gap to the vehicle ahead, so that the ``headway`` feature and
-the MPC see the entry's stop line while circulating traffic approaches (issue 12: "distance to the entry's
-conflict point with circulating traffic present").
+ahead.
+
+The rule is explained in the documentation's "Simulators and data" page (recorded tracks).
 """
 
 from __future__ import annotations

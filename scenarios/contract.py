@@ -1,30 +1,14 @@
 """The simulator contract: what every roundabout simulator adapter (SUMO, highway-env) implements.
 
-Both simulators populate a roundabout with PIRL drivers of known weights and record the run in one format.
-What they share is declared here, once:
-
-- :data:`STEP` [s]: the simulation step = the driver model's step = the INTERACTION frame (0.1 s).
-- What a driver observes: :class:`VehicleView` (its own vehicle: position, speed, acceleration) inside a
-  :class:`DriverObservation` (``.ego``). A simulator may tell more (SUMO's observation also carries the
-  other vehicles and the leader); the PIRL drivers read only this. :class:`EgoView` / :class:`EgoObservation`
-  are the plain implementations for simulators that have nothing more to tell (highway-env).
-- The controller protocol: :class:`BatchController`, one call per step for every driven vehicle,
-  ``commands(time, {vehicle id: observation}) -> {vehicle id: speed [m/s] one step ahead, or None}`` (None
-  hands the vehicle back to the simulator's own model for that step). The PIRL drivers
-  (:class:`~pirl_sim.scenarios.drivers.PirlDrivers`) implement it.
-- An agent's vehicle: :class:`EgoSpec`, an extra vehicle ``adapter.start`` adds to a simulation for a caller
-  that drives it (the gymnasium envs of :mod:`pirl_sim.envs` build and step their simulations this way).
-- The ground truth: :func:`ground_truth_table` builds ``ground_truth.csv``'s table from per-track columns,
-  with the conventions for non-PIRL tracks applied in one place.
-- The run: :func:`run_scenario` ``(adapter, config, seed)`` plans, steps, records and (optionally) writes a run
-  for any :class:`SimulatorAdapter`; ``run_sumo_scenario`` and ``run_highway_scenario`` are this function with
-  their simulator's adapter (``SumoAdapter``, ``HighwayAdapter``). How a simulator builds its road stays its
-  own (SUMO writes files through netconvert, highway-env builds a ``RoadNetwork`` in memory), inside
-  ``adapter.start``; what comes out of it has one form in both: ``route_set(net, routes, *, smoothing,
-  speed_smoothing, spacing)`` gives the routes' reference paths as one
-  :class:`~pirl_sim.scenarios.drivers.RouteSet`, ``lane_graph(net)`` the lanes for the map.
-
+:data:`STEP` [s] (0.1 s: the simulation step, the driver model's step and the INTERACTION frame); what a driver
+observes (:class:`VehicleView` inside a :class:`DriverObservation`; :class:`EgoView` / :class:`EgoObservation`
+the plain implementations); the controller protocol (:class:`BatchController`: one call per step,
+``commands(time, {vehicle id: observation}) -> {vehicle id: speed [m/s] one step ahead, or None}``); an agent's
+vehicle (:class:`EgoSpec`); the ground truth (:func:`ground_truth_table`); and the run: :func:`run_scenario`
+``(adapter, config, seed)`` plans, steps, records and writes a run for any :class:`SimulatorAdapter`.
 Units: SI throughout (m, s, m/s, m/s^2).
+
+The contract is explained in the documentation's "Simulators and data" page.
 """
 
 from __future__ import annotations

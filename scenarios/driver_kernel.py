@@ -1,33 +1,14 @@
 """Compiled (numba) per-step work of the PIRL drivers: the warm-started MPC re-plan and the projection onto
-the routes, for :class:`~pirl_sim.scenarios.drivers.PirlDrivers` (issue 16, speed at scale).
+the routes, for :class:`~pirl_sim.scenarios.drivers.PirlDrivers`.
 
 :class:`CompiledDriverMPC` computes what :meth:`pirl_sim.mpc.SequentialMPC.controls` computes for the paper's
-roundabout model on a :class:`~pirl_sim.scenarios.drivers.RouteSet` (features ``speed_dev``, ``acc_sq``,
-``jerk_sq``, means over the steps, reference ``jerk_sq``; state (s, v, a), control jerk; box bounds), one
-driver at a time in compiled loops instead of batched numpy calls, whose fixed cost per call dominates at a
-simulator step's batch sizes:
+roundabout model on a :class:`~pirl_sim.scenarios.drivers.RouteSet`, one driver at a time in compiled loops (the
+Newton steps by a Riccati recursion, O(N) per driver; the bounded QPs with `pirl_sim.mpc.BoxQP`). Plans equal the
+numpy path's to floating-point rounding (``tests/scenarios/test_driver_kernel.py``) and are deterministic run to run.
+numba is imported only when a kernel is built (:func:`numba_available`); compiled code is cached in
+``__pycache__`` beside the module, so only the first use on a machine pays the compilation.
 
-- the same Newton model (the exact Hessian where it stays positive definite with half the reference term,
-  Gauss-Newton elsewhere), the same backtracking line search (full step, then up to six halvings, accepted
-  when the cost is not above ``cost + 1e-12 |cost|``), the same stopping rules and the same warm-start rule
-  (a start whose warm start sits on a bound goes straight to the bounded QPs);
-- the Newton steps by a Riccati recursion over the stages, O(N) per driver (the numpy path's dense solve
-  gives the same steps to rounding; `pirl_sim.mpc._OuterExpansion.riccati` is the same recursion batched),
-  and the positive-definiteness test by the recursion's pivots (equivalent to the dense Cholesky test),
-  skipped where every stage Hessian is positive semi-definite (then the test passes: `_driver_jit.exact_ok`);
-- v_des(s) as `pirl_sim.driving.desired_speed_along` of `RouteSet.curvature`, F^(-1/8) by three square roots
-  (a few ulp from ``numpy.power``);
-- the bounded QPs with the same dense model (assembled here in O(N^2)) and the same solver, the
-  `pirl_sim.mpc.BoxQP` of the numpy MPC.
-
-Plans equal the numpy path's to floating-point rounding (other summation orders; tested on random problems
-and in closed loop, ``tests/test_driver_kernel.py``); results are deterministic run to run. numba is imported
-only when a kernel is built (:func:`numba_available` tells whether it can be); compiled code is cached on disk
-(``cache=True``, in ``__pycache__`` beside the module), so only the first use on a machine pays the
-compilation (~10 s); later processes load it (~0.3 s, when a `CompiledDriverMPC` is built).
-
-Measured (``benchmarks/bench_sumo.py``, crowded roundabout, 40 re-plans per step): ~12 us of MPC per re-plan
-against ~59 us for the numpy path; the whole step 2.3x faster.
+What is computed exactly as the numpy MPC does is listed in the documentation's "Simulators and data" page.
 """
 
 from __future__ import annotations

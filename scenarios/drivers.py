@@ -1,43 +1,16 @@
 """PIRL drivers in any simulator: the roundabout driver model on many routes at once, and the controller that
 drives them (used by the SUMO and the highway-env scenarios).
 
-One arc-length axis for all routes. Every PIRL vehicle follows the paper's longitudinal model
-(:mod:`pirl_sim.driving`: state s [m], v [m/s], a [m/s^2], control jerk [m/s^3], features speed_dev,
-acc_sq, jerk_sq) along the reference path of its route. The desired speed, and so the ``speed_dev``
-feature, depends on the route. So that all vehicles of a step are planned in **one** batched MPC call
-whatever their routes, a :class:`RouteSet` lays the routes' reference paths end to end on one global
-arc-length axis: route ``r`` occupies ``[r * spacing, r * spacing + length_r]`` (``spacing`` = 10 km by
-default, far more than a route plus an MPC horizon), and the curvature along the global axis is one
-piecewise cubic (:meth:`RouteSet.curvature`) that equals, piece for piece, the cubic spline
-:class:`pirl_sim.driving.SpeedProfile` fits to each path's curvature (held constant beyond a path's ends,
-as there; the curvature may first be smoothed further, ``RouteSet.speed_smoothing``).
-The dynamics are invariant to shifts in s, so a vehicle at ``s`` on route ``r`` is planned exactly as on
-its own path, and trajectories of different routes are comparable by one model — also for learning:
-:func:`route_set_model` is a :class:`pirl_sim.model.DriverModel` the learners take as is.
+:class:`RouteSet` lays the routes' reference paths end to end on one global arc-length axis (route ``r`` at
+``[r * spacing, r * spacing + length_r]``, s [m]), so that every PIRL vehicle of a step, whatever its route, is
+planned in one batched MPC call; :func:`route_set_model` is the matching :class:`pirl_sim.model.DriverModel`
+for the learners, and :meth:`RouteSet.project` projects positions onto the routes. :class:`PirlDrivers` is the
+batch controller (:class:`~.contract.BatchController`): every step, each PIRL vehicle's warm-started MPC
+(horizon 30 steps of 0.1 s by default, ``n_iter`` / ``n_qp_iter`` per re-plan) plans under its own weights and
+the command is the planned speed [m/s] one step ahead; with numba the work runs in
+:mod:`pirl_sim.scenarios.driver_kernel` (``kernel="numpy"``: the reference path).
 
-Projection. A driver's position on its path comes from :meth:`RouteSet.project`: Newton on the
-foot-point condition of the path's own interpolated frame (the same equation as
-:meth:`pirl_sim.paths.ReferencePath.to_frenet`, to 1e-7 m), vectorised over the vehicles of all routes and
-started from where the vehicle's previous plan put it; a vehicle's first position uses ``to_frenet``.
-
-Controller. :class:`PirlDrivers` is a batch controller (:class:`~.contract.BatchController` of the simulator
-contract, for :class:`~.sumo.runner.SumoRun` and :class:`~.highway.traffic.RoundaboutTraffic`; it reads only
-each observation's ``ego``, a :class:`~.contract.VehicleView`): every step, for every PIRL vehicle on the road, the start
-state is (s of the vehicle's centre, the simulator's speed, the acceleration the driver's own previous plan
-reached if the simulator carried that command out, else the simulator's measured acceleration), its MPC (:class:`pirl_sim.mpc.SequentialMPC`, horizon 30 steps of 0.1 s by
-default, warm-started with its previous plan shifted by a step) plans under the driver's weights, and the
-commanded speed is the planned speed one step ahead. ``n_iter`` / ``n_qp_iter`` bound the Newton steps and
-bounded QPs per re-plan. With warm starts one of each (a real-time iteration, the scenarios' default) costs
-about half of three of each; in closed loop over every route of the default scenario (three styles, from
-13.9 m/s) its speeds stay within 0.07 m/s of a converged MPC's (three of each: 0.04 m/s; measured in
-``tests/test_sumo_drivers.py``). The drivers are near-optimal receding-horizon drivers of their cost.
-
-Speed. Where numba is installed (the ``sumo`` extra), the projection and the MPC run as compiled loops, one
-driver at a time (:mod:`pirl_sim.scenarios.driver_kernel`: the same plans as the numpy path to rounding, tested
-on random problems and in closed loop); the numpy path stays the reference (``PirlDrivers(kernel="numpy")``).
-Every driver's state lives in one row of arrays, gathered and scattered once per step. A re-plan costs
-~12 us of MPC (one Newton step by a Riccati recursion, its line search, the bounded QPs of the few drivers
-that need them) against ~60 us on the numpy path (``benchmarks/bench_sumo.py``).
+The design is explained in the documentation's "Simulators and data" page (PIRL drivers).
 """
 
 from __future__ import annotations

@@ -1,44 +1,14 @@
-"""Driver populations for simulated scenarios: who drives, with which cost weights, and how many (simulator-neutral).
+"""Driver populations for simulated scenarios: who drives, with which cost weights, and how many.
 
-A :class:`PopulationConfig` says what a scenario's traffic is made of, independently of the simulator that
-runs it (SUMO here, highway-env later):
-
-- ``styles``: named driving styles of the roundabout driver model (:mod:`pirl_sim.driving`), each a
-  Gaussian over the normalised cost weights of the **named** free features ``speed_dev`` and ``acc_sq``
-  (``jerk_sq`` is the reference feature, fixed at 1), with a mixture weight;
-- ``background_share``: the share of vehicles driven by the simulator's own model (SUMO's car-following
-  model, highway-env's IDM), whose cost weights are unknown, like those of real drivers;
-- ``n_vehicles`` and when they depart: ``depart_interval`` [s] between departures (or, in TOML,
-  ``depart_rate`` [veh/h]), ``arrivals`` regular or Poisson;
-- ``control_noise``: the standard deviation [m/s^3] of Gaussian noise on every applied jerk, the finite
-  rationality of closed-loop drivers (0: each driver applies its MPC's plan exactly).
-
-Everything is checked when the config is built: unknown feature or style names, negative or non-finite
-numbers, a covariance that is not symmetric positive definite, zero vehicles, ... raise ``ValueError``
-naming the offending entry. :func:`load_population` reads the same from a TOML file and rejects unknown
-keys, listing the valid ones. :data:`DEFAULT_POPULATION` (also :data:`DEFAULT_POPULATION_TOML`) is the
+A :class:`PopulationConfig` says what a scenario's traffic is made of, independently of the simulator: named
+``styles`` (Gaussians over the normalised weights of ``speed_dev`` and ``acc_sq``, ``jerk_sq`` = 1, with mixture
+weights), ``background_share`` (vehicles driven by the simulator's own model), ``n_vehicles`` and their
+departures (``depart_interval`` [s] or ``depart_rate`` [veh/h], ``arrivals``) and ``control_noise`` [m/s^3].
+Everything is validated when the config is built (``ValueError`` naming the entry); :func:`load_population`
+reads a TOML file and rejects unknown keys. :data:`DEFAULT_POPULATION` (:data:`DEFAULT_POPULATION_TOML`) is the
 paper's three user-study styles in equal shares plus 20 % background traffic.
 
-Example TOML::
-
-    n_vehicles = 80
-    depart_interval = 4.0        # [s]
-    background_share = 0.2
-    control_noise = 0.0          # [m/s^3]
-
-    [[styles]]
-    name = "tracks desired speed"
-    weight = 1.0
-    mean = { speed_dev = 3.0, acc_sq = 0.3 }
-    std = { speed_dev = 0.3, acc_sq = 0.03 }
-
-    [[styles]]
-    preset = "minimises acceleration"   # one of PRESET_STYLES, by name
-
-    [[styles]]
-    name = "correlated"
-    mean = { speed_dev = 1.0, acc_sq = 1.0 }
-    cov = { speed_dev = { speed_dev = 0.04, acc_sq = 0.01 }, acc_sq = { speed_dev = 0.01, acc_sq = 0.04 } }
+The TOML format, with an example, is in the documentation's "SUMO roundabouts" page (populations).
 """
 
 from __future__ import annotations

@@ -1,38 +1,12 @@
 """One writer for every simulated scenario: INTERACTION tracks, a ground-truth sidecar and a Lanelet2 map.
 
-Simulated and real data go through one replay path: every simulator (SUMO, highway-env, ...) turns its
-run into a :class:`ScenarioRecording` and :func:`write_recording` writes it into a directory as
+Every simulator turns its run into a :class:`ScenarioRecording`; :func:`write_recording` writes it into a
+directory (``vehicle_tracks_000.csv``, ``ground_truth.csv`` with :data:`GROUND_TRUTH_COLUMNS`, ``map.osm``,
+``driver_steps.csv`` with :data:`DRIVER_STEP_COLUMNS` where the simulator reports it, and ``run.json``, written
+last) and :func:`read_recording` reads it back. Every file is written atomically; a directory holds one
+recording, and one without ``run.json`` is refused as incomplete. Units: SI (m, s, m/s, rad).
 
-- ``vehicle_tracks_000.csv``: the INTERACTION vehicle format (:mod:`pirl_sim.io.interaction`): 100 ms
-  frames, ``frame_id`` = simulation time / 100 ms (so the first step after t = 0 is frame 1) and
-  ``timestamp_ms = 100 * frame_id``; x, y [m] the centre of the vehicle's box, vx, vy [m/s], psi_rad
-  [rad] counter-clockwise from +x, length, width [m];
-- ``ground_truth.csv``: one row per track, columns :data:`GROUND_TRUTH_COLUMNS`: the agent's id in the
-  simulator and route, whether a PIRL driver drove it and then its style and normalised cost weights
-  (``theta_<feature>``; empty for background traffic, whose weights are unknown), and what happened to it:
-  ``interacted`` (the simulator overrode or took over the driver's commands at least once, or it
-  collided; empty for background traffic, whose commands are not observed), ``collided``, ``removed_early`` (taken out of the simulation
-  before the end of its route), ``overridden_fraction`` (share of the driver's commands overridden),
-  ``status`` and ``n_frames``;
-- ``map.osm``: the lanes as a Lanelet2 map (:func:`pirl_sim.io.lanelet2_map.write_map`, one lanelet per
-  lane, successors connected) that :func:`pirl_sim.io.lanelet2_map.load_map` reads with
-  ``UtmProjector(Origin(0, 0))``;
-- ``driver_steps.csv`` (optional, when the simulator reports it): one row per PIRL track per frame, columns
-  :data:`DRIVER_STEP_COLUMNS`: ``commanded`` (the PIRL driver issued its own command at that frame, planned
-  from the state of that frame; False where the simulator drove the vehicle, e.g. handed back at a
-  standstill, crashed), ``overridden`` (the simulator then did not carry the command out: the speed one
-  frame later missed it by more than the run's ``override_tol``, or the traffic cut it; False where not
-  commanded, and at a track's last frame, whose command is never checked), ``collided`` (the vehicle was
-  in a collision at that frame) and ``command_error`` [m/s] (how far the speed one frame later is from the
-  commanded one, also below ``override_tol``; empty where not commanded or not checked; absent in files
-  written before it existed, read as empty). Recordings without it (older ones) have no per-step information;
-  ``run.json`` lists it under ``files`` when it was written;
-- ``run.json``: the simulator, seed and configuration (``info``), written **last**.
-
-Every file is written atomically (a temporary file renamed over the target), so no file is ever half
-written. A directory holds one recording: ``run.json`` of a previous recording is deleted first and
-written again only once everything else is complete, so a crash while writing leaves a directory that
-:func:`read_recording` refuses as incomplete rather than a mix of two runs.
+Files and columns are described in the documentation's "File formats" page (simulated recordings).
 """
 
 from __future__ import annotations

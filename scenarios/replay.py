@@ -1,59 +1,16 @@
 """Recorded driving in, trajectories out: INTERACTION-format tracks and a Lanelet2 map -> driver-model data.
 
-For every vehicle track: match it to the lanelet route it drove (`pirl_sim.io.lanelet2_map.match_route`),
-smooth that route's centerline into a `ReferencePath`, project the track into Frenet (s, d) (as a track: each
-foot point near the previous one, so that a route that passes a place twice does not make the arc length
-jump between its passes; `ReferencePath.to_frenet`), resample the
-10 Hz frames to the model's dt (0.2 s by default, as the paper), and estimate (s, v, a) and jerk by least
-squares through the dynamics (`fit_longitudinal_states`) rather than from noisy finite differences. All routes
-share one arc-length axis (`CompositePath`), so one driver model serves the whole scene.
+For every vehicle track (`load_replay`): match it to the lanelet route it drove
+(`pirl_sim.io.lanelet2_map.match_route`), smooth that route's centerline into a `ReferencePath`, project the
+track into Frenet (s, d), resample the 10 Hz frames to the model's dt (0.2 s by default) and estimate (s, v, a)
+and jerk by least squares through the dynamics (``estimate``: `MEASURED_NOISE`, `SIMULATED_NOISE`). All routes
+share one arc-length axis (`CompositePath`). Drivers are selected by whether they had a leader
+(`SelectionRule`; ``selection`` = ``"tracks"``, ``"free"`` or ``"steps"``), repairs and skipped tracks are
+counted (``ReplayScene.repairs``, ``skipped``), and a pirl_sim recording's ``ground_truth.csv`` and
+``driver_steps.csv`` go into each trajectory's metadata.
 
-Driver selection, as the paper ("drove independently without too much interaction"): a track has a *leader*
-at a frame when another vehicle is ahead of it (within 90 degrees of its heading), drives in a similar
-direction (headings within ``max_heading_diff``) and its bumper-to-bumper gap (centre distance minus half of
-both lengths) is less than ``standstill + time_gap * speed`` (`SelectionRule`, default 3 m + 1.5 s; the rule
-before, `CENTRE_RULE`, measured 5 m centre to centre + 2 s and missed standing queues). A track that ever had a
-leader *interacted*. ``selection="tracks"`` replays whole tracks that did not interact; ``selection="free"``
-replays every track cut into its free-flow runs: a step of ``dt`` is left out when any of its frames (both
-ends) had a leader, and each maximal run of the other steps (>= 2 steps) becomes a piece of its own (the state
-estimate is made on the whole piece first). `selection_counts` gives the usable tracks per rule. Every track
-or file that cannot be used is counted with its reason in ``skipped`` and logged; it never stops the others.
-
-Route matching leaves out positions that no path through the routing graph joins to the rest of the route
-(`RouteMatch.unconnected`). A run of at most ``MAX_BRIDGE`` such frames inside a track is bridged: its
-Frenet (s, d) are interpolated between the frames either side (the recorded x, y stay as they are). Longer
-runs cut the track there, and its longest connected part is kept (if it is still long enough); leading and
-trailing runs are cut off. A track whose arc length along its route jumps by more than
-`pirl_sim.paths.TRACK_STEP` from one frame to the next (it left the matched route, e.g. by a bypass lane the
-route does not take, and the projection found a far part of the route) is cut there too, and its longest part
-without a jump is kept. The counts are in ``ReplayScene.repairs``.
-
-Simulated scenes written by pirl_sim carry a ``ground_truth.csv`` sidecar beside the tracks (track_id,
-style, theta_<feature> ...); its values go into each trajectory's metadata. A sidecar that is there but
-unusable (empty, not CSV, no ``track_id``, a ``track_id`` twice, a weight that is not a number, NaN or <= 0 where
-the row has a style >= 0 or other weights, no row for a track, weights without a column of the replay's features)
-is a ValueError naming it: a replay never runs with wrong or silently missing truth. Rows that match no track read
-from their directory (other files' tracks) are ignored with a logged warning naming their count.
-
-A track file that fails `pirl_sim.io.interaction.read_tracks` is read again with
-`pirl_sim.io.interaction.read_tracks_lenient`: its broken tracks (and rows whose ``track_id`` is not a whole
-number) are dropped and counted in ``skipped["invalid rows (track dropped)"]``, the rest are replayed.
-
-State estimate (``estimate``). ``"positions"``: least squares through the dynamics on the arc lengths only
-(`fit_longitudinal_states`, ridge ``jerk_weight``). ``"speeds"``: `estimate_longitudinal_states` on the arc
-lengths and the recorded speeds hypot(vx, vy) with the noise model ``sigma_s`` (positions), ``sigma_v``
-(speeds), ``sigma_j`` (jerk prior) [m, m/s, m/s^3]. Measured data have noisy speeds: the defaults
-(`MEASURED_NOISE`: 0.1 m, 0.05 m/s, 1 m/s^3) trust them loosely and damp the jerks; the speeds of a
-pirl_sim recording are exact (`SIMULATED_NOISE`: the defaults of `estimate_longitudinal_states`).
-
-Per-step masks (``selection="steps"``). A pirl_sim recording has ``driver_steps.csv`` beside its tracks (per
-PIRL track and frame: commanded / overridden / collided). Then every PIRL track is kept, interacting or not,
-with metadata ``step_mask`` (bool, (n_steps,)): a step of ``dt`` is the driver's own when all its frames are
-(commanded, not overridden, no collision at either end), as `pirl_sim.scenarios.demonstrations` does; the
-estimate is fitted per run of usable steps, with the measured acceleration where a driver re-started after
-an override. Tracks without driver steps (background traffic) are skipped under ``selection="steps"``.
-``selection="tracks"`` (the paper's, and the only one for real data) keeps whole tracks and flags interacting
-ones by the geometric rule.
+Route matching, selection rules, sidecars and state estimates are explained in the documentation's
+"Simulators and data" page (recorded tracks).
 """
 
 from __future__ import annotations
@@ -213,7 +170,7 @@ class SelectionRule:
     drives in a similar direction (headings within ``max_heading_diff_deg``) and its gap is less than
     ``standstill + time_gap * v_i``. ``gap="bumper"``: the centre distance minus half of each vehicle's
     length (the ``length`` column; a queue of 4.6 m cars standing 6-7.5 m apart centre to centre has
-    bumper gaps of 1.4-2.9 m); ``"centre"``: centre to centre (the rule before; `CENTRE_RULE`).
+    bumper gaps of 1.4-2.9 m); ``"centre"``: centre to centre (`CENTRE_RULE`, which misses standing queues).
 
     Attributes
     ----------
@@ -245,7 +202,7 @@ class SelectionRule:
         return f"{self.gap} gap < {self.standstill:g} m + {self.time_gap:g} s x v"
 
 
-#: the selection rule before bumper-to-bumper gaps: 5 m centre to centre + 2 s (counts are reported for it)
+#: a centre-to-centre selection rule, 5 m + 2 s, kept for comparison (counts are reported for it)
 CENTRE_RULE = SelectionRule(time_gap=2.0, standstill=5.0, gap="centre")
 
 
@@ -899,7 +856,7 @@ def selection_counts(scene: ReplayScene, min_steps: int) -> pd.DataFrame:
     """Matched car tracks usable under each selection rule: one row per rule with ``usable`` tracks (at least
     one piece of >= ``min_steps`` steps that the rule keeps: a whole piece without a leader, or a free-flow
     run), ``matched`` (tracks whose states were estimated) and ``share``. Rules: `CENTRE_RULE` on whole
-    tracks (the rule before), the scene's rule on whole tracks, and the scene's rule on free-flow runs."""
+    tracks, the scene's rule on whole tracks, and the scene's rule on free-flow runs."""
     t = scene.track_table
     if t is None or t.empty:
         return pd.DataFrame(columns=["rule", "selection", "usable", "matched", "share"])

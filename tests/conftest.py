@@ -1,9 +1,19 @@
 import os
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pirl_sim.model import synthetic_model
+
+# The tests mirror the package (tests/<package path>/test_<module>.py) and run with --import-mode=importlib,
+# which puts no test folder on sys.path: the folders of the helper modules go there, and the test modules
+# import the helpers by their unique names (shared_sample, viz_testdata).
+_TESTS = Path(__file__).resolve().parent
+for _folder in (_TESTS / "viz", _TESTS):
+    if str(_folder) not in sys.path:
+        sys.path.insert(0, str(_folder))
 
 # Under CI (CI=true, as GitHub Actions and most CI services set it) every optional extra is installed
 # (pip install -e ".[test]"), so a test module's pytest.importorskip of one that fails to import is a broken

@@ -3,12 +3,13 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
 from pirl_sim.validation import list_arg, positive_int_arg, seed_arg
 
-from .common import error
+from .common import error, interrupted, workers_arg
 
 __all__ = ["add_parser", "run", "DEFAULT_OUT", "SIMULATORS"]
 
@@ -41,37 +42,61 @@ def add_parser(subparsers) -> None:
                         "(written to noise.csv/.md)")
     p.add_argument("--noise-seeds", type=seed_arg, nargs="+", default=None,
                    help="seeds of the noise study (default: --seeds)")
-    p.add_argument("--workers", type=positive_int_arg, default=1,
-                   help="runs simulated and fitted at once, each in its own process (default 1)")
+    p.add_argument("--workers", type=workers_arg, default=1,
+                   help="runs simulated and fitted at once, each in its own process (default 1; 0: in this process)")
+    p.add_argument("--dry-run", action="store_true", help="check the options and count the runs still to do")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
-    p.add_argument("--runs", type=Path, default=None, help="where runs are recorded and reused (default OUT/runs)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
 def run(args) -> int:
-    """``pirl-sim recover``: 0 on success, 2 for a bad configuration."""
-    from pirl_sim.experiments.recovery import check_targets, compact_table, run_recovery, write_recovery
+    """``pirl-sim recover``: 0 on success, 1 when runs failed (the others are kept), 2 for a bad configuration,
+    130 when interrupted (finished runs are kept)."""
+    from pirl_sim.engine.config import parse_config
+    from pirl_sim.engine.run import plan_cells, run_sweep
+    from pirl_sim.engine.store import ResultStore, SIMULATION_RECORD, simulation_key
+    from pirl_sim.experiments.recovery import (SPEC, check_targets, compact_table, recovery_jobs, recovery_result,
+                                               write_recovery)
+    from pirl_sim.io import toml_text
     from pirl_sim.io.atomic import atomic_write_text
-    from pirl_sim.progress import reporter
 
-    say = reporter(not args.quiet)  # progress lines on stderr; the table on stdout
     sims = list(SIMULATORS) if args.simulator == "both" else [args.simulator]
-    runs = args.runs if args.runs is not None else args.out / "runs"
+    command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
     try:
-        result = run_recovery(sims, args.seeds, runs_dir=runs, population=args.population,
-                              n_vehicles=args.n_vehicles, control_noise=args.control_noise,
-                              noise_seeds=args.noise_seeds, min_steps=args.min_steps, stride=args.stride,
-                              workers=args.workers, progress=say)
+        population = {} if args.population is None else toml_text.load(args.population, "population config")[0]
+        jobs = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
+                             control_noise=args.control_noise, noise_seeds=args.noise_seeds,
+                             min_steps=args.min_steps, stride=args.stride)
+        config = parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
+                              source=str(args.population or "pirl-sim recover"))
+        if args.dry_run:
+            _, keys, unique, _, todo = plan_cells(config, ResultStore(args.out))
+            print(f"recovery: {len(jobs)} runs ({len(unique)} distinct), {len(unique) - len(todo)} already in "
+                  f"{args.out}/, {len(todo)} to run")
+            return 0
+        result = run_sweep(config, args.out, workers=args.workers, progress=not args.quiet, command=command,
+                           tables=False)
     except (ValueError, FileNotFoundError) as exc:
         return error(exc)
-    command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
-    if runs == args.out / "runs":
-        atomic_write_text(args.out / ".gitignore", "runs/\n")
-    write_recovery(result, args.out, command)
-    table = compact_table(result.table())
+    except KeyboardInterrupt:
+        return interrupted(args.out)
+    if result.failed:
+        return error(next(iter(result.failed.values())), status=1)
+    atomic_write_text(args.out / ".gitignore", "simulations/\ncells/\nerrors/\n")
+    store, simulated, sim_time = ResultStore(args.out), [], []
+    for cell in config.cells:
+        sk = simulation_key("recovery", SPEC.simulation(dict(cell.scenario_params)), cell.seed, result.code_version)
+        record = store.simulation_dir(sk) / SIMULATION_RECORD
+        simulated.append(sk in result.simulated)
+        sim_time.append(float(json.loads(record.read_text("utf-8"))["timings"]["simulate_s"]) if record.is_file()
+                        else 0.0)
+    records = [result.records[k]["result"] for k in result.keys]
+    study = recovery_result(jobs, records, simulated=simulated, sim_time_s=sim_time, workers=max(args.workers, 1))
+    write_recovery(study, args.out, command)
+    table = compact_table(study.table())
     print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     for sim in sims:
-        sub = result.table()
+        sub = study.table()
         sub = sub[sub["simulator"] == sim]
         row = sub.iloc[-1].to_dict()
         missed = [f"{c} = {v:.3g} (target {op} {lim:g})" for c, op, lim, v, ok in check_targets(row, sim) if not ok]

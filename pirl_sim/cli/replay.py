@@ -99,7 +99,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     rp.add_argument("--start", choices=["history", "track"], default="history",
                     help="the states every prediction starts from and its learners see: estimated from the 2 s "
                          "history alone ('history': what an online predictor knows), or the whole track's estimate "
-                         "('track': a smoother that also saw the future it predicts; replays before this option) "
+                         "('track': a smoother that also saw the future it predicts) "
                          "(default history)")
     rp.add_argument("--learners", default="tirl,pirl-gmm,pirl-knn",
                     help="comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN "
@@ -111,12 +111,12 @@ def add_parser(sub) -> argparse.ArgumentParser:
     rp.add_argument("--next-segments", choices=["history", "track"], default=None,
                     help="pirl-knn-next, pirl-select: where each training segment whose cost the IRL fits starts: "
                          "at its history's own estimate, the state an online prediction starts from ('history'), or "
-                         "at the smoothed track's state ('track', the replays before this option) (default: history "
+                         "at the smoothed track's state ('track') (default: history "
                          "with --start history)")
     rp.add_argument("--lookup-ahead", type=list_arg(float, low=0, empty=True), default="0,10,20,30,45",
                     metavar="M1,M2,...",
                     help="pirl-knn-next, pirl-select: distances ahead [m] at which the road's curvature joins the "
-                         "look-up keys ('' none, the replays before this option) (default 0,10,20,30,45)")
+                         "look-up keys ('' none) (default 0,10,20,30,45)")
     rp.add_argument("--ahead-weights", type=list_arg(float, low=0, empty=True), default="0,0.5,1",
                     metavar="W1,W2,...",
                     help="pirl-knn-next: candidate weights of the road ahead in the look-up; with several, each split "

@@ -53,7 +53,7 @@ from pirl_sim.io import toml_text
 from pirl_sim.validation import SEED_LIMIT, check_keys, is_positive_int
 
 from pirl_sim.evaluation.baselines import BASELINES
-from pirl_sim.experiments.registry import resolve_scenario_params, scenario_spec
+from pirl_sim.experiments.registry import PROTOCOL_FREE, resolve_scenario_params, scenario_spec
 
 __all__ = [
     "Choice",
@@ -88,13 +88,13 @@ LEARNER_DISPLAY = {"tirl": "TIRL", "pirl-gmm": "PIRL-GMM", "pirl-dpgmm": "PIRL-D
 
 def sweep_learners() -> dict:
     """Learners a sweep runs, by name: `pirl_sim.learners.LEARNERS`, the kinematic baselines
-    (`pirl_sim.evaluation.baselines.BASELINES`) and the policies of the ``agents`` scenario
-    (`pirl_sim.experiments.agents.POLICIES`)."""
+    (`pirl_sim.evaluation.baselines.BASELINES`) and the learners of single kinds
+    (`pirl_sim.experiments.registry.KIND_LEARNERS`: the agents' policies, the recovery kind's IRL)."""
     from pirl_sim.learners import LEARNERS
 
-    from pirl_sim.experiments.agents import POLICIES
+    from pirl_sim.experiments.registry import KIND_LEARNERS
 
-    return {**LEARNERS, **BASELINES, **POLICIES}
+    return {**LEARNERS, **BASELINES, **KIND_LEARNERS}
 
 
 def canonical_json(obj) -> str:
@@ -318,7 +318,7 @@ class Experiment:
         seeds = entry.get("seeds", default_seeds)
         if seeds is None:
             raise ValueError(f"{label} has no seeds (give seeds here or at the top level)")
-        protocols = entry.get("protocols", [])
+        protocols = entry.get("protocols", ["paper"] if scenario in PROTOCOL_FREE else [])
         learners = entry.get("learners", [])
         for key, v in (("protocols", protocols), ("learners", learners)):
             if not isinstance(v, list):

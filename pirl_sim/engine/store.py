@@ -16,7 +16,7 @@ so a changed config or a change to that code never reuses an old result, and unc
 to the report, the command line, figures, the replay's report template or the gymnasium envs leave the stored
 cells valid. A scenario whose cells run more code names it (`pirl_sim.experiments.spec.ScenarioSpec.code`: the
 ``agents`` scenario's envs); that code is part of its own cells' keys only.
-`CELL_CODE` is checked by ``tests/test_sweep_code_version.py``: cells of every registered scenario run in a fresh
+`CELL_CODE` is checked by ``tests/engine/test_store.py``: cells of every registered scenario run in a fresh
 process under a profiler, and every source file whose code ran must be hashed. A file in ``cells/`` is complete
 or absent (`pirl_sim.io.atomic`: written beside, fsynced, renamed); a file that does not parse (e.g. written by
 hand) is treated as absent and recomputed.

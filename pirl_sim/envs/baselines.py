@@ -1,34 +1,14 @@
-"""Scripted egos for ``pirl_sim/Roundabout-v0``: what an agent has to beat.
+"""Scripted egos for ``pirl_sim/Roundabout-v0``: what an agent has to beat, and action wrappers for agents.
 
-Each baseline is a policy with ``act(env) -> action`` (the env's ``Box(-1, 1, (1,))`` action) that reads the
-*unwrapped* env, decides once per agent step (the action is held for the step's frames, like an agent's) and
-has ``reset(env)`` to call after every ``env.reset``:
+Each baseline is a policy with ``act(env) -> action`` (the env's ``Box(-1, 1, (1,))`` action) on the unwrapped
+env, deciding once per agent step, with ``reset(env)`` after every ``env.reset``: :class:`HoldSpeed` (both
+backends), :class:`IdmEgo` (highway backend: the ego driven as the background traffic drives) and
+:class:`MpcEgo` (highway backend: a PIRL driver of weights ``theta``). :func:`action_of` maps accelerations
+[m/s^2] to actions. :class:`ResidualAction` (a correction to a baseline's action, optionally shielded by
+:func:`interaction_limit`) and :class:`DesiredSpeedAction` (a factor on the IDM ego's desired speed,
+:func:`idm_action`) are gymnasium wrappers for agents.
 
-- :class:`HoldSpeed` (both backends): action 0, i.e. keep the speed the ego starts with (``ego_speed``).
-- :class:`IdmEgo` (highway backend): the ego driven as the env's background traffic drives: highway-env's
-  IDM towards the route's desired speed v_des(s) (lateral-acceleration limit and speed cap), behind its leader
-  on its route, with the traffic's gap acceptance (yielding) at the entry
-  (:class:`~pirl_sim.scenarios.highway.traffic.RoundaboutTraffic`'s rules).
-- :class:`MpcEgo` (highway backend): the ego driven as a PIRL driver of weights ``theta``: its MPC along the
-  route's reference path (:class:`~pirl_sim.scenarios.drivers.PirlDrivers`, the PIRL drivers' own controller,
-  horizon and hand-back at a standstill), its command capped by the same IDM leader and yielding limit the
-  traffic imposes on PIRL drivers.
-
-The accelerations are mapped to actions by :func:`action_of` (the inverse of the env's mapping).
-
-:class:`ResidualAction` is a gymnasium wrapper for agents that learn a correction to a baseline (residual
-reinforcement learning): the applied action is ``clip(baseline action + scale * agent action, -1, 1)``, so an
-agent whose actions are 0 drives exactly as the baseline does; with ``shield`` it is also capped by the traffic's
-leader and yielding limits (:func:`interaction_limit`); with ``observe`` the agent also sees the baseline's action,
-its correction in force and the cap.
-
-:class:`DesiredSpeedAction` is a gymnasium wrapper for agents that steer the IDM ego instead of correcting its
-acceleration: the agent's action sets the factor on the IDM's desired speed, ``1 + scale * action`` times
-v_des(s), and the acceleration is the IDM's towards it, behind the ego's leader and with the traffic's yielding
-(:func:`idm_action`): every action keeps the IDM's gaps and gap acceptance, and action 0 is the IDM ego itself.
-By default the factor applies from the ring on: on the approach the ego drives as the IDM ego, since the
-traffic's gap acceptance sends a vehicle that can no longer stop before the line into the ring whatever the
-conflict, and a faster approach gets there more often.
+The baselines and wrappers are explained in the documentation's "The gymnasium environment" page.
 """
 
 from __future__ import annotations

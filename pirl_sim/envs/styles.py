@@ -1,24 +1,12 @@
 """Style-aware observations of ``pirl_sim/Roundabout-v0``: the neighbours' cost weights as observation columns.
 
 With ``style_observation`` other than ``"none"``, every row of the ``Kinematics`` observation gets three more
-columns, :data:`STYLE_COLUMNS`:
+columns, :data:`STYLE_COLUMNS`: ``style_known`` (1 where the row's weights are given) and the normalised weights
+of ``speed_dev`` and ``acc_sq`` as ``clip(ln(theta_f) / LOG_WEIGHT_SCALE, -1, 1)``. Modes
+(:data:`STYLE_OBSERVATIONS`): ``"none"``, ``"truth"`` (the PIRL drivers' ground truth) and ``"inferred"`` (a
+fitted ``style_learner`` infers each observed vehicle's weights online from its history as the ego observed it).
 
-- ``style_known``: 1 where the row's weights are given, else 0 (the ego's row, empty rows, and the rows
-  the mode has no weights for);
-- ``speed_dev``, ``acc_sq``: the row's normalised weights (``jerk_sq`` = 1) as
-  ``clip(ln(theta_f) / LOG_WEIGHT_SCALE, -1, 1)`` (0 where not known). The paper's three styles have
-  theta between 0.1 and 3, i.e. columns between -0.77 and 0.37.
-
-Modes (:data:`STYLE_OBSERVATIONS`):
-
-- ``"none"``: no extra columns (the observation of the env without this option).
-- ``"truth"``: the ground-truth weights of PIRL drivers (background drivers' weights are not known: 0).
-- ``"inferred"``: online PIRL inference: the fitted learner of ``style_learner`` infers each observed
-  vehicle's weights from the vehicle's history as the ego has observed it since the reset (its positions
-  projected on its route's reference path, speeds, accelerations and jerks by finite differences over
-  0.1 s frames), over the last ``window`` frames of the learner (``style_history`` if the learner has no
-  window). The observer cannot tell PIRL from background drivers: every vehicle with a long enough history
-  gets inferred weights; the others (seen for less than the window) are not known yet.
+The modes are explained in the documentation's "The gymnasium environment" page.
 """
 
 from __future__ import annotations

@@ -1,32 +1,15 @@
 """``pirl_sim/Roundabout-v0`` with ``backend="sumo"``: the same task on a SUMO roundabout (libsumo).
 
-The ego drives its route of the SUMO scenario's roundabout (:data:`~pirl_sim.scenarios.sumo.scenario.DEFAULT_NETWORK`
-by default) among the SUMO scenario's traffic: the population plan of
-:func:`~pirl_sim.scenarios.planning.plan_population` (the same draws as the highway-env backend and the
-SUMO scenario for a seed), PIRL drivers re-planning every 0.1 s in one batched MPC call
-(:class:`~pirl_sim.scenarios.drivers.PirlDrivers`, SUMO keeping right of way and safe gaps for them, speed
-mode 31) and SUMO's Krauss drivers as background: the scenario's own simulation
-(:meth:`~pirl_sim.scenarios.sumo.scenario.SumoAdapter.start`, the ego added as an
-:class:`~pirl_sim.scenarios.contract.EgoSpec`), stepped by the env.
-It shares with the highway-env backend the action, the reward (:class:`~pirl_sim.envs.common.EgoReward`),
-the info (:func:`~pirl_sim.envs.common.neighbour_info`) and the ``Kinematics`` rows
-(:func:`~pirl_sim.envs.observation.kinematics_rows`); what differs:
+:class:`PirlRoundaboutSumoEnv`: the ego drives its route of the SUMO scenario's roundabout among the SUMO
+scenario's traffic (the population plan of :func:`~pirl_sim.scenarios.planning.plan_population`, PIRL drivers
+re-planning every 0.1 s, SUMO's Krauss drivers as background), the scenario's own simulation stepped by the env.
+It shares with the highway-env backend the action, the reward (:class:`~pirl_sim.envs.common.EgoReward`), the
+info (:func:`~pirl_sim.envs.common.neighbour_info`) and the ``Kinematics`` rows
+(:func:`~pirl_sim.envs.observation.kinematics_rows`). libsumo holds one simulation per process: a second env of
+this backend in one process needs ``sumo_binding = "traci"``.
 
-- **Start.** A reset runs the traffic for ``warmup`` seconds (no ego), then inserts the ego at the start of
-  ``ego_route`` at ``ego_speed`` (SUMO waits until the entry has room) and hands it to the agent.
-- **The ego** follows the agent's acceleration exactly (commanded speed ``v + a dt`` every 0.1 s frame,
-  ``ego_speed_mode`` 0 by default: no SUMO checks, so it can run into others or enter without yielding);
-  steering is SUMO's lane following. A collision SUMO reports ends the episode (crashed vehicles are taken
-  out, ``--collision.action remove``); leaving the network at the route's end is arriving.
-- **Observation.** ``Kinematics`` only, from SUMO's vehicle states (centre of the box, heading, speed):
-  neighbours within 200 m (highway-env's perception distance), nearest first by straight-line distance
-  (highway-env sorts by distance along lanes), behind the ego only with ``see_behind`` (``Kinematics``'
-  default: no; "behind" = more than two vehicle lengths back along the ego's heading). Features: those of
-  :data:`~pirl_sim.envs.observation.DIRECT_FEATURES`.
-- No rendering. With ``record_tracks``, :meth:`PirlRoundaboutSumoEnv.recording` gives the episode's SUMO run
-  (warm-up included) as the SUMO scenario records it, the ego a non-PIRL track named "ego". libsumo holds
-  one simulation per process: a second env of this backend in the same process needs
-  ``sumo_binding = "traci"``.
+What differs from the highway-env backend (start, ego, observation, recording) is in the documentation's
+"The gymnasium environment" page.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ prediction's), each target the training track's arc lengths over the steps after
 
 It is no model of drivers' costs and no PIRL learner: the replay (`pirl_sim.experiments.recorded`, method
 ``direct``, ``pirl-sim replay --direct``) reports it beside the learners as a measure of how much the history
-and the map tell about the next seconds, whatever a cost look-up turns of it into predictions (README, issue 12).
+and the map tell about the next seconds, whatever a cost look-up turns of it into predictions (README).
 """
 
 from __future__ import annotations

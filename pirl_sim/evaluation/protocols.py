@@ -16,7 +16,7 @@ rolling
     t - history_steps .. t and the MPC predicts steps t .. t + horizon. MED averages over all those
     predictions. Learners use sliding training windows.
 
-Multi-modal scores (issue 14 item 3; ``evaluate(..., n_futures=K)``, online and rolling only): every learner's
+Multi-modal scores (``evaluate(..., n_futures=K)``, online and rolling only): every learner's
 ``predict_futures`` gives K futures with probabilities after each history (PIRL-GMM/DPGMM: weights drawn from
 the style mixture in weight space, the most probable styles in feature space; PIRL-kNN: neighbours drawn by
 their votes; TIRL: its one future), scored by `pirl_sim.metrics` as the INTERACTION prediction challenge

@@ -1,5 +1,5 @@
 """The ``agents`` scenario of sweeps: egos on ``pirl_sim/Roundabout-v0``, trained (PPO) or scripted, each cell
-evaluated on fixed evaluation episodes (issue 17).
+evaluated on fixed evaluation episodes.
 
 A sweep over agents is a config like any other (`pirl_sim.engine.config`)::
 

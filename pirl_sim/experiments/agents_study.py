@@ -33,7 +33,7 @@ the factor on the IDM ego's desired speed, ``1 + residual_scale * action`` times
 IDM's towards that speed behind the ego's leader and with the traffic's gap acceptance, so every action keeps
 the IDM's gaps and yielding and action 0 drives as the IDM ego. How it was chosen: on design-probe seeds with the
 factor applied everywhere (``--modes none --direct-modes '' --baselines idm --eval-seed 3000 --episodes 50
---action idm-speed --residual-scale S``, commit fef0bc4's code; 3 training seeds, env seeds 3000-3049, where
+--action idm-speed --residual-scale S``; 3 training seeds, env seeds 3000-3049, where
 the IDM ego scores -13.2 and misses 5 exits): S = 0.3: -10.3, Δreturn vs IDM +2.9 [0.4, 5.4]; S = 0.5: -9.0,
 +4.2 [0.5, 8.0]; S = 0.7: -9.5, +3.7 [0.4, 7.0]; no collision in those 450 episodes. The first full run with
 S = 0.5 applied everywhere then beat the IDM ego's return on the evaluation seeds but collided in up to 2 of
@@ -43,10 +43,10 @@ conflict, and a faster approach gets there more often. That result on the evalua
 ring-only factor; ad-hoc scans with constant factors on env seeds 3000-3199 (not in the repository) showed the
 same collisions at the entry and, at the highest factors, at the exit's diverge, and set S = 0.3.
 
-``"shielded-residual-idm"`` (:class:`~pirl_sim.envs.baselines.ResidualAction`, the default until session 18): a
+``"shielded-residual-idm"`` (:class:`~pirl_sim.envs.baselines.ResidualAction`): a
 correction of at most ``residual_scale`` (1 action unit: 3 m/s^2 up, 4 m/s^2 down) to the IDM ego's
-acceleration, rate-limited by ``max_change`` (0.1 units then) and capped by the traffic's leader and yielding
-limits; in session 17's experiment (200 evaluation episodes) it was level with the IDM ego in return (-0.5
+acceleration, rate-limited by ``max_change`` (0.1 units in that run) and capped by the traffic's leader and yielding
+limits; in a run of 200 evaluation episodes it was level with the IDM ego in return (-0.5
 [-1.2, 0.3]), paying in acceleration, jerk and lateral comfort what it gained in time. ``"residual-idm"``: the
 same without cap and rate limit; ``"direct"``: the env's acceleration itself (``--direct-modes``: the modes that
 also train it, as a reference). Measured on one training seed (``--seeds 0 --episodes 10 --modes none

@@ -127,7 +127,7 @@ class ReplayProtocol:
     start : {"history", "track"}  the states a prediction starts from and its learners see: estimated from
                                   the window's history alone (`ReplayScene.history_window`; what an online
                                   predictor knows), or the whole piece's estimate (a smoother that also saw the
-                                  recorded future; the replays before this option). With "history", read the
+                                  recorded future). With "history", read the
                                   scene with ``estimate="speeds"``: a position-only fit over a short history damps
                                   the jerks so hard that its last speed lags the car's
     """

@@ -1,19 +1,10 @@
 """Weight recovery of the receding-horizon IRL on simulated roundabouts whose drivers' weights are known.
 
-:func:`recovery_report` takes one recorded run (:class:`~pirl_sim.scenarios.demonstrations.RecordedRun`,
-SUMO or highway-env), fits the receding-horizon IRL (:func:`pirl_sim.recovery.fit_track_weights`) to every
-PIRL track with at least ``min_steps`` usable steps (``selection="steps"``: the steps whose jerk is the
-driver's own), one weight vector per track, and one TIRL (``likelihood="receding"``) per style, and compares
-them with the true weights (:class:`RunRecovery`; its ``weights`` is the per-track
-:class:`pirl_sim.recovery.RecoveryReport`, with intervals). :func:`summary_row` condenses per-track and
-per-style rows (of one run, or pooled over runs) into one row of the recovery table; :func:`check_targets`
-compares such a row with the issue's targets (:data:`TARGETS`). :func:`run_recovery` simulates (or reuses) runs over seeds and control-noise
-levels in worker processes and :func:`write_recovery` writes ``table.csv``/``table.md``, ``styles.csv``,
-``selection.csv``, ``noise.csv``/``noise.md``, ``times.csv`` and ``README.md``; ``pirl-sim recover`` is the
-command.
-
-Everything but ``times.csv`` (wall times) is a deterministic function of the runs: the same seeds give the
-same bytes (floats are written with 4 significant digits).
+`recovery_report` fits the receding-horizon IRL to every usable PIRL track of one recorded run (one weight
+vector per track) and TIRL per style, and compares them with the true weights; `SPEC` is the engine kind
+``recovery`` (a cell: one simulated run and its fit); `recovery_jobs` lists a study's runs, `recovery_result`
+collects their cells and `write_recovery` writes the tables and README (``pirl-sim recover``). Every file but
+``times.csv`` is a deterministic function of the seeds (floats written with 4 significant digits).
 """
 
 from __future__ import annotations
@@ -21,22 +12,24 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import multiprocessing
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
+from sklearn.base import BaseEstimator
 
 from pirl_sim.evaluation.tables import markdown
 from pirl_sim.io.atomic import atomic_write_text
 
+from .spec import Param, ScenarioSpec, TrainShape
+
 __all__ = ["SIMULATORS", "TARGETS", "RunRecovery", "recovery_report", "summary_row", "check_targets",
-           "RecoveryJob", "run_recovery", "RecoveryResult", "write_recovery", "compact_table", "FREE_FEATURES"]
+           "RecoveryJob", "recovery_jobs", "recovery_result", "RecoveryResult", "SPEC",
+           "LEARNERS", "to_record", "from_record", "write_recovery", "compact_table", "FREE_FEATURES"]
 
 #: simulators of ``pirl-sim recover`` (the ``simulator`` entry of a run's ``run.json`` in brackets):
 #: sumo ("sumo"), highway ("highway-env")
@@ -46,7 +39,7 @@ _RUN_SIMULATOR = {"sumo": "sumo", "highway-env": "highway"}
 FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
 _FLOAT = "%.4g"
 
-#: the issue's targets, per simulator: (column of a summary row, "<=" or ">=", threshold)
+#: the recovery targets, per simulator: (column of a summary row, "<=" or ">=", threshold)
 TARGETS: dict[str, tuple[tuple[str, str, float], ...]] = {
     "sumo": (
         ("median_abs_log_err_speed_dev", "<=", 0.05),
@@ -238,18 +231,17 @@ def check_targets(row: dict[str, Any], simulator: str) -> list[tuple[str, str, f
     return out
 
 
-# ---------------------------------------------------------------------------------------------- many runs
+# ---------------------------------------------------------------------------------------------- the engine kind
 @dataclass(frozen=True)
 class RecoveryJob:
-    """One run of the study: simulate (unless ``run_dir`` already holds it) and report.
+    """One run of the study: a simulator, seed and control noise, and how its tracks are fitted.
 
     Attributes
     ----------
     simulator : {"sumo", "highway"}
     seed : int
-    control_noise : float or None     [m/s^3]; None: the population's own
-    run_dir : str                     where the run is (or will be) recorded
-    population : str or None          population TOML (None: the embedded default)
+    control_noise : float or None     [m/s^3]; None: the population's own (the main table, not the noise study)
+    population : dict                 the population TOML's table (empty: the embedded default)
     n_vehicles : int or None          override the population's number of vehicles
     min_steps, stride : int           as :func:`recovery_report`
     """
@@ -257,8 +249,7 @@ class RecoveryJob:
     simulator: str
     seed: int
     control_noise: float | None
-    run_dir: str
-    population: str | None = None
+    population: dict = dataclasses.field(default_factory=dict)
     n_vehicles: int | None = None
     min_steps: int = 10
     stride: int = 1
@@ -269,77 +260,151 @@ class RecoveryJob:
         if self.control_noise is not None and not (math.isfinite(self.control_noise) and self.control_noise >= 0):
             raise ValueError(f"control_noise must be >= 0 m/s^3, got {self.control_noise!r}")
 
-    def config(self):
-        """The scenario configuration of this job."""
-        from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, load_population
-
-        pop = load_population(self.population) if self.population is not None else DEFAULT_POPULATION
-        changes = {}
-        if self.control_noise is not None:
-            changes["control_noise"] = float(self.control_noise)
-        if self.n_vehicles is not None:
-            changes["n_vehicles"] = int(self.n_vehicles)
-        pop = dataclasses.replace(pop, **changes) if changes else pop
-        if self.simulator == "sumo":
-            from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig
-
-            return SumoScenarioConfig(population=pop)
-        from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig
-
-        return HighwayScenarioConfig(population=pop)
+    def experiment(self) -> dict:
+        """This job as an experiment of a sweep config (the ``recovery`` kind, one seed)."""
+        params = {"simulator": self.simulator, "population": dict(self.population),
+                  "n_vehicles": self.n_vehicles or 0,
+                  "control_noise": -1.0 if self.control_noise is None else float(self.control_noise)}
+        noise = "" if self.control_noise is None else f" noise {self.control_noise:g}"
+        return {"scenario": "recovery", "label": f"{self.simulator} seed {self.seed}{noise}", "params": params,
+                "seeds": [self.seed],
+                "learners": [{"name": LEARNER, "params": {"min_steps": self.min_steps, "stride": self.stride}}]}
 
 
-def _recorded(run_dir: Path, config, seed: int) -> bool:
-    """True when ``run_dir`` holds a finished run (its ``run.json`` is written last) of this config and seed,
-    recorded with every per-step column the current recording writer writes (a run recorded before a
-    column was added is simulated again). Changes to the simulators themselves are not detected: delete
-    the runs after such changes."""
-    from pirl_sim.scenarios.recording import DRIVER_STEP_COLUMNS, DRIVER_STEPS_FILE, INFO_FILE
-
-    info_path = run_dir / INFO_FILE
-    if not info_path.is_file():
-        return False
-    info = json.loads(info_path.read_text("utf-8"))
-    wanted = json.loads(json.dumps(config.to_dict()))
-    if info.get("seed") != seed or info.get("config") != wanted:
-        return False
-    steps = run_dir / DRIVER_STEPS_FILE
-    if not steps.is_file():
-        return False
-    with steps.open("r", encoding="utf-8") as fh:
-        header = fh.readline().strip().split(",")
-    return set(DRIVER_STEP_COLUMNS) <= set(header)
+LEARNER = "receding-irl"  #: the kind's one learner: per-track receding-horizon IRL and TIRL per style
 
 
-def run_job(job: RecoveryJob) -> tuple[RunRecovery, bool, float]:
-    """Simulate ``job`` unless its run directory already holds the run, then :func:`recovery_report`.
+class RecedingRecovery(BaseEstimator):
+    """The recovery kind's learner (:func:`recovery_report`): a track is usable with at least ``min_steps``
+    usable steps; every ``stride``-th of them is scored."""
 
-    Runs in a fresh process per job (:func:`run_recovery`): libsumo holds one simulation per process.
+    name = LEARNER
+    scenarios = ("recovery",)
 
-    Returns
-    -------
-    (RunRecovery, simulated, simulation wall time [s])
-    """
-    config = job.config()
-    run_dir = Path(job.run_dir)
-    simulated, sim_time = False, 0.0
-    if not _recorded(run_dir, config, job.seed):
-        t0 = time.perf_counter()
-        if job.simulator == "sumo":
-            from pirl_sim.scenarios.sumo.scenario import run_sumo_scenario
+    def __init__(self, min_steps: int = 10, stride: int = 1, model=None, window=None, windows="first"):
+        self.min_steps, self.stride = min_steps, stride
+        self.model, self.window, self.windows = model, window, windows  # the engine's learner keys, unused here
 
-            run_sumo_scenario(config, job.seed, out_dir=run_dir)
-        else:
-            from pirl_sim.scenarios.highway.scenario import run_highway_scenario
+    def _check_common(self) -> None:
+        from pirl_sim.validation import is_positive_int
 
-            run_highway_scenario(config, job.seed, out_dir=run_dir)
-        simulated, sim_time = True, time.perf_counter() - t0
-    if job.simulator == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import load_sumo_run as load
+        for name in ("min_steps", "stride"):
+            if not is_positive_int(getattr(self, name)):
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
+
+
+#: the learners of this kind, by name (the engine's config reads them through the registry)
+LEARNERS = {LEARNER: RecedingRecovery}
+
+RECOVERY_PARAMS = {
+    "simulator": Param("choice", "sumo", "the simulator of the run", choices=SIMULATORS),
+    "population": Param("table", {}, "the population (a population TOML's table); empty: the embedded default"),
+    "n_vehicles": Param("int", 0, "vehicles in the run; 0: the population's own"),
+    "control_noise": Param("float", -1.0, "[m/s^3] noise on every applied jerk; < 0: the population's own"),
+}
+
+
+def _population(params: dict):
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, population_from_dict
+
+    pop = population_from_dict(params["population"], source="scenario 'recovery' population") \
+        if params["population"] else DEFAULT_POPULATION
+    changes = {}
+    if params["n_vehicles"]:
+        changes["n_vehicles"] = int(params["n_vehicles"])
+    if params["control_noise"] >= 0:
+        changes["control_noise"] = float(params["control_noise"])
+    return dataclasses.replace(pop, **changes) if changes else pop
+
+
+def _scenario_config(params: dict):
+    pop = _population(params)
+    if params["simulator"] == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig
+
+        return SumoScenarioConfig(population=pop)
+    from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig
+
+    return HighwayScenarioConfig(population=pop)
+
+
+def _check(params: dict) -> dict:
+    """The population validated and written out in full, its own size and noise filled in: cells of the same
+    run have the same parameters (a noise level equal to the population's own is the main run)."""
+    if params["n_vehicles"] < 0:
+        raise ValueError(f"n_vehicles must be >= 0 (0: the population's own), got {params['n_vehicles']}")
+    if not math.isfinite(params["control_noise"]):
+        raise ValueError(f"control_noise must be finite, got {params['control_noise']!r}")
+    pop = _population(params)
+    return {"simulator": params["simulator"], "population": json.loads(json.dumps(pop.to_dict())),
+            "n_vehicles": int(pop.n_vehicles), "control_noise": float(pop.control_noise)}
+
+
+def _simulate(params: dict, seed: int, out_dir: Path) -> None:
+    config = _scenario_config(params)
+    if params["simulator"] == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import run_sumo_scenario
+
+        run_sumo_scenario(config, seed, out_dir=out_dir)
     else:
-        from pirl_sim.scenarios.highway.scenario import load_highway_run as load
-    report = recovery_report(load(run_dir), min_steps=job.min_steps, stride=job.stride)
-    return report, simulated, sim_time
+        from pirl_sim.scenarios.highway.scenario import run_highway_scenario
+
+        run_highway_scenario(config, seed, out_dir=out_dir)
+
+
+def _paper_only(params: dict, protocol: dict) -> None:
+    if protocol.get("kind") != "paper":
+        raise ValueError("recovery scores the weights of whole runs: it takes no protocol")
+
+
+def to_record(report: RunRecovery) -> dict:
+    """A `RunRecovery` as plain JSON data (a cell's result); `from_record` reads it back."""
+    def frame(df: pd.DataFrame) -> dict:
+        return json.loads(df.to_json(orient="split", double_precision=15))
+
+    return {"simulator": report.simulator, "seed": report.seed, "control_noise": report.control_noise,
+            "n_pirl_tracks": report.n_pirl_tracks, "fit_time_s": report.fit_time_s,
+            "tirl_time_s": report.tirl_time_s, "tracks": frame(report.tracks), "styles": frame(report.styles),
+            "selection": frame(report.selection), "summary": json.loads(pd.Series(report.summary()).to_json())}
+
+
+def from_record(record: dict) -> RunRecovery:
+    """The `RunRecovery` of a cell's result (`to_record`)."""
+    def frame(d: dict) -> pd.DataFrame:
+        return pd.DataFrame(d["data"], index=d["index"], columns=d["columns"])
+
+    tracks, styles, selection = frame(record["tracks"]), frame(record["styles"]), frame(record["selection"])
+    tracks.index = pd.RangeIndex(len(tracks))
+    styles.index = pd.RangeIndex(len(styles))
+    return RunRecovery(record["simulator"], int(record["seed"]), float(record["control_noise"]),
+                       int(record["n_pirl_tracks"]), tracks, styles, selection, float(record["fit_time_s"]),
+                       float(record["tirl_time_s"]))
+
+
+def run_recovery_cells(specs: list[dict], simulation_dir: Path) -> list[tuple[dict, dict]]:
+    """The cells of one recorded run (`pirl_sim.experiments.spec.ScenarioSpec.run_cells` of a simulated
+    kind): :func:`recovery_report` with each cell's learner parameters."""
+    from pirl_sim.scenarios.highway.scenario import load_highway_run
+    from pirl_sim.scenarios.sumo.scenario import load_sumo_run
+
+    out = []
+    for spec in specs:
+        load = load_sumo_run if spec["scenario_params"]["simulator"] == "sumo" else load_highway_run
+        lp = spec["learner_params"]
+        t0 = time.perf_counter()
+        report = recovery_report(load(simulation_dir), min_steps=lp["min_steps"], stride=lp["stride"])
+        out.append((to_record(report), {"fit_s": report.fit_time_s + report.tirl_time_s,
+                                        "evaluate_s": time.perf_counter() - t0}))
+    return out
+
+
+SPEC = ScenarioSpec(
+    "recovery", "weight recovery of the receding-horizon IRL on a simulated SUMO or highway-env run whose "
+    "drivers' weights are known (module pirl_sim.experiments.recovery)",
+    RECOVERY_PARAMS, _check, None, lambda params: TrainShape(0, (), exact=False),
+    simulation=lambda params: dict(params), simulate=_simulate, run_cells=run_recovery_cells,
+    check_protocol=_paper_only, learners=(LEARNER,), code=("pirl_sim.experiments.recovery",),
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -427,21 +492,10 @@ class RecoveryResult:
         return pd.DataFrame(rows)
 
 
-def _run_dir(root: Path, simulator: str, seed: int, noise: float | None) -> Path:
-    tag = "" if noise is None else f"-noise{noise:g}"
-    return root / f"{simulator}-seed{seed}{tag}"
-
-
-def run_recovery(simulators: Sequence[str], seeds: Sequence[int], *, runs_dir, population=None,
-                 n_vehicles: int | None = None, control_noise: Sequence[float] = (),
-                 noise_seeds: Sequence[int] | None = None, min_steps: int = 10, stride: int = 1,
-                 workers: int = 1, progress: Callable[[str], None] | None = None) -> RecoveryResult:
-    """Simulate (or reuse) and report every (simulator, seed) at the population's own noise and, for the
-    noise study, every (simulator, noise level, noise seed).
-
-    Each job runs in a fresh spawned process (libsumo holds one simulation per process), ``workers`` at a
-    time. A run directory under ``runs_dir`` that already holds the same configuration and seed is reused.
-    """
+def recovery_jobs(simulators, seeds, *, population: dict | None = None, n_vehicles: int | None = None,
+                  control_noise=(), noise_seeds=None, min_steps: int = 10, stride: int = 1) -> list[RecoveryJob]:
+    """The study's runs: every (simulator, seed) at the population's own noise and, for the noise study, every
+    (simulator, noise level, noise seed); ValueError for an unknown simulator or no seed."""
     from pirl_sim.validation import is_positive_int
 
     unknown = [s for s in simulators if s not in SIMULATORS]
@@ -449,45 +503,31 @@ def run_recovery(simulators: Sequence[str], seeds: Sequence[int], *, runs_dir, p
         raise ValueError(f"simulators must be some of {SIMULATORS}, got {list(simulators)}")
     if not seeds:
         raise ValueError("at least one seed is needed")
-    if not is_positive_int(workers):
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
-    root = Path(runs_dir)
-    pop = None if population is None else os.fspath(population)
+    for name, value in (("min_steps", min_steps), ("stride", stride)):
+        if not is_positive_int(value):
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
     noise_seeds = list(seeds) if noise_seeds is None else list(noise_seeds)
+    pop = dict(population or {})
     jobs = []
     for sim in simulators:
-        for seed in seeds:
-            jobs.append(RecoveryJob(sim, int(seed), None, os.fspath(_run_dir(root, sim, seed, None)), pop,
-                                    n_vehicles, min_steps, stride))
-        for noise in control_noise:
-            for seed in noise_seeds:
-                jobs.append(RecoveryJob(sim, int(seed), float(noise),
-                                        os.fspath(_run_dir(root, sim, seed, float(noise))), pop, n_vehicles,
-                                        min_steps, stride))
-    # a bad population fails here, before anything runs; a noise level equal to the population's own
-    # noise is the same run as the main job's: simulated and fitted once
-    keys = [(j.simulator, j.seed, json.dumps(j.config().to_dict(), sort_keys=True)) for j in jobs]
-    first = {}
-    for i, k in enumerate(keys):
-        first.setdefault(k, i)
-    todo = sorted(set(first.values()))
-    say = progress or (lambda m: None)
-    ctx = multiprocessing.get_context("spawn")
-    done: dict[int, Any] = {}
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futures = {pool.submit(run_job, jobs[i]): i for i in todo}
-        for n, fut in enumerate(as_completed(futures), 1):
-            i = futures[fut]
-            rep, simulated, sim_t = done[i] = fut.result()
-            j = jobs[i]
-            noise = "" if j.control_noise is None else f", noise {j.control_noise:g}"
-            say(f"[{n}/{len(todo)}] {j.simulator} seed {j.seed}{noise}: "
-                f"{'simulated' if simulated else 'reused'} run, {len(rep.tracks)}/{rep.n_pirl_tracks} tracks "
-                f"fitted in {rep.fit_time_s:.1f} s")
-    results = [done[first[k]] for k in keys]
-    return RecoveryResult(tuple(jobs), tuple(r[0] for r in results), tuple(r[1] for r in results),
-                          tuple(r[2] for r in results), stride, min_steps, workers,
-                          os.environ.get("OPENBLAS_NUM_THREADS", "default"))
+        jobs += [RecoveryJob(sim, int(s), None, pop, n_vehicles, min_steps, stride) for s in seeds]
+        jobs += [RecoveryJob(sim, int(s), float(noise), pop, n_vehicles, min_steps, stride)
+                 for noise in control_noise for s in noise_seeds]
+    return jobs
+
+
+def recovery_result(jobs, records, *, simulated, sim_time_s, workers: int) -> RecoveryResult:
+    """The study's result from each job's cell result (`to_record`), whether its run was simulated now and the
+    simulation's wall time [s]; jobs of the same run share one report."""
+    cache: dict[int, RunRecovery] = {}
+    reports = []
+    for rec in records:
+        if id(rec) not in cache:
+            cache[id(rec)] = from_record(rec)
+        reports.append(cache[id(rec)])
+    first = jobs[0] if jobs else RecoveryJob("sumo", 0, None)
+    return RecoveryResult(tuple(jobs), tuple(reports), tuple(simulated), tuple(sim_time_s), first.stride,
+                          first.min_steps, workers, os.environ.get("OPENBLAS_NUM_THREADS", "default"))
 
 
 # ---------------------------------------------------------------------------------------------- output
@@ -593,7 +633,7 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
         "## Files\n\n`table.csv` (every column), `styles.csv` (per-style TIRL), `tracks.csv` (per-track "
         "weights), `selection.csv`, `noise.csv`, `times.csv` (wall times of this machine: "
         f"{result.workers} worker process(es), OPENBLAS_NUM_THREADS={result.blas_threads}). The simulated "
-        "runs are kept under `runs/` (not committed) so that a rerun does not simulate again.\n"
+        "runs are kept under `simulations/` (not committed) so that a rerun does not simulate again.\n"
     )
     files["README.md"] = readme
     written = {}

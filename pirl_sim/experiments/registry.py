@@ -6,14 +6,19 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from . import agents, recorded, simulated
+from . import agents, recorded, recovery, simulated
 from .spec import ScenarioSpec, convert_param
 
-__all__ = ["SCENARIOS", "register_scenario", "scenario_spec", "resolve_scenario_params"]
+__all__ = ["SCENARIOS", "KIND_LEARNERS", "PROTOCOL_FREE", "register_scenario", "scenario_spec", "resolve_scenario_params"]
 
 SCENARIOS: dict[str, ScenarioSpec] = {
-    s.name: s for s in (*simulated.SPECS, *recorded.SPECS, agents.SPEC)
+    s.name: s for s in (*simulated.SPECS, *recorded.SPECS, agents.SPEC, recovery.SPEC)
 }
+#: learners that only some kinds run (their classes name the kinds in ``scenarios``): the agents' policies and
+#: the recovery kind's per-track IRL
+KIND_LEARNERS: dict[str, type] = {**agents.POLICIES, **recovery.LEARNERS}
+#: kinds that score whole runs or episodes, not predictions under a protocol: a config may leave out protocols
+PROTOCOL_FREE: frozenset[str] = frozenset({"agents", "recovery"})
 
 
 def register_scenario(spec: ScenarioSpec) -> ScenarioSpec:

@@ -14,13 +14,13 @@ gives the same bytes):
   feature in every panel, when the scenario knows the truth;
 - ``recovery_curves.png``: weight error against the training-set size, the control noise or the assumed MPC
   horizon, one panel per experiment that varies one of them (`pirl_sim.experiments.recovery_curves`);
-
-Legends sit below the panels, outside every axes, so that none covers data.
 - ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI: the mean
   over seeds and, with several seeds, its 95 % confidence interval, mean ± t(0.975, n-1) s / sqrt(n)), weight
   recovery per feature and per style where the sweep has it (``weights.csv``), the online protocol's style
   posterior and multi-modal scores (`online_view`), whether the paper's ordering
   MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) holds, timings and the figures.
+
+Legends sit below the panels, outside every axes, so that none covers data.
 """
 
 from __future__ import annotations

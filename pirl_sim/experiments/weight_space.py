@@ -1,4 +1,4 @@
-"""Feature-space against weight-space mixtures (issue 14 items 1-2): the measurements behind
+"""Feature-space against weight-space mixtures: the measurements behind
 ``results/weight_space/``.
 
 ``pirl-sim weight-space --out results/weight_space`` (7 min 25 s on one core at a load
@@ -36,7 +36,7 @@ worst per-style weight error; ``med`` [m], ``weight_error`` (median per test tra
 `pirl_sim.evaluation.protocols.evaluate`; online, ``min_ade`` / ``min_fde`` [m] over one future per style
 (`PIRLGMM.predict_futures`, K = ``n_styles``; see `_min_over_styles`).
 
-Multi-modal prediction (issue 14 item 3), online rows of every learner: `evaluate` with ``n_futures=6``
+Multi-modal prediction, online rows of every learner: `evaluate` with ``n_futures=6``
 (K = 6 futures asked for, seed ``--seed``): ``k_futures`` the number a learner returns (TIRL 1, a feature-space
 mixture at most its styles, weight-space mixtures and PIRL-kNN 6 draws from their posterior over the weights),
 ``min_ade_6`` / ``min_fde_6`` [m], ``miss_rate_6`` (the INTERACTION challenge's rule) and ``nll_6`` [nats per

@@ -1,19 +1,10 @@
 """Read and write track files in the INTERACTION dataset's CSV format.
 
-Vehicle files (``vehicle_tracks_NNN.csv``) have the header::
-
-    track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width
-
-Pedestrian/bicycle files (``pedestrian_tracks_NNN.csv``) have only the first eight of these columns; their
-``track_id`` is a name such as ``P1`` in the INTERACTION dataset (kept as a string) or a whole number.
-Units: ``timestamp_ms`` in milliseconds, ``x``, ``y``, ``length``, ``width`` in metres (local map frame),
-``vx``, ``vy`` in m/s, ``psi_rad`` in radians. Frames are 100 ms apart; in the real data
-``frame_id`` starts at 1 and ``timestamp_ms = 100 * frame_id``.
-
-Vehicle sizes must be positive and at most `MAX_LENGTH_M` long and `MAX_WIDTH_M` wide.
-
-Errors in a file are reported as ``ValueError`` naming the file, the 1-based line of the text file
-(the header is line 1) and the column.
+Vehicle files (``vehicle_tracks_NNN.csv``: ``track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,
+width``) and pedestrian/bicycle files (``pedestrian_tracks_NNN.csv``: the first eight columns). Units: ms, m
+(local map frame), m/s, rad; frames are 100 ms apart. Vehicle sizes must be positive and at most `MAX_LENGTH_M`
+long and `MAX_WIDTH_M` wide. Errors are ``ValueError`` naming the file, the 1-based line (the header is line 1)
+and the column. The format is described in the documentation's "File formats" page.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ from matplotlib.figure import Figure
 from .colors import color_rows
 from .frames import TrackFrames
 from .raster import DEFAULT_DPI, DEFAULT_SIZE_PX, new_figure, place_axes
-from .road import ROAD_COLORS, Road, draw_road
+from .road import Road, draw_road, road_axes
 from .scene import check_extent, fit_equal_aspect
 from .tracks import draw_tracks
 
@@ -54,13 +54,7 @@ def draw_recording(tracks, *, road: Road | None = None, color_by=None, extent=No
     if road is not None and not isinstance(road, Road):
         raise TypeError(f"road must be a pirl_sim.viz.Road or None, got {type(road).__name__}")
     fig = new_figure(size_px, dpi=dpi)
-    ax = fig.add_subplot()
-    ax.set_facecolor(ROAD_COLORS["background"])
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.tick_params(labelsize="small")
-    if title:
-        ax.set_title(title, fontsize="medium")
+    ax = road_axes(fig, title=title, road=None)
     colorbar = color_rows(frames.table, color_by, **color_options).cmap is not None
     place_axes(fig, title=bool(title), colorbar=colorbar)
     if road is not None:

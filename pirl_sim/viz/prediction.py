@@ -23,7 +23,7 @@ from .raster import (
     new_figure,
     place_axes,
 )
-from .road import ROAD_COLORS, Road, draw_road
+from .road import Road, road_axes
 from .scene import fit_equal_aspect
 from .vehicles import box_corners
 
@@ -149,16 +149,8 @@ class PredictionView:
         self.colors = distinct_colors(max_k)
         self.extent = extent
         self.figure: Figure = new_figure(size_px, dpi=dpi)
-        ax = self.ax = self.figure.add_subplot()
+        ax = self.ax = road_axes(self.figure, title=title, road=road)
         place_axes(self.figure, title=bool(title))
-        ax.set_facecolor(ROAD_COLORS["background"])
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.tick_params(labelsize="small")
-        if title:
-            ax.set_title(title, fontsize="medium")
-        if road is not None:
-            draw_road(ax, road)
         self._others = PolyCollection([], facecolors="#b0b0b0", edgecolors="#505050", linewidths=0.5, zorder=3)
         ax.add_collection(self._others, autolim=False)
         self._modes = [ax.plot([], [], color=c, lw=2.0, solid_capstyle="round", zorder=5)[0] for c in self.colors]

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from matplotlib.collections import LineCollection
 
-__all__ = ["Road", "draw_road", "BOUNDARY_STYLES", "ROAD_COLORS"]
+__all__ = ["road_axes", "Road", "draw_road", "BOUNDARY_STYLES", "ROAD_COLORS"]
 
 #: Boundary marking styles: a painted solid line or kerb, a painted dashed line, a virtual (unmarked) border.
 BOUNDARY_STYLES: tuple[str, ...] = ("solid", "dashed", "virtual")
@@ -125,3 +125,17 @@ def draw_road(ax, road: Road, *, centerlines: bool = True, zorder: float = 1.0) 
         ax.add_collection(coll, autolim=True)
         artists.append(coll)
     return artists
+
+
+def road_axes(fig, *, title: str | None = None, road: Road | None = None):
+    """The one axes of a scene figure: background, axis labels [m], small ticks, the title and the road."""
+    ax = fig.add_subplot()
+    ax.set_facecolor(ROAD_COLORS["background"])
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.tick_params(labelsize="small")
+    if title:
+        ax.set_title(title, fontsize="medium")
+    if road is not None:
+        draw_road(ax, road)
+    return ax

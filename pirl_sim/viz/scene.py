@@ -22,7 +22,7 @@ from .raster import (
     new_figure,
     place_axes,
 )
-from .road import ROAD_COLORS, Road, draw_road
+from .road import Road, road_axes
 from .tracks import explain_colors, track_polylines, track_segments
 from .vehicles import box_corners
 
@@ -109,15 +109,7 @@ class SceneView:
                                  vmax=vmax, label=label)
         self._trail_frames = int(round(trail_s * 1000.0 / self.frames.dt_ms))
         self.figure: Figure = new_figure(size_px, dpi=dpi)
-        ax = self.ax = self.figure.add_subplot()
-        ax.set_facecolor(ROAD_COLORS["background"])
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.tick_params(labelsize="small")
-        if title:
-            ax.set_title(title, fontsize="medium")
-        if road is not None:
-            draw_road(ax, road)
+        ax = self.ax = road_axes(self.figure, title=title, road=road)
         if show_tracks:
             segs, start = track_segments(self.frames)
             faint = self.colors.rgba[start].copy()

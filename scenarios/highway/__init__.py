@@ -1,21 +1,11 @@
 """highway-env roundabout scenarios (optional extra ``pirl_sim[highway]``): PIRL drivers in highway-env.
 
 The SUMO scenario's populations (:mod:`pirl_sim.scenarios.population_config`) on highway-env's
-``roundabout-generic-v0`` road, recorded through the same writer
-(:func:`pirl_sim.scenarios.recording.write_recording`):
-
-- ``network``: highway-env's roundabout (one ring lane), the route catalogue (the SUMO scenario's route
-  ids), reference paths and the Lanelet2 lanes;
-- :func:`plan_population` (from :mod:`pirl_sim.scenarios.planning`, shared with the SUMO scenario): the
-  population plan;
-- ``vehicles``: highway-env vehicle classes that follow one route (PIRL, background IDM, ego);
-- ``traffic``: :class:`RoundaboutTraffic`, a highway-env ``Road`` that runs the traffic: PIRL drivers'
-  batched MPC, background IDM, leaders across lane segments, yielding at entries, exits, crashes;
-- ``scenario``: :func:`run_highway_scenario` (plan, simulate, record) and :func:`load_highway_run`;
-- ``cli``: ``pirl-sim simulate highway``.
-
-The gymnasium environment built on the same traffic is :mod:`pirl_sim.envs` (``pirl_sim/Roundabout-v0``).
-highway-env is imported only when a function needs it.
+``roundabout-generic-v0`` road, recorded through the same writer: ``network`` (the road, routes, reference paths
+and lanes), ``vehicles`` (route-following vehicle classes), ``traffic`` (:class:`RoundaboutTraffic`, the road that
+runs the traffic), ``scenario`` (:func:`run_highway_scenario`, :func:`load_highway_run`) and
+:func:`plan_population` (shared with the SUMO scenario). The gymnasium environment on the same traffic is
+:mod:`pirl_sim.envs`. highway-env is imported only when a function needs it.
 """
 
 from __future__ import annotations

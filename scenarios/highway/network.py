@@ -1,26 +1,13 @@
 """highway-env's roundabout as routes: the road network, the route catalogue, reference paths and the map.
 
-The road is highway-env's ``roundabout-generic-v0`` with one ring lane (its ``_make_road``, so the geometry
-is highway-env's own): a ring of radius ``radius`` [m] centred on the origin, four arms, each a 90 m
-straight access lane, a sine-shaped entry lane (an S-bend of ~32 m) that ends on the ring, and the mirror
-image for the exit. Lanes are named by highway-env's node pairs: entry ``"ser" -> "ses" -> "se"``, ring
-``"se" -> "ex" -> "ee" -> "nx" -> "ne" -> "wx" -> "we" -> "sx" -> "se"``, exit ``"sx" -> "sxs" -> "sxr"``
-(and likewise for the e(ast), n(orth) and w(est) arms).
+The road is highway-env's ``roundabout-generic-v0`` with one ring lane (:func:`build_network` of a
+`RoundaboutGeometry`: ring radius [m], four arms). Arms are numbered in driving order round the ring
+(:data:`ARMS`: 0 south, 1 east, 2 north, 3 west) and routes carry the SUMO scenario's ids (``"arm{i}_to_arm{j}"``,
+:func:`route_catalogue`), so one population plan means the same in both simulators. :func:`route_set` gives the
+routes' smoothed reference paths (``smoothing``, ``speed_smoothing`` [m]). Coordinates are highway-env's (x right,
+y down on its screen) and recordings keep them.
 
-Arms are numbered in driving order round the ring (:data:`ARMS`: 0 south, 1 east, 2 north, 3 west): from
-arm ``i`` the first exit is arm ``i + 1``, as in the SUMO scenario, and routes carry the same ids
-(``"arm{i}_to_arm{j}"``, :func:`pirl_sim.scenarios.planning.route_id`), so one population plan means
-the same thing in both simulators.
-
-Geometry facts that matter for the drivers: every lane meets its successor exactly (0 m gap), but the
-headings jump by 66 degrees where an entry's S-bend meets the ring and where the ring meets an exit's
-(highway-env's vehicles steer through the kink). The reference paths (:func:`route_set`) are smoothed
-(``smoothing``, default 2 m) and their curvature further (``speed_smoothing``, default 8 m, as in the SUMO
-scenario) before it sets the desired speed: then the desired speed is ~6.2 m/s on a 20 m ring and never
-lower on a route (unsmoothed, the kinks would make it dip to ~2.9 m/s).
-
-Coordinates are highway-env's (x right, y down on its screen): seen with y up, traffic circulates
-clockwise. Recordings keep these coordinates unchanged.
+The geometry and its kinks are described in the documentation's "highway-env roundabouts" page.
 """
 
 from __future__ import annotations

@@ -1,27 +1,14 @@
 """highway-env roundabout scenarios: the SUMO scenario's populations on highway-env's roundabout, recorded.
 
-One call, :func:`run_highway_scenario`, does everything for a :class:`HighwayScenarioConfig` and a seed:
+One call, :func:`run_highway_scenario`, does everything for a :class:`HighwayScenarioConfig` and a seed: plan the
+population (:func:`~.planning.plan_population`, the same draws as the SUMO scenario), build highway-env's
+``roundabout-generic-v0`` road with one ring lane and its 12 routes (:mod:`~pirl_sim.scenarios.highway.network`),
+simulate :class:`~.traffic.RoundaboutTraffic` at 0.1 s steps until every vehicle has left or ``max_duration``,
+and record through :func:`pirl_sim.scenarios.recording.write_recording`. :class:`HighwayAdapter` is the
+scenario's :class:`~pirl_sim.scenarios.contract.SimulatorAdapter`. :func:`load_highway_run` reads a run back as
+a :class:`~pirl_sim.scenarios.demonstrations.RecordedRun`, whose ``demonstrations()`` feed the learners.
 
-1. **Plan** (:func:`~.planning.plan_population`, the same draws as the SUMO scenario's
-   :func:`~pirl_sim.scenarios.sumo.scenario.plan_vehicles` for the same population and seed): departure
-   times, background vehicles, each PIRL driver's style and weights, routes.
-2. **Road**: highway-env's ``roundabout-generic-v0`` network with one ring lane
-   (:func:`~pirl_sim.scenarios.highway.network.build_network`), the 12 entry-to-exit routes
-   (:func:`~pirl_sim.scenarios.highway.network.route_catalogue`, the SUMO scenario's route ids) and their
-   reference paths (:func:`~pirl_sim.scenarios.highway.network.route_set`).
-3. **Simulate** :class:`~.traffic.RoundaboutTraffic` (a highway-env ``Road``) at 0.1 s steps until every
-   vehicle has left or ``max_duration``: PIRL drivers re-plan every step in one batched MPC call,
-   background drivers are highway-env's IDM, entering vehicles yield to the ring (see
-   :mod:`~.traffic`).
-4. **Record** through :func:`pirl_sim.scenarios.recording.write_recording` (the one writer of every
-   simulator): INTERACTION tracks, ``ground_truth.csv``, the lanes as a Lanelet2 ``map.osm`` (lanelets
-   named ``"<from>_<to>"`` after highway-env's nodes, 4 m wide), ``run.json``.
-
-:func:`load_highway_run` reads a run back as a :class:`~pirl_sim.scenarios.demonstrations.RecordedRun`
-(recording, configuration, reference paths rebuilt from the configuration in ``run.json``, the drivers'
-model), whose ``demonstrations()`` turns its tracks into demonstrations for the learners, as for the SUMO
-scenario (:func:`~pirl_sim.scenarios.demonstrations.recorded_demonstrations`: by default PIRL tracks
-without interaction, collision or removal).
+See the documentation's "highway-env roundabouts" page.
 """
 
 from __future__ import annotations

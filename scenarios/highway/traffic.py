@@ -1,52 +1,17 @@
 """Traffic on highway-env's roundabout: PIRL drivers, background IDM drivers, entries, exits and crashes.
 
-:class:`RoundaboutTraffic` is a highway-env :class:`~highway_env.road.road.Road` (so highway-env's
-environments, observations and rendering work with it unchanged) that also runs the traffic: every
-``act()`` it decides every vehicle's longitudinal command, every ``step(dt)`` it moves the vehicles
-(highway-env's dynamics and collision checks), then removes vehicles that reached the end of their route
-(status ``arrived``) or crashed ``crash_removal_delay`` seconds ago (``vanished``), inserts vehicles whose
-departure time has come (at the start of their route, once there is room), and records one frame.
+:class:`RoundaboutTraffic` is a highway-env :class:`~highway_env.road.road.Road` (highway-env's environments,
+observations and rendering work with it unchanged) that also runs the traffic: every ``act()`` it decides every
+vehicle's longitudinal command [m/s^2], every ``step(dt)`` (dt = 0.1 s) it moves the vehicles, removes those
+that arrived or crashed ``crash_removal_delay`` seconds ago, inserts departures where there is room and records
+one frame. PIRL drivers (:class:`~.vehicles.PirlVehicle`) re-plan in one batched MPC call
+(:class:`pirl_sim.scenarios.drivers.PirlDrivers`), their command capped by the IDM interaction limit towards
+their leader (a cut larger than ``override_tol / dt`` is an override); background drivers
+(:class:`~.vehicles.BackgroundVehicle`) are highway-env's IDM; the ego (env only) takes the agent's
+acceleration. Leaders are found across lane segments along the route, and entering vehicles yield to the ring by
+gap acceptance (``yield_*`` parameters).
 
-Longitudinal commands (one step of ``dt = 0.1 s``, the driver model's step and the INTERACTION frame):
-
-- **PIRL drivers** (:class:`~.vehicles.PirlVehicle`): every step all of them re-plan in **one** batched
-  MPC call (:class:`pirl_sim.scenarios.drivers.PirlDrivers`, the SUMO scenario's controller: start
-  state from the vehicle's position projected on its route's reference path, warm starts, standstill
-  hand-back) under their own weights; the command is the planned speed one step ahead, i.e. the
-  acceleration ``(v_plan - v) / dt``. The driver's cost knows no other vehicle: like SUMO's safety checks
-  in the SUMO scenario, the traffic then **overrides** the command where other vehicles require it — the
-  applied acceleration is ``min(command, IDM limit)``, the IDM limit being highway-env's IDM interaction
-  term ``a_max (1 - (s*/gap)^2)`` towards the leader on the route (and towards the stop line while
-  yielding). A step whose command was cut by more than ``override_tol / dt`` counts as overridden; a
-  track with any override, hand-back or collision is flagged ``interacted`` in the ground truth (the paper
-  kept drivers "without too much interaction"), and the demonstrations exclude it by default.
-- **Background drivers** (:class:`~.vehicles.BackgroundVehicle`): highway-env's IDM with its own
-  parameters (``IDMVehicle`` constants, exponent drawn in highway-env's range), desired speed
-  ``speed_factor`` (drawn from N(1, 0.1^2), clipped to [0.7, 1.3]) times the route's desired speed at the
-  vehicle, leader and stop line as above.
-- **The ego** (env only): the agent's acceleration, nothing added.
-
-What highway-env's own roundabout traffic lacks, and what is added here:
-
-- **Leaders across lane segments.** highway-env's IDM looks for the leader on the vehicle's current lane
-  segment only (ring segments are 15-17 m long), so it runs into vehicles just past a segment boundary.
-  Here the leader is the nearest vehicle ahead on any lane of the vehicle's route (within ``lookahead``).
-- **Yielding at entries** (gap acceptance). Within ``yield_distance`` of the ring, a vehicle that has not
-  yet committed checks the ring vehicles approaching its merge node (within ``yield_lookback``, and only
-  those whose route passes the node, so vehicles leaving at the exit just before it do not count). A ring
-  vehicle conflicts when it would reach the node less than ``yield_headway`` after the entering vehicle
-  has cleared it (travelling its distance plus a length from its current speed at ``entry_acceleration``),
-  or is closer than ``yield_min_distance``. On a conflict the vehicle stops at a stop line before the node
-  (IDM towards it; the line is where a waiting vehicle leaves ``stop_clearance`` to the ring lane, ~2.5 m
-  before the node, as entries meet the ring at 66 degrees). The decision is taken again every step until the vehicle could no
-  longer stop before the line within ``max_deceleration``: then it commits and goes. Committed vehicles
-  are leaders for ring vehicles upstream of their node (placed at their distance to the node), so the ring
-  makes room for a vehicle that is merging.
-- **Despawn at exits**, **crash removal** (highway-env leaves crashed vehicles on the road for ever) and
-  insertion only where there is room (``s0 + v T`` ahead at the departure speed).
-
-Collisions are highway-env's (``Road.step``): a vehicle that crashed is flagged ``collided`` (and, when
-removed, ``removed_early``), never hidden.
+The rules are explained in the documentation's "highway-env roundabouts" page.
 """
 
 from __future__ import annotations

@@ -1,24 +1,13 @@
 """The vehicles of the highway-env roundabout: highway-env vehicle classes that follow one fixed route.
 
-Each class subclasses highway-env's own (:class:`~highway_env.vehicle.behavior.IDMVehicle` or
-:class:`~highway_env.vehicle.controller.ControlledVehicle`) and keeps its **lateral** control: steering
-by highway-env's lane following (``ControlledVehicle.steering_control``) towards the route's current lane,
-switching to the next lane ``LENGTH / 2`` before a lane's end as ``ControlledVehicle.follow_road`` does.
-The **longitudinal** command (an acceleration [m/s^2]) is set from outside, by
-:class:`~.traffic.RoundaboutTraffic` (PIRL drivers' MPC, IDM, yielding) or by the agent, in
-``command_acceleration`` before :meth:`act`.
+Each class subclasses highway-env's own (``IDMVehicle`` or ``ControlledVehicle``) and keeps its **lateral**
+control (lane following along the route). The **longitudinal** command, an acceleration [m/s^2], is set from
+outside, by :class:`~.traffic.RoundaboutTraffic` or by the agent, in ``command_acceleration`` before :meth:`act`.
+:class:`RouteFollowing` tracks lanes along the route only and keeps a route coordinate ``route_s`` [m]
+(:meth:`RouteFollowing.on_state_update`), and advances positions by the mean of the speeds at both ends of a step,
+never reversing (:meth:`RouteFollowing.step`).
 
-What :class:`RouteFollowing` changes in highway-env's vehicle, and why:
-
-- **Lane tracking along the route** (:meth:`RouteFollowing.on_state_update`): highway-env looks for the
-  closest lane among all lanes of the network after every step; these vehicles only look at their route's
-  current and next lane (cheaper, and never onto a lane off the route), and keep a route coordinate
-  ``route_s`` [m] (lane-length arc length from the route's start; the current lane switches when the
-  vehicle passes its end).
-- **Position update** (:meth:`RouteFollowing.step`): highway-env advances positions by the speed at the
-  start of the step (explicit Euler); here by the mean of the speeds at both ends of the step, as the
-  driver model's constant-jerk dynamics do to within ``j dt^3 / 12`` (and as the SUMO scenario's ballistic
-  update), and the speed never goes negative (highway-env lets vehicles reverse).
+What changes from highway-env's vehicles, and why, is in the documentation's "highway-env roundabouts" page.
 """
 
 from __future__ import annotations

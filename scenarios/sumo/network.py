@@ -1,28 +1,13 @@
 """Parametric single- or multi-lane roundabouts as SUMO networks, and reference paths along their routes.
 
-Geometry (all lengths in metres, angles counter-clockwise from +x, right-hand traffic):
+A :class:`RoundaboutSpec` describes the roundabout (lengths in metres, angles counter-clockwise from +x,
+right-hand traffic: a counter-clockwise ring of ``radius`` with ``n_arms`` arms, each an ``arm{i}_in`` and an
+``arm{i}_out`` edge meeting the ring in node ``ring{i}``). ``build_network`` writes the plain-XML files and runs
+netconvert (coordinates kept as written, junction-internal lanes kept), ``route_centerline`` gives a route's
+continuous reference path through the junctions, ``routes`` lists every entry-to-exit route and
+``validate_route`` checks one against a built network (sumolib).
 
-- The ring is a circle of ``radius`` around ``center`` (the centre line of the ring edge; with one lane that
-  is the lane's centre line), driven counter-clockwise.
-- Arm ``i`` points outwards at angle ``first_arm_deg + 360 i / n_arms``. Each arm is two one-way edges:
-  ``arm{i}_in`` (towards the ring) and ``arm{i}_out`` (away from it), parallel to the arm's axis and offset
-  to either side of it by ``splitter_width / 2 + lanes * lane_width / 2`` (``in`` on the left when looking
-  outwards, as right-hand traffic requires). Both are ``approach_length`` long before netconvert cuts the
-  junction areas off.
-- Arm ``i`` meets the ring in node ``ring{i}`` on the circle at the arm's angle; ``arm{i}_out`` leaves the
-  ring before and ``arm{i}_in`` joins it after that point in the driving direction (where their centre
-  lines cross the circle). The ring is ``n_arms`` edges ``ring{i}_{j}`` from node ``ring{i}`` to the next
-  node ``ring{j}``, each with ``shape`` points on the circle so the ring is round, not a polygon of chords.
-- Through each ring node the ring -> ring connection gets the circle as its custom shape (netconvert's
-  default there bulges ~0.2 m outwards); entries and exits get netconvert's smooth curves with
-  ``junction_radius``.
-
-``build_network`` writes the plain-XML files (``*.nod.xml``; ``*.edg.xml`` with a ``<roundabout>``
-element, so netconvert gives the ring right of way; ``*.con.xml``), then runs netconvert with
-``--offset.disable-normalization true`` (coordinates stay as written) and ``--no-turnarounds true``.
-Junction-internal lanes are kept, so a continuous reference path through the junctions exists:
-``route_centerline``. ``routes`` lists every entry-to-exit route; ``validate_route`` checks one against a
-built network (with sumolib, before any simulation starts).
+The geometry is described in the documentation's "SUMO roundabouts" page (network).
 """
 
 from __future__ import annotations

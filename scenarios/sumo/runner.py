@@ -5,56 +5,13 @@ One :class:`SumoRun` is one simulation::
     with SumoRun(files.net, routes(spec), vehicles, pirl_ids={"v0"}, controller=ctrl, seed=0) as run:
         rec = run.run(60.0)                      # SumoRecording: rec.frame, rec.summary
 
-or in one call, :func:`simulate`. libsumo holds **one simulation per process**: a run always closes SUMO
-when it ends (context manager, also on errors), a second concurrent libsumo run in the same process is
-refused, and :func:`run_in_subprocess` runs a function in a fresh spawned process so that sweeps can run
-many simulations side by side. ``backend="traci"`` starts the same command as a separate SUMO process over
-a socket (slower, but any number per process), e.g. to benchmark libsumo against TraCI.
-
-Recording conventions (all SI units):
-
-- ``time`` [s] is the simulation time *after* the step; positions, speeds and lanes are those at that time.
-- ``x``, ``y`` [m] are the centre of the vehicle's box, as in the INTERACTION data; SUMO's own position is
-  the middle of the front bumper (``x_front``, ``y_front``), and the centre lies ``length / 2`` behind it
-  along the heading.
-- ``psi_rad`` is the heading counter-clockwise from +x in (-pi, pi]; SUMO's angle is in degrees clockwise
-  from north (navigational), so ``psi_rad = wrap(pi/2 - radians(angle))``. SUMO keeps both bumpers on the
-  lane, so the heading is the direction of the bumper-to-bumper chord: on a circle it is exactly the
-  centre's direction of motion, on S-bends (entering a roundabout) it differs by up to ~0.1 rad.
-- ``vx``, ``vy`` [m/s] are ``speed`` along the heading.
-- With more than one lane SUMO changes lanes in a single step by default: the vehicle jumps sideways by a
-  lane width. Pass ``extra_args=("--lanechange.duration", "3")`` for continuous 3 s lane changes (headings
-  then stay within ~0.08 rad of the direction of motion on a two-lane ring too).
-
-Controller. For the vehicles in ``pirl_ids`` the runner calls ``controller(time, vehicle_id, observation)``
-every step they are in the network; a number is a commanded speed [m/s] applied with
-``vehicle.setSpeed`` for the next step, ``None`` hands the vehicle back to SUMO's car-following model
-(``setSpeed(-1)``). All other vehicles always follow SUMO's model. After the step the runner compares the
-speed SUMO actually drove with the command: ``overridden`` is true where they differ by more than
-``override_tol``.
-
-Batch controllers. A controller that also has a method ``commands(time, observations)`` (see
-:class:`~pirl_sim.scenarios.contract.BatchController`, the simulator contract's) is called once per step with
-the observations of every controlled vehicle in the network (a mapping vehicle id -> :class:`Observation`)
-and returns a mapping vehicle id -> commanded speed [m/s] or None (a vehicle left out is handed back to SUMO
-like None); so a controller can plan all its vehicles in one batched computation.
-
-Collisions. ``collision_action`` is SUMO's ``--collision.action``: ``"warn"`` (default) reports them and
-keeps the vehicles, ``"remove"`` takes the vehicles in a collision out of the network (they are then
-recorded as vanished, ``removed_early``, and ``collided`` is set on their last row), ``"teleport"`` moves
-them on, ``"none"`` ignores them.
-
-Speed mode. Controlled vehicles get ``speed_mode`` (default :data:`SPEED_MODE_ALL_CHECKS` = 31, which is
-also SUMO's default): SUMO still enforces the safe speed of its car-following model, the vehicle type's
-maximum acceleration and deceleration, right of way at the roundabout's entries and red lights. A command
-is therefore carried out only where it is safe and physically possible, and otherwise overridden (and
-flagged). We keep all checks on because (1) the recorded trajectories feed IRL features (accelerations,
-jerks): with the acceleration bounds off a discontinuous command would become an unbounded acceleration in
-the data; (2) the driver model plans from its own observation and cannot see every foe at a merge, so SUMO
-must keep the interaction collision-free; (3) the ``overridden`` flag then measures exactly how often the
-driver model asked for something SUMO's vehicle would not do. Use :func:`speed_mode` to build another mode
-(e.g. ``speed_mode(max_accel=False, max_decel=False)`` = 25 to follow commands without the vehicle type's
-acceleration limits but still safely).
+or in one call, :func:`simulate`. libsumo holds **one simulation per process** (a second concurrent run is
+refused; :func:`run_in_subprocess` runs a function in a fresh spawned process); ``backend="traci"`` runs SUMO as a
+separate process over a socket. Vehicles in ``pirl_ids`` are driven by ``controller`` (a commanded speed [m/s]
+per step, or a :class:`~pirl_sim.scenarios.contract.BatchController`), under ``speed_mode`` (default
+:data:`SPEED_MODE_ALL_CHECKS` = 31; :func:`speed_mode` builds others); a command SUMO does not carry out within
+``override_tol`` is flagged ``overridden``. Records are SI (``x``, ``y`` [m]: the centre of the box); recording
+conventions, controllers, collisions and speed modes are explained in the documentation's "SUMO roundabouts" page.
 """
 
 from __future__ import annotations

@@ -1,40 +1,15 @@
 """SUMO roundabout scenarios: mixed-style populations of PIRL drivers with known cost weights, recorded.
 
-One call, :func:`run_sumo_scenario`, does everything for a :class:`SumoScenarioConfig` and a seed:
+One call, :func:`run_sumo_scenario`, does everything for a :class:`SumoScenarioConfig` and a seed: plan the
+vehicles (:func:`plan_vehicles`: departures, background vehicles, styles, weights and routes from
+``numpy.random.SeedSequence(seed)``; bad configs raise ``ValueError`` before SUMO starts), build and check the
+network (:data:`DEFAULT_NETWORK`), simulate at 0.1 s steps with :class:`~.runner.SumoRun` (PIRL vehicles driven by
+:class:`~pirl_sim.scenarios.drivers.PirlDrivers` under speed mode 31, background vehicles by SUMO's Krauss model)
+and record through :mod:`pirl_sim.scenarios.recording` (the same seed writes byte-identical files).
+:class:`SumoAdapter` is the scenario's :class:`~pirl_sim.scenarios.contract.SimulatorAdapter`.
 
-1. **Plan** (:func:`plan_vehicles`, before anything runs): departure times, which vehicles are background
-   traffic (``round(background_share * n_vehicles)`` of them, chosen at random), each PIRL vehicle's style
-   and normalised weights θ over (speed_dev, acc_sq, jerk_sq) drawn from the population
-   (:meth:`pirl_sim.population.Population.sample_weights`), and every vehicle's route, all from
-   ``numpy.random.SeedSequence(seed)``. Every input is validated here or when the configs are built:
-   bad configs raise ``ValueError`` before netconvert or SUMO start.
-2. **Network**: :func:`~pirl_sim.scenarios.sumo.network.build_network` into a temporary directory; every
-   route is checked against it (:func:`~.network.validate_route`: an unreachable route raises before SUMO
-   starts); the reference paths of all routes go into one :class:`~pirl_sim.scenarios.drivers.RouteSet`.
-3. **Simulate** with :class:`~.runner.SumoRun` (libsumo by default) at 0.1 s steps, SUMO seeded with
-   ``seed``, the ballistic position update (``--step-method.ballistic``: positions advance by the mean of
-   the speeds at both ends of a step, as in the driver model's constant-jerk dynamics), until every vehicle
-   has left or ``max_duration``. PIRL vehicles are driven by :class:`~pirl_sim.scenarios.drivers.PirlDrivers` (every step,
-   one batched MPC call re-plans all of them); background vehicles by SUMO's Krauss model (vehicle type
-   ``background``: SUMO's passenger-car defaults, driver imperfection sigma = 0.5, speed factor N(1, 0.1)).
-4. **Record** (:mod:`pirl_sim.scenarios.recording`): tracks, ground truth and the map in one
-   :class:`~pirl_sim.scenarios.recording.ScenarioRecording`, written to ``out_dir`` if given, with the
-   network files under ``out_dir/network/`` (netconvert's header comment with its time stamp dropped, so
-   that the same seed writes byte-identical files).
-
-Speed mode. PIRL vehicles run with SUMO speed mode 31 (:data:`~.runner.SPEED_MODE_ALL_CHECKS`, SUMO's
-default, configurable): SUMO keeps its safe speed towards leaders, right of way at the entries, and the
-vehicle type's acceleration limits. The ``pirl`` vehicle type's limits (accel 3.5, decel 4.5 m/s^2) lie
-outside the MPC's bounds (a in [-4, 3] m/s^2), its speed factor 1.2 puts SUMO's lane-speed caps (11.8 m/s
-on the default network's junction lanes) above any speed the driver model wants, and the default network
-lets drivers see ring traffic from 50 m before an entry (``RoundaboutSpec.entry_visibility``; with SUMO's
-4.5 m every vehicle is braked before every entry). So a command SUMO does not carry out is an
-**interaction** (a leader too close, a foe with right of way), not a limit of the simulator. Each step
-records whether SUMO overrode the command (speed after the step more than ``override_tol`` from the
-command). A track is flagged ``interacted`` when SUMO overrode at least one of its commands, it collided,
-or SUMO stopped it and drove it until it was moving again (the standstill hand-back of
-:class:`~pirl_sim.scenarios.drivers.PirlDrivers`). The paper selected drivers "without too much interaction"; the tracks
-that are not flagged are what :func:`~pirl_sim.scenarios.demonstrations.recorded_demonstrations` keeps by default.
+The steps, the vehicle types and what counts as an interaction are explained in the documentation's
+"SUMO roundabouts" page.
 """
 
 from __future__ import annotations

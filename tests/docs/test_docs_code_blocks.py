@@ -52,7 +52,8 @@ def runnable_blocks(path: Path) -> list[Block]:
             if close and close["fence"][0] == fence[0] and len(close["fence"]) >= len(fence) \
                     and not close["info"].strip():
                 break
-            body.append(lines[j][indent:] if lines[j][:indent].isspace() else lines[j].lstrip())
+            body.append(lines[j] if not indent else lines[j][indent:] if lines[j][:indent].isspace()
+                        else lines[j].lstrip())
             j += 1
         if info[:1] == ["python"] and "runnable" in info[1:]:
             blocks.append(Block(path, i + 2, "\n".join(body) + "\n"))

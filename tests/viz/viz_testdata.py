@@ -2,17 +2,10 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 
-TESTS = Path(__file__).resolve().parents[1]
-if str(TESTS) not in sys.path:  # shared_sample lives in tests/
-    sys.path.insert(0, str(TESTS))
-
-from shared_sample import SAMPLE_MAP, SAMPLE_TRACKS, needs_sample  # noqa: E402
+from shared_sample import SAMPLE_MAP, SAMPLE_TRACKS, needs_sample  # tests/ is on sys.path (tests/conftest.py)
 
 __all__ = ["SAMPLE_MAP", "SAMPLE_TRACKS", "needs_sample", "straight_tracks", "has_color_near"]
 

@@ -1,0 +1,224 @@
+"""The recorded scenario (pirl_sim.experiments.recorded): the replay protocol's checks and start states, the
+closed-loop rollout, sweep configs of recorded data run into the tidy table with keys that follow the data, and
+config errors that name the scenario as written."""
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+
+from pirl_sim.cli import main
+from pirl_sim.engine import load_config, run_sweep
+from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
+from pirl_sim.scenarios.passage import PassageConfig, write_scene
+from pirl_sim.scenarios.passage import generate as generate_passage
+from pirl_sim.scenarios.replay import load_replay
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        data = generate_passage(PassageConfig(n_trajectories=160, n_train=130, seed=4))
+    out = tmp_path_factory.mktemp("scene")
+    write_scene(data, out)
+    return out, data
+
+
+def test_a_sweep_config_runs_the_recorded_scenario_into_the_tidy_table(scene_dir, tmp_path):
+    """The replay's scenario is a sweep scenario like the others: a config of its own gives the tidy table's MED and
+    FDE of the in-process replay."""
+    from pirl_sim.engine import load_config, run_sweep
+    from pirl_sim.experiments.recorded import load_scene
+
+    out, _ = scene_dir
+    cfg = tmp_path / "recorded.toml"
+    cfg.write_text(f"""
+seeds = [0, 1]
+[[experiments]]
+scenario = "recorded"
+params = {{ tracks = "{out}", map = "{out / 'map.osm'}", replay = {{ fde_steps = [5, 15] }} }}
+protocols = [{{ kind = "rolling", history_steps = 10, horizon = 15, stride = 5 }}]
+learners = [{{ name = "cv", label = "CV (path)" }}, {{ name = "ca", label = "CA (path)" }}, "tirl"]
+""")
+    config = load_config(cfg)
+    run = run_sweep(config, tmp_path / "out", workers=0, progress=False)
+    assert not run.failed and len(run.table) == 6
+    direct = run_replay(load_scene(dict(config.cells[0].scenario_params)), [("TIRL", "tirl", {})],
+                        ReplayProtocol(seeds=(0, 1), fde_steps=(5, 15)))["rows"].set_index(["seed", "method"])
+    for _, r in run.table.iterrows():
+        expected = direct.loc[(r["seed"], r["learner_label"])]
+        assert r["med"] == expected["med"] and r["fde"] == expected["de@3.0s"]
+        assert r["n_predictions"] == expected["n_windows"] and r["n_test"] == expected["n_test"]
+    assert (tmp_path / "out" / "table.csv").is_file()
+
+
+def test_replay_start_option_is_checked_and_changes_the_start_states(scene_dir):
+    out, _ = scene_dir
+    with pytest.raises(ValueError, match="start must be one of"):
+        ReplayProtocol(start="smoothed")
+    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
+    specs = [("TIRL", "tirl", {})]
+    rows = {start: run_replay(scene, specs, ReplayProtocol(seeds=(0,), start=start))["rows"].set_index("method")
+            for start in ("history", "track")}
+    assert rows["history"].loc["CA (path)", "med"] != rows["track"].loc["CA (path)", "med"]
+    # the lateral floor uses recorded arc lengths, not the start states
+    assert rows["history"].loc["TIRL", "lateral_floor"] == rows["track"].loc["TIRL", "lateral_floor"]
+
+
+def test_a_recorded_sweep_config_reads_history_starts_with_speeds(scene_dir):
+    """A hand-written ``recorded`` config that names no ``load.estimate`` replays with history starts (the
+    default) and gets the speed-aided estimate, as ``pirl-sim replay`` does; with ``start = "track"`` (or an
+    explicit estimate) it is read as asked."""
+    from pirl_sim.experiments.recorded import load_scene
+
+    out, _ = scene_dir
+    params = {"tracks": str(out), "map": str(out / "map.osm"), "files": 0, "load": {}, "replay": {}}
+    first = load_scene(params).trajectories[0].metadata["estimator"]
+    assert first.estimate == "speeds"
+    track = load_scene({**params, "replay": {"start": "track"}}).trajectories[0].metadata["estimator"]
+    assert track.estimate == "positions"
+    asked = load_scene({**params, "load": {"estimate": "positions"}}).trajectories[0].metadata["estimator"]
+    assert asked.estimate == "positions"
+
+
+@pytest.mark.parametrize("name", ["history", "horizon"])
+@pytest.mark.parametrize("value", [0, -5])
+def test_protocol_rejects_steps_that_are_not_positive(name, value):
+    with pytest.raises(ValueError, match=name):
+        ReplayProtocol(**{name: value})
+
+
+@pytest.fixture(scope="module")
+def sumo_run(tmp_path_factory):
+    """A small SUMO run (20 vehicles, drivers re-planning over 30 steps of 0.1 s), written as a recording."""
+    pytest.importorskip("libsumo")
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
+    from pirl_sim.scenarios.sumo import SumoScenarioConfig, run_sumo_scenario
+
+    out = tmp_path_factory.mktemp("receding_replay") / "run"
+    pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=20, depart_interval=1.5)
+    run_sumo_scenario(SumoScenarioConfig(population=pop), seed=1, out_dir=out)
+    return out
+
+
+def _load(run, **kw):
+    from pirl_sim.scenarios.replay import SIMULATED_NOISE, load_replay, recording_settings
+
+    rec = recording_settings(run)
+    args = dict(dt=rec.dt, estimate="speeds", noise=SIMULATED_NOISE, selection="steps", max_steps=None,
+                smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max,
+                arc_length="observed")
+    args.update(kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return load_replay([run / "vehicle_tracks_000.csv"], run / "map.osm", **args), rec
+
+
+def test_closed_loop_rollout_is_the_receding_horizon_simulation(sumo_run):
+    from pirl_sim.experiments.replay_report import predict_path_states
+    from pirl_sim.simulate import simulate_receding_horizon
+
+    scene, _ = _load(sumo_run)
+    t = scene.selected[0]
+    x0 = t.states[[0, 5]]
+    theta = np.broadcast_to(t.metadata["theta"], (2, 3))
+    closed = predict_path_states(scene.model, x0, theta, 12, rollout="closed", mpc_horizon=20)
+    ref = simulate_receding_horizon(scene.model, x0, theta, 12, 20)
+    np.testing.assert_allclose(closed, np.stack([r.states for r in ref]))
+    open_ = predict_path_states(scene.model, x0, theta, 12, rollout="open", mpc_horizon=20)
+    np.testing.assert_allclose(open_, scene.model.predict_states(x0, theta, 20)[:, :13])
+    with pytest.raises(ValueError, match="needs mpc_horizon"):
+        predict_path_states(scene.model, x0, theta, 12, rollout="closed")
+
+
+# ---------------------------------------------------------------------------------------------- replay
+@pytest.fixture(scope="module")
+def replay_dir(tmp_path_factory):
+    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        data = generate(PassageConfig(n_trajectories=60, n_train=45, seed=2))
+    out = tmp_path_factory.mktemp("scene")
+    write_scene(data, out)
+    return out
+
+
+def test_replay_scenario_runs_and_its_key_follows_the_data(replay_dir, tmp_path):
+    import shutil
+
+    scene = tmp_path / "scene"
+    shutil.copytree(replay_dir, scene)
+    cfg_path = tmp_path / "replay.toml"
+    cfg_path.write_text("""
+seeds = [0]
+[[experiments]]
+scenario = "replay"
+params = { tracks = "scene", map = "scene/map.osm" }    # relative to this file
+protocols = [{ kind = "rolling", history_steps = 10, horizon = 10, stride = 5 }]
+learners = ["tirl", { name = "pirl-knn", params = { n_neighbors = 5, stride = 2 } }]
+""")
+    cfg = load_config(cfg_path)
+    assert cfg.cells[0].scenario_params["tracks"] == str(scene.resolve())
+    run = run_sweep(cfg, tmp_path / "out", workers=0, progress=False)
+    assert not run.failed and len(run.table) == 2
+    assert run.table["n_train"].iloc[0] + run.table["n_test"].iloc[0] == 60
+    assert run.table["weight_error"].notna().all()  # the ground-truth sidecar is read
+    key = cfg.cells[0].key("v")
+    with open(scene / "ground_truth.csv", "a") as fh:
+        fh.write("\n")
+    assert load_config(cfg_path).cells[0].key("v") != key  # changed data, new key
+    bad = cfg_path.read_text().replace("n_neighbors = 5", "n_neighbors = 5000")
+    cfg_path.write_text(bad)
+    with pytest.raises(ValueError, match="larger than the training set .*at most"):
+        load_config(cfg_path)
+
+
+@pytest.fixture(scope="module")
+def replay_out(tmp_path_factory):
+    """A small `pirl-sim replay` (one split seed, TIRL and the baselines) on a generated passage scene."""
+    pytest.importorskip("lanelet2")
+    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=2))
+    root = tmp_path_factory.mktemp("replay")
+    write_scene(data, root / "scene")
+    out = root / "out"
+    assert main(["replay", "--tracks", str(root / "scene"), "--map", str(root / "scene" / "map.osm"), "--seeds", "1",
+                 "--learners", "tirl", "--quiet", "--out", str(out)]) == 0
+    return out
+
+
+def test_recorded_configs_fail_their_check_naming_the_scenario_as_written(replay_out, tmp_path, capsys):
+    """``replay`` is another name of the recorded scenario: its errors name the scenario the config names, and both
+    take the rolling protocol only and fde_steps within its horizon (rejected at the config check, not in every
+    cell)."""
+    scene = replay_out.parent / "scene"
+    cfg = tmp_path / "recorded.toml"
+    for scenario in ("recorded", "replay"):
+        text = f"""
+seeds = [0]
+[[experiments]]
+scenario = "{scenario}"
+params = {{ tracks = "{scene}", map = "{scene / 'map.osm'}" }}
+protocols = [{{ kind = "paper" }}]
+learners = ["tirl"]
+"""
+        cfg.write_text(text)
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
+        assert f"scenario '{scenario}' runs the rolling protocol, not 'paper'" in capsys.readouterr().err
+        rolling = text.replace('kind = "paper"', 'kind = "rolling", history_steps = 5, horizon = 5, stride = 5')
+        cfg.write_text(rolling.replace("map = ", "files = -1, map = "))
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
+        assert f"scenario '{scenario}': files must be >= 0 (0: every file), got -1" in capsys.readouterr().err
+        cfg.write_text(rolling.replace("map = ", "replay = { fde_steps = [5, 10] }, map = "))  # beyond the horizon
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
+        assert (f"scenario '{scenario}' parameter 'replay': fde_steps must lie in [1, horizon=5], got (5, 10)"
+                in capsys.readouterr().err)
+        cfg.write_text(rolling)
+        assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 0
+        assert "1 cells (1 distinct)" in capsys.readouterr().out
