@@ -26,7 +26,8 @@ import tempfile
 import time
 import warnings
 
-from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
+from pirl_sim.experiments.recorded import replay_seed
+from pirl_sim.experiments.replay_report import ReplayProtocol, collect_replay
 from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
 from pirl_sim.scenarios.replay import load_replay
 
@@ -55,7 +56,9 @@ def main(argv=None):
         scene = load_replay([paths["tracks"]], paths["map"])
         t_load = time.perf_counter() - t0
         t0 = time.perf_counter()
-        result = run_replay(scene, SPECS, ReplayProtocol(seeds=(0,)))
+        proto = ReplayProtocol(seeds=(0,))
+        methods = [("CV (path)", "cv", {}), ("CA (path)", "ca", {}), *SPECS, ("CV (x, y)", "cv-xy", {})]
+        result = collect_replay(scene, proto, {0: replay_seed(scene, 0, methods, proto)}, SPECS)
         t_run = time.perf_counter() - t0
     rows = result["rows"].set_index("method")
     total = t_load + t_run

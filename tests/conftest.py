@@ -50,3 +50,105 @@ def model():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+# Scenes that several test modules replay, built once per session by the helpers of tests/replay_scenes.py (read
+# them, never write into them: every module shares the same files).
+@pytest.fixture(scope="session")
+def passage_scene(tmp_path_factory):
+    """(directory, PassageData) of a generated 160-passage scene (seed 4) written as a pirl_sim recording."""
+    import replay_scenes
+
+    return replay_scenes.passage_scene(tmp_path_factory.mktemp("scene"))
+
+
+@pytest.fixture(scope="session")
+def passage_root(tmp_path_factory):
+    """A simulated roundabout scene laid out as an INTERACTION folder (recorded_trackfiles/NAME, maps/NAME.osm)."""
+    import replay_scenes
+
+    return replay_scenes.passage_root(tmp_path_factory.mktemp("root"))
+
+
+@pytest.fixture(scope="session")
+def replay_out(tmp_path_factory):
+    """A small `pirl-sim replay` (one split seed, TIRL and the baselines) on a generated passage scene
+    (``replay_out.parent / "scene"``)."""
+    import replay_scenes
+
+    return replay_scenes.small_replay(tmp_path_factory.mktemp("replay"))
+
+
+@pytest.fixture(scope="session")
+def sumo_recording_result(tmp_path_factory):
+    """(result, directory) of a small SUMO run written as a recording (`replay_scenes.run_small_sumo`)."""
+    import replay_scenes
+
+    out = tmp_path_factory.mktemp("receding_replay") / "run"
+    return replay_scenes.run_small_sumo(out), out
+
+
+@pytest.fixture(scope="session")
+def sumo_recording(sumo_recording_result):
+    """The directory of the small SUMO recording (20 vehicles, drivers re-planning over 30 steps of 0.1 s)."""
+    return sumo_recording_result[1]
+
+
+@pytest.fixture
+def real_like(tmp_path):
+    """One straight lane and six tracks, no run.json: data as real data come (`replay_scenes.real_like_scene`)."""
+    import replay_scenes
+
+    return replay_scenes.real_like_scene(tmp_path)
+
+
+@pytest.fixture
+def small_recording():
+    """A three-track `ScenarioRecording` in memory (`replay_scenes.make_recording`)."""
+    import replay_scenes
+
+    return replay_scenes.make_recording()
+
+
+# Learners fitted on drivers of three known styles (tests/style_demos.py), built once per test module that uses
+# them (tests/learners/test_base.py, tests/evaluation/test_protocols.py).
+@pytest.fixture(scope="module")
+def styles_data():
+    """(model, train, test): 200 Boltzmann-rational LQ drivers of three styles (q = 0.1, 1, 10; 10 % spread) from
+    spread starts, 30 steps each, the first 160 for training (`style_demos.three_style_demonstrations`, seed 3)."""
+    import style_demos
+
+    return style_demos.three_style_demonstrations(3, 200, 30, 160)
+
+
+@pytest.fixture(scope="module")
+def styles_learners(styles_data):
+    """{name: learner} fitted on `styles_data`'s training set on its first 10 steps: TIRL, PIRL-GMM in weight and
+    in feature space, PIRL-DPGMM in weight space, PIRL-kNN (k = 10) weighted by likelihood and by distance."""
+    import warnings
+
+    from pirl_sim.learners import PIRLDPGMM, PIRLGMM, PIRLKNN, TIRL
+
+    model, train, _ = styles_data
+    common = {"window": 10, "windows": "first"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return {
+            "tirl": TIRL(model, **common).fit(train),
+            "gmm-weights": PIRLGMM(model, n_components=3, random_state=0, space="weights", **common).fit(train),
+            "gmm-features": PIRLGMM(model, n_components=3, random_state=0, **common).fit(train),
+            "dpgmm-weights": PIRLDPGMM(model, random_state=0, space="weights", **common).fit(train),
+            "knn-likelihood": PIRLKNN(model, n_neighbors=10, weighting="likelihood", **common).fit(train),
+            "knn-distance": PIRLKNN(model, n_neighbors=10, **common).fit(train),
+        }
+
+
+@pytest.fixture(scope="module")
+def route_set(tmp_path_factory):
+    """The SUMO roundabout's default paths on one arc-length axis (the default network built once per module):
+    geometry smoothed by 2 m, curvature for the desired speed by 10 m. Needs sumolib."""
+    from pirl_sim.scenarios.sumo import DEFAULT_NETWORK, build_network, routes
+    from pirl_sim.scenarios.sumo.network import route_set as network_route_set
+
+    net = build_network(DEFAULT_NETWORK, tmp_path_factory.mktemp("roundabout"))
+    return network_route_set(net, routes(DEFAULT_NETWORK), smoothing=2.0, speed_smoothing=10.0)

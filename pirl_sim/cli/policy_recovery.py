@@ -1,13 +1,14 @@
 """``pirl-sim policy-recovery``: train PPO on the env's theta reward and measure how close the weights
-recovered from its driving come to the reward's weights (`pirl_sim.experiments.policy_recovery`)."""
+recovered from its driving come to the reward's weights (`pirl_sim.experiments.policy_recovery`, the engine kind
+``policy-recovery``: resumable)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from pirl_sim.validation import list_arg
+from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
 
-from .common import command_line, error
+from .common import command_line, error, interrupted, workers_arg
 
 __all__ = ["add_parser", "run", "DEFAULT_OUT", "DEFAULTS"]
 
@@ -27,40 +28,65 @@ def add_parser(subparsers) -> None:
         description="Train PPO on the env's theta reward and measure how close the weights recovered from its "
                     "driving come to the reward's weights.")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
-    p.add_argument("--steps", type=int, default=d["steps"], help=f"PPO training steps per seed (default {d['steps']})")
-    p.add_argument("--seeds", type=list_arg(int), default=list(d["seeds"]), help="training seeds, comma-separated")
-    p.add_argument("--eval-seeds", type=list_arg(int), default=list(d["eval_seeds"]), help="evaluation env seeds")
-    p.add_argument("--n-steps", type=int, default=d["n_steps"], help=f"PPO rollout length (default {d['n_steps']})")
-    p.add_argument("--n-vehicles", type=int, default=d["n_vehicles"],
+    p.add_argument("--steps", type=positive_int_arg, default=d["steps"],
+                   help=f"PPO training steps per seed (default {d['steps']})")
+    p.add_argument("--seeds", type=list_arg(int, low=0), default=d["seeds"], help="training seeds, comma-separated")
+    p.add_argument("--eval-seeds", type=list_arg(int, low=0), default=d["eval_seeds"], help="evaluation env seeds")
+    p.add_argument("--n-steps", type=positive_int_arg, default=d["n_steps"],
+                   help=f"PPO rollout length (default {d['n_steps']})")
+    p.add_argument("--n-vehicles", type=positive_int_arg, default=d["n_vehicles"],
                    help=f"vehicles of the traffic per episode (default {d['n_vehicles']})")
     p.add_argument("--initial-vehicles", type=int, default=d["initial_vehicles"],
                    help=f"of them on the road at reset (default {d['initial_vehicles']})")
+    p.add_argument("--duration", type=positive_float_arg, default=40.0, help="[s] episode time limit (default 40)")
     p.add_argument("--no-normalize-reward", action="store_true", help="train on the unscaled theta reward")
-    p.add_argument("--speed-dev", type=float, default=d["speed_dev"], help="reward weight of speed_dev")
-    p.add_argument("--acc-sq", type=float, default=d["acc_sq"], help="reward weight of acc_sq")
+    p.add_argument("--speed-dev", type=positive_float_arg, default=d["speed_dev"], help="reward weight of speed_dev")
+    p.add_argument("--acc-sq", type=positive_float_arg, default=d["acc_sq"], help="reward weight of acc_sq")
+    p.add_argument("--workers", type=workers_arg, default=1,
+                   help="cells (a training seed, or the MPC ego) run at once, each in its own process (default 1; "
+                        "0: in this process)")
+    p.add_argument("--dry-run", action="store_true", help="check the options and count the cells still to run")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
 def run(args) -> int:
-    """``pirl-sim policy-recovery``: 0, or 2 for a bad setting."""
+    """``pirl-sim policy-recovery``: 0, 1 when cells failed (the others are kept), 2 for a bad setting, 130 when
+    interrupted (finished cells are kept)."""
     import time
 
-    from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, ppo_ego_report, write_results
-    from pirl_sim.progress import reporter
+    from pirl_sim.engine.config import parse_config
+    from pirl_sim.engine.run import plan_cells, run_sweep
+    from pirl_sim.engine.store import ResultStore
+    from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, collect_records, write_results
+    from pirl_sim.io.atomic import atomic_write_text
+    from pirl_sim.validation import check_output_dir
 
+    t0 = time.perf_counter()
+    command = command_line("policy-recovery", [])
     try:
-        cfg = PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=tuple(args.seeds),
-                                steps=args.steps, eval_seeds=tuple(args.eval_seeds), n_steps=args.n_steps,
+        cfg = PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=args.seeds,
+                                steps=args.steps, eval_seeds=args.eval_seeds, n_steps=args.n_steps,
                                 batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
                                 n_vehicles=args.n_vehicles, initial_vehicles=args.initial_vehicles,
-                                normalize_reward=not args.no_normalize_reward)
+                                duration=args.duration, normalize_reward=not args.no_normalize_reward)
+        config = parse_config(cfg.sweep_data(), source="pirl-sim policy-recovery")
+        if args.dry_run:
+            _, _, unique, _, todo = plan_cells(config, ResultStore(args.out))
+            print(f"policy-recovery: {len(unique)} cells, {len(unique) - len(todo)} already in {args.out}/, "
+                  f"{len(todo)} to run")
+            return 0
+        result = run_sweep(config, check_output_dir(args.out), workers=args.workers, progress=not args.quiet, command=command,
+                           tables=False)
     except ValueError as exc:
         return error(exc)
-    say = reporter(not args.quiet)
-    t0 = time.perf_counter()
-    result = ppo_ego_report(cfg, log=say)
+    except KeyboardInterrupt:
+        return interrupted(args.out)
+    if result.failed:
+        return error(next(iter(result.failed.values())), status=1)
+    atomic_write_text(args.out / ".gitignore", "cells/\nerrors/\nsweep.json\n")
+    study = collect_records([result.records[k]["result"] for k in result.keys])
     wall = time.perf_counter() - t0
-    write_results(result, cfg, args.out, command_line("policy-recovery", []), wall)
-    print(result["reports"]["ppo"].to_markdown())
+    write_results(study, cfg, args.out, command, wall)
+    print(study["reports"]["ppo"].to_markdown())
     print(f"wrote {args.out}/ in {wall:.0f} s")
     return 0

@@ -268,9 +268,16 @@ def replay_config(args, settings: dict, tracks, map_path):
     ValueError
         Unknown learners, a bad --knn-k, or anything the sweep config rejects (named there).
     """
+    from pirl_sim.engine.config import parse_config
+
+    return parse_config(_replay_data(args, settings, tracks, map_path), source="<replay>")
+
+
+def _replay_data(args, settings: dict, tracks, map_path) -> dict:
+    """`replay_config`'s config as TOML data, before its check."""
     import tomllib
 
-    from pirl_sim.engine.config import parse_config, preset_text
+    from pirl_sim.engine.config import preset_text
     from pirl_sim.experiments.recorded import history_lags
 
     keys = [k.strip() for k in args.learners.split(",") if k.strip()]
@@ -324,7 +331,7 @@ def replay_config(args, settings: dict, tracks, map_path):
               **({"desired_speed": "fit"} if args.desired_speed == "fit" else {})}
     exp["params"] = {"tracks": str(tracks), "map": str(map_path), "files": args.files or 0, "load": load,
                      "replay": replay}
-    return parse_config(data, source="<replay>", text=text)
+    return data
 
 
 def replay_results(config, run, scene, proto) -> dict:
@@ -349,34 +356,40 @@ def replay_results(config, run, scene, proto) -> dict:
 def _replay(a, settings, out, say) -> tuple:
     """One scene (``a.tracks``, ``a.map``: the command's arguments, or their copy for one roundabout of --table)
     through the sweep engine into ``out``; returns (result, scene, protocol), result and scene None with
-    ``--dry-run``. Finished cells in ``out/cells/`` are reused: an
-    interrupted replay resumes."""
+    ``--dry-run``. Finished cells in ``out/cells/`` are reused: an interrupted replay resumes."""
+    config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
+    proto = _protocol(a, settings)
+    run, scene = _run_cells(config, a, settings, out, say)
+    return (None if run is None else replay_results(config, run, scene, proto)), scene, proto
+
+
+def _run_cells(config, a, settings, out, say) -> tuple:
+    """The cells of ``config`` (one recorded scene) into ``out``: (run, scene), both None with ``--dry-run``
+    (which prints the counts). The scene is read here first: too few usable tracks fail before any cell, and
+    ``--workers N`` > 1 forks N sweep workers that inherit it."""
     from pirl_sim.engine.executors import InlineExecutor, LocalExecutor
     from pirl_sim.engine.run import plan_cells, run_sweep
     from pirl_sim.engine.store import ResultStore
     from pirl_sim.experiments.recorded import load_scene, recorded_files, usable_tracks
 
-    config = replay_config(a, settings, a.tracks, a.map)  # validated before any work
-    proto = _protocol(a, settings)
     if a.dry_run:
         version, _, unique, records, _ = plan_cells(config, ResultStore(out))
-        print(f"replay of {a.tracks}: {len(unique)} cells, {len(records)} already in {out}/, "
-              f"{len(unique) - len(records)} to run (code {version})")
-        return None, None, proto
+        print(f"{config.experiments[0].label} of {a.tracks}: {len(unique)} cells, {len(records)} already in "
+              f"{out}/, {len(unique) - len(records)} to run (code {version})")
+        return None, None
     files = recorded_files(config.cells[0].scenario_params)
     say(f"reading {len(files)} track files and {a.map} (dt {settings['dt']:g} s, estimate "
         f"{settings['load']['estimate']}, selection {settings['load']['selection']})")
     scene = load_scene(dict(config.cells[0].scenario_params))  # the cells' scene (kept for them when inline)
-    usable_tracks(scene, proto)  # too few usable tracks fail here, before any cell
-    # --workers N > 1: N forked sweep workers, which inherit the scene read here
+    usable_tracks(scene, _protocol(a, settings, a.scan_horizon))
     with (InlineExecutor() if a.workers == 1 else LocalExecutor(a.workers, start_method="fork")) as executor:
         run = run_sweep(config, out, executor=executor, progress=not a.quiet, command=command_line("replay", []),
                         tables=False)
-    run.check_failed("the replay's cells")
+    run.check_failed(f"the {config.experiments[0].label}'s cells")
     say(f"{scene.n_converted} tracks converted (in {len(scene.trajectories)} pieces), {scene.n_selected_tracks} "
         f"selected; skipped {scene.skipped}; route repairs {scene.repairs}"
         + (f"; steps {scene.steps}" if scene.steps else ""))
-    return replay_results(config, run, scene, proto), scene, proto
+    return run, scene
 
 
 def run(args) -> int:
@@ -411,16 +424,24 @@ def run(args) -> int:
 
 
 def _scan(args, settings, say) -> int:
-    """``--scan-horizon H1,H2,...`` (`pirl_sim.experiments.horizon_scan`) instead of the replay."""
-    from pirl_sim.experiments.horizon_scan import scan_horizons, write_scan
-    from pirl_sim.experiments.recorded import recorded_files
-    from pirl_sim.scenarios.replay import load_replay
+    """``--scan-horizon H1,H2,...``: the replay's scene and windows as the ``horizon-scan`` kind
+    (`pirl_sim.experiments.horizon_scan`, one cell per split seed and H) instead of the replay."""
+    from pirl_sim.engine.config import parse_config
+    from pirl_sim.experiments.horizon_scan import LEARNER, scan_rows, write_scan
 
-    scan = args.scan_horizon
-    proto = _protocol(args, settings, scan)
-    scene = load_replay(recorded_files({"tracks": args.tracks, "files": args.files or 0}), args.map, **settings["load"])
-    rows = scan_horizons(scene, scan, proto, progress=say, desired_speed="fit" if args.desired_speed == "fit" else None)
-    table = write_scan(rows, args.out, command_line("replay", []))
+    data = _replay_data(args, {**settings, "mpc_horizon": settings["mpc_horizon"] or args.scan_horizon[0]},
+                        args.tracks, args.map)
+    exp = data["experiments"][0]
+    exp.update(scenario="horizon-scan", label="horizon scan",
+               learners=[{"name": LEARNER, "grid": {"horizon": list(args.scan_horizon)}}])
+    exp["params"]["replay"] = {k: v for k, v in exp["params"]["replay"].items()
+                               if k not in ("rollout", "mpc_horizon", "n_futures")}
+    config = parse_config(data, source="<replay --scan-horizon>")
+    run, _ = _run_cells(config, args, settings, args.out, say)
+    if run is None:  # --dry-run
+        return 0
+    table = write_scan(scan_rows([run.records[k]["result"] for k in run.keys]), args.out,
+                       command_line("replay", []))
     print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     print(f"wrote {args.out}/")
     return 0

@@ -19,97 +19,157 @@ Scoring given weights on given trajectories is `pirl_sim.receding.receding_resid
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
+from pirl_sim.experiments.recorded import SPEC as RECORDED
+from pirl_sim.experiments.recorded import (
+    _errors,
+    _replay_settings,
+    _windows,
+    desired_speed_model,
+    load_scene,
+    predict_path_states,
+    split_by_track,
+    start_histories,
+    usable_tracks,
+)
 from pirl_sim.receding import cauchy_nll, cauchy_scale, fit_receding, receding_residuals
 from pirl_sim.trajectory import Trajectory
+from pirl_sim.validation import is_positive_int
+from sklearn.base import BaseEstimator
 
-__all__ = ["scan_horizons", "summarize_scan", "write_scan"]
+__all__ = ["scan_seed", "scan_rows", "summarize_scan", "write_scan", "SPEC", "LEARNERS", "HorizonFit"]
 
 
-def scan_horizons(scene, horizons: Sequence[int], proto, *, step_stride: int = 1, progress=None,
-                  desired_speed=None) -> pd.DataFrame:
-    """Fit, score and predict per split seed and horizon (module doc).
+def scan_seed(scene, seed: int, horizons: Sequence[int], proto, *, step_stride: int = 1,
+              desired_speed=None) -> list[dict]:
+    """Fit, score and predict on one split seed for each horizon (module doc).
 
     Parameters
     ----------
     scene : pirl_sim.scenarios.replay.ReplayScene
+    seed : int                          the split seed (by track, as the replay)
     horizons : sequence of int          MPC horizons H [steps of the scene's dt]
-    proto : pirl_sim.experiments.recorded.ReplayProtocol   split seeds, test fraction, prediction windows
+    proto : pirl_sim.experiments.recorded.ReplayProtocol   test fraction and prediction windows
     step_stride : int                   score every ``step_stride``-th recorded step in the fit
     desired_speed : None, "fit" or (a_lat, v_max)
-        The scene's desired speed, one fitted per split seed on the training tracks
-        (`pirl_sim.experiments.recorded.fit_scene_speed`), or given [m/s^2, m/s] (as `run_replay`).
+        The scene's desired speed, one fitted on the seed's training tracks
+        (`pirl_sim.experiments.recorded.fit_scene_speed`), or given [m/s^2, m/s].
 
     Returns
     -------
-    DataFrame, one row per (seed, horizon): ``horizon``, ``horizon_s``, ``train_nll``, ``test_nll`` (per
-    scored control, under the training fit's Cauchy scale), ``test_rms`` (RMS residual [m/s^3]), ``sigma``
-    (training fit), ``med`` (closed-loop, [m]), ``med_open`` (open-loop plan over max(H, prediction horizon)),
-    the fitted weights ``theta_<feature>``, step counts and ``fit_s``.
+    list of dict, one row per horizon: ``horizon``, ``horizon_s``, ``train_nll``, ``test_nll`` (per scored
+    control, under the training fit's Cauchy scale), ``test_rms`` (RMS residual [m/s^3]), ``sigma`` (training
+    fit), ``med`` (closed-loop, [m]), ``med_open`` (open-loop plan over max(H, prediction horizon)), the fitted
+    weights ``theta_<feature>``, step counts and ``fit_s``.
     """
-    from pirl_sim.experiments.recorded import (
-        _errors,
-        _windows,
-        desired_speed_model,
-        predict_path_states,
-        split_by_track,
-        start_histories,
-        usable_tracks,
-    )
-
-    say = progress or (lambda msg: None)
     horizons = [int(h) for h in horizons]
     if not horizons or any(h < 1 for h in horizons):
         raise ValueError(f"horizons must be positive numbers of steps, got {horizons!r}")
     model, speed, _ = desired_speed_model(scene, None if desired_speed == "fit" else desired_speed)
     names = model.features.names
-    tracks = usable_tracks(scene, proto)
+    train, test, counts = split_by_track(usable_tracks(scene, proto), seed, proto.test_fraction)
+    if desired_speed == "fit":
+        model, speed, _ = desired_speed_model(scene, "fit", train)
+    windows = _windows(test, proto)
+    if not windows:
+        raise ValueError("no test window: tracks are too short for the protocol")
+    x0 = np.stack([h.states[-1] for h in start_histories(scene, test, windows, proto)])
+    u_train = np.concatenate([t.controls for t in train])
     rows = []
-    for seed in proto.seeds:
-        train, test, counts = split_by_track(tracks, seed, proto.test_fraction)
-        if desired_speed == "fit":
-            model, speed, _ = desired_speed_model(scene, "fit", train)
-        windows = _windows(test, proto)
-        if not windows:
-            raise ValueError("no test window: tracks are too short for the protocol")
-        x0 = np.stack([h.states[-1] for h in start_histories(scene, test, windows, proto)])
-        u_train = np.concatenate([t.controls for t in train])
-        for H in horizons:
-            t0 = time.perf_counter()
-            res = fit_receding(model, train, np.zeros(len(train), dtype=int), horizon=H, stride=step_stride)
-            fit_s = time.perf_counter() - t0
-            theta = res.normalized[0]
-            scale = float(cauchy_scale(float(res.sigma[0]), u_train))
-            r_train, _ = receding_residuals(model, train, theta, H, stride=step_stride)
-            r_test, _ = receding_residuals(model, test, theta, H)
-            # per-track weights: each test track fitted on the first half of its steps, scored on the second
-            first, second = zip(*(_halves(t) for t in test))
-            own = fit_receding(model, list(first), horizon=H, stride=step_stride)
-            r_own_fit, _ = receding_residuals(model, list(first), own.normalized, H, stride=step_stride)
-            r_own, _ = receding_residuals(model, list(second), own.normalized, H)
-            own_scale = float(cauchy_scale(1.4826 * float(np.median(np.abs(r_own_fit))), u_train))
-            th = np.broadcast_to(theta, (len(windows), theta.size))
-            med = {}
-            for rollout in ("closed", "open"):
-                s_pred = predict_path_states(model, x0, th, proto.horizon, rollout=rollout, mpc_horizon=H)[:, 1:, 0]
-                med[rollout] = float(_errors(model, test, windows, s_pred, proto).mean())
-            row = {"seed": seed, "horizon": H, "horizon_s": H * model.dynamics.dt,
-                   "train_nll": cauchy_nll(r_train, scale), "test_nll": cauchy_nll(r_test, scale),
-                   "test_rms": float(np.sqrt(np.mean(r_test**2))), "sigma": float(res.sigma[0]),
-                   "own_nll": cauchy_nll(r_own, own_scale), "own_rms": float(np.sqrt(np.mean(r_own**2))),
-                   "med": med["closed"], "med_open": med["open"], "converged": bool(res.converged[0]),
-                   "n_train_steps": int(r_train.shape[0]), "n_test_steps": int(r_test.shape[0]),
-                   "n_windows": len(windows), **counts, **speed, "fit_s": fit_s,
-                   **{f"theta_{n}": float(v) for n, v in zip(names, theta)}}
-            rows.append(row)
-            say(f"seed {seed}, H = {H}: held-out NLL {row['test_nll']:.4f} (shared weights) / {row['own_nll']:.4f} "
-                f"(per-track weights) per step, MED {med['closed']:.3f} m "
-                f"(closed) / {med['open']:.3f} m (open), fitted in {fit_s:.1f} s")
-    return pd.DataFrame(rows)
+    for H in horizons:
+        t0 = time.perf_counter()
+        res = fit_receding(model, train, np.zeros(len(train), dtype=int), horizon=H, stride=step_stride)
+        fit_s = time.perf_counter() - t0
+        theta = res.normalized[0]
+        scale = float(cauchy_scale(float(res.sigma[0]), u_train))
+        r_train, _ = receding_residuals(model, train, theta, H, stride=step_stride)
+        r_test, _ = receding_residuals(model, test, theta, H)
+        # per-track weights: each test track fitted on the first half of its steps, scored on the second
+        first, second = zip(*(_halves(t) for t in test))
+        own = fit_receding(model, list(first), horizon=H, stride=step_stride)
+        r_own_fit, _ = receding_residuals(model, list(first), own.normalized, H, stride=step_stride)
+        r_own, _ = receding_residuals(model, list(second), own.normalized, H)
+        own_scale = float(cauchy_scale(1.4826 * float(np.median(np.abs(r_own_fit))), u_train))
+        th = np.broadcast_to(theta, (len(windows), theta.size))
+        med = {}
+        for rollout in ("closed", "open"):
+            s_pred = predict_path_states(model, x0, th, proto.horizon, rollout=rollout, mpc_horizon=H)[:, 1:, 0]
+            med[rollout] = float(_errors(model, test, windows, s_pred, proto).mean())
+        rows.append({"seed": seed, "horizon": H, "horizon_s": H * model.dynamics.dt,
+                     "train_nll": cauchy_nll(r_train, scale), "test_nll": cauchy_nll(r_test, scale),
+                     "test_rms": float(np.sqrt(np.mean(r_test**2))), "sigma": float(res.sigma[0]),
+                     "own_nll": cauchy_nll(r_own, own_scale), "own_rms": float(np.sqrt(np.mean(r_own**2))),
+                     "med": med["closed"], "med_open": med["open"], "converged": bool(res.converged[0]),
+                     "n_train_steps": int(r_train.shape[0]), "n_test_steps": int(r_test.shape[0]),
+                     "n_windows": len(windows), **counts, **speed, "fit_s": fit_s,
+                     **{f"theta_{n}": float(v) for n, v in zip(names, theta)}})
+    return rows
+
+
+LEARNER = "mpc-horizon"  #: the kind's one learner: receding-horizon TIRL with MPC horizon ``horizon``
+
+
+class HorizonFit(BaseEstimator):
+    """The horizon-scan kind's learner (:func:`scan_seed`): TIRL with the receding-horizon likelihood and MPC
+    horizon ``horizon`` [steps], every ``step_stride``-th recorded step scored in the fit."""
+
+    name = LEARNER
+    scenarios = ("horizon-scan",)
+
+    def __init__(self, horizon: int = 10, step_stride: int = 1, model=None, window=None, windows="first"):
+        self.horizon, self.step_stride = horizon, step_stride
+        self.model, self.window, self.windows = model, window, windows  # the engine's learner keys, unused here
+
+    def _check_common(self) -> None:
+        for name in ("horizon", "step_stride"):
+            if not is_positive_int(getattr(self, name)):
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
+
+
+#: the learners of this kind, by name (the engine's config reads them through the registry)
+LEARNERS = {LEARNER: HorizonFit}
+
+
+def run_scan_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
+    """The cells of one split seed of a recorded scene (`pirl_sim.engine.worker.run_cells` calls it): one
+    `scan_seed` row per cell's horizon, stored as the cell's scores (``med``, and under ``scan`` the row's
+    [column, value] pairs in order: stored JSON sorts a dict's keys)."""
+    proto, desired_speed, _ = _replay_settings(specs[0])
+    strides = {s["learner_params"]["step_stride"] for s in specs}
+    out = []
+    for stride in sorted(strides):  # one scan per step stride (a config's cells share one, as the command's do)
+        group = [s for s in specs if s["learner_params"]["step_stride"] == stride]
+        rows = scan_seed(load_scene(specs[0]["scenario_params"]), specs[0]["seed"],
+                         [s["learner_params"]["horizon"] for s in group], proto, step_stride=stride,
+                         desired_speed=desired_speed)
+        out += [(s, {"med": row["med"], "scan": list(row.items())}) for s, row in zip(group, rows)]
+    order = {id(s): i for i, s in enumerate(specs)}
+    return [(scores, {"fit_s": dict(scores["scan"])["fit_s"], "evaluate_s": 0.0})
+            for s, scores in sorted(out, key=lambda o: order[id(o[0])])]
+
+
+def _check_protocol(params: dict, protocol: dict) -> None:
+    """The recorded kind's check, without its rollout settings (the scan predicts both ways with each H)."""
+    RECORDED.check_protocol(dict(params, replay={k: v for k, v in params["replay"].items()
+                                                 if k not in ("rollout", "mpc_horizon")}), protocol)
+
+
+#: the recorded kind's scene and parameters, cells of its own
+SPEC = replace(RECORDED, name="horizon-scan", summary="held-out receding-horizon likelihood and MED of recorded "
+               "tracks per MPC horizon (module pirl_sim.experiments.horizon_scan)",
+               run_cells=run_scan_cells, check_protocol=_check_protocol, learners=(LEARNER,),
+               code=("pirl_sim.experiments.horizon_scan",))
+
+
+def scan_rows(records: list[dict]) -> pd.DataFrame:
+    """The scan's rows (`scan_seed`'s, by seed and horizon) from the cells' stored results."""
+    rows = pd.DataFrame([dict(r["scan"]) for r in records])
+    return rows.sort_values(["seed", "horizon"], kind="stable").reset_index(drop=True)
 
 
 def _halves(t: Trajectory) -> tuple[Trajectory, Trajectory]:

@@ -11,12 +11,14 @@ receding-horizon likelihood (the drivers' MPC horizon) and compares it with the 
   0.1 s (``policy_frequency`` 10, so that each action is one MPC command); the steps whose applied action
   was not the MPC's own command (capped by the traffic's IDM limit, or handed back at a standstill) and the
   re-convergence frames after them leave the likelihood (``step_mask``), as for the simulators' PIRL drivers.
-- :func:`ppo_ego_report` / ``pirl-sim policy-recovery``: stable-baselines3's PPO trained on
-  the env's ``"theta"`` reward (minus the cost of the weights ``reward_theta``), then driven deterministically
-  on evaluation seeds; how close the weights recovered from its driving come to the reward's weights is a
-  measured figure (no pass/fail), written with the MPC ego of the same weights on the same seeds as the
-  reference. The command writes ``summary.md`` / ``summary.csv`` / ``tracks.csv`` / ``README.md`` (with the
-  command and wall times) under ``--out`` (default ``results/policy_recovery``).
+- ``pirl-sim policy-recovery``: stable-baselines3's PPO trained on the env's ``"theta"`` reward (minus the cost
+  of the weights ``reward_theta``), then driven deterministically on evaluation seeds; how close the weights
+  recovered from its driving come to the reward's weights is a measured figure (no pass/fail), written with the
+  MPC ego of the same weights on the same seeds as the reference. It runs as the engine kind
+  ``policy-recovery`` (`SPEC`; `PpoRecoveryConfig.sweep_data`): a cell trains PPO with one seed, drives and
+  fits it (learner ``ppo-theta``), or drives and fits the MPC ego (``mpc-theta``); `collect_records` gathers
+  the cells and `write_results` writes ``summary.md`` / ``summary.csv`` / ``tracks.csv`` / ``episodes.csv`` /
+  ``README.md`` (with the command and wall times).
 """
 
 from __future__ import annotations
@@ -24,18 +26,21 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from sklearn.base import BaseEstimator
 
-__all__ = ["ENV_ID", "ego_demonstration", "mpc_ego_demonstrations", "mpc_ego_report",
-           "PpoRecoveryConfig", "ppo_ego_report", "write_results"]
+from . import agents
+from .spec import Param, ScenarioSpec, TrainShape
+
+__all__ = ["ENV_ID", "ego_demonstration", "mpc_ego_demonstrations", "mpc_ego_report", "PpoRecoveryConfig",
+           "SPEC", "LEARNERS", "run_policy_cells", "collect_records", "write_results"]
 
 ENV_ID = "pirl_sim/Roundabout-v0"
-DEFAULT_OUT = Path("results") / "policy_recovery"
 #: the two styles of the tests: the population presets' mean weights (speed_dev, acc_sq; jerk_sq = 1)
 STYLES: dict[str, dict[str, float]] = {
     "tracks desired speed": {"speed_dev": 3.0, "acc_sq": 0.3},
@@ -213,6 +218,15 @@ def mpc_ego_report(policies: Mapping[str, Mapping[str, float]] = STYLES, seeds: 
 
 
 # ---------------------------------------------------------------------------------------------- PPO
+KIND = "policy-recovery"  #: the engine kind (`SPEC`)
+PPO, MPC = "ppo-theta", "mpc-theta"  #: its learners (`LEARNERS`)
+#: `PpoRecoveryConfig` fields that are the kind's parameters (with the weights) and the PPO learner's
+ENV_SETTINGS = ("n_vehicles", "initial_vehicles", "depart_interval", "duration")
+PPO_SETTINGS = ("steps", "normalize_reward", "n_steps", "batch_size", "n_epochs", "gamma", "learning_rate",
+                "log_std_init", "use_sde")
+TRACK_FIELDS = ("true", "estimated", "styles", "converged", "fitted_steps")  #: per-track fields of a cell's fit
+
+
 @dataclass(frozen=True)
 class PpoRecoveryConfig:
     """Settings of the PPO recovery experiment (validated on construction).
@@ -276,14 +290,67 @@ class PpoRecoveryConfig:
     def theta_map(self) -> dict[str, float]:
         return dict(self.theta)
 
-    def env_config(self) -> dict:
-        """The env's options: the ``"theta"`` reward of :attr:`theta`, the traffic, one action per 0.1 s."""
-        return {"reward": "theta", "reward_theta": self.theta_map, "initial_vehicles": self.initial_vehicles,
-                "duration": self.duration,
-                "population": {"n_vehicles": self.n_vehicles, "depart_interval": self.depart_interval}}
+    def sweep_data(self) -> dict:
+        """The study as sweep config data (`pirl_sim.engine.config.parse_config`) of the ``policy-recovery``
+        kind: the MPC ego's cell (seed 0: it draws nothing) and a PPO cell per training seed."""
+        params = {**self.theta_map, **{f: getattr(self, f) for f in ENV_SETTINGS}}
+        evals = {"eval_seeds": list(self.eval_seeds)}
+        ppo = {"name": PPO, "params": {**evals, **{f: getattr(self, f) for f in PPO_SETTINGS}}}
+        return {"name": KIND, "experiments": [
+            {"scenario": KIND, "label": "mpc", "params": params, "seeds": [0],
+             "learners": [{"name": MPC, "params": evals}]},
+            {"scenario": KIND, "label": "ppo", "params": params, "seeds": list(self.seeds), "learners": [ppo]}]}
 
 
-def _train_ppo(cfg: PpoRecoveryConfig, seed: int):
+_D = PpoRecoveryConfig
+
+
+class MpcThetaEgo(BaseEstimator):
+    """The kind's MPC ego of the reward's weights, driven on the env seeds ``eval_seeds``."""
+
+    name = MPC
+    scenarios = (KIND,)
+
+    def __init__(self, eval_seeds=_D.eval_seeds, model=None, window=None, windows="first"):
+        self.eval_seeds = eval_seeds
+        self.model, self.window, self.windows = model, window, windows  # the engine's learner keys, unused here
+
+    def _check_common(self) -> None:
+        _check_seeds("eval_seeds", self.eval_seeds)
+
+
+class PpoThetaEgo(MpcThetaEgo):
+    """The kind's PPO ego: `PpoRecoveryConfig`'s settings; ``random_state`` is the training seed (the cell's)."""
+
+    name = PPO
+
+    def __init__(self, eval_seeds=_D.eval_seeds, steps=_D.steps, normalize_reward=_D.normalize_reward,
+                 n_steps=_D.n_steps, batch_size=_D.batch_size, n_epochs=_D.n_epochs, gamma=_D.gamma,
+                 learning_rate=_D.learning_rate, log_std_init=_D.log_std_init, use_sde=_D.use_sde,
+                 random_state=None, model=None, window=None, windows="first"):
+        super().__init__(eval_seeds, model, window, windows)
+        self.steps, self.normalize_reward, self.n_steps, self.batch_size = steps, normalize_reward, n_steps, batch_size
+        self.n_epochs, self.gamma, self.learning_rate = n_epochs, gamma, learning_rate
+        self.log_std_init, self.use_sde, self.random_state = log_std_init, use_sde, random_state
+
+    def _check_common(self) -> None:
+        PpoRecoveryConfig(seeds=(self.random_state,), eval_seeds=self.eval_seeds,
+                          **{f: getattr(self, f) for f in PPO_SETTINGS})
+
+
+LEARNERS = {MPC: MpcThetaEgo, PPO: PpoThetaEgo}  #: the kind's learners, by name
+
+
+def env_config(params: dict) -> dict:
+    """The env's options of a cell: the ``"theta"`` reward of the kind's weights, the traffic."""
+    from pirl_sim.scenarios.population_config import FREE_FEATURES
+
+    return {"reward": "theta", "reward_theta": {f: params[f] for f in FREE_FEATURES},
+            "initial_vehicles": params["initial_vehicles"], "duration": params["duration"],
+            "population": {"n_vehicles": params["n_vehicles"], "depart_interval": params["depart_interval"]}}
+
+
+def _train_ppo(config: dict, lp: dict, seed: int):
     """A PPO policy trained on the env's ``"theta"`` reward (torch on one thread, the caller's count restored)."""
     import gymnasium as gym
     import torch
@@ -297,65 +364,123 @@ def _train_ppo(cfg: PpoRecoveryConfig, seed: int):
     torch.set_num_threads(1)
     try:
         env = DummyVecEnv([lambda: gym.wrappers.FlattenObservation(
-            gym.make(ENV_ID, config={**cfg.env_config(), "policy_frequency": 10}))])
-        if cfg.normalize_reward:
-            env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
-        model = PPO("MlpPolicy", env, n_steps=cfg.n_steps, batch_size=cfg.batch_size, n_epochs=cfg.n_epochs,
-                    gamma=cfg.gamma, learning_rate=cfg.learning_rate, use_sde=cfg.use_sde, seed=seed, verbose=0,
-                    device="cpu", policy_kwargs={"log_std_init": cfg.log_std_init})
+            gym.make(ENV_ID, config={**config, "policy_frequency": 10}))])
+        if lp["normalize_reward"]:
+            env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=lp["gamma"])
+        model = PPO("MlpPolicy", env, n_steps=lp["n_steps"], batch_size=lp["batch_size"], n_epochs=lp["n_epochs"],
+                    gamma=lp["gamma"], learning_rate=lp["learning_rate"], use_sde=lp["use_sde"], seed=seed,
+                    verbose=0, device="cpu", policy_kwargs={"log_std_init": lp["log_std_init"]})
         model.set_logger(Logger(folder=None, output_formats=[]))  # no SB3-<date> folder
-        model.learn(total_timesteps=cfg.steps)
+        model.learn(total_timesteps=lp["steps"])
         env.close()
     finally:
         torch.set_num_threads(threads)
     return model
 
 
-def ppo_ego_report(cfg: PpoRecoveryConfig, *, log: Callable[[str], None] = lambda m: None):
-    """Train PPO per seed on the ``"theta"`` reward, drive each trained policy (deterministic actions) and the
-    MPC ego of the same weights on the evaluation seeds, and fit each episode's weights.
+def _ppo_demonstrations(policy, config: dict, eval_seeds: list[int], seed: int):
+    """The PPO ``policy`` of training seed ``seed`` driven deterministically on the evaluation seeds: (model,
+    horizon, demonstrations, episodes) as :func:`mpc_ego_demonstrations`."""
+    import gymnasium as gym
+
+    from pirl_sim.envs.baselines import drive_episode
+
+    env = gym.wrappers.FlattenObservation(gym.make(ENV_ID, config=_check_env_config(config)))
+    base, demos, episodes = env.unwrapped, [], []
+    for s in eval_seeds:
+        ep = drive_episode(env, lambda obs: policy.predict(obs, deterministic=True)[0], s)
+        episodes.append({"policy": "ppo", "train_seed": seed, **ep})
+        demos.append(ego_demonstration(base, theta=config["reward_theta"], style_name=f"ppo seed {seed}",
+                                       track_id=len(demos)))
+    model, horizon = base.road.model, int(base.config["drivers"].horizon)
+    env.close()
+    return model, horizon, demos, episodes
+
+
+def run_policy_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
+    """Run cells of the ``policy-recovery`` kind (`pirl_sim.engine.worker.run_cells` calls it): the cell's policy
+    drives the evaluation seeds and each episode's ego track is fitted on its own.
+
+    Returns
+    -------
+    list of (record, timings)
+        One per spec; the record (a cell's result): ``policy`` ("ppo" or "mpc"), ``train_seed`` (-1: the MPC
+        ego), ``episodes`` (``columns`` and one of ``rows`` per episode), ``fit`` (``features``, ``reference`` and
+        per track :data:`TRACK_FIELDS` of its `pirl_sim.recovery.RecoveryReport`), ``train_s``, ``drive_s``,
+        ``fit_s`` [s].
+    """
+    from pirl_sim.recovery import RecoveryReport
+
+    out = []
+    for spec in specs:
+        params, lp = spec["scenario_params"], spec["learner_params"]
+        config = env_config(params)
+        t0 = time.perf_counter()
+        if spec["learner"] == MPC:
+            model, horizon, demos, episodes = mpc_ego_demonstrations({"mpc": config["reward_theta"]},
+                                                                     lp["eval_seeds"], config=config)
+            episodes, seed, train_s = [{**e, "train_seed": -1} for e in episodes], -1, 0.0
+        else:
+            seed = lp["random_state"]
+            policy = _train_ppo(config, lp, seed)
+            train_s = time.perf_counter() - t0
+            model, horizon, demos, episodes = _ppo_demonstrations(policy, config, lp["eval_seeds"], seed)
+        t1 = time.perf_counter()
+        rep = RecoveryReport.from_trajectories(model, demos, likelihood="receding", horizon=horizon)
+        record = {"policy": "mpc" if spec["learner"] == MPC else "ppo", "train_seed": seed,
+                  "episodes": {"columns": list(episodes[0]), "rows": [list(e.values()) for e in episodes]},
+                  "fit": {"features": list(rep.features), "reference": rep.reference,
+                          **{k: np.asarray(getattr(rep, k)).tolist() for k in TRACK_FIELDS}},
+                  "train_s": train_s, "drive_s": t1 - t0 - train_s, "fit_s": time.perf_counter() - t1}
+        out.append((record, {"fit_s": record["fit_s"], "evaluate_s": t1 - t0}))
+    return out
+
+
+def _check(params: dict) -> dict:
+    PpoRecoveryConfig(theta=env_config(params)["reward_theta"], **{f: params[f] for f in ENV_SETTINGS})
+    return params
+
+
+SPEC = ScenarioSpec(
+    KIND, "weights recovered from PPO trained on the theta reward of pirl_sim/Roundabout-v0 and from the MPC ego of "
+    "the same weights (module pirl_sim.experiments.policy_recovery)",
+    {**{f: Param("float", w, f"the theta reward's normalised weight of {f} (jerk_sq 1)") for f, w in _D.theta},
+     "n_vehicles": Param("int", _D.n_vehicles, "vehicles of the env's population in an episode"),
+     "initial_vehicles": Param("int", _D.initial_vehicles, "of them on the road at reset"),
+     "depart_interval": Param("float", _D.depart_interval, "[s] mean time between the population's departures"),
+     "duration": Param("float", _D.duration, "[s] episode time limit")},
+    _check, None, lambda params: TrainShape(0, (), exact=False), run_cells=run_policy_cells,
+    check_protocol=agents._check_protocol, learners=(PPO, MPC),
+    code=("pirl_sim.experiments.policy_recovery", "pirl_sim.envs.*"),
+)
+
+
+def collect_records(records: Sequence[dict]) -> dict:
+    """The study's results from its cells' records (`run_policy_cells`; the PPO cells in training seed order), as
+    :func:`write_results` takes them.
 
     Returns
     -------
     dict
         ``reports``: {"ppo": RecoveryReport (one track per (seed, evaluation episode), style = "ppo seed <s>"),
-        "mpc": RecoveryReport of the MPC ego}; ``episodes``: DataFrame (policy, seed, eval seed, return,
-        arrived, crashed, time); ``times``: wall times [s].
+        "mpc": RecoveryReport of the MPC ego}; ``episodes``: DataFrame (policy, eval seed, return, arrived,
+        crashed, time, ..., train seed); ``times``: wall times [s].
     """
-    import gymnasium as gym
-
-    from pirl_sim.envs.baselines import drive_episode
     from pirl_sim.recovery import RecoveryReport
 
-    theta = cfg.theta_map
-    times = {}
-    t0 = time.perf_counter()
-    model, horizon, mpc_demos, mpc_eps = mpc_ego_demonstrations({"mpc": theta}, cfg.eval_seeds,
-                                                                config=cfg.env_config())
-    times["mpc_drive_s"] = time.perf_counter() - t0
-    episodes = [{**e, "policy": "mpc", "train_seed": -1} for e in mpc_eps]
-    demos = []
-    for seed in cfg.seeds:
-        t0 = time.perf_counter()
-        policy = _train_ppo(cfg, seed)
-        times[f"ppo_train_seed{seed}_s"] = time.perf_counter() - t0
-        log(f"PPO seed {seed}: trained {cfg.steps} steps in {times[f'ppo_train_seed{seed}_s']:.0f} s")
-        env = gym.wrappers.FlattenObservation(gym.make(ENV_ID, config=_check_env_config(cfg.env_config())))
-        base = env.unwrapped
-        for s in cfg.eval_seeds:
-            ep = drive_episode(env, lambda obs: policy.predict(obs, deterministic=True)[0], s)
-            episodes.append({"policy": "ppo", "train_seed": seed, **ep})
-            demos.append(ego_demonstration(base, theta=theta, style_name=f"ppo seed {seed}", track_id=len(demos)))
-        env.close()
-    t0 = time.perf_counter()
-    reports = {
-        "ppo": RecoveryReport.from_trajectories(model, demos, likelihood="receding", horizon=horizon,
-                                                source="PPO ego (theta reward)"),
-        "mpc": RecoveryReport.from_trajectories(model, mpc_demos, likelihood="receding", horizon=horizon,
-                                                source="MPC ego (same weights)"),
-    }
-    times["fit_s"] = time.perf_counter() - t0
-    return {"reports": reports, "episodes": pd.DataFrame(episodes), "times": times}
+    mpc, ppo = ([r for r in records if r["policy"] == p] for p in ("mpc", "ppo"))
+
+    def report(recs: list[dict], source: str) -> RecoveryReport:
+        fit = {k: [v for r in recs for v in r["fit"][k]] for k in TRACK_FIELDS}
+        return RecoveryReport(tuple(recs[0]["fit"]["features"]), fit["true"], fit["estimated"],
+                              np.arange(len(fit["styles"])), tuple(fit["styles"]), fit["converged"],
+                              fit["fitted_steps"], reference=recs[0]["fit"]["reference"], source=source)
+
+    episodes = [dict(zip(r["episodes"]["columns"], row)) for r in mpc + ppo for row in r["episodes"]["rows"]]
+    times = {"mpc_drive_s": mpc[0]["drive_s"], **{f"ppo_train_seed{r['train_seed']}_s": r["train_s"] for r in ppo},
+             "fit_s": sum(r["fit_s"] for r in records)}
+    return {"reports": {"ppo": report(ppo, "PPO ego (theta reward)"), "mpc": report(mpc, "MPC ego (same weights)")},
+            "episodes": pd.DataFrame(episodes), "times": times}
 
 
 # ---------------------------------------------------------------------------------------------- files

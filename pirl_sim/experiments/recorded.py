@@ -437,7 +437,8 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     proto : ReplayProtocol
     desired_speed : None, "fit" or (a_lat, v_max)
         The scene's own, fitted on this split's training pieces (`fit_scene_speed`), or given [m/s^2, m/s].
-    n_futures : int              > 0: also score K futures of every learner (`pirl_sim.experiments.replay_report.run_replay`)
+    n_futures : int              K > 0: also score K futures of every learner: ``min_ade@K``, ``min_fde@K``,
+                                 ``miss_rate@K`` (INTERACTION's rule), ``nll_per_step@K`` (mixture NLL, sigma 1 m)
 
     Returns
     -------

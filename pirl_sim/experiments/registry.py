@@ -6,19 +6,19 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from . import agents, recorded, recovery, simulated
+from . import agents, horizon_scan, policy_recovery, recorded, recovery, simulated, weight_space
 from .spec import ScenarioSpec, convert_param
 
 __all__ = ["SCENARIOS", "KIND_LEARNERS", "PROTOCOL_FREE", "register_scenario", "scenario_spec", "resolve_scenario_params"]
 
 SCENARIOS: dict[str, ScenarioSpec] = {
-    s.name: s for s in (*simulated.SPECS, *recorded.SPECS, agents.SPEC, recovery.SPEC)
+    s.name: s for s in (*simulated.SPECS, *recorded.SPECS, agents.SPEC, recovery.SPEC, horizon_scan.SPEC, policy_recovery.SPEC, weight_space.SPEC)
 }
 #: learners that only some kinds run (their classes name the kinds in ``scenarios``): the agents' policies and
 #: the recovery kind's per-track IRL
-KIND_LEARNERS: dict[str, type] = {**agents.POLICIES, **recovery.LEARNERS}
+KIND_LEARNERS: dict[str, type] = {**agents.POLICIES, **recovery.LEARNERS, **policy_recovery.LEARNERS, **horizon_scan.LEARNERS}
 #: kinds that score whole runs or episodes, not predictions under a protocol: a config may leave out protocols
-PROTOCOL_FREE: frozenset[str] = frozenset({"agents", "recovery"})
+PROTOCOL_FREE: frozenset[str] = frozenset({"agents", "recovery", "policy-recovery"})
 
 
 def register_scenario(spec: ScenarioSpec) -> ScenarioSpec:

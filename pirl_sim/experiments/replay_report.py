@@ -1,11 +1,11 @@
-"""The replay experiment's in-process runner and its report template (``pirl-sim replay`` writes these files).
+"""The replay experiment's report template (``pirl-sim replay`` writes these files).
 
 The experiment itself, what a split seed computes, is the sweep engine's ``recorded`` scenario
 (`pirl_sim.experiments.recorded`: windows, baselines, learners, scores; its module doc). ``pirl-sim replay`` runs it
-through the engine (`pirl_sim.cli.replay`: cells kept in the output directory, resumable);
-`run_replay` runs the same split-seed function here, on a scene in memory, without a store. Both give the
-result dict that the template writes (`write_replay_results`: ``rows.csv``, ``summary.csv/.md``,
-``paired.csv``, ``paired_ca.csv``, ``README.md``, ``clusters.png``, ``s_t.png``, ``knn_k.png``).
+through the engine (`pirl_sim.cli.replay`: cells kept in the output directory, resumable) and gathers the stored
+cells into the result dict (`collect_replay`) that the template writes (`write_replay_results`: ``rows.csv``,
+``summary.csv/.md``, ``paired.csv``, ``paired_ca.csv``, ``README.md``, ``clusters.png``, ``s_t.png``,
+``knn_k.png``).
 """
 
 from __future__ import annotations
@@ -27,60 +27,30 @@ from pirl_sim.experiments.recorded import (  # noqa: F401  (ReplayProtocol, pred
     ReplayProtocol,
     _track_keys,
     predict_path_states,
-    replay_seed,
     usable_tracks,
 )
 
-__all__ = ["ReplayProtocol", "run_replay", "collect_replay", "paired_differences", "summarize", "selection_table",
+__all__ = ["ReplayProtocol", "collect_replay", "paired_differences", "summarize", "selection_table",
            "write_replay_results", "predict_path_states", "HINDSIGHT", "DIRECT"]
 
 
-def run_replay(scene, learner_specs, proto: ReplayProtocol = ReplayProtocol(), *, desired_speed=None,
-               hindsight: bool = False, direct: bool = False, n_futures: int = 0) -> dict:
-    """Run the experiment on a `pirl_sim.scenarios.replay.ReplayScene` in this process, one split seed after
-    another (`pirl_sim.experiments.recorded.replay_seed`; ``pirl-sim replay`` runs the same through the sweep engine).
-
-    Parameters
-    ----------
-    scene : ReplayScene
-    learner_specs : list of (name, learner key, params)  (see `pirl_sim.learners.make_learner`)
-    proto : ReplayProtocol
-    desired_speed : None (the scene's model), ``"fit"`` (a_lat, v_max fitted per split seed on the training
-        tracks) or (a_lat, v_max) [m/s^2, m/s] fixed. Every row carries the ``a_lat`` and ``v_max`` it used.
-    hindsight : bool
-        Adds the row ``HINDSIGHT``: every test window predicted from its start under the cost the IRL fits on
-        the window's own recorded future. It sees what it predicts, so it is no predictor; it is what the model
-        class could reach with a perfect online inference of the weights.
-    direct : bool
-        Adds the row ``DIRECT``: the arc lengths ahead regressed on the history and the place, without a cost
-        (`pirl_sim.evaluation.direct.DirectRegression`), fitted on each split's training tracks.
-    n_futures : int
-        K > 0 scores every learner's K predicted futures (drawn with the split seed): ``min_ade@K``,
-        ``min_fde@K``, ``miss_rate@K`` (INTERACTION's rule) and ``nll_per_step@K`` (mixture NLL, sigma 1 m).
+def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=()) -> dict:
+    """The replay's result dict from `pirl_sim.experiments.recorded.replay_seed`'s output per split seed ({seed:
+    output}, rows in the order of ``proto.seeds`` and then of each output's methods; ``pirl-sim replay`` rebuilds
+    it from the stored cells, `pirl_sim.cli.replay.replay_results`); ``gmm_k``, the clusters of the cluster
+    figure, is the first PIRL-GMM learner's ``n_components`` (3 without one) of ``learner_specs`` [(name, key,
+    params)].
 
     Returns
     -------
-    dict (`collect_replay`) with ``rows`` (tidy DataFrame: seed, method, med, med_path, de@..., n_windows, counts,
-    a_lat, v_max, lateral_floor, fit_s, predict_s; for learners their fit diagnostics ``irl_converged`` /
-    ``irl_groups``, ``irl_convergence_warnings``, ``hessian_regularization_warnings``, ``irl_from`` (the method
-    whose fit a PIRL-kNN learner reused, else empty) and, with ground truth, ``ari``, ``weight_error``,
-    ``irl_weight_error``), ``paired`` / ``paired_ca`` (paired differences against TIRL / CA (path)),
-    ``errors`` {(seed, method): per-window MED (W,)}, ``selected`` and ``selected_pieces`` (tracks used and
-    their pieces) and the S-T figure's ``examples``.
+    dict with ``rows`` (tidy DataFrame: seed, method, med, med_path, de@..., n_windows, counts, a_lat, v_max,
+    lateral_floor, fit_s, predict_s; for learners their fit diagnostics ``irl_converged`` / ``irl_groups``,
+    ``irl_convergence_warnings``, ``hessian_regularization_warnings``, ``irl_from`` (the method whose fit a
+    PIRL-kNN learner reused, else empty) and, with ground truth, ``ari``, ``weight_error``, ``irl_weight_error``),
+    ``paired`` / ``paired_ca`` (paired differences against TIRL / CA (path)), ``errors`` {(seed, method):
+    per-window MED (W,)}, ``selected`` and ``selected_pieces`` (tracks used and their pieces), the S-T figure's
+    ``examples``, ``history``, ``horizon`` and ``gmm_k``.
     """
-    methods = [("CV (path)", "cv", {}), ("CA (path)", "ca", {}), *learner_specs,  # the order of the rows
-               *([(HINDSIGHT, "hindsight", {})] if hindsight else []), *([(DIRECT, "direct", {})] if direct else []),
-               ("CV (x, y)", "cv-xy", {})]
-    per_seed = {seed: replay_seed(scene, seed, methods, proto, desired_speed=desired_speed, n_futures=n_futures)
-                for seed in proto.seeds}
-    return collect_replay(scene, proto, per_seed, learner_specs)
-
-
-def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=()) -> dict:
-    """The replay's result dict (`run_replay`) from `pirl_sim.experiments.recorded.replay_seed`'s output per split seed
-    ({seed: output}, rows in the order of ``proto.seeds`` and then of each output's methods); ``gmm_k``, the
-    clusters of the cluster figure, is the first PIRL-GMM learner's ``n_components`` (3 without one) of
-    ``learner_specs`` [(name, key, params)]."""
     tracks = usable_tracks(scene, proto)
     rows, errors = [], {}
     for seed in proto.seeds:

@@ -1,10 +1,11 @@
 """Feature-space against weight-space mixtures: the measurements behind
 ``results/weight_space/``.
 
-``pirl-sim weight-space --out results/weight_space`` (7 min 25 s on one core at a load
-average of ~6 from other jobs; ≈4 min before the random-start and MML rows) writes ``table.csv`` / ``table.md``
-(one row per experiment, protocol and learner) and ``README.md``. Same seed, same bytes (no timings in the
-files). Experiments:
+``pirl-sim weight-space --out results/weight_space`` runs the study through the engine as the kind
+``weight-space`` (`SPEC`; a cell: one learner fitted to one experiment's data of one seed and scored under one
+protocol, a row of the table; `study_config` lists them; finished cells are kept in ``OUT/cells``) and writes
+``table.csv`` / ``table.md`` (one row per experiment, protocol and learner; with several seeds, per seed too) and
+``README.md``. Same seeds, same bytes (no timings in the files). Experiments:
 
 - ``synthetic-spread``: the paper's synthetic problem with start states spread over p in [2, 8] m and v in
   [-1, 1] m/s (the README's ``reproduce synthetic --position-range 2 8 --velocity-range -1 1``: same
@@ -37,19 +38,23 @@ worst per-style weight error; ``med`` [m], ``weight_error`` (median per test tra
 (`PIRLGMM.predict_futures`, K = ``n_styles``; see `_min_over_styles`).
 
 Multi-modal prediction, online rows of every learner: `evaluate` with ``n_futures=6``
-(K = 6 futures asked for, seed ``--seed``): ``k_futures`` the number a learner returns (TIRL 1, a feature-space
+(K = 6 futures asked for, seed: the cell's): ``k_futures`` the number a learner returns (TIRL 1, a feature-space
 mixture at most its styles, weight-space mixtures and PIRL-kNN 6 draws from their posterior over the weights),
 ``min_ade_6`` / ``min_fde_6`` [m], ``miss_rate_6`` (the INTERACTION challenge's rule) and ``nll_6`` [nats per
 predicted step, Gaussian mixture of sigma 0.5 m around the futures]; definitions in `pirl_sim.metrics`. With
 fewer than 6 futures the scores are those of the smaller set (the challenge accepts fewer than 6 modalities).
 
 ``futures.png``: the six futures of PIRL-GMM (k=3) in weight space after the first 2 s of the first test
-passage (seed ``--seed``), on the passage's map (lane edges 1.75 m either side of the path), and their arc
-length minus the true future's against time.
+passage (the first of ``--seeds``), on the passage's map (lane edges 1.75 m either side of the path), and
+their arc length minus the true future's against time.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import math
+import time
 import warnings
 
 import numpy as np
@@ -60,26 +65,21 @@ from pirl_sim.evaluation.tables import markdown
 from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.metrics import match_styles, weight_recovery_error
 
-__all__ = ["run_study", "write_study", "lq_three_styles", "futures_figure"]
+from .spec import Param, ScenarioSpec, TrainShape
 
+__all__ = ["EXPERIMENTS", "SPEC", "study_config", "experiment_data", "futures_figure", "write_study"]
+
+#: the study's experiments (module doc) and their training-set sizes
+EXPERIMENTS = {"synthetic-spread": 1800, "synthetic": 1800, "lq-3-styles": 600, "passage": 500, "lq-receding": 120}
 LQ_STYLE_Q = (0.1, 1.0, 10.0)  # normalised state_sq weight of each LQ style
 RANDOM_START_PASSES = 50  # most passes of hard EM from random clusters (PIRL-GMM init="random")
 N_FUTURES = 6  # K of the multi-modal scores (the INTERACTION challenge's number of modalities)
 LANE_HALF_WIDTH = 1.75  # [m] drawn either side of the passage's path in futures.png
+FIGURE_LEARNER = "PIRL-GMM (k=3), weights"  # whose futures of the first test passage futures.png draws
+ONLINE = Protocol("online", 10)  # the first 10 steps observed
 MULTIMODAL_COLUMNS = ("k_futures", "min_ade_6", "min_fde_6", "miss_rate_6", "nll_6")
-
-
-def lq_three_styles(n: int, rationality: float, seed: int, n_steps: int = 40):
-    """Boltzmann-rational LQ demonstrations of three styles from spread start states (module doc)."""
-    from pirl_sim.model import synthetic_model
-    from pirl_sim.population import Population, Style, generate_demonstrations
-
-    model = synthetic_model()
-    styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
-                   for name, q in zip(("calm", "normal", "eager"), LQ_STYLE_Q))
-    rng = np.random.default_rng(seed)
-    x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
-    return model, generate_demonstrations(model, Population(model.features, styles, rationality), x0, n_steps, rng)
+COLUMNS = ("experiment", "protocol", "learner", "med", "fde", "weight_error", "ari", "n_styles", "em_passes",
+           "style_accuracy", "feature_style_accuracy", "style_error", "min_ade", "min_fde", *MULTIMODAL_COLUMNS)
 
 
 def _style_means(demos, n_styles: int, K: int) -> np.ndarray:
@@ -89,19 +89,54 @@ def _style_means(demos, n_styles: int, K: int) -> np.ndarray:
     return np.stack([np.exp(np.log(theta[style == s]).mean(axis=0)) for s in range(n_styles)])
 
 
-def _row(experiment, protocol, name, learner, train, test, style_means=None, seed: int = 0) -> dict:
-    row = {"experiment": experiment, "protocol": protocol.name, "learner": name}
+@functools.lru_cache(maxsize=1)
+def experiment_data(experiment: str, seed: int):
+    """(model, train, test, mean weights per true style or None) of one experiment and seed (module doc); the
+    last one is kept for the next cell."""
+    from pirl_sim.model import synthetic_model
+    from pirl_sim.population import Population, Style, generate_demonstrations
+    from pirl_sim.scenarios.passage import PassageConfig, generate as generate_passage
+    from pirl_sim.scenarios.synthetic import SyntheticConfig, generate as generate_synthetic
+    from pirl_sim.simulate import simulate_receding_horizon
+    from pirl_sim.trajectory import Trajectory
+
+    if experiment.startswith("synthetic"):
+        spread = {"position_range": (2.0, 8.0), "velocity_range": (-1.0, 1.0)} if experiment.endswith("spread") else {}
+        data = generate_synthetic(SyntheticConfig(seed=seed, **spread))
+        return data.model, data.train, data.test, None
+    model, rng = synthetic_model(), np.random.default_rng(seed)
+    if experiment == "lq-3-styles":  # Boltzmann-rational, spread starts
+        styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
+                       for name, q in zip(("calm", "normal", "eager"), LQ_STYLE_Q))
+        x0 = np.column_stack([rng.uniform(2.0, 8.0, 800), rng.uniform(-1.0, 1.0, 800)])
+        demos = generate_demonstrations(model, Population(model.features, styles, 100.0), x0, 40, rng)
+        return model, demos[:600], demos[600:], _style_means(demos[:600], 3, model.features.n_features)
+    if experiment == "passage":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            data = generate_passage(PassageConfig(seed=seed))
+        return data.model, data.train, data.test, _style_means(data.train, 3, data.model.features.n_features)
+    style = np.repeat([0, 1, 2], 50)  # lq-receding: LQ drivers who re-plan
+    q = np.asarray(LQ_STYLE_Q)[style] * np.exp(rng.normal(0.0, 0.1, style.size))
+    x0 = np.column_stack([rng.uniform(2.0, 8.0, style.size), rng.uniform(-1.0, 1.0, style.size)])
+    theta = np.column_stack([q, np.ones_like(q)])
+    drivers = [Trajectory(d.states, d.controls, d.dt, {**d.metadata, "style": int(s), "theta": th})
+               for d, s, th in zip(simulate_receding_horizon(model, x0, theta, 30, 15, rng=rng, control_noise=0.05),
+                                   style, theta)]
+    order = rng.permutation(style.size)
+    return (model, [drivers[i] for i in order[:120]], [drivers[i] for i in order[120:]],
+            np.array([[qs, 1.0] for qs in LQ_STYLE_Q]))
+
+
+def _row(experiment, protocol, learner, train, test, style_means, seed: int) -> dict:
+    row = {"experiment": experiment, "protocol": protocol.name, "seed": seed}
     multi = {"n_futures": N_FUTURES, "random_state": seed} if protocol.kind == "online" else {}
     scores = evaluate(learner, test, protocol, **multi)
     row.update({k: v for k, v in scores.items() if k in ("med", "fde", "weight_error")})
-    for col in MULTIMODAL_COLUMNS:
-        row[col] = scores.get(col.removesuffix("_6"), np.nan)
-    ari = style_agreement(learner, train)
-    row["ari"] = np.nan if ari is None else ari
-    row["n_styles"] = getattr(learner, "n_styles_", 1)
-    row["em_passes"] = getattr(learner, "n_refined_", np.nan)
-    row["style_accuracy"] = row["feature_style_accuracy"] = row["style_error"] = np.nan
-    row["min_ade"] = row["min_fde"] = np.nan
+    row.update({col: scores.get(col.removesuffix("_6")) for col in MULTIMODAL_COLUMNS})
+    row.update(ari=style_agreement(learner, train), n_styles=getattr(learner, "n_styles_", 1),
+               em_passes=getattr(learner, "n_refined_", None), style_accuracy=None, feature_style_accuracy=None,
+               style_error=None, min_ade=None, min_fde=None)
     if hasattr(learner, "predict_proba") and all("style" in t.metadata for t in test):
         to_true = match_styles(np.array([t.metadata["style"] for t in train]), learner.labels_)
         truth = np.array([t.metadata["style"] for t in test])
@@ -117,7 +152,8 @@ def _row(experiment, protocol, name, learner, train, test, style_means=None, see
             ref = learner.model_.features.reference_index
             row["style_error"] = float(max(weight_recovery_error(learner.theta_[j], style_means[s], ref)
                                            for j, s in to_true.items()))
-    return row
+    plain = [v.item() if isinstance(v, np.generic) else v for v in row.values()]
+    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in zip(row, plain)}  # JSON
 
 
 def _min_over_styles(learner, test, history: int) -> dict:
@@ -141,101 +177,86 @@ def _min_over_styles(learner, test, history: int) -> dict:
     return {"min_ade": float(ade.mean()), "min_fde": float(fde.mean())}
 
 
-def _fit(key, params, train):
+def run_study_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
+    """The cells of the ``weight-space`` kind (`pirl_sim.experiments.spec.ScenarioSpec.run_cells`): each cell's
+    learner fitted to its experiment's training data and scored, a row of the table (nan as None); online on a
+    path model, also the `N_FUTURES` futures it draws for the first test trajectory (``futures``: ``states``,
+    ``proba`` and the ``true`` states), which `futures_figure` draws."""
     from pirl_sim.learners import make_learner
 
-    learner = make_learner(key, **params)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # dropped tiny components, IRL notes: counted in the table
-        return learner.fit(train)
+    out = []
+    for spec in specs:
+        t0 = time.perf_counter()
+        experiment, seed = spec["scenario_params"]["experiment"], spec["seed"]
+        model, train, test, means = experiment_data(experiment, seed)
+        protocol = Protocol(**spec["protocol"])
+        params = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["learner_params"].items()}
+        learner = make_learner(spec["learner"], model=model, **params, **protocol.learner_params())
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # dropped tiny components, IRL notes: counted in the table
+            learner.fit(train)
+        t1 = time.perf_counter()
+        row = _row(experiment, protocol, learner, train, test, means, seed)
+        if protocol.kind == "online" and hasattr(model, "path") and hasattr(learner, "predict_futures"):
+            h, first = protocol.history_steps, test[0]
+            states, proba = learner.predict_futures(first.window(0, h), first.n_steps - h, n_futures=N_FUTURES,
+                                                    random_state=np.random.default_rng(seed))
+            row["futures"] = {"states": states.tolist(), "proba": proba.tolist(), "true": first.states.tolist()}
+        out.append((row, {"fit_s": t1 - t0, "evaluate_s": time.perf_counter() - t1}))
+    return out
 
 
-def run_study(seed: int = 0, say=lambda m: None, figures: dict | None = None) -> pd.DataFrame:
-    """All experiments of the module doc; one row per (experiment, protocol, learner). ``figures``, a dict,
-    receives {file name: PNG bytes} of the study's figures."""
-    from pirl_sim.scenarios.passage import PassageConfig, generate as generate_passage
-    from pirl_sim.scenarios.synthetic import SyntheticConfig, generate as generate_synthetic
-    from pirl_sim.simulate import simulate_receding_horizon
-    from pirl_sim.trajectory import Trajectory
-
-    rows = []
-    online = Protocol("online", 10)
-    knn_pair = [("PIRL-kNN (k=10)", "pirl-knn", {"n_neighbors": 10}),
-                ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})]
-    def mixtures(k, protocol=PAPER_PROTOCOL):  # the learners compared in every experiment
-        out = [
-            (f"PIRL-GMM (k={k}), features", "pirl-gmm", {"n_components": k, "random_state": seed}),
-            (f"PIRL-GMM (k={k}), weights", "pirl-gmm", {"n_components": k, "random_state": seed, "space": "weights"}),
-            ("PIRL-DPGMM, features", "pirl-dpgmm", {"random_state": seed}),
-            ("PIRL-DPGMM, weights", "pirl-dpgmm", {"random_state": seed, "space": "weights"}),
-            ("PIRL-DPGMM, weights, MML", "pirl-dpgmm", {"random_state": seed, "space": "weights",
-                                                        "weight_mixture": "mml"}),
-        ]
-        if protocol.kind == "paper":  # the fit does not depend on the protocol: its clusters once
-            out.append((f"PIRL-GMM (k={k}), weights, random start", "pirl-gmm",
-                        {"n_components": k, "random_state": seed, "space": "weights", "init": "random",
-                         "refine": RANDOM_START_PASSES}))
-        return out
-    # the paper's synthetic problem, spread starts and the single start
-    for experiment, ranges in (("synthetic-spread", {"position_range": (2.0, 8.0), "velocity_range": (-1.0, 1.0)}),
-                               ("synthetic", {})):
-        data = generate_synthetic(SyntheticConfig(seed=seed, **ranges))
-        specs = [("TIRL", "tirl", {}), ("PIRL-kNN (k=1)", "pirl-knn", {"n_neighbors": 1}),
-                 ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})]
-        for protocol in (PAPER_PROTOCOL, online):
-            for name, key, params in specs + mixtures(2, protocol):
-                learner = _fit(key, {"model": data.model, **params, **protocol.learner_params()}, data.train)
-                rows.append(_row(experiment, protocol, name, learner, data.train, data.test, seed=seed))
-                say(f"{experiment} {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
-    # three LQ styles, Boltzmann-rational, spread starts
-    model, demos = lq_three_styles(800, 100.0, seed)
-    train, test = demos[:600], demos[600:]
-    means = _style_means(train, 3, model.features.n_features)
-    for protocol in (PAPER_PROTOCOL, online):
-        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3, protocol):
-            learner = _fit(key, {"model": model, **params, **protocol.learner_params()}, train)
-            rows.append(_row("lq-3-styles", protocol, name, learner, train, test, means, seed))
-            say(f"lq-3-styles {protocol.name} {name}: ARI {rows[-1]['ari']:.3g} "
-                f"style error {rows[-1]['style_error']:.3g}")
-    # the roundabout passage
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        passage = generate_passage(PassageConfig(seed=seed))
-    means = _style_means(passage.train, 3, passage.model.features.n_features)
-    for protocol in (PAPER_PROTOCOL, online):
-        for name, key, params in [("TIRL", "tirl", {}), *knn_pair] + mixtures(3, protocol):
-            if key == "pirl-knn":
-                params = {**params, "prior": "population"}  # as reproduce passage
-            learner = _fit(key, {"model": passage.model, **params, **protocol.learner_params()}, passage.train)
-            rows.append(_row("passage", protocol, name, learner, passage.train, passage.test, means, seed))
-            if figures is not None and protocol.kind == "online" and name == "PIRL-GMM (k=3), weights":
-                figures["futures.png"] = futures_figure(learner, passage.test[0], protocol.history_steps, seed)
-            say(f"passage {protocol.name} {name}: MED {rows[-1]['med']:.4g} ARI {rows[-1]['ari']:.3g}")
-    # LQ drivers who re-plan, receding-horizon likelihood
-    rng = np.random.default_rng(seed)
-    style = np.repeat([0, 1, 2], 50)
-    q = np.asarray(LQ_STYLE_Q)[style] * np.exp(rng.normal(0.0, 0.1, style.size))
-    x0 = np.column_stack([rng.uniform(2.0, 8.0, style.size), rng.uniform(-1.0, 1.0, style.size)])
-    theta = np.column_stack([q, np.ones_like(q)])
-    drivers = [Trajectory(d.states, d.controls, d.dt, {**d.metadata, "style": int(s), "theta": th})
-               for d, s, th in zip(simulate_receding_horizon(model, x0, theta, 30, 15, rng=rng, control_noise=0.05),
-                                   style, theta)]
-    order = rng.permutation(style.size)
-    train, test = [drivers[i] for i in order[:120]], [drivers[i] for i in order[120:]]
-    means = np.array([[qs, 1.0] for qs in LQ_STYLE_Q])
-    for name, key, params in mixtures(3):
-        learner = _fit(key, {"model": model, "likelihood": "receding", "horizon": 15, **params}, train)
-        rows.append(_row("lq-receding", PAPER_PROTOCOL, name, learner, train, test, means))
-        say(f"lq-receding {name}: ARI {rows[-1]['ari']:.3g}")
-    cols = ["experiment", "protocol", "learner", "med", "fde", "weight_error", "ari", "n_styles", "em_passes",
-            "style_accuracy",
-            "feature_style_accuracy", "style_error", "min_ade", "min_fde", *MULTIMODAL_COLUMNS]
-    return pd.DataFrame(rows)[cols]
+def _check_protocol(params: dict, protocol: dict) -> None:
+    if protocol.get("kind") not in ("paper", "online"):
+        raise ValueError(f"scores the paper and online protocols only, got {protocol.get('kind')!r}")
 
 
-def futures_figure(learner, trajectory, history_steps: int, seed: int) -> bytes:
-    """PNG bytes: the `N_FUTURES` futures ``learner.predict_futures`` draws (seed ``seed``) after the first
-    ``history_steps`` steps of ``trajectory`` on a path model's map, and arc length s [m] against time [s].
+#: the study's engine kind (module doc)
+SPEC = ScenarioSpec(
+    "weight-space", "one experiment of the weight-space study: mixtures in feature space against weight space "
+    "(module pirl_sim.experiments.weight_space)",
+    {"experiment": Param("choice", "synthetic", "the experiment of the study", choices=tuple(EXPERIMENTS))},
+    dict, None, lambda params: TrainShape(EXPERIMENTS[params["experiment"]], (), exact=False),
+    run_cells=run_study_cells, check_protocol=_check_protocol, learners=("tirl", "pirl-knn", "pirl-gmm", "pirl-dpgmm"),
+    code=("pirl_sim.experiments.weight_space", "pirl_sim.evaluation.tables"),
+)
+
+
+def study_config(experiments, seeds) -> tuple[dict, list[str]]:
+    """The study as a sweep config of the ``weight-space`` kind (an experiment per study experiment and
+    protocol; lq-receding under the paper protocol only; a mixture's ``random_state`` is the cell's seed, the
+    engine's default) and the table's learner name of each of its cells, in cell order."""
+    blocks, names = [], []
+    for experiment in experiments:
+        k, few = (2, 1) if experiment.startswith("synthetic") else (3, 10)  # styles, neighbours
+        knn = [(f"PIRL-kNN (k={few})", "pirl-knn", {"n_neighbors": few}),
+               ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})]
+        if experiment == "passage":  # as reproduce passage
+            knn = [(name, key, {**p, "prior": "population"}) for name, key, p in knn]
+        for protocol in (PAPER_PROTOCOL,) if experiment == "lq-receding" else (PAPER_PROTOCOL, ONLINE):
+            learners = [("TIRL", "tirl", {}), *knn,
+                        (f"PIRL-GMM (k={k}), features", "pirl-gmm", {"n_components": k}),
+                        (f"PIRL-GMM (k={k}), weights", "pirl-gmm", {"n_components": k, "space": "weights"}),
+                        ("PIRL-DPGMM, features", "pirl-dpgmm", {}),
+                        ("PIRL-DPGMM, weights", "pirl-dpgmm", {"space": "weights"}),
+                        ("PIRL-DPGMM, weights, MML", "pirl-dpgmm", {"space": "weights", "weight_mixture": "mml"})]
+            if protocol.kind == "paper":  # the fit does not depend on the protocol: its clusters once
+                learners.append((f"PIRL-GMM (k={k}), weights, random start", "pirl-gmm", {
+                    "n_components": k, "space": "weights", "init": "random", "refine": RANDOM_START_PASSES}))
+            if experiment == "lq-receding":  # the mixtures only, receding-horizon likelihood
+                learners = [(name, key, {**p, "likelihood": "receding", "horizon": 15})
+                            for name, key, p in learners[3:]]
+            blocks.append({"scenario": "weight-space", "label": f"{experiment}, {protocol.name}",
+                           "params": {"experiment": experiment}, "protocols": [dataclasses.asdict(protocol)],
+                           "learners": [{"name": key, "params": p} for _, key, p in learners], "seeds": list(seeds)})
+            names += [name for name, _, _ in learners for _ in seeds]
+    return {"name": "weight-space", "experiments": blocks}, names
+
+
+def futures_figure(model, true_states, futures, proba, history_steps: int, seed: int) -> bytes:
+    """PNG bytes: ``futures`` (K, H + 1, n_x) drawn with probabilities ``proba`` (seed ``seed``) after the first
+    ``history_steps`` steps of a trajectory whose states are ``true_states`` (n + 1, n_x), on a path model's map,
+    and arc length s [m] against time [s].
 
     Left: lane edges `LANE_HALF_WIDTH` either side of the model's path (its map), the observed history, the
     true future and each predicted future, with markers every second; right: each future's arc length minus the
@@ -243,14 +264,9 @@ def futures_figure(learner, trajectory, history_steps: int, seed: int) -> bytes:
     """
     from pirl_sim.evaluation.figures import png_bytes, pyplot
 
-    model = learner.model_
-    if not hasattr(model, "path"):
-        raise TypeError(f"futures_figure draws on a path model's map, got a {type(model).__name__}")
-    horizon = trajectory.n_steps - history_steps
-    states, proba = learner.predict_futures(trajectory.window(0, history_steps), horizon, n_futures=N_FUTURES,
-                                            random_state=np.random.default_rng(seed))
+    states, proba, true_states = np.asarray(futures), np.asarray(proba), np.asarray(true_states)
     dt = model.dynamics.dt
-    t = np.arange(trajectory.n_steps + 1) * dt
+    t = np.arange(len(true_states)) * dt
     every = max(1, int(round(1.0 / dt)))  # a marker every second
     plt = pyplot()
     fig, (ax_map, ax_s) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1.2, 1]})
@@ -260,11 +276,11 @@ def futures_figure(learner, trajectory, history_steps: int, seed: int) -> bytes:
         ax_map.plot(edge[:, 0], edge[:, 1], color="0.6", lw=1)
     centre = model.path.to_cartesian(s_all, np.zeros_like(s_all))
     ax_map.plot(centre[:, 0], centre[:, 1], color="0.8", lw=0.8, ls="--")
-    seen = model.positions(trajectory.states[: history_steps + 1])
-    true = model.positions(trajectory.states[history_steps:])
+    seen = model.positions(true_states[: history_steps + 1])
+    true = model.positions(true_states[history_steps:])
     colours = plt.get_cmap("tab10")(np.arange(len(proba)) % 10)
     order = np.argsort(-proba, kind="stable")
-    s_true = trajectory.states[history_steps:, 0]
+    s_true = true_states[history_steps:, 0]
     for rank, k in enumerate(order):
         xy = model.positions(states[k])
         label = f"future {rank + 1}, p = {proba[k]:.2f}"
@@ -292,20 +308,30 @@ def futures_figure(learner, trajectory, history_steps: int, seed: int) -> bytes:
     return png_bytes(fig)
 
 
-def _readme(table: pd.DataFrame, command: str) -> str:
+def _readme(table: pd.DataFrame, command: str, figure: bool) -> str:
     return (
         "# Mixtures in feature space and in weight space\n\n"
         f"Written by `{command}` (pirl_sim/experiments/weight_space.py; its docstring describes every experiment "
         "and column).\n\n" + markdown(table)
-        + "\n`futures.png`: the six futures of PIRL-GMM (k=3) in weight space after the first 2 s of the first test "
-        "passage, with the true future (module docstring).\n"
+        + ("\n`futures.png`: the six futures of PIRL-GMM (k=3) in weight space after the first 2 s of the first test "
+           "passage, with the true future (module docstring).\n" if figure else "")
     )
 
 
-def write_study(table: pd.DataFrame, figures: dict, out, command: str) -> None:
-    """Write ``table.csv``, ``table.md``, the figures {file name: PNG bytes} and ``README.md`` into ``out``."""
-    for name, png in figures.items():
-        atomic_write_bytes(out / name, png)
+def write_study(rows: list[dict], names: list[str], out, command: str) -> pd.DataFrame:
+    """Write ``table.csv``, ``table.md``, ``futures.png`` (the futures of `FIGURE_LEARNER` on the passage, first
+    seed) and ``README.md`` into ``out`` from the cells' rows (`run_study_cells`, in cell order) and learner
+    names; returns the table (a ``seed`` column first when the rows have several seeds)."""
+    from pirl_sim.scenarios.passage import PassageConfig
+
+    drawn = [(r["futures"], r["seed"]) for r, n in zip(rows, names) if n == FIGURE_LEARNER and "futures" in r]
+    for f, seed in drawn[:1]:
+        png = futures_figure(PassageConfig().model(), f["true"], f["states"], f["proba"], ONLINE.history_steps, seed)
+        atomic_write_bytes(out / "futures.png", png)
+    table = pd.DataFrame([{**{k: np.nan if v is None else v for k, v in r.items()}, "learner": n}
+                          for r, n in zip(rows, names)])
+    table = table[[*(["seed"] if table["seed"].nunique() > 1 else []), *COLUMNS]]
     atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "table.md", markdown(table))
-    atomic_write_text(out / "README.md", _readme(table, command))
+    atomic_write_text(out / "README.md", _readme(table, command, bool(drawn)))
+    return table

@@ -146,18 +146,6 @@ def test_version_flag_prints_the_package_metadata_version(capsys):
     assert capsys.readouterr().out.strip() == f"pirl-sim {version('pirl_sim')}"
 
 
-_TINY_SWEEP = """
-name = "tiny-log"
-seeds = [0]
-
-[[experiments]]
-scenario = "synthetic"
-params = { n_trajectories = 80, n_train = 60 }
-protocols = ["paper"]
-learners = ["tirl"]
-"""
-
-
 def test_cli_logging_shows_library_warnings_and_leaves_no_handler(tmp_path, capsys):
     import logging
 
@@ -165,8 +153,10 @@ def test_cli_logging_shows_library_warnings_and_leaves_no_handler(tmp_path, caps
     from pirl_sim.engine.config import load_config
     from pirl_sim.engine.store import code_version
 
+    from sweep_configs import TINY_LOG
+
     cfg = tmp_path / "tiny.toml"
-    cfg.write_text(_TINY_SWEEP)
+    cfg.write_text(TINY_LOG)
     out = tmp_path / "out"
     (out / "cells").mkdir(parents=True)
     key = load_config(cfg).cells[0].key(code_version())

@@ -2,31 +2,19 @@
 processes and resumed, the next-step kNN, lateral and receding-horizon options, and bad durations refused."""
 
 import dataclasses
-import warnings
 
-import numpy as np
 import pandas as pd
 import pytest
 
 from pirl_sim.cli import main
-from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
-from pirl_sim.io.interaction import write_tracks
-from pirl_sim.scenarios.passage import PassageConfig, write_scene
-from pirl_sim.scenarios.passage import generate as generate_passage
+
+import replay_scenes
+from replay_scenes import straight_scene, two_lane_scene_dir
+from weaving import weaving_scene
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate_passage(PassageConfig(n_trajectories=160, n_train=130, seed=4))
-    out = tmp_path_factory.mktemp("scene")
-    write_scene(data, out)
-    return out, data
-
-
-def test_replay_cli_end_to_end(scene_dir, tmp_path, capsys):
-    out, _ = scene_dir
+def test_replay_cli_end_to_end(passage_scene, tmp_path, capsys):
+    out, _ = passage_scene
     res = tmp_path / "res"
     assert main(["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "2",
                  "--learners", "tirl,pirl-knn", "--knn-k", "3,10", "--out", str(res), "--quiet"]) == 0
@@ -43,40 +31,12 @@ def test_replay_cli_end_to_end(scene_dir, tmp_path, capsys):
                  "--out", str(res)]) == 2
     assert "unknown learners ['svm']" in capsys.readouterr().err
 
-LANE_LENGTH = 500.0  # [m]
-LANE_Y = {"A": 0.0, "B": 60.0}  # two parallel straight lanes, both +x, no routing-graph link between them
-
-
-def _track_rows(track_id, first_frame, x0, n, y, speed=10.0):
-    frames = np.arange(first_frame, first_frame + n)
-    x = x0 + speed * 0.1 * np.arange(n)
-    yy = np.broadcast_to(np.asarray(y, dtype=float), (n,))
-    return pd.DataFrame({"track_id": track_id, "frame_id": frames, "timestamp_ms": 100 * frames, "agent_type": "car",
-                         "x": x, "y": yy, "vx": speed, "vy": 0.0, "psi_rad": 0.0, "length": 4.5, "width": 1.8})
-
-
-def _straight_scene(tmp_path, tracks):
-    """A map of the two lanes and one track file; tracks: list of (lane, x0 [m], frames, y override or None),
-    each in its own frames (no two tracks share a frame: nobody interacts)."""
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
-
-    x = np.linspace(0.0, LANE_LENGTH, 41)
-    write_map({k: np.column_stack([x, np.full_like(x, y)]) for k, y in LANE_Y.items()}, {}, tmp_path / "map.osm")
-    rows, frame = [], 1
-    for i, (lane, x0, n, y) in enumerate(tracks):
-        rows.append(_track_rows(i + 1, frame, x0, n, LANE_Y[lane] if y is None else y))
-        frame += n + 10
-    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
-    return tmp_path / "vehicle_tracks_000.csv", tmp_path / "map.osm"
-
-
-def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(scene_dir, tmp_path):
-    """``pirl-sim replay`` keeps one cell per (split seed, method) in OUT/cells/ and gives the rows of the in-process
-    `run_replay` on the same scene, with one worker process or two."""
+def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(passage_scene, tmp_path):
+    """``pirl-sim replay`` keeps one cell per (split seed, method) in OUT/cells/ and gives the same rows with one
+    worker process or two."""
     import json
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
             "tirl,pirl-knn", "--knn-k", "3", "--lateral", "neighbours", "--quiet", "--out"]
     assert main(args + [str(tmp_path / "one")]) == 0
@@ -84,22 +44,14 @@ def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(
     cells = [json.loads(p.read_text()) for p in (tmp_path / "one" / "cells").glob("*.json")]
     assert sorted((c["cell"]["seed"], c["cell"]["learner"]) for c in cells) == sorted(
         (seed, m) for seed in range(3) for m in ("cv", "ca", "tirl", "pirl-knn", "cv-xy"))
-    from pirl_sim.experiments.recorded import load_scene
-
-    scene = load_scene(cells[0]["cell"]["scenario_params"])  # as the cells read it (a pirl_sim recording)
-    direct = run_replay(scene, [("TIRL", "tirl", {}), ("PIRL-kNN (k=3)", "pirl-knn",
-                                                       {"n_neighbors": 3, "prior": "population", "stride": 2,
-                                                        "irl_max_iter": 400})],
-                        ReplayProtocol(seeds=(0, 1, 2), lateral="neighbours"))["rows"]
     cols = ["seed", "method", "med", "med_path", "n_windows", "lateral_floor", "irl_converged", "de@3.0s"]
     one, two = (pd.read_csv(tmp_path / d / "rows.csv") for d in ("one", "two"))
     pd.testing.assert_frame_equal(one[cols], two[cols])
-    pd.testing.assert_frame_equal(one[cols], direct[cols].astype(one[cols].dtypes.to_dict()), rtol=1e-5)  # %.6g
     with pytest.raises(SystemExit):
         main(args + [str(tmp_path / "none"), "--workers", "0"])
 
 
-def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_path, monkeypatch, capsys):
+def test_an_interrupted_replay_resumes_from_its_finished_cells(passage_scene, tmp_path, monkeypatch, capsys):
     """The sweep engine stores each split seed's cells as they finish (``OUT/cells/``); a replay interrupted in
     its last seed runs only that seed again and writes the same results as an uninterrupted run (timings
     aside)."""
@@ -107,7 +59,7 @@ def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_pa
 
     import pirl_sim.experiments.recorded as recorded
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
             "tirl,pirl-knn", "--knn-k", "3", "--quiet", "--out"]
     run_seed, ran = recorded.replay_seed, []
@@ -143,14 +95,14 @@ def test_an_interrupted_replay_resumes_from_its_finished_cells(scene_dir, tmp_pa
         pd.testing.assert_frame_equal(a.drop(columns=timings), b.drop(columns=timings))
 
 
-def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(scene_dir, tmp_path):
+def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(passage_scene, tmp_path):
     import argparse
     import shutil
 
     from pirl_sim.cli.replay import add_parser, replay_config, replay_settings
     from pirl_sim.experiments.recorded import recorded_fingerprint
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = tmp_path / "scene"
     shutil.copytree(out, scene)
     parser = argparse.ArgumentParser()
@@ -177,7 +129,7 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(scene_dir, tm
 
 
 def test_replay_cli_refuses_a_scene_with_too_few_tracks_before_any_cell(tmp_path, capsys):
-    tracks, osm = _straight_scene(tmp_path, [("A", 5.0, 150, None), ("B", 5.0, 150, None), ("A", 9.0, 150, None)])
+    tracks, osm = straight_scene(tmp_path, [("A", 5.0, 150, None), ("B", 5.0, 150, None), ("A", 9.0, 150, None)])
     out = tmp_path / "out"
     assert main(["replay", "--tracks", str(tracks), "--map", str(osm), "--quiet", "--out", str(out)]) == 2
     assert "only 3 selected tracks" in capsys.readouterr().err
@@ -186,14 +138,7 @@ def test_replay_cli_refuses_a_scene_with_too_few_tracks_before_any_cell(tmp_path
 
 def _replay_args(tmp_path, seed: int, learners: str, knn_k: str) -> list:
     """`pirl-sim replay` arguments (one split seed) on a small simulated three-style passage scene."""
-    import warnings
-
-    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=seed))
-    write_scene(data, tmp_path / "scene")
+    replay_scenes.passage_scene(tmp_path / "scene", n_trajectories=40, n_train=30, seed=seed)
     return ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
             "--learners", learners, "--knn-k", knn_k, "--seeds", "1"]
 
@@ -290,25 +235,10 @@ def test_replay_scores_k_futures_of_each_learner(tmp_path):
     assert main([*args, "--rollout", "closed", "--mpc-horizon", "15", "--out", str(tmp_path / "bad")]) == 2
 
 
-def _scene_dir(d, n_tracks=8, n_frames=150, speed=10.0):
-    """A map of two straight lanes and one track file of ``n_tracks`` tracks that never share a frame."""
-    from pirl_sim.io.lanelet2_map import write_map
-
-    d.mkdir(parents=True, exist_ok=True)
-    x = np.linspace(0.0, LANE_LENGTH, 41)
-    write_map({k: np.column_stack([x, np.full_like(x, y)]) for k, y in LANE_Y.items()}, {}, d / "map.osm")
-    rows, frame = [], 1
-    for i in range(n_tracks):
-        rows.append(_track_rows(i + 1, frame, 5.0, n_frames, LANE_Y["AB"[i % 2]], speed))
-        frame += n_frames + 10
-    write_tracks(pd.concat(rows, ignore_index=True), d / "vehicle_tracks_000.csv")
-    return d / "vehicle_tracks_000.csv", d / "map.osm"
-
-
 @pytest.mark.parametrize("option,value", [("--history", "-5"), ("--history", "0"), ("--horizon", "-3"),
                                           ("--horizon", "nan"), ("--history", "abc")])
 def test_replay_cli_rejects_durations_that_are_not_positive(tmp_path, capsys, option, value):
-    tracks, osm = _scene_dir(tmp_path)
+    tracks, osm = two_lane_scene_dir(tmp_path)
     with pytest.raises(SystemExit) as exc:
         main(["replay", "--tracks", str(tracks), "--map", str(osm), option, value, "--out", str(tmp_path / "o")])
     assert exc.value.code == 2
@@ -317,7 +247,7 @@ def test_replay_cli_rejects_durations_that_are_not_positive(tmp_path, capsys, op
 
 
 def test_replay_cli_rejects_a_duration_shorter_than_a_step(tmp_path, capsys):
-    tracks, osm = _scene_dir(tmp_path)
+    tracks, osm = two_lane_scene_dir(tmp_path)
     code = main(["replay", "--tracks", str(tracks), "--map", str(osm), "--history", "0.05", "--quiet",
                  "--out", str(tmp_path / "o")])
     assert code == 2 and "--history 0.05 s is less than one model step" in capsys.readouterr().err
@@ -346,25 +276,6 @@ def test_replay_cli_receding_beats_constant_acceleration(tmp_path):
     assert "selection='steps'" in readme and "Paired differences against CA (path)" in readme
 
 
-@pytest.fixture
-def real_like(tmp_path):
-    """Two straight lanes and a few tracks, no run.json: data as real data come."""
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
-
-    x = np.linspace(0.0, 400.0, 41)
-    write_map({"A": np.column_stack([x, np.zeros_like(x)])}, {}, tmp_path / "map.osm")
-    rows = []
-    for i in range(6):
-        n = 80
-        frames = np.arange(1 + 100 * i, 1 + 100 * i + n)
-        rows.append(pd.DataFrame({"track_id": i + 1, "frame_id": frames, "timestamp_ms": 100 * frames,
-                                  "agent_type": "car", "x": 10.0 + np.arange(n), "y": 0.0, "vx": 10.0, "vy": 0.0,
-                                  "psi_rad": 0.0, "length": 4.5, "width": 1.8}))
-    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
-    return tmp_path
-
-
 def test_receding_without_a_horizon_on_real_data_names_the_option(real_like, capsys):
     base = ["replay", "--tracks", str(real_like), "--map", str(real_like / "map.osm"), "--out",
             str(real_like / "out"), "--quiet"]
@@ -385,33 +296,10 @@ def test_receding_without_a_horizon_on_real_data_names_the_option(real_like, cap
         main(base + ["--dt", "0"])
 
 
-def _weaving_scene(tmp_path, n_tracks=12):
-    """Straight lane; every car weaves across it the same way along x (a route-consistent driven path)."""
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
-
-    x = np.linspace(0.0, 400.0, 41)
-    write_map({"A": np.column_stack([x, np.zeros_like(x)])}, {}, tmp_path / "map.osm")
-    rows, frame = [], 1
-    for i in range(n_tracks):
-        n = 200
-        frames = np.arange(frame, frame + n)
-        speed = 8.0 + 0.3 * i
-        xx = 10.0 + 3.0 * i + speed * 0.1 * np.arange(n)
-        y = 1.2 * np.sin(xx / 15.0) + 0.1 * (i % 3 - 1)
-        psi = np.arctan(1.2 / 15.0 * np.cos(xx / 15.0))
-        rows.append(pd.DataFrame({"track_id": i + 1, "frame_id": frames, "timestamp_ms": 100 * frames,
-                                  "agent_type": "car", "x": xx, "y": y, "vx": speed, "vy": 0.0, "psi_rad": psi,
-                                  "length": 4.5, "width": 1.8}))
-        frame += n + 10
-    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
-    return tmp_path / "vehicle_tracks_000.csv", tmp_path / "map.osm"
-
-
 def test_replay_cli_applies_the_lateral_model_to_a_single_recording(tmp_path):
     from pirl_sim.cli import main
 
-    tracks, osm = _weaving_scene(tmp_path)
+    tracks, osm = weaving_scene(tmp_path)
     floors = {}
     for lateral in ("hold", "mean-path", "neighbours"):
         out = tmp_path / lateral
@@ -420,23 +308,6 @@ def test_replay_cli_applies_the_lateral_model_to_a_single_recording(tmp_path):
         floors[lateral] = pd.read_csv(out / "rows.csv")["lateral_floor"].iloc[0]
     assert floors["mean-path"] < 0.5 * floors["hold"]
     assert floors["neighbours"] < 0.5 * floors["hold"]
-
-
-@pytest.fixture(scope="module")
-def passage_root(tmp_path_factory):
-    """A simulated roundabout scene laid out as an INTERACTION folder (recorded_trackfiles/NAME, maps/NAME.osm)."""
-    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=4))
-    root = tmp_path_factory.mktemp("root")
-    scene = root / "recorded_trackfiles" / "SIM_Roundabout_A"
-    scene.mkdir(parents=True)
-    write_scene(data, scene)
-    (root / "maps").mkdir()
-    (scene / "map.osm").rename(root / "maps" / "SIM_Roundabout_A.osm")
-    return root
 
 
 def test_table_command_end_to_end(passage_root, tmp_path, capsys):

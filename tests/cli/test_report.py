@@ -1,6 +1,5 @@
 """``pirl-sim report``: its output directory checked, a truncated table named, and the report of a replay's cells."""
 
-import warnings
 from pathlib import Path
 
 import pandas as pd
@@ -38,23 +37,6 @@ def test_report_on_a_truncated_table_names_the_file_and_row(tmp_path, capsys):
         err = capsys.readouterr().err
         assert str(d / "table.csv") in err or "no finished cell" in err, (name, err)
         assert "Traceback" not in err
-
-
-@pytest.fixture(scope="module")
-def replay_out(tmp_path_factory):
-    """A small `pirl-sim replay` (one split seed, TIRL and the baselines) on a generated passage scene."""
-    pytest.importorskip("lanelet2")
-    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=2))
-    root = tmp_path_factory.mktemp("replay")
-    write_scene(data, root / "scene")
-    out = root / "out"
-    assert main(["replay", "--tracks", str(root / "scene"), "--map", str(root / "scene" / "map.osm"), "--seeds", "1",
-                 "--learners", "tirl", "--quiet", "--out", str(out)]) == 0
-    return out
 
 
 def test_report_reads_the_cells_of_a_replay_and_keeps_its_readme(replay_out, capsys):

@@ -13,6 +13,7 @@ from pirl_sim.cli import main
 from pirl_sim.cli import main as sweep_main
 
 from shared_sample import SAMPLE_MAP, needs_sample
+from sweep_configs import BAD, TINY, TINY_LOG
 
 
 SWEEP = """
@@ -85,63 +86,6 @@ def test_dry_run_does_not_count_corrupted_cell_files_as_stored(tmp_path, capsys)
     assert "0 already in" in capsys.readouterr().out
 
 
-TINY = """
-name = "tiny"
-seeds = [0, 1]
-
-[[experiments]]
-scenario = "synthetic"
-params = { n_trajectories = 80, n_train = 60 }
-protocols = ["paper", { kind = "online", history_steps = 10 }]
-learners = ["tirl", { name = "pirl-gmm", params = { n_components = 2 } },
-            { name = "pirl-knn", grid = { n_neighbors = [1, 4] } }]
-"""
-
-
-BAD = {
-    "unknown top-level key": ("nme = 'x'\n" + TINY, r"unknown key\(s\) 'nme'; valid keys: name, description, seeds"),
-    "unknown scenario": (TINY.replace('scenario = "synthetic"', 'scenario = "sumo-v9"'),
-                         r"unknown scenario 'sumo-v9'; registered scenarios: .*passage.*synthetic"),
-    "unknown learner": (TINY.replace('"tirl",', '"pirl-svm",'), r"unknown learner 'pirl-svm'; choose one of"),
-    "unknown experiment key": (TINY.replace("protocols =", "protocol ="),
-                               r"unknown key\(s\) 'protocol'; valid keys: scenario, label, seeds"),
-    "unknown scenario parameter": (TINY.replace("n_train = 60", "n_tain = 60"),
-                                   r"scenario 'synthetic': unknown parameter\(s\) 'n_tain'; valid parameters: "
-                                   r"n_trajectories, n_train"),
-    "unknown learner parameter": (TINY.replace("n_components = 2", "k = 2"),
-                                  r"learner 'pirl-gmm': unknown parameter 'k'; valid parameters: .*n_components"),
-    "unknown protocol kind": (TINY.replace('"paper",', '"offline",'), r"unknown protocol kind 'offline'"),
-    "unknown protocol key": (TINY.replace("history_steps = 10", "history = 10"),
-                             r"unknown key\(s\) 'history'; valid keys: kind, history_steps, horizon"),
-    "empty value list": (TINY.replace("n_neighbors = [1, 4]", "n_neighbors = []"), r"empty grid: .*n_neighbors"),
-    "no learners": (TINY.replace(TINY[TINY.index("learners ="):], "learners = []\n"),
-                    r"empty grid: experiment 'synthetic' has no learner"),
-    "no seeds": (TINY.replace("seeds = [0, 1]", "seeds = []"), r"empty grid: seeds is an empty list"),
-    "no experiments": ('name = "x"\nseeds = [0]\n', r"empty grid: the sweep has no \[\[experiments\]\]"),
-    "kNN k larger than the training set": (
-        TINY.replace("n_neighbors = [1, 4]", "n_neighbors = [1, 61]"),
-        r"PIRL-kNN \(k=61\) under the paper protocol: k = n_neighbors = 61 is larger than the training set "
-        r"\(60 training trajectories"),
-    "GMM k larger than the training set": (
-        TINY.replace("n_components = 2", "n_components = 70"),
-        r"k = n_components = 70 is larger than the training set"),
-    "history longer than the trajectories": (
-        TINY.replace("history_steps = 10", "history_steps = 50"),
-        r"online \(history 50 steps\) protocol needs trajectories of at least 51 steps; the scenario's have at "
-        r"most 50"),
-    "window set by hand": (TINY.replace("n_components = 2", "n_components = 2, window = 5"),
-                           r"'window' is set by the sweep"),
-    "bad scenario value": (TINY.replace("n_train = 60", "n_train = 90"), r"scenario 'synthetic': n_train must be in"),
-    "wrong type": (TINY.replace("n_train = 60", "n_train = 60.5"), r"'n_train' must be an integer, got 60.5"),
-    "unknown style in a mix": (TINY.replace("n_train = 60 }", "n_train = 60, mix = { fast = 1.0 } }"),
-                               r"mix names unknown style\(s\) \['fast'\]"),
-    "two experiments with one label": (TINY + TINY[TINY.index("[[experiments]]"):],
-                                       r"experiments 1 and 2 are both labelled 'synthetic': give one a label"),
-    "rolling without horizon": (TINY.replace('"paper",', '{ kind = "rolling", history_steps = 5 },'),
-                                r"the rolling protocol needs horizon >= 1"),
-}
-
-
 def test_bad_config_fails_before_any_work(tmp_path, capsys):
     cfg = tmp_path / "bad.toml"
     cfg.write_text(BAD["kNN k larger than the training set"][0])
@@ -184,18 +128,6 @@ def test_default_config_dry_run(capsys, tmp_path):
     assert "282 to run and 6 simulations (code" in out  # SUMO and highway-env, 3 seeds each
 
 
-_TINY_SWEEP = """
-name = "tiny-log"
-seeds = [0]
-
-[[experiments]]
-scenario = "synthetic"
-params = { n_trajectories = 80, n_train = 60 }
-protocols = ["paper"]
-learners = ["tirl"]
-"""
-
-
 def test_failed_cells_are_reported_through_logging(tmp_path, monkeypatch, caplog, capsys):
     import logging
 
@@ -208,7 +140,7 @@ def test_failed_cells_are_reported_through_logging(tmp_path, monkeypatch, caplog
 
     monkeypatch.setattr(engine_run, "run_sweep", lambda *a, **k: FakeRun())
     cfg = tmp_path / "tiny.toml"
-    cfg.write_text(_TINY_SWEEP)
+    cfg.write_text(TINY_LOG)
     with caplog.at_level(logging.WARNING, logger="pirl_sim"):
         code = main(["sweep", str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
     assert code == 1

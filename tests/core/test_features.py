@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pirl_sim.dynamics import longitudinal
-from pirl_sim.features import Feature, FeatureSet, Residual, lqr_features, squared_control, squared_state
+from pirl_sim.features import FeatureSet, lqr_features
 
 pytest.importorskip("hypothesis")
 
@@ -14,28 +14,7 @@ from hypothesis import given, settings  # noqa: E402
 from pirl_sim.dynamics import point_mass  # noqa: E402
 from pirl_sim.testing import trajectories  # noqa: E402
 
-
-def _nonquadratic_features():
-    """A feature with a residual that is not affine in the state: (v - sin(s))^2, plus a^2 and j^2 (means)."""
-
-    def resid(x, u):
-        s, v = x[..., 0], x[..., 1]
-        r = (v - np.sin(s))[..., None]
-        jx = np.zeros(x.shape[:2] + (1, 3))
-        jx[..., 0, 0] = -np.cos(s)
-        jx[..., 0, 1] = 1.0
-        hx = np.zeros(x.shape[:2] + (1, 3, 3))
-        hx[..., 0, 0, 0] = np.sin(s)
-        return Residual(r, jx, np.zeros((1, 1, 1, 1)), hx)
-
-    return FeatureSet(
-        (
-            Feature("speed_dev", resid, reduction="mean", quadratic=False),
-            squared_state("acc", [2], reduction="mean"),
-            squared_control("jerk", reduction="mean"),
-        ),
-        reference="jerk",
-    )
+from cost_features import nonquadratic_features  # noqa: E402
 
 
 def _fd_check(fs, dyn, x0, U):
@@ -76,7 +55,7 @@ def test_feature_derivatives_match_finite_differences(case, rng):
 
         dyn, fs = point_mass(0.1), lqr_features()
     else:
-        dyn, fs = longitudinal(0.2), _nonquadratic_features()
+        dyn, fs = longitudinal(0.2), nonquadratic_features()
     x0 = rng.normal(size=dyn.n_x)
     U = rng.normal(size=(8, dyn.n_u))
     g, g_fd, H, H_fd = _fd_check(fs, dyn, x0, U)

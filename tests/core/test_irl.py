@@ -8,7 +8,7 @@ import pytest
 
 from pirl_sim.driving import fit_longitudinal_states, roundabout_model
 from pirl_sim.dynamics import longitudinal
-from pirl_sim.features import Feature, FeatureSet, Residual, squared_control, squared_state
+from pirl_sim.features import Feature, FeatureSet, Residual, squared_control
 from pirl_sim.irl import (
     HessianRegularizationWarning,
     IRLConvergenceWarning,
@@ -24,32 +24,11 @@ from pirl_sim.population import Population, Style, generate_demonstrations
 from pirl_sim.scenarios.passage import PassageConfig, generate, passage_polyline
 from pirl_sim.trajectory import Trajectory
 
-
-def _nonquadratic_features():
-    """A feature with a residual that is not affine in the state: (v - sin(s))^2, plus a^2 and j^2 (means)."""
-
-    def resid(x, u):
-        s, v = x[..., 0], x[..., 1]
-        r = (v - np.sin(s))[..., None]
-        jx = np.zeros(x.shape[:2] + (1, 3))
-        jx[..., 0, 0] = -np.cos(s)
-        jx[..., 0, 1] = 1.0
-        hx = np.zeros(x.shape[:2] + (1, 3, 3))
-        hx[..., 0, 0, 0] = np.sin(s)
-        return Residual(r, jx, np.zeros((1, 1, 1, 1)), hx)
-
-    return FeatureSet(
-        (
-            Feature("speed_dev", resid, reduction="mean", quadratic=False),
-            squared_state("acc", [2], reduction="mean"),
-            squared_control("jerk", reduction="mean"),
-        ),
-        reference="jerk",
-    )
+from cost_features import nonquadratic_features
 
 
 def test_laplace_gradient_and_hessian_match_finite_differences(rng):
-    dyn, fs = longitudinal(0.2), _nonquadratic_features()
+    dyn, fs = longitudinal(0.2), nonquadratic_features()
     X0 = rng.normal(size=(3, 3)) * 0.3
     U = rng.normal(size=(3, 6, 1))
     der = fs.derivatives(dyn, dyn.rollout(X0, U), U)

@@ -1,8 +1,5 @@
 """Receding-horizon IRL (pirl_sim.receding): exact recovery of re-planning drivers, derivatives, bad input."""
 
-import dataclasses
-import warnings
-
 import numpy as np
 import pytest
 
@@ -14,6 +11,8 @@ from pirl_sim.paths import ReferencePath
 from pirl_sim.receding import STEP_MASK, RecedingPolicy, fit_receding, receding_steps
 from pirl_sim.scenarios.passage import passage_polyline
 from pirl_sim.simulate import simulate_receding_horizon
+
+from replay_scenes import load_sumo_scene
 
 
 @pytest.fixture(scope="module")
@@ -201,42 +200,16 @@ def test_residuals_score_given_weights_on_held_out_tracks(lq_drivers):
         receding_residuals(model, trajs[:4], theta[:3], 15)
 
 
-@pytest.fixture(scope="module")
-def sumo_run(tmp_path_factory):
-    """A small SUMO run (20 vehicles, drivers re-planning over 30 steps of 0.1 s), written as a recording."""
-    pytest.importorskip("libsumo")
-    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
-    from pirl_sim.scenarios.sumo import SumoScenarioConfig, run_sumo_scenario
-
-    out = tmp_path_factory.mktemp("receding_replay") / "run"
-    pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=20, depart_interval=1.5)
-    run_sumo_scenario(SumoScenarioConfig(population=pop), seed=1, out_dir=out)
-    return out
-
-
-def _load(run, **kw):
-    from pirl_sim.scenarios.replay import SIMULATED_NOISE, load_replay, recording_settings
-
-    rec = recording_settings(run)
-    args = dict(dt=rec.dt, estimate="speeds", noise=SIMULATED_NOISE, selection="steps", max_steps=None,
-                smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max,
-                arc_length="observed")
-    args.update(kw)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return load_replay([run / "vehicle_tracks_000.csv"], run / "map.osm", **args), rec
-
-
-def test_receding_fit_on_the_replay_recovers_the_drivers_weights(sumo_run):
+def test_receding_fit_on_the_replay_recovers_the_drivers_weights(sumo_recording):
     from pirl_sim.receding import fit_receding
 
-    scene, rec = _load(sumo_run)
+    scene, rec = load_sumo_scene(sumo_recording)
     tracks = scene.selected
     res = fit_receding(scene.model, tracks, horizon=rec.horizon)
     err = weight_recovery_error(res.normalized, np.stack([t.metadata["theta"] for t in tracks]), 2)
     assert np.median(err) < 0.02  # measured 0.003 on this run; 0.0026 on simulate sumo --seed 0
     # positions only and the replay's default desired speed (no speed smoothing): far off
-    off, _ = _load(sumo_run, estimate="positions", speed_smoothing=0.0)
+    off, _ = load_sumo_scene(sumo_recording, estimate="positions", speed_smoothing=0.0)
     res_off = fit_receding(off.model, off.selected[:6], horizon=rec.horizon)
     true = np.stack([t.metadata["theta"] for t in off.selected[:6]])
     assert np.median(weight_recovery_error(res_off.normalized, true, 2)) > 5 * np.median(err)

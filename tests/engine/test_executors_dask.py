@@ -1,6 +1,8 @@
 """The Dask executor (pirl_sim.engine.executors): the same sweep through a Dask LocalCluster of 2 workers
 (loopback) gives the local run's table, a SUMO simulation included."""
 
+import os
+
 import pandas as pd
 import pytest
 
@@ -33,6 +35,17 @@ params = { n_vehicles = 8, depart_interval = 3.0 }
 protocols = [{ kind = "rolling", history_steps = 10, horizon = 10, stride = 20 }]
 learners = ["ca", { name = "tirl", params = { likelihood = "receding", step_stride = 4 } }]
 """
+
+
+@pytest.fixture(autouse=True)
+def _thread_variables_restored():
+    """distributed's nanny writes its pre-spawn environment (OMP/MKL/OPENBLAS_NUM_THREADS=1, PYTHONHASHSEED, ...)
+    into the process that starts a LocalCluster and leaves it there: put back what the test process had, for the
+    tests after these."""
+    saved = dict(os.environ)
+    yield
+    os.environ.clear()
+    os.environ.update(saved)
 
 
 def _scores(table):

@@ -1,39 +1,23 @@
 """The sweep report (pirl_sim.engine.report): figures and summary drawn deterministically, the online scores in the
 table and the report."""
 
-import tomllib
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from pirl_sim.engine import parse_config, run_sweep, write_report
+from pirl_sim.engine import run_sweep, write_report
 from pirl_sim.engine.run import TABLE_COLUMNS, read_table
 from pirl_sim.engine.worker import ONLINE_SCORES
 
-
-TINY = """
-name = "tiny"
-seeds = [0, 1]
-
-[[experiments]]
-scenario = "synthetic"
-params = { n_trajectories = 80, n_train = 60 }
-protocols = ["paper", { kind = "online", history_steps = 10 }]
-learners = ["tirl", { name = "pirl-gmm", params = { n_components = 2 } },
-            { name = "pirl-knn", grid = { n_neighbors = [1, 4] } }]
-"""
-
-
-def _config(text: str = TINY, **kw):
-    return parse_config(tomllib.loads(text), text=text, **kw)
+from sweep_configs import passage_cells, sweep_config
 
 
 # ---------------------------------------------------------------------------------------------- runs
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny")
-    return out, run_sweep(_config(), out, workers=0, progress=False)
+    return out, run_sweep(sweep_config(), out, workers=0, progress=False)
 
 
 # ---------------------------------------------------------------------------------------------- report, CLI
@@ -50,28 +34,8 @@ def test_report_draws_figures_and_summary_deterministically(tiny_run, tmp_path):
     assert "![MED vs k](med_vs_k.png)" in md and 'name = "tiny"' in md
 
 
-TINY_PASSAGE = """
-name = "tiny online"
-seeds = [1]
-
-[[experiments]]
-scenario = "passage"
-params = { n_trajectories = 60, n_train = 45 }
-protocols = ["paper", { kind = "online", history_steps = 10 }]
-learners = [
-    "tirl",
-    { name = "pirl-gmm", label = "PIRL-GMM in weight space", params = { n_components = 3, space = "weights" } },
-]
-"""
-
-
-def _cells():
-    cfg = parse_config(tomllib.loads(TINY_PASSAGE), text=TINY_PASSAGE)
-    return {(c.protocol["kind"], c.learner_label): c for c in cfg.cells}, cfg
-
-
 def test_table_and_report_show_the_online_scores(tmp_path):
-    _, cfg = _cells()
+    _, cfg = passage_cells()
     run = run_sweep(cfg, tmp_path / "run", workers=0, progress=False)
     table = run.table
     assert list(table.columns) == list(TABLE_COLUMNS)

@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import time
-import tomllib
 
 import numpy as np
 import pandas as pd
@@ -20,28 +19,12 @@ from pirl_sim.engine import (
     ScenarioSpec,
     code_version,
     load_config,
-    parse_config,
     register_scenario,
     run_sweep,
 )
 from pirl_sim.experiments.spec import Param, TrainShape
 
-
-TINY = """
-name = "tiny"
-seeds = [0, 1]
-
-[[experiments]]
-scenario = "synthetic"
-params = { n_trajectories = 80, n_train = 60 }
-protocols = ["paper", { kind = "online", history_steps = 10 }]
-learners = ["tirl", { name = "pirl-gmm", params = { n_components = 2 } },
-            { name = "pirl-knn", grid = { n_neighbors = [1, 4] } }]
-"""
-
-
-def _config(text: str = TINY, **kw):
-    return parse_config(tomllib.loads(text), text=text, **kw)
+from sweep_configs import TINY, sweep_config
 
 
 def _scores(table: pd.DataFrame) -> pd.DataFrame:
@@ -52,7 +35,7 @@ def _scores(table: pd.DataFrame) -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny")
-    return out, run_sweep(_config(), out, workers=0, progress=False)
+    return out, run_sweep(sweep_config(), out, workers=0, progress=False)
 
 
 def test_inline_run_writes_one_file_per_cell_and_the_tables(tiny_run):
@@ -79,7 +62,7 @@ def test_inline_run_writes_one_file_per_cell_and_the_tables(tiny_run):
 def test_rerun_computes_nothing_and_gives_the_same_table(tiny_run):
     out, run = tiny_run
     before = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")}
-    again = run_sweep(_config(), out, workers=0, progress=False)
+    again = run_sweep(sweep_config(), out, workers=0, progress=False)
     assert not again.computed and len(again.cached) == 16
     assert {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")} == before
     pd.testing.assert_frame_equal(again.table, run.table)  # timings included: read back from the store
@@ -87,7 +70,7 @@ def test_rerun_computes_nothing_and_gives_the_same_table(tiny_run):
 
 def test_fresh_run_gives_identical_scores(tiny_run, tmp_path):
     _, run = tiny_run
-    fresh = run_sweep(_config(), tmp_path, workers=0, progress=False)
+    fresh = run_sweep(sweep_config(), tmp_path, workers=0, progress=False)
     pd.testing.assert_frame_equal(_scores(fresh.table), _scores(run.table))
 
 
@@ -99,7 +82,7 @@ def test_unreadable_cell_file_is_recomputed(tiny_run, tmp_path):
     shutil.copytree(out, copy)
     victim = copy / "cells" / f"{run.table['key'][3]}.json"
     victim.write_text('{"key": "trunc')
-    again = run_sweep(_config(), copy, workers=0, progress=False)
+    again = run_sweep(sweep_config(), copy, workers=0, progress=False)
     assert again.computed == [run.table["key"][3]]
     pd.testing.assert_frame_equal(_scores(again.table), _scores(run.table))
 
@@ -110,7 +93,7 @@ def test_changed_grid_reuses_the_stored_cells(tiny_run, tmp_path):
 
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
-    bigger = _config(TINY.replace("n_neighbors = [1, 4]", "n_neighbors = [1, 4, 7]"))
+    bigger = sweep_config(TINY.replace("n_neighbors = [1, 4]", "n_neighbors = [1, 4, 7]"))
     again = run_sweep(bigger, copy, workers=0, progress=False)
     assert len(again.cached) == 16 and len(again.computed) == 4  # k = 7 x 2 protocols x 2 seeds
     assert set(again.table["k"].dropna()) == {1, 2, 4, 7}
@@ -133,7 +116,7 @@ def failing_scenario():
 
 
 def test_a_failing_cell_is_reported_and_the_others_are_kept(failing_scenario, tmp_path):
-    cfg = _config('seeds = [0, 1]\n[[experiments]]\nscenario = "flaky-test"\nprotocols = ["paper"]\n'
+    cfg = sweep_config('seeds = [0, 1]\n[[experiments]]\nscenario = "flaky-test"\nprotocols = ["paper"]\n'
                   'learners = ["tirl"]\n')
     run = run_sweep(cfg, tmp_path, workers=0, progress=False)
     assert len(run.computed) == 1 and len(run.failed) == 1

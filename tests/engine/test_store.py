@@ -91,6 +91,24 @@ label = "recorded, closed loop"
 params = { tracks = "scene", map = "scene/map.osm", replay = { fde_steps = [5], rollout = "closed", mpc_horizon = 5 } }
 protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
 learners = ["tirl"]
+
+[[experiments]]
+scenario = "horizon-scan"
+params = { tracks = "scene", map = "scene/map.osm", replay = { fde_steps = [5], desired_speed = "fit" } }
+protocols = [{ kind = "rolling", history_steps = 5, horizon = 5, stride = 5 }]
+learners = [{ name = "mpc-horizon", params = { step_stride = 4 }, grid = { horizon = [3, 5] } }]
+
+[[experiments]]
+scenario = "policy-recovery"
+params = { n_vehicles = 1, initial_vehicles = 0, duration = 4.0 }
+learners = [{ name = "ppo-theta", params = { eval_seeds = [1000], steps = 32, n_steps = 32, batch_size = 32, n_epochs = 1 } },
+            { name = "mpc-theta", params = { eval_seeds = [1000] } }]
+
+[[experiments]]
+scenario = "weight-space"
+params = { experiment = "lq-receding" }
+protocols = ["paper", { kind = "online", history_steps = 10 }]
+learners = [{ name = "pirl-gmm", params = { n_components = 3, space = "weights", likelihood = "receding", horizon = 15 } }]
 """
 
 TRACER = textwrap.dedent("""

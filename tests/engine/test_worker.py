@@ -1,41 +1,21 @@
 """The cell worker (pirl_sim.engine.worker): online scores (style posterior and K futures) in the cells, cells of
 other code refused, BLAS threads limited only while cells run, and a kNN k grid run as one fit."""
 
-import tomllib
-
 import numpy as np
 import pytest
 
-from pirl_sim.engine import parse_config, run_sweep
+from pirl_sim.engine import run_sweep
 from pirl_sim.engine.worker import ONLINE_FUTURES, ONLINE_SCORES, _data, run_cell, single_threaded
 from pirl_sim.evaluation.protocols import Protocol, evaluate
 from pirl_sim.learners import PIRLGMM
 from pirl_sim.metrics import adjusted_rand_index, match_styles
 
-
-TINY_PASSAGE = """
-name = "tiny online"
-seeds = [1]
-
-[[experiments]]
-scenario = "passage"
-params = { n_trajectories = 60, n_train = 45 }
-protocols = ["paper", { kind = "online", history_steps = 10 }]
-learners = [
-    "tirl",
-    { name = "pirl-gmm", label = "PIRL-GMM in weight space", params = { n_components = 3, space = "weights" } },
-]
-"""
-
-
-def _cells():
-    cfg = parse_config(tomllib.loads(TINY_PASSAGE), text=TINY_PASSAGE)
-    return {(c.protocol["kind"], c.learner_label): c for c in cfg.cells}, cfg
+from sweep_configs import TINY, passage_cells, sweep_config
 
 
 @pytest.fixture(scope="module")
 def results():
-    cells, _ = _cells()
+    cells, _ = passage_cells()
     with single_threaded():
         return {key: run_cell(c.spec()) for key, c in cells.items()}
 
@@ -59,7 +39,7 @@ def test_online_cells_score_futures_and_other_protocols_do_not(results):
 
 
 def test_online_scores_match_the_learner_and_leave_the_other_scores_alone(results):
-    cells, _ = _cells()
+    cells, _ = passage_cells()
     cell = cells[("online", "PIRL-GMM in weight space (k=3)")]
     spec = cell.spec()
     data = _data(spec)
@@ -93,28 +73,12 @@ def _threads():
 
 _THREADS_AT_START, _OPENBLAS_ENV_AT_START = _threads()
 
-TINY = """
-name = "tiny"
-seeds = [0, 1]
-
-[[experiments]]
-scenario = "synthetic"
-params = { n_trajectories = 80, n_train = 60 }
-protocols = ["paper", { kind = "online", history_steps = 10 }]
-learners = ["tirl", { name = "pirl-gmm", params = { n_components = 2 } },
-            { name = "pirl-knn", grid = { n_neighbors = [1, 4] } }]
-"""
-
-
-def _config(text: str = TINY, **kw):
-    return parse_config(tomllib.loads(text), text=text, **kw)
-
 
 def test_worker_with_other_code_refuses_the_cell():
     from pirl_sim.engine import worker as cell_module
 
     cell_module._VERSION = None
-    cell = _config().cells[0]
+    cell = sweep_config().cells[0]
     with single_threaded(), pytest.raises(RuntimeError, match="install the same code on every worker"):
         run_cell(cell.spec(), "0.0.0+0000000000000000")
 
@@ -143,7 +107,7 @@ def test_knn_k_grid_runs_as_one_fit_with_each_cells_own_numbers(tmp_path, monkey
     from pirl_sim.engine.run import _tasks
 
     text = TINY.replace("seeds = [0, 1]", "seeds = [0]").replace("n_neighbors = [1, 4]", "n_neighbors = [4, 1]")
-    cfg = _config(text)
+    cfg = sweep_config(text)
     knn = [c for c in cfg.cells if c.learner == "pirl-knn" and c.protocol["kind"] == "online"]
     assert [c.k for c in knn] == [4, 1] and len({knn_group(c.spec()) for c in knn}) == 1
     assert knn_group(cfg.cells[0].spec()) is None  # TIRL

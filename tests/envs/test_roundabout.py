@@ -15,6 +15,8 @@ from gymnasium.utils.env_checker import check_env, data_equivalence  # noqa: E40
 import pirl_sim.envs  # noqa: E402,F401  (registers the env ids)
 from pirl_sim.scenarios.contract import EgoSpec  # noqa: E402
 
+from env_checks import BAD_ACTIONS, ENV_CONFIG_ERRORS, spy_on_start  # noqa: E402
+
 
 ENV_ID = "pirl_sim/Roundabout-v0"
 #: warnings check_env may raise on these envs without failing the test: none (it raises none today); add an
@@ -254,24 +256,6 @@ def test_a_stable_baselines3_ppo_agent_trains_on_the_env():
     assert np.isfinite(total)
 
 
-def spy_on_start(monkeypatch, adapter_type):
-    """Record every ``adapter_type.start`` call (keywords and the simulation it returned), and count the steps
-    of the simulations it returns; the real start runs."""
-    calls, steps = [], []
-    real_start = adapter_type.start
-
-    def start(self, config, seed, plan, **kwargs):
-        sim = real_start(self, config, seed, plan, **kwargs)
-        if not calls:  # the simulation type's step, counted once
-            real_step = type(sim).step
-            monkeypatch.setattr(type(sim), "step", lambda s: (steps.append(s), real_step(s))[1])
-        calls.append({"config": config, "seed": seed, "plan": plan, "sim": sim, **kwargs})
-        return sim
-
-    monkeypatch.setattr(adapter_type, "start", start)
-    return calls, steps
-
-
 def test_highway_env_resets_start_the_adapters_simulation_and_steps_step_it(monkeypatch):
     from pirl_sim.scenarios.highway.scenario import HighwayAdapter, HighwayScenarioConfig
 
@@ -293,21 +277,10 @@ def test_highway_env_resets_start_the_adapters_simulation_and_steps_step_it(monk
     env.close()
 
 
-BAD_ACTIONS = [
-    (None, TypeError, "action must be a finite number"),
-    ("0.5", TypeError, "action must be a finite number"),
-    (np.array([np.nan], dtype=np.float32), ValueError, "action must be a finite number"),
-    (np.array([np.inf]), ValueError, "action must be a finite number"),
-    (np.array([0.1, 0.2]), ValueError, r"got shape \(2,\)"),
-    (np.zeros((1, 1)), ValueError, r"got shape \(1, 1\)"),
-]
-
-
 @pytest.fixture(scope="module")
 def highway_env():
     gym = pytest.importorskip("gymnasium")
     pytest.importorskip("highway_env")
-    import pirl_sim.envs  # noqa: F401
 
     env = gym.make("pirl_sim/Roundabout-v0", config={"initial_vehicles": 2, "duration": 0.4}).unwrapped
     yield env
@@ -336,21 +309,6 @@ def test_highway_backend_warns_when_stepping_past_truncation(highway_env):
         highway_env.step(np.zeros(1, dtype=np.float32))  # once per episode
         highway_env.reset(seed=1)
         highway_env.step(np.zeros(1, dtype=np.float32))
-
-
-ENV_CONFIG_ERRORS = [
-    ({"observation": {"type": "Kinematics", "vehicles_count": "8"}}, r"vehicles_count must be an integer >= 1"),
-    ({"observation": {"type": "Kinematics", "vehicles_count": 0}}, r"vehicles_count must be an integer >= 1"),
-    ({"observation": {"type": "Kinematics", "features": ["warp"]}}, r"features.*'warp'.*valid: presence"),
-    ({"observation": {"type": "Kinematics", "features": "x"}}, r"features must be a non-empty list"),
-    ({"observation": {"type": "Kinematics", "features_range": {"x": [5, -5]}}}, r"features_range\['x'\]"),
-    ({"observation": {"type": "Kinematics", "order": "random"}}, r"order must be one of"),
-    ({"action": {"type": "LongitudinalAcceleration", "acceleration_range": None}},
-     r"acceleration_range must be \[a_min < 0, a_max > 0\]"),
-    ({"action": {"type": "LongitudinalAcceleration", "acceleration_range": [None, 3]}},
-     r"acceleration_range\[0\] must be a finite number"),
-    ({"ego_speed": 1e9}, r"ego_speed must be in \[0, 30\] m/s"),
-]
 
 
 @pytest.mark.parametrize("config, message", ENV_CONFIG_ERRORS)

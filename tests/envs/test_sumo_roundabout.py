@@ -14,6 +14,8 @@ from gymnasium.utils.env_checker import check_env, data_equivalence  # noqa: E40
 import pirl_sim.envs  # noqa: E402,F401  (registers the env ids)
 from pirl_sim.scenarios.contract import EgoSpec  # noqa: E402
 
+from env_checks import BAD_ACTIONS, ENV_CONFIG_ERRORS, spy_on_start  # noqa: E402
+
 
 ENV_ID = "pirl_sim/Roundabout-v0"
 FAST = {"backend": "sumo", "warmup": 12.0}  # a shorter warm-up keeps resets quick
@@ -191,31 +193,6 @@ def test_stable_baselines3_checks_and_trains_on_the_sumo_backend():
     env.close()
 
 
-BAD_ACTIONS = [
-    (None, TypeError, "action must be a finite number"),
-    ("0.5", TypeError, "action must be a finite number"),
-    (np.array([np.nan], dtype=np.float32), ValueError, "action must be a finite number"),
-    (np.array([np.inf]), ValueError, "action must be a finite number"),
-    (np.array([0.1, 0.2]), ValueError, r"got shape \(2,\)"),
-    (np.zeros((1, 1)), ValueError, r"got shape \(1, 1\)"),
-]
-
-
-ENV_CONFIG_ERRORS = [
-    ({"observation": {"type": "Kinematics", "vehicles_count": "8"}}, r"vehicles_count must be an integer >= 1"),
-    ({"observation": {"type": "Kinematics", "vehicles_count": 0}}, r"vehicles_count must be an integer >= 1"),
-    ({"observation": {"type": "Kinematics", "features": ["warp"]}}, r"features.*'warp'.*valid: presence"),
-    ({"observation": {"type": "Kinematics", "features": "x"}}, r"features must be a non-empty list"),
-    ({"observation": {"type": "Kinematics", "features_range": {"x": [5, -5]}}}, r"features_range\['x'\]"),
-    ({"observation": {"type": "Kinematics", "order": "random"}}, r"order must be one of"),
-    ({"action": {"type": "LongitudinalAcceleration", "acceleration_range": None}},
-     r"acceleration_range must be \[a_min < 0, a_max > 0\]"),
-    ({"action": {"type": "LongitudinalAcceleration", "acceleration_range": [None, 3]}},
-     r"acceleration_range\[0\] must be a finite number"),
-    ({"ego_speed": 1e9}, r"ego_speed must be in \[0, 30\] m/s"),
-]
-
-
 @pytest.mark.parametrize("config, message", ENV_CONFIG_ERRORS)
 def test_sumo_backend_config_errors_name_the_key(config, message):
     pytest.importorskip("libsumo")
@@ -231,7 +208,6 @@ def test_sumo_backend_config_errors_name_the_key(config, message):
 def test_sumo_backend_rejects_bad_actions_and_warns_past_truncation():
     gym = pytest.importorskip("gymnasium")
     pytest.importorskip("libsumo")
-    import pirl_sim.envs  # noqa: F401
 
     env = gym.make("pirl_sim/Roundabout-v0", config={"backend": "sumo", "warmup": 4.0, "duration": 0.4}).unwrapped
     try:
@@ -247,24 +223,6 @@ def test_sumo_backend_rejects_bad_actions_and_warns_past_truncation():
             env.step(np.zeros(1, dtype=np.float32))
     finally:
         env.close()
-
-
-def spy_on_start(monkeypatch, adapter_type):
-    """Record every ``adapter_type.start`` call (keywords and the simulation it returned), and count the steps
-    of the simulations it returns; the real start runs."""
-    calls, steps = [], []
-    real_start = adapter_type.start
-
-    def start(self, config, seed, plan, **kwargs):
-        sim = real_start(self, config, seed, plan, **kwargs)
-        if not calls:  # the simulation type's step, counted once
-            real_step = type(sim).step
-            monkeypatch.setattr(type(sim), "step", lambda s: (steps.append(s), real_step(s))[1])
-        calls.append({"config": config, "seed": seed, "plan": plan, "sim": sim, **kwargs})
-        return sim
-
-    monkeypatch.setattr(adapter_type, "start", start)
-    return calls, steps
 
 
 def test_sumo_env_resets_start_the_adapters_simulation_and_steps_step_it(monkeypatch):

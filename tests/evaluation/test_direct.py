@@ -1,25 +1,20 @@
 """The replay's reference without a cost (`pirl_sim.evaluation.direct`): the arc lengths ahead regressed on the history
 and the place, on generated roundabout-passage data."""
 
-import warnings
-
 import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
 from pirl_sim.scenarios.replay import load_replay
 from pirl_sim.evaluation.baselines import KinematicModel
 from pirl_sim.evaluation.direct import DIRECT, DirectRegression
 
+from replay_scenes import passage_scene
+
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=60, n_train=50, seed=3))
-    out = tmp_path_factory.mktemp("passage")
-    write_scene(data, out)
+    out, _ = passage_scene(tmp_path_factory.mktemp("passage"), n_trajectories=60, n_train=50, seed=3)
     return load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds"), out
 
 

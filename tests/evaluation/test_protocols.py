@@ -7,57 +7,26 @@ import numpy as np
 import pytest
 
 from pirl_sim.evaluation.protocols import PAPER_PROTOCOL, Protocol, evaluate
-from pirl_sim.learners import PIRLDPGMM, PIRLGMM, PIRLKNN, TIRL
-from pirl_sim.model import synthetic_model
-from pirl_sim.population import Population, Style, generate_demonstrations
-
-
-# ---------------------------------------------------------------------------------------------- learners
-@pytest.fixture(scope="module")
-def styles_data():
-    """Boltzmann-rational LQ drivers of three styles (q = 0.1, 1, 10; 10 % spread) from spread starts."""
-    model = synthetic_model()
-    styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
-                   for name, q in zip(("calm", "normal", "eager"), (0.1, 1.0, 10.0)))
-    rng = np.random.default_rng(3)
-    n = 200
-    x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
-    demos = generate_demonstrations(model, Population(model.features, styles, 100.0), x0, 30, rng)
-    return model, demos[:160], demos[160:]
-
-
-@pytest.fixture(scope="module")
-def fitted(styles_data):
-    model, train, _ = styles_data
-    common = {"window": 10, "windows": "first"}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return {
-            "tirl": TIRL(model, **common).fit(train),
-            "gmm-weights": PIRLGMM(model, n_components=3, random_state=0, space="weights", **common).fit(train),
-            "gmm-features": PIRLGMM(model, n_components=3, random_state=0, **common).fit(train),
-            "dpgmm-weights": PIRLDPGMM(model, random_state=0, space="weights", **common).fit(train),
-            "knn-likelihood": PIRLKNN(model, n_neighbors=10, weighting="likelihood", **common).fit(train),
-            "knn-distance": PIRLKNN(model, n_neighbors=10, **common).fit(train),
-        }
+from pirl_sim.learners import PIRLKNN
 
 
 # ---------------------------------------------------------------------------------------------- evaluate
-def test_evaluate_adds_the_scores_only_when_asked(fitted, styles_data):
+# (the fixtures styles_data and styles_learners: tests/conftest.py)
+def test_evaluate_adds_the_scores_only_when_asked(styles_learners, styles_data):
     _, _, test = styles_data
     online = Protocol("online", 10)
-    plain = evaluate(fitted["gmm-weights"], test, online)
-    multi = evaluate(fitted["gmm-weights"], test, online, n_futures=6, random_state=0)
+    plain = evaluate(styles_learners["gmm-weights"], test, online)
+    multi = evaluate(styles_learners["gmm-weights"], test, online, n_futures=6, random_state=0)
     assert "min_ade" not in plain
     for key in ("med", "fde", "weight_error", "n_test"):
         assert multi[key] == plain[key]
     assert multi["k_futures"] == 6
     assert multi["min_ade"] <= multi["med"] and multi["min_fde"] <= multi["fde"] + 1e-12
     assert 0.0 <= multi["miss_rate"] <= 1.0 and np.isfinite(multi["nll"])
-    again = evaluate(fitted["gmm-weights"], test, online, n_futures=6, random_state=0)
+    again = evaluate(styles_learners["gmm-weights"], test, online, n_futures=6, random_state=0)
     assert again["min_ade"] == multi["min_ade"] and again["nll"] == multi["nll"]
     # one future: minADE_1 is the MED of the point prediction
-    tirl = evaluate(fitted["tirl"], test, online, n_futures=6)
+    tirl = evaluate(styles_learners["tirl"], test, online, n_futures=6)
     assert tirl["k_futures"] == 1 and tirl["min_ade"] == pytest.approx(tirl["med"], rel=1e-12)
     assert tirl["min_fde"] == pytest.approx(tirl["fde"], rel=1e-12)
 

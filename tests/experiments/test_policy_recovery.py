@@ -1,8 +1,11 @@
 """Policy recovery (pirl_sim.experiments.policy_recovery): the scripted MPC ego of pirl_sim/Roundabout-v0, recorded
 with record_tracks, gives back its weights within stated tolerances (pirl_sim.recovery, pirl_sim.testing); bad
-settings refused; a smoke test of the PPO experiment (its figure is results/policy_recovery, no pass/fail)."""
+settings refused; the engine kind ``policy-recovery``: its cells and a smoke test of them (its figure is
+results/policy_recovery, no pass/fail)."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
@@ -67,18 +70,48 @@ def test_policy_recovery_rejects_bad_settings():
         mpc_ego_demonstrations({"a": {"speed_dev": 1.0, "acc_sq": 1.0}}, [])
 
 
-# ---------------------------------------------------------------------------------------------- (c) PPO smoke
-@pytest.mark.slow
-def test_ppo_recovery_experiment_runs_end_to_end(tmp_path):
-    pytest.importorskip("stable_baselines3")
-    from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, ppo_ego_report, write_results
+# ---------------------------------------------------------------------------------------------- (c) the engine kind
+def _config(**changes):
+    from pirl_sim.engine.config import parse_config
+    from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig
 
-    cfg = PpoRecoveryConfig(seeds=(0,), steps=128, n_steps=64, batch_size=32, n_epochs=1, eval_seeds=(1000,),
-                            duration=8.0)
-    result = ppo_ego_report(cfg)
+    cfg = PpoRecoveryConfig(**{"seeds": (0,), "steps": 64, "n_steps": 64, "batch_size": 32, "n_epochs": 1,
+                               "eval_seeds": (1000,), "duration": 4.0, **changes})
+    return cfg, parse_config(cfg.sweep_data())
+
+
+def test_the_kind_has_a_cell_per_training_seed_and_one_for_the_mpc_ego():
+    from pirl_sim.engine.config import parse_config
+
+    _, config = _config(seeds=(3, 4))
+    assert [(c.learner, c.seed, c.learner_params.get("random_state")) for c in config.cells] == [
+        ("mpc-theta", 0, None), ("ppo-theta", 3, 3), ("ppo-theta", 4, 4)]
+    assert dict(config.cells[0].learner_params) == {"eval_seeds": [1000]}  # PPO's settings leave its key alone
+    assert config.cells[0].scenario_params["duration"] == 4.0
+    exp = {"scenario": "policy-recovery", "learners": [{"name": "ppo-theta", "params": {"eval_seeds": [5, 6]}}]}
+    for changes, message in (
+            ({"seeds": [6]}, "training seeds and evaluation seeds must differ; both have \\[6\\]"),
+            ({"params": {"n_vehicles": 3, "initial_vehicles": 5}}, "initial_vehicles = 5 exceeds n_vehicles = 3"),
+            ({"params": {"acc_sq": 0.0}}, "theta must give speed_dev, acc_sq each a finite weight > 0"),
+            ({"protocols": [{"kind": "online", "history_steps": 5}]}, 'its one protocol is "paper"'),
+            ({"learners": ["mpc"]}, "runs the learners \\['ppo-theta', 'mpc-theta'\\] only")):
+        with pytest.raises(ValueError, match=message):
+            parse_config({"seeds": [0], "experiments": [{**exp, **changes}]})
+
+
+@pytest.mark.slow
+def test_ppo_recovery_cells_run_end_to_end(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from pirl_sim.experiments.policy_recovery import collect_records, run_policy_cells, write_results
+
+    cfg, config = _config()
+    records = [record for record, _ in run_policy_cells([c.spec() for c in config.cells])]
+    result = collect_records(json.loads(json.dumps(records, sort_keys=True)))  # as the store keeps them
     ppo = result["reports"]["ppo"]
     assert ppo.n_tracks == 1 and ppo.style_names == ("ppo seed 0",)
     assert np.allclose(ppo.true, [[3.0, 0.3]])
-    assert set(result["episodes"]["policy"]) == {"ppo", "mpc"}
+    assert list(result["episodes"]["policy"]) == ["mpc", "ppo"]
+    assert list(result["episodes"].columns[:3]) == ["policy", "seed", "return"]
+    assert list(result["episodes"]["train_seed"]) == [-1, 0]
     files = write_results(result, cfg, tmp_path, "test", 1.0)
     assert "speed_dev" in files["README.md"].read_text() and (tmp_path / "tracks.csv").is_file()

@@ -2,37 +2,24 @@
 closed-loop rollout, sweep configs of recorded data run into the tidy table with keys that follow the data, and
 config errors that name the scenario as written."""
 
-import dataclasses
-import warnings
-
 import numpy as np
 import pytest
 
 from pirl_sim.cli import main
 from pirl_sim.engine import load_config, run_sweep
-from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay
-from pirl_sim.scenarios.passage import PassageConfig, write_scene
-from pirl_sim.scenarios.passage import generate as generate_passage
-from pirl_sim.scenarios.replay import load_replay
+from pirl_sim.experiments.replay_report import ReplayProtocol
+
+import replay_scenes
+from replay_scenes import load_sumo_scene, replay_with_engine
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate_passage(PassageConfig(n_trajectories=160, n_train=130, seed=4))
-    out = tmp_path_factory.mktemp("scene")
-    write_scene(data, out)
-    return out, data
-
-
-def test_a_sweep_config_runs_the_recorded_scenario_into_the_tidy_table(scene_dir, tmp_path):
-    """The replay's scenario is a sweep scenario like the others: a config of its own gives the tidy table's MED and
-    FDE of the in-process replay."""
-    from pirl_sim.engine import load_config, run_sweep
+def test_a_sweep_config_runs_the_recorded_scenario_into_the_tidy_table(passage_scene, tmp_path):
+    """The replay's scenario is a sweep scenario like the others: a config of its own gives the tidy table, whose
+    MED and FDE are those of the replay's rows (`pirl_sim.cli.replay.replay_results`) of the same cells."""
+    from pirl_sim.cli.replay import replay_results
     from pirl_sim.experiments.recorded import load_scene
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     cfg = tmp_path / "recorded.toml"
     cfg.write_text(f"""
 seeds = [0, 1]
@@ -45,35 +32,36 @@ learners = [{{ name = "cv", label = "CV (path)" }}, {{ name = "ca", label = "CA 
     config = load_config(cfg)
     run = run_sweep(config, tmp_path / "out", workers=0, progress=False)
     assert not run.failed and len(run.table) == 6
-    direct = run_replay(load_scene(dict(config.cells[0].scenario_params)), [("TIRL", "tirl", {})],
-                        ReplayProtocol(seeds=(0, 1), fde_steps=(5, 15)))["rows"].set_index(["seed", "method"])
+    scene = load_scene(dict(config.cells[0].scenario_params))
+    rows = replay_results(config, run, scene, ReplayProtocol(seeds=(0, 1), fde_steps=(5, 15)))["rows"]
+    rows = rows.set_index(["seed", "method"])
     for _, r in run.table.iterrows():
-        expected = direct.loc[(r["seed"], r["learner_label"])]
+        expected = rows.loc[(r["seed"], r["learner_label"])]
         assert r["med"] == expected["med"] and r["fde"] == expected["de@3.0s"]
         assert r["n_predictions"] == expected["n_windows"] and r["n_test"] == expected["n_test"]
     assert (tmp_path / "out" / "table.csv").is_file()
 
 
-def test_replay_start_option_is_checked_and_changes_the_start_states(scene_dir):
-    out, _ = scene_dir
+def test_replay_start_option_is_checked_and_changes_the_start_states(passage_scene, tmp_path):
+    out, _ = passage_scene
     with pytest.raises(ValueError, match="start must be one of"):
         ReplayProtocol(start="smoothed")
-    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
-    specs = [("TIRL", "tirl", {})]
-    rows = {start: run_replay(scene, specs, ReplayProtocol(seeds=(0,), start=start))["rows"].set_index("method")
+    rows = {start: replay_with_engine(out / "vehicle_tracks_000.csv", out / "map.osm", ["tirl"],  # one scene
+                                      ReplayProtocol(seeds=(0,), start=start), tmp_path / start)["rows"]
             for start in ("history", "track")}
+    rows = {start: r.set_index("method") for start, r in rows.items()}
     assert rows["history"].loc["CA (path)", "med"] != rows["track"].loc["CA (path)", "med"]
     # the lateral floor uses recorded arc lengths, not the start states
     assert rows["history"].loc["TIRL", "lateral_floor"] == rows["track"].loc["TIRL", "lateral_floor"]
 
 
-def test_a_recorded_sweep_config_reads_history_starts_with_speeds(scene_dir):
+def test_a_recorded_sweep_config_reads_history_starts_with_speeds(passage_scene):
     """A hand-written ``recorded`` config that names no ``load.estimate`` replays with history starts (the
     default) and gets the speed-aided estimate, as ``pirl-sim replay`` does; with ``start = "track"`` (or an
     explicit estimate) it is read as asked."""
     from pirl_sim.experiments.recorded import load_scene
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     params = {"tracks": str(out), "map": str(out / "map.osm"), "files": 0, "load": {}, "replay": {}}
     first = load_scene(params).trajectories[0].metadata["estimator"]
     assert first.estimate == "speeds"
@@ -90,37 +78,11 @@ def test_protocol_rejects_steps_that_are_not_positive(name, value):
         ReplayProtocol(**{name: value})
 
 
-@pytest.fixture(scope="module")
-def sumo_run(tmp_path_factory):
-    """A small SUMO run (20 vehicles, drivers re-planning over 30 steps of 0.1 s), written as a recording."""
-    pytest.importorskip("libsumo")
-    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
-    from pirl_sim.scenarios.sumo import SumoScenarioConfig, run_sumo_scenario
-
-    out = tmp_path_factory.mktemp("receding_replay") / "run"
-    pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=20, depart_interval=1.5)
-    run_sumo_scenario(SumoScenarioConfig(population=pop), seed=1, out_dir=out)
-    return out
-
-
-def _load(run, **kw):
-    from pirl_sim.scenarios.replay import SIMULATED_NOISE, load_replay, recording_settings
-
-    rec = recording_settings(run)
-    args = dict(dt=rec.dt, estimate="speeds", noise=SIMULATED_NOISE, selection="steps", max_steps=None,
-                smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max,
-                arc_length="observed")
-    args.update(kw)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return load_replay([run / "vehicle_tracks_000.csv"], run / "map.osm", **args), rec
-
-
-def test_closed_loop_rollout_is_the_receding_horizon_simulation(sumo_run):
+def test_closed_loop_rollout_is_the_receding_horizon_simulation(sumo_recording):
     from pirl_sim.experiments.replay_report import predict_path_states
     from pirl_sim.simulate import simulate_receding_horizon
 
-    scene, _ = _load(sumo_run)
+    scene, _ = load_sumo_scene(sumo_recording)
     t = scene.selected[0]
     x0 = t.states[[0, 5]]
     theta = np.broadcast_to(t.metadata["theta"], (2, 3))
@@ -136,14 +98,7 @@ def test_closed_loop_rollout_is_the_receding_horizon_simulation(sumo_run):
 # ---------------------------------------------------------------------------------------------- replay
 @pytest.fixture(scope="module")
 def replay_dir(tmp_path_factory):
-    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=60, n_train=45, seed=2))
-    out = tmp_path_factory.mktemp("scene")
-    write_scene(data, out)
-    return out
+    return replay_scenes.passage_scene(tmp_path_factory.mktemp("scene"), n_trajectories=60, n_train=45, seed=2)[0]
 
 
 def test_replay_scenario_runs_and_its_key_follows_the_data(replay_dir, tmp_path):
@@ -174,23 +129,6 @@ learners = ["tirl", { name = "pirl-knn", params = { n_neighbors = 5, stride = 2 
     cfg_path.write_text(bad)
     with pytest.raises(ValueError, match="larger than the training set .*at most"):
         load_config(cfg_path)
-
-
-@pytest.fixture(scope="module")
-def replay_out(tmp_path_factory):
-    """A small `pirl-sim replay` (one split seed, TIRL and the baselines) on a generated passage scene."""
-    pytest.importorskip("lanelet2")
-    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=2))
-    root = tmp_path_factory.mktemp("replay")
-    write_scene(data, root / "scene")
-    out = root / "out"
-    assert main(["replay", "--tracks", str(root / "scene"), "--map", str(root / "scene" / "map.osm"), "--seeds", "1",
-                 "--learners", "tirl", "--quiet", "--out", str(out)]) == 0
-    return out
 
 
 def test_recorded_configs_fail_their_check_naming_the_scenario_as_written(replay_out, tmp_path, capsys):

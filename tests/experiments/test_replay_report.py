@@ -4,36 +4,30 @@ outputs of a replay with background tracks."""
 
 import warnings
 
-import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.experiments.replay_report import ReplayProtocol, run_replay, write_replay_results
-from pirl_sim.io.interaction import write_tracks
-from pirl_sim.scenarios.passage import PassageConfig, write_scene
-from pirl_sim.scenarios.passage import generate as generate_passage
-from pirl_sim.scenarios.replay import load_replay
+from pirl_sim.experiments.replay_report import ReplayProtocol, write_replay_results
+
+from replay_scenes import (
+    replay_with_engine,
+    roundabout_files,
+    straight_scene,
+    two_lane_scene_dir,
+    write_ground_truth,
+)
+from weaving import weaving_scene
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate_passage(PassageConfig(n_trajectories=160, n_train=130, seed=4))
-    out = tmp_path_factory.mktemp("scene")
-    write_scene(data, out)
-    return out, data
-
-
-def test_replay_orders_learners_as_the_paper(scene_dir):
-    out, _ = scene_dir
-    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
-    specs = [
-        ("TIRL", "tirl", {}),
-        ("PIRL-GMM (k=3)", "pirl-gmm", {"n_components": 3, "random_state": 0}),
-        ("PIRL-kNN (k=10)", "pirl-knn", {"n_neighbors": 10, "prior": "population", "stride": 2}),
+def test_replay_orders_learners_as_the_paper(passage_scene, tmp_path):
+    out, _ = passage_scene
+    learners = [
+        "tirl",
+        {"name": "pirl-gmm", "params": {"n_components": 3, "random_state": 0}},
+        {"name": "pirl-knn", "params": {"n_neighbors": 10, "prior": "population", "stride": 2}},
     ]
-    result = run_replay(scene, specs, ReplayProtocol(seeds=(0, 1)))
+    result = replay_with_engine(out / "vehicle_tracks_000.csv", out / "map.osm", learners,
+                                ReplayProtocol(seeds=(0, 1)), tmp_path / "out", estimate="speeds")
     med = result["rows"].groupby("method")["med"].mean()
     assert med["PIRL-kNN (k=10)"] < med["PIRL-GMM (k=3)"] < med["TIRL"]
     assert med["TIRL"] < med["CV (path)"] < med["CV (x, y)"]
@@ -41,73 +35,37 @@ def test_replay_orders_learners_as_the_paper(scene_dir):
     assert paired.loc["PIRL-kNN (k=10)", "mean_difference"] < 0
 
 
-LANE_LENGTH = 500.0  # [m]
-LANE_Y = {"A": 0.0, "B": 60.0}  # two parallel straight lanes, both +x, no routing-graph link between them
-
-
-def _track_rows(track_id, first_frame, x0, n, y, speed=10.0):
-    frames = np.arange(first_frame, first_frame + n)
-    x = x0 + speed * 0.1 * np.arange(n)
-    yy = np.broadcast_to(np.asarray(y, dtype=float), (n,))
-    return pd.DataFrame({"track_id": track_id, "frame_id": frames, "timestamp_ms": 100 * frames, "agent_type": "car",
-                         "x": x, "y": yy, "vx": speed, "vy": 0.0, "psi_rad": 0.0, "length": 4.5, "width": 1.8})
-
-
-def _straight_scene(tmp_path, tracks):
-    """A map of the two lanes and one track file; tracks: list of (lane, x0 [m], frames, y override or None),
-    each in its own frames (no two tracks share a frame: nobody interacts)."""
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
-
-    x = np.linspace(0.0, LANE_LENGTH, 41)
-    write_map({k: np.column_stack([x, np.full_like(x, y)]) for k, y in LANE_Y.items()}, {}, tmp_path / "map.osm")
-    rows, frame = [], 1
-    for i, (lane, x0, n, y) in enumerate(tracks):
-        rows.append(_track_rows(i + 1, frame, x0, n, LANE_Y[lane] if y is None else y))
-        frame += n + 10
-    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
-    return tmp_path / "vehicle_tracks_000.csv", tmp_path / "map.osm"
-
-
 def test_counts_are_tracks_and_pieces_separately(tmp_path):
     """Long tracks are cut into 20 s pieces: the scene and the replay count tracks, pieces separately."""
     spec = [("A" if i % 2 else "B", 1.0, 450, None) for i in range(8)]  # 45 s each: 3 pieces of <= 20 s
-    tracks, osm = _straight_scene(tmp_path, spec)
-    scene = load_replay([tracks], osm)
+    tracks, osm = straight_scene(tmp_path, spec)
+    result = replay_with_engine(tracks, osm, ["tirl"], ReplayProtocol(seeds=(0,)), tmp_path / "out")
+    scene = result["scene"]  # load_replay([tracks], osm)
     assert scene.n_converted == 8 and len(scene.trajectories) == 24 and scene.n_selected_tracks == 8
-    result = run_replay(scene, [("TIRL", "tirl", {})], ReplayProtocol(seeds=(0,)))
     rows = result["rows"]
     assert set(rows["n_train"]) == {6} and set(rows["n_test"]) == {2}
     # the last piece of each track (24 steps) is shorter than history + horizon (25 steps): 2 pieces per track
     assert set(rows["n_train_pieces"]) == {12} and set(rows["n_test_pieces"]) == {4}
     assert result["selected"] == 8 and result["selected_pieces"] == 16
-    from pirl_sim.experiments.replay_report import write_replay_results
-
     write_replay_results(result, scene, tmp_path / "res", "test")
     text = (tmp_path / "res" / "README.md").read_text()
     assert "converted: 8 (in 24 pieces)" in text and "used (not interacting, long enough): 8 (in 16 pieces)" in text
 
 
-def _small_scene(scene_dir, n=48):
-    import dataclasses
-
-    out, _ = scene_dir
-    scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
-    return dataclasses.replace(scene, trajectories=scene.trajectories[:n], n_tracks=n, track_table=None)
-
-
-def test_replay_fits_knn_once_per_split_for_all_k(scene_dir, monkeypatch):
+def test_replay_fits_knn_once_per_split_for_all_k(passage_root, tmp_path, monkeypatch):
     from pirl_sim.learners import PIRLKNN
 
-    scene = _small_scene(scene_dir)
+    tracks, osm = roundabout_files(passage_root)  # a small scene (40 tracks)
     proto = ReplayProtocol(seeds=(0, 1))
-    specs = [(f"PIRL-kNN (k={k})", "pirl-knn", {"n_neighbors": k, "prior": "population", "stride": 2})
-             for k in (10, 3)]
-    alone = run_replay(scene, [specs[0]], proto)["rows"].set_index(["seed", "method"])
+
+    def knn(*k):
+        return [{"name": "pirl-knn", "params": {"prior": "population", "stride": 2}, "grid": {"n_neighbors": list(k)}}]
+
+    alone = replay_with_engine(tracks, osm, knn(10), proto, tmp_path / "alone")["rows"].set_index(["seed", "method"])
     calls = []
     original = PIRLKNN._fit
     monkeypatch.setattr(PIRLKNN, "_fit", lambda self, *a: calls.append(self.n_neighbors) or original(self, *a))
-    rows = run_replay(scene, specs, proto)["rows"]
+    rows = replay_with_engine(tracks, osm, knn(10, 3), proto, tmp_path / "both")["rows"]
     assert calls == [3, 3]  # one IRL per split, with the smallest k; k=10 reuses it
     assert list(rows["method"].unique()) == ["CV (path)", "CA (path)", "PIRL-kNN (k=10)", "PIRL-kNN (k=3)",
                                              "CV (x, y)"]
@@ -119,12 +77,12 @@ def test_replay_fits_knn_once_per_split_for_all_k(scene_dir, monkeypatch):
         assert both.loc[key, "irl_converged"] == alone.loc[key, "irl_converged"]
 
 
-def test_replay_reports_irl_convergence_and_passes_other_warnings_on(scene_dir, monkeypatch):
+def test_replay_reports_irl_convergence_and_passes_other_warnings_on(passage_root, tmp_path, monkeypatch):
     from pirl_sim.experiments.replay_report import summarize
     from pirl_sim.irl import IRLConvergenceWarning
     from pirl_sim.learners import TIRL
 
-    scene = _small_scene(scene_dir)
+    tracks, osm = roundabout_files(passage_root)  # a small scene (40 tracks)
     original = TIRL._fit
 
     def noisy_fit(self, *args):
@@ -133,8 +91,10 @@ def test_replay_reports_irl_convergence_and_passes_other_warnings_on(scene_dir, 
         warnings.warn("stand-in for a non-converged group", IRLConvergenceWarning)
 
     monkeypatch.setattr(TIRL, "_fit", noisy_fit)
-    with pytest.warns(UserWarning, match="not an IRL diagnostic"):  # was silenced by a blanket filter
-        result = run_replay(scene, [("TIRL", "tirl", {})], ReplayProtocol(seeds=(0, 1)))
+    result = replay_with_engine(tracks, osm, ["tirl"], ReplayProtocol(seeds=(0, 1)), tmp_path / "out")
+    # the other warning is passed on to the engine, which keeps it with the cells (was silenced by a blanket filter)
+    records = result["run"].records.values()
+    assert all("UserWarning: not an IRL diagnostic" in r["warnings"] for r in records if r["cell"]["learner"] == "tirl")
     tirl = result["rows"].query("method == 'TIRL'")
     assert list(tirl["irl_convergence_warnings"]) == [1, 1] and list(tirl["irl_groups"]) == [1, 1]
     summary = summarize(result).set_index("method")
@@ -144,44 +104,19 @@ def test_replay_reports_irl_convergence_and_passes_other_warnings_on(scene_dir, 
     assert summary.loc["CV (path)", "irl_converged"] == ""
 
 
-THETA = {"speed_dev": 1.0, "acc_sq": 2.0, "jerk_sq": 1.0}  # raw weights of the sidecars
-
-
-def _scene_dir(d, n_tracks=8, n_frames=150, speed=10.0):
-    """A map of two straight lanes and one track file of ``n_tracks`` tracks that never share a frame."""
-    from pirl_sim.io.lanelet2_map import write_map
-
-    d.mkdir(parents=True, exist_ok=True)
-    x = np.linspace(0.0, LANE_LENGTH, 41)
-    write_map({k: np.column_stack([x, np.full_like(x, y)]) for k, y in LANE_Y.items()}, {}, d / "map.osm")
-    rows, frame = [], 1
-    for i in range(n_tracks):
-        rows.append(_track_rows(i + 1, frame, 5.0, n_frames, LANE_Y["AB"[i % 2]], speed))
-        frame += n_frames + 10
-    write_tracks(pd.concat(rows, ignore_index=True), d / "vehicle_tracks_000.csv")
-    return d / "vehicle_tracks_000.csv", d / "map.osm"
-
-
-def _sidecar(d, ids, styles, theta=THETA):
-    """ground_truth.csv: a style >= 0 with weights for PIRL tracks, style -1 without weights for the others."""
-    rows = [{"track_id": i, "style": s, **{f"theta_{k}": (v if s >= 0 else np.nan) for k, v in theta.items()}}
-            for i, s in zip(ids, styles)]
-    pd.DataFrame(rows).to_csv(d / "ground_truth.csv", index=False)
-
-
 @pytest.fixture(scope="module")
 def mixed_result(tmp_path_factory):
     """8 tracks, 6 of them PIRL drivers of two styles with weights, 2 background tracks (style -1)."""
     d = tmp_path_factory.mktemp("mixed")
-    tracks, osm = _scene_dir(d, n_tracks=8, n_frames=130)
-    _sidecar(d, range(1, 9), [0, 1, 0, 1, 0, 1, -1, -1])
-    scene = load_replay([tracks], osm)
+    tracks, osm = two_lane_scene_dir(d, n_tracks=8, n_frames=130)
+    write_ground_truth(d, range(1, 9), [0, 1, 0, 1, 0, 1, -1, -1])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = run_replay(scene, [("TIRL", "tirl", {}), ("PIRL-GMM (k=2)", "pirl-gmm", {"n_components": 2,
-                                                                                          "random_state": 0})],
-                            ReplayProtocol(history=10, horizon=10, fde_steps=(10,), seeds=(0, 1)))
-    return scene, result
+        result = replay_with_engine(tracks, osm, ["tirl", {"name": "pirl-gmm", "params": {"n_components": 2,
+                                                                                         "random_state": 0}}],
+                                    ReplayProtocol(history=10, horizon=10, fde_steps=(10,), seeds=(0, 1)),
+                                    tmp_path_factory.mktemp("mixed_out"))
+    return result["scene"], result
 
 
 def test_background_tracks_keep_the_weight_error_columns(mixed_result, tmp_path):
@@ -230,35 +165,12 @@ def test_cluster_figure_uses_gmm_k_and_marks_background_tracks(mixed_result, tmp
     assert (tmp_path / "clusters.png").stat().st_size > 0
 
 
-def _weaving_scene(tmp_path, n_tracks=12):
-    """Straight lane; every car weaves across it the same way along x (a route-consistent driven path)."""
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
-
-    x = np.linspace(0.0, 400.0, 41)
-    write_map({"A": np.column_stack([x, np.zeros_like(x)])}, {}, tmp_path / "map.osm")
-    rows, frame = [], 1
-    for i in range(n_tracks):
-        n = 200
-        frames = np.arange(frame, frame + n)
-        speed = 8.0 + 0.3 * i
-        xx = 10.0 + 3.0 * i + speed * 0.1 * np.arange(n)
-        y = 1.2 * np.sin(xx / 15.0) + 0.1 * (i % 3 - 1)
-        psi = np.arctan(1.2 / 15.0 * np.cos(xx / 15.0))
-        rows.append(pd.DataFrame({"track_id": i + 1, "frame_id": frames, "timestamp_ms": 100 * frames,
-                                  "agent_type": "car", "x": xx, "y": y, "vx": speed, "vy": 0.0, "psi_rad": psi,
-                                  "length": 4.5, "width": 1.8}))
-        frame += n + 10
-    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
-    return tmp_path / "vehicle_tracks_000.csv", tmp_path / "map.osm"
-
-
 def test_mean_path_lateral_model_and_the_error_decomposition(tmp_path):
-    tracks, osm = _weaving_scene(tmp_path)
-    scene = load_replay([tracks], osm, smoothing=0.0)
+    tracks, osm = weaving_scene(tmp_path)
     rows = {}
     for lateral in ("hold", "mean-path", "plane"):
-        res = run_replay(scene, [], ReplayProtocol(seeds=(0, 1), test_fraction=0.34, lateral=lateral))
+        res = replay_with_engine(tracks, osm, [], ReplayProtocol(seeds=(0, 1), test_fraction=0.34, lateral=lateral),
+                                 tmp_path / lateral, smoothing=0.0)
         rows[lateral] = res["rows"].set_index(["seed", "method"])
     hold, mean = rows["hold"], rows["mean-path"]
     for seed in (0, 1):  # one route: pooling in the plane finds the same weave
@@ -275,32 +187,13 @@ def test_mean_path_lateral_model_and_the_error_decomposition(tmp_path):
         assert hold.loc[(seed, ca), "med_path"] < 0.1
 
 
-@pytest.fixture(scope="module")
-def passage_root(tmp_path_factory):
-    """A simulated roundabout scene laid out as an INTERACTION folder (recorded_trackfiles/NAME, maps/NAME.osm)."""
-    from pirl_sim.scenarios.passage import PassageConfig, generate, write_scene
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate(PassageConfig(n_trajectories=40, n_train=30, seed=4))
-    root = tmp_path_factory.mktemp("root")
-    scene = root / "recorded_trackfiles" / "SIM_Roundabout_A"
-    scene.mkdir(parents=True)
-    write_scene(data, scene)
-    (root / "maps").mkdir()
-    (scene / "map.osm").rename(root / "maps" / "SIM_Roundabout_A.osm")
-    return root
-
-
-def test_run_replay_fits_the_desired_speed_per_split(passage_root):
-    name = "SIM_Roundabout_A"
-    scene = load_replay([passage_root / "recorded_trackfiles" / name / "vehicle_tracks_000.csv"],
-                        passage_root / "maps" / f"{name}.osm")
+def test_replay_fits_the_desired_speed_per_split(passage_root, tmp_path):
+    tracks, osm = roundabout_files(passage_root)
     proto = ReplayProtocol(seeds=(0, 1))
-    fitted = run_replay(scene, [("TIRL", "tirl", {})], proto, desired_speed="fit")["rows"]
+    fitted = replay_with_engine(tracks, osm, ["tirl"], proto, tmp_path / "fit", desired_speed="fit")["rows"]
     assert fitted.groupby("seed")["a_lat"].nunique().eq(1).all()
     assert fitted["a_lat"].between(0.2, 8.0).all() and fitted["v_max"].between(2.0, 40.0).all()
-    fixed = run_replay(scene, [("TIRL", "tirl", {})], proto, desired_speed=(2.0, 12.0))["rows"]
+    fixed = replay_with_engine(tracks, osm, ["tirl"], proto, tmp_path / "fixed", desired_speed=(2.0, 12.0))["rows"]
     assert set(fixed["a_lat"]) == {2.0} and set(fixed["v_max"]) == {12.0}
-    default = run_replay(scene, [("TIRL", "tirl", {})], proto)["rows"]
-    assert set(default["a_lat"]) == {scene.a_lat}
+    default = replay_with_engine(tracks, osm, ["tirl"], proto, tmp_path / "default")
+    assert set(default["rows"]["a_lat"]) == {default["scene"].a_lat}

@@ -3,47 +3,12 @@ the data, one colour per learner or feature, and what k counts."""
 
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
+
+from figure_checks import assert_legends_clear, assert_tick_below_data
 
 
 SWEEP_TABLE = Path(__file__).resolve().parents[2] / "results" / "sweep" / "table.csv"
-
-
-def _data_boxes(ax):
-    """Display-space boxes of every data mark in ``ax``: bars, and each segment of lines and error bars."""
-    from matplotlib.transforms import Bbox
-
-    boxes = [p.get_window_extent() for p in ax.patches if p.get_visible() and p.get_height() > 0]
-    paths = [(ln.get_transform(), ln.get_path()) for ln in ax.get_lines()]
-    for coll in ax.collections:
-        paths += [(coll.get_transform(), p) for p in coll.get_paths()]
-    for transform, path in paths:
-        xy = transform.transform(path.vertices)
-        xy = xy[np.isfinite(xy).all(axis=1)]
-        boxes += [Bbox([np.minimum(a, b), np.maximum(a, b)]) for a, b in zip(xy[:-1], xy[1:])] or \
-            [Bbox([p, p]) for p in xy]
-    return boxes
-
-
-def _legends(fig):
-    return list(fig.legends) + [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
-
-
-def _assert_legends_clear(fig):
-    from matplotlib.transforms import Bbox
-
-    fig.canvas.draw()
-    legends = _legends(fig)
-    assert legends, "the figure has a legend"
-    for legend in legends:
-        box = legend.get_window_extent()
-        for ax in fig.axes:
-            if not ax.get_visible():
-                continue
-            clipped = [Bbox.intersection(b, ax.bbox) for b in _data_boxes(ax)]  # marks are drawn inside the axes
-            hits = [b for b in clipped if b is not None and box.overlaps(b)]
-            assert not hits, f"legend {[t.get_text() for t in legend.get_texts()]} covers data of {ax.get_title()!r}"
 
 
 def _sweep_summary():
@@ -77,16 +42,6 @@ def _assert_one_colour_per_series(fig):
     assert seen, "labelled series"
 
 
-def _assert_tick_below_data(ax):
-    """A labelled y tick at or below the lowest data point, inside the axis limits."""
-    ax.figure.canvas.draw()
-    lo, hi = ax.get_ylim()
-    labelled = [t.get_loc() for t in ax.yaxis.get_major_ticks()
-                if t.label1.get_visible() and t.label1.get_text() and lo * (1 - 1e-9) <= t.get_loc() <= hi]
-    data_min = min(float(np.nanmin(ln.get_ydata())) for ln in ax.get_lines() if len(ln.get_ydata()))
-    assert labelled and min(labelled) <= data_min, (ax.get_title(), labelled, data_min)
-
-
 def test_learners_figure_legend_clear_and_colours_per_learner():
     from pirl_sim.evaluation.figures import pyplot
     from pirl_sim.experiments.sweep_report import learners_side_by_side_figure
@@ -94,7 +49,7 @@ def test_learners_figure_legend_clear_and_colours_per_learner():
     _, best = _sweep_summary()
     fig = learners_side_by_side_figure(best)
     try:
-        _assert_legends_clear(fig)
+        assert_legends_clear(fig)
         _assert_one_colour_per_series(fig)
         texts = [t.get_text() for ax in fig.axes for t in ax.texts]
         assert any(t.startswith("k=") for t in texts), "the best k is written at its bar"
@@ -109,7 +64,7 @@ def test_med_vs_k_figure_legend_colours_and_what_k_counts():
     summary, _ = _sweep_summary()
     fig = med_vs_k_figure(summary)
     try:
-        _assert_legends_clear(fig)
+        assert_legends_clear(fig)
         _assert_one_colour_per_series(fig)
         labels = {ax.get_title(): ax.get_xlabel() for ax in fig.axes if ax.get_visible()}
         assert any("PIRL-GMM" in t for t in labels) and any("PIRL-kNN" in t for t in labels)
@@ -122,7 +77,7 @@ def test_med_vs_k_figure_legend_colours_and_what_k_counts():
         assert passage
         for ax in fig.axes:
             if ax.get_visible():
-                _assert_tick_below_data(ax)  # the passage panel's lowest line (~0.12 m) was below every tick
+                assert_tick_below_data(ax)  # the passage panel's lowest line (~0.12 m) was below every tick
     finally:
         pyplot().close(fig)
 
@@ -145,6 +100,6 @@ def test_recovery_figure_one_colour_per_feature():
                     color = to_hex(coll.get_facecolor()[0], keep_alpha=False)
                     assert seen.setdefault(label, color) == color, f"{label!r} changes colour between panels"
         assert len(set(seen.values())) == len(seen) >= 2
-        _assert_legends_clear(fig)
+        assert_legends_clear(fig)
     finally:
         pyplot().close(fig)

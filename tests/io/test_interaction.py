@@ -79,6 +79,19 @@ def good_vehicle_lines() -> list[str]:
     ]
 
 
+def assert_rejected(tmp_path: Path, lines: list[str], match: str) -> None:
+    """``lines`` written as a vehicle track file fail to read with a ValueError matching ``match``."""
+    with pytest.raises(ValueError, match=match):
+        read_tracks(write_text(tmp_path, "\n".join(lines)))
+
+
+def assert_edit_rejected(tmp_path: Path, line: int, old: str, new: str, match: str) -> None:
+    """`good_vehicle_lines` with ``old`` replaced by ``new`` in line index ``line`` fail to read (`assert_rejected`)."""
+    lines = good_vehicle_lines()
+    lines[line] = lines[line].replace(old, new)
+    assert_rejected(tmp_path, lines, match)
+
+
 def assert_frames_close(a: pd.DataFrame, b: pd.DataFrame, atol: float = 1e-6) -> None:
     assert list(a.columns) == list(b.columns)
     assert len(a) == len(b)
@@ -242,8 +255,7 @@ def test_truncated_last_line(tmp_path):
 def test_too_many_fields(tmp_path):
     lines = good_vehicle_lines()
     lines[2] += ",7"
-    with pytest.raises(ValueError, match=r"line 3: 12 fields"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_rejected(tmp_path, lines, r"line 3: 12 fields")
 
 
 def test_missing_column(tmp_path):
@@ -256,11 +268,9 @@ def test_missing_column(tmp_path):
 def test_unknown_and_misordered_columns(tmp_path):
     lines = good_vehicle_lines()
     lines[0] = lines[0].replace("psi_rad", "heading")
-    with pytest.raises(ValueError, match=r"missing column\(s\) 'psi_rad'; unknown column\(s\) 'heading'"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_rejected(tmp_path, lines, r"missing column\(s\) 'psi_rad'; unknown column\(s\) 'heading'")
     lines[0] = VEHICLE_HEADER.replace("x,y", "y,x")
-    with pytest.raises(ValueError, match=r"line 1 \(header\): columns out of order"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_rejected(tmp_path, lines, r"line 1 \(header\): columns out of order")
 
 
 def test_header_only(tmp_path):
@@ -272,45 +282,32 @@ def test_header_only(tmp_path):
 
 @pytest.mark.parametrize("value", ["nan", "NaN", "inf", "-inf"])
 def test_nan_or_inf_value(tmp_path, value):
-    lines = good_vehicle_lines()
-    lines[3] = lines[3].replace(",6.5,", f",{value},")
-    with pytest.raises(ValueError, match=r"line 4, column 'y':.*finite"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_edit_rejected(tmp_path, 3, ",6.5,", f",{value},", r"line 4, column 'y':.*finite")
 
 
 def test_empty_value(tmp_path):
-    lines = good_vehicle_lines()
-    lines[2] = lines[2].replace(",10,", ",,")
-    with pytest.raises(ValueError, match=r"line 3, column 'vx': expected a number, found an empty value"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_edit_rejected(tmp_path, 2, ",10,", ",,", r"line 3, column 'vx': expected a number, found an empty value")
 
 
 def test_non_numeric_x(tmp_path):
-    lines = good_vehicle_lines()
-    lines[4] = lines[4].replace(",5.0,", ",five,")
-    with pytest.raises(ValueError, match=r"line 5, column 'x': expected a number, found 'five'"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_edit_rejected(tmp_path, 4, ",5.0,", ",five,", r"line 5, column 'x': expected a number, found 'five'")
 
 
 def test_duplicated_frame(tmp_path):
     lines = good_vehicle_lines()
     lines.append(lines[2])  # track 1, frame 2 again, at line 6
-    with pytest.raises(ValueError, match=r"line 6, column 'frame_id': duplicated .*\(1, 2\), first at line 3"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_rejected(tmp_path, lines, r"line 6, column 'frame_id': duplicated .*\(1, 2\), first at line 3")
 
 
 def test_non_monotonic_frames(tmp_path):
     lines = good_vehicle_lines()
     lines[3], lines[4] = lines[4], lines[3]  # track 2: frame 3 before frame 2
-    with pytest.raises(ValueError, match=r"line 5, column 'frame_id': frame_id 2 of track 2 follows frame_id 3"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_rejected(tmp_path, lines, r"line 5, column 'frame_id': frame_id 2 of track 2 follows frame_id 3")
 
 
 def test_inconsistent_timestamp(tmp_path):
-    lines = good_vehicle_lines()
-    lines[4] = lines[4].replace(",300,", ",350,")
-    with pytest.raises(ValueError, match=r"line 5, column 'timestamp_ms': timestamp_ms 350 .*expected 300"):
-        read_tracks(write_text(tmp_path, "\n".join(lines)))
+    assert_edit_rejected(tmp_path, 4, ",300,", ",350,",
+                         r"line 5, column 'timestamp_ms': timestamp_ms 350 .*expected 300")
 
 
 def test_constant_timestamp_offset_is_accepted(tmp_path):

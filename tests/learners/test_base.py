@@ -2,8 +2,6 @@
 predict, n_features_in_), the checks of fit (log_bounds, data scale, horizon), the IRL iteration budget, and K
 futures with their probabilities."""
 
-import warnings
-
 import numpy as np
 import pytest
 from sklearn.base import clone
@@ -14,9 +12,10 @@ from pirl_sim.learners import PIRLDPGMM, PIRLGMM, PIRLKNN, TIRL, make_learner
 from pirl_sim.metrics import med
 from pirl_sim.model import synthetic_model
 from pirl_sim.mpc import MAX_HORIZON
-from pirl_sim.population import Population, Style, generate_demonstrations
 from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
 from pirl_sim.trajectory import Trajectory
+
+from style_demos import switching_drivers
 
 
 HISTORY = 10
@@ -122,43 +121,15 @@ def test_horizons_beyond_the_bound_are_refused_before_anything_is_allocated(data
 
 
 # ---------------------------------------------------------------------------------------------- learners
-@pytest.fixture(scope="module")
-def styles_data():
-    """Boltzmann-rational LQ drivers of three styles (q = 0.1, 1, 10; 10 % spread) from spread starts."""
-    model = synthetic_model()
-    styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
-                   for name, q in zip(("calm", "normal", "eager"), (0.1, 1.0, 10.0)))
-    rng = np.random.default_rng(3)
-    n = 200
-    x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
-    demos = generate_demonstrations(model, Population(model.features, styles, 100.0), x0, 30, rng)
-    return model, demos[:160], demos[160:]
-
-
-@pytest.fixture(scope="module")
-def fitted(styles_data):
-    model, train, _ = styles_data
-    common = {"window": 10, "windows": "first"}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return {
-            "tirl": TIRL(model, **common).fit(train),
-            "gmm-weights": PIRLGMM(model, n_components=3, random_state=0, space="weights", **common).fit(train),
-            "gmm-features": PIRLGMM(model, n_components=3, random_state=0, **common).fit(train),
-            "dpgmm-weights": PIRLDPGMM(model, random_state=0, space="weights", **common).fit(train),
-            "knn-likelihood": PIRLKNN(model, n_neighbors=10, weighting="likelihood", **common).fit(train),
-            "knn-distance": PIRLKNN(model, n_neighbors=10, **common).fit(train),
-        }
-
-
+# (the fixtures styles_data and styles_learners: tests/conftest.py)
 LEARNERS = ("tirl", "gmm-weights", "gmm-features", "dpgmm-weights", "knn-likelihood", "knn-distance")
 
 
 @pytest.mark.parametrize("name", LEARNERS)
 @pytest.mark.parametrize("n_futures", [None, 1, 3])
-def test_futures_have_probabilities_that_sum_to_one(fitted, styles_data, name, n_futures):
+def test_futures_have_probabilities_that_sum_to_one(styles_learners, styles_data, name, n_futures):
     _, _, test = styles_data
-    learner = fitted[name]
+    learner = styles_learners[name]
     histories = [t.window(0, 10) for t in test[:8]]
     states, proba = learner.predict_futures(histories, 20, n_futures=n_futures, random_state=0)
     K = proba.shape[1]
@@ -177,9 +148,9 @@ def test_futures_have_probabilities_that_sum_to_one(fitted, styles_data, name, n
 
 
 @pytest.mark.parametrize("name", ["gmm-weights", "knn-likelihood", "knn-distance"])
-def test_drawn_futures_are_reproducible_and_depend_on_the_seed(fitted, styles_data, name):
+def test_drawn_futures_are_reproducible_and_depend_on_the_seed(styles_learners, styles_data, name):
     _, _, test = styles_data
-    learner = fitted[name]
+    learner = styles_learners[name]
     histories = [t.window(0, 10) for t in test[:8]]
     a = learner.predict_futures(histories, 20, n_futures=6, random_state=7)
     b = learner.predict_futures(histories, 20, n_futures=6, random_state=np.random.default_rng(7))
@@ -189,11 +160,11 @@ def test_drawn_futures_are_reproducible_and_depend_on_the_seed(fitted, styles_da
     assert a[0].shape == (8, 6, 21, 2) and not np.array_equal(a[0], c[0])
 
 
-def test_weight_space_draws_follow_the_style_posterior(fitted, styles_data):
+def test_weight_space_draws_follow_the_style_posterior(styles_learners, styles_data):
     """Drawn weights come from the styles p(style | history) favours: with the (sharp) posterior of these
     histories, every draw's log weight lies within 4 standard deviations of the most probable style's mean."""
     _, _, test = styles_data
-    gmm = fitted["gmm-weights"]
+    gmm = styles_learners["gmm-weights"]
     histories = [t.window(0, 10) for t in test[:8]]
     best = gmm.predict_proba(histories).argmax(axis=1)
     theta = gmm._draw_weights(np.random.default_rng(0), gmm.predict_proba(histories), 50)  # (8, 50, 2)
@@ -204,10 +175,10 @@ def test_weight_space_draws_follow_the_style_posterior(fitted, styles_data):
     np.testing.assert_array_equal(theta[:, :, 1], 1.0)
 
 
-def test_per_style_futures_unchanged_and_features_space_takes_the_top_styles(fitted, styles_data):
+def test_per_style_futures_unchanged_and_features_space_takes_the_top_styles(styles_learners, styles_data):
     model, _, test = styles_data
     histories = [t.window(0, 10) for t in test[:5]]
-    gmm = fitted["gmm-features"]
+    gmm = styles_learners["gmm-features"]
     per_style, p_style = gmm.predict_futures(histories, 20)
     np.testing.assert_array_equal(p_style, gmm.predict_proba(histories))
     top, p_top = gmm.predict_futures(histories, 20, n_futures=2)
@@ -217,16 +188,16 @@ def test_per_style_futures_unchanged_and_features_space_takes_the_top_styles(fit
                                / np.take_along_axis(p_style, order, axis=1).sum(axis=1, keepdims=True))
 
 
-def test_bad_future_requests_are_rejected_and_knn_gives_at_most_k(fitted, styles_data):
+def test_bad_future_requests_are_rejected_and_knn_gives_at_most_k(styles_learners, styles_data):
     _, _, test = styles_data
     history = test[0].window(0, 10)
     for name in LEARNERS:
         for bad in (0, -1, 2.5, True):
             with pytest.raises(ValueError, match=f"n_futures .* got {bad!r}"):
-                fitted[name].predict_futures(history, 20, n_futures=bad)
+                styles_learners[name].predict_futures(history, 20, n_futures=bad)
         with pytest.raises(ValueError, match="horizon must be a positive number of steps, got 0"):
-            fitted[name].predict_futures(history, 0)
-    states, proba = fitted["knn-likelihood"].predict_futures(history, 20, n_futures=11, random_state=0)
+            styles_learners[name].predict_futures(history, 0)
+    states, proba = styles_learners["knn-likelihood"].predict_futures(history, 20, n_futures=11, random_state=0)
     assert states.shape == (10, 21, 2) and proba.shape == (10,)  # at most its k = 10 neighbours
 
 
@@ -287,31 +258,12 @@ def test_bad_training_data_raises(small):
         make_learner("svm")
 
 
-def _phase(model, x0, theta, n):
-    states = model.predict_states(np.atleast_2d(x0), np.atleast_2d(theta), n)[0]
-    return states
-
-
-def _switching_drivers(model, rng, n=40):
-    """Point mass regulated to 0: gently (q/r = 0.05) for 20 steps, then hard (q/r = 20) for 20 more, each
-    phase the optimum of its own cost from where the last one ended."""
-    out = []
-    for _ in range(n):
-        x0 = np.array([rng.uniform(1.0, 3.0), 0.0])
-        a = _phase(model, x0, [0.05, 1.0], 20)
-        b = _phase(model, a[-1], [20.0, 1.0], 20)
-        states = np.vstack([a, b[1:]])
-        controls = np.diff(states[:, 1])[:, None] / model.dynamics.dt
-        out.append(Trajectory(states, controls, model.dynamics.dt))
-    return out
-
-
 @pytest.mark.parametrize("key", ["tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn"])
 def test_every_learner_takes_the_irl_iteration_budget(key):
     from pirl_sim.learners import make_learner
 
     model = synthetic_model()
-    train = _switching_drivers(model, np.random.default_rng(4), 6)
+    train = switching_drivers(model, np.random.default_rng(4), 6)
     assert make_learner(key, model=model).get_params()["irl_max_iter"] == 100
     with pytest.raises(ValueError, match="irl_max_iter"):
         make_learner(key, model=model, irl_max_iter=0).fit(train)

@@ -14,7 +14,7 @@ from pirl_sim.learners.knn import knn_average
 from pirl_sim.metrics import weight_recovery_error
 from pirl_sim.model import synthetic_model
 from pirl_sim.population import Population, Style, generate_demonstrations
-from pirl_sim.scenarios.passage import PassageConfig, write_scene
+from pirl_sim.scenarios.passage import PassageConfig
 from pirl_sim.scenarios.passage import generate as generate_passage
 from pirl_sim.scenarios.replay import load_replay
 from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
@@ -91,23 +91,11 @@ def test_knn_with_neighbors_equals_refitting(small, options):
         PIRLKNN().with_neighbors(2)
 
 
-def _phase(model, x0, theta, n):
-    states = model.predict_states(np.atleast_2d(x0), np.atleast_2d(theta), n)[0]
-    return states
-
-
 def _switching_drivers(model, rng, n=40):
-    """Point mass regulated to 0: gently (q/r = 0.05) for 20 steps, then hard (q/r = 20) for 20 more, each
-    phase the optimum of its own cost from where the last one ended."""
-    out = []
-    for _ in range(n):
-        x0 = np.array([rng.uniform(1.0, 3.0), 0.0])
-        a = _phase(model, x0, [0.05, 1.0], 20)
-        b = _phase(model, a[-1], [20.0, 1.0], 20)
-        states = np.vstack([a, b[1:]])
-        controls = np.diff(states[:, 1])[:, None] / model.dynamics.dt
-        out.append(Trajectory(states, controls, model.dynamics.dt))
-    return out
+    """Point mass regulated to 0, gently for 20 steps then hard for 20 more (`style_demos.switching_drivers`)."""
+    from style_demos import switching_drivers
+
+    return switching_drivers(model, rng, n)
 
 
 def test_next_costs_predict_a_switch_that_whole_track_costs_average_away():
@@ -190,28 +178,18 @@ def test_bad_next_parameters_name_the_value(params, error, match):
         PIRLKNN(model=model, **params).fit(train)
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate_passage(PassageConfig(n_trajectories=160, n_train=130, seed=4))
-    out = tmp_path_factory.mktemp("scene")
-    write_scene(data, out)
-    return out, data
-
-
-def _small_scene(scene_dir, n=48):
+def _small_scene(passage_scene, n=48):
     import dataclasses
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
     return dataclasses.replace(scene, trajectories=scene.trajectories[:n], n_tracks=n, track_table=None)
 
 
-def test_knn_with_another_k_equals_refitting(scene_dir):
+def test_knn_with_another_k_equals_refitting(passage_scene):
     from pirl_sim.learners import PIRLKNN
 
-    scene = _small_scene(scene_dir)
+    scene = _small_scene(passage_scene)
     train, test = scene.trajectories[:36], scene.trajectories[36:]
     histories = [t.window(10, 20) for t in test]
     params = dict(model=scene.model, window=10, prior="population", stride=2)
@@ -227,12 +205,12 @@ def test_knn_with_another_k_equals_refitting(scene_dir):
         base.with_neighbors(10_000)
 
 
-def test_next_step_knn_looks_up_training_histories_as_an_online_query_sees_them(scene_dir):
+def test_next_step_knn_looks_up_training_histories_as_an_online_query_sees_them(passage_scene):
     """lookup_history=True: the training histories' look-up keys are their own estimates (the same as a query
     of that history gets), not the smoothed track's; without an estimator (simulated states) nothing changes."""
     from pirl_sim.learners import PIRLKNN
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
     train = scene.trajectories[:30]
     kw = dict(model=scene.model, window=10, n_neighbors=1, prior="population", stride=5, target="next",
@@ -253,13 +231,13 @@ def test_next_step_knn_looks_up_training_histories_as_an_online_query_sees_them(
         PIRLKNN(model=scene.model, lookup_history=True).fit(train)
 
 
-def test_next_segments_restarted_at_the_history_estimate_follow_the_track(scene_dir):
+def test_next_segments_restarted_at_the_history_estimate_follow_the_track(passage_scene):
     """segment_start="history": every training segment whose cost the IRL fits starts exactly at its history's
     own estimate (the state an online prediction starts from) and follows the track's positions and speeds; the
     look-up keys are unchanged, the costs differ; it needs lookup_history."""
     from pirl_sim.learners import PIRLKNN
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
     train = scene.trajectories[:30]
     kw = dict(model=scene.model, window=10, n_neighbors=1, stride=5, target="next", target_steps=15,
@@ -286,14 +264,13 @@ def test_next_segments_restarted_at_the_history_estimate_follow_the_track(scene_
         PIRLKNN(**kw, segment_start="smoothed").fit(train)
 
 
-def test_the_road_ahead_enters_the_look_up(scene_dir):
+def test_the_road_ahead_enters_the_look_up(passage_scene):
     """lookup_ahead: |curvature| of the model's speed profile at those distances beyond each window's end are
     look-up keys, standardised with the rest."""
     from pirl_sim.learners import PIRLKNN
     from pirl_sim.model import synthetic_model
-    from pirl_sim.trajectory import Trajectory
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
     train = scene.trajectories[:20]
     kw = dict(model=scene.model, window=10, n_neighbors=1, stride=5, target="next", target_steps=15,
@@ -316,12 +293,12 @@ def test_the_road_ahead_enters_the_look_up(scene_dir):
                     [Trajectory(np.zeros((31, 2)), np.zeros((30, 1)), 0.1)])
 
 
-def test_several_road_weights_are_chosen_on_held_out_windows_of_other_tracks(scene_dir):
+def test_several_road_weights_are_chosen_on_held_out_windows_of_other_tracks(passage_scene):
     """ahead_weights with several candidates: each scored by the look-up's error along the path on held-out
     training windows whose neighbours come from other tracks; the best is used, also after with_neighbors."""
     from pirl_sim.learners import PIRLKNN
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
     train = scene.trajectories[:30]
     kw = dict(model=scene.model, window=10, n_neighbors=3, stride=5, target="next", target_steps=15,
@@ -397,24 +374,12 @@ def test_a_style_switch_is_followed_within_five_steps(passage):
     assert np.array_equal(trajs[0].metadata["theta_schedule"][switch], eager)
 
 
-STYLE_Q = np.array([0.1, 1.0, 10.0])  # normalised state_sq weight of each style (control_sq = 1)
-
-
-def _population(model, rationality):
-    styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
-                   for name, q in zip(("calm", "normal", "eager"), STYLE_Q))
-    return Population(model.features, styles, rationality)
-
-
 @pytest.fixture(scope="module")
 def three_styles():
     """Boltzmann-rational LQ drivers of three styles from spread start states (train 300, test 60)."""
-    model = synthetic_model()
-    rng = np.random.default_rng(1)
-    n = 360
-    x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
-    demos = generate_demonstrations(model, _population(model, 100.0), x0, 40, rng)
-    return model, demos[:300], demos[300:]
+    from style_demos import three_style_demonstrations
+
+    return three_style_demonstrations(1, 360, 40, 300)
 
 
 def test_knn_neighbours_weighted_by_their_likelihood_of_the_history(three_styles):

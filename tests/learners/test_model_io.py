@@ -23,7 +23,7 @@ from pirl_sim.model import DriverModel, synthetic_model
 from pirl_sim.mpc import Bounds
 from pirl_sim.paths import ReferencePath
 from pirl_sim.receding import RecedingResult
-from pirl_sim.scenarios.passage import PassageConfig, passage_polyline, write_scene
+from pirl_sim.scenarios.passage import PassageConfig, passage_polyline
 from pirl_sim.scenarios.passage import generate as generate_passage
 from pirl_sim.scenarios.replay import load_replay
 from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
@@ -200,21 +200,11 @@ def test_a_learner_on_the_following_features_round_trips_through_the_model_file(
     np.testing.assert_array_equal(back.infer_weights(demos), learner.infer_weights(demos))
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate_passage(PassageConfig(n_trajectories=160, n_train=130, seed=4))
-    out = tmp_path_factory.mktemp("scene")
-    write_scene(data, out)
-    return out, data
-
-
-def test_a_next_learner_with_restarted_segments_and_the_road_ahead_saves_and_loads(scene_dir, tmp_path):
+def test_a_next_learner_with_restarted_segments_and_the_road_ahead_saves_and_loads(passage_scene, tmp_path):
     from pirl_sim.learners import PIRLKNN
     from pirl_sim.learners.model_io import load_learner, save_learner
 
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm", estimate="speeds")
     train = scene.trajectories[:30]
     fitted = PIRLKNN(model=scene.model, window=10, n_neighbors=3, stride=5, target="next", target_steps=15,

@@ -9,28 +9,15 @@ import pytest
 from pirl_sim.learners import PIRLDPGMM, PIRLGMM
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.model import synthetic_model
-from pirl_sim.population import Population, Style, generate_demonstrations
 from pirl_sim.simulate import simulate_receding_horizon
 
-
-STYLE_Q = np.array([0.1, 1.0, 10.0])  # normalised state_sq weight of each style (control_sq = 1)
-
-
-def _population(model, rationality):
-    styles = tuple(Style(name, 1.0, {"state_sq": q}, {"state_sq": 0.1 * q})
-                   for name, q in zip(("calm", "normal", "eager"), STYLE_Q))
-    return Population(model.features, styles, rationality)
+from style_demos import STYLE_Q, three_style_demonstrations
 
 
 @pytest.fixture(scope="module")
 def three_styles():
     """Boltzmann-rational LQ drivers of three styles from spread start states (train 300, test 60)."""
-    model = synthetic_model()
-    rng = np.random.default_rng(1)
-    n = 360
-    x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
-    demos = generate_demonstrations(model, _population(model, 100.0), x0, 40, rng)
-    return model, demos[:300], demos[300:]
+    return three_style_demonstrations(1, 360, 40, 300)
 
 
 def _styles(demos):

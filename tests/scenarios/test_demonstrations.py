@@ -1,7 +1,7 @@
 """Demonstrations from recordings (pirl_sim.scenarios.demonstrations): per-step driver flags and step masks, the
 steps selection, and recordings without speeds."""
 
-import dataclasses
+from functools import partial
 
 import numpy as np
 import pytest
@@ -10,29 +10,14 @@ from pirl_sim.scenarios.demonstrations import EXACT_TOL, SETTLE_FRAMES, settled
 
 pytest.importorskip("lanelet2")
 
-
-@pytest.fixture
-def small_recording():
-    from test_recording import _recording
-    return _recording()
-
-
-@pytest.fixture(scope="module")
-def sumo_run(tmp_path_factory):
-    pytest.importorskip("libsumo")
-    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
-    from pirl_sim.scenarios.sumo import SumoScenarioConfig, run_sumo_scenario
-
-    out = tmp_path_factory.mktemp("steps") / "run"
-    pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=20, depart_interval=1.5)
-    return run_sumo_scenario(SumoScenarioConfig(population=pop), seed=1, out_dir=out), out
+from replay_scenes import check_bad_read_options  # noqa: E402
 
 
 @pytest.mark.slow
-def test_sumo_steps_and_masks_follow_the_runner_flags(sumo_run):
+def test_sumo_steps_and_masks_follow_the_runner_flags(sumo_recording_result):
     from pirl_sim.scenarios.sumo import load_sumo_run
 
-    res, out = sumo_run
+    res, out = sumo_recording_result
     run = load_sumo_run(out)
     steps = run.recording.driver_steps
     frame = res.sumo.frame[res.sumo.frame["pirl"]]
@@ -86,12 +71,8 @@ def test_sumo_steps_and_masks_follow_the_runner_flags(sumo_run):
 def test_steps_selection_needs_driver_steps(small_recording):
     from pirl_sim.scenarios.demonstrations import recorded_demonstrations, step_selection_summary
 
-    with pytest.raises(ValueError, match="selection='steps' needs the recording's driver_steps"):
-        recorded_demonstrations(small_recording, None, selection="steps")
-    with pytest.raises(ValueError, match="selection must be one of"):
-        recorded_demonstrations(small_recording, None, selection="frames")
-    with pytest.raises(ValueError, match="estimate must be one of"):
-        recorded_demonstrations(small_recording, None, estimate="magic")
+    check_bad_read_options(partial(recorded_demonstrations, small_recording, None),
+                           "selection='steps' needs the recording's driver_steps")
     with pytest.raises(ValueError, match="no driver_steps"):
         step_selection_summary(small_recording)
 

@@ -15,16 +15,8 @@ from pirl_sim.mpc import SequentialMPC  # noqa: E402
 from pirl_sim.scenarios import drivers as drivers_module  # noqa: E402
 from pirl_sim.scenarios.driver_kernel import CompiledDriverMPC, KernelUnsupported  # noqa: E402
 from pirl_sim.scenarios.drivers import PirlDrivers, RouteSetDriverModel, RouteSetProfile, route_set_model  # noqa: E402
-from pirl_sim.scenarios.sumo import DEFAULT_NETWORK, build_network, routes  # noqa: E402
-from pirl_sim.scenarios.sumo.network import route_set as network_route_set  # noqa: E402
 
 HORIZON = 30
-
-
-@pytest.fixture(scope="module")
-def route_set(tmp_path_factory):
-    net = build_network(DEFAULT_NETWORK, tmp_path_factory.mktemp("roundabout"))
-    return network_route_set(net, routes(DEFAULT_NETWORK), smoothing=2.0, speed_smoothing=10.0)
 
 
 def _problems(route_set, seed, m=48):

@@ -10,23 +10,12 @@ pytest.importorskip("sumolib")
 
 from pirl_sim.driving import roundabout_model  # noqa: E402
 from pirl_sim.scenarios.drivers import PirlDrivers, RouteSet, route_set_model  # noqa: E402
-from pirl_sim.scenarios.sumo import DEFAULT_NETWORK, Observation, VehicleState, build_network, routes  # noqa: E402
-from pirl_sim.scenarios.sumo.network import route_set as network_route_set  # noqa: E402
+from pirl_sim.scenarios.sumo import Observation, VehicleState  # noqa: E402
 from pirl_sim.trajectory import Trajectory  # noqa: E402
 
 
 STYLES = np.array([[3.0, 0.3, 1.0], [0.1, 3.0, 1.0], [0.3, 0.3, 1.0]])  # the paper's three, normalised
-
-
-@pytest.fixture(scope="module")
-def net(tmp_path_factory):
-    return build_network(DEFAULT_NETWORK, tmp_path_factory.mktemp("roundabout"))
-
-
-@pytest.fixture(scope="module")
-def route_set(net):
-    """The scenarios' default paths: geometry smoothed by 2 m, curvature for the desired speed by 10 m."""
-    return network_route_set(net, routes(DEFAULT_NETWORK), smoothing=2.0, speed_smoothing=10.0)
+# route_set: the scenarios' default paths on one axis (a fixture of tests/conftest.py)
 
 
 def test_one_model_for_all_routes_gives_each_routes_features(route_set):

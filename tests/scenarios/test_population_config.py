@@ -28,8 +28,10 @@ from pirl_sim.scenarios.population_config import (
 
 pytest.importorskip("hypothesis")
 
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import given  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
+
+from toml_fuzz import FUZZ, mutated_mapping  # noqa: E402
 
 
 def test_default_is_the_papers_three_styles_with_20_percent_background():
@@ -188,32 +190,6 @@ def test_control_noise_beyond_the_jerk_bound_is_rejected_up_front():
     assert population_from_toml("control_noise = 8.0\n").control_noise == 8.0
 
 
-FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                       HealthCheck.too_slow])
-
-
-TOML_SCALAR = st.one_of(st.booleans(), st.integers(-2**40, 2**40), st.floats(allow_nan=True, allow_infinity=True),
-                        st.text(max_size=8), st.sampled_from(["full", "weird", "poisson", "regular", "tirl",
-                                                              "pirl-gmm", "paper", "online", "synthetic"]))
-TOML_VALUE = st.recursive(TOML_SCALAR, lambda inner: st.one_of(st.lists(inner, max_size=3),
-                                                               st.dictionaries(st.text(max_size=6), inner,
-                                                                               max_size=3)), max_leaves=6)
-
-
-def _mutated_mapping(draw, base, keys: list[str]):
-    """``base`` (a dict, changed in place) with some values replaced, some keys deleted, an unknown key added."""
-    for _ in range(draw(st.integers(1, 3))):
-        kind = draw(st.sampled_from(["replace", "replace", "delete", "add"]))
-        key = draw(st.sampled_from(keys))
-        if kind == "replace":
-            base[key] = draw(TOML_VALUE)
-        elif kind == "delete":
-            base.pop(key, None)
-        else:
-            base[draw(st.text(min_size=1, max_size=6))] = draw(TOML_VALUE)
-    return base
-
-
 POPULATION_KEYS = ["n_vehicles", "depart_interval", "depart_rate", "arrivals", "background_share", "control_noise",
                    "styles"]
 
@@ -224,14 +200,14 @@ def population_dicts(draw):
 
     data = tomllib.loads(DEFAULT_POPULATION_TOML)
     if draw(st.booleans()):
-        _mutated_mapping(draw, data, POPULATION_KEYS)
+        mutated_mapping(draw, data, POPULATION_KEYS)
     else:
         style = data["styles"][draw(st.integers(0, 2))]
         target = draw(st.sampled_from(["style", "mean", "std"]))
         if target == "style":
-            _mutated_mapping(draw, style, ["name", "weight", "mean", "std", "cov", "preset"])
+            mutated_mapping(draw, style, ["name", "weight", "mean", "std", "cov", "preset"])
         else:
-            _mutated_mapping(draw, style[target], ["speed_dev", "acc_sq", "jerk_sq"])
+            mutated_mapping(draw, style[target], ["speed_dev", "acc_sq", "jerk_sq"])
     return data
 
 

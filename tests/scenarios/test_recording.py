@@ -25,12 +25,7 @@ from pirl_sim.scenarios.recording import (  # noqa: E402
     write_recording,
 )
 
-
-def _lanes():
-    straight = np.column_stack([np.linspace(-50.0, 0.0, 11), np.zeros(11)])
-    a = np.linspace(-np.pi / 2, 0.0, 13)
-    curve = np.column_stack([20.0 * np.cos(a), 20.0 + 20.0 * np.sin(a)])  # starts at (0, 0), heading +x
-    return {"approach": straight, "curve": curve}, {"approach": ["curve"]}
+from replay_scenes import make_recording, recording_lanes  # noqa: E402
 
 
 def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
@@ -42,31 +37,8 @@ def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     return np.min(np.hypot(*(points[:, None] - foot).transpose(2, 0, 1)), axis=1)
 
 
-def _recording(info=None) -> ScenarioRecording:
-    rows = []
-    for tid, (t0, n, v) in enumerate([(0.1, 30, 10.0), (0.5, 20, 8.0), (1.0, 25, 12.0)], start=1):
-        t = t0 + 0.1 * np.arange(n)
-        x = -50.0 + v * (t - t0)
-        rows.append(pd.DataFrame({"track_id": tid, "time_s": t, "agent_type": "car", "x": x,
-                                  "y": np.zeros(n), "vx": v, "vy": 0.0, "psi_rad": 0.0, "length": 5.0,
-                                  "width": 1.8}))
-    tracks = pd.concat(rows).sort_values(["time_s", "track_id"], kind="stable").reset_index(drop=True)
-    gt = pd.DataFrame({
-        "track_id": [1, 2, 3], "agent_id": ["veh0", "veh1", "veh2"], "route_id": ["r", "r", "r"],
-        "is_pirl": [True, True, False], "style": [0, 2, -1],
-        "style_name": ["tracks desired speed", "no preference", "background"],
-        "theta_speed_dev": [3.1, 0.29, np.nan], "theta_acc_sq": [0.31, 0.3, np.nan],
-        "theta_jerk_sq": [1.0, 1.0, np.nan],
-        "interacted": pd.array([False, True, pd.NA], dtype="boolean"), "collided": [False, True, False],
-        "removed_early": [False, True, False], "overridden_fraction": [0.0, 0.25, np.nan],
-        "status": ["arrived", "vanished", "arrived"], "n_frames": [30, 20, 25],
-    }, columns=list(GROUND_TRUTH_COLUMNS))
-    lanes, succ = _lanes()
-    return ScenarioRecording(tracks, gt, lanes, succ, info if info is not None else {"simulator": "test", "seed": 1})
-
-
 def test_write_read_round_trip(tmp_path):
-    rec = _recording()
+    rec = make_recording()
     files = write_recording(rec, tmp_path / "run")
     assert sorted(p.name for p in files.directory.iterdir()) == [
         "ground_truth.csv", "map.osm", "run.json", "vehicle_tracks_000.csv"]
@@ -90,7 +62,7 @@ def test_write_read_round_trip(tmp_path):
 
 
 def test_tracks_are_interaction_format_with_100ms_frames(tmp_path):
-    files = write_recording(_recording(), tmp_path)
+    files = write_recording(make_recording(), tmp_path)
     df = read_tracks(files.tracks, kind="vehicle")
     assert tuple(df.columns) == VEHICLE_COLUMNS
     first = df[df["track_id"] == 2].iloc[0]
@@ -101,19 +73,19 @@ def test_tracks_are_interaction_format_with_100ms_frames(tmp_path):
 
 
 def test_map_loads_with_lanelet2_and_tracks_match_it(tmp_path):
-    files = write_recording(_recording(), tmp_path)
+    files = write_recording(make_recording(), tmp_path)
     lmap = load_map(files.map)
     ids = lmap.ids_by_name()
     assert set(ids) == {"approach", "curve"}
     ll = lmap.map.laneletLayer[ids["approach"]]
     assert [f.id for f in lmap.routing_graph.following(ll)] == [ids["curve"]]
-    xy = _recording().tracks.query("track_id == 1")[["x", "y"]].to_numpy()
+    xy = make_recording().tracks.query("track_id == 1")[["x", "y"]].to_numpy()
     m = match_route(lmap, xy)
     assert m.lanelet_ids[0] == ids["approach"] and m.fraction_within == 1.0
 
 
 def test_ground_truth_csv_has_the_documented_columns_and_empty_background_weights(tmp_path):
-    files = write_recording(_recording(), tmp_path)
+    files = write_recording(make_recording(), tmp_path)
     text = files.ground_truth.read_text().splitlines()
     assert text[0] == ",".join(GROUND_TRUTH_COLUMNS)
     assert text[3].startswith("3,veh2,r,False,-1,background,,,,,False,False,,arrived,25")
@@ -122,15 +94,15 @@ def test_ground_truth_csv_has_the_documented_columns_and_empty_background_weight
 
 
 def test_same_recording_same_bytes(tmp_path):
-    a = write_recording(_recording(), tmp_path / "a")
-    b = write_recording(_recording(), tmp_path / "b")
+    a = write_recording(make_recording(), tmp_path / "a")
+    b = write_recording(make_recording(), tmp_path / "b")
     for name in ("tracks", "ground_truth", "map", "info"):
         assert getattr(a, name).read_bytes() == getattr(b, name).read_bytes(), name
 
 
 def test_a_crash_while_writing_leaves_no_half_file_and_an_incomplete_directory(tmp_path, monkeypatch):
     out = tmp_path / "run"
-    write_recording(_recording(), out)  # a complete previous recording
+    write_recording(make_recording(), out)  # a complete previous recording
     old_tracks = (out / "vehicle_tracks_000.csv").read_bytes()
 
     def crash(*args, **kwargs):
@@ -138,7 +110,7 @@ def test_a_crash_while_writing_leaves_no_half_file_and_an_incomplete_directory(t
 
     monkeypatch.setattr("pirl_sim.io.lanelet2_map.write_map", crash)
     with pytest.raises(KeyboardInterrupt):
-        write_recording(_recording(), out)
+        write_recording(make_recording(), out)
     assert not (out / "run.json").exists()
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary files left
     assert (out / "vehicle_tracks_000.csv").read_bytes() == old_tracks  # complete (same recording again)
@@ -147,13 +119,13 @@ def test_a_crash_while_writing_leaves_no_half_file_and_an_incomplete_directory(t
 
 
 def test_interaction_tracks_sorted_by_track_then_frame():
-    df = interaction_tracks(_recording().tracks)
+    df = interaction_tracks(make_recording().tracks)
     assert list(df.columns) == list(VEHICLE_COLUMNS)
     assert df.groupby("track_id")["frame_id"].apply(lambda f: bool(np.all(np.diff(f) == 1))).all()
 
 
 def _tracks_gt():
-    rec = _recording()
+    rec = make_recording()
     return rec.tracks.copy(), rec.ground_truth.copy()
 
 
@@ -169,14 +141,14 @@ def _tracks_gt():
 ])
 def test_invalid_recordings_are_rejected(change, match):
     tracks, gt = change(*_tracks_gt())
-    lanes, succ = _lanes()
+    lanes, succ = recording_lanes()
     with pytest.raises(ValueError, match=match):
         ScenarioRecording(tracks, gt, lanes, succ, {})
 
 
 def test_info_must_be_json():
     tracks, gt = _tracks_gt()
-    lanes, succ = _lanes()
+    lanes, succ = recording_lanes()
     with pytest.raises(ValueError, match="JSON-serialisable"):
         ScenarioRecording(tracks, gt, lanes, succ, {"x": math.nan})
     with pytest.raises(ValueError, match="JSON-serialisable"):
@@ -200,12 +172,6 @@ def _steps_for(rec: ScenarioRecording, seed=0) -> pd.DataFrame:
     return pd.DataFrame({"track_id": t["track_id"].to_numpy(), "frame_id": np.round(t["time_s"] * 10).astype(np.int64),
                          "commanded": commanded, "overridden": commanded & (rng.random(n) < 0.2),
                          "collided": np.zeros(n, dtype=bool)}, columns=list(DRIVER_STEP_COLUMNS))
-
-
-@pytest.fixture
-def small_recording():
-    from test_recording import _recording
-    return _recording()
 
 
 def test_sidecar_round_trip_and_determinism(small_recording, tmp_path):

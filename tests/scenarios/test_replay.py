@@ -2,17 +2,15 @@
 interaction flags and free-flow selection, routes and their cuts, start states, recording settings, ground-truth
 sidecars, and track files with broken rows read leniently."""
 
-import dataclasses
-import warnings
+from functools import partial
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from pirl_sim.experiments.replay_report import ReplayProtocol
-from pirl_sim.io.interaction import read_tracks, write_tracks
-from pirl_sim.scenarios.passage import PassageConfig, recording, write_scene
-from pirl_sim.scenarios.passage import generate as generate_passage
+from pirl_sim.io.interaction import read_tracks
+from pirl_sim.scenarios.passage import recording
 from pirl_sim.scenarios.replay import (
     CENTRE_RULE,
     SelectionRule,
@@ -24,22 +22,21 @@ from pirl_sim.scenarios.replay import (
     selection_counts,
 )
 
+from replay_scenes import (
+    LANE_Y,
+    check_bad_read_options,
+    load_sumo_scene,
+    straight_scene,
+    track_rows,
+    two_lane_scene_dir,
+    write_ground_truth,
+)
 from shared_sample import needs_sample
 from shared_sample import DATA as SHARED
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        data = generate_passage(PassageConfig(n_trajectories=160, n_train=130, seed=4))
-    out = tmp_path_factory.mktemp("scene")
-    write_scene(data, out)
-    return out, data
-
-
-def test_simulated_scene_round_trips_through_the_interaction_format(scene_dir):
-    out, data = scene_dir
+def test_simulated_scene_round_trips_through_the_interaction_format(passage_scene):
+    out, data = passage_scene
     tracks = recording(data).tracks.sort_values(["track_id", "time_s"])
     back = read_tracks(out / "vehicle_tracks_000.csv")
     np.testing.assert_allclose(back[["x", "y"]].to_numpy(), tracks[["x", "y"]].to_numpy(), atol=1e-6)
@@ -65,8 +62,8 @@ def test_shared_interaction_sample_loads_end_to_end():
         np.testing.assert_allclose(t.states[:, 1], 10.0, atol=1e-6)  # the sample drives at 10 m/s
 
 
-def test_bad_files_are_counted_not_fatal(scene_dir, tmp_path):
-    out, _ = scene_dir
+def test_bad_files_are_counted_not_fatal(passage_scene, tmp_path):
+    out, _ = passage_scene
     good = out / "vehicle_tracks_000.csv"
     truncated = tmp_path / "vehicle_tracks_001.csv"
     text = good.read_text().splitlines()
@@ -105,38 +102,10 @@ def test_interaction_rule_flags_a_close_follower():
     assert flags == {1: True, 2: False, 3: False}  # 1 follows 2 at 8 m < 5 m + 2 s * 10 m/s
 
 
-LANE_LENGTH = 500.0  # [m]
-LANE_Y = {"A": 0.0, "B": 60.0}  # two parallel straight lanes, both +x, no routing-graph link between them
-
-
-def _track_rows(track_id, first_frame, x0, n, y, speed=10.0):
-    frames = np.arange(first_frame, first_frame + n)
-    x = x0 + speed * 0.1 * np.arange(n)
-    yy = np.broadcast_to(np.asarray(y, dtype=float), (n,))
-    return pd.DataFrame({"track_id": track_id, "frame_id": frames, "timestamp_ms": 100 * frames, "agent_type": "car",
-                         "x": x, "y": yy, "vx": speed, "vy": 0.0, "psi_rad": 0.0, "length": 4.5, "width": 1.8})
-
-
-def _straight_scene(tmp_path, tracks):
-    """A map of the two lanes and one track file; tracks: list of (lane, x0 [m], frames, y override or None),
-    each in its own frames (no two tracks share a frame: nobody interacts)."""
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
-
-    x = np.linspace(0.0, LANE_LENGTH, 41)
-    write_map({k: np.column_stack([x, np.full_like(x, y)]) for k, y in LANE_Y.items()}, {}, tmp_path / "map.osm")
-    rows, frame = [], 1
-    for i, (lane, x0, n, y) in enumerate(tracks):
-        rows.append(_track_rows(i + 1, frame, x0, n, LANE_Y[lane] if y is None else y))
-        frame += n + 10
-    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
-    return tmp_path / "vehicle_tracks_000.csv", tmp_path / "map.osm"
-
-
 def test_track_starting_before_its_route_stays_on_its_route(tmp_path):
     """Track 2 starts 20 m before lane B (its first 2 s off-map, at negative arc lengths of its route, the
     second path of the composite). Those steps were placed on lane A's extension, 300-400 m away."""
-    tracks, osm = _straight_scene(tmp_path, [("A", 5.0, 150, None), ("B", -20.0, 150, None)])
+    tracks, osm = straight_scene(tmp_path, [("A", 5.0, 150, None), ("B", -20.0, 150, None)])
     scene = load_replay([tracks], osm, max_steps=None)
     t = {tr.metadata["track_id"]: tr for tr in scene.trajectories}[2]
     assert t.metadata["segment"] == 1 and t.states[0, 0] < scene.model.path.offsets[1]
@@ -157,7 +126,7 @@ def test_unconnected_positions_are_bridged_or_cut_not_fatal(tmp_path):
     stray = np.zeros(150)
     stray[70] = LANE_Y["B"]
     jump = np.where(np.arange(110) < 80, LANE_Y["A"], LANE_Y["B"])
-    tracks, osm = _straight_scene(tmp_path, [("A", 5.0, 150, stray), ("A", 5.0, 110, jump), ("B", 5.0, 100, None)])
+    tracks, osm = straight_scene(tmp_path, [("A", 5.0, 150, stray), ("A", 5.0, 110, jump), ("B", 5.0, 100, None)])
     scene = load_replay([tracks], osm, max_steps=None)
     assert not scene.skipped
     by_id = {t.metadata["track_id"]: t for t in scene.trajectories}
@@ -170,10 +139,10 @@ def test_unconnected_positions_are_bridged_or_cut_not_fatal(tmp_path):
     assert np.all(t2.metadata["xy"][:, 1] == LANE_Y["A"])
 
 
-def test_history_start_states_see_no_step_after_the_window(scene_dir):
+def test_history_start_states_see_no_step_after_the_window(passage_scene):
     """A prediction at step k starts from states estimated from the history's observations alone: changing
     the recording after k leaves them as they were, while the whole-track estimate (a smoother) moves."""
-    out, _ = scene_dir
+    out, _ = passage_scene
     scene = load_replay([out / "vehicle_tracks_000.csv"], out / "map.osm")
     t = max(scene.trajectories, key=lambda tr: tr.n_steps)
     start, stop = 5, 15
@@ -215,40 +184,14 @@ def test_a_track_that_leaves_its_route_for_a_far_part_of_it_is_cut_at_the_jump()
     assert np.all(np.abs(np.diff(s[part])) <= TRACK_STEP)
 
 
-@pytest.fixture(scope="module")
-def sumo_run(tmp_path_factory):
-    """A small SUMO run (20 vehicles, drivers re-planning over 30 steps of 0.1 s), written as a recording."""
-    pytest.importorskip("libsumo")
-    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
-    from pirl_sim.scenarios.sumo import SumoScenarioConfig, run_sumo_scenario
-
-    out = tmp_path_factory.mktemp("receding_replay") / "run"
-    pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=20, depart_interval=1.5)
-    run_sumo_scenario(SumoScenarioConfig(population=pop), seed=1, out_dir=out)
-    return out
-
-
-def _load(run, **kw):
-    from pirl_sim.scenarios.replay import SIMULATED_NOISE, load_replay, recording_settings
-
-    rec = recording_settings(run)
-    args = dict(dt=rec.dt, estimate="speeds", noise=SIMULATED_NOISE, selection="steps", max_steps=None,
-                smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max,
-                arc_length="observed")
-    args.update(kw)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return load_replay([run / "vehicle_tracks_000.csv"], run / "map.osm", **args), rec
-
-
-def test_recording_settings_and_masks_match_the_recorded_demonstrations(sumo_run):
+def test_recording_settings_and_masks_match_the_recorded_demonstrations(sumo_recording):
     from pirl_sim.scenarios.replay import recording_settings
     from pirl_sim.scenarios.sumo import load_sumo_run
 
-    scene, rec = _load(sumo_run)
-    assert rec == recording_settings(sumo_run / "vehicle_tracks_000.csv")
+    scene, rec = load_sumo_scene(sumo_recording)
+    assert rec == recording_settings(sumo_recording / "vehicle_tracks_000.csv")
     assert rec.horizon == 30 and rec.dt == pytest.approx(0.1)
-    run = load_sumo_run(sumo_run)
+    run = load_sumo_run(sumo_recording)
     demos = {d.metadata["track_id"]: d for d in run.demonstrations(selection="steps", min_steps=10)}
     n_background = int((~run.recording.ground_truth["is_pirl"]).sum())
     assert scene.skipped["no driver steps (not a PIRL driver)"] == n_background
@@ -264,36 +207,12 @@ def test_recording_settings_and_masks_match_the_recorded_demonstrations(sumo_run
     assert scene.steps["steps kept (driver's own)"] == sum(int(d.metadata["step_mask"].sum()) for d in demos.values())
 
 
-@pytest.fixture
-def real_like(tmp_path):
-    """Two straight lanes and a few tracks, no run.json: data as real data come."""
-    from pirl_sim.io.interaction import write_tracks
-    from pirl_sim.io.lanelet2_map import write_map
-
-    x = np.linspace(0.0, 400.0, 41)
-    write_map({"A": np.column_stack([x, np.zeros_like(x)])}, {}, tmp_path / "map.osm")
-    rows = []
-    for i in range(6):
-        n = 80
-        frames = np.arange(1 + 100 * i, 1 + 100 * i + n)
-        rows.append(pd.DataFrame({"track_id": i + 1, "frame_id": frames, "timestamp_ms": 100 * frames,
-                                  "agent_type": "car", "x": 10.0 + np.arange(n), "y": 0.0, "vx": 10.0, "vy": 0.0,
-                                  "psi_rad": 0.0, "length": 4.5, "width": 1.8}))
-    write_tracks(pd.concat(rows, ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
-    return tmp_path
-
-
 def test_load_replay_rejects_bad_options(real_like):
     from pirl_sim.experiments.replay_report import ReplayProtocol
     from pirl_sim.scenarios.replay import EstimateNoise, load_replay
 
     files, osm = [real_like / "vehicle_tracks_000.csv"], real_like / "map.osm"
-    with pytest.raises(ValueError, match="estimate must be one of"):
-        load_replay(files, osm, estimate="lidar")
-    with pytest.raises(ValueError, match="selection must be one of"):
-        load_replay(files, osm, selection="frames")
-    with pytest.raises(ValueError, match="driver_steps.csv"):
-        load_replay(files, osm, selection="steps")
+    check_bad_read_options(partial(load_replay, files, osm), "driver_steps.csv")
     with pytest.raises(ValueError, match="sigma_v must be a finite number > 0"):
         EstimateNoise(0.1, 0.0, 1.0)
     with pytest.raises(ValueError, match="rollout='closed' needs mpc_horizon"):
@@ -366,52 +285,20 @@ def test_free_selection_keeps_the_free_flow_runs_of_an_interacting_track(followi
     assert set(counts["matched"]) == {2}
 
 
-THETA = {"speed_dev": 1.0, "acc_sq": 2.0, "jerk_sq": 1.0}  # raw weights of the sidecars
-
-
-def _scene_dir(d, n_tracks=8, n_frames=150, speed=10.0):
-    """A map of two straight lanes and one track file of ``n_tracks`` tracks that never share a frame."""
-    from pirl_sim.io.lanelet2_map import write_map
-
-    d.mkdir(parents=True, exist_ok=True)
-    x = np.linspace(0.0, LANE_LENGTH, 41)
-    write_map({k: np.column_stack([x, np.full_like(x, y)]) for k, y in LANE_Y.items()}, {}, d / "map.osm")
-    rows, frame = [], 1
-    for i in range(n_tracks):
-        rows.append(_track_rows(i + 1, frame, 5.0, n_frames, LANE_Y["AB"[i % 2]], speed))
-        frame += n_frames + 10
-    write_tracks(pd.concat(rows, ignore_index=True), d / "vehicle_tracks_000.csv")
-    return d / "vehicle_tracks_000.csv", d / "map.osm"
-
-
-def _sidecar(d, ids, styles, theta=THETA):
-    """ground_truth.csv: a style >= 0 with weights for PIRL tracks, style -1 without weights for the others."""
-    rows = [{"track_id": i, "style": s, **{f"theta_{k}": (v if s >= 0 else np.nan) for k, v in theta.items()}}
-            for i, s in zip(ids, styles)]
-    pd.DataFrame(rows).to_csv(d / "ground_truth.csv", index=False)
-
-
 @pytest.mark.parametrize("content", [b"", b"\x00\xff\xfe\x81binary\x00", b"id,style\n1,0\n", b"track_id,style\n1,0\n1,1\n",
                                      b"track_id,style\n1.5,0\n", b"track_id,theta_acc_sq\n1,heavy\n"])
 def test_an_unusable_ground_truth_sidecar_is_an_error_naming_it(tmp_path, content):
-    tracks, osm = _scene_dir(tmp_path)
+    tracks, osm = two_lane_scene_dir(tmp_path)
     (tmp_path / "ground_truth.csv").write_bytes(content)
     with pytest.raises(ValueError, match="ground_truth.csv"):
         load_replay([tracks], osm)
 
 
-def test_a_duplicated_track_id_in_the_sidecar_names_the_duplicates(tmp_path):
-    tracks, osm = _scene_dir(tmp_path)
-    _sidecar(tmp_path, [1, 2, 2, 3], [0, 1, 1, 0])
-    with pytest.raises(ValueError, match=r"ground_truth.csv: each track_id must appear once.*\[2\]"):
-        load_replay([tracks], osm)
-
-
 def test_each_directory_gets_its_own_ground_truth(tmp_path):
     """Files from two directories: the second never takes the first one's truth."""
-    t1, osm = _scene_dir(tmp_path / "a", n_tracks=4)
-    t2, _ = _scene_dir(tmp_path / "b", n_tracks=4)
-    _sidecar(tmp_path / "a", [1, 2, 3, 4], [0, 0, 0, 0])
+    t1, osm = two_lane_scene_dir(tmp_path / "a", n_tracks=4)
+    t2, _ = two_lane_scene_dir(tmp_path / "b", n_tracks=4)
+    write_ground_truth(tmp_path / "a", [1, 2, 3, 4], [0, 0, 0, 0])
     # no sidecar in b: its tracks have no truth
     scene = load_replay([t1, t2], osm)
     by_dir = {d: [t for t in scene.trajectories if f"/{d}/" in t.metadata["file"]] for d in "ab"}
@@ -422,14 +309,14 @@ def test_each_directory_gets_its_own_ground_truth(tmp_path):
     with pytest.raises(ValueError, match=r"b/ground_truth.csv"):
         load_replay([t1, t2], osm)
     # b's own truth (another style) goes to b's tracks
-    _sidecar(tmp_path / "b", [1, 2, 3, 4], [2, 2, 2, 2])
+    write_ground_truth(tmp_path / "b", [1, 2, 3, 4], [2, 2, 2, 2])
     scene = load_replay([t1, t2], osm)
     styles = {(t.metadata["file"].split("/")[-2], t.metadata["style"]) for t in scene.trajectories}
     assert styles == {("a", 0), ("b", 2)}
 
 
 def test_replay_drops_a_fractional_track_id_and_backwards_timestamps(tmp_path):
-    tracks, osm = _scene_dir(tmp_path, n_tracks=6)
+    tracks, osm = two_lane_scene_dir(tmp_path, n_tracks=6)
     df = pd.read_csv(tracks, dtype=str)
     t6 = df["track_id"] == "6"
     df.loc[df.index[t6][-1], "track_id"] = "6.5"  # the last row of track 6: a track id of 6.5
@@ -447,17 +334,15 @@ def test_replay_drops_a_fractional_track_id_and_backwards_timestamps(tmp_path):
 
 
 def test_replay_with_following_features_sees_the_recorded_vehicle_ahead(tmp_path):
-    from test_replay import LANE_Y, _track_rows
-
     from pirl_sim.io.interaction import write_tracks
     from pirl_sim.io.lanelet2_map import write_map
     from pirl_sim.scenarios.replay import NO_LEADER_GAP
 
     x = np.linspace(0.0, 500.0, 41)
     write_map({"A": np.column_stack([x, np.full_like(x, LANE_Y["A"])])}, {}, tmp_path / "map.osm")
-    lead = _track_rows(1, 1, 30.0, 150, 0.0, speed=8.0)
-    follow = _track_rows(2, 1, 15.0, 150, 0.0, speed=8.0)  # 15 m behind, centre to centre: 10.5 m bumper gap
-    alone = _track_rows(3, 400, 0.0, 150, 0.0, speed=8.0)
+    lead = track_rows(1, 1, 30.0, 150, 0.0, speed=8.0)
+    follow = track_rows(2, 1, 15.0, 150, 0.0, speed=8.0)  # 15 m behind, centre to centre: 10.5 m bumper gap
+    alone = track_rows(3, 400, 0.0, 150, 0.0, speed=8.0)
     write_tracks(pd.concat([lead, follow, alone], ignore_index=True), tmp_path / "vehicle_tracks_000.csv")
     scene = load_replay([tmp_path / "vehicle_tracks_000.csv"], tmp_path / "map.osm", features="following",
                         selection="all")

@@ -8,19 +8,9 @@ pytest.importorskip("sumolib")
 
 from pirl_sim.driving import SpeedProfile  # noqa: E402
 from pirl_sim.scenarios.drivers import RouteSet, RouteSetProfile  # noqa: E402
-from pirl_sim.scenarios.sumo import DEFAULT_NETWORK, build_network, routes  # noqa: E402
-from pirl_sim.scenarios.sumo.network import route_set as network_route_set  # noqa: E402
+from pirl_sim.scenarios.sumo import DEFAULT_NETWORK  # noqa: E402
 
-
-@pytest.fixture(scope="module")
-def net(tmp_path_factory):
-    return build_network(DEFAULT_NETWORK, tmp_path_factory.mktemp("roundabout"))
-
-
-@pytest.fixture(scope="module")
-def route_set(net):
-    """The scenarios' default paths: geometry smoothed by 2 m, curvature for the desired speed by 10 m."""
-    return network_route_set(net, routes(DEFAULT_NETWORK), smoothing=2.0, speed_smoothing=10.0)
+# route_set: the scenarios' default paths on one axis (a fixture of tests/conftest.py)
 
 
 def test_route_set_layout(route_set):
