@@ -217,7 +217,7 @@ def replay_with_engine(tracks, map_path, learners, proto, out, *, desired_speed=
     tracks, map_path : path      a track file (or a directory of them) and its map
     learners : list              sweep learner entries (``"tirl"``, ``{"name": ..., "params": ...}``; rows named by
                                  the engine's labels, e.g. ``PIRL-kNN (k=10)``), between the baselines CV (path), CA
-                                 (path) and CV (x, y) of the preset ``replay.toml``
+                                 (path) and CV (x, y) of ``pirl-sim replay`` (`pirl_sim.cli.replay.LEARNER_ENTRIES`)
     proto : ReplayProtocol       windows (history, horizon, stride), split seeds and the rest of the protocol
     out : path                   the sweep's results directory (a fresh one: finished cells are reused)
     desired_speed                None (the scene's), "fit" (per split seed) or (a_lat, v_max) [m/s^2, m/s]
@@ -227,16 +227,12 @@ def replay_with_engine(tracks, map_path, learners, proto, out, *, desired_speed=
     dict: `collect_replay`'s (rows, paired, paired_ca, errors, selected, ...), and ``scene`` (the scene the cells
     replayed) and ``run`` (the `SweepRun`; its ``records`` hold every cell's warnings)
     """
-    import tomllib
-
-    from pirl_sim.cli.replay import replay_results
-    from pirl_sim.engine.config import parse_config, preset_text
+    from pirl_sim.cli.replay import LEARNER_ENTRIES, replay_results
+    from pirl_sim.engine.config import parse_config
     from pirl_sim.engine.run import run_sweep
-    from pirl_sim.experiments.recorded import METHODS, load_scene
+    from pirl_sim.experiments.recorded import load_scene
 
-    preset = tomllib.loads(preset_text("replay"))["experiments"][0]["learners"]
-    pseudo = {e["name"]: e for e in preset if isinstance(e, dict) and e["name"] in METHODS}
-    entries = [pseudo["cv"], pseudo["ca"], *learners, pseudo["cv-xy"]]  # the order of the rows
+    entries = [LEARNER_ENTRIES["cv"], LEARNER_ENTRIES["ca"], *learners, LEARNER_ENTRIES["cv-xy"]]  # the row order
     replay = {k: v for k, v in dataclasses.asdict(proto).items()
               if k not in ("history", "horizon", "stride", "seeds") and v is not None}
     if desired_speed is not None:

@@ -1,7 +1,7 @@
 """The ``recorded`` sweep scenario: recorded (or simulated) roundabout tracks replayed, scored in metres.
 
-``pirl-sim replay`` runs it through the sweep engine (`pirl_sim.cli.replay`, preset
-``pirl_sim/experiments/configs/replay.toml``): one cell per (split seed, method), the methods of one split seed one task
+``pirl-sim replay`` runs it through the sweep engine (`pirl_sim.cli.replay`: a config built from its
+options): one cell per (split seed, method), the methods of one split seed one task
 (`run_recorded_cells`: the split, the desired-speed fit, the lateral model and the windows are made once, and
 PIRL-kNN learners that differ only in k share one fit), each cell stored by the engine as it finishes and keyed
 by its spec (the scene's parameters, the data files' identity `recorded_fingerprint`, the windows, the

@@ -2,6 +2,7 @@
 processes and resumed, the next-step kNN, lateral and receding-horizon options, and bad durations refused."""
 
 import dataclasses
+import re
 
 import pandas as pd
 import pytest
@@ -99,7 +100,7 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(passage_scene
     import argparse
     import shutil
 
-    from pirl_sim.cli.replay import add_parser, replay_config, replay_settings
+    from pirl_sim.cli.replay import ReplayOptions, add_parser
     from pirl_sim.experiments.recorded import recorded_fingerprint
 
     out, _ = passage_scene
@@ -110,7 +111,7 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(passage_scene
 
     def keys(*extra):
         args = parser.parse_args(["replay", "--tracks", str(scene), "--map", str(scene / "map.osm"), *extra])
-        return [c.key("code") for c in replay_config(args, replay_settings(args), args.tracks, args.map).cells]
+        return [c.key("code") for c in ReplayOptions.from_args(args).resolve().config().cells]
 
     first = keys("--seeds", "2")
     assert len(set(first)) == len(first) == 2 * 6  # CV, CA, TIRL, PIRL-GMM, PIRL-kNN, CV (x, y) per seed
@@ -168,17 +169,17 @@ def test_replay_cli_sets_the_next_learners_segments_and_road_ahead(tmp_path, cap
     """pirl-knn-next: segments re-started at the history estimates and the curvature 0-45 m ahead in the
     look-up by default; --next-segments history needs history starts; bad distances are named."""
     from pirl_sim.cli import build_parser, main
-    from pirl_sim.cli.replay import replay_config, replay_settings
+    from pirl_sim.cli.replay import ReplayOptions
 
     args = _replay_args(tmp_path, 5, "pirl-knn-next", "3")
     ns = build_parser().parse_args(args)
-    config = replay_config(ns, replay_settings(ns), ns.tracks, ns.map)
+    config = ReplayOptions.from_args(ns).resolve().config()
     (nxt,) = [e for e in config.experiments[0].learners if e.params.get("target") == "next"]
     assert nxt.params["segment_start"] == "history" and nxt.params["lookup_history"] is True
     assert list(nxt.params["lookup_ahead"]) == [0.0, 10.0, 20.0, 30.0, 45.0]
     assert list(nxt.params["ahead_weights"]) == [0.0, 0.5, 1.0]
     ns = build_parser().parse_args([*args, "--next-segments", "track", "--lookup-ahead", ""])
-    config = replay_config(ns, replay_settings(ns), ns.tracks, ns.map)
+    config = ReplayOptions.from_args(ns).resolve().config()
     (nxt,) = [e for e in config.experiments[0].learners if e.params.get("target") == "next"]
     assert nxt.params["segment_start"] == "track" and list(nxt.params["lookup_ahead"]) == []
     assert main([*args, "--start", "track", "--next-segments", "history", "--out", str(tmp_path / "bad")]) == 2
@@ -198,11 +199,11 @@ def test_replay_cli_runs_the_selected_bank_once_whatever_the_k_grid(tmp_path):
     import pandas as pd
 
     from pirl_sim.cli import build_parser, main
-    from pirl_sim.cli.replay import replay_config, replay_settings
+    from pirl_sim.cli.replay import ReplayOptions
 
     args = _replay_args(tmp_path, 5, "tirl,pirl-knn-next,pirl-select", "3,5")
     ns = build_parser().parse_args(args)
-    config = replay_config(ns, replay_settings(ns), ns.tracks, ns.map)
+    config = ReplayOptions.from_args(ns).resolve().config()
     (sel,) = [e for e in config.experiments[0].learners if e.params.get("aggregate") == "selected"]
     assert sel.params["target"] == "next" and sel.params["segment_start"] == "history"
     assert sel.params["target_steps"] == 15 and list(sel.params["lookup_ahead"]) == [0.0, 10.0, 20.0, 30.0, 45.0]
@@ -330,3 +331,85 @@ def test_table_command_end_to_end(passage_root, tmp_path, capsys):
                  "--out", str(out)]) == 2
     assert "NO_SUCH_Roundabout" in capsys.readouterr().err  # any name is read; a missing folder is named
     assert main(["replay", "--out", str(out)]) == 2
+
+
+def _recording(d, steps: bool = True):
+    """A tracks directory ``d`` that reads as a pirl_sim recording of MPC drivers (run.json; driver_steps.csv
+    when ``steps``): what `ReplayOptions.resolve` looks at, no tracks."""
+    import json
+
+    d.mkdir()
+    drivers = {"horizon": 30, "smoothing": 2.0, "speed_smoothing": 10.0, "a_lat": 1.7, "v_max": 12.5}
+    (d / "run.json").write_text(json.dumps({"format": "pirl_sim scenario recording", "step_length_s": 0.1,
+                                            "config": {"drivers": drivers}}))
+    if steps:
+        (d / "driver_steps.csv").write_text("track_id,frame_id,commanded,overridden,collided\n")
+    return d
+
+
+@pytest.mark.parametrize("field,value,says", [
+    ("gmm_k", 0, "expected a positive integer"), ("seeds", 2.5, "expected a positive integer"),
+    ("dt", float("nan"), "expected a finite number > 0"), ("mpc_horizon", 0, "positive number of steps"),
+    ("knn_k", (), "comma-separated integers >= 1"), ("lookup_ahead", (-1.0,), "numbers >= 0"),
+    ("features", "speed", "one of ('paper', 'speed-level', 'following')"), ("hindsight", 1, "a value of type bool"),
+    ("learners", "tirl", "a value of type tuple[str, ...]"), ("out", "results", "a value of type Path")])
+def test_replay_options_name_a_bad_value_and_what_is_allowed(tmp_path, field, value, says):
+    from pirl_sim.cli.replay import ReplayOptions
+
+    with pytest.raises(ValueError) as exc:
+        ReplayOptions(tracks=tmp_path, map=tmp_path / "map.osm", **{field: value})
+    assert str(exc.value).startswith(f"{field}={value!r}: ") and says in str(exc.value)
+
+
+def test_replay_options_are_the_parsed_command_line_frozen_and_checked_together(tmp_path):
+    from pirl_sim.cli import build_parser
+    from pirl_sim.cli.replay import ReplayOptions
+
+    where = {"tracks": tmp_path, "map": tmp_path / "map.osm"}
+    argv = ["replay", "--tracks", str(tmp_path), "--map", str(tmp_path / "map.osm")]
+    assert ReplayOptions.from_args(build_parser().parse_args(argv)) == ReplayOptions(**where)  # the same defaults
+    options = ReplayOptions.from_args(build_parser().parse_args([*argv, "--knn-k", "3,10", "--learners",
+                                                                 "pirl-select", "--dt", "0.1"]))
+    assert options.knn_k == (3, 10) and options.learners == ("pirl-select",) and options.dt == 0.1
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        options.dt = 0.2
+    for bad, says in [({"learners": ("tirl", "svm")}, "unknown learners ['svm']"),
+                      ({"selection": "steps"}, "--selection steps needs --likelihood receding"),
+                      ({"start": "track", "next_segments": "history", "learners": ("pirl-knn-next",)},
+                       "--next-segments history"), ({"tracks": None}, "replay needs --tracks and --map")]:
+        with pytest.raises(ValueError, match=re.escape(says)):
+            ReplayOptions(**{**where, **bad})
+
+
+def test_resolved_defaults_of_a_pirl_sim_recording_and_of_real_data(tmp_path):
+    from pirl_sim.cli.replay import ReplayOptions
+    from pirl_sim.scenarios.replay import MEASURED_NOISE, SIMULATED_NOISE
+
+    run, real = _recording(tmp_path / "run"), tmp_path / "real"
+    real.mkdir()
+    receding = ReplayOptions(tracks=run, map=run / "map.osm", likelihood="receding").resolve()
+    assert (receding.dt, receding.mpc_horizon, receding.rollout, receding.selection, receding.estimate) == (
+        0.1, 30, "closed", "steps", "speeds")
+    assert receding.noise == SIMULATED_NOISE and len(receding.notes) == 3
+    assert {k: receding.load()[k] for k in ("smoothing", "speed_smoothing", "a_lat", "v_max", "arc_length")} == {
+        "smoothing": 2.0, "speed_smoothing": 10.0, "a_lat": 1.7, "v_max": 12.5, "arc_length": "observed"}
+    p = receding.protocol()
+    assert (p.history, p.horizon, p.stride, p.fde_steps, p.mpc_horizon) == (20, 30, 10, (10, 20, 30), 30)
+    # the trajectory likelihood keeps the paper's step: the drivers' horizon in their own steps does not apply
+    paper = ReplayOptions(tracks=run, map=run / "map.osm", a_lat=2.0).resolve()
+    assert (paper.dt, paper.mpc_horizon, paper.rollout, paper.selection) == (0.2, None, "open", "tracks")
+    assert paper.load()["a_lat"] == 2.0 and paper.load()["v_max"] == 12.5  # an option beats run.json
+    with pytest.raises(ValueError, match="give --mpc-horizon in steps of --dt"):
+        ReplayOptions(tracks=run, map=run / "map.osm", likelihood="receding", dt=0.2).resolve()
+    data = ReplayOptions(tracks=real, map=real / "map.osm", sigma_v=0.2).resolve()
+    assert (data.dt, data.mpc_horizon, data.selection, data.estimate, data.recording, data.notes) == (
+        0.2, None, "tracks", "speeds", None, ())
+    assert data.noise == dataclasses.replace(MEASURED_NOISE, sigma_v=0.2) and "arc_length" not in data.load()
+    assert ReplayOptions(tracks=real, map=real, features="following").resolve().selection == "all"
+    assert ReplayOptions(tracks=real, map=real, start="track").resolve().estimate == "positions"
+    assert ReplayOptions(tracks=real, map=real, scan_horizon=(5, 8), likelihood="receding").resolve().mpc_horizon == 5
+    with pytest.raises(ValueError, match="--likelihood receding needs the drivers' MPC horizon"):
+        ReplayOptions(tracks=real, map=real, likelihood="receding").resolve()
+    with pytest.raises(ValueError, match="--selection steps needs driver_steps.csv"):
+        ReplayOptions(tracks=_recording(tmp_path / "no_steps", steps=False), map=real, likelihood="receding",
+                      selection="steps").resolve()
