@@ -101,9 +101,4 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
     with thread_policy(option), cli_logging(getattr(args, "verbose", False)):  # both restored on return
-        return _run(args)
-
-
-def _run(args) -> int:
-    """Run the parsed command (inside the thread policy, see `main`)."""
-    return COMMANDS[args.command].run(args)
+        return COMMANDS[args.command].run(args)

@@ -82,14 +82,11 @@ def run(args) -> int:
     from pirl_sim.experiments.agents_study import AgentsConfig
 
     try:
-        cfg = AgentsConfig(modes=args.modes, action=args.action, direct_modes=args.direct_modes,
-                           residual_scale=args.residual_scale, max_change=args.max_change, seeds=args.seeds,
-                           steps=args.steps, baselines=args.baselines,
+        same = ("modes", "action", "direct_modes", "residual_scale", "max_change", "seeds", "steps", "baselines",
+                "n_steps", "observe_residual", "gamma", "learning_rate", "log_std_init", "select_every",
+                "select_episodes")  # options named as the AgentsConfig fields
+        cfg = AgentsConfig(**{name: getattr(args, name) for name in same},
                            eval_seeds=tuple(range(args.eval_seed, args.eval_seed + args.episodes)),
-                           n_steps=args.n_steps, observe_residual=args.observe_residual,
-                           gamma=args.gamma, learning_rate=args.learning_rate, log_std_init=args.log_std_init,
-                           select_every=args.select_every,
-                           select_episodes=args.select_episodes,
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))
     except ValueError as exc:
         return error(exc)

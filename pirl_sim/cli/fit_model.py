@@ -76,12 +76,9 @@ def run(args) -> int:
         params = {"model": scene.model, "window": seconds_to_steps(args.window, dt, "--window"), "windows": "sliding"}
         if receding:
             params.update(likelihood="receding", horizon=horizon)
-        if args.learner == "pirl-gmm":
-            params.update(n_components=args.k, random_state=args.seed)
-        elif args.learner == "pirl-dpgmm":
-            params.update(random_state=args.seed)
-        elif args.learner == "pirl-knn":
-            params.update(n_neighbors=args.k)
+        params.update({"pirl-gmm": {"n_components": args.k, "random_state": args.seed},
+                       "pirl-dpgmm": {"random_state": args.seed}, "pirl-knn": {"n_neighbors": args.k}
+                       }.get(args.learner, {}))
         if args.space == "weights":
             params["space"] = "weights"
         learner = make_learner(args.learner, **params)

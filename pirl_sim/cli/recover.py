@@ -93,12 +93,10 @@ def run(args) -> int:
     records = [result.records[k]["result"] for k in result.keys]
     study = recovery_result(jobs, records, simulated=simulated, sim_time_s=sim_time, workers=max(args.workers, 1))
     write_recovery(study, args.out, command)
-    table = compact_table(study.table())
-    print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    table = study.table()
+    print(compact_table(table).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     for sim in sims:
-        sub = study.table()
-        sub = sub[sub["simulator"] == sim]
-        row = sub.iloc[-1].to_dict()
+        row = table[table["simulator"] == sim].iloc[-1].to_dict()
         missed = [f"{c} = {v:.3g} (target {op} {lim:g})" for c, op, lim, v, ok in check_targets(row, sim) if not ok]
         print(f"{sim} (seed {row['seed']}): " + ("every target met" if not missed else "NOT met: " + "; ".join(missed)))
     print(f"wrote {args.out}/")

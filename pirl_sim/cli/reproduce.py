@@ -57,9 +57,8 @@ def run(args) -> int:
     from pirl_sim.engine.presets import run_preset
     from pirl_sim.experiments.reproduce import ordering_holds
 
-    params = {k: v for k, v in (("n_trajectories", args.n_trajectories), ("n_train", args.n_train),
-                                ("position_range", args.position_range), ("velocity_range", args.velocity_range))
-              if v is not None}
+    params = {k: getattr(args, k) for k in ("n_trajectories", "n_train", "position_range", "velocity_range")
+              if getattr(args, k) is not None}
     out = args.out if args.out is not None else Path("results") / args.experiment
     command = command_line("reproduce", [args.experiment, "--out", str(out)])
     try:

@@ -98,9 +98,8 @@ def _outputs(args, inputs: list[Path]) -> Path:
     if suffix not in allowed:
         what = "an animation (--span)" if animated else "a picture"
         raise ValueError(f"--out {str(out)!r}: {what} is written as {' or '.join(allowed)}")
-    for i in inputs:
-        if i.exists() and out.exists() and out.resolve() == i.resolve():
-            raise ValueError(f"--out {str(out)!r} is an input file: choose another name")
+    if out.exists() and any(i.exists() and i.resolve() == out.resolve() for i in inputs):
+        raise ValueError(f"--out {str(out)!r} is an input file: choose another name")
     if out.exists() and out.is_dir():
         raise ValueError(f"--out {str(out)!r} is a folder: give a file name")
     if not out.resolve().parent.is_dir():
@@ -119,36 +118,25 @@ def run(args) -> int:
                                                            else None)
         out = _outputs(args, [track_file, *([map_path] if map_path is not None else [])])
         tracks = read_tracks(track_file)
-        road = None
-        if map_path is not None:
-            from pirl_sim.viz import road_from_lanelet2
+        from pirl_sim.viz import TrackFrames, animate_scene, draw_recording, draw_scene, road_from_lanelet2
 
-            road = road_from_lanelet2(map_path)
+        road = road_from_lanelet2(map_path) if map_path is not None else None
         color, options = args.color_by, {}
         if color == _STYLE and _STYLE not in tracks.columns:
             color, options = _styles(folder), {"categorical": True, "label": "style"}
         title = track_file.name
+        written = out
         if args.span is not None:
-            from pirl_sim.viz import animate_scene
-
             written = animate_scene(tracks, out, start_s=args.span[0], end_s=args.span[1], fps=args.fps,
                                     speed=args.speed, progress=not args.quiet, road=road, color_by=color,
                                     size_px=args.size, title=title, **options)
         elif args.frame is not None or args.time is not None:
-            from pirl_sim.viz import TrackFrames, draw_scene
-
             frames = TrackFrames(tracks)
             frame = args.frame if args.frame is not None else frames.frame_at(args.time)
-            fig = draw_scene(frames, frame, road=road, color_by=color, size_px=args.size,
-                             title=f"{title}, frame {frame}", **options)
-            fig.savefig(out)
-            written = out
+            draw_scene(frames, frame, road=road, color_by=color, size_px=args.size, title=f"{title}, frame {frame}",
+                       **options).savefig(out)
         else:
-            from pirl_sim.viz import draw_recording
-
-            fig = draw_recording(tracks, road=road, color_by=color, size_px=args.size, title=title, **options)
-            fig.savefig(out)
-            written = out
+            draw_recording(tracks, road=road, color_by=color, size_px=args.size, title=title, **options).savefig(out)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError) as exc:
         return error(exc)
     except OSError as exc:

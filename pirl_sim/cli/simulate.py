@@ -1,7 +1,7 @@
 """``pirl-sim simulate SIMULATOR``: record a driver population of known weights in INTERACTION format.
 
-Every simulator has the common options (`add_simulator_parser`) and runs through `run_simulator`
-(configuration, progress bar, errors, summary): ``sumo`` (a SUMO roundabout, libsumo or TraCI) and
+Every simulator has the common options (`add_simulator_parser`) and runs through `run` (configuration,
+progress bar, errors, summary): ``sumo`` (a SUMO roundabout, libsumo or TraCI) and
 ``highway`` (highway-env's roundabout). Both run with no arguments (the embedded default population).
 """
 
@@ -9,17 +9,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
 
 from .common import error
 
-__all__ = ["add_parser", "run", "add_simulator_parser", "run_simulator", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT",
+__all__ = ["add_parser", "run", "add_simulator_parser", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT",
            "SUMO_BACKENDS"]
 
 SUMO_OUT = Path("results") / "sumo_run"
@@ -102,43 +101,15 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def run(args: argparse.Namespace) -> int:
-    """``pirl-sim simulate SIMULATOR``: 0 on success, 2 for a bad configuration."""
-    if args.simulator == "sumo":
-        return _run_sumo(args)
-    return _run_highway(args)
-
-
 def _sumo_options(config, args: argparse.Namespace):
-    """``config`` with the command line's --demand and --lanes applied (ValueError for bad combinations)."""
+    """``config`` with the command line's --demand and --lanes (of ``sumo``) applied (ValueError for bad
+    combinations)."""
     changes = {}
     if getattr(args, "lanes", None) is not None:
         changes["network"] = dataclasses.replace(config.network, lanes=args.lanes)
     if getattr(args, "demand", None) is not None:
         changes["demand_per_arm"] = args.demand
     return dataclasses.replace(config, **changes) if changes else config
-
-
-def _run_sumo(args: argparse.Namespace) -> int:
-    from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_scenario, run_sumo_scenario
-
-    def run_(config, seed, **kwargs):
-        return run_sumo_scenario(config, seed, backend=args.backend, **kwargs)
-
-    def default_config(**kwargs):
-        return _sumo_options(SumoScenarioConfig(**kwargs), args)
-
-    def scenario(path, **kwargs):
-        return _sumo_options(load_scenario(path, **kwargs), args)
-
-    return run_simulator(args, default_config=default_config, load_scenario=scenario, run=run_)
-
-
-def _run_highway(args: argparse.Namespace) -> int:
-    from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig, load_scenario, run_highway_scenario
-
-    return run_simulator(args, default_config=HighwayScenarioConfig, load_scenario=load_scenario,
-                         run=run_highway_scenario)
 
 
 class ProgressBar:
@@ -164,44 +135,35 @@ class ProgressBar:
             self._bar.close()
 
 
-def run_simulator(args: argparse.Namespace, *, default_config: Callable[..., Any],
-                  load_scenario: Callable[..., Any], run: Callable[..., Any]) -> int:
-    """Run a simulator's command parsed by :func:`add_simulator_parser`.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-    default_config : callable
-        ``default_config(population=...)``: the simulator's scenario configuration without ``--scenario``.
-    load_scenario : callable
-        ``load_scenario(path, population=...)``: the configuration from ``--scenario``.
-    run : callable
-        ``run(config, seed, out_dir=..., progress=...)``: runs and records; returns a result with
-        ``recording`` and ``timing``.
-
-    Returns
-    -------
-    int
-        0 on success; 2 for a bad configuration (the reason on stderr, nothing written).
-    """
+def run(args: argparse.Namespace) -> int:
+    """``pirl-sim simulate SIMULATOR``: 0 on success; 2 for a bad configuration (the reason on stderr, nothing
+    written)."""
     from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, DEFAULT_POPULATION_TOML, load_population
 
     if args.print_default_population:
         sys.stdout.write(DEFAULT_POPULATION_TOML)
         return 0
+    if args.simulator == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig as Config, load_scenario, run_sumo_scenario
+
+        simulate = functools.partial(run_sumo_scenario, backend=args.backend)
+    else:
+        from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig as Config, load_scenario
+        from pirl_sim.scenarios.highway.scenario import run_highway_scenario as simulate
     try:
         population = load_population(args.population) if args.population is not None else None
         if args.scenario is not None:
             config = load_scenario(args.scenario, population=population)
         else:
-            config = default_config(population=population or DEFAULT_POPULATION)
+            config = Config(population=population or DEFAULT_POPULATION)
+        config = _sumo_options(config, args)
         if args.n_vehicles is not None:
             config = dataclasses.replace(
                 config, population=dataclasses.replace(config.population, n_vehicles=args.n_vehicles))
         check_output_dir(args.out)  # before the run, not after it
         bar = None if args.quiet else ProgressBar()
         try:
-            result = run(config, args.seed, out_dir=args.out, progress=bar)
+            result = simulate(config, args.seed, out_dir=args.out, progress=bar)
         finally:
             if bar is not None:
                 bar.close()

@@ -42,6 +42,7 @@ import itertools
 import json
 import math
 from collections.abc import Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -116,6 +117,23 @@ def _jsonable(label: str, value):
     if isinstance(value, Mapping):
         return {str(k): _jsonable(f"{label}.{k}", v) for k, v in value.items()}
     raise ValueError(f"{label}: unsupported value {value!r} ({type(value).__name__})")
+
+
+@contextmanager
+def _named(prefix: str, errors=(ValueError,)):
+    """Re-raise ``errors`` of the block as a ValueError ``prefix`` + its message (naming where it happened)."""
+    try:
+        yield
+    except errors as exc:
+        raise ValueError(f"{prefix}{exc}") from None
+
+
+def _params(label: str, entry: Mapping) -> dict:
+    """The table ``params`` of a config entry (default empty) as JSON data."""
+    params = entry.get("params", {})
+    if not isinstance(params, Mapping):
+        raise ValueError(f"{label}.params must be a table, got {params!r}")
+    return {str(k): _jsonable(f"{label}.params.{k}", v) for k, v in params.items()}
 
 
 def _fmt(value) -> str:
@@ -229,10 +247,7 @@ class LearnerGrid:
         if "name" not in entry:
             raise ValueError(f"{label} needs a name (one of {', '.join(LEARNER_DISPLAY)})")
         name = entry["name"]
-        params = entry.get("params", {})
-        if not isinstance(params, Mapping):
-            raise ValueError(f"{label}.params must be a table, got {params!r}")
-        params = {str(k): _jsonable(f"{label}.params.{k}", v) for k, v in params.items()}
+        params = _params(label, entry)
         display = entry.get("label", LEARNER_DISPLAY.get(name, str(name)))
         return cls(name, str(display), params, _parse_grid(f"{label}.grid", entry.get("grid"), params))
 
@@ -263,15 +278,10 @@ class ProtocolGrid:
 
     def points(self) -> list[dict]:
         """Complete Protocol fields for every grid point."""
-        out = []
-        for values, _ in _points(self.grid):
-            f = {**self.fields, **values}
-            f.setdefault("window_mode", "sliding" if f["kind"] == "rolling" else "first")
-            f.setdefault("stride", 1)
-            f.setdefault("history_steps", None)
-            f.setdefault("horizon", None)
-            out.append({k: f[k] for k in PROTOCOL_FIELDS})
-        return out
+        defaults = {"history_steps": None, "horizon": None, "stride": 1,
+                    "window_mode": "sliding" if self.fields["kind"] == "rolling" else "first"}
+        points = ({**defaults, **self.fields, **values} for values, _ in _points(self.grid))
+        return [{k: f[k] for k in PROTOCOL_FIELDS} for f in points]
 
 
 @dataclass(frozen=True)
@@ -295,12 +305,9 @@ class Experiment:
                     f"scenario {self.scenario!r}: unknown parameter {a.name!r} in the grid; valid parameters: "
                     f"{', '.join(spec.params)}"
                 )
-        if not self.protocols:
-            raise ValueError(f"empty grid: experiment {self.label!r} has no protocol")
-        if not self.learners:
-            raise ValueError(f"empty grid: experiment {self.label!r} has no learner")
-        if not self.seeds:
-            raise ValueError(f"empty grid: experiment {self.label!r} has no seed")
+        for what, values in (("protocol", self.protocols), ("learner", self.learners), ("seed", self.seeds)):
+            if not values:
+                raise ValueError(f"empty grid: experiment {self.label!r} has no {what}")
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
 
     @classmethod
@@ -310,10 +317,7 @@ class Experiment:
             raise ValueError(f"{label} needs a scenario")
         scenario = entry["scenario"]
         scenario_spec(scenario)
-        params = entry.get("params", {})
-        if not isinstance(params, Mapping):
-            raise ValueError(f"{label}.params must be a table, got {params!r}")
-        params = {str(k): _jsonable(f"{label}.params.{k}", v) for k, v in params.items()}
+        params = _params(label, entry)
         grid = _parse_grid(f"{label}.grid", entry.get("grid"), params)
         seeds = entry.get("seeds", default_seeds)
         if seeds is None:
@@ -398,19 +402,16 @@ def _learner_label(grid: LearnerGrid, params: dict, varied: list[tuple[str, str]
 
 
 def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) -> None:
-    """Values we can check without data: k against the training samples, windows, enums."""
+    """Values we can check without data: k against the training samples, windows, enums (``log_bounds``: the
+    learner's own `_check_common`)."""
     LEARNERS = sweep_learners()
     learner = LEARNERS[grid.name](**params, **proto.learner_params())
-    try:
+    with _named(f"{label}: "):
         learner._check_common()
-    except ValueError as exc:
-        raise ValueError(f"{label}: {exc}") from None
-    for name, ok in (("n_neighbors", "int"), ("n_components", "int|bic"), ("max_components", "int")):
-        if name not in params:
-            continue
-        v = params[name]
-        if not (is_positive_int(v) or (ok == "int|bic" and v == "bic")):
-            allowed = "a positive integer" + (' or "bic"' if ok == "int|bic" else "")
+    for name, bic in (("n_neighbors", False), ("n_components", True), ("max_components", False)):
+        v = params.get(name, 1)  # absent: nothing to check
+        if not (is_positive_int(v) or (bic and v == "bic")):
+            allowed = "a positive integer" + (' or "bic"' if bic else "")
             raise ValueError(f"{label}: {name} must be {allowed}, got {v!r}")
     kname = K_PARAMS.get(grid.name)
     k = params.get(kname) if kname else None
@@ -424,17 +425,9 @@ def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) ->
                 f"{label}: k = {kname} = {k} is larger than the training set ({bound}{n} training {what} from "
                 f"{bound}{shape.n_train} trajectories)"
             )
-    if "log_bounds" in params:
-        lb = params["log_bounds"]
-        ok = isinstance(lb, (list, tuple)) and len(lb) == 2 and all(
-            not isinstance(b, bool) and isinstance(b, (int, float)) and math.isfinite(b) for b in lb) and lb[0] < lb[1]
-        if not ok:
-            raise ValueError(f"{label}: log_bounds must be [low, high], two finite numbers with low < high, got "
-                             f"{list(lb) if isinstance(lb, tuple) else lb!r}")
-    if "random_state" in params:
-        rs = params["random_state"]
-        if rs is not None and (isinstance(rs, bool) or not isinstance(rs, int) or not 0 <= rs < SEED_LIMIT):
-            raise ValueError(f"{label}: random_state must be an integer in [0, 2**31) or absent, got {rs!r}")
+    rs = params.get("random_state")
+    if rs is not None and (isinstance(rs, bool) or not isinstance(rs, int) or not 0 <= rs < SEED_LIMIT):
+        raise ValueError(f"{label}: random_state must be an integer in [0, 2**31) or absent, got {rs!r}")
     if grid.name in ("pirl-gmm", "pirl-dpgmm"):
         _check_mixture(label, grid.name, params)
     if grid.name == "pirl-knn":
@@ -464,10 +457,8 @@ def _check_mixture(label: str, name: str, params: dict) -> None:
             weight_concentration_prior=params.get("weight_concentration_prior"),
             covariance_type=params.get("covariance_type", "full"), n_init=params.get("n_init", 1),
             max_iter=params.get("max_iter", 100), random_state=params.get("random_state"))
-    try:
+    with _named(f"{label}: ", (TypeError, ValueError)):
         mixture._validate_params()
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{label}: {exc}") from None
     if "min_cluster_size" in params and not is_positive_int(params["min_cluster_size"]):
         raise ValueError(f"{label}: min_cluster_size must be a positive integer, got {params['min_cluster_size']!r}")
 
@@ -478,33 +469,25 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
     cells: list[Cell] = []
     for e_idx, exp in enumerate(experiments):
         elabel = f"experiment {e_idx + 1} ({exp.label})"
-        seen: set[str] = set()
+        own: dict[str, Cell] = {}  # the same point twice in one experiment runs once
         spec = scenario_spec(exp.scenario)
         for lgrid in exp.learners:
             _check_runs_here(elabel, exp.scenario, lgrid.name)
         base = None if exp.base_dir is None else Path(exp.base_dir)
         for values, varied in _points(exp.grid):
-            try:
+            with _named(f"{elabel}: "):
                 params = resolve_scenario_params(exp.scenario, {**exp.params, **values}, base)
-            except ValueError as exc:
-                raise ValueError(f"{elabel}: {exc}") from None
-            try:
+            with _named(f"{elabel}: scenario {exp.scenario!r} cannot read its data: ", (OSError, ValueError, KeyError)):
                 shape = spec.train_shape(params)
                 fingerprint = spec.fingerprint(params)
-            except (OSError, ValueError, KeyError) as exc:
-                raise ValueError(f"{elabel}: scenario {exp.scenario!r} cannot read its data: {exc}") from None
             slabel = exp.label + (f" ({', '.join(f'{n}={lab}' for n, lab in varied)})" if varied else "")
             longest = max(shape.lengths, default=0)
             for pgrid in exp.protocols:
                 for fields in pgrid.points():
-                    try:
+                    with _named(f"{elabel}: protocol {dict(fields)}: ", (TypeError, ValueError)):
                         proto = Protocol(**fields)
-                    except (TypeError, ValueError) as exc:
-                        raise ValueError(f"{elabel}: protocol {dict(fields)}: {exc}") from None
-                    try:
+                    with _named(f"{elabel}: scenario {exp.scenario!r} ", (TypeError, ValueError)):
                         (spec.check_protocol or (lambda *_: None))(params, dict(fields))
-                    except (TypeError, ValueError) as exc:
-                        raise ValueError(f"{elabel}: scenario {exp.scenario!r} {exc}") from None
                     if shape.lengths and proto.steps_needed() > longest:
                         raise ValueError(
                             f"{elabel}: the {proto.name} protocol needs trajectories of at least "
@@ -528,10 +511,8 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                                                _tuples(lparams), proto, shape)
                                 cell = Cell(exp.scenario, params, fingerprint, fields, lgrid.name, lparams, seed,
                                             exp.label, slabel, proto.name, llabel, k)
-                                ident = canonical_json(cell.spec())
-                                if ident not in seen:  # the same point twice in one experiment runs once
-                                    seen.add(ident)
-                                    cells.append(cell)
+                                own.setdefault(canonical_json(cell.spec()), cell)
+        cells += own.values()
     if not cells:  # pragma: no cover - every empty part is rejected above
         raise ValueError("empty grid: the sweep has no cell")
     return tuple(cells)
@@ -602,9 +583,7 @@ def parse_config(data: Mapping[str, Any], *, base_dir=None, source: str = "<dict
         grid, a bad value, or a k larger than the training set.
     """
     check_keys("sweep config", data, TOP_KEYS)
-    default_seeds = data.get("seeds")
-    if default_seeds is not None:
-        default_seeds = _seeds("seeds", default_seeds)
+    default_seeds = None if data.get("seeds") is None else _seeds("seeds", data["seeds"])
     exps = data.get("experiments", [])
     if not isinstance(exps, list):
         raise ValueError(f"experiments must be an array of tables ([[experiments]]), got {exps!r}")
@@ -629,7 +608,7 @@ def load_config(path) -> SweepConfig:
 
 
 def preset_text(name: str) -> str:
-    """The embedded sweep config ``pirl_sim/experiments/configs/<name>.toml`` (default, synthetic, passage, replay) as text."""
+    """The embedded sweep config ``pirl_sim/experiments/configs/<name>.toml`` (e.g. default, synthetic, passage) as text."""
     return resources.files("pirl_sim.experiments").joinpath("configs", f"{name}.toml").read_text(encoding="utf-8")
 
 

@@ -150,14 +150,10 @@ class DaskExecutor(_Executor):
             from dask.distributed import Client
         except ImportError:  # pragma: no cover - dask is an extra
             raise ValueError("--scheduler needs dask[distributed]: pip install 'pirl_sim[dask]'") from None
-        if isinstance(client_or_address, str):
-            if not _ADDRESS.match(client_or_address):
-                raise ValueError(f"scheduler address must look like tcp://HOST:PORT, got {client_or_address!r}")
-            self.client = Client(client_or_address, timeout="30s")
-            self._own = True
-        else:
-            self.client = client_or_address
-            self._own = False
+        self._own = isinstance(client_or_address, str)  # an address: a client of our own
+        if self._own and not _ADDRESS.match(client_or_address):
+            raise ValueError(f"scheduler address must look like tcp://HOST:PORT, got {client_or_address!r}")
+        self.client = Client(client_or_address, timeout="30s") if self._own else client_or_address
 
     @property
     def workers(self) -> int:

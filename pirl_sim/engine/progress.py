@@ -38,8 +38,7 @@ class Progress:
         if self._bar is not None:
             self._bar.close()
         stream = self.stream if self.tty else LineStream(self.stream)
-        if not self.tty:
-            stream.muted = True  # tqdm draws on creation: the first line has the counts below
+        stream.muted = not self.tty  # tqdm draws on creation: the first line (not a terminal) has the counts below
         self._bar = bar(self.total, "sweep", enabled=self.enabled, initial=self.done, unit="cell", stream=stream,
                         every=self.every)
         self._bar.smoothing = 0  # rate = computed cells / elapsed: cells from the store do not count for the ETA

@@ -163,7 +163,7 @@ def run_sweep(
 
     bar = None
     computed, failed, simulated = [], {}, []
-    startup_s = work_s = cpu_s = 0.0
+    startup_s = 0.0
     description = "nothing to run"
     if todo:
         ex = make_executor(workers, scheduler) if executor is None else executor
@@ -188,26 +188,18 @@ def run_sweep(
                 try:
                     results = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a failing cell must not stop the others
-                    for k in ks:
-                        fail(k, f"{type(exc).__name__}: {exc}")
-                    return
+                    results = [{"error": f"{type(exc).__name__}: {exc}"}] * len(ks)
                 for k, res in zip(ks, results):
                     if "error" in res:
                         fail(k, res["error"])
-                    else:
-                        cell_done(k, res)
-
-            def cell_done(k, res):
-                nonlocal work_s, cpu_s
-                record = {"key": k, "code_version": version, "cell": unique[k].spec(), "result": res["scores"],
-                          "timings": res["timings"], "recovery": res["recovery"], "weights": res.get("weights"),
-                          "warnings": res["warnings"], "worker": res["worker"], "finished_at": _now()}
-                store.write(record)
-                records[k] = record
-                computed.append(k)
-                work_s += res["timings"]["cell_s"]
-                cpu_s += res["timings"]["cpu_s"]
-                bar.update()
+                        continue
+                    record = {"key": k, "code_version": version, "cell": unique[k].spec(), "result": res["scores"],
+                              "timings": res["timings"], "recovery": res["recovery"], "weights": res.get("weights"),
+                              "warnings": res["warnings"], "worker": res["worker"], "finished_at": _now()}
+                    store.write(record)
+                    records[k] = record
+                    computed.append(k)
+                    bar.update()
 
             def fail(k, message):
                 failed[k] = message
@@ -234,18 +226,15 @@ def run_sweep(
                     simulated.append(k)
                 except Exception as exc:  # noqa: BLE001 - its cells fail, the others go on
                     sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
-            # then the cells that read the simulations
-            later = {}
+            # then the cells that read the simulations (those of a failed simulation fail)
             for ks in tasks:
-                if ks[0] in waiting:
-                    if waiting[ks[0]] in sim_errors:
-                        for k in ks:
-                            fail(k, sim_errors[waiting[k]])
-                    else:
-                        later[submit(ks)] = ("cells", ks)
+                if waiting.get(ks[0]) in sim_errors:
+                    for k in ks:
+                        fail(k, sim_errors[waiting[k]])
+            later = {submit(ks): ks for ks in tasks if ks[0] in waiting and waiting[ks[0]] not in sim_errors}
             futures.update(later)
             for fut in ex.as_completed(later):
-                cells_done(later[fut][1], fut)
+                cells_done(later[fut], fut)
         except BaseException:
             for f in futures:
                 f.cancel()
@@ -265,8 +254,9 @@ def run_sweep(
     if tables:
         _write_parquet(table, out / "table.parquet")
         atomic_write_text(out / "table.csv", table.to_csv(index=False))
-        _write_recovery(config, keys, records, out)
-        _write_weights(config, keys, records, out)
+        _write_or_remove(out / "recovery.parquet", _recovery_frame(config, keys, records))
+        _write_or_remove(out / "weights.csv", weights_table(config, keys, records))
+    work_s, cpu_s = (sum((records[k]["timings"][t] for k in computed), 0.0) for t in ("cell_s", "cpu_s"))
     return SweepRun(out, table, computed, cached, failed, version, description,
                     time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated, records, keys)
 
@@ -276,16 +266,11 @@ def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
     in ``n_neighbors`` form one task (`pirl_sim.engine.worker.run_cells`: one IRL fit for the whole k-grid, smallest
     k first), every other cell its own; a scenario with a ``task_group`` groups its cells itself (the
     ``recorded`` scenario: the methods of one split seed)."""
-    tasks, by_group = [], {}
+    by_group = {}
     for k in todo:
         group = (scenario_spec(unique[k].scenario).task_group or knn_group)(unique[k].spec())
-        if group is None:
-            tasks.append([k])
-        elif group in by_group:
-            by_group[group].append(k)
-        else:
-            by_group[group] = [k]
-            tasks.append(by_group[group])
+        by_group.setdefault(("cell", k) if group is None else ("group", group), []).append(k)
+    tasks = list(by_group.values())
     for ks in tasks:
         ks.sort(key=lambda k: unique[k].learner_params.get("n_neighbors", 0))
     return tasks
@@ -318,14 +303,9 @@ def plan_cells(config: SweepConfig, store: ResultStore):
     records = {k: rec for k in unique if k in present and (rec := store.load(k)) is not None}
     todo = [k for k in unique if k not in records]
 
-    def data_set(k):
-        c = unique[k]
-        return canonical_json([c.scenario, dict(c.scenario_params), c.seed])
-
-    first = {}
-    for k in todo:  # group the cells of one data set (worker caches), long learners first
-        first.setdefault(data_set(k), len(first))
-    todo.sort(key=lambda k: (first[data_set(k)],
+    data_set = {k: canonical_json([unique[k].scenario, dict(unique[k].scenario_params), unique[k].seed]) for k in todo}
+    first = {d: i for i, d in enumerate(dict.fromkeys(data_set.values()))}
+    todo.sort(key=lambda k: (first[data_set[k]],  # the cells of one data set together (worker caches), long ones first
                              -_COST.get(unique[k].learner, 1) * (2 if unique[k].protocol["kind"] == "rolling" else 1)))
     return version, keys, unique, records, todo
 
@@ -333,31 +313,30 @@ def plan_cells(config: SweepConfig, store: ResultStore):
 def cell_keys(config: SweepConfig, version: str) -> list[str]:
     """The key of every cell of ``config`` (in order) under the code version ``version``, or, for a scenario with
     code of its own (`pirl_sim.experiments.spec.ScenarioSpec.code`), under the version that includes it."""
-    versions = {}
-    for name in dict.fromkeys(c.scenario for c in config.cells):
-        extra = scenario_spec(name).code
-        versions[name] = code_version(extra) if extra else version
+    codes = {name: scenario_spec(name).code for name in {c.scenario for c in config.cells}}
+    versions = {name: code_version(extra) if extra else version for name, extra in codes.items()}
     return [c.key(versions[c.scenario]) for c in config.cells]
+
+
+def _finished(config: SweepConfig, keys: list[str], records: dict, part: str | None = None):
+    """(cell, key, record) of the cells of ``config`` whose record is in ``records``, in config order; with
+    ``part``, of those whose record has a non-empty ``part``."""
+    for cell, k in zip(config.cells, keys):
+        rec = records.get(k)
+        if rec is not None and (part is None or rec.get(part)):
+            yield cell, k, rec
 
 
 def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
     """One row per cell of ``config`` whose result is in ``records`` (key -> stored record), in config order."""
-    rows = []
-    for cell, k in zip(config.cells, keys):
-        rec = records.get(k)
-        if rec is None:
-            continue
-        p = cell.protocol
-        row = {"key": k, "experiment": cell.experiment, "scenario": cell.scenario,
-               "scenario_label": cell.scenario_label, "protocol": cell.protocol_label, "protocol_kind": p["kind"], "history_steps": p["history_steps"],
-               "horizon": p["horizon"], "learner": cell.learner, "learner_label": cell.learner_label, "k": cell.k,
-               "seed": cell.seed}
-        row.update({c: rec["result"].get(c) for c in SCORE_COLUMNS})
-        row.update({c: rec["timings"].get(c) for c in TIMING_COLUMNS})
-        row["scenario_params"] = canonical_json(rec["cell"]["scenario_params"])
-        row["learner_params"] = canonical_json(rec["cell"]["learner_params"])
-        row["code_version"] = rec["code_version"]
-        rows.append(row)
+    rows = [{"key": k, "experiment": cell.experiment, "scenario": cell.scenario, "scenario_label": cell.scenario_label,
+             "protocol": cell.protocol_label, "protocol_kind": cell.protocol["kind"],
+             "history_steps": cell.protocol["history_steps"], "horizon": cell.protocol["horizon"],
+             "learner": cell.learner, "learner_label": cell.learner_label, "k": cell.k, "seed": cell.seed,
+             **{c: rec["result"].get(c) for c in SCORE_COLUMNS}, **{c: rec["timings"].get(c) for c in TIMING_COLUMNS},
+             "scenario_params": canonical_json(rec["cell"]["scenario_params"]),
+             "learner_params": canonical_json(rec["cell"]["learner_params"]), "code_version": rec["code_version"]}
+            for cell, k, rec in _finished(config, keys, records)]
     table = pd.DataFrame(rows, columns=list(TABLE_COLUMNS))
     for c in _INT_COLUMNS:
         table[c] = pd.array(table[c].tolist(), dtype="Int64")
@@ -372,12 +351,20 @@ def _write_parquet(frame: pd.DataFrame, path: Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:
+def _write_or_remove(path: Path, frame: pd.DataFrame) -> None:
+    """``frame`` written to ``path`` (parquet or CSV by its suffix); without rows, ``path`` removed."""
+    if frame.empty:
+        path.unlink(missing_ok=True)
+    elif path.suffix == ".parquet":
+        _write_parquet(frame, path)
+    else:
+        atomic_write_text(path, frame.to_csv(index=False))
+
+
+def _recovery_frame(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
+    """True and inferred normalised weights of the cells' test histories (``recovery.parquet``)."""
     frames = []
-    for cell, k in zip(config.cells, keys):
-        rec = records.get(k)
-        if rec is None or not rec.get("recovery"):
-            continue
+    for cell, k, rec in _finished(config, keys, records, "recovery"):
         r = rec["recovery"]
         true, inferred = np.asarray(r["true"], dtype=float), np.asarray(r["inferred"], dtype=float)
         for j, name in enumerate(r["features"]):
@@ -387,37 +374,18 @@ def _write_recovery(config: SweepConfig, keys: list[str], records: dict, out: Pa
                 "feature": f"{name} / {r['reference']}", "point": np.arange(len(true)),
                 "true": true[:, j], "inferred": inferred[:, j],
             }))
-    path = out / "recovery.parquet"
-    if not frames:
-        path.unlink(missing_ok=True)
-        return
-    _write_parquet(pd.concat(frames, ignore_index=True), path)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
 def weights_table(config: SweepConfig, keys: list[str], records: dict) -> pd.DataFrame:
     """Weight recovery per cell, free feature and true style (`WEIGHT_COLUMNS`), from the stored records."""
-    rows = []
-    for cell, k in zip(config.cells, keys):
-        rec = records.get(k)
-        if rec is None or not rec.get("weights"):
-            continue
-        for w in rec["weights"]:
-            rows.append({"key": k, "experiment": cell.experiment, "scenario": cell.scenario,
-                         "scenario_label": cell.scenario_label, "protocol": cell.protocol_label,
-                         "learner_label": cell.learner_label, "seed": cell.seed, **w})
+    rows = [{"key": k, "experiment": cell.experiment, "scenario": cell.scenario, "scenario_label": cell.scenario_label,
+             "protocol": cell.protocol_label, "learner_label": cell.learner_label, "seed": cell.seed, **w}
+            for cell, k, rec in _finished(config, keys, records, "weights") for w in rec["weights"]]
     table = pd.DataFrame(rows, columns=list(WEIGHT_COLUMNS))
     for c in ("median_abs_log_err", "p90_abs_log_err", "spearman"):
         table[c] = pd.to_numeric(table[c], errors="coerce").astype(float)
     return table
-
-
-def _write_weights(config: SweepConfig, keys: list[str], records: dict, out: Path) -> None:
-    table = weights_table(config, keys, records)
-    path = out / "weights.csv"
-    if table.empty:
-        path.unlink(missing_ok=True)
-        return
-    atomic_write_text(path, table.to_csv(index=False))
 
 
 def read_table(results) -> pd.DataFrame:
@@ -426,11 +394,8 @@ def read_table(results) -> pd.DataFrame:
     if path.is_dir() and template_run(path):
         return _stored_table(path)
     if path.is_dir():
-        for name in ("table.parquet", "table.csv"):
-            if (path / name).exists():
-                path = path / name
-                break
-        else:
+        path = next((path / n for n in ("table.parquet", "table.csv") if (path / n).exists()), None)
+        if path is None:
             raise ValueError(f"{results}: no table.parquet or table.csv (run pirl-sim sweep first)")
     if not path.exists():
         raise ValueError(f"{results}: no such file or directory")
@@ -490,17 +455,12 @@ def _check_table(table: pd.DataFrame, path: Path) -> None:
     for c in _REQUIRED:
         empty = table[c].isna().to_numpy()
         if empty.any():
-            i = int(empty.argmax())
-            raise ValueError(f"{path}: {where(i)} has no {c} (a truncated or damaged table?); run pirl-sim sweep "
-                             "again to rewrite it")
-    for c in _TEXT_COLUMNS:
-        wrong = [not isinstance(v, str) for v in table[c]]
-        if any(wrong):
-            i = wrong.index(True)
-            raise ValueError(f"{path}: {where(i)}, column {c!r}: expected text, found {table[c].iloc[i]!r}")
-    for c in (*_INT_COLUMNS, *_FLOAT_SCORES, *TIMING_COLUMNS):
-        values = pd.to_numeric(table[c], errors="coerce")
-        wrong = (values.isna() & table[c].notna()).to_numpy()
-        if wrong.any():
-            i = int(wrong.argmax())
-            raise ValueError(f"{path}: {where(i)}, column {c!r}: expected a number, found {table[c].iloc[i]!r}")
+            raise ValueError(f"{path}: {where(int(empty.argmax()))} has no {c} (a truncated or damaged table?); run "
+                             "pirl-sim sweep again to rewrite it")
+    checks = [(c, "text", [not isinstance(v, str) for v in table[c]]) for c in _TEXT_COLUMNS]
+    checks += [(c, "a number", pd.to_numeric(table[c], errors="coerce").isna() & table[c].notna())
+               for c in (*_INT_COLUMNS, *_FLOAT_SCORES, *TIMING_COLUMNS)]
+    for c, what, wrong in checks:
+        if np.any(wrong):
+            i = int(np.argmax(wrong))
+            raise ValueError(f"{path}: {where(i)}, column {c!r}: expected {what}, found {table[c].iloc[i]!r}")

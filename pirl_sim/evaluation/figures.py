@@ -34,23 +34,17 @@ def png_bytes(fig) -> bytes:
 def nice_below(x: float) -> float:
     """The largest number of the form {1, 2, 5} x 10^n that is <= ``x`` (> 0)."""
     e = math.floor(math.log10(x))
-    for m in (5.0, 2.0, 1.0):
-        if m * 10.0**e <= x * (1 + 1e-12):
-            return m * 10.0**e
-    return 10.0**e  # pragma: no cover - m = 1 always fits
+    return max((m * 10.0**e for m in (1.0, 2.0, 5.0) if m * 10.0**e <= x * (1 + 1e-12)), default=10.0**e)
 
 
 def nice_above(x: float) -> float:
     """The smallest number of the form {1, 2, 5} x 10^n that is >= ``x`` (> 0)."""
     e = math.floor(math.log10(x))
-    for m in (1.0, 2.0, 5.0, 10.0):
-        if m * 10.0**e >= x * (1 - 1e-12):
-            return m * 10.0**e
-    return 10.0 ** (e + 1)  # pragma: no cover
+    return min((m * 10.0**e for m in (1.0, 2.0, 5.0, 10.0) if m * 10.0**e >= x * (1 - 1e-12)), default=10.0 ** (e + 1))
 
 
-def label_log_axis(ax, lo: float, hi: float, axis: str = "y") -> None:
-    """Log ``axis`` from a labelled tick at or below ``lo`` to one at or above ``hi`` (both > 0, data units).
+def label_log_axis(ax, lo: float, hi: float) -> None:
+    """Log y axis from a labelled tick at or below ``lo`` to one at or above ``hi`` (both > 0, data units).
 
     Spans of up to two decades get labelled ticks at 1, 2, 5 x 10^n written as plain numbers (matplotlib's
     default labels only some minor ticks there, and can leave the lowest data without a tick below it); wider
@@ -65,13 +59,12 @@ def label_log_axis(ax, lo: float, hi: float, axis: str = "y") -> None:
     top = nice_above(hi) if narrow else 10.0 ** math.ceil(math.log10(hi))
     if top <= bottom:
         top = nice_above(bottom * 1.01)
-    target = ax.yaxis if axis == "y" else ax.xaxis
-    (ax.set_yscale if axis == "y" else ax.set_xscale)("log")
-    (ax.set_ylim if axis == "y" else ax.set_xlim)(bottom, top)
+    ax.set_yscale("log")
+    ax.set_ylim(bottom, top)
     if narrow:
-        target.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-        target.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
-        target.set_minor_formatter(NullFormatter())
+        ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(NullFormatter())
 
 
 def legend_below(fig, handles, labels, *, ncol: int | None = None, fontsize: float = 7, top: float = 0.93):

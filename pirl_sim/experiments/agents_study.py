@@ -98,7 +98,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pirl_sim.evaluation.stats import ci95
+from pirl_sim.evaluation.tables import markdown
 from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.validation import int_at_least, number
 from pirl_sim.experiments.agents import ACTIONS, MODES, PPOEgo
 
 __all__ = ["AgentsConfig", "MODES", "ACTIONS", "BASELINE_POLICIES", "sweep_data", "ExperimentResult",
@@ -247,13 +250,9 @@ def check_training_fields(cfg, *, integers: dict, positive: tuple, flags: tuple)
     if overlap:
         raise ValueError(f"training seeds and evaluation seeds must differ; both have {overlap}")
     for name, low in integers.items():
-        v = getattr(cfg, name)
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-            raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+        int_at_least(name, getattr(cfg, name), low)
     for name in positive:
-        v = getattr(cfg, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        number(name, getattr(cfg, name), low=0, allow_equal=False)
     if isinstance(cfg.gamma, bool) or not isinstance(cfg.gamma, (int, float)) or not 0 < cfg.gamma <= 1:
         raise ValueError(f"gamma must be in (0, 1], got {cfg.gamma!r}")
     for name in flags:
@@ -322,15 +321,8 @@ def collect_records(cells, keys, records: dict, computed, wall_time_s: float = 0
 
 def _t_interval(x) -> tuple[float, float, float]:
     """(mean, low, high) of a Student-t 95 % interval; NaN bounds for fewer than two values."""
-    from scipy import stats
-
     x = np.asarray([v for v in x if np.isfinite(v)], dtype=float)
-    if not len(x):
-        return math.nan, math.nan, math.nan
-    m = float(x.mean())
-    if len(x) < 2:
-        return m, math.nan, math.nan
-    h = float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
+    m, h = (float(x.mean()), ci95(x)) if len(x) else (math.nan, math.nan)
     return m, m - h, m + h
 
 
@@ -347,12 +339,8 @@ def _wilson(k: int, n: int) -> tuple[float, float, float]:
 
 def episodes_table(records: Sequence[dict]) -> pd.DataFrame:
     """Every evaluation episode of every record, one row each."""
-    rows = []
-    for r in records:
-        label = r["policy"] if not r["policy"].startswith("ppo") else f"{r['policy']} ({r['mode']})"
-        for e in r["episodes"]:
-            rows.append({"policy": label, "mode": r["mode"], "train_seed": r["seed"], **e})
-    return pd.DataFrame(rows)
+    return pd.DataFrame([{"policy": f"{r['policy']} ({r['mode']})" if r["policy"].startswith("ppo") else r["policy"],
+                          "mode": r["mode"], "train_seed": r["seed"], **e} for r in records for e in r["episodes"]])
 
 
 def summary_table(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -362,29 +350,32 @@ def summary_table(episodes: pd.DataFrame) -> pd.DataFrame:
                  if not p.startswith("ppo")}
     for policy, g in episodes.groupby("policy", sort=False):
         ppo = policy.startswith("ppo")
-        by_seed = g.groupby("train_seed")
-        ret = _t_interval(by_seed["return"].mean()) if ppo else _t_interval(g["return"])
-        tte = _t_interval(by_seed["time_to_exit"].mean()) if ppo else _t_interval(g["time_to_exit"])
-        near = _t_interval(by_seed["near_miss_time"].mean()) if ppo else _t_interval(g["near_miss_time"])
-        n = len(g)
-        succ = _wilson(int(g["arrived"].sum()), n)
-        coll = _wilson(int(g["crashed"].sum()), n)
-        row = {"policy": policy, "train_seeds": g["train_seed"].nunique() if ppo else 0, "episodes": n,
-               "return": ret[0], "return_lo": ret[1], "return_hi": ret[2],
-               "success": succ[0], "success_lo": succ[1], "success_hi": succ[2],
-               "time_to_exit_s": tte[0], "time_to_exit_lo": tte[1], "time_to_exit_hi": tte[2],
-               "collision": coll[0], "collision_lo": coll[1], "collision_hi": coll[2],
-               "near_miss_s": near[0], "near_miss_lo": near[1], "near_miss_hi": near[2]}
+        row = {"policy": policy, "train_seeds": g["train_seed"].nunique() if ppo else 0, "episodes": len(g),
+               **_columns("return", _policy_interval(g, "return", ppo)),
+               **_columns("success", _wilson(int(g["arrived"].sum()), len(g))),
+               **_columns("time_to_exit", _policy_interval(g, "time_to_exit", ppo), "time_to_exit_s"),
+               **_columns("collision", _wilson(int(g["crashed"].sum()), len(g))),
+               **_columns("near_miss", _policy_interval(g, "near_miss_time", ppo), "near_miss_s")}
         if ppo:
             mine = g.groupby("eval_seed")[["return", "time_to_exit"]].mean()  # time: over arriving seeds
             for b, theirs in baselines.items():
                 theirs = theirs.reindex(mine.index)
-                d = _t_interval((mine["return"] - theirs["return"]).to_numpy())
-                t = _t_interval((mine["time_to_exit"] - theirs["time_to_exit"]).to_numpy())  # both arrived
-                row.update({f"vs_{b}": d[0], f"vs_{b}_lo": d[1], f"vs_{b}_hi": d[2],
-                            f"tte_vs_{b}": t[0], f"tte_vs_{b}_lo": t[1], f"tte_vs_{b}_hi": t[2]})
+                row.update(_columns(f"vs_{b}", _t_interval((mine["return"] - theirs["return"]).to_numpy())))
+                row.update(_columns(f"tte_vs_{b}", _t_interval(  # both arrived
+                    (mine["time_to_exit"] - theirs["time_to_exit"]).to_numpy())))
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _policy_interval(episodes: pd.DataFrame, column: str, ppo: bool) -> tuple[float, float, float]:
+    """`_t_interval` of a policy's ``column``: for PPO over the training seeds' means, for a baseline over its
+    episodes."""
+    return _t_interval(episodes.groupby("train_seed")[column].mean() if ppo else episodes[column])
+
+
+def _columns(prefix: str, interval: tuple, mean: str | None = None) -> dict:
+    """A (value, low, high) interval as the columns ``mean`` (default ``prefix``), ``prefix_lo``, ``prefix_hi``."""
+    return dict(zip((mean or prefix, f"{prefix}_lo", f"{prefix}_hi"), interval))
 
 
 #: columns of :func:`terms_table`: (name, episode column, sign, exit_reward weight) of each term of the return
@@ -418,14 +409,13 @@ def terms_table(episodes: pd.DataFrame, weights=None) -> pd.DataFrame:
 
 def terms_markdown(terms: pd.DataFrame) -> str:
     """:func:`terms_table` as a Markdown table ([s] per episode)."""
-    names = [name for name, *_ in _TERMS] + ["total", "return"]
-    lines = ["| policy | " + " | ".join(names) + " |", "|" + "---|" * (len(names) + 1)]
-    for _, r in terms.iterrows():
-        lines.append(f"| {r['policy']} | " + " | ".join(f"{r[n]:+.2f}" for n in names) + " |")
-    return "\n".join(lines) + "\n"
+    columns = ["policy", *(name for name, *_ in _TERMS), "total", "return"]
+    return markdown(terms[columns], lambda x: x if isinstance(x, str) else f"{x:+.2f}")
 
 
-def _fmt(x, lo=None, hi=None, digits=3) -> str:
+def _fmt(r, mean: str, prefix: str | None = None, digits: int = 3) -> str:
+    """``r[mean]`` and, in brackets, the interval ``r[prefix_lo]``, ``r[prefix_hi]`` (prefix default: mean)."""
+    x, lo, hi = (r.get(c) for c in (mean, f"{prefix or mean}_lo", f"{prefix or mean}_hi"))
     if x is None or not np.isfinite(x):
         return "–"
     s = f"{x:.{digits}g}"
@@ -440,25 +430,17 @@ def markdown_table(table: pd.DataFrame) -> str:
     vs = [c for c in table.columns if c.startswith("vs_") and not c.endswith(("_lo", "_hi"))]
     head += [f"Δreturn vs {c[3:]}" for c in vs] + [f"Δtime to exit vs {c[3:]} [s]" for c in vs]
     vs += [f"tte_{c}" for c in vs]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for _, r in table.iterrows():
-        cells = [r["policy"], _fmt(r["return"], r["return_lo"], r["return_hi"]),
-                 _fmt(r["success"], r["success_lo"], r["success_hi"], 2),
-                 _fmt(r["time_to_exit_s"], r["time_to_exit_lo"], r["time_to_exit_hi"]),
-                 _fmt(r["collision"], r["collision_lo"], r["collision_hi"], 2),
-                 _fmt(r["near_miss_s"], r["near_miss_lo"], r["near_miss_hi"], 2)]
-        cells += [_fmt(r.get(c), r.get(f"{c}_lo"), r.get(f"{c}_hi")) for c in vs]
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines) + "\n"
+    rows = [[r["policy"], _fmt(r, "return"), _fmt(r, "success", digits=2), _fmt(r, "time_to_exit_s", "time_to_exit"),
+             _fmt(r, "collision", digits=2), _fmt(r, "near_miss_s", "near_miss", 2), *(_fmt(r, c) for c in vs)]
+            for _, r in table.iterrows()]
+    return markdown(pd.DataFrame(rows, columns=head), str)
 
 
 def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
     """Training-episode returns against environment steps per mode (see the module docstring)."""
-    import matplotlib
+    from pirl_sim.evaluation.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     grid = np.linspace(0, steps, 41)[1:]
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -473,12 +455,8 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
                 continue
             # mean return of the episodes that ended in each bin of steps (carried forward over empty bins)
             idx = np.searchsorted(grid, c[:, 0])
-            vals, last = [], c[0, 1]
-            for b in range(len(grid)):
-                sel = c[idx == b, 1]
-                last = sel.mean() if len(sel) else last
-                vals.append(last)
-            curves.append(vals)
+            means = pd.Series([c[idx == b, 1].mean() if (idx == b).any() else np.nan for b in range(len(grid))])
+            curves.append(means.ffill().fillna(c[0, 1]).to_numpy())
         if not curves:
             continue
         curves = np.array(curves)

@@ -122,11 +122,9 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
     from pirl_sim.learners import TIRL
     from pirl_sim.receding import STEP_MASK
     from pirl_sim.recovery import RecoveryReport, fit_track_weights, run_demonstrations
-    from pirl_sim.validation import is_positive_int
 
     demos = run_demonstrations(run, min_steps)  # the tracks RecoveryReport.from_run fits
-    if not is_positive_int(stride):
-        raise ValueError(f"stride must be a positive integer, got {stride!r}")
+    RecedingRecovery(min_steps, stride)._check_common()  # the stride (min_steps: checked above)
     info = run.recording.info
     simulator = _RUN_SIMULATOR.get(info.get("simulator"))
     if simulator is None:
@@ -317,17 +315,6 @@ def _population(params: dict):
     return dataclasses.replace(pop, **changes) if changes else pop
 
 
-def _scenario_config(params: dict):
-    pop = _population(params)
-    if params["simulator"] == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig
-
-        return SumoScenarioConfig(population=pop)
-    from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig
-
-    return HighwayScenarioConfig(population=pop)
-
-
 def _check(params: dict) -> dict:
     """The population validated and written out in full, its own size and noise filled in: cells of the same
     run have the same parameters (a noise level equal to the population's own is the main run)."""
@@ -341,15 +328,15 @@ def _check(params: dict) -> dict:
 
 
 def _simulate(params: dict, seed: int, out_dir: Path) -> None:
-    config = _scenario_config(params)
+    pop = _population(params)
     if params["simulator"] == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import run_sumo_scenario
+        from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, run_sumo_scenario
 
-        run_sumo_scenario(config, seed, out_dir=out_dir)
+        run_sumo_scenario(SumoScenarioConfig(population=pop), seed, out_dir=out_dir)
     else:
-        from pirl_sim.scenarios.highway.scenario import run_highway_scenario
+        from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig, run_highway_scenario
 
-        run_highway_scenario(config, seed, out_dir=out_dir)
+        run_highway_scenario(HighwayScenarioConfig(population=pop), seed, out_dir=out_dir)
 
 
 def _paper_only(params: dict, protocol: dict) -> None:
@@ -449,64 +436,53 @@ class RecoveryResult:
         jobs with an explicit ``control_noise``); empty without them."""
         return self._rows(noise_study=True)
 
-    def _unique(self) -> list[RunRecovery]:
-        """Each report once (a noise level equal to the population's own shares the main job's report)."""
-        out, seen = [], set()
-        for r in self.reports:
-            if id(r) not in seen:
-                seen.add(id(r))
-                out.append(r)
+    def _unique(self) -> dict[int, tuple[RunRecovery, bool, float]]:
+        """Each report once, with its first job's ``simulated`` and ``sim_time_s`` (a noise level equal to the
+        population's own shares the main job's report)."""
+        out = {}
+        for r, s, t in zip(self.reports, self.simulated, self.sim_time_s):
+            out.setdefault(id(r), (r, s, t))
         return out
+
+    def _per_run(self, frame, first: tuple = ()) -> pd.DataFrame:
+        """``frame(report)`` of every report, concatenated, with simulator, control_noise, seed and ``first``
+        as the first columns."""
+        out = pd.concat([frame(r).assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
+                         for r, _, _ in self._unique().values()], ignore_index=True)
+        first = ["simulator", "control_noise", "seed", *first]
+        return out[first + [c for c in out.columns if c not in first]]
 
     def styles(self) -> pd.DataFrame:
         """Per-style TIRL rows of every job (simulator, control_noise, seed first)."""
-        return pd.concat([r.styles.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
-                          for r in self._unique()], ignore_index=True)[
-            ["simulator", "control_noise", "seed", *self.reports[0].styles.columns]]
+        return self._per_run(lambda r: r.styles)
 
     def tracks(self) -> pd.DataFrame:
         """Per-track rows of every job (simulator, control_noise, seed first)."""
-        return pd.concat([r.tracks.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
-                          for r in self._unique()], ignore_index=True)[
-            ["simulator", "control_noise", "seed", *self.reports[0].tracks.columns]]
+        return self._per_run(lambda r: r.tracks)
 
     def selection(self) -> pd.DataFrame:
         """Step-selection counts per rule and style of every job."""
-        frames = []
-        for r in self._unique():
-            s = r.selection.reset_index().rename(columns={"index": "style_name"})
-            frames.append(s.assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed))
-        out = pd.concat(frames, ignore_index=True)
-        first = ["simulator", "control_noise", "seed", "style_name"]
-        return out[first + [c for c in out.columns if c not in first]]
+        return self._per_run(lambda r: r.selection.reset_index().rename(columns={"index": "style_name"}),
+                             ("style_name",))
 
     def times(self) -> pd.DataFrame:
         """Wall times per job (not deterministic: kept apart from the other tables)."""
-        rows, seen = [], set()
-        for r, s, t in zip(self.reports, self.simulated, self.sim_time_s):
-            if id(r) in seen:  # a noise level that is the main run's
-                continue
-            seen.add(id(r))
-            rows.append({"simulator": r.simulator, "control_noise": r.control_noise, "seed": r.seed,
-                         "fitted_steps": int(r.tracks["fitted_steps"].sum()), "fit_time_s": r.fit_time_s,
-                         "tirl_time_s": r.tirl_time_s, "simulated": s, "sim_time_s": t})
-        return pd.DataFrame(rows)
+        return pd.DataFrame([{"simulator": r.simulator, "control_noise": r.control_noise, "seed": r.seed,
+                              "fitted_steps": int(r.tracks["fitted_steps"].sum()), "fit_time_s": r.fit_time_s,
+                              "tirl_time_s": r.tirl_time_s, "simulated": s, "sim_time_s": t}
+                             for r, s, t in self._unique().values()])
 
 
 def recovery_jobs(simulators, seeds, *, population: dict | None = None, n_vehicles: int | None = None,
                   control_noise=(), noise_seeds=None, min_steps: int = 10, stride: int = 1) -> list[RecoveryJob]:
     """The study's runs: every (simulator, seed) at the population's own noise and, for the noise study, every
     (simulator, noise level, noise seed); ValueError for an unknown simulator or no seed."""
-    from pirl_sim.validation import is_positive_int
-
     unknown = [s for s in simulators if s not in SIMULATORS]
     if unknown or not simulators:
         raise ValueError(f"simulators must be some of {SIMULATORS}, got {list(simulators)}")
     if not seeds:
         raise ValueError("at least one seed is needed")
-    for name, value in (("min_steps", min_steps), ("stride", stride)):
-        if not is_positive_int(value):
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    RecedingRecovery(min_steps, stride)._check_common()
     noise_seeds = list(seeds) if noise_seeds is None else list(noise_seeds)
     pop = dict(population or {})
     jobs = []
@@ -520,15 +496,12 @@ def recovery_jobs(simulators, seeds, *, population: dict | None = None, n_vehicl
 def recovery_result(jobs, records, *, simulated, sim_time_s, workers: int) -> RecoveryResult:
     """The study's result from each job's cell result (`to_record`), whether its run was simulated now and the
     simulation's wall time [s]; jobs of the same run share one report."""
-    cache: dict[int, RunRecovery] = {}
-    reports = []
-    for rec in records:
-        if id(rec) not in cache:
-            cache[id(rec)] = from_record(rec)
-        reports.append(cache[id(rec)])
+    runs = {id(rec): rec for rec in records}
+    reports = {run: from_record(rec) for run, rec in runs.items()}  # one per run, shared by its jobs
     first = jobs[0] if jobs else RecoveryJob("sumo", 0, None)
-    return RecoveryResult(tuple(jobs), tuple(reports), tuple(simulated), tuple(sim_time_s), first.stride,
-                          first.min_steps, workers, os.environ.get("OPENBLAS_NUM_THREADS", "default"))
+    return RecoveryResult(tuple(jobs), tuple(reports[id(rec)] for rec in records), tuple(simulated),
+                          tuple(sim_time_s), first.stride, first.min_steps, workers,
+                          os.environ.get("OPENBLAS_NUM_THREADS", "default"))
 
 
 # ---------------------------------------------------------------------------------------------- output
@@ -539,8 +512,7 @@ def _csv(df: pd.DataFrame) -> str:
 _SHORT = {"median_abs_log_err_speed_dev": "med sd", "median_abs_log_err_acc_sq": "med acc",
           "p90_abs_log_err_speed_dev": "p90 sd", "p90_abs_log_err_acc_sq": "p90 acc",
           "spearman_speed_dev": "rho sd", "spearman_acc_sq": "rho acc",
-          "tirl_max_abs_log_err_speed_dev": "TIRL sd", "tirl_max_abs_log_err_acc_sq": "TIRL acc",
-          "sigma_median": "sigma"}
+          "tirl_max_abs_log_err_speed_dev": "TIRL sd", "tirl_max_abs_log_err_acc_sq": "TIRL acc"}
 
 
 def compact_table(table: pd.DataFrame) -> pd.DataFrame:
@@ -551,8 +523,6 @@ def compact_table(table: pd.DataFrame) -> pd.DataFrame:
     out["tracks usable/PIRL"] = [f"{u}/{p}" for u, p in zip(table["usable_tracks"], table["pirl_tracks"])]
     out["steps"] = table["usable_steps"]
     for col, short in _SHORT.items():
-        if col == "sigma_median":
-            continue
         out[short] = table[col]
     out["conv"] = [f"{c}/{g}" for c, g in zip(table["converged"], table["groups"])]
     out["at bound"] = table["at_bound"]
@@ -585,20 +555,19 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
     out = Path(out)
     table = result.table()
     noise = result.noise_table()
+    styles, sel = result.styles(), result.selection()
     files = {
         "table.csv": _csv(table),
         "table.md": markdown(compact_table(table)),
-        "styles.csv": _csv(result.styles()),
+        "styles.csv": _csv(styles),
         "tracks.csv": _csv(result.tracks()),
-        "selection.csv": _csv(result.selection()),
+        "selection.csv": _csv(sel),
         "times.csv": result.times().to_csv(index=False, float_format="%.3f", lineterminator="\n"),
     }
     if len(noise):
         files["noise.csv"] = _csv(noise)
         files["noise.md"] = markdown(compact_table(noise))
-    sel = result.selection()
     sel_all = sel[sel["style_name"] == "all"].drop(columns=["style_name"])
-    styles = result.styles()
     noise_part = ""
     if len(noise):
         nt = noise[noise["seed"] == "pooled"] if (noise["seed"] == "pooled").any() else noise
@@ -637,7 +606,4 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
         "runs are kept under `simulations/` (not committed) so that a rerun does not simulate again.\n"
     )
     files["README.md"] = readme
-    written = {}
-    for name, text in files.items():
-        written[name] = atomic_write_text(out / name, text)
-    return written
+    return {name: atomic_write_text(out / name, text) for name, text in files.items()}

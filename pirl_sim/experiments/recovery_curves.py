@@ -44,10 +44,7 @@ def curves_table(table: pd.DataFrame) -> pd.DataFrame:
     Cells without a weight error (baselines) are left out; empty when no experiment is a curve."""
     cols = ["experiment", "axis", "x", "learner", "seed", "weight_error", "truth"]
     rows = []
-    for exp, g in table.groupby("experiment", sort=False):
-        g = g[g["weight_error"].notna()]
-        if g.empty:
-            continue
+    for exp, g in table[table["weight_error"].notna()].groupby("experiment", sort=False):
         sp = [json.loads(s) for s in g["scenario_params"]]
         lp = [json.loads(s) for s in g["learner_params"]]
         varied = []
@@ -77,11 +74,11 @@ def curves_summary(points: pd.DataFrame) -> pd.DataFrame:
         return pd.DataFrame(columns=["experiment", "axis", "learner", "x", "mean", "ci", "seeds", "truth"])
     out = points.groupby(["experiment", "axis", "learner", "x"], sort=False).agg(
         mean=("weight_error", "mean"), ci=("weight_error", ci95), seeds=("seed", "nunique"), truth=("truth", "first"))
-    out = out.reset_index()
-    order = {e: i for i, e in enumerate(dict.fromkeys(out["experiment"]))}
-    lorder = {lab: i for i, lab in enumerate(dict.fromkeys(out["learner"]))}
-    key = out["experiment"].map(order) * 10_000 + out["learner"].map(lorder)
-    return out.assign(_k=key).sort_values(["_k", "x"], kind="stable").drop(columns="_k").reset_index(drop=True)
+
+    def first_seen(column):  # experiments and learners in first-seen order, x ascending
+        return column if column.name == "x" else column.map({v: i for i, v in enumerate(dict.fromkeys(column))})
+
+    return out.reset_index().sort_values(["experiment", "learner", "x"], key=first_seen).reset_index(drop=True)
 
 
 def recovery_curves_figure(summary: pd.DataFrame):

@@ -103,13 +103,11 @@ def table_markdown(rows: list[dict]) -> str:
               "ordering (MED, high to low) | paper's TIRL > GMM > kNN | a_lat / v_max per seed | time [s] |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['roundabout']} | {', '.join(r['files'])} | {r['seeds']} | {r['n_windows']} | {r['best']} | "
-                     f"{_pm(r.get('best_minus_ca', np.nan), r.get('best_minus_ca_se', np.nan))} | "
-                     f"{_pm(r.get('ratio', np.nan), r.get('ratio_se', np.nan))} | "
-                     f"{_pm(r.get('ratio_path', np.nan), r.get('ratio_path_se', np.nan))} | "
-                     f"{_pm(r.get('floor_ratio', np.nan), r.get('floor_ratio_se', np.nan))} | "
-                     f"{_pm(r.get('direct_ratio', np.nan), r.get('direct_ratio_se', np.nan))} | {r['ordering']} | "
-                     f"{'yes' if r['paper_ordering_holds'] else 'no'} | {r.get('speed', '')} | {r['elapsed_s']:.0f} |")
+        ratios = (_pm(r.get(k, np.nan), r.get(f"{k}_se", np.nan))
+                  for k in ("best_minus_ca", "ratio", "ratio_path", "floor_ratio", "direct_ratio"))
+        cells = [r["roundabout"], ", ".join(r["files"]), r["seeds"], r["n_windows"], r["best"], *ratios, r["ordering"],
+                 "yes" if r["paper_ordering_holds"] else "no", r.get("speed", ""), f"{r['elapsed_s']:.0f}"]
+        lines.append("| " + " | ".join(map(str, cells)) + " |")
     conv_methods = [m for m in methods if any("converged" in r["methods"].get(m, {}) for r in rows)]
     lines += ["", "IRL groups converged / fitted per split seed:", "",
               *by_method(conv_methods, lambda v: v.get("converged", ""))]

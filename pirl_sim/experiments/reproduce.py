@@ -61,11 +61,11 @@ def write_reproduction(name: str, cells, tidy: pd.DataFrame, out_dir, *, progres
     scenario = generated_config(first.scenario, dict(first.scenario_params), first.seed)  # its dataclass
     history = next(c.protocol["history_steps"] for c in cells if c.protocol["kind"] != "paper")
     if name == "synthetic":
-        atomic_write_text(out / "README.md", _synthetic_summary(table, ktable, scenario, history))
-        return table
-    reporter(progress)("figures: feature clusters, S-T predictions, style switch")
-    switch = _passage_figures(cells, scenario, history, out)
-    atomic_write_text(out / "README.md", _passage_summary(table, switch, scenario))
+        readme = _synthetic_summary(table, ktable, scenario, history)
+    else:
+        reporter(progress)("figures: feature clusters, S-T predictions, style switch")
+        readme = _passage_summary(table, _passage_figures(cells, scenario, history, out), scenario)
+    atomic_write_text(out / "README.md", readme)
     return table
 
 
@@ -110,12 +110,11 @@ def _synthetic_summary(table, ktable, config, history_steps) -> str:
         markdown(table),
         "",
     ]
-    for proto in table["protocol"].unique():
-        ok = ordering_holds(table, proto)
-        lines.append(f"- {proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) {'holds' if ok else 'does NOT hold'}.")
+    lines += [f"- {proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) "
+              f"{'holds' if ordering_holds(table, proto) else 'does NOT hold'}."
+              for proto in table["protocol"].unique()]
     best = ktable.loc[ktable.groupby("protocol", sort=False)["med"].idxmin()]
-    for _, r in best.iterrows():
-        lines.append(f"- {r['protocol']}: best kNN k = {int(r['k'])} (MED {r['med']:.3g} m).")
+    lines += [f"- {r['protocol']}: best kNN k = {int(r['k'])} (MED {r['med']:.3g} m)." for _, r in best.iterrows()]
     lines += [
         "",
         "`weight_error`: median over test trajectories of |log(inferred / true)| of the normalised weight q/r.",
@@ -159,12 +158,12 @@ def _passage_figures(cells, scenario, history_steps: int, out) -> dict:
              for c in cells if c.protocol["kind"] == "online"}
     atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(t_axis, np.stack([t.states[:, 0] for t in shown]),
                                                                 preds, history_steps))
-    switch_png, switch_summary = _style_switch(data, scenario, history_steps, simulate_receding_horizon)
+    switch_png, switch_summary = _style_switch(data, scenario, history_steps)
     atomic_write_bytes(out / "switch.png", switch_png)
     return switch_summary
 
 
-def _style_switch(data, config, history_steps, simulate):
+def _style_switch(data, config, history_steps):
     """Drivers who switch from 'minimises acceleration' to 'tracks desired speed'; kNN follows online."""
     from pirl_sim.learners import PIRLKNN
 
@@ -177,7 +176,7 @@ def _style_switch(data, config, history_steps, simulate):
     n_drivers, switch, n_steps = 8, 20, 45
     rng = np.random.default_rng(config.seed + 1)
     x0 = np.column_stack([np.zeros(n_drivers), rng.uniform(10, 12, n_drivers), np.zeros(n_drivers)])
-    trajs = simulate(
+    trajs = simulate_receding_horizon(
         model, x0, lambda k: np.tile(before if k < switch else after, (n_drivers, 1)), n_steps, 25,
         rng=rng, control_noise=0.3,
     )

@@ -50,10 +50,8 @@ def summary_table(table: pd.DataFrame) -> pd.DataFrame:
     """Mean (and std, 95 % interval half-widths ``*_ci``) over seeds per experiment, scenario variant, protocol
     and learner variant, table order."""
     keys = ["experiment", "scenario_label", "protocol", "learner_label"]
-    t = table.copy()
-    t["learner_base"] = [_without(x, "k") for x in t["learner_label"]]  # 'PIRL-kNN (k=10)' -> 'PIRL-kNN'
-    for c in ("n_styles", "k"):
-        t[c] = t[c].astype(float)
+    t = table.assign(learner_base=[_without(x, "k") for x in table["learner_label"]],  # 'PIRL-kNN (k=10)': 'PIRL-kNN'
+                     n_styles=table["n_styles"].astype(float), k=table["k"].astype(float))
     agg = t.groupby(keys, sort=False).agg(
         learner=("learner", "first"), learner_base=("learner_base", "first"), k=("k", "first"),
         med=("med", "mean"), med_sd=("med", "std"), fde=("fde", "mean"), weight_error=("weight_error", "mean"),
@@ -134,29 +132,25 @@ def med_vs_k_figure(summary: pd.DataFrame):
     fig, axes = panel_grid(len(panels))
     for ax, (scen, base) in zip(axes, panels):
         values = []
-        learner = None
-        groups = []
-        for proto in [p for sc, lb, p in multi.index if (sc, lb) == (scen, base)]:
-            g = s[(s["scenario_label"] == scen) & (s["learner_base"] == base) & (s["protocol"] == proto)]
-            groups.append((proto, g.sort_values("k")))
+        panel = s[(s["scenario_label"] == scen) & (s["learner_base"] == base)]
+        groups = [(proto, panel[panel["protocol"] == proto].sort_values("k"))
+                  for sc, lb, proto in multi.index if (sc, lb) == (scen, base)]
         # a log axis cannot show mean - std <= 0: such bars end at the panel's lowest positive value
         floor = min((v for _, g in groups for v in (*g["med"], *(g["med"] - g["med_sd"].fillna(0.0)))
                      if v == v and v > 0), default=None)
         for proto, g in groups:
-            learner = g["learner"].iloc[0]
             several = g["seeds"].max() > 1
             yerr = log_yerr(g["med"].to_numpy(), g["med_sd"].fillna(0.0).to_numpy(), floor) if several else None
             ax.errorbar(g["k"], g["med"], yerr=yerr, marker="o", ms=4, capsize=3, color=colors[proto], label=proto)
-            low = g["med"] - (g["med_sd"].fillna(0.0) if several else 0.0)
-            values += [v for v in (*g["med"], *(g["med"] + (g["med_sd"].fillna(0.0) if several else 0.0)),
-                                   *low) if v == v and v > 0]
+            sd = g["med_sd"].fillna(0.0) if several else 0.0
+            values += [v for v in (*g["med"], *(g["med"] + sd), *(g["med"] - sd)) if v == v and v > 0]
         ax.set_xscale("log")
-        ks = sorted(set(s[(s["scenario_label"] == scen) & (s["learner_base"] == base)]["k"]))
+        ks = sorted(set(panel["k"]))
         if len(ks) <= 6:  # few k: a labelled tick at each (matplotlib would write 2x10^0 ...)
             value_ticks(ax, ks)
         if values:
             label_log_axis(ax, min(values), max(values))
-        what = K_MEANING.get(learner)
+        what = K_MEANING.get(groups[-1][1]["learner"].iloc[0])
         ax.set_xlabel(f"k ({what} of {base})" if what else f"k ({base})")
         ax.set_ylabel("MED [m]")
         ax.set_title(f"{scen}: {base}", fontsize=9)
@@ -301,10 +295,8 @@ def _fmt(x) -> str:
 def _orderings(best: pd.DataFrame) -> list[str]:
     lines = []
     for (scen, proto), g in best.groupby(["scenario_label", "protocol"], sort=False):
-        med, lab = {}, {}
-        for learner, m, label in zip(g["learner"], g["med"], g["learner_label"]):  # a learner's first variant
-            med.setdefault(learner, m)
-            lab.setdefault(learner, label)
+        first = g.drop_duplicates("learner").set_index("learner")  # a learner's first variant
+        med, lab = first["med"], first["learner_label"]
         if all(k in med for k in ("tirl", "pirl-gmm", "pirl-knn")):
             ok = med["tirl"] > med["pirl-gmm"] > med["pirl-knn"]
             lines.append(f"- {scen}, {proto}: MED(TIRL) > MED({lab['pirl-gmm']}) > MED({lab['pirl-knn']}) "
