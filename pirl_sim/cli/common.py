@@ -75,6 +75,41 @@ _OPTION_HELP = (f"BLAS/OpenMP threads of this process (default {DEFAULT_THREADS}
                 "the machine is loaded; use processes (--workers) for parallelism")
 
 
+def run_study(name: str, make_config, args, command: str, ignore: str = "cells/\nerrors/\nsweep.json\n"):
+    """The cells of an experiment command through the engine into ``args.out``: its config from
+    ``make_config()`` (errors there and a bad ``--out`` are the command's exit 2, before anything is written), ``--dry-run`` counts printed,
+    else `pirl_sim.engine.run.run_sweep` with ``--workers`` and ``--quiet``; ``ignore`` is written to
+    ``OUT/.gitignore`` (what the store keeps beside the report).
+
+    Returns
+    -------
+    (result, config, status)
+        The finished `SweepRun` and its config with status None; or None, None and the command's exit status (0
+        after a dry run, 1 when cells failed (the others are kept), 2 for a bad value, 130 when interrupted).
+    """
+    from pirl_sim.engine.run import plan_cells, run_sweep
+    from pirl_sim.engine.store import ResultStore
+    from pirl_sim.io.atomic import atomic_write_text
+    from pirl_sim.validation import check_output_dir
+
+    try:
+        config = make_config()
+        out = check_output_dir(args.out)
+        if args.dry_run:
+            _, _, unique, _, todo = plan_cells(config, ResultStore(out))
+            print(f"{name}: {len(unique)} cells, {len(unique) - len(todo)} already in {out}/, {len(todo)} to run")
+            return None, None, 0
+        result = run_sweep(config, out, workers=args.workers, progress=not args.quiet, command=command, tables=False)
+    except (ValueError, FileNotFoundError) as exc:
+        return None, None, error(exc)
+    except KeyboardInterrupt:
+        return None, None, interrupted(args.out)
+    if result.failed:
+        return None, None, error(next(iter(result.failed.values())), status=1)
+    atomic_write_text(out / ".gitignore", ignore)
+    return result, config, None
+
+
 def add_blas_threads_option(parser: argparse.ArgumentParser) -> None:
     """Add ``--blas-threads`` to ``parser`` and, recursively, to each of its subcommands' parsers (so it may
     come before or after a command's name). Absent from the namespace unless given."""

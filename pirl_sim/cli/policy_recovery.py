@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
 
-from .common import command_line, error, interrupted, workers_arg
+from .common import command_line, run_study, workers_arg
 
 __all__ = ["add_parser", "run", "DEFAULT_OUT", "DEFAULTS"]
 
@@ -55,38 +55,26 @@ def run(args) -> int:
     import time
 
     from pirl_sim.engine.config import parse_config
-    from pirl_sim.engine.run import plan_cells, run_sweep
-    from pirl_sim.engine.store import ResultStore
     from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, collect_records, write_results
-    from pirl_sim.io.atomic import atomic_write_text
-    from pirl_sim.validation import check_output_dir
 
     t0 = time.perf_counter()
     command = command_line("policy-recovery", [])
-    try:
-        cfg = PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=args.seeds,
-                                steps=args.steps, eval_seeds=args.eval_seeds, n_steps=args.n_steps,
-                                batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
-                                n_vehicles=args.n_vehicles, initial_vehicles=args.initial_vehicles,
-                                duration=args.duration, normalize_reward=not args.no_normalize_reward)
-        config = parse_config(cfg.sweep_data(), source="pirl-sim policy-recovery")
-        if args.dry_run:
-            _, _, unique, _, todo = plan_cells(config, ResultStore(args.out))
-            print(f"policy-recovery: {len(unique)} cells, {len(unique) - len(todo)} already in {args.out}/, "
-                  f"{len(todo)} to run")
-            return 0
-        result = run_sweep(config, check_output_dir(args.out), workers=args.workers, progress=not args.quiet, command=command,
-                           tables=False)
-    except ValueError as exc:
-        return error(exc)
-    except KeyboardInterrupt:
-        return interrupted(args.out)
-    if result.failed:
-        return error(next(iter(result.failed.values())), status=1)
-    atomic_write_text(args.out / ".gitignore", "cells/\nerrors/\nsweep.json\n")
+    cfg = []
+
+    def config():
+        cfg[:] = [PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=args.seeds,
+                                    steps=args.steps, eval_seeds=args.eval_seeds, n_steps=args.n_steps,
+                                    batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
+                                    n_vehicles=args.n_vehicles, initial_vehicles=args.initial_vehicles,
+                                    duration=args.duration, normalize_reward=not args.no_normalize_reward)]
+        return parse_config(cfg[0].sweep_data(), source="pirl-sim policy-recovery")
+
+    result, _, status = run_study("policy-recovery", config, args, command)
+    if status is not None:
+        return status
     study = collect_records([result.records[k]["result"] for k in result.keys])
     wall = time.perf_counter() - t0
-    write_results(study, cfg, args.out, command, wall)
+    write_results(study, cfg[0], args.out, command, wall)
     print(study["reports"]["ppo"].to_markdown())
     print(f"wrote {args.out}/ in {wall:.0f} s")
     return 0

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pirl_sim.validation import list_arg, positive_int_arg, seed_arg
 
-from .common import error, interrupted, workers_arg
+from .common import run_study, workers_arg
 
 __all__ = ["add_parser", "run", "DEFAULT_OUT", "SIMULATORS"]
 
@@ -53,36 +53,26 @@ def run(args) -> int:
     """``pirl-sim recover``: 0 on success, 1 when runs failed (the others are kept), 2 for a bad configuration,
     130 when interrupted (finished runs are kept)."""
     from pirl_sim.engine.config import parse_config
-    from pirl_sim.engine.run import plan_cells, run_sweep
     from pirl_sim.engine.store import ResultStore, SIMULATION_RECORD, simulation_key
     from pirl_sim.experiments.recovery import (SPEC, check_targets, compact_table, recovery_jobs, recovery_result,
                                                write_recovery)
     from pirl_sim.io import toml_text
-    from pirl_sim.io.atomic import atomic_write_text
 
     sims = list(SIMULATORS) if args.simulator == "both" else [args.simulator]
     command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
-    try:
+    jobs = []
+
+    def config():
         population = {} if args.population is None else toml_text.load(args.population, "population config")[0]
-        jobs = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
-                             control_noise=args.control_noise, noise_seeds=args.noise_seeds,
-                             min_steps=args.min_steps, stride=args.stride)
-        config = parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
-                              source=str(args.population or "pirl-sim recover"))
-        if args.dry_run:
-            _, keys, unique, _, todo = plan_cells(config, ResultStore(args.out))
-            print(f"recovery: {len(jobs)} runs ({len(unique)} distinct), {len(unique) - len(todo)} already in "
-                  f"{args.out}/, {len(todo)} to run")
-            return 0
-        result = run_sweep(config, args.out, workers=args.workers, progress=not args.quiet, command=command,
-                           tables=False)
-    except (ValueError, FileNotFoundError) as exc:
-        return error(exc)
-    except KeyboardInterrupt:
-        return interrupted(args.out)
-    if result.failed:
-        return error(next(iter(result.failed.values())), status=1)
-    atomic_write_text(args.out / ".gitignore", "simulations/\ncells/\nerrors/\n")
+        jobs[:] = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
+                                control_noise=args.control_noise, noise_seeds=args.noise_seeds,
+                                min_steps=args.min_steps, stride=args.stride)
+        return parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
+                            source=str(args.population or "pirl-sim recover"))
+
+    result, config, status = run_study("recovery", config, args, command, "simulations/\ncells/\nerrors/\n")
+    if status is not None:
+        return status
     store, simulated, sim_time = ResultStore(args.out), [], []
     for cell in config.cells:
         sk = simulation_key("recovery", SPEC.simulation(dict(cell.scenario_params)), cell.seed, result.code_version)

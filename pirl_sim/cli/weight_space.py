@@ -7,7 +7,7 @@ from pathlib import Path
 
 from pirl_sim.validation import seed_arg
 
-from .common import error, interrupted, workers_arg
+from .common import run_study, workers_arg
 
 __all__ = ["add_parser", "run", "EXPERIMENTS"]
 
@@ -37,32 +37,23 @@ def run(args) -> int:
     """``pirl-sim weight-space``: 0 on success, 1 when cells failed (the others are kept), 2 for a bad value or an
     unusable output directory, 130 when interrupted (finished cells are kept)."""
     from pirl_sim.engine.config import parse_config
-    from pirl_sim.engine.run import plan_cells, run_sweep
-    from pirl_sim.engine.store import ResultStore
     from pirl_sim.evaluation.tables import markdown
     from pirl_sim.experiments.weight_space import study_config, write_study
-    from pirl_sim.io.atomic import atomic_write_text
-    from pirl_sim.validation import check_output_dir
 
     experiments = list(dict.fromkeys(args.experiments))
     command = " ".join(["pirl-sim weight-space", *(["--seeds", *map(str, args.seeds)] if args.seeds != [0] else []),
                         *(["--experiments", *experiments] if experiments != list(EXPERIMENTS) else [])])
-    try:
-        out = check_output_dir(args.out)
-        data, names = study_config(experiments, args.seeds)
-        config = parse_config(data, source="pirl-sim weight-space")
-        if args.dry_run:
-            _, _, unique, _, todo = plan_cells(config, ResultStore(out))
-            print(f"weight-space: {len(unique)} cells, {len(unique) - len(todo)} already in {out}/, {len(todo)} to run")
-            return 0
-        result = run_sweep(config, out, workers=args.workers, progress=not args.quiet, command=command, tables=False)
-    except ValueError as exc:
-        return error(exc)
-    except KeyboardInterrupt:
-        return interrupted(args.out)
-    if result.failed:
-        return error(next(iter(result.failed.values())), status=1)
-    atomic_write_text(out / ".gitignore", "cells/\nerrors/\nsweep.json\n")
+    names = []
+
+    def config():
+        data, table_names = study_config(experiments, args.seeds)
+        names[:] = table_names
+        return parse_config(data, source="pirl-sim weight-space")
+
+    result, _, status = run_study("weight-space", config, args, command)
+    if status is not None:
+        return status
+    out = args.out
     table = write_study([result.records[k]["result"] for k in result.keys], names, out, command)  # in any --out
     print(markdown(table))
     print(f"wrote {out}/")
