@@ -40,10 +40,21 @@ def _group_members(pgid: int) -> list[int]:
             members.append(int(entry))
     return members
 
+def _watching(pid: int) -> bool:
+    """Whether process ``pid`` runs a second thread: a spawn worker's parent watch has started (its BLAS runs one
+    thread, the resource tracker has no other thread)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return any(line.startswith("Threads:") and int(line.split()[1]) >= 2 for line in f)
+    except OSError:
+        return False
+
+
 @pytest.mark.skipif(not os.path.isdir("/proc") or not hasattr(os, "killpg"), reason="needs Linux /proc")
 @pytest.mark.parametrize("busy", [False, True], ids=["idle-workers", "busy-workers"])
 def test_sigkill_of_sweep_main_process_leaves_no_worker(tmp_path, busy):
-    """Killing only the main process (not its group) ends its spawn workers and the resource tracker too."""
+    """Killing only the main process (not its group) ends its spawn workers and the resource tracker too, within
+    seconds once the workers have started (their parent watch running), however loaded the machine."""
     cfg = tmp_path / "orphans.toml"
     cfg.write_text(_ORPHAN_CONFIG)
     out = tmp_path / "out"
@@ -57,7 +68,8 @@ def test_sigkill_of_sweep_main_process_leaves_no_worker(tmp_path, busy):
         while time.monotonic() < deadline and proc.poll() is None:
             children = [p for p in _group_members(proc.pid) if p != proc.pid]
             started = (out / "cells").is_dir() and any((out / "cells").glob("*.json"))
-            if len(children) >= 3 and (started or not busy):  # two workers and the resource tracker
+            watching = sum(_watching(p) for p in children)
+            if len(children) >= 3 and watching >= 2 and (started or not busy):  # two workers and the tracker
                 break
             time.sleep(0.05)
         assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read().decode()}"
@@ -65,7 +77,7 @@ def test_sigkill_of_sweep_main_process_leaves_no_worker(tmp_path, busy):
         assert len(children) >= 3, children
         os.kill(proc.pid, signal.SIGKILL)  # the main process only
         proc.wait(timeout=30)
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 30.0  # a poll every PARENT_POLL_SECONDS, then os._exit; slack for load
         while time.monotonic() < deadline and _group_members(proc.pid):
             time.sleep(0.05)
         survivors = _group_members(proc.pid)
