@@ -1,54 +1,11 @@
-"""``pirl-sim policy-recovery`` runs through the engine: killed mid-run it resumes to the same files, ``--dry-run``
-counts the cells still to run, and bad options are clear errors (the study: tests/experiments/)."""
+"""``pirl-sim policy-recovery``: bad options are clear errors (killed mid-run it resumes: tests/cli/test_resume.py;
+the study: tests/experiments/)."""
 
 from __future__ import annotations
-
-import os
-import signal
-import subprocess
-import sys
-import time
 
 import pytest
 
 from pirl_sim.cli import main
-
-ARGS = ["policy-recovery", "--steps", "64", "--n-steps", "64", "--seeds", "0,1", "--eval-seeds", "1000",
-        "--n-vehicles", "1", "--initial-vehicles", "0", "--duration", "4", "--quiet"]
-FILES = ("episodes.csv", "summary.csv", "summary.md", "tracks.csv")  # README.md holds wall times
-
-
-@pytest.mark.slow
-def test_a_killed_policy_recovery_resumes_to_the_same_files(tmp_path, capsys):
-    pytest.importorskip("highway_env")
-    pytest.importorskip("stable_baselines3")
-    killed = tmp_path / "killed"
-    assert main([*ARGS, "--dry-run", "--out", str(killed)]) == 0
-    assert capsys.readouterr().out.rstrip().endswith(f"3 cells, 0 already in {killed}/, 3 to run")
-    proc = subprocess.Popen([sys.executable, "-m", "pirl_sim", *ARGS, "--workers", "0", "--out", str(killed)],
-                            env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    cells = killed / "cells"
-    deadline = time.monotonic() + 300
-    while proc.poll() is None and time.monotonic() < deadline and not list(cells.glob("*.json")):
-        time.sleep(0.01)
-    proc.send_signal(signal.SIGKILL)
-    assert proc.wait() == -signal.SIGKILL
-    kept = {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json")}
-    assert len(kept) == 1 and not (killed / "summary.csv").exists()  # one of three cells finished, no report yet
-
-    assert main([*ARGS, "--dry-run", "--out", str(killed)]) == 0
-    assert capsys.readouterr().out.rstrip().endswith(f"1 already in {killed}/, 2 to run")
-    assert main([*ARGS, "--workers", "0", "--out", str(killed)]) == 0
-    assert {p.name: p.stat().st_mtime_ns for p in cells.glob("*.json") if p.name in kept} == kept  # not redone
-    fresh = tmp_path / "fresh"
-    assert main([*ARGS, "--workers", "0", "--out", str(fresh)]) == 0
-    assert f"wrote {fresh}/" in capsys.readouterr().out
-    for name in FILES:
-        assert (killed / name).read_bytes() == (fresh / name).read_bytes(), name
-    assert "Made by `pirl-sim policy-recovery" in (fresh / "README.md").read_text()
-    assert main([*ARGS, "--dry-run", "--out", str(fresh)]) == 0
-    assert capsys.readouterr().out.rstrip().endswith("0 to run")
 
 
 @pytest.mark.parametrize("option, value, message", [
