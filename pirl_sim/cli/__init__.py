@@ -92,7 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run ``pirl-sim`` with ``argv`` (default: the process's arguments); returns the exit status."""
+    """Run ``pirl-sim`` with ``argv`` (default: the process's arguments); returns the exit status: a command's
+    own, 130 for Ctrl-C and 2 for a file system error (an unwritable or full output, a directory where a file is
+    expected) that the command did not handle, each said in one line without a traceback."""
     args = build_parser().parse_args(argv)
     option = getattr(args, "blas_threads", None)
     try:
@@ -100,5 +102,12 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"pirl-sim: error: {exc}", file=sys.stderr)
         return 2
-    with thread_policy(option), cli_logging(getattr(args, "verbose", False)):  # both restored on return
-        return COMMANDS[args.command].run(args)
+    try:
+        with thread_policy(option), cli_logging(getattr(args, "verbose", False)):  # both restored on return
+            return COMMANDS[args.command].run(args)
+    except KeyboardInterrupt:
+        print(f"\npirl-sim {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except OSError as exc:
+        print(f"pirl-sim: error: {exc}", file=sys.stderr)
+        return 2

@@ -77,9 +77,9 @@ _OPTION_HELP = (f"BLAS/OpenMP threads of this process (default {DEFAULT_THREADS}
 
 def run_study(name: str, make_config, args, command: str, ignore: str = "cells/\nerrors/\nsweep.json\n"):
     """The cells of an experiment command through the engine into ``args.out``: its config from
-    ``make_config()`` (errors there and a bad ``--out`` are the command's exit 2, before anything is written), ``--dry-run`` counts printed,
-    else `pirl_sim.engine.run.run_sweep` with ``--workers`` and ``--quiet``; ``ignore`` is written to
-    ``OUT/.gitignore`` (what the store keeps beside the report).
+    ``make_config()`` (errors there and a bad ``--out`` are the command's exit 2, before anything is written),
+    ``--dry-run`` counts printed, else `pirl_sim.engine.run.run_sweep` with ``--workers`` and ``--quiet``;
+    ``ignore`` is written to ``OUT/.gitignore`` (what the store keeps beside the report).
 
     Returns
     -------

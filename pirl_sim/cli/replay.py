@@ -236,8 +236,23 @@ class ReplayOptions:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ReplayOptions:
-        """The options of a namespace parsed by a parser of `add_arguments` (other attributes ignored)."""
-        return cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(cls)})
+        """The options of a namespace parsed by a parser of `add_arguments` (other attributes ignored).
+
+        Raises
+        ------
+        ValueError
+            Options that contradict each other on the command line: ``--table`` with ``--tracks`` or ``--map``,
+            ``--roundabouts`` without ``--table``, or an ``--out`` that is an existing file.
+        """
+        options = cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(cls)})
+        if options.table is not None and (options.tracks is not None or options.map is not None):
+            raise ValueError("--table ROOT replaces --tracks and --map (it reads ROOT/recorded_trackfiles/NAME and "
+                             "ROOT/maps/NAME.osm): give one or the other")
+        if options.table is None and options.roundabouts != DEV_ROUNDABOUTS:
+            raise ValueError("--roundabouts names the roundabouts of --table ROOT: without --table it does nothing")
+        if options.out.exists() and not options.out.is_dir():
+            raise ValueError(f"--out {str(options.out)!r} is a file, not a directory: results would overwrite it")
+        return options
 
     def resolve(self) -> ReplaySettings:
         """These options with the defaults that depend on the data (module doc) filled in from ``tracks``.

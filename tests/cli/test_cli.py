@@ -182,3 +182,20 @@ def test_verbose_flag_shows_info_messages(capsys):
         log.info("loud detail")
     err = capsys.readouterr().err
     assert "quiet detail" not in err and "a warning" in err and "loud detail" in err
+
+
+@pytest.mark.parametrize("fault, status, message", [
+    (KeyboardInterrupt(), 130, "pirl-sim simulate: interrupted"),
+    (OSError(28, "No space left on device", "/tmp/full/run/tracks.csv"), 2,
+     "pirl-sim: error: [Errno 28] No space left on device: '/tmp/full/run/tracks.csv'"),
+])
+def test_ctrl_c_and_file_system_errors_end_a_command_in_one_line(monkeypatch, capsys, fault, status, message):
+    from pirl_sim import cli
+
+    def run(args):
+        raise fault
+
+    monkeypatch.setattr(cli.COMMANDS["simulate"], "run", run)
+    assert cli.main(["simulate", "sumo", "--out", "x"]) == status
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err

@@ -413,3 +413,18 @@ def test_resolved_defaults_of_a_pirl_sim_recording_and_of_real_data(tmp_path):
     with pytest.raises(ValueError, match="--selection steps needs driver_steps.csv"):
         ReplayOptions(tracks=_recording(tmp_path / "no_steps", steps=False), map=real, likelihood="receding",
                       selection="steps").resolve()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--tracks", "t.csv", "--map", "m.osm", "--roundabouts", "X"], "--roundabouts names the roundabouts of --table"),
+    (["--table", ".", "--tracks", "t.csv"], "--table ROOT replaces --tracks and --map"),
+    (["--table", ".", "--map", "m.osm"], "--table ROOT replaces --tracks and --map"),
+    (["--tracks", "t.csv", "--map", "m.osm", "--out", "t.csv"], "is a file, not a directory"),
+])
+def test_replay_refuses_options_that_contradict_each_other(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "t.csv").write_text("track_id\n")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["replay", *argv, "--dry-run"]) == 2
+    assert message in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before and (tmp_path / "t.csv").read_text() == "track_id\n"
