@@ -55,6 +55,16 @@ def rebind_model(learner, model):
     return out
 
 
+def _check_out(out: Path, model: Path, map_path: Path, tracks: Path) -> None:
+    """ValueError when the predictions' CSV ``out`` is a directory, or one of the inputs (the model file, the map,
+    a track file or a file in the tracks directory), which writing it would overwrite."""
+    if out.is_dir():
+        raise ValueError(f"--out {str(out)!r} is a directory; give the CSV file of the predictions")
+    inputs = [model, map_path, tracks] + (sorted(tracks.iterdir()) if tracks.is_dir() else [])
+    if any(out.resolve() == p.resolve() for p in inputs):
+        raise ValueError(f"--out {str(out)!r} is one of the inputs; writing the predictions would overwrite it")
+
+
 def run(args) -> int:
     """``pirl-sim predict``: 0, or 2 for a bad option, an unreadable model or unusable data."""
     import numpy as np
@@ -65,6 +75,7 @@ def run(args) -> int:
 
     say = reporter(not args.quiet)
     try:
+        _check_out(args.out, args.model, args.map, args.tracks)
         learner = load_learner(args.model)
         dt = learner.model_.dynamics.dt
         scene = load_track_scene(args, dt, say)

@@ -41,3 +41,10 @@ def test_fit_model_and_predict_commands(tmp_path, capsys):
     assert main(["predict", "--model", str(tmp_path / "missing.npz"), "--tracks", str(scene), "--map",
                  str(scene / "map.osm"), "--out", str(tmp_path / "p.csv"), "--quiet"]) == 2
     assert "no learner file" in capsys.readouterr().err
+    # predictions never overwrite an input: the model file, the map or a track file
+    before = {p: p.read_bytes() for p in (tmp_path / "gmm.npz", scene / "map.osm", scene / "vehicle_tracks_000.csv")}
+    for target in before:
+        assert main(["predict", "--model", str(tmp_path / "gmm.npz"), "--tracks", str(scene), "--map",
+                     str(scene / "map.osm"), "--out", str(target), "--quiet"]) == 2
+        assert "is one of the inputs" in capsys.readouterr().err
+    assert all(p.read_bytes() == b for p, b in before.items())
