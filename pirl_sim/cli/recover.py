@@ -70,7 +70,7 @@ def run(args) -> int:
         return parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
                             source=str(args.population or "pirl-sim recover"))
 
-    result, config, status = run_study("recovery", config, args, command, "simulations/\ncells/\nerrors/\n")
+    result, config, status = run_study("recovery", config, args, command, "simulations/\ncells/\nerrors/\nsweep.json\n")
     if status is not None:
         return status
     store, simulated, sim_time = ResultStore(args.out), [], []
