@@ -20,9 +20,9 @@ def add_parser(subparsers) -> None:
         "sweep",
         help="run a grid of scenario x learner x protocol x seed cells; resumable, local processes or Dask",
         description="Run every cell of a sweep config (TOML) that the results directory does not hold yet: local "
-        "worker processes by default, a Dask cluster with --scheduler. Each finished cell is stored at once "
-        "(keyed by its config and the code version): run the same command again after an interruption and only "
-        "the missing cells run. Writes table.parquet / table.csv (one row per cell).",
+        "worker processes by default, a Dask cluster with --scheduler or --scheduler-file. Each finished cell is "
+        "stored at once (keyed by its config and the code version): run the same command again after an "
+        "interruption and only the missing cells run. Writes table.parquet / table.csv (one row per cell).",
     )
     sw.add_argument("config", nargs="?", default="default",
                     help="sweep config (TOML); 'default' or nothing: the embedded default (the paper's experiments)")
@@ -30,6 +30,8 @@ def add_parser(subparsers) -> None:
                     help="local worker processes (default: the usable cores; 0: run in this process)")
     sw.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                     help="Dask scheduler to run the cells on (workers: same pirl_sim version, --nthreads 1)")
+    sw.add_argument("--scheduler-file", type=Path, default=None, metavar="PATH",
+                    help="instead of --scheduler: the file 'dask scheduler --scheduler-file PATH' wrote")
     sw.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"results directory (default {DEFAULT_OUT})")
     sw.add_argument("--report", action="store_true", help="draw the figures and README.md afterwards (as report)")
     sw.add_argument("--dry-run", action="store_true",
@@ -42,12 +44,12 @@ def run(args) -> int:
     130 when interrupted (finished cells are kept)."""
     from pirl_sim.engine import run as engine_run
     from pirl_sim.engine.config import load_config
+    from pirl_sim.engine.executors import check_one_place, make_executor
     from pirl_sim.engine.report import write_report
     from pirl_sim.engine.store import ResultStore
 
     try:
-        if args.workers is not None and args.scheduler is not None:
-            raise ValueError("give --workers or --scheduler, not both: with a scheduler the Dask workers run the cells")
+        check_one_place(args.workers, args.scheduler, args.scheduler_file)
         config = load_config(args.config)
     except ValueError as exc:
         return error(exc)
@@ -60,13 +62,19 @@ def run(args) -> int:
         print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(unique)} distinct), "
               f"{len(stored)} already in {args.out}/, {len(todo)} to run{sim_part} (code {version})")
         return 0
+    # absolute: workers may run in another directory (a Dask worker writes a simulation where it is told)
+    options = {"progress": not args.quiet,
+               "command": command_line("sweep", [str(args.config), "--out", str(args.out)])}
     try:
-        result = engine_run.run_sweep(config, args.out, workers=args.workers, scheduler=args.scheduler,
-                                      progress=not args.quiet,
-                                      command=command_line("sweep", [str(args.config), "--out", str(args.out)]))
+        if args.scheduler_file is None:
+            result = engine_run.run_sweep(config, args.out.resolve(), workers=args.workers, scheduler=args.scheduler,
+                                          **options)
+        else:  # connected (and the workers' versions checked) before anything is written
+            with make_executor(scheduler_file=args.scheduler_file) as executor:
+                result = engine_run.run_sweep(config, args.out.resolve(), executor=executor, **options)
     except KeyboardInterrupt:
         return interrupted(args.out)
-    except (ValueError, OSError) as exc:  # e.g. a bad scheduler address, no scheduler at that address
+    except (ValueError, OSError) as exc:  # e.g. a bad scheduler address or file, no scheduler there, other versions
         return error(exc)
     print(f"{len(result.table)} cells in {args.out}/table.parquet ({len(result.computed)} run now, "
           f"{len(result.cached)} from the store) in {result.wall_s:.1f} s")

@@ -7,9 +7,10 @@ which `concurrent.futures` and `dask.distributed` both provide; so the same loop
 - `LocalExecutor`: a `concurrent.futures.ProcessPoolExecutor` with the *spawn* start method (libsumo allows
   one simulation per process, and spawned workers share no state with the parent); each worker ends itself
   when the process that started it dies, even by SIGKILL (`watch_parent`), so no orphan keeps computing;
-- `DaskExecutor`: a `dask.distributed.Client` connected to a scheduler (``tcp://HOST:PORT``; workers on any
-  number of machines, each with pirl_sim installed at the same code version; start them with
-  ``--nthreads 1``, one cell per process), or to a client you made (a ``LocalCluster`` in tests);
+- `DaskExecutor`: a `dask.distributed.Client` connected to a scheduler (``tcp://HOST:PORT``, or the scheduler
+  file ``dask scheduler --scheduler-file`` wrote; workers on any number of machines, each with pirl_sim installed
+  at the same code version and the same numerical packages, checked on connecting: `check_worker_versions`;
+  start them with ``--nthreads 1``, one cell per process), or to a client you made (a ``LocalCluster`` in tests);
 - `InlineExecutor`: runs the cells one by one in the calling process (``--workers 0``; debugging).
 """
 
@@ -24,11 +25,15 @@ import threading
 
 from . import worker as cell
 
-__all__ = ["LocalExecutor", "DaskExecutor", "InlineExecutor", "make_executor", "default_workers"]
+__all__ = ["LocalExecutor", "DaskExecutor", "InlineExecutor", "make_executor", "default_workers", "package_versions",
+           "check_worker_versions", "check_one_place", "VERSIONED_PACKAGES"]
 
 _ADDRESS = re.compile(r"^[a-z][a-z0-9+]*://\S+$")
 
 PARENT_POLL_SECONDS = 0.2  # [s] how often a local worker checks that the sweep's main process is alive
+
+#: distributions whose versions every Dask worker must share with the client (besides pirl_sim's code version)
+VERSIONED_PACKAGES = ("numpy", "scipy", "scikit-learn", "casadi")
 
 
 def _parent_gone(parent_pid: int) -> bool:
@@ -134,26 +139,93 @@ class LocalExecutor(_Executor):
         self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
 
 
+def package_versions() -> dict[str, str]:
+    """{name: version} of this process: ``pirl_sim`` (its code version, `pirl_sim.engine.store.code_version`)
+    and those of `VERSIONED_PACKAGES` that are installed."""
+    from importlib import metadata
+
+    from .store import code_version
+
+    found = {"pirl_sim": code_version()}
+    for name in VERSIONED_PACKAGES:
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return found
+
+
+def check_worker_versions(client, versions=package_versions) -> None:
+    """ValueError naming the worker, the package and both versions when a Dask worker's ``versions()`` (run on
+    every worker connected now) differs from this process's `package_versions`; also when a worker cannot run it
+    (e.g. pirl_sim is not installed there)."""
+    expected = package_versions()
+    try:
+        reported = client.run(versions)
+    except Exception as exc:  # noqa: BLE001 - e.g. a worker that cannot import pirl_sim
+        raise ValueError(f"could not ask the Dask workers for their package versions ({type(exc).__name__}: {exc}); "
+                         "install pirl_sim on every worker") from exc
+    for worker, found in sorted(reported.items()):
+        for name in sorted(set(expected) | set(found)):
+            if found.get(name) != expected.get(name):
+                raise ValueError(f"Dask worker {worker} runs {name} {found.get(name, '(not installed)')}, this client "
+                                 f"{expected.get(name, '(not installed)')}: install the same versions on every worker")
+
+
+def _scheduler_address(path) -> str:
+    """The address in a Dask scheduler file; ValueError naming ``path`` when it is missing or unreadable (the
+    client would wait for it forever)."""
+    import json
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            info = json.load(f)
+    except FileNotFoundError:
+        raise ValueError(f"scheduler file {path} does not exist (start the scheduler with "
+                         f"dask scheduler --scheduler-file {path})") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"cannot read the scheduler file {path}: {exc}") from None
+    if not isinstance(info, dict) or not isinstance(info.get("address"), str):
+        raise ValueError(f"scheduler file {path} holds no scheduler address")
+    return info["address"]
+
+
 class DaskExecutor(_Executor):
-    """Cells on a Dask distributed cluster.
+    """Cells on a Dask distributed cluster. On connecting, the workers' code and package versions are checked
+    against this process's (`check_worker_versions`), before any cell is submitted.
 
     Parameters
     ----------
-    client_or_address : dask.distributed.Client or str
+    client_or_address : dask.distributed.Client or str or None
         A client, or a scheduler address such as ``tcp://10.0.0.5:8786`` (connected here, closed by `close`).
+    scheduler_file : path or None
+        Instead: the JSON file ``dask scheduler --scheduler-file PATH`` wrote (connected here, closed by `close`).
     """
 
     kind = "dask"
 
-    def __init__(self, client_or_address) -> None:
+    def __init__(self, client_or_address=None, *, scheduler_file=None) -> None:
         try:
             from dask.distributed import Client
         except ImportError:  # pragma: no cover - dask is an extra
-            raise ValueError("--scheduler needs dask[distributed]: pip install 'pirl_sim[dask]'") from None
-        self._own = isinstance(client_or_address, str)  # an address: a client of our own
-        if self._own and not _ADDRESS.match(client_or_address):
-            raise ValueError(f"scheduler address must look like tcp://HOST:PORT, got {client_or_address!r}")
-        self.client = Client(client_or_address, timeout="30s") if self._own else client_or_address
+            raise ValueError("a Dask scheduler needs dask[distributed]: pip install 'pirl_sim[dask]'") from None
+        if (client_or_address is None) == (scheduler_file is None):
+            raise ValueError("give a Dask client or scheduler address, or a scheduler file (one of them)")
+        self._own = client_or_address is None or isinstance(client_or_address, str)  # a client of our own
+        if scheduler_file is not None:
+            _scheduler_address(scheduler_file)
+            self.client = Client(scheduler_file=str(scheduler_file), timeout="30s")
+        elif self._own:
+            if not _ADDRESS.match(client_or_address):
+                raise ValueError(f"scheduler address must look like tcp://HOST:PORT, got {client_or_address!r}")
+            self.client = Client(client_or_address, timeout="30s")
+        else:
+            self.client = client_or_address
+        try:
+            check_worker_versions(self.client)
+        except BaseException:
+            self.close()
+            raise
 
     @property
     def workers(self) -> int:
@@ -230,13 +302,25 @@ class InlineExecutor(_Executor):
         pass
 
 
-def make_executor(workers: int | None = None, scheduler: str | None = None):
-    """`DaskExecutor` for a scheduler address, else `LocalExecutor` (``workers`` default: the usable cores),
-    `InlineExecutor` for ``workers == 0``."""
+def check_one_place(workers=None, scheduler=None, scheduler_file=None) -> None:
+    """ValueError naming the options when more than one of ``--workers``, ``--scheduler`` and ``--scheduler-file``
+    is given."""
+    given = [name for name, value in (("--workers", workers), ("--scheduler", scheduler),
+                                      ("--scheduler-file", scheduler_file)) if value is not None]
+    if len(given) > 1:
+        raise ValueError(f"give one of --workers, --scheduler and --scheduler-file, not "
+                         f"{'both ' if len(given) == 2 else ''}{' and '.join(given)}: with a scheduler the Dask "
+                         "workers run the cells")
+
+
+def make_executor(workers: int | None = None, scheduler: str | None = None, scheduler_file=None):
+    """`DaskExecutor` for a scheduler address or a scheduler file, else `LocalExecutor` (``workers`` default: the
+    usable cores), `InlineExecutor` for ``workers == 0``."""
+    check_one_place(workers, scheduler, scheduler_file)
     if scheduler is not None:
-        if workers is not None:
-            raise ValueError("give --workers or --scheduler, not both: with a scheduler the Dask workers run the cells")
         return DaskExecutor(scheduler)
+    if scheduler_file is not None:
+        return DaskExecutor(scheduler_file=scheduler_file)
     if workers == 0:
         return InlineExecutor()
     return LocalExecutor(default_workers() if workers is None else workers)
