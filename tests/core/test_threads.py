@@ -75,7 +75,7 @@ def test_context_manager_limits_and_restores():
             pass
 
 
-def test_main_restores_the_calling_process(tmp_path):
+def test_main_restores_the_calling_process(tmp_path, monkeypatch):
     """pirl_sim.cli.main called from Python limits threads while the command runs and restores them after."""
     import scipy.linalg  # noqa: F401
     import sklearn.utils  # noqa: F401
@@ -84,17 +84,13 @@ def test_main_restores_the_calling_process(tmp_path):
 
     before, env_before = current_blas_threads(), os.environ.get("OPENBLAS_NUM_THREADS")
     seen = {}
-    real_run = cli._run
 
     def spy(args):
         seen["threads"], seen["env"] = current_blas_threads(), os.environ.get("OPENBLAS_NUM_THREADS")
         return 0
 
-    cli._run = spy
-    try:
-        assert main(["reproduce", "synthetic", "--out", str(tmp_path / "x")]) == 0
-    finally:
-        cli._run = real_run
+    monkeypatch.setattr(cli.COMMANDS["reproduce"], "run", spy)
+    assert main(["reproduce", "synthetic", "--out", str(tmp_path / "x")]) == 0
     assert set(seen["threads"].values()) == {1} and seen["env"] == "1"
     assert current_blas_threads() == before and os.environ.get("OPENBLAS_NUM_THREADS") == env_before
 
