@@ -7,6 +7,15 @@ import pytest
 
 from pirl_sim.model import synthetic_model
 
+# One OpenMP thread in the test process: scikit-learn's gradient boosting (PIRL-select's forecast, the direct
+# regression) runs OpenMP threads that spin in barriers, and on a loaded 2-core machine two of them made single
+# tests take minutes instead of seconds. Sweep cells limit every runtime to one thread themselves
+# (`pirl_sim.engine.worker`); BLAS stays as it is here (tests/engine/test_worker.py checks cells restore it).
+import sklearn.ensemble  # noqa: E402,F401  loads the OpenMP runtime, so that the limit applies to it
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+threadpool_limits(limits=1, user_api="openmp")
+
 # The tests mirror the package (tests/<package path>/test_<module>.py) and run with --import-mode=importlib,
 # which puts no test folder on sys.path: the folders of the helper modules go there, and the test modules
 # import the helpers by their unique names (shared_sample, viz_testdata).
