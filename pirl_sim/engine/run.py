@@ -212,8 +212,9 @@ def run_sweep(
 
             # first: the simulations, and the cells that need none (PIRL-kNN cells differing only in k: one task)
             tasks = _tasks(unique, todo)
-            futures.update({ex.submit(run_simulation, *sims[sk], str(store.simulation_dir(sk)), version): ("sim", sk)
-                            for sk in sims})
+            # an absolute directory: a Dask worker may run in another working directory
+            futures.update({ex.submit(run_simulation, *sims[sk], str(store.simulation_dir(sk).resolve()), version):
+                            ("sim", sk) for sk in sims})
             futures.update({submit(ks): ("cells", ks) for ks in tasks if ks[0] not in waiting})
             sim_errors = {}
             for fut in ex.as_completed(futures):
