@@ -44,7 +44,7 @@ def run(args) -> int:
     130 when interrupted (finished cells are kept)."""
     from pirl_sim.engine import run as engine_run
     from pirl_sim.engine.config import load_config
-    from pirl_sim.engine.executors import check_one_place, make_executor
+    from pirl_sim.engine.executors import check_one_place
     from pirl_sim.engine.report import write_report
     from pirl_sim.engine.store import ResultStore
 
@@ -62,16 +62,10 @@ def run(args) -> int:
         print(f"sweep {config.name!r} ({config.source}): {len(config.cells)} cells ({len(unique)} distinct), "
               f"{len(stored)} already in {args.out}/, {len(todo)} to run{sim_part} (code {version})")
         return 0
-    # absolute: workers may run in another directory (a Dask worker writes a simulation where it is told)
-    options = {"progress": not args.quiet,
-               "command": command_line("sweep", [str(args.config), "--out", str(args.out)])}
     try:
-        if args.scheduler_file is None:
-            result = engine_run.run_sweep(config, args.out.resolve(), workers=args.workers, scheduler=args.scheduler,
-                                          **options)
-        else:  # connected (and the workers' versions checked) before anything is written
-            with make_executor(scheduler_file=args.scheduler_file) as executor:
-                result = engine_run.run_sweep(config, args.out.resolve(), executor=executor, **options)
+        result = engine_run.run_sweep(config, args.out, workers=args.workers, scheduler=args.scheduler,
+                                      scheduler_file=args.scheduler_file, progress=not args.quiet,
+                                      command=command_line("sweep", [str(args.config), "--out", str(args.out)]))
     except KeyboardInterrupt:
         return interrupted(args.out)
     except (ValueError, OSError) as exc:  # e.g. a bad scheduler address or file, no scheduler there, other versions

@@ -130,6 +130,7 @@ def run_sweep(
     executor=None,
     workers: int | None = None,
     scheduler: str | None = None,
+    scheduler_file=None,
     progress: bool = True,
     command: str | None = None,
     stream=None,
@@ -142,9 +143,10 @@ def run_sweep(
     config : SweepConfig        validated (see `pirl_sim.engine.config.load_config`)
     out_dir : path              results directory (created); reused: finished cells are not run again
     executor : executor or None an object of `pirl_sim.engine.executors` (kept open); None: made from
-                                ``workers`` / ``scheduler`` and closed at the end
+                                ``workers`` / ``scheduler`` / ``scheduler_file`` and closed at the end
     workers : int or None       local worker processes (None: the usable cores; 0: in this process)
     scheduler : str or None     Dask scheduler address ``tcp://HOST:PORT``
+    scheduler_file : path or None   instead: the file ``dask scheduler --scheduler-file PATH`` wrote
     progress : bool             progress bar with ETA on ``stream`` (default stderr)
     command : str or None       recorded in ``sweep.json``
     tables : bool               write the tidy tables (``table.parquet``, ``table.csv``, ``recovery.parquet``,
@@ -159,6 +161,8 @@ def run_sweep(
     out = Path(out_dir)
     store = ResultStore(out)
     version, keys, unique, records, todo = plan_cells(config, store)
+    # connected first: an unreachable scheduler or workers of other versions fail before anything is written
+    ex = make_executor(workers, scheduler, scheduler_file) if todo and executor is None else executor
     out.mkdir(parents=True, exist_ok=True)
 
     bar = None
@@ -166,7 +170,6 @@ def run_sweep(
     startup_s = 0.0
     description = "nothing to run"
     if todo:
-        ex = make_executor(workers, scheduler) if executor is None else executor
         futures = {}
         try:
             description = ex.describe()
