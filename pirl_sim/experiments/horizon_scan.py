@@ -140,17 +140,15 @@ def run_scan_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
     `scan_seed` row per cell's horizon, stored as the cell's scores (``med``, and under ``scan`` the row's
     [column, value] pairs in order: stored JSON sorts a dict's keys)."""
     proto, desired_speed, _ = _replay_settings(specs[0])
-    strides = {s["learner_params"]["step_stride"] for s in specs}
-    out = []
-    for stride in sorted(strides):  # one scan per step stride (a config's cells share one, as the command's do)
+    scene = load_scene(specs[0]["scenario_params"])
+    rows = {}  # id(spec) -> its row; one scan per step stride (the command's cells share one)
+    for stride in {s["learner_params"]["step_stride"] for s in specs}:
         group = [s for s in specs if s["learner_params"]["step_stride"] == stride]
-        rows = scan_seed(load_scene(specs[0]["scenario_params"]), specs[0]["seed"],
-                         [s["learner_params"]["horizon"] for s in group], proto, step_stride=stride,
-                         desired_speed=desired_speed)
-        out += [(s, {"med": row["med"], "scan": list(row.items())}) for s, row in zip(group, rows)]
-    order = {id(s): i for i, s in enumerate(specs)}
-    return [(scores, {"fit_s": dict(scores["scan"])["fit_s"], "evaluate_s": 0.0})
-            for s, scores in sorted(out, key=lambda o: order[id(o[0])])]
+        horizons = [s["learner_params"]["horizon"] for s in group]
+        found = scan_seed(scene, specs[0]["seed"], horizons, proto, step_stride=stride, desired_speed=desired_speed)
+        rows.update(zip(map(id, group), found))
+    return [({"med": rows[id(s)]["med"], "scan": list(rows[id(s)].items())},
+             {"fit_s": rows[id(s)]["fit_s"], "evaluate_s": 0.0}) for s in specs]
 
 
 def _check_protocol(params: dict, protocol: dict) -> None:
