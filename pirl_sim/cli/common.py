@@ -76,16 +76,18 @@ _OPTION_HELP = (f"BLAS/OpenMP threads of this process (default {DEFAULT_THREADS}
 
 
 def run_study(name: str, make_config, args, command: str, ignore: str = "cells/\nerrors/\nsweep.json\n"):
-    """The cells of an experiment command through the engine into ``args.out``: its config from
-    ``make_config()`` (errors there and a bad ``--out`` are the command's exit 2, before anything is written),
+    """The cells of an experiment command through the engine into ``args.out``: ``make_config()`` gives the sweep
+    config and what else the command's report needs (errors there and a bad ``--out`` are exit 2, before anything
+    is written),
     ``--dry-run`` counts printed, else `pirl_sim.engine.run.run_sweep` with ``--workers`` and ``--quiet``;
     ``ignore`` is written to ``OUT/.gitignore`` (what the store keeps beside the report).
 
     Returns
     -------
-    (result, config, status)
-        The finished `SweepRun` and its config with status None; or None, None and the command's exit status (0
-        after a dry run, 1 when cells failed (the others are kept), 2 for a bad value, 130 when interrupted).
+    (result, config, study, status)
+        The finished `SweepRun`, its config and ``make_config``'s second value, with status None; or Nones and the
+        command's exit status (0 after a dry run, 1 when cells failed (the others are kept), 2 for a bad value,
+        130 when interrupted).
     """
     from pirl_sim.engine.run import plan_cells, run_sweep
     from pirl_sim.engine.store import ResultStore
@@ -93,21 +95,21 @@ def run_study(name: str, make_config, args, command: str, ignore: str = "cells/\
     from pirl_sim.validation import check_output_dir
 
     try:
-        config = make_config()
+        config, study = make_config()
         out = check_output_dir(args.out)
         if args.dry_run:
             _, _, unique, _, todo = plan_cells(config, ResultStore(out))
             print(f"{name}: {len(unique)} cells, {len(unique) - len(todo)} already in {out}/, {len(todo)} to run")
-            return None, None, 0
+            return None, None, None, 0
         result = run_sweep(config, out, workers=args.workers, progress=not args.quiet, command=command, tables=False)
     except (ValueError, FileNotFoundError) as exc:
-        return None, None, error(exc)
+        return None, None, None, error(exc)
     except KeyboardInterrupt:
-        return None, None, interrupted(args.out)
+        return None, None, None, interrupted(args.out)
     if result.failed:
-        return None, None, error(next(iter(result.failed.values())), status=1)
+        return None, None, None, error(next(iter(result.failed.values())), status=1)
     atomic_write_text(out / ".gitignore", ignore)
-    return result, config, None
+    return result, config, study, None
 
 
 def add_blas_threads_option(parser: argparse.ArgumentParser) -> None:

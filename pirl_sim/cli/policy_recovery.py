@@ -59,22 +59,21 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     command = command_line("policy-recovery", [])
-    cfg = []
 
     def config():
-        cfg[:] = [PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=args.seeds,
-                                    steps=args.steps, eval_seeds=args.eval_seeds, n_steps=args.n_steps,
-                                    batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
-                                    n_vehicles=args.n_vehicles, initial_vehicles=args.initial_vehicles,
-                                    duration=args.duration, normalize_reward=not args.no_normalize_reward)]
-        return parse_config(cfg[0].sweep_data(), source="pirl-sim policy-recovery")
+        cfg = PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=args.seeds,
+                                steps=args.steps, eval_seeds=args.eval_seeds, n_steps=args.n_steps,
+                                batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
+                                n_vehicles=args.n_vehicles, initial_vehicles=args.initial_vehicles,
+                                duration=args.duration, normalize_reward=not args.no_normalize_reward)
+        return parse_config(cfg.sweep_data(), source="pirl-sim policy-recovery"), cfg
 
-    result, _, status = run_study("policy-recovery", config, args, command)
+    result, _, cfg, status = run_study("policy-recovery", config, args, command)
     if status is not None:
         return status
     study = collect_records([result.records[k]["result"] for k in result.keys])
     wall = time.perf_counter() - t0
-    write_results(study, cfg[0], args.out, command, wall)
+    write_results(study, cfg, args.out, command, wall)
     print(study["reports"]["ppo"].to_markdown())
     print(f"wrote {args.out}/ in {wall:.0f} s")
     return 0

@@ -60,17 +60,17 @@ def run(args) -> int:
 
     sims = list(SIMULATORS) if args.simulator == "both" else [args.simulator]
     command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
-    jobs = []
 
     def config():
         population = {} if args.population is None else toml_text.load(args.population, "population config")[0]
-        jobs[:] = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
-                                control_noise=args.control_noise, noise_seeds=args.noise_seeds,
-                                min_steps=args.min_steps, stride=args.stride)
+        jobs = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
+                             control_noise=args.control_noise, noise_seeds=args.noise_seeds,
+                             min_steps=args.min_steps, stride=args.stride)
         return parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
-                            source=str(args.population or "pirl-sim recover"))
+                            source=str(args.population or "pirl-sim recover")), jobs
 
-    result, config, status = run_study("recovery", config, args, command, "simulations/\ncells/\nerrors/\nsweep.json\n")
+    result, config, jobs, status = run_study("recovery", config, args, command,
+                                             "simulations/\ncells/\nerrors/\nsweep.json\n")
     if status is not None:
         return status
     store, simulated, sim_time = ResultStore(args.out), [], []

@@ -32,9 +32,8 @@ def add_parser(subparsers) -> None:
         "--n-trajectories", type=positive_int_arg, default=None,
         help="trajectories in all (default: synthetic 2000, the paper's; passage 600)",
     )
-    rep.add_argument(
-        "--n-train", type=positive_int_arg, default=None, help="training trajectories (default: synthetic 1800; passage 500)"
-    )
+    rep.add_argument("--n-train", type=positive_int_arg, default=None,
+                     help="training trajectories (default: synthetic 1800; passage 500)")
     rep.add_argument(
         "--history-steps", type=positive_int_arg, default=10, help="observed steps in the online protocol (default 10)"
     )

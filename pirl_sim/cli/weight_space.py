@@ -43,14 +43,12 @@ def run(args) -> int:
     experiments = list(dict.fromkeys(args.experiments))
     command = " ".join(["pirl-sim weight-space", *(["--seeds", *map(str, args.seeds)] if args.seeds != [0] else []),
                         *(["--experiments", *experiments] if experiments != list(EXPERIMENTS) else [])])
-    names = []
 
     def config():
-        data, table_names = study_config(experiments, args.seeds)
-        names[:] = table_names
-        return parse_config(data, source="pirl-sim weight-space")
+        data, names = study_config(experiments, args.seeds)
+        return parse_config(data, source="pirl-sim weight-space"), names
 
-    result, _, status = run_study("weight-space", config, args, command)
+    result, _, names, status = run_study("weight-space", config, args, command)
     if status is not None:
         return status
     out = args.out
