@@ -62,7 +62,8 @@ def small_replay(root: Path) -> Path:
 
     passage_scene(root / "scene", n_trajectories=40, n_train=30, seed=2)
     out = root / "out"
-    assert main(["replay", "--tracks", str(root / "scene"), "--map", str(root / "scene" / "map.osm"), "--seeds", "1",
+    assert main(["replay", "--preset", "paper",
+                 "--tracks", str(root / "scene"), "--map", str(root / "scene" / "map.osm"), "--seeds", "1",
                  "--learners", "tirl", "--quiet", "--out", str(out)]) == 0
     return out
 

@@ -65,6 +65,18 @@ LEARNER_ENTRIES = {
     "cv-xy": {"name": "cv-xy", "label": "CV (x, y)"},
 }
 
+#: what ``--preset best`` sets of the options not given: the configuration of the README's real-roundabout table
+_BEST = {"desired_speed": "fit", "features": "speed-level", "lateral": "neighbours", "selection": "free",
+         "learners": ("tirl", "pirl-gmm", "pirl-knn", NEXT_KNN, SELECT)}
+#: what ``--preset paper`` sets: the paper's configuration
+_PAPER = {"desired_speed": "fixed", "features": "paper", "lateral": "hold", "selection": "tracks",
+          "learners": ("tirl", "pirl-gmm", "pirl-knn")}
+PRESETS = {"best": _BEST, "paper": _PAPER}  #: the settings of each ``--preset``
+
+
+def _text(value) -> str:
+    return ",".join(value) if isinstance(value, tuple) else str(value)
+
 
 def _horizon_arg(text: str) -> int:
     try:
@@ -94,8 +106,9 @@ def _argparse(f: dataclasses.Field) -> dict:
 @dataclasses.dataclass(frozen=True)
 class ReplayOptions:
     """The options of ``pirl-sim replay``, each under its option's name (``--mpc-horizon``: ``mpc_horizon``) with
-    the type the command line gives it; each field's help says its unit and default. None: the default that
-    depends on the data (module doc; `resolve`).
+    the type the command line gives it; each field's help says its unit and default. The options of a `PRESETS`
+    entry that are not given take the preset's value (``selection`` in `resolve`, as it also depends on the data);
+    other None: the default that depends on the data (module doc; `resolve`).
 
     Raises
     ------
@@ -123,33 +136,42 @@ class ReplayOptions:
                            "on the history's speeds and accelerations, the road ahead and the place (row 'direct "
                            "regression (no cost)', pirl_sim.evaluation.direct): how much the history and the map tell; "
                            "never the best PIRL learner")
-    desired_speed: str = _option("fixed", "the desired speed's a_lat and v_max: 'fit' on each split's training tracks "
-                                 "(robust fit of speeds against curvature, pirl_sim.speed_fit) or 'fixed' (--a-lat, "
-                                 "--v-max) (default fixed)", choices=("fit", "fixed"))
+    preset: str = _option("best", "the settings of --desired-speed, --features, --lateral, --learners and "
+                          "--selection that are not given (drivers whose model is known, a pirl_sim recording or "
+                          "tracks with a ground_truth.csv, keep their own features and desired speed and the paper's "
+                          "selection): 'best' (the configuration of the README's real-roundabout table: " + ", ".join(f"{k.replace('_', '-')} {_text(v)}" for k, v in
+                                                                _BEST.items()) + ") or 'paper' (the paper's: " +
+                          ", ".join(f"{k.replace('_', '-')} {_text(v)}" for k, v in _PAPER.items()) + ") (default best)",
+                          choices=("best", "paper"))
+    desired_speed: str | None = _option(None, "the desired speed's a_lat and v_max: 'fit' on each split's training "
+                                        "tracks (robust fit of speeds against curvature, pirl_sim.speed_fit) or "
+                                        "'fixed' (--a-lat, --v-max) (default: --preset's)", choices=("fit", "fixed"))
     a_lat: float | None = _option(None, "lateral-acceleration limit [m/s^2] of the desired speed (default 1.8; a "
                                   "pirl_sim recording's drivers' value)")
     v_max: float | None = _option(None, "speed cap [m/s] of the desired speed (default 13.9; a pirl_sim recording's "
                                   "drivers' value)")
-    features: str = _option("paper", "the cost's features: 'paper' (speed_dev, acc_sq, jerk_sq), 'speed-level' (also "
-                            "speed_sq and speed_hi: a speed level of each driver's own) or 'following' (speed-level "
-                            "and headway: the gap to the recorded vehicle ahead, held at constant velocity over a "
-                            "prediction; selection defaults to 'all') (pirl_sim.driving.roundabout_features) (default "
-                            "paper)", choices=("paper", "speed-level", "following"))
-    lateral: str = _option("hold", "lateral offsets of every path-based prediction (baselines and learners): 'hold' "
-                           "the last observed one, or follow the training tracks' 'mean-path' of the route, or their "
-                           "mean path pooled over routes in the 'plane', or that plus the change of deviation of the "
-                           "nearest training windows in the plane, 'neighbours' (pirl_sim.lateral) (default hold)",
-                           choices=("hold", "mean-path", "plane", "neighbours"))
+    features: str | None = _option(None, "the cost's features: 'paper' (speed_dev, acc_sq, jerk_sq), 'speed-level' "
+                                   "(also speed_sq and speed_hi: a speed level of each driver's own) or 'following' "
+                                   "(speed-level and headway: the gap to the recorded vehicle ahead, held at constant "
+                                   "velocity over a prediction; selection defaults to 'all') "
+                                   "(pirl_sim.driving.roundabout_features) (default: --preset's)",
+                                   choices=("paper", "speed-level", "following"))
+    lateral: str | None = _option(None, "lateral offsets of every path-based prediction (baselines and learners): "
+                                  "'hold' the last observed one, or follow the training tracks' 'mean-path' of the "
+                                  "route, or their mean path pooled over routes in the 'plane', or that plus the "
+                                  "change of deviation of the nearest training windows in the plane, 'neighbours' "
+                                  "(pirl_sim.lateral) (default: --preset's)",
+                                  choices=("hold", "mean-path", "plane", "neighbours"))
     start: str = _option("history", "the states every prediction starts from and its learners see: estimated from the "
                          "2 s history alone ('history': what an online predictor knows), or the whole track's estimate "
                          "('track': a smoother that also saw the future it predicts) (default history)",
                          choices=("history", "track"))
-    learners: tuple[str, ...] = _option(
-        ("tirl", "pirl-gmm", "pirl-knn"), "comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, "
-        "pirl-knn-next (PIRL-kNN with costs of what followed each training window, looked up by the speed and "
-        "acceleration now, 0.5 s and 1 s ago and the road ahead, its neighbours' futures averaged: learners/knn.py), "
-        "pirl-select (the same costs, a bank of 256 mixed to come nearest to a forecast of the next seconds from the "
-        "same keys and the place: learners/selector.py) (default tirl,pirl-gmm,pirl-knn)")
+    learners: tuple[str, ...] | None = _option(
+        None, "comma-separated learners: tirl, pirl-gmm, pirl-dpgmm, pirl-knn, pirl-knn-next (PIRL-kNN with costs of "
+        "what followed each training window, looked up by the speed and acceleration now, 0.5 s and 1 s ago and the "
+        "road ahead, its neighbours' futures averaged: learners/knn.py), pirl-select (the same costs, a bank of them "
+        "mixed to come nearest to a forecast of the next seconds from the same keys and the place: "
+        "learners/selector.py) (default: --preset's)")
     next_segments: str | None = _option(
         None, "pirl-knn-next, pirl-select: where each training segment whose cost the IRL fits starts: at its "
         "history's own estimate, the state an online prediction starts from ('history'), or at the smoothed track's "
@@ -189,7 +211,7 @@ class ReplayOptions:
         "(steps with a leader closer than 3 m bumper to bumper + 1.5 s x speed left out); 'steps': every PIRL track "
         "with a per-step mask from driver_steps.csv (pirl_sim recordings, --likelihood receding only); 'all': every "
         "track whole, leaders included (for --features following). Default: steps where driver_steps.csv exists and "
-        "the likelihood is receding, all with --features following, free with --table, else tracks",
+        "the likelihood is receding, all with --features following, else --preset's",
         choices=("tracks", "steps", "free", "all"))
     rollout: str | None = _option(None, "learners' predictions: 'open' (one MPC plan) or 'closed' (re-plan every step "
                                   "over --mpc-horizon steps, as the drivers) (default: closed with --likelihood "
@@ -216,6 +238,9 @@ class ReplayOptions:
             if not ok:
                 allowed = f"one of {kwargs['choices']}" if "choices" in kwargs else f"a value of type {f.type}"
                 raise ValueError(f"{f.name}={value!r}: expected {allowed}")
+        for name in ("lateral", "learners"):  # the options not given that do not depend on the data: the preset's
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, PRESETS[self.preset][name])
         if self.table is None and (self.tracks is None or self.map is None):
             raise ValueError("replay needs --tracks and --map (or --table ROOT)")
         unknown = [k for k in self.learners if k not in LEARNERS]
@@ -263,8 +288,8 @@ class ReplayOptions:
             A receding likelihood or closed rollout without an MPC horizon, ``dt`` other than a recording's
             re-planning step with its horizon, ``selection="steps"`` without ``driver_steps.csv``.
         """
-        from pirl_sim.scenarios.replay import (DRIVER_STEPS_FILE, MEASURED_NOISE, SIMULATED_NOISE, EstimateNoise,
-                                               is_recording, recording_settings)
+        from pirl_sim.scenarios.replay import (DRIVER_STEPS_FILE, GROUND_TRUTH_FILE, MEASURED_NOISE, SIMULATED_NOISE,
+                                               EstimateNoise, is_recording, recording_settings)
 
         rec, receding, notes = recording_settings(self.tracks), self.likelihood == "receding", []
         if self.dt is None and receding and rec is not None:
@@ -285,21 +310,24 @@ class ReplayOptions:
                              f"horizon: give --mpc-horizon H (steps of --dt = {dt:g} s); {self.tracks} is not a "
                              "pirl_sim recording with a run.json to take it from")
         steps_file = (self.tracks if self.tracks.is_dir() else self.tracks.parent) / DRIVER_STEPS_FILE
+        simulated = is_recording(self.tracks)
+        known = simulated or steps_file.with_name(GROUND_TRUTH_FILE).is_file()  # drivers whose model is known
+        preset = _PAPER if known else PRESETS[self.preset]  # known drivers: their own features and desired speed
+        features, desired_speed = self.features or preset["features"], self.desired_speed or preset["desired_speed"]
         selection = self.selection or ("steps" if receding and steps_file.is_file() else
-                                       "all" if self.features == "following" else
-                                       "free" if self.table is not None else "tracks")
+                                       "all" if features == "following" else preset["selection"])
         if selection == "steps" and not steps_file.is_file():
             raise ValueError(f"--selection steps needs {DRIVER_STEPS_FILE} beside the tracks (pirl_sim recordings); "
                              f"none in {steps_file.parent}")
         # history starts: a position-only fit over 2 s damps the jerks so hard that its last speed lags the car's
         estimate = self.estimate or ("speeds" if receding or self.start == "history" else "positions")
-        simulated = is_recording(self.tracks)
         base = SIMULATED_NOISE if simulated else MEASURED_NOISE
         noise = EstimateNoise(base.sigma_s, self.sigma_v or base.sigma_v, self.sigma_j or base.sigma_j, base.sigma_a)
         if rec is not None:
             notes.append(f"model: the drivers' path smoothing {rec.smoothing:g} m, desired-speed smoothing "
                          f"{rec.speed_smoothing:g} m, a_lat {rec.a_lat:g}, v_max {rec.v_max:g} (run.json)")
-        return ReplaySettings(self, dt, horizon, rollout, selection, estimate, noise, rec, simulated, tuple(notes))
+        return ReplaySettings(self, dt, horizon, rollout, selection, estimate, noise, rec, simulated, features,
+                              desired_speed, tuple(notes))
 
 
 def _steps(seconds: float, dt: float) -> int:
@@ -321,6 +349,8 @@ class ReplaySettings:
     noise : EstimateNoise        of the state estimate
     recording : DriverSettings or None  the drivers' settings from a pirl_sim recording's ``run.json``
     simulated : bool             whether the tracks are a pirl_sim recording (a ``run.json`` beside them)
+    features : {"paper", "speed-level", "following"}
+    desired_speed : {"fit", "fixed"}
     notes : tuple of str         the defaults taken from ``run.json``, to tell the user
     """
 
@@ -333,6 +363,8 @@ class ReplaySettings:
     noise: EstimateNoise
     recording: DriverSettings | None
     simulated: bool
+    features: str = "paper"
+    desired_speed: str = "fixed"
     notes: tuple[str, ...] = ()
 
     def protocol(self) -> ReplayProtocol:
@@ -357,7 +389,7 @@ class ReplaySettings:
         and the map, as JSON data (the ``recorded`` kind's parameter ``load``)."""
         o, rec = self.options, self.recording
         load = {"dt": self.dt, "estimate": self.estimate, "noise": dataclasses.asdict(self.noise),
-                "selection": self.selection, "max_steps": _steps(PIECE_DURATION, self.dt), "features": o.features}
+                "selection": self.selection, "max_steps": _steps(PIECE_DURATION, self.dt), "features": self.features}
         if self.simulated:  # simulated drivers plan from their projected positions
             load["arc_length"] = "observed"
         if rec is not None:
@@ -408,7 +440,7 @@ class ReplaySettings:
 
         o, p, scan = self.options, self.protocol(), self.options.scan_horizon is not None
         replay = {"fde_steps": list(p.fde_steps), "lateral": p.lateral, "start": p.start,
-                  **({"desired_speed": "fit"} if o.desired_speed == "fit" else {}),
+                  **({"desired_speed": "fit"} if self.desired_speed == "fit" else {}),
                   **({} if scan else {"rollout": p.rollout, "n_futures": o.futures or 0}),
                   **({"mpc_horizon": p.mpc_horizon} if p.mpc_horizon is not None and not scan else {})}
         exp = {"scenario": "horizon-scan" if scan else "recorded", "label": "horizon scan" if scan else "replay",

@@ -5,7 +5,8 @@ Import it where drawing is needed (it imports matplotlib); nothing here touches 
 - :mod:`~pirl_sim.viz.road`, :mod:`~pirl_sim.viz.road_sources`: a :class:`Road` from a Lanelet2 map, a SUMO
   network or highway-env's roundabout, and :func:`draw_road`;
 - :mod:`~pirl_sim.viz.scene`: :func:`draw_scene` (vehicles as oriented boxes at a frame) and the reusable
-  :class:`SceneView`; :mod:`~pirl_sim.viz.tracks`: :func:`draw_tracks` coloured by a column, and
+  :class:`SceneView`; :mod:`~pirl_sim.viz.live`: :class:`LiveView`, a running simulation's vehicles on its road;
+  :mod:`~pirl_sim.viz.tracks`: :func:`draw_tracks` coloured by a column, and
   :func:`draw_recording` (:mod:`~pirl_sim.viz.overview`), every track of a recording on one figure;
 - :mod:`~pirl_sim.viz.prediction`: :func:`draw_prediction` of a :class:`PredictionWindow`;
 - :mod:`~pirl_sim.viz.animation`: frames as arrays and ``.gif``/``.mp4`` files;
@@ -23,6 +24,7 @@ from .animation import (
 )
 from .colors import color_rows, distinct_colors
 from .frames import SCENE_COLUMNS, TrackFrames
+from .live import LiveView
 from .overview import draw_recording
 from .prediction import PredictionView, PredictionWindow, draw_prediction
 from .raster import data_to_pixel, figure_to_array, new_figure
@@ -42,6 +44,7 @@ __all__ = [
     "TrackFrames",
     "SCENE_COLUMNS",
     "SceneView",
+    "LiveView",
     "draw_scene",
     "draw_tracks",
     "draw_recording",

@@ -17,7 +17,7 @@ from weaving import weaving_scene
 def test_replay_cli_end_to_end(passage_scene, tmp_path, capsys):
     out, _ = passage_scene
     res = tmp_path / "res"
-    assert main(["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "2",
+    assert main(["replay", "--preset", "paper", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "2",
                  "--learners", "tirl,pirl-knn", "--knn-k", "3,10", "--out", str(res), "--quiet"]) == 0
     summary = pd.read_csv(res / "summary.csv")
     assert {"TIRL", "PIRL-kNN (k=3)", "PIRL-kNN (k=10)", "CV (path)", "CA (path)", "CV (x, y)"} <= set(summary["method"])
@@ -28,7 +28,8 @@ def test_replay_cli_end_to_end(passage_scene, tmp_path, capsys):
     for name in ("clusters.png", "s_t.png", "knn_k.png"):
         assert (res / name).stat().st_size > 0
     assert (res / "README.md").read_text().count("Tracks read: 160") == 1
-    assert main(["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--learners", "svm",
+    assert main(["replay", "--preset", "paper",
+                 "--tracks", str(out), "--map", str(out / "map.osm"), "--learners", "svm",
                  "--out", str(res)]) == 2
     assert "unknown learners ['svm']" in capsys.readouterr().err
 
@@ -38,7 +39,8 @@ def test_replay_cli_runs_through_the_sweep_engine_alike_in_one_or_two_processes(
     import json
 
     out, _ = passage_scene
-    args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
+    args = ["replay", "--preset", "paper",
+            "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
             "tirl,pirl-knn", "--knn-k", "3", "--lateral", "neighbours", "--quiet", "--out"]
     assert main(args + [str(tmp_path / "one")]) == 0
     assert main(args + [str(tmp_path / "two"), "--workers", "2"]) == 0
@@ -61,7 +63,8 @@ def test_an_interrupted_replay_resumes_from_its_finished_cells(passage_scene, tm
     import pirl_sim.experiments.recorded as recorded
 
     out, _ = passage_scene
-    args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
+    args = ["replay", "--preset", "paper",
+            "--tracks", str(out), "--map", str(out / "map.osm"), "--seeds", "3", "--learners",
             "tirl,pirl-knn", "--knn-k", "3", "--quiet", "--out"]
     run_seed, ran = recorded.replay_seed, []
 
@@ -110,7 +113,8 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(passage_scene
     add_parser(parser.add_subparsers())
 
     def keys(*extra):
-        args = parser.parse_args(["replay", "--tracks", str(scene), "--map", str(scene / "map.osm"), *extra])
+        args = parser.parse_args(["replay", "--preset", "paper", "--tracks", str(scene), "--map",
+                                  str(scene / "map.osm"), *extra])
         return [c.key("code") for c in ReplayOptions.from_args(args).resolve().config().cells]
 
     first = keys("--seeds", "2")
@@ -132,7 +136,8 @@ def test_replay_cells_are_keyed_by_the_data_files_and_the_settings(passage_scene
 def test_replay_cli_refuses_a_scene_with_too_few_tracks_before_any_cell(tmp_path, capsys):
     tracks, osm = straight_scene(tmp_path, [("A", 5.0, 150, None), ("B", 5.0, 150, None), ("A", 9.0, 150, None)])
     out = tmp_path / "out"
-    assert main(["replay", "--tracks", str(tracks), "--map", str(osm), "--quiet", "--out", str(out)]) == 2
+    assert main(["replay", "--preset", "paper",
+                 "--tracks", str(tracks), "--map", str(osm), "--quiet", "--out", str(out)]) == 2
     assert "only 3 selected tracks" in capsys.readouterr().err
     assert not (out / "cells").exists()
 
@@ -140,7 +145,8 @@ def test_replay_cli_refuses_a_scene_with_too_few_tracks_before_any_cell(tmp_path
 def _replay_args(tmp_path, seed: int, learners: str, knn_k: str) -> list:
     """`pirl-sim replay` arguments (one split seed) on a small simulated three-style passage scene."""
     replay_scenes.passage_scene(tmp_path / "scene", n_trajectories=40, n_train=30, seed=seed)
-    return ["replay", "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
+    return ["replay", "--preset", "paper",
+            "--tracks", str(tmp_path / "scene"), "--map", str(tmp_path / "scene" / "map.osm"),
             "--learners", learners, "--knn-k", knn_k, "--seeds", "1"]
 
 
@@ -241,7 +247,8 @@ def test_replay_scores_k_futures_of_each_learner(tmp_path):
 def test_replay_cli_rejects_durations_that_are_not_positive(tmp_path, capsys, option, value):
     tracks, osm = two_lane_scene_dir(tmp_path)
     with pytest.raises(SystemExit) as exc:
-        main(["replay", "--tracks", str(tracks), "--map", str(osm), option, value, "--out", str(tmp_path / "o")])
+        main(["replay", "--preset", "paper",
+              "--tracks", str(tracks), "--map", str(osm), option, value, "--out", str(tmp_path / "o")])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert option in err and "> 0" in err and value in err
@@ -249,7 +256,8 @@ def test_replay_cli_rejects_durations_that_are_not_positive(tmp_path, capsys, op
 
 def test_replay_cli_rejects_a_duration_shorter_than_a_step(tmp_path, capsys):
     tracks, osm = two_lane_scene_dir(tmp_path)
-    code = main(["replay", "--tracks", str(tracks), "--map", str(osm), "--history", "0.05", "--quiet",
+    code = main(["replay", "--preset", "paper",
+                 "--tracks", str(tracks), "--map", str(osm), "--history", "0.05", "--quiet",
                  "--out", str(tmp_path / "o")])
     assert code == 2 and "--history 0.05 s is less than one model step" in capsys.readouterr().err
 
@@ -265,7 +273,8 @@ def test_replay_cli_receding_beats_constant_acceleration(tmp_path):
     pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=40)
     run_sumo_scenario(SumoScenarioConfig(population=pop), seed=1, out_dir=run)
     out = tmp_path / "res"
-    assert main(["replay", "--tracks", str(run), "--map", str(run / "map.osm"), "--likelihood", "receding",
+    assert main(["replay", "--preset", "paper",
+                 "--tracks", str(run), "--map", str(run / "map.osm"), "--likelihood", "receding",
                  "--learners", "tirl,pirl-knn", "--knn-k", "5", "--seeds", "3", "--out", str(out), "--quiet"]) == 0
     summary = pd.read_csv(out / "summary.csv").set_index("method")
     knn = "PIRL-kNN (k=5)"
@@ -278,7 +287,7 @@ def test_replay_cli_receding_beats_constant_acceleration(tmp_path):
 
 
 def test_receding_without_a_horizon_on_real_data_names_the_option(real_like, capsys):
-    base = ["replay", "--tracks", str(real_like), "--map", str(real_like / "map.osm"), "--out",
+    base = ["replay", "--preset", "paper", "--tracks", str(real_like), "--map", str(real_like / "map.osm"), "--out",
             str(real_like / "out"), "--quiet"]
     assert main(base + ["--likelihood", "receding"]) == 2
     assert "--mpc-horizon" in capsys.readouterr().err
@@ -304,7 +313,8 @@ def test_replay_cli_applies_the_lateral_model_to_a_single_recording(tmp_path):
     floors = {}
     for lateral in ("hold", "mean-path", "neighbours"):
         out = tmp_path / lateral
-        assert main(["replay", "--tracks", str(tracks), "--map", str(osm), "--out", str(out), "--seeds", "1",
+        assert main(["replay", "--preset", "paper",
+                     "--tracks", str(tracks), "--map", str(osm), "--out", str(out), "--seeds", "1",
                      "--learners", "tirl", "--lateral", lateral, "--quiet"]) == 0
         floors[lateral] = pd.read_csv(out / "rows.csv")["lateral_floor"].iloc[0]
     assert floors["mean-path"] < 0.5 * floors["hold"]
@@ -313,7 +323,8 @@ def test_replay_cli_applies_the_lateral_model_to_a_single_recording(tmp_path):
 
 def test_table_command_end_to_end(passage_root, tmp_path, capsys):
     out = tmp_path / "table"
-    assert main(["replay", "--table", str(passage_root), "--roundabouts", "SIM_Roundabout_A", "--seeds", "2",
+    assert main(["replay", "--preset", "paper",
+                 "--table", str(passage_root), "--roundabouts", "SIM_Roundabout_A", "--seeds", "2",
                  "--learners", "tirl,pirl-knn", "--knn-k", "5", "--desired-speed", "fit", "--direct", "--out",
                  str(out), "--quiet"]) == 0
     text = (out / "table.md").read_text()
@@ -327,7 +338,7 @@ def test_table_command_end_to_end(passage_root, tmp_path, capsys):
                    or line.startswith("| SIM_Roundabout_A | vehicle_tracks")]
     ratio = row.split(" | ")[header.split(" | ").index("direct regression (no cost) / CA")]
     assert float(ratio.split(" ")[0]) == pytest.approx(med["direct regression (no cost)"] / med["CA (path)"], abs=1e-3)
-    assert main(["replay", "--table", str(passage_root), "--roundabouts", "NO_SUCH_Roundabout",
+    assert main(["replay", "--preset", "paper", "--table", str(passage_root), "--roundabouts", "NO_SUCH_Roundabout",
                  "--out", str(out)]) == 2
     assert "NO_SUCH_Roundabout" in capsys.readouterr().err  # any name is read; a missing folder is named
     assert main(["replay", "--out", str(out)]) == 2
@@ -381,6 +392,44 @@ def test_replay_options_are_the_parsed_command_line_frozen_and_checked_together(
             ReplayOptions(**{**where, **bad})
 
 
+def _table_command(readme: str) -> list[str]:
+    """The options of the README's real-roundabout table command (its ``pirl-sim replay --table`` line)."""
+    import shlex
+
+    line = next(x for x in readme.splitlines() if x.startswith("| Real roundabouts"))
+    command = next(c for c in line.split("`") if c.startswith("pirl-sim replay --table"))
+    return shlex.split(command)[1:]
+
+
+def test_the_defaults_on_real_data_are_the_readmes_table_configuration_and_paper_is_one_option(tmp_path):
+    from pathlib import Path
+
+    from pirl_sim.cli import build_parser
+    from pirl_sim.cli.replay import ReplayOptions
+
+    real = tmp_path / "real"
+    real.mkdir()
+    argv = _table_command((Path(__file__).parents[2] / "README.md").read_text())
+    table = ReplayOptions.from_args(build_parser().parse_args(argv))
+    data = {"tracks": real, "map": real / "map.osm"}
+    plain = ReplayOptions(**data).resolve()
+    # the table's command names data, scale and extra rows only: every model setting is the default
+    resolved = dataclasses.replace(table, table=None, **data).resolve()
+    model = ("dt", "mpc_horizon", "rollout", "selection", "estimate", "noise", "features", "desired_speed")
+    assert {k: getattr(resolved, k) for k in model} == {k: getattr(plain, k) for k in model}
+    assert resolved.learner_entries()[:-3] == plain.learner_entries()[:-1]  # + hindsight, direct (before CV (x, y))
+    assert (plain.features, plain.desired_speed, plain.selection, plain.options.lateral) == (
+        "speed-level", "fit", "free", "neighbours")
+    assert plain.options.learners == ("tirl", "pirl-gmm", "pirl-knn", "pirl-knn-next", "pirl-select")
+    paper = ReplayOptions(**data, preset="paper").resolve()
+    assert (paper.features, paper.desired_speed, paper.selection, paper.options.lateral, paper.options.learners) == (
+        "paper", "fixed", "tracks", "hold", ("tirl", "pirl-gmm", "pirl-knn"))
+    mixed = ReplayOptions(**data, preset="paper", features="speed-level", learners=("tirl",)).resolve()
+    assert (mixed.features, mixed.options.learners, mixed.options.lateral) == ("speed-level", ("tirl",), "hold")
+    with pytest.raises(ValueError, match=r"preset='fast': expected one of \('best', 'paper'\)"):
+        ReplayOptions(**data, preset="fast")
+
+
 def test_resolved_defaults_of_a_pirl_sim_recording_and_of_real_data(tmp_path):
     from pirl_sim.cli.replay import ReplayOptions
     from pirl_sim.scenarios.replay import MEASURED_NOISE, SIMULATED_NOISE
@@ -399,11 +448,12 @@ def test_resolved_defaults_of_a_pirl_sim_recording_and_of_real_data(tmp_path):
     paper = ReplayOptions(tracks=run, map=run / "map.osm", a_lat=2.0).resolve()
     assert (paper.dt, paper.mpc_horizon, paper.rollout, paper.selection) == (0.2, None, "open", "tracks")
     assert paper.load()["a_lat"] == 2.0 and paper.load()["v_max"] == 12.5  # an option beats run.json
+    assert (paper.features, paper.desired_speed) == ("paper", "fixed")  # known drivers: their own model
     with pytest.raises(ValueError, match="give --mpc-horizon in steps of --dt"):
         ReplayOptions(tracks=run, map=run / "map.osm", likelihood="receding", dt=0.2).resolve()
     data = ReplayOptions(tracks=real, map=real / "map.osm", sigma_v=0.2).resolve()
     assert (data.dt, data.mpc_horizon, data.selection, data.estimate, data.recording, data.notes) == (
-        0.2, None, "tracks", "speeds", None, ())
+        0.2, None, "free", "speeds", None, ())
     assert data.noise == dataclasses.replace(MEASURED_NOISE, sigma_v=0.2) and "arc_length" not in data.load()
     assert ReplayOptions(tracks=real, map=real, features="following").resolve().selection == "all"
     assert ReplayOptions(tracks=real, map=real, start="track").resolve().estimate == "positions"

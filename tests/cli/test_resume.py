@@ -70,7 +70,8 @@ def weaving(tmp_path_factory):
 @pytest.mark.slow
 def test_a_killed_replay_resumes(weaving, tmp_path, capsys):
     tracks, osm = weaving
-    argv = ["replay", "--tracks", str(tracks), "--map", str(osm), "--seeds", "3", "--learners", "tirl",
+    argv = ["replay", "--preset", "paper",
+            "--tracks", str(tracks), "--map", str(osm), "--seeds", "3", "--learners", "tirl",
             "--quiet"]
     # per seed: CV, CA, TIRL and CV (x, y), one task per seed
     resumes_after_a_kill(argv, tmp_path, capsys, 12, ["rows.csv", "paired_ca.csv"], timings=("fit_s", "predict_s"))
@@ -79,7 +80,8 @@ def test_a_killed_replay_resumes(weaving, tmp_path, capsys):
 @pytest.mark.slow
 def test_a_killed_horizon_scan_resumes(weaving, tmp_path, capsys):
     tracks, osm = weaving
-    argv = ["replay", "--tracks", str(tracks), "--map", str(osm), "--seeds", "3", "--scan-horizon", "5,8",
+    argv = ["replay", "--preset", "paper",
+            "--tracks", str(tracks), "--map", str(osm), "--seeds", "3", "--scan-horizon", "5,8",
             "--features", "speed-level", "--quiet"]
     resumes_after_a_kill(argv, tmp_path, capsys, 6, ["horizon_scan_rows.csv"], timings=("fit_s",))
 

@@ -87,7 +87,8 @@ def test_replay_cli_scores_the_direct_regression_beside_the_learners(scene, tmp_
     from pirl_sim.cli import main
 
     _, out = scene
-    args = ["replay", "--tracks", str(out), "--map", str(out / "map.osm"), "--learners", "tirl", "--seeds", "1",
+    args = ["replay", "--preset", "paper",
+            "--tracks", str(out), "--map", str(out / "map.osm"), "--learners", "tirl", "--seeds", "1",
             "--direct", "--out", str(tmp_path / "out")]
     assert main(args) == 0
     rows = pd.read_csv(tmp_path / "out" / "rows.csv").set_index("method")

@@ -29,7 +29,8 @@ def test_the_scan_runs_as_cells_of_the_engine_one_per_seed_and_horizon(tmp_path,
     from pirl_sim.experiments.horizon_scan import scan_seed
 
     tracks, osm = weaving_scene(tmp_path)
-    args = ["replay", "--tracks", str(tracks), "--map", str(osm), "--scan-horizon", "5,8", "--seeds", "2",
+    args = ["replay", "--preset", "paper",
+            "--tracks", str(tracks), "--map", str(osm), "--scan-horizon", "5,8", "--seeds", "2",
             "--features", "speed-level", "--out", str(tmp_path / "out"), "--quiet"]
     assert main([*args, "--dry-run"]) == 0
     assert f"4 cells, 0 already in {tmp_path / 'out'}/, 4 to run" in capsys.readouterr().out
