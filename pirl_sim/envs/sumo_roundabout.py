@@ -110,7 +110,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
         ``"rgb_array"``: `render` returns the network's lanes with every vehicle as an oriented box
         (`pirl_sim.viz.LiveView`; the ego red, PIRL drivers coloured by style, background traffic grey),
         ``(screen_height, screen_width, 3)`` uint8; ``"human"``: the same frame shown in a matplotlib window
-        after each reset and step (needs a display).
+        after each reset and step (needs a display: without one, the instance's ``metadata`` lists
+        ``"rgb_array"`` only).
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
@@ -120,6 +121,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got "
                              f"{render_mode!r}")
+        if not _has_display():  # this env's modes: those it can show here
+            self.metadata = {**type(self).metadata, "render_modes": ["rgb_array"]}
         if render_mode == "human" and not _has_display():
             raise RuntimeError("render_mode='human' needs a display (DISPLAY or WAYLAND_DISPLAY is not set): use "
                                "render_mode='rgb_array' and save or show the frames yourself")
