@@ -133,9 +133,12 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
-def load_track_scene(args, dt: float, say, receding: bool = False):
-    """The selected tracks: whole tracks without interaction, or, with the receding likelihood on a recording
-    with per-step driver flags, every PIRL track with its step mask (as ``pirl-sim replay``)."""
+def load_track_scene(args, dt: float, say, receding: bool = False, *, features: str = "paper",
+                     selection: str | None = None, a_lat: float | None = None, v_max: float | None = None):
+    """The selected tracks (``selection``, `pirl_sim.scenarios.replay.load_replay`'s; default whole tracks without
+    interaction, or, with the receding likelihood on a recording with per-step driver flags, every PIRL track
+    with its step mask, as ``pirl-sim replay``) under a model of the feature set ``features`` whose desired speed
+    has ``a_lat`` [m/s^2] and ``v_max`` [m/s] (default: a pirl_sim recording's drivers', else load_replay's)."""
     from pirl_sim.io.interaction import find_track_files
     from pirl_sim.scenarios.replay import (DRIVER_STEPS_FILE, SIMULATED_NOISE, is_recording, load_replay,
                                            recording_settings)
@@ -143,7 +146,7 @@ def load_track_scene(args, dt: float, say, receding: bool = False):
     files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
     if args.files is not None:
         files = sorted(files, key=lambda f: Path(f).name)[: args.files]
-    load = {"dt": dt}
+    load = {"dt": dt, "features": features, **({"selection": selection} if selection else {})}
     rec = recording_settings(args.tracks)
     if is_recording(args.tracks):
         load.update(arc_length="observed", noise=SIMULATED_NOISE)
@@ -153,6 +156,7 @@ def load_track_scene(args, dt: float, say, receding: bool = False):
             load["selection"] = "steps"
     if rec is not None:
         load.update(smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max)
+    load.update({k: float(v) for k, v in (("a_lat", a_lat), ("v_max", v_max)) if v is not None})
     say(f"reading {len(files)} track files and {args.map} (dt {dt:g} s)")
     scene = load_replay(files, args.map, **load)
     say(f"{scene.n_converted} tracks converted, {scene.n_selected_tracks} selected; skipped {scene.skipped}")

@@ -1,8 +1,9 @@
 """``pirl-sim fit-model``: fit one learner on recorded tracks and write it to a versioned ``.npz`` model file.
 
 The tracks are INTERACTION-format files on their Lanelet2 map (`pirl_sim.scenarios.replay.load_replay`, with a
-pirl_sim recording's own driver-model settings from its ``run.json``); the file is written by
-`pirl_sim.learners.model_io` (no pickle). ``pirl-sim predict`` reads it.
+pirl_sim recording's own driver-model settings from its ``run.json``); the model's features, desired speed and
+selection of tracks default to ``pirl-sim replay``'s (``--preset``). The file is written by
+`pirl_sim.learners.model_io` (no pickle); ``pirl-sim predict`` reads it and builds the same model on its tracks.
 """
 
 from __future__ import annotations
@@ -27,6 +28,16 @@ def add_parser(subparsers) -> None:
         "map) and write it as a versioned .npz model file (pirl_sim.learners.model_io; no pickle).",
     )
     add_track_options(fm)
+    fm.add_argument("--preset", choices=("best", "paper"), default="best",
+                    help="the model's settings not given: 'best' (as pirl-sim replay's default: --features "
+                         "speed-level, --desired-speed fit, free-flow runs of every track) or 'paper' (features "
+                         "paper, the fixed desired speed, whole tracks without a leader); drivers whose model is "
+                         "known (a pirl_sim recording, a ground_truth.csv) keep their own (default best)")
+    fm.add_argument("--features", choices=("paper", "speed-level"), default=None,
+                    help="the cost's features (pirl_sim.driving.roundabout_features) (default: --preset's)")
+    fm.add_argument("--desired-speed", choices=("fit", "fixed"), default=None,
+                    help="the desired speed's a_lat and v_max fitted on the tracks (pirl_sim.speed_fit) or fixed "
+                         "(1.8 m/s^2, 13.9 m/s; a pirl_sim recording's drivers' values) (default: --preset's)")
     fm.add_argument("--learner", choices=LEARNER_KEYS, default="pirl-gmm", help="the learner (default pirl-gmm)")
     fm.add_argument("--k", type=positive_int_arg, default=3,
                     help="clusters of PIRL-GMM, neighbours of PIRL-kNN (default 3)")
@@ -72,8 +83,19 @@ def run(args) -> int:
             horizon = rec.horizon
         if args.space == "weights" and args.learner not in ("pirl-gmm", "pirl-dpgmm"):
             raise ValueError(f"--space weights is an option of pirl-gmm and pirl-dpgmm, not {args.learner}")
-        scene = load_track_scene(args, dt, say, receding)
-        params = {"model": scene.model, "window": seconds_to_steps(args.window, dt, "--window"), "windows": "sliding"}
+        from pirl_sim.experiments.recorded import desired_speed_model
+
+        from .replay import data_preset
+
+        preset = data_preset(args.tracks, args.preset)
+        features = args.features or preset["features"]
+        scene = load_track_scene(args, dt, say, receding, features=features,
+                                 selection=None if receding else preset["selection"])
+        model = scene.model
+        if (args.desired_speed or preset["desired_speed"]) == "fit":
+            model, speed, _ = desired_speed_model(scene, "fit", scene.selected)
+            say(f"desired speed fitted on the tracks: a_lat {speed['a_lat']:.3g} m/s^2, v_max {speed['v_max']:.3g} m/s")
+        params = {"model": model, "window": seconds_to_steps(args.window, dt, "--window"), "windows": "sliding"}
         if receding:
             params.update(likelihood="receding", horizon=horizon)
         params.update({"pirl-gmm": {"n_components": args.k, "random_state": args.seed},
@@ -91,7 +113,7 @@ def run(args) -> int:
         path = learner.save(args.out)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         return error(exc)
-    names = scene.model.features.names
+    names = model.features.names
     theta = np.atleast_2d(getattr(learner, "theta_", getattr(learner, "demo_theta_", None)))
     label = "style" if theta.shape[0] > 1 and hasattr(learner, "n_styles_") else "demo" if theta.shape[0] > 1 else ""
     print(f"{type(learner).__name__}: {theta.shape[0]} weight vector(s) over {list(names)}")

@@ -3,8 +3,9 @@
 Each selected track's future is predicted from its first ``--history`` seconds; one CSV row per predicted step,
 with the recorded position where the track has one and the weights used. A saved path model carries the
 arc-length layout of the scene it was fitted on; the learner runs on the layout of the tracks read
-(`rebind_model`), after checking that the model step, the state, control and feature names and the reference
-feature agree: weights and styles do not depend on the layout.
+(`rebind_model`), read with the saved model's feature set and desired speed, after checking that the model step,
+the state, control and feature names and the reference feature agree: weights and styles do not depend on the
+layout.
 """
 
 from __future__ import annotations
@@ -55,6 +56,18 @@ def rebind_model(learner, model):
     return out
 
 
+def _model_settings(model) -> dict:
+    """How to read tracks for a saved model: its feature set and its desired speed's a_lat [m/s^2] and v_max
+    [m/s] (`load_track_scene`'s keywords)."""
+    names = model.features.names
+    out = {"features": "following" if "headway" in names else "speed-level" if "speed_sq" in names else "paper"}
+    for feature in model.features.features:
+        profile = getattr(feature.residual, "profile", None)
+        if feature.name == "speed_dev" and profile is not None:
+            out.update(a_lat=float(profile.a_lat), v_max=float(profile.v_max))
+    return out
+
+
 def _check_out(out: Path, model: Path, map_path: Path, tracks: Path) -> None:
     """ValueError when the predictions' CSV ``out`` is a directory, or one of the inputs (the model file, the map,
     a track file or a file in the tracks directory), which writing it would overwrite."""
@@ -78,7 +91,7 @@ def run(args) -> int:
         _check_out(args.out, args.model, args.map, args.tracks)
         learner = load_learner(args.model)
         dt = learner.model_.dynamics.dt
-        scene = load_track_scene(args, dt, say)
+        scene = load_track_scene(args, dt, say, **_model_settings(learner.model_))
         learner = rebind_model(learner, scene.model)
         window = getattr(learner, "window", None)
         history = (seconds_to_steps(args.history, dt, "--history") if args.history is not None

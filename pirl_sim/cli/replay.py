@@ -33,7 +33,7 @@ from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
 
 from .common import command_line, error, interrupted, seconds_to_steps
 
-__all__ = ["add_parser", "run", "ReplayOptions", "ReplaySettings", "replay_results"]
+__all__ = ["add_parser", "run", "ReplayOptions", "ReplaySettings", "replay_results", "PRESETS", "data_preset"]
 
 #: the default roundabouts of ``--table`` (INTERACTION names)
 DEV_ROUNDABOUTS = ("DR_USA_Roundabout_EP", "DR_USA_Roundabout_FT", "DR_CHN_Roundabout_LN")
@@ -72,6 +72,16 @@ _BEST = {"desired_speed": "fit", "features": "speed-level", "lateral": "neighbou
 _PAPER = {"desired_speed": "fixed", "features": "paper", "lateral": "hold", "selection": "tracks",
           "learners": ("tirl", "pirl-gmm", "pirl-knn")}
 PRESETS = {"best": _BEST, "paper": _PAPER}  #: the settings of each ``--preset``
+
+
+def data_preset(tracks: Path, preset: str) -> dict:
+    """The `PRESETS` entry ``preset`` for the drivers of ``tracks``: drivers whose model is known (a pirl_sim
+    recording, or a ``ground_truth.csv`` beside the tracks) keep their own features and desired speed and the
+    paper's selection, whatever the preset."""
+    from pirl_sim.scenarios.replay import GROUND_TRUTH_FILE, is_recording
+
+    folder = tracks if tracks.is_dir() else tracks.parent
+    return _PAPER if is_recording(tracks) or (folder / GROUND_TRUTH_FILE).is_file() else PRESETS[preset]
 
 
 def _text(value) -> str:
@@ -288,8 +298,8 @@ class ReplayOptions:
             A receding likelihood or closed rollout without an MPC horizon, ``dt`` other than a recording's
             re-planning step with its horizon, ``selection="steps"`` without ``driver_steps.csv``.
         """
-        from pirl_sim.scenarios.replay import (DRIVER_STEPS_FILE, GROUND_TRUTH_FILE, MEASURED_NOISE, SIMULATED_NOISE,
-                                               EstimateNoise, is_recording, recording_settings)
+        from pirl_sim.scenarios.replay import (DRIVER_STEPS_FILE, MEASURED_NOISE, SIMULATED_NOISE, EstimateNoise,
+                                               is_recording, recording_settings)
 
         rec, receding, notes = recording_settings(self.tracks), self.likelihood == "receding", []
         if self.dt is None and receding and rec is not None:
@@ -311,8 +321,7 @@ class ReplayOptions:
                              "pirl_sim recording with a run.json to take it from")
         steps_file = (self.tracks if self.tracks.is_dir() else self.tracks.parent) / DRIVER_STEPS_FILE
         simulated = is_recording(self.tracks)
-        known = simulated or steps_file.with_name(GROUND_TRUTH_FILE).is_file()  # drivers whose model is known
-        preset = _PAPER if known else PRESETS[self.preset]  # known drivers: their own features and desired speed
+        preset = data_preset(self.tracks, self.preset)
         features, desired_speed = self.features or preset["features"], self.desired_speed or preset["desired_speed"]
         selection = self.selection or ("steps" if receding and steps_file.is_file() else
                                        "all" if features == "following" else preset["selection"])

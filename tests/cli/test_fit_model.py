@@ -48,3 +48,24 @@ def test_fit_model_and_predict_commands(tmp_path, capsys):
                      str(scene / "map.osm"), "--out", str(target), "--quiet"]) == 2
         assert "is one of the inputs" in capsys.readouterr().err
     assert all(p.read_bytes() == b for p, b in before.items())
+
+
+def test_on_real_data_the_model_takes_the_replays_best_settings_and_predict_reads_them_back(real_like, tmp_path,
+                                                                                           capsys):
+    """fit-model's defaults are the replay's (--preset best: speed-level features, a fitted desired speed);
+    predict rebuilds that model on its tracks; --preset paper gives the paper's."""
+    from pirl_sim.learners import load_learner
+
+    where = ["--tracks", str(real_like), "--map", str(real_like / "map.osm"), "--quiet"]
+    assert main(["fit-model", *where, "--learner", "tirl", "--window", "1", "--out", str(tmp_path / "best")]) == 0
+    assert "over ['speed_dev', 'acc_sq', 'jerk_sq', 'speed_sq', 'speed_hi']" in capsys.readouterr().out
+    profile = load_learner(tmp_path / "best.npz").model_.features.features[0].residual.profile
+    assert (profile.a_lat, profile.v_max) != (1.8, 13.9)  # fitted on the tracks
+    assert main(["predict", "--model", str(tmp_path / "best.npz"), *where, "--horizon", "1",
+                 "--out", str(tmp_path / "pred.csv")]) == 0
+    assert "mean displacement error" in capsys.readouterr().out
+    assert main(["fit-model", *where, "--preset", "paper", "--learner", "tirl", "--window", "1",
+                 "--out", str(tmp_path / "paper")]) == 0
+    assert "over ['speed_dev', 'acc_sq', 'jerk_sq']" in capsys.readouterr().out
+    profile = load_learner(tmp_path / "paper.npz").model_.features.features[0].residual.profile
+    assert (profile.a_lat, profile.v_max) == (1.8, 13.9)
