@@ -2,6 +2,7 @@
 
     python benchmarks/bench_replay.py [--tracks 1000]              # one split, four learners
     python benchmarks/bench_replay.py --command [--workers 1,2]     # the replay command itself
+    python benchmarks/bench_replay.py --real DIR --map MAP.osm [--files 5 --seeds 4 --workers 2] [--baseline REV]
 
 The scene is simulated (roundabout passage drivers of three styles, written in the INTERACTION format with a
 Lanelet2 map), because real recordings may not be redistributed.
@@ -14,6 +15,12 @@ along each test track. Target: under 60 s in total.
 PIRL-GMM, PIRL-kNN; a fresh process per run, output in a temporary directory so that nothing is resumed), for
 each ``--workers`` value, with the load average at the start. Target: under 120 s. BLAS threads: the command's
 own policy (one thread, `pirl_sim.threads`).
+
+``--real``: the default replay (``--preset best``) of a local copy of real recordings, ``pirl-sim replay --tracks
+DIR --map MAP --files 5 --seeds 4 --workers 2`` in a fresh process: wall time, the load average before and
+after, and per learner the median fit and predict time over the split seeds. Target: under 5 minutes for five
+track files of a development roundabout. ``--baseline REV`` also times the same settings, given as options, on
+revision REV of the package (`_baseline.export_revision`), and prints the ratio.
 """
 
 from __future__ import annotations
@@ -43,8 +50,18 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tracks", type=int, default=1000)
     ap.add_argument("--command", action="store_true", help="time the replay command instead")
-    ap.add_argument("--workers", default="1,2", help="--command: comma-separated --workers values to time")
+    ap.add_argument("--workers", default="1,2", help="--command: comma-separated --workers values to time; --real: "
+                    "the last of them (default 2)")
+    ap.add_argument("--real", type=str, default=None, metavar="DIR", help="time the default replay of these tracks")
+    ap.add_argument("--map", type=str, default=None, help="--real: their Lanelet2 map")
+    ap.add_argument("--files", type=int, default=5, help="--real: track files used (default 5)")
+    ap.add_argument("--seeds", type=int, default=4, help="--real: split seeds (default 4)")
+    ap.add_argument("--baseline", default=None, metavar="REV", help="--real: also time git revision REV")
     args = ap.parse_args(argv)
+    if args.real is not None:
+        if args.map is None:
+            ap.error("--real needs --map")
+        return _time_real(args)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         data = generate(PassageConfig(n_trajectories=args.tracks, n_train=args.tracks - 1))
@@ -84,6 +101,47 @@ def _time_command(paths, workers: list[int], tmp: str) -> None:
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         wall = time.perf_counter() - t0
         print(f"  --workers {j}: {wall:6.1f} s  (target < 120 s: {'met' if wall < 120 else 'NOT met'})")
+
+
+#: the default replay's settings as options (what ``--preset best`` sets), for a revision whose defaults differ
+BEST_AS_OPTIONS = ["--desired-speed", "fit", "--features", "speed-level", "--lateral", "neighbours", "--selection",
+                   "free", "--estimate", "speeds", "--learners", "tirl,pirl-gmm,pirl-knn,pirl-knn-next,pirl-select"]
+
+
+def _time_real(args) -> None:
+    """Wall time of the default replay of ``args.real`` (and of revision ``args.baseline`` with the same settings)."""
+    import pandas as pd
+
+    from _baseline import export_revision
+
+    workers = int(args.workers.split(",")[-1])
+    tracks, osm = os.path.abspath(args.real), os.path.abspath(args.map)
+    runs = [("this tree", None, [])]
+    if args.baseline:
+        runs.append((f"revision {args.baseline}", export_revision(args.baseline), BEST_AS_OPTIONS))
+    walls = {}
+    for name, code, extra in runs:
+        with tempfile.TemporaryDirectory() as tmp:
+            env = dict(os.environ)
+            if code is not None:
+                env["PYTHONPATH"] = os.pathsep.join([str(code), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+            cmd = [sys.executable, "-m", "pirl_sim", "replay", "--tracks", tracks, "--map", osm, "--files",
+                   str(args.files), "--seeds", str(args.seeds), "--workers", str(workers), "--quiet",
+                   "--out", tmp, *extra]
+            load0 = os.getloadavg()[0]
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd=tmp)
+            walls[name] = time.perf_counter() - t0
+            rows = pd.read_csv(os.path.join(tmp, "rows.csv"))
+        print(f"{name}: {walls[name]:.0f} s for {args.files} files, {args.seeds} seeds, --workers {workers} "
+              f"(load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after; target < 300 s: "
+              f"{'met' if walls[name] < 300 else 'NOT met'})")
+        for method, g in rows.groupby("method", sort=False):
+            if g["fit_s"].max() > 0:
+                print(f"  {method:30s} fit {g['fit_s'].median():6.1f} s, predict {g['predict_s'].median():6.1f} s "
+                      f"(median over seeds), MED {g['med'].mean():.3f} m")
+    if args.baseline:
+        print(f"ratio revision {args.baseline} / this tree: {walls[runs[1][0]] / walls['this tree']:.2f}")
 
 
 def data_tracks(paths) -> list:

@@ -6,6 +6,11 @@ arc-length layout of the scene it was fitted on; the learner runs on the layout 
 (`rebind_model`), read with the saved model's feature set and desired speed, after checking that the model step,
 the state, control and feature names and the reference feature agree: weights and styles do not depend on the
 layout.
+
+With ``--futures K`` the output is instead the INTERACTION prediction challenge's submission layout (INTERPRET,
+single-agent regular track): one row per predicted 0.1 s frame of each case (one case per predicted track),
+``case_id,frame_id,timestamp_ms,track_id,agent_role,agent_type`` then the K modes' ``x1,y1,...,xK,yK`` [m], and
+the modes' probabilities beside it in ``<OUT stem>_proba.csv`` (`submission_tables`).
 """
 
 from __future__ import annotations
@@ -14,11 +19,18 @@ import copy
 import math
 from pathlib import Path
 
-from pirl_sim.validation import positive_float_arg
+from pirl_sim.validation import positive_float_arg, positive_int_arg, seed_arg
 
 from .common import add_track_options, error, load_track_scene, seconds_to_steps
 
-__all__ = ["add_parser", "run", "rebind_model"]
+__all__ = ["SUBMISSION_COLUMNS", "add_parser", "history_end_frames", "proba_path", "rebind_model", "run",
+           "submission_tables"]
+
+#: the first columns of an INTERACTION prediction challenge submission, in this order; the K modes' x, y follow
+SUBMISSION_COLUMNS = ("case_id", "frame_id", "timestamp_ms", "track_id", "agent_role", "agent_type")
+_FRAME_S = 0.1  # [s] an INTERACTION frame
+_FRAME_MS = 100  # [ms] an INTERACTION frame
+_XY_TOLERANCE = 1e-6  # [m] a recorded position matches a trajectory's within this
 
 
 def add_parser(subparsers) -> None:
@@ -27,7 +39,9 @@ def add_parser(subparsers) -> None:
         "predict",
         help="predict recorded drivers' futures with a saved model",
         description="Read a model file written by fit-model (or learner.save) and recorded tracks; predict every "
-        "selected track's future from its first --history seconds; write one CSV row per predicted step.",
+        "selected track's future from its first --history seconds; write one CSV row per predicted step, or with "
+        "--futures K the INTERACTION prediction challenge's submission (K modes per 0.1 s frame) and "
+        "<OUT stem>_proba.csv (the modes' probabilities).",
     )
     add_track_options(pr)
     pr.add_argument("--model", type=Path, required=True, help="model file written by fit-model")
@@ -35,6 +49,11 @@ def add_parser(subparsers) -> None:
                     help="observed history [s] (default: the model's look-up window, else 2)")
     pr.add_argument("--horizon", type=positive_float_arg, default=3.0, help="predicted horizon [s] (default 3)")
     pr.add_argument("--out", type=Path, required=True, help="CSV file of the predictions")
+    pr.add_argument("--futures", type=positive_int_arg, default=None, metavar="K",
+                    help="write the INTERACTION challenge's submission layout with K predicted modes per case, and "
+                         "their probabilities in <OUT stem>_proba.csv (default: one row per predicted step)")
+    pr.add_argument("--seed", type=seed_arg, default=0,
+                    help="seed of the learners that draw their --futures (default 0)")
 
 
 def rebind_model(learner, model):
@@ -68,14 +87,124 @@ def _model_settings(model) -> dict:
     return out
 
 
-def _check_out(out: Path, model: Path, map_path: Path, tracks: Path) -> None:
+def _check_out(out: Path, model: Path, map_path: Path, tracks: Path, label: str = "--out") -> None:
     """ValueError when the predictions' CSV ``out`` is a directory, or one of the inputs (the model file, the map,
-    a track file or a file in the tracks directory), which writing it would overwrite."""
+    a track file or a file in the tracks directory), which writing it would overwrite; ``label`` names ``out``."""
     if out.is_dir():
-        raise ValueError(f"--out {str(out)!r} is a directory; give the CSV file of the predictions")
+        raise ValueError(f"{label} {str(out)!r} is a directory; give the CSV file of the predictions")
     inputs = [model, map_path, tracks] + (sorted(tracks.iterdir()) if tracks.is_dir() else [])
     if any(out.resolve() == p.resolve() for p in inputs):
-        raise ValueError(f"--out {str(out)!r} is one of the inputs; writing the predictions would overwrite it")
+        raise ValueError(f"{label} {str(out)!r} is one of the inputs; writing the predictions would overwrite it")
+
+
+def proba_path(out: Path) -> Path:
+    """Where ``--futures`` writes the modes' probabilities beside the submission ``out``: ``<stem>_proba.csv``."""
+    return out.with_name(f"{out.stem}_proba.csv")
+
+
+def _read_track_file(path: Path):
+    """The rows of a track file (`read_tracks`; when it fails validation, the valid tracks that
+    `load_replay` kept, `read_tracks_lenient`)."""
+    from pirl_sim.io.interaction import read_tracks, read_tracks_lenient
+
+    try:
+        return read_tracks(path)
+    except ValueError:
+        df, _ = read_tracks_lenient(path)
+        if df is None:
+            raise
+        return df
+
+
+def history_end_frames(trajectories, history: int, stride: int) -> list[tuple[int, int]]:
+    """``(frame_id, timestamp_ms)`` of the last recorded frame of each trajectory's first ``history`` steps.
+
+    A trajectory read by `load_replay` carries its track file (``metadata["file"]``), ``track_id`` and recorded
+    positions ``xy`` at the model step (``stride`` frames of 0.1 s), from the first frame it uses, but no frame
+    ids: its first frame is the frame of that track from which every ``stride``-th recorded x, y equals the
+    history's ``xy[: history + 1]`` (within 1e-6 m; the earliest such frame). Raises ValueError naming the file and
+    the track when no frame matches."""
+    import numpy as np
+
+    tables: dict = {}
+    out = []
+    for t in trajectories:
+        meta = t.metadata
+        if not all(k in meta for k in ("file", "track_id", "xy")):
+            raise ValueError("--futures needs tracks read from INTERACTION track files (a trajectory has no file, "
+                             "track_id or recorded xy)")
+        file, track_id = Path(meta["file"]), meta["track_id"]
+        target = np.asarray(meta["xy"], dtype=float)[: history + 1]
+        if file not in tables:
+            tables[file] = _read_track_file(file)
+        df = tables[file]
+        rows = df[df["track_id"] == track_id].sort_values("frame_id", kind="stable")
+        xy = rows[["x", "y"]].to_numpy(dtype=float)
+        frames = rows["frame_id"].to_numpy(dtype=np.int64)
+        span = (len(target) - 1) * stride
+        n = len(xy) - span  # first frames that leave room for the whole history
+        found = None
+        if len(target) == history + 1 and n > 0:
+            ok = np.ones(n, dtype=bool)
+            for j, point in enumerate(target):
+                part = slice(j * stride, j * stride + n)
+                ok &= np.all(np.abs(xy[part] - point) <= _XY_TOLERANCE, axis=1)
+                ok &= frames[part] == frames[:n] + j * stride  # no gap in the frames
+            hits = np.flatnonzero(ok)
+            found = int(hits[0]) + span if len(hits) else None
+        if found is None:
+            x0, y0 = target[0] if len(target) else (float("nan"), float("nan"))
+            raise ValueError(f"{file}: no frames of track {track_id} at the positions of its history (first "
+                             f"x={x0:.6f}, y={y0:.6f} m, every {stride} frames); was the file changed after it "
+                             "was read?")
+        out.append((int(frames[found]), int(rows["timestamp_ms"].to_numpy()[found])))
+    return out
+
+
+def submission_tables(trajectories, states, proba, n_futures: int, ends, positions, history: int, stride: int):
+    """The INTERACTION challenge submission and its probabilities as two DataFrames.
+
+    ``states`` (M, K', horizon + 1, n_x) and ``proba`` (M, K') are `predict_futures`' (K' <= ``n_futures``);
+    each case's modes are sorted by probability (most probable first) and padded to ``n_futures`` by repeating the
+    most probable at probability 0. ``positions(states, offset)`` gives x, y [m] (the scene model's); the predicted
+    steps are placed at the history's last lateral offset ``metadata["d"]`` and interpolated linearly in time,
+    from the history's last recorded x, y, at every 0.1 s frame (``stride`` frames a step) after ``ends``'
+    (frame_id, timestamp_ms) of each history (`history_end_frames`)."""
+    import numpy as np
+    import pandas as pd
+
+    K = int(n_futures)
+    horizon = states.shape[2] - 1
+    n_frames = horizon * stride
+    j = np.arange(1, n_frames + 1)  # frames after the history's last
+    steps = np.arange(horizon + 1) * stride
+    blocks, probas = [], []
+    for i, (t, (frame, stamp)) in enumerate(zip(trajectories, ends)):
+        p = np.asarray(proba[i], dtype=float)
+        order = np.argsort(-p, kind="stable")[:K]
+        p = p[order] / p[order].sum()
+        pad = K - len(order)
+        order = np.concatenate([order, np.full(pad, order[0])])
+        p = np.concatenate([p, np.zeros(pad)])
+        d = t.metadata.get("d")
+        offset = float(d[history]) if d is not None and len(d) > history else 0.0
+        anchor = np.asarray(t.metadata["xy"], dtype=float)[history]
+        xy = positions(states[i, order, 1:], offset)  # (K, horizon, 2)
+        coords = np.empty((n_frames, 2 * K))
+        for k in range(K):
+            path = np.vstack([anchor, xy[k]])
+            coords[:, 2 * k] = np.interp(j, steps, path[:, 0])
+            coords[:, 2 * k + 1] = np.interp(j, steps, path[:, 1])
+        block = pd.DataFrame(coords, columns=[f"{c}{k}" for k in range(1, K + 1) for c in "xy"])
+        firsts = (i + 1, frame + j, stamp + _FRAME_MS * j, t.metadata["track_id"], "agent", "car")
+        for position, (name, value) in enumerate(zip(SUBMISSION_COLUMNS, firsts)):
+            block.insert(position, name, value)
+        blocks.append(block)
+        probas.append([i + 1, *p])
+    submission = pd.concat(blocks, ignore_index=True)
+    table = pd.DataFrame(probas, columns=["case_id", *(f"p{k}" for k in range(1, K + 1))])
+    table["case_id"] = table["case_id"].astype(int)
+    return submission, table
 
 
 def run(args) -> int:
@@ -87,8 +216,12 @@ def run(args) -> int:
     from pirl_sim.progress import reporter
 
     say = reporter(not args.quiet)
+    futures = getattr(args, "futures", None)
     try:
         _check_out(args.out, args.model, args.map, args.tracks)
+        if futures is not None:
+            _check_out(proba_path(args.out), args.model, args.map, args.tracks,
+                       label=f"the probabilities of --out {str(args.out)!r},")
         learner = load_learner(args.model)
         dt = learner.model_.dynamics.dt
         scene = load_track_scene(args, dt, say, **_model_settings(learner.model_))
@@ -104,6 +237,23 @@ def run(args) -> int:
         if not usable:
             raise ValueError(f"no selected track has more than {history} steps (--history {history * dt:g} s)")
         histories = [t.window(0, history) for t in usable]
+        if futures is not None:
+            stride = round(dt / _FRAME_S)
+            ends = history_end_frames(usable, history, stride)  # before the predictions: a missing frame fails fast
+            states, proba = learner.predict_futures(histories, horizon, n_futures=futures, random_state=args.seed)
+            submission, table = submission_tables(usable, states, proba, futures, ends, scene.model.positions,
+                                                  history, stride)
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        return error(exc)
+    if futures is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        submission.to_csv(args.out, index=False, float_format="%.3f")
+        table.to_csv(proba_path(args.out), index=False)
+        print(f"{len(usable)} cases, {futures} futures, {horizon * stride} frames of 0.1 s each (history "
+              f"{history * dt:g} s, horizon {horizon * dt:g} s)")
+        print(f"wrote {args.out} and {proba_path(args.out)}")
+        return 0
+    try:
         theta = learner.infer_weights(histories)
         states = learner.predict_states(histories, horizon)
         styles = learner.predict_style(histories) if hasattr(learner, "predict_style") else None
