@@ -1,25 +1,16 @@
 """``pirl-sim replay``: learn from recorded tracks and score predictions against them, through the sweep engine.
 
-The options are one frozen, validated `ReplayOptions` (its fields declare the parser: `ReplayOptions.add_arguments`),
-made once from the command line (`ReplayOptions.from_args`); `ReplayOptions.resolve` fills in the defaults that
-depend on the data (`ReplaySettings`), whose `ReplaySettings.config` is the sweep config: the scenario
-``recorded`` (`pirl_sim.experiments.recorded`), or with ``--scan-horizon`` the ``horizon-scan`` kind
-(`pirl_sim.experiments.horizon_scan`) over the same scene and windows. It runs with
-`pirl_sim.engine.run.run_sweep` into ``--out`` (``cells/``: one cell per split seed and method, stored as it
-finishes; a rerun of the same command resumes), then the report template
+The options are one frozen, validated `ReplayOptions` (its fields declare the parser:
+`ReplayOptions.add_arguments`), made once from the command line (`ReplayOptions.from_args`);
+`ReplayOptions.resolve` fills in the defaults that depend on the data (`ReplaySettings`), whose
+`ReplaySettings.config` is the sweep config: the scenario ``recorded`` (`pirl_sim.experiments.recorded`), or with
+``--scan-horizon`` the ``horizon-scan`` kind (`pirl_sim.experiments.horizon_scan`). It runs with
+`pirl_sim.engine.run.run_sweep` into ``--out``, then the report template
 `pirl_sim.experiments.replay_report.write_replay_results` (and `pirl_sim.experiments.replay_table` with
-``--table``). ``--workers N`` runs the split seeds in N sweep worker processes (forked after the scene is read,
-so it is read once; 1: in this process).
+``--table``).
 
-Defaults that depend on the data. A tracks directory with a pirl_sim ``run.json`` is a *pirl_sim recording*:
-its drivers' model settings (path smoothing, desired-speed smoothing, a_lat, v_max) are used for the learned
-model, the state estimate trusts its exact speeds (`pirl_sim.scenarios.replay.SIMULATED_NOISE`), and with
-``--likelihood receding`` the step ``--dt`` defaults to the drivers' re-planning step and ``--mpc-horizon`` to
-their MPC horizon; where it also has ``driver_steps.csv``, ``--selection`` defaults to ``steps``. Anything
-else is *real data*: ``--dt 0.2`` (the paper's step), measured-speed noise
-(`pirl_sim.scenarios.replay.MEASURED_NOISE`), ``--selection tracks``, and ``--likelihood receding`` needs
-``--mpc-horizon``. Times given in seconds (``--history``, ``--horizon``) keep their meaning in seconds
-whatever ``--dt``.
+The options, presets and the defaults that depend on the data are explained in the documentation's "Replay of
+recorded driving" page.
 """
 
 from __future__ import annotations

@@ -8,13 +8,7 @@ seeds. `run_sweep` sends the cells that the results directory does not hold yet 
 `write_report` draws the figures and a Markdown summary. The command line: ``pirl-sim sweep`` and
 ``pirl-sim report`` (`pirl_sim.cli.sweep`, `pirl_sim.cli.report`).
 
-Example::
-
-    from pirl_sim.engine import load_config, run_sweep, write_report
-
-    run = run_sweep(load_config("default"), "results/sweep", workers=2)
-    print(run.table[["scenario_label", "protocol", "learner_label", "med"]])
-    write_report("results/sweep")
+Sweeps, with an example from Python, are explained in the documentation's "Sweeps" page.
 """
 
 from .config import Cell, SweepConfig, default_config, load_config, parse_config

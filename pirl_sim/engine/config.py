@@ -1,38 +1,13 @@
 """Sweep configs: TOML -> frozen, validated dataclasses -> the grid's cells.
 
-Schema (every table rejects unknown keys, naming the valid ones)::
+A config lists experiments, each a block of the grid: a registered scenario
+(`pirl_sim.experiments.registry.SCENARIOS`) with fixed ``params`` and a ``grid`` of parameters to vary,
+``protocols``, ``learners`` (a name, or a table with ``params`` and a ``grid``) and ``seeds``. Its cells are the
+grid points, scenario variant x protocol x learner variant x seed; a cell that appears in two experiments is
+computed once. Every table rejects unknown keys, naming the valid ones, and everything is checked when the config
+is built, before any work starts.
 
-    name = "paper"                       # optional; the report's title
-    description = "..."                  # optional
-    seeds = [0]                          # default seeds of every experiment (data and learner seeds)
-
-    [[experiments]]                      # one block of the grid; the sweep is the union of its blocks
-    scenario = "passage"                 # a registered scenario (`pirl_sim.experiments.registry.SCENARIOS`)
-    label = "passage"                    # optional, default: the scenario name
-    seeds = [0, 1]                       # optional, overrides the top-level seeds
-    params = { n_trajectories = 600 }    # fixed scenario parameters (the rest: the scenario's defaults)
-    grid = { rationality = [20.0, 100.0] }   # scenario parameters to vary: a list of values, or a table
-                                         # {variant label = value} for values that need a short name
-    protocols = [
-        { kind = "paper" },
-        { kind = "online", history_steps = 10 },                       # [steps]
-        { kind = "rolling", history_steps = 10, horizon = 15, stride = 5, grid = { history_steps = [5, 10] } },
-    ]
-    learners = [
-        "tirl",                                                        # a name alone: default parameters
-        { name = "pirl-gmm", params = { n_components = 3 } },
-        { name = "pirl-knn", params = { prior = "population", stride = 2 }, grid = { n_neighbors = [1, 10] } },
-    ]
-
-Cells are the grid points: scenario variant x protocol x learner variant x seed, for every experiment; a cell
-appearing in two experiments is computed once (same key) and listed under both. The learners' ``window`` and
-``windows`` come from the protocol and their ``model`` from the scenario (so these three keys are rejected);
-``random_state``, where a learner has one, is the cell's seed unless given.
-
-Everything is checked when the config is built, before any work starts: unknown scenario, learner, protocol
-kind or key; an empty grid (no experiment, learner, protocol, seed, or an empty list of values); bad scenario
-or protocol values; a history or horizon longer than the trajectories; and a k (``n_neighbors``,
-``n_components``) larger than the training samples the learner will see.
+The schema and the checks are explained in the documentation's "Sweeps" page (the config).
 """
 
 from __future__ import annotations

@@ -1,25 +1,15 @@
 """The result store: one small JSON file per finished cell, written atomically, keyed by config + code version.
 
-Layout of a results directory::
+`ResultStore` reads and writes a results directory: ``cells/<key>.json`` (one per finished cell),
+``simulations/<key>/`` (a simulated scenario's recorded run, complete once its `SIMULATION_RECORD` is written),
+``errors/<key>.json`` (a cell's last failure), ``sweep.json``, ``table.parquet`` / ``table.csv`` and
+``recovery.parquet``. A cell's key is the sha256 of its full configuration (`pirl_sim.engine.config.Cell.spec`)
+and the code version (`code_version`: the package version and a hash of `code_text` of the source files that
+compute a cell, `CELL_CODE`, with a scenario's own code, `pirl_sim.experiments.spec.ScenarioSpec.code`).
+`simulation_key` keys a recorded run the same way.
 
-    cells/<key>.json     one per finished cell: its full config, scores, timings, recovered weights
-    simulations/<key>/   one recorded run of a simulated scenario, shared by every cell that uses it (its
-                         ``simulation.json``, written last, says it is complete)
-    errors/<key>.json    the last failure of a cell (not a result: the cell runs again next time)
-    sweep.json           the sweep: config text, code version, every cell's key and labels, the command
-    table.parquet/.csv   the tidy table, one row per cell (assembled from cells/)
-    recovery.parquet     true vs inferred weights per test trajectory (where the truth is known)
-
-A cell's key is the sha256 of its full configuration (`pirl_sim.engine.config.Cell.spec`) and the code version
-(`code_version`: the package version and a hash of the source files of the code that computes a cell, `CELL_CODE`),
-so a changed config or a change to that code never reuses an old result, and unchanged ones always do; changes
-to the report, the command line, figures, the replay's report template or the gymnasium envs leave the stored
-cells valid. A scenario whose cells run more code names it (`pirl_sim.experiments.spec.ScenarioSpec.code`: the
-``agents`` scenario's envs); that code is part of its own cells' keys only.
-`CELL_CODE` is checked by ``tests/engine/test_store.py``: cells of every registered scenario run in a fresh
-process under a profiler, and every source file whose code ran must be hashed. A file in ``cells/`` is complete
-or absent (`pirl_sim.io.atomic`: written beside, fsynced, renamed); a file that does not parse (e.g. written by
-hand) is treated as absent and recomputed.
+The layout and the keys are explained in the documentation's "Sweeps" page (the result store) and
+"Architecture" page (how a cell is keyed).
 """
 
 from __future__ import annotations

@@ -4,15 +4,13 @@
 highway-env (:class:`~pirl_sim.envs.roundabout.PirlRoundaboutEnv`, the default) or, with
 ``config={"backend": "sumo"}``, on SUMO (:class:`~pirl_sim.envs.sumo_roundabout.PirlRoundaboutSumoEnv`,
 extra ``pirl_sim[sumo]``); :func:`make_roundabout` picks the backend. Importing this package registers it
-(:func:`register_envs`, idempotent, a lazy string entry point: highway-env is imported only when an env is
-made), so with ``pirl_sim`` importing it::
+(:func:`register_envs`, idempotent, a lazy entry point), so with ``pirl_sim`` importing it::
 
     import gymnasium, pirl_sim
     gymnasium.register_envs(pirl_sim)   # a no-op that keeps linters from flagging the import
     env = gymnasium.make("pirl_sim/Roundabout-v0", config={"initial_vehicles": 12})
 
-Gymnasium 1.x ignores ``gymnasium.envs`` entry points, hence the registration on import; without
-gymnasium installed this package registers nothing.
+The env and its registration are explained in the documentation's "The gymnasium environment" page.
 """
 
 from __future__ import annotations

@@ -1,18 +1,12 @@
 """highway-env's ``Kinematics`` observation without pandas, and with the observed vehicles kept.
 
 :class:`RoundaboutKinematics` is highway-env's :class:`~highway_env.envs.common.observation.KinematicObservation`
-(same options, same rows, same values) with two changes:
+(same options, same rows, same values to float32 rounding) with its rows computed as numpy arrays
+(:func:`kinematics_rows`; the features of :data:`DIRECT_FEATURES` directly, others through
+``Vehicle.to_dict``) and with :attr:`RoundaboutKinematics.rows`, the vehicles of rows 1..V-1 of the last
+observation after shuffling, so that the env's ``info`` can name the neighbour of each row.
 
-- **Speed.** highway-env builds a pandas DataFrame every step (~6 ms of a 10-frame env step with 20
-  vehicles, most of the bare ``roundabout-v0``'s step time); here the rows are numpy arrays. Features
-  ``presence``, ``x``, ``y``, ``vx``, ``vy``, ``heading``, ``cos_h``, ``sin_h`` are computed directly (as
-  ``Vehicle.to_dict`` does: velocity = speed x (cos, sin) of the heading, the first four relative to the
-  observer unless ``absolute``), others through ``to_dict``; normalisation is highway-env's ``lmap`` to
-  [-1, 1] over ``features_range`` and clipping. The values equal highway-env's to float32 rounding (tested).
-- **Which vehicle is in which row.** :attr:`RoundaboutKinematics.rows` holds the vehicles of rows
-  1..V-1 of the last observation (None for empty rows), after the ``order = "shuffled"`` permutation
-  (drawn from the env's ``np_random`` as highway-env does), so that the env's ``info`` can name the
-  neighbour of each row even when rows are shuffled.
+The observation is explained in the documentation's "The gymnasium environment" page (spaces).
 """
 
 from __future__ import annotations

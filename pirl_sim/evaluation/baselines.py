@@ -1,24 +1,13 @@
 """Kinematic baselines as pseudo-learners of the sweep: constant velocity and constant acceleration.
 
-They follow the learners' contract as far as a sweep cell uses it (``fit`` returns self and sets ``model_``,
-``infer_weights`` and the model's ``predict_states``), so every protocol scores them exactly like the learners:
-``learners = ["cv", "ca", "tirl", ...]`` in a sweep config puts their MED and FDE beside the learners'. They
-infer no weights (NaN: no weight scores) and have no styles.
+`ConstantVelocity` (``cv``) and `ConstantAcceleration` (``ca``, stopping at v = 0) follow the learners' contract
+as far as a sweep cell uses it (``fit`` returns self and sets ``model_``, a `KinematicModel`; ``infer_weights``
+gives NaN), so ``learners = ["cv", "ca", "tirl", ...]`` in a sweep config puts their MED and FDE beside the
+learners'. `PlaneVelocity` (``cv-xy``), `Hindsight` (``hindsight``) and `Direct` (``direct``) name methods that
+the ``recorded`` scenario (`pirl_sim.experiments.recorded`) computes itself; their ``fit`` raises ValueError.
+`BASELINES` maps the sweep names to the classes.
 
-- ``cv``: the position advances at the last observed speed (v, held); the acceleration, if the state has one,
-  is 0.
-- ``ca``: the last observed acceleration is held from a non-negative speed until the vehicle stops (it does
-  not reverse). Needs a state with an acceleration (the roundabout model's (s, v, a)); the synthetic point
-  mass (p, v) has none.
-
-Two more pseudo-learners are methods of the ``recorded`` scenario only (`pirl_sim.experiments.recorded`, the replay),
-which computes them itself (a sweep config that puts them elsewhere is refused; their ``fit`` raises ValueError):
-
-- ``cv-xy``: constant velocity in the plane from the last two recorded positions;
-- ``hindsight``: each test window under the cost fitted on its own recorded future (an oracle, no predictor).
-
-States are read by the dynamics' state names (``"s [m]"`` or ``"p [m]"``, ``"v [m/s]"``, ``"a [m/s^2]"``);
-other state entries (e.g. a leader's gap) are held.
+What each baseline predicts is explained in the documentation's "Sweeps" page (the config).
 """
 
 from __future__ import annotations

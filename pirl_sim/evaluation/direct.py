@@ -1,21 +1,13 @@
 """A reference without a cost: the next seconds along the path regressed on the history and the place.
 
-`DirectRegression` predicts how far a car drives along its path over the next ``horizon`` steps, as constant
+`DirectRegression` predicts how far a car drives along its path over the next ``horizon`` steps as constant
 acceleration from its estimated state plus a learned correction, one gradient-boosted regression tree ensemble
-(`sklearn.ensemble.HistGradientBoostingRegressor`) per step ahead:
+(`sklearn.ensemble.HistGradientBoostingRegressor`) per step ahead, on PIRL-kNN's next-segment look-up keys and
+the place (the path's position and heading at the history's end). It is no model of drivers' costs and no PIRL
+learner: the replay (`pirl_sim.experiments.recorded`, method ``direct``, ``pirl-sim replay --direct``) reports
+it beside the learners as a measure of how much the history and the map tell about the next seconds.
 
-    s(t_k) = s_CA(t_k) + g_k(z),   k = 1 .. horizon,
-
-where the keys z of a history are what PIRL-kNN's next-segment look-up sees (speed and acceleration along the
-path at ``lags`` steps before the history's end; the road's |curvature| ``ahead`` metres beyond its end) plus
-*where* the car is: the position [m] of the path at the history's end and the path's heading there (unit
-vector). It is fitted on every ``stride``-th window of the training tracks, each history's states estimated
-from its own observations (``online=True``, `pirl_sim.trajectory.Trajectory.history_window`, as an online
-prediction's), each target the training track's arc lengths over the steps after the window.
-
-It is no model of drivers' costs and no PIRL learner: the replay (`pirl_sim.experiments.recorded`, method
-``direct``, ``pirl-sim replay --direct``) reports it beside the learners as a measure of how much the history
-and the map tell about the next seconds, whatever a cost look-up turns of it into predictions (README).
+The regression is explained in the documentation's "Replay of recorded driving" page (the direct regression).
 """
 
 from __future__ import annotations

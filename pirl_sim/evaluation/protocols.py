@@ -1,34 +1,13 @@
 """One evaluation: a fitted learner, test trajectories, a protocol -> a tidy row of scores.
 
-Protocols
----------
-paper
-    The paper's: weights are inferred from the features of the *whole* test trajectory, and the MPC predicts
-    the whole trajectory from its first state. The prediction has seen the future it predicts (through the
-    features), so it measures how well a cost explains a trajectory more than forecasting.
-online
-    Honest forecasting: weights are inferred from the first ``history_steps`` steps only (learners look up
-    features of the same window length in their training data), and the MPC predicts the remaining steps from
-    the last observed state.
-rolling
-    Online inference along the whole trajectory (the paper's "at each time step ... T' steps of history"):
-    at every ``stride``-th step t with t >= history_steps and t + horizon <= N, weights come from steps
-    t - history_steps .. t and the MPC predicts steps t .. t + horizon. MED averages over all those
-    predictions. Learners use sliding training windows.
+A `Protocol` says what part of a test trajectory a learner sees and what it must predict: ``paper`` (weights from
+the whole test trajectory, the whole trajectory predicted from its first state), ``online`` (weights from the
+first ``history_steps`` steps, the rest predicted) or ``rolling`` (at every ``stride``-th step, weights from the
+last ``history_steps`` steps and the next ``horizon`` steps predicted). `evaluate` scores a learner under one
+protocol (MED, FDE and, where the truth is known, the weight error) and, with ``n_futures=K`` (online and
+rolling only), K futures per history (`future_scores`: minADE, minFDE, miss rate and NLL of `pirl_sim.metrics`).
 
-Multi-modal scores (``evaluate(..., n_futures=K)``, online and rolling only): every learner's
-``predict_futures`` gives K futures with probabilities after each history (PIRL-GMM/DPGMM: weights drawn from
-the style mixture in weight space, the most probable styles in feature space; PIRL-kNN: neighbours drawn by
-their votes; TIRL: its one future), scored by `pirl_sim.metrics` as the INTERACTION prediction challenge
-defines them: ``min_ade``, ``min_fde`` [m], ``miss_rate`` (the challenge's lateral / speed-dependent
-longitudinal rule at the last predicted step; the true speed there from the true positions' last step, a
-backward difference; the true heading the reference path's tangent for a model on a path, else the direction
-of that last step) and ``nll`` [nats per predicted step] of the true
-future under an isotropic Gaussian mixture of standard deviation ``nll_sigma`` [m] around the futures;
-``k_futures`` is the largest K a learner returned (fewer than asked for: TIRL 1, a feature-space mixture its
-number of styles). Each history is a case (the challenge's averaging): the online protocol averages over
-test trajectories, the rolling one over all its predictions. Without ``n_futures`` the row is exactly what it
-was before these scores existed.
+The protocols and scores are explained in the documentation's "Protocols and metrics" page.
 """
 
 from __future__ import annotations

@@ -1,44 +1,14 @@
 """The ``agents`` scenario of sweeps: egos on ``pirl_sim/Roundabout-v0``, trained (PPO) or scripted, each cell
 evaluated on fixed evaluation episodes.
 
-A sweep over agents is a config like any other (`pirl_sim.engine.config`)::
-
-    [[experiments]]
-    scenario = "agents"
-    params = { initial_vehicles = 12, depart_interval = 2.0, eval_episodes = 20 }
-    seeds = [0, 1, 2]                   # PPO's training seeds (PPO's and its training env's)
-    protocols = ["paper"]               # no prediction protocol: the one accepted value
-    learners = [{ name = "ppo", grid = { style_observation = ["none", "truth", "inferred"] } }]
-
-    [[experiments]]
-    scenario = "agents"
-    seeds = [0]                         # the scripted egos are deterministic: one seed
-    protocols = ["paper"]
-    learners = ["hold-speed", "idm", "mpc"]
-
-Every cell is one policy run: the scripted egos (:mod:`pirl_sim.envs.baselines`) are evaluated, PPO
+Every cell is one policy run: a scripted ego (:mod:`pirl_sim.envs.baselines`) is evaluated, PPO
 (stable-baselines3) is trained for ``steps`` environment steps with the cell's seed and then evaluated with
-deterministic actions. The evaluation episodes reset the env with the seeds ``eval_seed``, ``eval_seed + 1``,
-... (the same for every cell; a training seed among them is refused). Finished cells are stored like every
-sweep cell (`pirl_sim.engine.store`), so an interrupted experiment resumes where it stopped, and cells run in
-parallel on the sweep's workers (one torch and one BLAS thread each).
+deterministic actions, on the env seeds ``eval_seed``, ``eval_seed + 1``, ... The policies
+(`POLICIES`: ``"hold-speed"``, ``"idm"``, ``"mpc"``, ``"ppo"``, `PPOEgo`) are learners of this scenario only.
+The code of these cells (this module and :mod:`pirl_sim.envs`) is part of this scenario's cell keys only.
 
-The policies are pseudo-learners of this scenario only (``scenarios = ("agents",)``; no other learner runs
-here): ``"hold-speed"``, ``"idm"``, ``"mpc"`` (weights ``speed_dev``, ``acc_sq``; ``jerk_sq`` = 1) and
-``"ppo"`` (`PPOEgo`: its action, the observation mode and PPO's settings).
-
-A cell's scores (the stored ``result``): ``policy`` (e.g. ``"ppo residual-idm"``), ``mode`` (the observation
-mode, "" for scripted egos), ``episodes`` (one dict per evaluation episode: eval_seed, return, arrived, crashed,
-time [s], time_to_exit [s] or None, and the exit reward's summed terms: progress_time, near_miss_time,
-comfort_acc_time, comfort_jerk_time, comfort_lateral_time [s]), ``curve`` ([environment steps, return] of every
-finished training episode), ``train_time_s`` (with model selection including the validation episodes) and, for
-PPO, ``learner_time_s`` (the style learner's fit, when this cell fitted it) [s]; with model selection
-(``select_every``) also ``selection`` ([environment steps, mean validation return] of every check),
-``selected_steps`` (the check whose policy was evaluated) and ``select_time_s``; the record's ``warnings`` hold
-the cell's warnings.
-
-The code of these cells (this module and :mod:`pirl_sim.envs`) is part of this scenario's cell keys only
-(``ScenarioSpec.code``): a change to an env recomputes the agents' cells, not the learners' sweeps.
+A sweep config over agents, the policies and a cell's stored scores are explained in the documentation's
+"Agents among drivers of known styles" page.
 """
 
 from __future__ import annotations

@@ -3,88 +3,14 @@
     pirl-sim agents --out results/agents --workers 2     # the committed experiment
     pirl-sim agents --out /tmp/a --steps 512 --seeds 0 --episodes 2   # a tiny run
 
-One command trains stable-baselines3's PPO on the env's ``"exit"`` reward in dense traffic (12 vehicles at
-reset, one departure every 2 s on average) for every observation mode (``style_observation``: none, truth,
-inferred) and training seed, evaluates each trained policy (deterministic actions) on the same fixed evaluation
-seeds as the scripted baselines (:mod:`pirl_sim.envs.baselines`: hold speed, IDM, MPC with the "tracks desired
-speed" weights), and writes under ``--out``. The runs are cells of the sweep engine's ``agents`` scenario
-(:mod:`pirl_sim.experiments.agents`, config :func:`sweep_data`), run by `pirl_sim.engine.presets.run_agents` on
-``--workers`` worker processes:
+One command trains stable-baselines3's PPO on the env's ``"exit"`` reward for every observation mode
+(``style_observation``) and training seed and evaluates each policy and the scripted egos
+(:mod:`pirl_sim.envs.baselines`) on the same evaluation seeds. The runs are cells of the sweep engine's
+``agents`` scenario (:mod:`pirl_sim.experiments.agents`, config :func:`sweep_data`); :func:`write_results` writes
+``episodes.csv``, ``table.csv`` / ``table.md``, ``terms.csv``, ``learning_curves.png`` and ``README.md``.
 
-- ``cells/<key>.json``, ``sweep.json``: the sweep's store, one file per finished run, written atomically when it
-  finishes (evaluation episodes, training curve, timings, the settings it ran with). A rerun keeps finished
-  runs, so an interrupted experiment resumes where it stopped; a run whose settings or code changed is redone.
-- ``episodes.csv``: every evaluation episode (policy, mode, training seed, evaluation seed, return, arrived,
-  crashed, time [s], time to exit [s] for arriving episodes, and the exit reward's unweighted terms summed
-  over the episode [s]: progress time, near-miss time, the comfort term's acceleration, jerk and lateral parts).
-- ``table.csv`` / ``table.md``: per policy, mean return, success rate, time to exit, collision rate and
-  near-miss time with 95 % intervals, and PPO's paired difference in return against each baseline on the
-  same evaluation seeds.
-- ``terms.csv``: where each policy's return comes from: the mean of each weighted term of the exit reward
-  (progress, time, acceleration, jerk, lateral acceleration, near misses, collision, arrival) per episode.
-- ``learning_curves.png``: training-episode returns against environment steps, per mode (mean over training
-  seeds, band min to max), with the baselines' mean evaluation returns as lines.
-- ``README.md``: settings, table, wall time.
-
-PPO's action (``--action``). ``"idm-speed"`` (default, :class:`~pirl_sim.envs.baselines.DesiredSpeedAction`):
-the factor on the IDM ego's desired speed, ``1 + residual_scale * action`` times v_des(s) (``residual_scale``
-0.3: between 0.7 and 1.3 times v_des), moving towards the action's target by at most ``max_change`` (0.05) per
-0.2 s step, applied from the ring on (on the approach the ego drives as the IDM ego); the acceleration is the
-IDM's towards that speed behind the ego's leader and with the traffic's gap acceptance, so every action keeps
-the IDM's gaps and yielding and action 0 drives as the IDM ego. How it was chosen: on design-probe seeds with the
-factor applied everywhere (``--modes none --direct-modes '' --baselines idm --eval-seed 3000 --episodes 50
---action idm-speed --residual-scale S``; 3 training seeds, env seeds 3000-3049, where
-the IDM ego scores -13.2 and misses 5 exits): S = 0.3: -10.3, Δreturn vs IDM +2.9 [0.4, 5.4]; S = 0.5: -9.0,
-+4.2 [0.5, 8.0]; S = 0.7: -9.5, +3.7 [0.4, 7.0]; no collision in those 450 episodes. The first full run with
-S = 0.5 applied everywhere then beat the IDM ego's return on the evaluation seeds but collided in up to 2 of
-200 episodes per training seed (9 in the 1,600 episodes of the 8 runs it finished), at the entry 6-8 s in: the
-traffic's gap acceptance sends a vehicle that can no longer stop before the line into the ring whatever the
-conflict, and a faster approach gets there more often. That result on the evaluation seeds prompted the
-ring-only factor; ad-hoc scans with constant factors on env seeds 3000-3199 (not in the repository) showed the
-same collisions at the entry and, at the highest factors, at the exit's diverge, and set S = 0.3.
-
-``"shielded-residual-idm"`` (:class:`~pirl_sim.envs.baselines.ResidualAction`): a
-correction of at most ``residual_scale`` (1 action unit: 3 m/s^2 up, 4 m/s^2 down) to the IDM ego's
-acceleration, rate-limited by ``max_change`` (0.1 units in that run) and capped by the traffic's leader and yielding
-limits; in a run of 200 evaluation episodes it was level with the IDM ego in return (-0.5
-[-1.2, 0.3]), paying in acceleration, jerk and lateral comfort what it gained in time. ``"residual-idm"``: the
-same without cap and rate limit; ``"direct"``: the env's acceleration itself (``--direct-modes``: the modes that
-also train it, as a reference). Measured on one training seed (``--seeds 0 --episodes 10 --modes none
---direct-modes '' --baselines idm`` and the action's options; IDM ego: return -16.9, 9 of 10 arrive, 29.6 s to
-exit, no crash): the plain residual ended below the IDM (``--action residual-idm --max-change none``, scale
-0.25: -18.4, one crash; scale 0.5: -19.7, 26.5 s, two crashes); capped at scale 1 without the rate limit it
-arrived 10 of 10 in 26.2 s without a crash but scored -17.8; with the rate limit -11.4, 27.0 s.
-
-Observation of what the action changes (``--observe-residual``, the default; ``--no-observe-residual``): with
-``"idm-speed"`` the agent also sees the desired-speed factor in force and v_des(s) / v_max here
-(``DesiredSpeedAction(observe=True)``; not probed without). The residual agent also observes what it corrects,
-the IDM ego's action for the coming step, its correction in force and the shield's cap
-(``ResidualAction(observe=True)``; with the rate limit the correction is state the agent could not see otherwise).
-Chosen on design-probe seeds, not on the evaluation seeds: ``--modes none --direct-modes '' --baselines idm
---eval-seed 3000`` (3 training seeds, 20 episodes of env seeds 3000-3019; 275 s and 295 s) gave return -12.3
-[-25.4, 0.8] with it against -15.4 [-27.1, -3.7] without (IDM ego -16.1), Δreturn vs IDM +3.9 [-3.9, 11.7] against
-+0.7 [-5.3, 6.8], 58 against 54 of 60 episodes arriving, one collision against none.
-
-Model selection (``--select-every N``, off by default): PPO's policy is checked every N environment steps on
-``--select-episodes`` validation episodes (env seeds 2000, 2001, ...) and the best check's policy is evaluated.
-Measured with ``--modes none --direct-modes '' --baselines idm --workers 2 --select-every 5000`` (3 training seeds,
-10 validation episodes, 8 checks per run; 379 s; without the residual observation): return -17.8 against -16.6
-for the last policies of the same training runs (the table committed before the residual observation), Δreturn
-vs IDM -0.76 [-4.31, 2.79], one collision in 60 episodes: 10 validation episodes rank these policies no better
-than chance (training seed 0's last policy scored -15.6 on them, worst of its checks, and -14.2 on the
-evaluation episodes, better than the selected check's -15.3).
-
-Intervals. Returns and times: Student-t 95 % intervals; for PPO over the training seeds' mean returns (each
-seed's mean over the evaluation episodes: the seeds are the independent replicates), for the baselines over
-the evaluation episodes. Success and collision rates: Wilson 95 % intervals over the pooled episodes. Paired
-differences: per evaluation seed, PPO's return (mean over training seeds) minus the baseline's, t-interval over
-the evaluation seeds; the same for the time to exit, over the evaluation seeds on which the baseline and at
-least one training seed's policy arrived (PPO's time the mean over its arriving seeds).
-
-The style learner of the ``"inferred"`` mode is PIRL-kNN (receding-horizon IRL, 2 s windows, k = 10) fitted
-on the PIRL tracks of one highway-env scenario recording of the env's population (seed
-``learner_seed``, not an env seed), refitted in each worker process (about 10 s; learners over route-set
-models are not yet savable by ``learners/model_io``).
+The actions and why they are chosen, the output files and the intervals are explained in the documentation's
+"Agents among drivers of known styles" page.
 """
 
 from __future__ import annotations

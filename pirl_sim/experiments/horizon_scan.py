@@ -1,19 +1,14 @@
 """Which MPC horizon H explains recorded driving best: held-out receding-horizon likelihood and MED per H.
 
-For each split seed (by track, as the replay) and each H: TIRL with the receding-horizon likelihood
-(`pirl_sim.receding.fit_receding`, one group, Cauchy residuals) is fitted on the training tracks; the test
-tracks' residuals u_t - pi_theta(x_t) at the fitted weights are scored under the *training* fit's residual
-model (Cauchy with the scale the fit ends with, `pirl_sim.receding.cauchy_nll`): the held-out negative log-likelihood per
-scored control. The same weights predict every test window closed-loop with that H (re-plan every step,
-`pirl_sim.experiments.recorded.predict_path_states`), scored as MED [m]. Per H the table gives means and standard
-errors over the split seeds, and the held-out NLL paired against the best H (per seed).
+For each split seed and each H (`scan_seed`), TIRL with the receding-horizon likelihood
+(`pirl_sim.receding.fit_receding`) is fitted on the training tracks, the test tracks' residuals are scored under
+the training fit's residual model (`pirl_sim.receding.cauchy_nll`) and the same weights predict every test window
+closed-loop with that H (MED); per-track weights fitted on each test track's first half score its second half
+(``own_nll``). `summarize_scan` and `write_scan` give the table per H. It runs as the engine kind
+``horizon-scan`` (`SPEC`), ``pirl-sim replay --scan-horizon``.
 
-Shared weights mix the styles of a population, so their residuals are dominated by the style misfit and
-barely depend on H (measured on ``simulate sumo --seed 0``). The scan therefore also scores per-track weights:
-each test track's weights are fitted on the first half of its scored steps and its second half is scored
-under them (``own_nll``), which isolates how well H explains a driver's controls.
-
-Scoring given weights on given trajectories is `pirl_sim.receding.receding_residuals` and `cauchy_nll`.
+The method and its results are explained in the documentation's "Replay of recorded driving" page (horizon
+scan).
 """
 
 from __future__ import annotations

@@ -1,24 +1,15 @@
 """Recovery tests for policies: drive the ego of ``pirl_sim/Roundabout-v0``, record it, fit its weights.
 
 A policy of known weights drives the ego of the gymnasium env (highway backend) with ``record_tracks``; each
-episode's ego track is read back from :meth:`~pirl_sim.envs.roundabout.PirlRoundaboutEnv.recording` as a
-longitudinal demonstration on the routes' arc-length axis
-(:func:`~pirl_sim.scenarios.demonstrations.recorded_demonstrations`, the ego's track), and
+episode's ego track is read back as a longitudinal demonstration (`ego_demonstration`) and
 :meth:`pirl_sim.recovery.RecoveryReport.from_trajectories` fits one weight vector per episode with the
-receding-horizon likelihood (the drivers' MPC horizon) and compares it with the policy's weights.
+receding-horizon likelihood and compares it with the policy's weights. :func:`mpc_ego_report` does this for the
+scripted :class:`~pirl_sim.envs.baselines.MpcEgo`; ``pirl-sim policy-recovery`` for stable-baselines3's PPO
+trained on the env's ``"theta"`` reward, as the engine kind ``policy-recovery`` (`SPEC`,
+`PpoRecoveryConfig.sweep_data`, `LEARNERS`), whose cells `collect_records` gathers and `write_results` writes.
 
-- :func:`mpc_ego_report`: the scripted :class:`~pirl_sim.envs.baselines.MpcEgo` of given weights, acting every
-  0.1 s (``policy_frequency`` 10, so that each action is one MPC command); the steps whose applied action
-  was not the MPC's own command (capped by the traffic's IDM limit, or handed back at a standstill) and the
-  re-convergence frames after them leave the likelihood (``step_mask``), as for the simulators' PIRL drivers.
-- ``pirl-sim policy-recovery``: stable-baselines3's PPO trained on the env's ``"theta"`` reward (minus the cost
-  of the weights ``reward_theta``), then driven deterministically on evaluation seeds; how close the weights
-  recovered from its driving come to the reward's weights is a measured figure (no pass/fail), written with the
-  MPC ego of the same weights on the same seeds as the reference. It runs as the engine kind
-  ``policy-recovery`` (`SPEC`; `PpoRecoveryConfig.sweep_data`): a cell trains PPO with one seed, drives and
-  fits it (learner ``ppo-theta``), or drives and fits the MPC ego (``mpc-theta``); `collect_records` gathers
-  the cells and `write_results` writes ``summary.md`` / ``summary.csv`` / ``tracks.csv`` / ``episodes.csv`` /
-  ``README.md`` (with the command and wall times).
+The method and the measurements are explained in the documentation's "Weight recovery on simulated runs" page
+(policy recovery).
 """
 
 from __future__ import annotations

@@ -1,63 +1,15 @@
 """The ``recorded`` sweep scenario: recorded (or simulated) roundabout tracks replayed, scored in metres.
 
-``pirl-sim replay`` runs it through the sweep engine (`pirl_sim.cli.replay`: a config built from its
-options): one cell per (split seed, method), the methods of one split seed one task
-(`run_recorded_cells`: the split, the desired-speed fit, the lateral model and the windows are made once, and
-PIRL-kNN learners that differ only in k share one fit), each cell stored by the engine as it finishes and keyed
-by its spec (the scene's parameters, the data files' identity `recorded_fingerprint`, the windows, the
-learner) and the cell code. Parameters (`RECORDED_PARAMS`): ``tracks``, ``map``, ``files`` and ``load`` (how
-`pirl_sim.scenarios.replay.load_replay` reads the scene), ``replay`` (the rest of the `ReplayProtocol`, the
-desired speed and the futures scored); the protocol is ``rolling`` (history, horizon, stride in steps). The
-config check reads every track file (`_recorded_shape`: an unreadable file or a k larger than the training set
-fails there). ``replay`` is this scenario's former name (same parameters).
+``pirl-sim replay`` runs it through the sweep engine (`pirl_sim.cli.replay`: a config built from its options):
+one cell per (split seed, method), the methods of one split seed one task (`run_recorded_cells`: the split, the
+desired-speed fit, the lateral model and the windows are made once, and PIRL-kNN learners that differ only in k
+share one fit). Parameters: `RECORDED_PARAMS`; the protocol: `ReplayProtocol` (rolling windows, rollout, lateral
+model). Besides the learners, the pseudo-learners `METHODS` (``cv``, ``ca``, ``cv-xy``, `HINDSIGHT`,
+``direct``) are scored on the same windows; a cell's key includes the data files' identity
+(`recorded_fingerprint`).
 
-For each split seed the selected tracks are split by track into train and test. Every test track is predicted
-at every ``stride``-th step t with t >= history and t + horizon <= its length: learners infer weights from the
-last ``history`` steps and the MPC predicts the next ``horizon`` steps from the estimated state at t; the
-prediction is mapped to Cartesian metres on the track's own path at its last observed lateral offset and
-compared with the recorded positions. Baselines (pseudo-learners, `METHODS`) use the same windows:
-
-- ``cv``, ``CV (path)``: constant speed along the path, ``ca``, ``CA (path)``: constant acceleration along the
-  path (`pirl_sim.evaluation.baselines.KinematicModel`, as in every sweep), both from the estimated state at t;
-  CA is physical: a car braking stops at v = 0 and stays there, a car with v <= 0 and a <= 0 stays where it
-  is, one with v <= 0 and a > 0 starts from standstill (the start-state rule of `PathDriverModel.predict_states`);
-- ``cv-xy``, ``CV (x, y)``: constant velocity in the plane from the last two recorded positions;
-- ``hindsight`` (`HINDSIGHT`): not a predictor: each test window under the cost the IRL fits on its own
-  recorded future; with history starts (``ReplayProtocol.start``) that future re-started from the history's
-  estimated state (`pirl_sim.dynamics.LinearDynamics.steer`, as `pirl_sim.learners.PIRLKNN`'s
-  ``segment_start="history"``), so that the cost is fitted from the state its prediction starts from;
-- ``direct`` (`pirl_sim.evaluation.direct.DIRECT`): no cost: the arc lengths ahead regressed on the history's
-  speeds and accelerations, the road ahead and the place (`pirl_sim.evaluation.direct.DirectRegression`), fitted
-  on the split's training tracks: how much the history and the map tell, whatever a cost makes of it.
-
-Rollouts (``ReplayProtocol.rollout``). ``"open"``: one MPC plan from the state at t under the inferred weights
-over ``max(horizon, mpc_horizon)`` steps, its first ``horizon`` steps (the paper's prediction). ``"closed"``:
-what a receding-horizon driver does: plan over ``mpc_horizon`` steps, apply the first control, re-plan from the
-new state, ... for ``horizon`` steps (`pirl_sim.simulate.simulate_receding_horizon`). Learners fitted with the
-receding-horizon likelihood predict closed-loop with the drivers' horizon by default (see the CLI).
-
-Per-step masks. When trajectories carry a ``step_mask`` (pirl_sim recordings replayed with
-``selection="steps"``), a test window is used only if every step of its history and horizon is the driver's
-own: the methods are scored on free driving, not on steps where the simulator overrode the driver.
-
-Scores per (seed, method): MED [m] (mean over windows of the mean distance over the horizon) and
-displacement errors at fixed horizons. Lateral offsets of the path-based predictions come from
-``ReplayProtocol.lateral`` (`pirl_sim.lateral`: the last one held, or the training tracks' mean path), the same
-for baselines and learners; ``med_path`` places each prediction at the *recorded* future offsets, which leaves
-the error along the path only (what the cost models), and ``lateral_floor`` is the MED of the recorded future
-arc lengths under the protocol's lateral model: what a perfect prediction along the path would score. Counts
-are of recorded tracks (``n_train``, ``n_test``) and of the pieces long tracks are cut into (``n_train_pieces``,
-``n_test_pieces``).
-
-PIRL-kNN learners that differ only in k share one fit per split: the per-demonstration IRL, the look-up
-samples and their feature space do not depend on k, so the learner with the smallest k is fitted and the
-others are copies of it with only their nearest-neighbour index rebuilt (`PIRLKNN.with_neighbors`; identical to
-refitting). Warnings raised while fitting are not silenced: the IRL's own diagnostics
-(`pirl_sim.irl.IRLConvergenceWarning`, `HessianRegularizationWarning`) are counted per fit, together with
-the learner's converged IRL groups (``irl_result_.converged``), and reported in the rows and the summary;
-any other warning is passed on. Differences between methods are paired by window, averaged per seed,
-and reported with their standard error over the seeds: on ~60 real test tracks the gaps between methods
-were as large as the split-to-split noise, so a single split proves nothing.
+Windows, baselines, rollouts, per-step masks and scores are explained in the documentation's "Replay of
+recorded driving" page.
 """
 from __future__ import annotations
 

@@ -1,35 +1,13 @@
 """The scenario registry of sweeps: a name -> how to build train/test data from a validated parameter dict.
 
-Each entry is a `ScenarioSpec`: the valid parameters with their kinds and defaults, a ``check`` that turns the
-parameters of a config into a complete, JSON-serialisable dict (defaults filled in, everything validated by
-building the scenario's own config dataclass, so a bad value fails before any work starts), a ``build`` that
-draws the data for one seed, a ``train_shape`` that tells the sweep how many training trajectories of which
-lengths there will be (to reject a k larger than the training set up front) and, for scenarios that read
-files, a ``fingerprint`` of their content (part of every cell key, so changed data is recomputed).
+Each entry is a `ScenarioSpec`: the valid parameters (`Param`: kind, default, meaning), a ``check`` that turns
+a config's parameters into a complete, JSON-serialisable dict, a ``build`` that draws the data for one seed, a
+``train_shape`` that tells the sweep how many training trajectories of which lengths there will be and, for
+scenarios that read files, a ``fingerprint`` of their content. Simulated scenarios (``sumo``, ``highway``) also
+give ``simulation`` and ``simulate``, so that each run is recorded once and shared by the cells that use it.
 
-Adding a scenario is one entry::
-
-    register_scenario(ScenarioSpec(
-        name="sumo",
-        summary="SUMO roundabout, mixed-style PIRL drivers",
-        params={"config": Param("path", None, "scenario TOML"), "n_train": Param("int", 100, "...")},
-        check=_check_sumo, build=_build_sumo, train_shape=_sumo_shape,
-    ))
-
-``build(params, seed)`` must be a module-level function or a `functools.partial` of one and must give
-the same trajectories for the same parameters and seed. Heavy simulators are imported inside ``build``.
-
-**Simulated scenarios** (``sumo``, ``highway``) also give ``simulation(params)``, the part of the parameters
-that the simulation depends on, and ``simulate(simulation_params, seed, out_dir)``, which records one run. The
-sweep runs each (simulation parameters, seed) once, stores the recording beside the cells
-(`pirl_sim.engine.store`), and every cell that uses it reads it back: ``build(params, seed, simulation_dir)``.
-Their parameters are the population's (`pirl_sim.scenarios.population_config`): ``n_vehicles``,
-``depart_interval``, ``background_share``, ``styles`` and ``mix``, ``control_noise`` (the closed-loop drivers'
-finite rationality: they re-plan with their own MPC every step, so noise on the applied jerk is what makes
-them less than rational), the drivers' MPC ``horizon``, and the selection of the demonstrations
-(``selection``: whole non-interacting tracks, or every PIRL track with a mask of the steps whose control is
-the driver's own; ``min_steps``; ``test_fraction``, the share of tracks split off by the seed for testing;
-``n_train``, how many of the rest train, for recovery curves against the training-set size).
+The fields, how to add a scenario and the simulated scenarios' parameters are explained in the documentation's
+"Architecture" page (how the engine knows experiment kinds) and "Sweeps" page.
 """
 
 from __future__ import annotations

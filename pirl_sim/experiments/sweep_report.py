@@ -1,26 +1,12 @@
 """`pirl-sim report RESULTS`: figures and a Markdown summary drawn from a sweep's tidy table.
 
-Files written (into the results directory unless told otherwise; PNGs without timestamps, so the same table
-gives the same bytes):
+`write_sweep_report` writes into the results directory (unless told otherwise) ``med_vs_k.png``
+(`med_vs_k_figure`), ``learners.png`` (`learners_side_by_side_figure`), ``recovery.png`` (`recovery_figure`),
+``recovery_curves.png`` (`pirl_sim.experiments.recovery_curves`) and ``README.md``: `summary_table` per
+experiment, the weight recovery of the sweep's ``weights.csv`` (`weights_summary`) and the online protocol's
+scores (`online_view`). The same table gives the same bytes.
 
-- ``med_vs_k.png``: MED against k, one panel per scenario (variant) and learner with more than one k (the x
-  axis says what k counts: clusters of PIRL-GMM, neighbours of PIRL-kNN), one line per protocol in the same
-  colour in every panel (mean over seeds, bars: std over seeds when there are several);
-- ``learners.png``: the learners side by side, one panel per experiment, bars grouped by scenario variant and
-  protocol, one colour per learner in every panel; for learners run with several k the best k (lowest mean
-  MED) stands for the learner and is written above its bar;
-- ``recovery.png``: true against inferred normalised weights of test histories (``recovery.parquet``), one row
-  per experiment (its first scenario variant and protocol), one column per learner (best k), one colour per
-  feature in every panel, when the scenario knows the truth;
-- ``recovery_curves.png``: weight error against the training-set size, the control noise or the assumed MPC
-  horizon, one panel per experiment that varies one of them (`pirl_sim.experiments.recovery_curves`);
-- ``README.md``: the command, the code version, per-experiment tables (MED, FDE, weight error, ARI: the mean
-  over seeds and, with several seeds, its 95 % confidence interval, mean ± t(0.975, n-1) s / sqrt(n)), weight
-  recovery per feature and per style where the sweep has it (``weights.csv``), the online protocol's style
-  posterior and multi-modal scores (`online_view`), whether the paper's ordering
-  MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) holds, timings and the figures.
-
-Legends sit below the panels, outside every axes, so that none covers data.
+The figures and the README's contents are explained in the documentation's "Sweeps" page (the report).
 """
 
 from __future__ import annotations

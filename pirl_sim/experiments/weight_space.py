@@ -1,52 +1,13 @@
-"""Feature-space against weight-space mixtures: the measurements behind
-``results/weight_space/``.
+"""Feature-space against weight-space mixtures: the measurements behind ``results/weight_space/``.
 
 ``pirl-sim weight-space --out results/weight_space`` runs the study through the engine as the kind
 ``weight-space`` (`SPEC`; a cell: one learner fitted to one experiment's data of one seed and scored under one
-protocol, a row of the table; `study_config` lists them; finished cells are kept in ``OUT/cells``) and writes
-``table.csv`` / ``table.md`` (one row per experiment, protocol and learner; with several seeds, per seed too) and
-``README.md``. Same seeds, same bytes (no timings in the files). Experiments:
+protocol, a row of the table; `study_config` lists them; finished cells are kept in ``OUT/cells``).
+`experiment_data` builds the data of the experiments `EXPERIMENTS`; `write_study` writes ``table.csv`` /
+``table.md``, ``README.md`` and `futures_figure`'s ``futures.png``.
 
-- ``synthetic-spread``: the paper's synthetic problem with start states spread over p in [2, 8] m and v in
-  [-1, 1] m/s (the README's ``reproduce synthetic --position-range 2 8 --velocity-range -1 1``: same
-  configuration, same data), 1,800 train / 200 test, protocols paper and online (first 10 steps).
-- ``synthetic``: the paper's single start (``reproduce synthetic``), weight-space learners beside the paper's.
-- ``lq-3-styles``: Boltzmann-rational (beta = 100) LQ drivers of three styles, normalised state weight
-  q ~ N(0.1, 0.01), N(1, 0.1), N(10, 1) (control weight 1), start states spread as above, 40 steps, 600 train /
-  200 test. Per-style weight error: |log q_hat / q_style| of each learned style against the mean of the true
-  style it is matched to (Hungarian on the training labels), worst over the styles.
-- ``passage``: the roundabout passage of ``reproduce passage`` (three user-study styles, beta = 100,
-  500 train / 100 test), protocols paper and online (first 10 steps = 2 s).
-- PIRL-kNN with ``weighting="likelihood"`` (its neighbours vote by their likelihood of the history) beside the
-  paper's inverse-distance votes; on the passage with ``prior="population"`` as ``reproduce passage``.
-- Weight space without a fixed k or without the deconvolution: ``PIRL-DPGMM, weights`` is the Dirichlet-process
-  mixture (`pirl_sim.deconvolution.dp_deconvolution`, truncated stick-breaking variational inference),
-  ``PIRL-DPGMM, weights, MML`` the earlier stand-in (extreme deconvolution pruned by minimum message length);
-  ``PIRL-GMM (k=K), weights, random start`` is Babeș-Vroman et al.'s hard EM over the IRL likelihoods from random
-  equal-size clusters (``init="random"``, at most `RANDOM_START_PASSES` passes, 3 restarts; no per-demonstration
-  posteriors), fitted under the paper protocol only (a weight-space fit does not depend on the protocol).
-  ``em_passes``: passes of hard EM that moved labels (after the deconvolution: ``refine`` = 1 at most).
-- ``lq-receding``: LQ drivers of the three styles (weights spread 10 % in log) who re-plan every step over 15
-  steps with control noise 0.05 m/s^2 (`pirl_sim.simulate.simulate_receding_horizon`), 150 drivers of 30
-  steps, receding-horizon likelihood.
-
-Columns: ``ari`` of the training clusters against the true styles; ``style_accuracy`` of the most probable
-style of each test history under `PIRLGMM.predict_proba` (p(style | history) from each style's likelihood) and,
-for feature-space learners, ``feature_style_accuracy`` of the paper's feature look-up; ``style_error`` the
-worst per-style weight error; ``med`` [m], ``weight_error`` (median per test trajectory) as
-`pirl_sim.evaluation.protocols.evaluate`; online, ``min_ade`` / ``min_fde`` [m] over one future per style
-(`PIRLGMM.predict_futures`, K = ``n_styles``; see `_min_over_styles`).
-
-Multi-modal prediction, online rows of every learner: `evaluate` with ``n_futures=6``
-(K = 6 futures asked for, seed: the cell's): ``k_futures`` the number a learner returns (TIRL 1, a feature-space
-mixture at most its styles, weight-space mixtures and PIRL-kNN 6 draws from their posterior over the weights),
-``min_ade_6`` / ``min_fde_6`` [m], ``miss_rate_6`` (the INTERACTION challenge's rule) and ``nll_6`` [nats per
-predicted step, Gaussian mixture of sigma 0.5 m around the futures]; definitions in `pirl_sim.metrics`. With
-fewer than 6 futures the scores are those of the smaller set (the challenge accepts fewer than 6 modalities).
-
-``futures.png``: the six futures of PIRL-GMM (k=3) in weight space after the first 2 s of the first test
-passage (the first of ``--seeds``), on the passage's map (lane edges 1.75 m either side of the path), and
-their arc length minus the true future's against time.
+The experiments, learners and columns are explained in the documentation's "Weight recovery on simulated runs"
+page (mixtures in weight space).
 """
 
 from __future__ import annotations

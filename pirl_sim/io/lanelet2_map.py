@@ -1,18 +1,14 @@
 """Lanelet2 OSM maps in and out, and matching a track to the lanelet route it drove.
 
-INTERACTION maps are Lanelet2 OSM files whose nodes carry lat/lon around (0, 0). The tracks' x, y [m] are
-in the local frame of ``lanelet2.projection.UtmProjector(lanelet2.io.Origin(0.0, 0.0))``; every function
-here uses that projector (:func:`projector`). Loading with a bare ``Origin`` instead falls back to a
-Mercator projector whose coordinates are off by centimetres to metres, silently.
-
 - :func:`load_map` reads a map into a :class:`LaneletMap` (lanelet2 map, vehicle routing graph, centerlines
   as arrays).
-- :func:`match_route` finds the sequence of lanelets a track drove (a Viterbi search over the lanelets near
-  each point, moving only along routing-graph edges) and returns it as a :class:`RouteMatch`.
+- :func:`match_route` finds the sequence of lanelets a track drove and returns it as a :class:`RouteMatch`.
 - :func:`write_map` writes centerlines and successor relations of a simulated scene as a Lanelet2 OSM file
   that :func:`load_map` reads back.
 
+Every function uses the projector of INTERACTION maps (:func:`projector`, ``UtmProjector`` around (0, 0)).
 lanelet2 (the ``maps`` extra) is imported inside the functions, so importing this module works without it.
+The maps and their projection are described in the documentation's "File formats" page (Lanelet2 maps).
 """
 
 from __future__ import annotations
