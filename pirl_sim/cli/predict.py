@@ -31,6 +31,7 @@ SUBMISSION_COLUMNS = ("case_id", "frame_id", "timestamp_ms", "track_id", "agent_
 _FRAME_S = 0.1  # [s] an INTERACTION frame
 _FRAME_MS = 100  # [ms] an INTERACTION frame
 _XY_TOLERANCE = 1e-6  # [m] a recorded position matches a trajectory's within this
+MAX_HORIZON_S = 600.0  #: [s] the longest --horizon predict takes
 
 
 def add_parser(subparsers) -> None:
@@ -47,7 +48,8 @@ def add_parser(subparsers) -> None:
     pr.add_argument("--model", type=Path, required=True, help="model file written by fit-model")
     pr.add_argument("--history", type=positive_float_arg, default=None,
                     help="observed history [s] (default: the model's look-up window, else 2)")
-    pr.add_argument("--horizon", type=positive_float_arg, default=3.0, help="predicted horizon [s] (default 3)")
+    pr.add_argument("--horizon", type=positive_float_arg, default=3.0,
+                    help=f"predicted horizon [s], at most {MAX_HORIZON_S:g} (default 3)")
     pr.add_argument("--out", type=Path, required=True, help="CSV file of the predictions")
     pr.add_argument("--futures", type=positive_int_arg, default=None, metavar="K",
                     help="write the INTERACTION challenge's submission layout with K predicted modes per case, and "
@@ -218,6 +220,9 @@ def run(args) -> int:
     say = reporter(not args.quiet)
     futures = getattr(args, "futures", None)
     try:
+        if args.horizon > MAX_HORIZON_S:
+            raise ValueError(f"--horizon {args.horizon:g} s is longer than {MAX_HORIZON_S:g} s: a prediction of a "
+                             "roundabout passage is seconds long, and this one would not fit in memory")
         _check_out(args.out, args.model, args.map, args.tracks)
         if futures is not None:
             _check_out(proba_path(args.out), args.model, args.map, args.tracks,

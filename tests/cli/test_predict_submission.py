@@ -160,3 +160,14 @@ def test_a_track_whose_frames_are_not_in_its_file_is_a_clear_error(fitted):
     moved = Trajectory(t.states, t.controls, 0.2, dict(meta, xy=xy + [0.0, 0.01]))
     with pytest.raises(ValueError, match=r"vehicle_tracks_000\.csv: no frames of track 3"):
         history_end_frames([moved], 5, 2)
+
+
+def test_a_horizon_too_long_to_hold_is_refused_before_any_work(tmp_path, capsys):
+    from pirl_sim.cli.predict import MAX_HORIZON_S
+
+    out = tmp_path / "p.csv"
+    code = main(["predict", "--model", str(tmp_path / "no_model.npz"), "--tracks", str(tmp_path), "--map",
+                 str(tmp_path / "map.osm"), "--horizon", "1e9", "--out", str(out), "--quiet"])
+    assert code == 2 and not out.exists()
+    err = capsys.readouterr().err
+    assert f"--horizon 1e+09 s is longer than {MAX_HORIZON_S:g} s" in err
