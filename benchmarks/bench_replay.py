@@ -103,9 +103,15 @@ def _time_command(paths, workers: list[int], tmp: str) -> None:
         print(f"  --workers {j}: {wall:6.1f} s  (target < 120 s: {'met' if wall < 120 else 'NOT met'})")
 
 
-#: the default replay's settings as options (what ``--preset best`` sets), for a revision whose defaults differ
-BEST_AS_OPTIONS = ["--desired-speed", "fit", "--features", "speed-level", "--lateral", "neighbours", "--selection",
-                   "free", "--estimate", "speeds", "--learners", "tirl,pirl-gmm,pirl-knn,pirl-knn-next,pirl-select"]
+def best_as_options() -> list[str]:
+    """This tree's default replay settings (``--preset best``) as options, for a revision whose defaults differ;
+    the state estimate from speeds (the default with history starts) named too."""
+    from pirl_sim.cli.replay import PRESETS
+
+    out = ["--estimate", "speeds"]
+    for name, value in PRESETS["best"].items():
+        out += [f"--{name.replace('_', '-')}", ",".join(value) if isinstance(value, tuple) else value]
+    return out
 
 
 def _time_real(args) -> None:
@@ -118,7 +124,7 @@ def _time_real(args) -> None:
     tracks, osm = os.path.abspath(args.real), os.path.abspath(args.map)
     runs = [("this tree", None, [])]
     if args.baseline:
-        runs.append((f"revision {args.baseline}", export_revision(args.baseline), BEST_AS_OPTIONS))
+        runs.append((f"revision {args.baseline}", export_revision(args.baseline), best_as_options()))
     walls = {}
     for name, code, extra in runs:
         with tempfile.TemporaryDirectory() as tmp:

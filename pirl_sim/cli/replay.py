@@ -75,8 +75,9 @@ def data_preset(tracks: Path, preset: str) -> dict:
     return _PAPER if is_recording(tracks) or (folder / GROUND_TRUTH_FILE).is_file() else PRESETS[preset]
 
 
-def _text(value) -> str:
-    return ",".join(value) if isinstance(value, tuple) else str(value)
+def _preset_text(settings: dict) -> str:
+    """A preset's settings as options: ``desired-speed fit, features speed-level, ...``."""
+    return ", ".join(f"{k.replace('_', '-')} {','.join(v) if isinstance(v, tuple) else v}" for k, v in settings.items())
 
 
 def _horizon_arg(text: str) -> int:
@@ -107,9 +108,10 @@ def _argparse(f: dataclasses.Field) -> dict:
 @dataclasses.dataclass(frozen=True)
 class ReplayOptions:
     """The options of ``pirl-sim replay``, each under its option's name (``--mpc-horizon``: ``mpc_horizon``) with
-    the type the command line gives it; each field's help says its unit and default. The options of a `PRESETS`
-    entry that are not given take the preset's value (``selection`` in `resolve`, as it also depends on the data);
-    other None: the default that depends on the data (module doc; `resolve`).
+    the type the command line gives it; each field's help says its unit and default. ``lateral`` and ``learners``
+    not given take ``preset``'s value here; ``features``, ``desired_speed`` and ``selection`` not given take it in
+    `resolve`, as they also depend on the data (`data_preset`); other None: the default that depends on the data
+    (module doc; `resolve`).
 
     Raises
     ------
@@ -140,9 +142,8 @@ class ReplayOptions:
     preset: str = _option("best", "the settings of --desired-speed, --features, --lateral, --learners and "
                           "--selection that are not given (drivers whose model is known, a pirl_sim recording or "
                           "tracks with a ground_truth.csv, keep their own features and desired speed and the paper's "
-                          "selection): 'best' (the configuration of the README's real-roundabout table: " + ", ".join(f"{k.replace('_', '-')} {_text(v)}" for k, v in
-                                                                _BEST.items()) + ") or 'paper' (the paper's: " +
-                          ", ".join(f"{k.replace('_', '-')} {_text(v)}" for k, v in _PAPER.items()) + ") (default best)",
+                          f"selection): 'best' (the configuration of the README's real-roundabout table: "
+                          f"{_preset_text(_BEST)}) or 'paper' (the paper's: {_preset_text(_PAPER)}) (default best)",
                           choices=("best", "paper"))
     desired_speed: str | None = _option(None, "the desired speed's a_lat and v_max: 'fit' on each split's training "
                                         "tracks (robust fit of speeds against curvature, pirl_sim.speed_fit) or "

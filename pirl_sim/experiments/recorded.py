@@ -2,11 +2,10 @@
 
 ``pirl-sim replay`` runs it through the sweep engine (`pirl_sim.cli.replay`: a config built from its options):
 one cell per (split seed, method), the methods of one split seed one task (`run_recorded_cells`: the split, the
-desired-speed fit, the lateral model and the windows are made once, and PIRL-kNN learners that differ only in k,
-the aggregate or the selection share one IRL fit). Parameters: `RECORDED_PARAMS`; the protocol: `ReplayProtocol`
-(rolling windows, rollout, lateral model). Besides the learners, the pseudo-learners `METHODS` (``cv``, ``ca``,
-``cv-xy``, `HINDSIGHT`, ``direct``) are scored on the same windows; a cell's key includes the data files' identity
-(`recorded_fingerprint`).
+desired-speed fit, the lateral model and the windows are made once, and PIRL-kNN learners that differ only in k
+share one fit). Parameters: `RECORDED_PARAMS`; the protocol: `ReplayProtocol` (rolling windows, rollout, lateral
+model). Besides the learners, the pseudo-learners `METHODS` (``cv``, ``ca``, ``cv-xy``, `HINDSIGHT`, ``direct``)
+are scored on the same windows; a cell's key includes the data files' identity (`recorded_fingerprint`).
 
 Windows, baselines, rollouts, per-step masks and scores are explained in the documentation's "Replay of
 recorded driving" page.

@@ -136,8 +136,7 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "",
         "Counts of train and test tracks per split are in rows.csv (n_train, n_test; their pieces in "
         "n_train_pieces, n_test_pieces). irl_converged: IRL groups whose Newton iteration converged / all groups, "
-        "summed over the split seeds (PIRL-kNN learners that differ only in k, the aggregate or the selection "
-        "share one IRL fit per split).",
+        "summed over the split seeds (PIRL-kNN learners that differ only in k share one fit per split).",
         "",
         *_speed_lines(result),
         *_selection_lines(scene, result),
