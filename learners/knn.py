@@ -427,6 +427,56 @@ class PIRLKNN(SavableLearner):
             out.neighbors_ = clone(self.neighbors_).set_params(n_neighbors=int(n_neighbors)).fit(Z)
         return out
 
+    #: the parameters `with_aggregate` may change: none of them enters the IRL
+    HEAD_PARAMS = ("n_neighbors", "aggregate", "selector", "n_candidates", "temperature")
+
+    def with_aggregate(self, trajectories, **params) -> PIRLKNN:
+        """This fitted learner with other `HEAD_PARAMS` (e.g. ``aggregate="selected"`` after ``"futures"``),
+        finished on the same training ``trajectories`` as `fit` finishes, without refitting its IRL.
+
+        The per-demonstration costs, the look-up samples and the feature scaling do not depend on these
+        parameters; the copy gets its own index (and choice of the road ahead's weight) and, with
+        ``aggregate="selected"``, its own bank and selector, so its predictions are those of a fit with the
+        parameters (tested). ``trajectories`` must be the ones this learner was fitted on.
+
+        Returns
+        -------
+        PIRLKNN
+            A shallow copy (fitted arrays shared); this learner is not changed.
+
+        Raises
+        ------
+        ValueError
+            A parameter outside `HEAD_PARAMS` or a value `fit` would reject, or ``trajectories`` that do not
+            give this learner's look-up samples.
+        """
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self, "neighbors_")
+        other = sorted(set(params) - set(self.HEAD_PARAMS))
+        if other:
+            raise ValueError(f"with_aggregate changes only {self.HEAD_PARAMS}; {other} enter the IRL: fit anew")
+        out = copy.copy(self)
+        for name, value in params.items():
+            setattr(out, name, value)
+        out._check_params(self.model_)
+        for name in ("bank_", "selector_", "bank_errors_"):
+            out.__dict__.pop(name, None)
+        if self.target == "next":
+            samples, _, _, truth = out._next_pairs(self.model_, trajectories)
+        else:
+            samples, truth = out._training_windows(trajectories)[0], None
+        if len(samples) != len(self.sample_owner_):
+            raise ValueError(f"the trajectories give {len(samples)} look-up samples, the fit had "
+                             f"{len(self.sample_owner_)}: pass the trajectories this learner was fitted on")
+        if int(out.n_neighbors) > len(samples):
+            raise ValueError(f"n_neighbors={out.n_neighbors} is larger than the number of training samples "
+                             f"({len(samples)})")
+        out._index(int(out.n_neighbors))
+        if out.aggregate == "selected":
+            out._fit_selector(samples, truth)
+        return out
+
     def _ahead_weights(self) -> tuple[float, ...]:
         return tuple(float(w) for w in self.ahead_weights) if len(self.lookup_ahead) else (1.0,)
 

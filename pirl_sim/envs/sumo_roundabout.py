@@ -59,6 +59,15 @@ _MAX_WAIT = 60.0  # [s] longest wait for the ego's insertion after the warm-up
 _KINEMATICS_KEYS = ("type", "features", "vehicles_count", "features_range", "absolute", "normalize", "clip",
                     "see_behind", "order")
 _BOUNDED = {"presence", "cos_h", "sin_h"}
+_EGO_COLOR = (0.85, 0.1, 0.1)  # RGB of the ego in a rendered frame
+_BACKGROUND_COLOR = (0.6, 0.6, 0.6)  # RGB of background (non-PIRL) traffic
+
+
+def _has_display() -> bool:
+    import os
+    import sys
+
+    return sys.platform in ("win32", "darwin") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 @dataclass(frozen=True)
@@ -97,17 +106,29 @@ class PirlRoundaboutSumoEnv(gym.Env):
     ----------
     config : dict, optional
         Overrides of :meth:`default_config` (unknown keys raise ``ValueError`` listing the valid ones).
-    render_mode : None
-        This backend does not render.
+    render_mode : {"rgb_array", "human"}, optional
+        ``"rgb_array"``: `render` returns the network's lanes with every vehicle as an oriented box
+        (`pirl_sim.viz.LiveView`; the ego red, PIRL drivers coloured by style, background traffic grey),
+        ``(screen_height, screen_width, 3)`` uint8; ``"human"``: the same frame shown in a matplotlib window
+        after each reset and step (needs a display: without one, the instance's ``metadata`` lists
+        ``"rgb_array"`` only).
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
 
     def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
         super().__init__()
-        if render_mode is not None:
-            raise ValueError(f"the sumo backend does not render: render_mode must be None, got {render_mode!r}")
-        self.render_mode = None
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got "
+                             f"{render_mode!r}")
+        if not _has_display():  # this env's modes: those it can show here
+            self.metadata = {**type(self).metadata, "render_modes": ["rgb_array"]}
+        if render_mode == "human" and not _has_display():
+            raise RuntimeError("render_mode='human' needs a display (DISPLAY or WAYLAND_DISPLAY is not set): use "
+                               "render_mode='rgb_array' and save or show the frames yourself")
+        self.render_mode = render_mode
+        self._view = self._window = None  # the figure frames are drawn on, and the human mode's window
+        self._frame = None  # the vehicles of the last observation: (ids, states)
         self.config = self.default_config()
         self.configure(config)
         self._sim = None  # the running simulation (the SUMO adapter's), None when closed
@@ -127,6 +148,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
             "warmup": 30.0,  # [s] of traffic before the ego enters
             "ego_speed_mode": 0,
             "sumo_binding": "libsumo",
+            "screen_width": 600,  # [px] of a rendered frame (the highway-env backend's keys)
+            "screen_height": 600,  # [px]
         }
 
     def configure(self, config: dict | None) -> None:
@@ -174,6 +197,10 @@ class PirlRoundaboutSumoEnv(gym.Env):
             raise ValueError(f"ego_speed_mode must be an integer bitset in [0, 127], got {m!r}")
         if c["sumo_binding"] not in BACKENDS:
             raise ValueError(f"sumo_binding must be one of {BACKENDS}, got {c['sumo_binding']!r}")
+        for key in ("screen_width", "screen_height"):
+            v = c[key]
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 16:
+                raise ValueError(f"{key} must be a whole number of pixels >= 16, got {v!r}")
 
     # -- spaces -------------------------------------------------------------------------------------
 
@@ -207,7 +234,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
             if "config" in options:
                 self.configure(options["config"])
                 self._define_spaces()
-        self.close()
+        self._stop()
         c = self.config
         drv: DriverConfig = c["drivers"]
         scenario = SumoScenarioConfig(network=c["network"], population=c["population"], drivers=drv,
@@ -237,7 +264,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
         while self._controller.ego is None:  # the traffic's warm-up, then the ego's insertion
             self._sumo_step()
             if self._sim.run.time > warmup + _MAX_WAIT:
-                self.close()
+                self._stop()
                 raise RuntimeError(f"the ego could not enter {c['ego_route']!r} within {_MAX_WAIT:.0f} s after the "
                                    "warm-up (its entry stayed blocked)")
         self._t0 = self._sim.run.time
@@ -251,6 +278,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
         self._guard = StepGuard()
         self._last_ego = ego
         obs = self._observe()
+        if self.render_mode == "human":
+            self.render()
         return obs, self._info()
 
     def step(self, action):
@@ -289,7 +318,50 @@ class PirlRoundaboutSumoEnv(gym.Env):
         truncated = not terminated and self.time >= c["duration"] - 1e-9
         self._guard.after_step(terminated, truncated)
         obs = self._observe()
+        if self.render_mode == "human":
+            self.render()
         return obs, self._ego_cost.reward(), terminated, truncated, self._info()
+
+    def render(self):
+        """The current frame (``render_mode="rgb_array"``: ``(screen_height, screen_width, 3)`` uint8; ``"human"``:
+        shown in a window, None); None with a warning without a render mode.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first `reset`.
+        """
+        if self.render_mode is None:
+            gym.logger.warn("render() without a render mode: make the env with render_mode='rgb_array' or 'human'")
+            return None
+        if self._frame is None or self._last_sim is None:
+            raise RuntimeError("call reset() before render()")
+        from pirl_sim.viz import LiveView, distinct_colors, road_from_sumo
+
+        net = self._last_sim.net
+        if self._view is None or self._view_net is not net:
+            size = (int(self.config["screen_width"]), int(self.config["screen_height"]))
+            self._view, self._view_net = LiveView(road_from_sumo(net), size_px=size), net
+        ids, states = self._frame
+        styles = [self._who[v].style if v in self._who and self._who[v].kind == "pirl" else -1 for v in ids[1:]]
+        palette = distinct_colors(max(len(self.config["population"].style_names), 1))
+        colors = [_EGO_COLOR] + [palette[k % len(palette)][:3] if k >= 0 else _BACKGROUND_COLOR for k in styles]
+        frame = self._view.render([st.x for st in states], [st.y for st in states], [st.psi_rad for st in states],
+                                  [st.length for st in states], [st.width for st in states], colors, self.time)
+        if self.render_mode == "rgb_array":
+            return frame
+        self._show(frame)
+        return None
+
+    def _show(self, frame: np.ndarray) -> None:
+        import matplotlib.pyplot as plt
+
+        if self._window is None or not plt.fignum_exists(self._window[0].number):
+            fig, ax = plt.subplots()
+            ax.set_axis_off()
+            self._window = (fig, ax.imshow(frame))
+        self._window[1].set_data(frame)
+        plt.pause(1.0 / self.metadata["render_fps"])
 
     def _sumo_step(self) -> None:
         # the controller sees the ego only in steps it is asked (some controlled vehicle in the network)
@@ -312,6 +384,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
                 near.append((dist, vid, st))
         if o.get("order", "sorted") == "sorted":
             near.sort(key=lambda item: (item[0], item[1]))
+        self._frame = ([EGO_ID, *others], [ego, *others.values()])
         near = near[:self._count - 1]
         states = np.array([[ego.x, ego.y, ego.speed, ego.psi_rad]] +
                           [[st.x, st.y, st.speed, st.psi_rad] for _, _, st in near], dtype=float)
@@ -354,7 +427,16 @@ class PirlRoundaboutSumoEnv(gym.Env):
                 "step_length_s": STEP}
         return self._last_sim.recording(info)
 
-    def close(self) -> None:
-        """End the SUMO run (also at every reset)."""
+    def _stop(self) -> None:
+        """End the SUMO run (at every reset and close)."""
         self._stack.close()
         self._sim = None
+
+    def close(self) -> None:
+        """End the SUMO run and close the human mode's window."""
+        self._stop()
+        if self._window is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._window[0])
+            self._window = None

@@ -291,16 +291,19 @@ def _fit_with_diagnostics(fit) -> dict:
 
 
 def _shared_knn_fits(learner_specs) -> dict[int, int]:
-    """{spec index: index of the spec whose fit it reuses} for PIRL-kNN specs that differ only in k (each
-    group reuses the fit of its smallest k, the one whose fit succeeds whenever any does)."""
+    """{spec index: index of the spec whose fit it reuses} for PIRL-kNN specs that differ only in parameters that
+    do not enter the IRL (`pirl_sim.learners.PIRLKNN.HEAD_PARAMS`: k, the aggregate, the selection); each group
+    reuses the fit of its smallest k, the one whose fit succeeds whenever any does."""
+    from pirl_sim.learners.knn import PIRLKNN
+
     groups: dict[str, list[int]] = {}
     for i, (_, key, params) in enumerate(learner_specs):
         if key == "pirl-knn":
-            rest = {k: v for k, v in params.items() if k != "n_neighbors"}
+            rest = {k: v for k, v in params.items() if k not in PIRLKNN.HEAD_PARAMS}
             groups.setdefault(repr(sorted(rest.items())), []).append(i)
     out = {}
     for members in groups.values():
-        base = min(members, key=lambda i: learner_specs[i][2].get("n_neighbors", 1))
+        base = min(members, key=lambda i: learner_specs[i][2].get("n_neighbors", PIRLKNN().n_neighbors))
         out.update({i: base for i in members if i != base})
     return out
 
@@ -454,9 +457,10 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             t0 = time.perf_counter()
             predicted[name] = (reg.predict_s(histories), fit_s, time.perf_counter() - t0, {})
         elif key != "cv-xy":
-            if i in reuse:
+            if i in reuse:  # the same IRL: only what follows it anew
                 base, diag = fitted[reuse[i]]
-                learner = base.with_neighbors(params.get("n_neighbors", 1))
+                default = type(base)().get_params()
+                learner = base.with_aggregate(train, **{k: params.get(k, default[k]) for k in base.HEAD_PARAMS})
                 diag = dict(diag, irl_from=methods[reuse[i]][0])
             else:
                 learner = make_learner(key, model=model, window=proto.history, windows="sliding", **params)
@@ -464,8 +468,10 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             fitted[i] = (learner, diag)
             fit_s = time.perf_counter() - t0
             t0 = time.perf_counter()
-            theta = learner.infer_weights(histories)
-            if getattr(learner, "aggregate", "weights") in MIXTURES:  # the mean of several futures
+            mixture = getattr(learner, "aggregate", "weights") in MIXTURES  # the mean of several futures
+            # a mixture's weights only score against known weights (its own rollouts make them again)
+            theta = learner.infer_weights(histories) if has_truth or not mixture else None
+            if mixture:
                 s_pred = learner.predict_states(histories, plan)[:, 1 : proto.horizon + 1, 0]
             else:
                 s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,

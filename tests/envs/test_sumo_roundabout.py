@@ -10,6 +10,7 @@ gym = pytest.importorskip("gymnasium")
 pytest.importorskip("libsumo")
 
 from gymnasium.utils.env_checker import check_env, data_equivalence  # noqa: E402
+from gymnasium.utils.passive_env_checker import env_render_passive_checker  # noqa: E402
 
 import pirl_sim.envs  # noqa: E402,F401  (registers the env ids)
 from pirl_sim.scenarios.contract import EgoSpec  # noqa: E402
@@ -32,7 +33,9 @@ def test_the_backend_option_picks_the_sumo_env_and_check_env_passes():
     assert isinstance(env.unwrapped, PirlRoundaboutSumoEnv)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        check_env(env.unwrapped)
+        # its render check makes a second env per render mode while this one runs, which libsumo's one
+        # simulation per process refuses: the rendering is checked below
+        check_env(env.unwrapped, skip_render_check=True)
     assert not [str(w.message) for w in caught]
     env.close()
 
@@ -145,11 +148,17 @@ def test_recording_holds_the_episode_with_the_ego_and_reads_back(tmp_path):
         make().unwrapped.recording()
 
 
-def test_unknown_backend_and_render_mode_are_rejected():
+def test_unknown_backend_and_render_mode_are_rejected(monkeypatch):
     with pytest.raises(ValueError, match=r"backend must be one of \('highway', 'sumo'\)"):
         gym.make(ENV_ID, config={"backend": "carla"})
-    with pytest.raises(ValueError, match="does not render"):
-        gym.make(ENV_ID, config=FAST, render_mode="rgb_array")
+    with pytest.raises(ValueError, match=r"render_mode must be None or one of \['rgb_array', 'human'\], got 'ansi'"):
+        gym.make(ENV_ID, config=FAST, render_mode="ansi")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(RuntimeError, match="needs a display"):
+        gym.make(ENV_ID, config=FAST, render_mode="human")
+    with pytest.raises(ValueError, match="screen_width must be a whole number of pixels >= 16, got 8"):
+        make(screen_width=8)
     with pytest.raises(ValueError, match="backend must be 'highway' for this env"):
         gym.make(ENV_ID).unwrapped.configure({"backend": "sumo"})
 
@@ -250,3 +259,31 @@ def test_sumo_env_resets_start_the_adapters_simulation_and_steps_step_it(monkeyp
         assert not sim.run.running  # closing the env leaves the simulation
     finally:
         env.close()
+
+
+def test_rgb_array_frames_draw_each_vehicle_where_it_is_and_change_as_it_moves():
+    from pirl_sim.viz import data_to_pixel
+
+    env = gym.make(ENV_ID, config={**FAST, "screen_width": 480, "screen_height": 400}, render_mode="rgb_array")
+    env.reset(seed=1)
+    first = env.render()
+    assert first.shape == (400, 480, 3) and first.dtype == np.uint8
+    inner = env.unwrapped
+    with pytest.raises(RuntimeError, match="call reset"):
+        gym.make(ENV_ID, config=FAST, render_mode="rgb_array").unwrapped.render()
+    ids, states = inner._frame
+    assert ids[0] == "ego" and len(ids) > 1
+    for _ in range(5):
+        env.step(np.array([1.0], dtype=np.float32))
+    moved = env.render()
+    assert np.abs(moved.astype(int) - first).sum(axis=-1).astype(bool).sum() > 20  # vehicles moved
+    # the ego's box is red at its projected centre; a PIRL driver's in its style's colour
+    ego = inner._frame[1][0]
+    col, row = data_to_pixel(inner._view.ax, (ego.x, ego.y)).astype(int)
+    near = moved[row - 2 : row + 3, col - 2 : col + 3].reshape(-1, 3)
+    assert (np.abs(near.astype(int) - (217, 26, 26)) <= 2).all(axis=1).any(), near
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env_render_passive_checker(inner)  # gymnasium's own check of a render mode's frames
+    assert not [str(w.message) for w in caught]
+    env.close()

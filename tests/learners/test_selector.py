@@ -154,3 +154,28 @@ def test_saving_a_selected_learner_is_refused_by_name(tmp_path):
         sel.save(tmp_path / "sel.npz")
     assert not (tmp_path / "sel.npz").exists()
 
+
+@pytest.mark.parametrize("selector", ["forecast", "errors"])
+def test_a_selection_finished_on_another_aggregates_fit_predicts_as_its_own_fit(selector):
+    """with_aggregate: the next-steps costs of a futures-averaging fit, finished as a selection, predict exactly as
+    a selection fitted from scratch (the replay fits the IRL of PIRL-kNN next and PIRL-select once)."""
+    model = synthetic_model()
+    rng = np.random.default_rng(4)
+    train, test = _two_kinds(model, rng, 12), _two_kinds(model, rng, 4)
+    hist = [t.window(2, 10) for t in test]
+    head = {"aggregate": "selected", "selector": selector, "n_candidates": 4, "n_neighbors": 3}
+    futures = _learner(model, n_neighbors=2).set_params(aggregate="futures").fit(train)
+    own = _learner(model, **{k: v for k, v in head.items() if k != "aggregate"}).fit(train)
+    derived = futures.with_aggregate(train, **head)
+    assert futures.aggregate == "futures" and not hasattr(futures, "bank_")  # the base is not changed
+    np.testing.assert_array_equal(derived.bank_, own.bank_)
+    np.testing.assert_array_equal(derived.predict_states(hist, 10), own.predict_states(hist, 10))
+    back = derived.with_aggregate(train, aggregate="futures", n_neighbors=2)
+    np.testing.assert_array_equal(back.predict_states(hist, 10), futures.predict_states(hist, 10))
+    assert not hasattr(back, "bank_")
+    with pytest.raises(ValueError, match=r"\['window'\] enter the IRL"):
+        futures.with_aggregate(train, window=4)
+    with pytest.raises(ValueError, match="pass the trajectories this learner was fitted on"):
+        futures.with_aggregate(train[:6], aggregate="selected")
+    with pytest.raises(ValueError, match="n_candidates must be a positive integer"):
+        futures.with_aggregate(train, aggregate="selected", n_candidates=0)
