@@ -1,0 +1,100 @@
+"""``pirl-sim realism``: how real simulated traffic is against a recording of the same roundabout (per-feature
+likelihoods, a weighted meta-metric with a 95 % interval over rollouts, distributions side by side)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .common import error
+
+__all__ = ["add_parser", "run"]
+
+
+def _source(text: str) -> tuple[str, list[Path]]:
+    """argparse type of ``--source``: ``LABEL=PATH[,PATH...]``, one rollout per path."""
+    label, sep, paths = text.partition("=")
+    label = label.strip()
+    if not sep or not label or not paths.strip():
+        raise argparse.ArgumentTypeError(f"expected LABEL=PATH[,PATH...] (one rollout per path), got {text!r}")
+    return label, [Path(p.strip()) for p in paths.split(",") if p.strip()]
+
+
+def add_parser(subparsers) -> None:
+    """Add ``realism`` to the command's subparsers."""
+    p = subparsers.add_parser(
+        "realism",
+        help="score simulated traffic against a recording: feature likelihoods and a meta-metric",
+        description="Score how real simulated traffic is. The reference (recorded track files) is scored under "
+        "the histograms of each source's features (speed, acceleration, jerk, yaw rate and its rate, lateral "
+        "acceleration, distance to the nearest vehicle, gap, time headway and time to collision to the leader, "
+        "stopped time, collisions, and with --map the offset from the lane centre). A source is LABEL=PATH,..., "
+        "each PATH one rollout (a track file, or a folder whose track files make one rollout); the meta-metric "
+        "is given per source as the mean over its rollouts with a 95 %% interval. Give the recording's other "
+        "files as a source for the real-against-real reference row.",
+    )
+    p.add_argument("--reference", type=Path, nargs="+", required=True, metavar="PATH",
+                   help="the recorded track files (or folders of them) that are scored")
+    p.add_argument("--source", type=_source, action="append", required=True, metavar="LABEL=PATH[,PATH...]",
+                   help="a simulated source and its rollouts (repeat for several sources)")
+    p.add_argument("--map", type=Path, default=None, help="the Lanelet2 map (.osm): adds the lane-centre offset")
+    p.add_argument("--out", type=Path, default=Path("realism"),
+                   help="output folder: summary.csv, features.csv, realism.png (default ./realism)")
+
+
+def _track_files(path: Path) -> list[Path]:
+    from pirl_sim.io.interaction import find_track_files
+
+    if path.is_file():
+        return [path]
+    if path.is_dir():
+        files = find_track_files(path)
+        if not files:
+            raise ValueError(f"{path}: no vehicle_tracks_*.csv in this folder")
+        return files
+    raise ValueError(f"{str(path)!r}: no such track file or folder")
+
+
+def _features(paths: list[Path], lmap):
+    from pirl_sim.evaluation.realism import TrackFeatures, track_features
+    from pirl_sim.io.interaction import read_tracks
+
+    return TrackFeatures.combine([track_features(read_tracks(f), lmap) for p in paths for f in _track_files(p)])
+
+
+def run(args) -> int:
+    """``pirl-sim realism``: 0, or 2 for a bad input (a missing file, a repeated label, tracks without samples)."""
+    import pandas as pd
+
+    from pirl_sim.evaluation.realism import compare_sources, realism_figure
+    from pirl_sim.validation import check_output_dir
+
+    try:
+        labels = [label for label, _ in args.source]
+        repeated = sorted({x for x in labels if labels.count(x) > 1})
+        if repeated:
+            raise ValueError(f"--source labels must differ; repeated: {repeated}")
+        for p in [*args.reference, *(q for _, ps in args.source for q in ps), *([args.map] if args.map else [])]:
+            if not p.exists():
+                raise ValueError(f"{str(p)!r}: no such file or folder")
+        out = check_output_dir(args.out)
+        lmap = None
+        if args.map is not None:
+            from pirl_sim.io.lanelet2_map import load_map
+
+            lmap = load_map(args.map)
+        reference = _features(list(args.reference), lmap)
+        sources = {label: [_features([p], lmap) for p in paths] for label, paths in args.source}
+        summary, features = compare_sources(reference, sources)
+        summary.to_csv(out / "summary.csv", index=False)
+        features.to_csv(out / "features.csv", index=False)
+        realism_figure(reference, sources, out / "realism.png")
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        return error(exc)
+    with pd.option_context("display.width", 160, "display.max_columns", 20):
+        print(f"reference: {reference.n_vehicles} vehicles, {reference.duration_s / 3600:.2f} vehicle-hours")
+        print(summary.round(3).to_string(index=False))
+        print(features.groupby(["feature", "source"], sort=False)["likelihood"].mean().unstack("source")
+              .round(3).to_string())
+    print(f"wrote {out / 'summary.csv'}, {out / 'features.csv'}, {out / 'realism.png'}")
+    return 0

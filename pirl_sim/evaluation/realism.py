@@ -1,0 +1,528 @@
+"""How real simulated traffic is: per-vehicle kinematic, interactive and map features of a recording against
+their distribution in simulated rollouts, scored as likelihoods and a weighted meta-metric.
+
+The score follows the realism meta-metric of the Waymo Open Sim Agents Challenge (Montali et al., 2023): the
+recorded values of each feature are scored under a histogram of the simulated values, a feature's likelihood is
+the mean over recorded vehicles of ``exp(mean log-probability)``, and the meta-metric is their weighted mean.
+The docs' "Realism" page explains the features, the weights and how this differs from the challenge.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["FeatureSpec", "FEATURES", "TrackFeatures", "track_features", "score_realism", "RealismScore",
+           "compare_sources", "box_distance", "realism_figure"]
+
+
+@dataclass(frozen=True)
+class FeatureSpec:
+    """One realism feature: its histogram's range and bins, its weight in the meta-metric, and how it is sampled.
+
+    Parameters
+    ----------
+    name, unit : str
+        The feature's name (a key of `TrackFeatures`) and unit.
+    low, high : float
+        The histogram's range; values outside it count in the first or last bin.
+    bins : int
+        Number of equal bins (>= 2).
+    weight : float
+        Weight in the meta-metric (>= 0; weights are normalised over the features scored).
+    per : {"step", "vehicle"}
+        One value per recorded time step of a vehicle, or one per vehicle.
+    needs_map : bool
+        Computed only when a Lanelet2 map is given.
+    """
+
+    name: str
+    unit: str
+    low: float
+    high: float
+    bins: int
+    weight: float
+    per: str = "step"
+    needs_map: bool = False
+
+    def __post_init__(self):
+        if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low < self.high):
+            raise ValueError(f"feature {self.name!r}: low={self.low!r}, high={self.high!r}; need finite low < high")
+        if not isinstance(self.bins, int) or self.bins < 2:
+            raise ValueError(f"feature {self.name!r}: bins={self.bins!r}; need an int >= 2")
+        if not (math.isfinite(self.weight) and self.weight >= 0):
+            raise ValueError(f"feature {self.name!r}: weight={self.weight!r}; need a finite weight >= 0")
+        if self.per not in ("step", "vehicle"):
+            raise ValueError(f"feature {self.name!r}: per={self.per!r}; allowed: 'step', 'vehicle'")
+
+    @property
+    def edges(self) -> np.ndarray:
+        """Bin edges, shape (bins + 1,)."""
+        return np.linspace(self.low, self.high, self.bins + 1)
+
+    def bin_of(self, values: np.ndarray) -> np.ndarray:
+        """Bin index of each value (clipped into the range), shape of ``values``."""
+        i = np.floor((np.asarray(values, dtype=float) - self.low) / (self.high - self.low) * self.bins)
+        return np.clip(i, 0, self.bins - 1).astype(np.intp)
+
+
+#: The features and their default weights. The challenge's weights where a feature corresponds to one of its
+#: metrics (speed, acceleration, yaw rate and acceleration 0.05 each; distance to the nearest object 0.10;
+#: collision 0.25; time to collision 0.10; lane-centre offset in place of the distance to the road edge 0.10);
+#: the roundabout's own features (jerk, gap and time headway to the leader, stopped time, lateral acceleration)
+#: 0.05 each. They sum to 1.
+FEATURES: tuple[FeatureSpec, ...] = (
+    FeatureSpec("speed", "m/s", 0.0, 20.0, 20, 0.05),
+    FeatureSpec("acceleration", "m/s^2", -6.0, 6.0, 24, 0.05),
+    FeatureSpec("jerk", "m/s^3", -10.0, 10.0, 20, 0.05),
+    FeatureSpec("yaw_rate", "rad/s", -1.0, 1.0, 20, 0.05),
+    FeatureSpec("yaw_acceleration", "rad/s^2", -2.0, 2.0, 20, 0.05),
+    FeatureSpec("lateral_acceleration", "m/s^2", -4.0, 4.0, 16, 0.05),
+    FeatureSpec("nearest_distance", "m", 0.0, 30.0, 30, 0.10),
+    FeatureSpec("gap", "m", 0.0, 50.0, 25, 0.05),
+    FeatureSpec("time_headway", "s", 0.0, 5.0, 25, 0.05),
+    FeatureSpec("time_to_collision", "s", 0.0, 5.0, 10, 0.10),
+    FeatureSpec("stopped_time", "s", 0.0, 30.0, 15, 0.05, per="vehicle"),
+    FeatureSpec("collision", "0/1", 0.0, 1.0, 2, 0.25, per="vehicle"),
+    FeatureSpec("lane_offset", "m", 0.0, 3.0, 15, 0.10, needs_map=True),
+)
+
+_LEADER_RANGE = 50.0     # m: vehicles further ahead are not a leader
+_LEADER_LATERAL = 1.8    # m: |lateral offset| in the follower's frame
+_LEADER_COS = 0.7        # cos of the largest heading difference (about 45 deg)
+_STOPPED = 0.5           # m/s: below this speed a vehicle counts as stopped
+_MIN_HEADWAY_SPEED = 1.0  # m/s: time headway only above this speed
+_NEAR = 50.0             # m: pairs of vehicles further apart (centres) are neither measured nor leaders
+
+
+@dataclass(frozen=True)
+class TrackFeatures:
+    """The realism features of one recording or rollout: per feature, one array per vehicle.
+
+    Attributes
+    ----------
+    values : dict[str, list[numpy.ndarray]]
+        Feature name -> per vehicle, its samples (shape (n_steps,) or (1,)); a vehicle without samples of a
+        feature (e.g. no leader) has an empty array.
+    n_vehicles : int
+    duration_s : float
+        Sum over vehicles of their tracked time [s].
+    """
+
+    values: dict[str, list[np.ndarray]]
+    n_vehicles: int
+    duration_s: float
+
+    def pooled(self, name: str) -> np.ndarray:
+        """All samples of feature ``name``, shape (n,)."""
+        if name not in self.values:
+            raise KeyError(f"no feature {name!r}; have {sorted(self.values)}")
+        parts = self.values[name]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    @staticmethod
+    def combine(parts: Sequence["TrackFeatures"]) -> "TrackFeatures":
+        """The features of several recordings together (their vehicles side by side)."""
+        if not parts:
+            raise ValueError("combine: no TrackFeatures given")
+        names = set(parts[0].values)
+        for p in parts[1:]:
+            names &= set(p.values)
+        return TrackFeatures({n: [a for p in parts for a in p.values[n]] for n in sorted(names)},
+                             sum(p.n_vehicles for p in parts), float(sum(p.duration_s for p in parts)))
+
+
+def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[FeatureSpec] = FEATURES) -> TrackFeatures:
+    """Compute the realism features of a table of tracks.
+
+    Parameters
+    ----------
+    tracks : pandas.DataFrame
+        INTERACTION vehicle columns (`pirl_sim.io.interaction.read_tracks`): ``track_id``, ``frame_id``,
+        ``timestamp_ms``, ``x``, ``y`` [m], ``vx``, ``vy`` [m/s], ``length``, ``width`` [m]; ``psi_rad`` [rad]
+        if present (else the heading of the velocity).
+    lmap : pirl_sim.io.lanelet2_map.LaneletMap, optional
+        The map, for the map features (``lane_offset``: distance to the nearest lanelet centre line).
+    features : sequence of FeatureSpec
+        Which features to compute (default `FEATURES`); map features are left out without ``lmap``.
+
+    Returns
+    -------
+    TrackFeatures
+    """
+    if not isinstance(tracks, pd.DataFrame):
+        raise TypeError(f"tracks must be a pandas.DataFrame of INTERACTION columns, got {type(tracks).__name__}")
+    need = ("track_id", "frame_id", "timestamp_ms", "x", "y", "vx", "vy", "length", "width")
+    missing = [c for c in need if c not in tracks.columns]
+    if missing:
+        raise ValueError(f"tracks lack the columns {missing}; need {list(need)}")
+    names = [f.name for f in features if lmap is not None or not f.needs_map]
+    unknown = [n for n in names if n not in {f.name for f in FEATURES}]
+    if unknown:
+        raise ValueError(f"unknown realism features {unknown}; known: {[f.name for f in FEATURES]}")
+    df = tracks.sort_values(["track_id", "frame_id"], kind="stable").reset_index(drop=True)
+    if len(df) == 0:
+        raise ValueError("tracks: the table has no rows")
+    for c in ("x", "y", "vx", "vy", "length", "width"):
+        if not np.all(np.isfinite(df[c].to_numpy(dtype=float))):
+            raise ValueError(f"tracks: column {c!r} has non-finite values")
+
+    t = df["timestamp_ms"].to_numpy(dtype=float) / 1000.0
+    xy = df[["x", "y"]].to_numpy(dtype=float)
+    v_xy = df[["vx", "vy"]].to_numpy(dtype=float)
+    speed = np.hypot(v_xy[:, 0], v_xy[:, 1])
+    psi = (df["psi_rad"].to_numpy(dtype=float) if "psi_rad" in df.columns
+           else np.arctan2(v_xy[:, 1], v_xy[:, 0]))
+    ids = df["track_id"].to_numpy()
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    ends = np.r_[starts[1:], len(df)]
+
+    per_row = {n: np.full(len(df), np.nan) for n in ("acceleration", "jerk", "yaw_rate", "yaw_acceleration",
+                                                      "lateral_acceleration")}
+    per_vehicle_stopped, duration = [], 0.0
+    for a, b in zip(starts, ends):
+        tt = t[a:b]
+        if b - a >= 3 and np.all(np.diff(tt) > 0):
+            acc = np.gradient(speed[a:b], tt)
+            yaw = np.gradient(np.unwrap(psi[a:b]), tt)
+            per_row["acceleration"][a:b] = acc
+            per_row["jerk"][a:b] = np.gradient(acc, tt)
+            per_row["yaw_rate"][a:b] = yaw
+            per_row["yaw_acceleration"][a:b] = np.gradient(yaw, tt)
+            per_row["lateral_acceleration"][a:b] = speed[a:b] * yaw
+        dt = np.diff(tt, append=tt[-1] + (tt[-1] - tt[-2] if b - a > 1 else 0.1))
+        per_vehicle_stopped.append(float(np.sum(dt[speed[a:b] < _STOPPED])))
+        duration += float(tt[-1] - tt[0])
+
+    inter = _interaction_rows(df, xy, psi, speed)
+    out: dict[str, list[np.ndarray]] = {}
+    for name in names:
+        if name == "speed":
+            col = speed
+        elif name in per_row:
+            col = per_row[name]
+        elif name in inter:
+            col = inter[name]
+        elif name == "stopped_time":
+            out[name] = [np.array([s]) for s in per_vehicle_stopped]
+            continue
+        elif name == "collision":
+            hit = inter["_collides"]
+            out[name] = [np.array([float(hit[a:b].any())]) for a, b in zip(starts, ends)]
+            continue
+        elif name == "lane_offset":
+            col = _lane_offsets(lmap, xy)
+        else:  # pragma: no cover - guarded by `unknown` above
+            raise AssertionError(name)
+        out[name] = [_finite(col[a:b]) for a, b in zip(starts, ends)]
+    return TrackFeatures(out, len(starts), duration)
+
+
+def _finite(a: np.ndarray) -> np.ndarray:
+    return a[np.isfinite(a)]
+
+
+def _corners(xy: np.ndarray, psi: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """Corners of oriented boxes, shape (n, 4, 2), counter-clockwise."""
+    c, s = np.cos(psi), np.sin(psi)
+    hl, hw = length / 2.0, width / 2.0
+    lon = np.array([1, -1, -1, 1])[None, :] * hl[:, None]
+    lat = np.array([1, 1, -1, -1])[None, :] * hw[:, None]
+    x = xy[:, 0:1] + lon * c[:, None] - lat * s[:, None]
+    y = xy[:, 1:2] + lon * s[:, None] + lat * c[:, None]
+    return np.stack([x, y], axis=-1)
+
+
+def box_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance [m] between pairs of convex quadrilaterals (0 where they overlap).
+
+    Parameters
+    ----------
+    a, b : numpy.ndarray, shape (P, 4, 2)
+        Corners of each pair's boxes, in order around the box.
+
+    Returns
+    -------
+    numpy.ndarray, shape (P,)
+    """
+    overlap = np.ones(len(a), dtype=bool)
+    for box in (a, b):  # separating axis test: the edge normals of both boxes
+        for k in range(2):
+            edge = box[:, k + 1] - box[:, k]
+            axis = np.stack([-edge[:, 1], edge[:, 0]], axis=-1)
+            pa = np.einsum("pkd,pd->pk", a, axis)
+            pb = np.einsum("pkd,pd->pk", b, axis)
+            overlap &= (pa.max(1) >= pb.min(1)) & (pb.max(1) >= pa.min(1))
+    d = np.minimum(_corner_edge_distance(a, b), _corner_edge_distance(b, a))
+    return np.where(overlap, 0.0, d)
+
+
+def _corner_edge_distance(points: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Least distance from the corners of ``points`` to the edges of ``box``, both (P, 4, 2): shape (P,)."""
+    p0 = box[:, None, :, :]                      # (P, 1, 4, 2) edge starts
+    e = np.roll(box, -1, axis=1)[:, None] - p0   # (P, 1, 4, 2) edge vectors
+    q = points[:, :, None, :] - p0               # (P, 4, 4, 2)
+    u = np.clip(np.sum(q * e, -1) / np.maximum(np.sum(e * e, -1), 1e-12), 0.0, 1.0)
+    return np.sqrt(np.sum((q - u[..., None] * e) ** 2, -1)).min(axis=(1, 2))
+
+
+def _frame_pairs(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All pairs (i, j), i < j, of rows with the same frame: two int arrays of equal length."""
+    order = np.argsort(frames, kind="stable")
+    fs = frames[order]
+    ii, jj = [], []
+    for k in range(1, len(fs)):
+        same = fs[k:] == fs[:-k]
+        if not same.any():
+            break
+        ii.append(order[:-k][same])
+        jj.append(order[k:][same])
+    if not ii:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    return np.concatenate(ii), np.concatenate(jj)
+
+
+def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]:
+    """Per row: distance to the nearest other box, collision, gap, time headway and time to collision to the
+    leader (the nearest vehicle ahead in the same direction within `_LEADER_RANGE`)."""
+    n = len(df)
+    length = df["length"].to_numpy(dtype=float)
+    width = df["width"].to_numpy(dtype=float)
+    i, j = _frame_pairs(df["frame_id"].to_numpy())
+    centre = np.hypot(*(xy[i] - xy[j]).T)
+    close = centre < _NEAR
+    i, j = i[close], j[close]
+    corners = _corners(xy, psi, length, width)
+    d = np.concatenate([box_distance(corners[i[s]], corners[j[s]])
+                        for s in np.array_split(np.arange(len(i)), max(1, len(i) // 50_000))]) if len(i) else np.zeros(0)
+    nearest = np.full(n, np.inf)
+    np.minimum.at(nearest, i, d)
+    np.minimum.at(nearest, j, d)
+    collides = np.zeros(n, dtype=bool)
+    collides[i[d == 0.0]] = True
+    collides[j[d == 0.0]] = True
+    # leaders: ordered pairs (follower f, other o), the other ahead within a lane's width, heading the same way
+    f = np.concatenate([i, j])
+    o = np.concatenate([j, i])
+    h = np.stack([np.cos(psi), np.sin(psi)], axis=-1)
+    rel = xy[o] - xy[f]
+    lon = np.sum(rel * h[f], -1)
+    lat = rel[:, 1] * h[f, 0] - rel[:, 0] * h[f, 1]
+    ok = (lon > 0) & (lon < _LEADER_RANGE) & (np.abs(lat) < _LEADER_LATERAL) & (np.sum(h[f] * h[o], -1) > _LEADER_COS)
+    f, o, lon = f[ok], o[ok], lon[ok]
+    best = np.full(n, np.inf)
+    np.minimum.at(best, f, lon)
+    first = lon == best[f]
+    leader = np.full(n, -1)
+    leader[f[first]] = o[first]
+    has = leader >= 0
+    gap = np.full(n, np.nan)
+    headway = np.full(n, np.nan)
+    ttc = np.full(n, 5.0)
+    fr, ld = np.flatnonzero(has), leader[has]
+    g = np.maximum(best[fr] - (length[fr] + length[ld]) / 2.0, 0.0)
+    gap[fr] = g
+    fast = speed[fr] > _MIN_HEADWAY_SPEED
+    headway[fr[fast]] = g[fast] / speed[fr[fast]]
+    closing = speed[fr] - speed[ld] * np.sum(h[fr] * h[ld], -1)
+    coming = closing > 0.1
+    ttc[fr[coming]] = np.minimum(g[coming] / closing[coming], 5.0)
+    return {"nearest_distance": np.where(np.isfinite(nearest), nearest, np.nan), "gap": gap,
+            "time_headway": headway, "time_to_collision": ttc, "_collides": collides}
+
+
+def _lane_offsets(lmap, xy: np.ndarray, spacing: float = 0.5) -> np.ndarray:
+    """Distance [m] from each point to the nearest lanelet centre line, shape (n,): exact distances to the
+    segments of the centre-line points nearest to it (points every ``spacing`` m)."""
+    from scipy.spatial import cKDTree
+
+    starts, ends, pts, owner = [], [], [], []
+    for line in lmap.centerlines.values():
+        for p, q in zip(line[:-1], line[1:]):
+            k = max(int(np.ceil(np.hypot(*(q - p)) / spacing)), 1)
+            pts.append(p + np.linspace(0.0, 1.0, k + 1)[:, None] * (q - p))
+            owner.append(np.full(k + 1, len(starts)))
+            starts.append(p)
+            ends.append(q)
+    if not pts:
+        raise ValueError(f"map {getattr(lmap, 'path', '')} has no lanelets: lane offsets need centre lines")
+    a, b = np.array(starts), np.array(ends)
+    owner = np.concatenate(owner)
+    k = min(6, len(owner))
+    _, idx = cKDTree(np.concatenate(pts)).query(xy, k=k)
+    seg = owner[idx.reshape(len(xy), k)]                     # (n, k) candidate segments
+    e = b[seg] - a[seg]
+    w = xy[:, None, :] - a[seg]
+    u = np.clip(np.sum(w * e, -1) / np.maximum(np.sum(e * e, -1), 1e-12), 0.0, 1.0)
+    return np.sqrt(np.sum((w - u[..., None] * e) ** 2, -1)).min(axis=1)
+
+
+@dataclass(frozen=True)
+class RealismScore:
+    """The realism of simulated features against recorded ones.
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        One row per feature: ``feature``, ``unit``, ``weight`` (normalised over the scored features),
+        ``n_reference``, ``n_simulated`` (samples), ``log_likelihood`` (mean log-probability of the recorded
+        samples under the simulated histogram), ``likelihood`` (mean over recorded vehicles of
+        ``exp(mean log-probability)``, in (0, 1]), ``wasserstein`` (between the two samples, in the feature's
+        unit). Features without samples on either side have NaN scores and weight 0.
+    meta_metric : float
+        Sum of ``weight * likelihood``, in (0, 1]; higher is more realistic.
+    """
+
+    table: pd.DataFrame
+    meta_metric: float = field()
+
+
+def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, features: Sequence[FeatureSpec] = FEATURES,
+                  pseudocount: float = 0.1, weights: Mapping[str, float] | None = None) -> RealismScore:
+    """Score recorded features under the distribution of simulated ones.
+
+    Parameters
+    ----------
+    reference, simulated : TrackFeatures
+        The recording (scored) and the rollouts (their histograms score it).
+    features : sequence of FeatureSpec
+        Histogram ranges and default weights (`FEATURES`).
+    pseudocount : float
+        Added to every bin's count before normalising (additive smoothing; the challenge uses 0.1).
+    weights : mapping, optional
+        Feature name -> weight, replacing the defaults of the features named.
+
+    Returns
+    -------
+    RealismScore
+    """
+    if not isinstance(reference, TrackFeatures) or not isinstance(simulated, TrackFeatures):
+        raise TypeError("reference and simulated must be TrackFeatures (see track_features)")
+    if not (isinstance(pseudocount, (int, float)) and math.isfinite(pseudocount) and pseudocount > 0):
+        raise ValueError(f"pseudocount={pseudocount!r}; need a finite number > 0")
+    specs = {f.name: f for f in features}
+    weights = dict(weights or {})
+    bad = [k for k in weights if k not in specs]
+    if bad:
+        raise ValueError(f"weights name unknown features {bad}; known: {sorted(specs)}")
+    for k, w in weights.items():
+        if not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
+            raise ValueError(f"weight of {k!r} is {w!r}; need a finite number >= 0")
+    from scipy.stats import wasserstein_distance
+
+    rows = []
+    for name, spec in specs.items():
+        if name not in reference.values or name not in simulated.values:
+            continue
+        ref_parts = [a for a in reference.values[name] if len(a)]
+        sim = simulated.pooled(name)
+        row = {"feature": name, "unit": spec.unit, "weight": float(weights.get(name, spec.weight)),
+               "n_reference": int(sum(len(a) for a in ref_parts)), "n_simulated": int(len(sim)),
+               "log_likelihood": math.nan, "likelihood": math.nan, "wasserstein": math.nan}
+        if ref_parts and len(sim):
+            counts = np.bincount(spec.bin_of(sim), minlength=spec.bins).astype(float) + pseudocount
+            logp = np.log(counts / counts.sum())
+            per_vehicle = [logp[spec.bin_of(a)] for a in ref_parts]
+            row["log_likelihood"] = float(np.mean(np.concatenate(per_vehicle)))
+            row["likelihood"] = float(np.mean([math.exp(lp.mean()) for lp in per_vehicle]))
+            ref = np.clip(np.concatenate(ref_parts), spec.low, spec.high)
+            row["wasserstein"] = float(wasserstein_distance(ref, np.clip(sim, spec.low, spec.high)))
+        rows.append(row)
+    table = pd.DataFrame(rows, columns=["feature", "unit", "weight", "n_reference", "n_simulated",
+                                        "log_likelihood", "likelihood", "wasserstein"])
+    scored = table["likelihood"].notna()
+    table.loc[~scored, "weight"] = 0.0
+    total = table["weight"].sum()
+    if not scored.any() or total <= 0:
+        raise ValueError("no feature has samples on both sides with a positive weight: nothing to score "
+                         f"(reference: {reference.n_vehicles} vehicles, simulated: {simulated.n_vehicles})")
+    table["weight"] = table["weight"] / total
+    meta = float((table["weight"] * table["likelihood"].fillna(0.0)).sum())
+    return RealismScore(table, meta)
+
+
+def compare_sources(reference: TrackFeatures, sources: Mapping[str, Iterable[TrackFeatures]], **kwargs
+                    ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Score several simulated sources, each over several rollouts (seeds), against one reference.
+
+    Parameters
+    ----------
+    reference : TrackFeatures
+    sources : mapping
+        Source label -> its rollouts' features (one `TrackFeatures` per rollout).
+    **kwargs
+        Passed to `score_realism`.
+
+    Returns
+    -------
+    summary : pandas.DataFrame
+        One row per source: ``source``, ``rollouts``, ``meta_metric`` (mean over rollouts), ``ci95`` (half-width
+        of its 95 % interval; NaN for one rollout), ``min``, ``max``.
+    features : pandas.DataFrame
+        One row per source, rollout and feature: the columns of `RealismScore.table` with ``source`` and
+        ``rollout``.
+    """
+    from .stats import ci95
+
+    summary, parts = [], []
+    for label, rollouts in sources.items():
+        metas = []
+        for r, feats in enumerate(rollouts):
+            s = score_realism(reference, feats, **kwargs)
+            metas.append(s.meta_metric)
+            parts.append(s.table.assign(source=label, rollout=r))
+        if not metas:
+            raise ValueError(f"source {label!r} has no rollouts")
+        summary.append({"source": label, "rollouts": len(metas), "meta_metric": float(np.mean(metas)),
+                        "ci95": ci95(metas), "min": float(np.min(metas)), "max": float(np.max(metas))})
+    if not summary:
+        raise ValueError("compare_sources: no sources given")
+    features = pd.concat(parts, ignore_index=True)
+    cols = ["source", "rollout"] + [c for c in features.columns if c not in ("source", "rollout")]
+    return pd.DataFrame(summary), features[cols]
+
+
+def realism_figure(reference: TrackFeatures, sources: Mapping[str, Sequence[TrackFeatures]], path, *,
+                   features: Sequence[FeatureSpec] = FEATURES, reference_label: str = "reference"):
+    """Draw each feature's distribution, the reference's filled and each source's (rollouts pooled) as a line,
+    on the histogram bins of the score; write it to ``path`` (PNG) and return the figure."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from pirl_sim.io.atomic import atomic_write_bytes
+
+    specs = [f for f in features if f.name in reference.values]
+    if not specs:
+        raise ValueError("realism_figure: the reference has none of the features asked for")
+    cols = 4
+    rows = math.ceil(len(specs) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
+    pooled = {label: TrackFeatures.combine(list(r)) for label, r in sources.items()}
+    for ax, spec in zip(axes.flat, specs):
+        ref = reference.pooled(spec.name)
+        if len(ref):
+            ax.stairs(np.bincount(spec.bin_of(ref), minlength=spec.bins) / len(ref), spec.edges, fill=True,
+                      color="0.75", label=reference_label)
+        for label, feats in pooled.items():
+            sim = feats.pooled(spec.name) if spec.name in feats.values else np.zeros(0)
+            if len(sim):
+                ax.stairs(np.bincount(spec.bin_of(sim), minlength=spec.bins) / len(sim), spec.edges, label=label,
+                          linewidth=1.4)
+        ax.set_title(f"{spec.name} [{spec.unit}]", fontsize=9)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(specs):]:
+        ax.set_visible(False)
+    axes.flat[0].legend(fontsize=7)
+    fig.tight_layout()
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    atomic_write_bytes(path, buf.getvalue())
+    return fig

@@ -1,0 +1,192 @@
+"""The realism score: box distances, per-vehicle features on hand-made scenes, likelihoods that rank a source
+drawn like the reference above a shifted one, the command and its bad inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pirl_sim.evaluation.realism import (FEATURES, FeatureSpec, TrackFeatures, box_distance, compare_sources,
+                                         realism_figure, score_realism, track_features)
+
+
+def _box(cx, cy, psi=0.0, length=4.0, width=2.0):
+    c, s = math.cos(psi), math.sin(psi)
+    pts = [(length / 2, width / 2), (-length / 2, width / 2), (-length / 2, -width / 2), (length / 2, -width / 2)]
+    return np.array([[cx + a * c - b * s, cy + a * s + b * c] for a, b in pts])
+
+
+def test_box_distance_by_hand():
+    a = np.stack([_box(0, 0)] * 5)
+    b = np.stack([_box(6, 0), _box(3, 0), _box(0, 4, psi=math.pi / 2), _box(5, 4), _box(0, 0, psi=0.3)])
+    d = box_distance(a, b)
+    assert d == pytest.approx([2.0, 0.0, 1.0, math.sqrt(5.0), 0.0])
+    assert box_distance(b, a) == pytest.approx(d)
+
+
+def _scene(rows):
+    """Rows (track_id, frame_id, x, y, vx, vy) -> an INTERACTION table, 0.1 s frames, 4 m x 2 m cars."""
+    df = pd.DataFrame(rows, columns=["track_id", "frame_id", "x", "y", "vx", "vy"])
+    df["timestamp_ms"] = df["frame_id"] * 100
+    df["agent_type"] = "car"
+    df["psi_rad"] = np.arctan2(df["vy"], df["vx"])
+    df["length"], df["width"] = 4.0, 2.0
+    return df
+
+
+def test_leader_gap_headway_time_to_collision_and_nearest():
+    frames = range(1, 11)
+    rows = [(1, f, 0.0 + 1.0 * f, 0.0, 10.0, 0.0) for f in frames] + [(2, f, 20.0 + 0.5 * f, 0.0, 5.0, 0.0)
+                                                                         for f in frames]
+    feats = track_features(_scene(rows))
+    g0 = 20.0 - 4.0  # frame 0 spacing minus the half lengths
+    follower_gap = feats.values["gap"][0]
+    assert follower_gap[0] == pytest.approx(g0 - 0.5)  # frame 1: 20.5 - 1.0 - 4
+    assert np.all(np.diff(follower_gap) == pytest.approx(-0.5))
+    assert feats.values["time_headway"][0] == pytest.approx(follower_gap / 10.0)
+    assert feats.values["time_to_collision"][0] == pytest.approx(np.minimum(follower_gap / 5.0, 5.0))
+    assert len(feats.values["gap"][1]) == 0  # the leader has nobody ahead
+    assert feats.values["time_to_collision"][1] == pytest.approx(np.full(10, 5.0))
+    assert feats.values["nearest_distance"][0] == pytest.approx(follower_gap)
+    assert feats.values["acceleration"][0] == pytest.approx(np.zeros(10), abs=1e-9)
+    assert feats.values["collision"][0][0] == 0.0
+    assert feats.values["stopped_time"][0][0] == 0.0
+    assert "lane_offset" not in feats.values  # no map
+
+
+def test_overlap_is_a_collision_and_opposite_traffic_is_no_leader():
+    rows = [(1, f, f * 0.1, 0.0, 1.0, 0.0) for f in range(1, 6)] + [(2, f, 3.0, 0.5, 0.0, 0.0) for f in range(1, 6)]
+    rows += [(3, f, 30.0 - f, 0.0, -10.0, 0.0) for f in range(1, 6)]
+    feats = track_features(_scene(rows))
+    assert [feats.values["collision"][k][0] for k in range(3)] == [1.0, 1.0, 0.0]
+    assert feats.values["gap"][0] == pytest.approx(np.zeros(5))  # its leader overlaps it
+    assert len(feats.values["gap"][2]) == 0  # the others are ahead of it but head the other way
+    assert feats.values["stopped_time"][1][0] == pytest.approx(0.5)  # five 0.1 s steps at rest
+
+
+def _traffic(rng, n_vehicles, mean_speed, spread=1.0, frames=60):
+    """Two lanes of cars at constant speeds drawn around ``mean_speed``, spaced 30 m."""
+    rows = []
+    for k in range(n_vehicles):
+        v = max(rng.normal(mean_speed, spread), 0.5)
+        y = 3.5 * (k % 2)
+        x0 = 30.0 * (k // 2)
+        rows += [(k + 1, f, x0 + v * 0.1 * f, y, v, 0.0) for f in range(1, frames + 1)]
+    return _scene(rows)
+
+
+def test_a_source_like_the_reference_scores_above_a_shifted_one():
+    rng = np.random.default_rng(0)
+    reference = track_features(_traffic(rng, 30, 8.0))
+    same = [track_features(_traffic(rng, 30, 8.0)) for _ in range(3)]
+    fast = [track_features(_traffic(rng, 30, 12.0)) for _ in range(3)]
+    summary, table = compare_sources(reference, {"same": same, "fast": fast})
+    meta = dict(zip(summary["source"], summary["meta_metric"]))
+    assert meta["same"] > meta["fast"]
+    speed = table[table["feature"] == "speed"].groupby("source")[["likelihood", "wasserstein"]].mean()
+    assert speed.loc["same", "likelihood"] > 2 * speed.loc["fast", "likelihood"]
+    assert speed.loc["fast", "wasserstein"] == pytest.approx(4.0, abs=1.0)
+    assert summary["rollouts"].tolist() == [3, 3] and np.all(np.isfinite(summary["ci95"]))
+    weights = table[table["rollout"] == 0].groupby("source")["weight"].sum()
+    assert weights.to_numpy() == pytest.approx([1.0, 1.0])  # normalised over the scored features
+
+
+def test_score_is_deterministic_and_likelihoods_lie_in_the_unit_interval():
+    rng = np.random.default_rng(1)
+    a, b = track_features(_traffic(rng, 20, 8.0)), track_features(_traffic(rng, 20, 9.0))
+    s1, s2 = score_realism(a, b), score_realism(a, b)
+    pd.testing.assert_frame_equal(s1.table, s2.table)
+    scored = s1.table.dropna(subset=["likelihood"])
+    assert ((scored["likelihood"] > 0) & (scored["likelihood"] <= 1)).all()
+    assert 0 < s1.meta_metric <= 1
+    only_speed = score_realism(a, b, weights={n.name: 0.0 for n in FEATURES if n.name != "speed"})
+    assert only_speed.meta_metric == pytest.approx(float(s1.table.set_index("feature").loc["speed", "likelihood"]))
+
+
+def test_lane_offset_with_a_map(tmp_path):
+    from pirl_sim.io.lanelet2_map import load_map, write_map
+
+    x = np.linspace(-10.0, 200.0, 50)
+    write_map({"A": np.column_stack([x, np.zeros_like(x)])}, {}, tmp_path / "map.osm")
+    rows = [(1, f, f * 1.0, 0.0, 10.0, 0.0) for f in range(1, 6)] + [(2, f, f * 1.0, 1.2, 10.0, 0.0)
+                                                                     for f in range(1, 6)]
+    feats = track_features(_scene(rows), load_map(tmp_path / "map.osm"))
+    assert feats.values["lane_offset"][0] == pytest.approx(np.zeros(5), abs=1e-6)
+    assert feats.values["lane_offset"][1] == pytest.approx(np.full(5, 1.2), abs=1e-6)
+
+
+def test_bad_inputs_name_what_is_wrong():
+    with pytest.raises(ValueError, match="bins"):
+        FeatureSpec("x", "m", 0.0, 1.0, 1, 0.1)
+    with pytest.raises(ValueError, match="low"):
+        FeatureSpec("x", "m", 1.0, 1.0, 4, 0.1)
+    with pytest.raises(ValueError, match="per"):
+        FeatureSpec("x", "m", 0.0, 1.0, 4, 0.1, per="track")
+    with pytest.raises(TypeError, match="DataFrame"):
+        track_features({"x": [1.0]})
+    with pytest.raises(ValueError, match="length"):
+        track_features(_scene([(1, 1, 0.0, 0.0, 1.0, 0.0)]).drop(columns=["length"]))
+    bad = _scene([(1, 1, 0.0, 0.0, 1.0, 0.0), (1, 2, np.nan, 0.0, 1.0, 0.0)])
+    with pytest.raises(ValueError, match="'x'.*non-finite"):
+        track_features(bad)
+    a = track_features(_traffic(np.random.default_rng(2), 4, 8.0))
+    with pytest.raises(ValueError, match="unknown features.*'speeed'"):
+        score_realism(a, a, weights={"speeed": 1.0})
+    with pytest.raises(ValueError, match="pseudocount"):
+        score_realism(a, a, pseudocount=0.0)
+    with pytest.raises(ValueError, match="nothing to score"):
+        score_realism(a, a, weights={f.name: 0.0 for f in FEATURES})
+    with pytest.raises(TypeError, match="TrackFeatures"):
+        score_realism(a, "b")
+    with pytest.raises(ValueError, match="no TrackFeatures"):
+        TrackFeatures.combine([])
+
+
+def _write(df, path):
+    from pirl_sim.io.interaction import write_tracks
+
+    cols = ["track_id", "frame_id", "timestamp_ms", "agent_type", "x", "y", "vx", "vy", "psi_rad", "length", "width"]
+    write_tracks(df[cols], path)
+    return path
+
+
+def test_command_writes_the_tables_and_a_figure(tmp_path, capsys):
+    from pirl_sim.cli import main
+
+    rng = np.random.default_rng(3)
+    ref = _write(_traffic(rng, 20, 8.0), tmp_path / "vehicle_tracks_000.csv")
+    same = [_write(_traffic(rng, 20, 8.0), tmp_path / f"same_{k}.csv") for k in range(2)]
+    fast = [_write(_traffic(rng, 20, 12.0), tmp_path / f"fast_{k}.csv") for k in range(2)]
+    out = tmp_path / "out"
+    assert main(["realism", "--reference", str(ref), "--source", "same=" + ",".join(map(str, same)),
+                 "--source", "fast=" + ",".join(map(str, fast)), "--out", str(out)]) == 0
+    summary = pd.read_csv(out / "summary.csv")
+    assert summary["source"].tolist() == ["same", "fast"]
+    assert summary["meta_metric"].iloc[0] > summary["meta_metric"].iloc[1]
+    assert set(pd.read_csv(out / "features.csv")["feature"]) == {f.name for f in FEATURES if not f.needs_map}
+    from matplotlib.image import imread
+
+    img = imread(out / "realism.png")
+    grey = np.all(np.abs(img[..., :3] - 0.75) < 0.01, axis=-1)  # the reference's filled histograms
+    assert grey.sum() > 500
+    assert "meta_metric" in capsys.readouterr().out
+
+    assert main(["realism", "--reference", str(ref), "--source", f"a={same[0]}", "--source", f"a={fast[0]}",
+                 "--out", str(out)]) == 2
+    assert "repeated: ['a']" in capsys.readouterr().err
+    assert main(["realism", "--reference", str(tmp_path / "none.csv"), "--source", f"a={same[0]}",
+                 "--out", str(out)]) == 2
+    assert "none.csv" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["realism", "--reference", str(ref), "--source", "nolabel"])
+    assert "LABEL=PATH" in capsys.readouterr().err
+
+
+def test_figure_has_a_panel_per_feature(tmp_path):
+    a = track_features(_traffic(np.random.default_rng(4), 6, 8.0))
+    fig = realism_figure(a, {"a": [a]}, tmp_path / "r.png")
+    assert sum(ax.get_visible() for ax in fig.axes) == len(a.values)
+    assert (tmp_path / "r.png").is_file()
