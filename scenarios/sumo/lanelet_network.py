@@ -1,0 +1,276 @@
+"""SUMO networks of real roundabouts: a Lanelet2 map's lanelets as SUMO edges, its routing graph as their
+connections, built with netconvert, and the map's entry-to-exit routes.
+
+Each lanelet becomes a one-lane edge whose shape is the lanelet's centre line; lanelet ends that the routing graph
+joins (a lanelet's end and its successors' starts) become one node; each successor relation becomes a connection.
+Coordinates are kept as in the map (the INTERACTION frame), so recorded tracks lie on the simulated lanes.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from pirl_sim.io.atomic import atomic_write_text
+
+__all__ = ["LaneletNetwork", "network_from_lanelet2", "lanelet_routes", "lane_distances", "edge_id"]
+
+_NETCONVERT_TIMEOUT_S = 120.0
+_DEFAULT_WIDTH = 3.5  # [m] a lanelet whose bounds give no width
+
+
+def edge_id(lanelet_id: int) -> str:
+    """The SUMO edge of a lanelet: ``ll<id>``."""
+    return f"ll{int(lanelet_id)}"
+
+
+@dataclass(frozen=True)
+class LaneletNetwork:
+    """A SUMO network built from a Lanelet2 map.
+
+    Attributes
+    ----------
+    net : pathlib.Path
+        The ``*.net.xml`` netconvert wrote (with junction-internal lanes).
+    nodes, edges, connections : pathlib.Path
+        The plain-XML inputs netconvert read.
+    routes : tuple of (str, tuple of str)
+        Every entry-to-exit route: (route id, its edge ids in driving order), from `lanelet_routes`.
+    """
+
+    net: Path
+    nodes: Path
+    edges: Path
+    connections: Path
+    routes: tuple[tuple[str, tuple[str, ...]], ...]
+
+
+def _successors(lmap) -> dict[int, list[int]]:
+    """Lanelet id -> ids of the lanelets that follow it in the map's routing graph (only lanelets with centre lines)."""
+    out = {}
+    layer = lmap.map.laneletLayer
+    for lid in lmap.centerlines:
+        out[lid] = sorted(int(n.id) for n in lmap.routing_graph.following(layer[lid]) if int(n.id) in lmap.centerlines)
+    return out
+
+
+def _width(lmap, lid: int) -> float:
+    ll = lmap.map.laneletLayer[lid]
+    left = np.array([(p.x, p.y) for p in ll.leftBound])
+    right = np.array([(p.x, p.y) for p in ll.rightBound])
+    if len(left) < 2 or len(right) < 2:
+        return _DEFAULT_WIDTH
+    d = [np.min(np.hypot(*(right - p).T)) for p in left]
+    w = float(np.median(d))
+    return w if 2.0 <= w <= 8.0 else _DEFAULT_WIDTH
+
+
+def lanelet_routes(lmap, *, max_routes: int = 10_000) -> list[tuple[str, tuple[str, ...]]]:
+    """Every route from a lanelet without predecessor to one without successor, without repeating a lanelet.
+
+    Returns
+    -------
+    list of (route id, edge ids)
+        Route ids ``r<first lanelet>_<last lanelet>`` (``_<k>`` added when several routes join the same pair),
+        sorted.
+
+    Raises
+    ------
+    ValueError
+        If the map has no lanelets, no route from an entry to an exit, or more than ``max_routes`` routes.
+    """
+    succ = _successors(lmap)
+    if not succ:
+        raise ValueError(f"map {lmap.path}: no lanelets with centre lines")
+    has_pred = {s for v in succ.values() for s in v}
+    entries = [lid for lid in sorted(succ) if lid not in has_pred]
+    found: list[tuple[int, ...]] = []
+    for start in entries:
+        stack = [(start, (start,))]
+        while stack:
+            lid, path = stack.pop()
+            nxt = [s for s in succ[lid] if s not in path]
+            if not succ[lid]:
+                found.append(path)
+                if len(found) > max_routes:
+                    raise ValueError(f"map {lmap.path}: more than {max_routes} entry-to-exit routes")
+            stack.extend((s, path + (s,)) for s in reversed(nxt))
+    if not found:
+        raise ValueError(f"map {lmap.path}: no route leads from an entry lanelet (no predecessor) to an exit "
+                         "lanelet (no successor): is it a roundabout map with entries and exits?")
+    found.sort()
+    out, seen = [], {}
+    for path in found:
+        key = f"r{path[0]}_{path[-1]}"
+        seen[key] = seen.get(key, 0) + 1
+        out.append((key if seen[key] == 1 else f"{key}_{seen[key] - 1}", tuple(edge_id(l) for l in path)))
+    return out
+
+
+def _nodes(lmap, succ, tolerance: float):
+    """Union of lanelet ends: (node of each lanelet's start, node of each end, node positions)."""
+    parent: dict = {}
+
+    def find(k):
+        parent.setdefault(k, k)
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    def union(a, b):
+        parent[find(a)] = find(b)
+
+    lines = lmap.centerlines
+    for lid, nexts in succ.items():
+        for s in nexts:
+            gap = float(np.hypot(*(lines[lid][-1] - lines[s][0])))
+            if gap > tolerance:
+                raise ValueError(f"map {lmap.path}: lanelet {lid} ends {gap:.2f} m from the start of its successor "
+                                 f"{s} (more than {tolerance} m): the routing graph joins lanelets that do not meet")
+            union(("end", lid), ("start", s))
+    groups: dict = {}
+    for lid in lines:
+        for end in ("start", "end"):
+            groups.setdefault(find((end, lid)), []).append(lines[lid][0 if end == "start" else -1])
+    names = {root: f"n{k}" for k, root in enumerate(sorted(groups, key=str))}
+    pos = {names[r]: np.mean(p, axis=0) for r, p in groups.items()}
+    start = {lid: names[find(("start", lid))] for lid in lines}
+    end = {lid: names[find(("end", lid))] for lid in lines}
+    return start, end, pos
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.3f}"
+
+
+def _shape(points: np.ndarray) -> str:
+    return " ".join(f"{_fmt(x)},{_fmt(y)}" for x, y in points)
+
+
+def network_from_lanelet2(lmap, out_dir, *, name: str = "lanelets", junction_radius: float = 1.0,
+                          speed: float = 13.89, join_tolerance: float = 0.5) -> LaneletNetwork:
+    """Write a SUMO network of a Lanelet2 map.
+
+    Parameters
+    ----------
+    lmap : pirl_sim.io.lanelet2_map.LaneletMap or path
+        The map (a path is read with `pirl_sim.io.lanelet2_map.load_map`).
+    out_dir : path
+        Folder for ``{name}.nod.xml``, ``.edg.xml``, ``.con.xml`` and ``.net.xml`` (created if missing).
+    junction_radius : float
+        netconvert's default junction radius [m]: how far edges are cut back at a node for the curves between them.
+    speed : float
+        Speed limit of every edge [m/s].
+    join_tolerance : float
+        Largest distance [m] between a lanelet's end and a successor's start.
+
+    Returns
+    -------
+    LaneletNetwork
+
+    Raises
+    ------
+    ValueError
+        A bad parameter, a map without lanelets or routes, successors that do not meet.
+    RuntimeError
+        If netconvert fails (its message included).
+    """
+    import sumolib
+
+    from pirl_sim.io.lanelet2_map import LaneletMap, load_map
+
+    for label, v, lo in (("junction_radius", junction_radius, 0.0), ("speed", speed, 0.0),
+                         ("join_tolerance", join_tolerance, 0.0)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= lo:
+            raise ValueError(f"{label} must be a finite number > {lo}, got {v!r}")
+    if not isinstance(lmap, LaneletMap):
+        lmap = load_map(lmap)
+    succ = _successors(lmap)
+    routes = lanelet_routes(lmap)
+    start, end, pos = _nodes(lmap, succ, join_tolerance)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    nod = "<nodes>\n" + "".join(f'  <node id="{n}" x="{_fmt(p[0])}" y="{_fmt(p[1])}" type="priority"/>\n'
+                                for n, p in sorted(pos.items())) + "</nodes>\n"
+    edg = ["<edges>\n"]
+    for lid, line in sorted(lmap.centerlines.items()):
+        if start[lid] == end[lid]:
+            raise ValueError(f"map {lmap.path}: lanelet {lid} starts and ends at the same node")
+        edg.append(f'  <edge id={quoteattr(edge_id(lid))} from="{start[lid]}" to="{end[lid]}" numLanes="1" spreadType="center" '
+                   f'speed="{_fmt(speed)}" width="{_fmt(_width(lmap, lid))}" shape="{_shape(line)}"/>\n')
+    edg.append("</edges>\n")
+    con = ["<connections>\n"]
+    for lid, nexts in sorted(succ.items()):
+        con.extend(f'  <connection from="{edge_id(lid)}" to="{edge_id(s)}" fromLane="0" toLane="0"/>\n' for s in nexts)
+    con.append("</connections>\n")
+    nod_p = atomic_write_text(out_dir / f"{name}.nod.xml", nod)
+    edg_p = atomic_write_text(out_dir / f"{name}.edg.xml", "".join(edg))
+    con_p = atomic_write_text(out_dir / f"{name}.con.xml", "".join(con))
+    net = out_dir / f"{name}.net.xml"
+    fd, tmp = tempfile.mkstemp(prefix=f".{net.name}.", suffix=".tmp.net.xml", dir=out_dir)
+    os.close(fd)
+    cmd = [sumolib.checkBinary("netconvert"), "--node-files", str(nod_p), "--edge-files", str(edg_p),
+           "--connection-files", str(con_p), "--output-file", tmp, "--offset.disable-normalization", "true",
+           "--no-turnarounds", "true", "--no-internal-links", "false", "--junctions.corner-detail", "5",
+           "--junctions.internal-link-detail", "20", "--default.junctions.radius", _fmt(junction_radius),
+           "--geometry.remove", "false", "--xml-validation", "never"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=_NETCONVERT_TIMEOUT_S)
+        if proc.returncode != 0:
+            raise RuntimeError(f"netconvert failed (exit code {proc.returncode}) for {lmap.path}:\n"
+                               f"{proc.stderr.strip() or proc.stdout.strip()}")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, net)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return LaneletNetwork(net=net, nodes=nod_p, edges=edg_p, connections=con_p, routes=tuple(routes))
+
+
+def lane_distances(net, xy, *, spacing: float = 0.5) -> np.ndarray:
+    """Distance [m] from each point to the nearest lane of a SUMO network (junction-internal lanes included).
+
+    Parameters
+    ----------
+    net : path or sumolib.net.Net
+    xy : array_like, shape (n, 2)
+        Points [m] in the network's frame.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    import sumolib
+    from scipy.spatial import cKDTree
+
+    if isinstance(net, (str, os.PathLike)):
+        net = sumolib.net.readNet(str(net), withInternal=True)
+    xy = np.asarray(xy, dtype=float)
+    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise ValueError(f"xy must be finite points of shape (n, 2), got shape {xy.shape}")
+    a, b, pts, owner = [], [], [], []
+    for edge in net.getEdges(withInternal=True):
+        for lane in edge.getLanes():
+            shape = np.asarray(lane.getShape(), dtype=float)[:, :2]
+            for p, q in zip(shape[:-1], shape[1:]):
+                k = max(int(np.ceil(np.hypot(*(q - p)) / spacing)), 1)
+                pts.append(p + np.linspace(0.0, 1.0, k + 1)[:, None] * (q - p))
+                owner.append(np.full(k + 1, len(a)))
+                a.append(p)
+                b.append(q)
+    a, b, owner = np.array(a), np.array(b), np.concatenate(owner)
+    k = min(6, len(owner))
+    _, idx = cKDTree(np.concatenate(pts)).query(xy, k=k)
+    seg = owner[idx.reshape(len(xy), k)]
+    e = b[seg] - a[seg]
+    w = xy[:, None, :] - a[seg]
+    u = np.clip(np.sum(w * e, -1) / np.maximum(np.sum(e * e, -1), 1e-12), 0.0, 1.0)
+    return np.sqrt(np.sum((w - u[..., None] * e) ** 2, -1)).min(axis=1)
