@@ -6,7 +6,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-__all__ = ["read_text", "loads", "load"]
+__all__ = ["read_text", "loads", "load", "MAX_DEPTH"]
+
+MAX_DEPTH = 64  #: the deepest nesting of arrays and tables read (a configuration needs a handful of levels)
 
 
 def read_text(path, what: str) -> str:
@@ -34,13 +36,23 @@ def read_text(path, what: str) -> str:
 
 
 def loads(text: str, source: str) -> dict[str, Any]:
-    """Parse TOML ``text``; ValueError naming ``source`` when it is not valid TOML or nested too deeply."""
+    """Parse TOML ``text``; ValueError naming ``source`` when it is not valid TOML or its arrays and tables are
+    nested deeper than `MAX_DEPTH` levels (whatever the stack depth of the caller)."""
+    too_deep = f"{source}: arrays or tables nested deeper than {MAX_DEPTH} levels (at most {MAX_DEPTH} are read)"
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{source}: not valid TOML: {exc}") from None
-    except RecursionError:
-        raise ValueError(f"{source}: not valid TOML here: arrays or tables nested too deeply") from None
+    except RecursionError:  # tomllib recurses once or twice per level: hundreds of levels
+        raise ValueError(too_deep) from None
+    todo = [(data, 1)]
+    while todo:  # without recursion: the checks that follow walk the values recursively
+        value, depth = todo.pop()
+        if depth > MAX_DEPTH:
+            raise ValueError(too_deep)
+        items = value.values() if isinstance(value, dict) else value
+        todo.extend((v, depth + 1) for v in items if isinstance(v, (dict, list)))
+    return data
 
 
 def load(path, what: str) -> tuple[dict[str, Any], str]:
