@@ -43,7 +43,7 @@ from pirl_sim.driving import (
 from pirl_sim.dynamics import following, longitudinal
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_SMOOTHING, DEFAULT_V_MAX, TRACK_STEP, ReferencePath
 from pirl_sim.trajectory import Trajectory
-from pirl_sim.validation import is_positive_int
+from pirl_sim.validation import is_positive_int, number
 
 from .conflicts import ConflictRule, TrackMotion, yield_gaps
 from .demonstrations import settled
@@ -128,7 +128,13 @@ def _run_info(tracks: str | Path) -> dict | None:
     info = (path if path.is_dir() else path.parent) / RUN_INFO_FILE
     if not info.is_file():
         return None
-    data = json.loads(info.read_text(encoding="utf-8"))
+    try:
+        data = json.loads(info.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{info}: not UTF-8 JSON ({exc}); a recording's {RUN_INFO_FILE} is a JSON object "
+                         f"(delete it to replay the tracks as real data)") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{info}: a recording's {RUN_INFO_FILE} is a JSON object, got a {type(data).__name__}")
     return data if data.get("format") == "pirl_sim scenario recording" else None
 
 
@@ -142,10 +148,14 @@ def recording_settings(tracks: str | Path) -> DriverSettings | None:
     recording of receding-horizon MPC drivers (SUMO, highway-env); None otherwise (real data, or scenes
     without such drivers)."""
     data = _run_info(tracks)
+    info = (Path(tracks) if Path(tracks).is_dir() else Path(tracks).parent) / RUN_INFO_FILE
+    if data is not None and not isinstance(data.get("config", {}), dict):
+        raise ValueError(f"{info}: config must be a JSON object, got {data['config']!r}")
     if data is None or "drivers" not in data.get("config", {}) or "step_length_s" not in data:
         return None
     drv = data["config"]["drivers"]
-    info = (Path(tracks) if Path(tracks).is_dir() else Path(tracks).parent) / RUN_INFO_FILE
+    if not isinstance(drv, dict):
+        raise ValueError(f"{info}: config.drivers must be a JSON object (the drivers' settings), got {drv!r}")
     step = data["step_length_s"]
     if isinstance(step, bool) or not isinstance(step, (int, float)) or not math.isfinite(step) or step <= 0:
         raise ValueError(f"{info}: step_length_s must be a finite number of seconds > 0 (the drivers' re-planning "
@@ -154,9 +164,10 @@ def recording_settings(tracks: str | Path) -> DriverSettings | None:
     if isinstance(horizon, bool) or not isinstance(horizon, (int, float)) or not math.isfinite(horizon) \
             or horizon < 1 or horizon != int(horizon):
         raise ValueError(f"{info}: config.drivers.horizon must be a positive integer [steps], got {horizon!r}")
-    return DriverSettings(horizon=int(drv["horizon"]), dt=float(data["step_length_s"]),
-                          smoothing=float(drv["smoothing"]), speed_smoothing=float(drv["speed_smoothing"]),
-                          a_lat=float(drv["a_lat"]), v_max=float(drv["v_max"]))
+    # path smoothing lengths [m] >= 0, the desired speed's a_lat [m/s^2] and v_max [m/s] > 0
+    values = {name: number(f"{info}: config.drivers.{name}", drv.get(name), low=0.0, allow_equal=zero)
+              for name, zero in (("smoothing", True), ("speed_smoothing", True), ("a_lat", False), ("v_max", False))}
+    return DriverSettings(horizon=int(drv["horizon"]), dt=float(data["step_length_s"]), **values)
 
 
 GAPS = ("bumper", "centre")  #: distance to a leader: bumper to bumper (vehicle lengths), or centre to centre

@@ -36,6 +36,33 @@ def test_run_json_with_a_bad_step_length_names_the_file_and_value(tmp_path, step
         recording_settings(tracks)
 
 
+_DRIVERS = {"horizon": 30, "smoothing": 1.0, "speed_smoothing": 0.0, "a_lat": 2.0, "v_max": 14.0}
+
+
+@pytest.mark.parametrize("content, match", [
+    (b"{not json", r"run.json: not UTF-8 JSON \(Expecting property name"),
+    (b'{"format": "\xff"}', r"run.json: not UTF-8 JSON \('utf-8' codec can't decode byte 0xff"),
+    (b"[1, 2]", r"run.json: a recording's run.json is a JSON object, got a list"),
+    ({"config": 5}, r"run.json: config must be a JSON object, got 5"),
+    ({"config": {"drivers": [1]}}, r"run.json: config.drivers must be a JSON object .*got \[1\]"),
+    ({"config": {"drivers": {k: v for k, v in _DRIVERS.items() if k != "smoothing"}}},
+     r"run.json: config.drivers.smoothing must be a finite number >= 0, got None"),
+    ({"config": {"drivers": dict(_DRIVERS, speed_smoothing=float("nan"))}},
+     r"run.json: config.drivers.speed_smoothing must be a finite number >= 0, got nan"),
+    ({"config": {"drivers": dict(_DRIVERS, a_lat="2")}}, r"run.json: config.drivers.a_lat must be a finite number > 0, "
+                                                         r"got '2'"),
+    ({"config": {"drivers": dict(_DRIVERS, v_max=0)}}, r"run.json: config.drivers.v_max must be a finite number > 0, "
+                                                       r"got 0"),
+], ids=["not-json", "not-utf8", "list", "config", "drivers", "no-smoothing", "nan", "string", "zero-speed"])
+def test_a_bad_run_json_is_an_error_naming_the_file_and_value(tmp_path, content, match):
+    tracks, _ = _scene_dir(tmp_path)
+    if isinstance(content, dict):
+        content = json.dumps({"format": "pirl_sim scenario recording", "step_length_s": 0.1, **content}).encode()
+    (tmp_path / "run.json").write_bytes(content)
+    with pytest.raises(ValueError, match=match):
+        recording_settings(tracks)
+
+
 @pytest.mark.parametrize("track_ids, styles, theta, match", [
     ([1, 2, 2, 3], [0, 1, 1, 0], THETA, r"ground_truth.csv: each track_id must appear once.*\[2\]"),  # duplicates
     ([1, 2, 3, 4], [0, 0, 1, 1], {"speed_dev": 1.0, "jerk_sq": 1.0},
