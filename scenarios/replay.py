@@ -464,8 +464,9 @@ def _sidecar(track_file: Path) -> pd.DataFrame | None:
     """The ``ground_truth.csv`` beside a track file, indexed by ``track_id``; None when there is none.
 
     Raises ValueError naming the file when one is there but unusable (empty, not UTF-8 CSV, no
-    ``track_id`` column, a ``track_id`` that is not a whole number or appears twice, a ``style`` or
-    ``theta_<feature>`` that is not a number): its truth would otherwise be wrong or missing unnoticed.
+    ``track_id`` column, a ``track_id`` that is not a whole number or appears twice, a ``style`` that is not
+    an integer >= -1, a ``theta_<feature>`` that is not a number > 0, a style >= 0 without weights): its truth
+    would otherwise be wrong or missing unnoticed.
     """
     path = track_file.parent / GROUND_TRUTH_FILE
     if not path.is_file():
@@ -491,7 +492,18 @@ def _sidecar(track_file: Path) -> pd.DataFrame | None:
         if wrong.any():
             raise ValueError(f"{path}: column {col} must hold numbers, got {table[col][wrong].tolist()[:5]!r}")
         table[col] = values
+    style = table["style"].to_numpy(dtype=float) if "style" in table else np.full(len(table), np.nan)
+    wrong = ~np.isnan(style) & ~(np.isfinite(style) & (style >= -1) & (np.floor(style) == style))
+    if wrong.any():
+        i = int(np.argmax(wrong))
+        raise ValueError(f"{path}: style must be an integer >= 0 (a PIRL driver's), -1 (background traffic) or empty, "
+                         f"got {float(style[i])!r} for track {int(table['track_id'].iloc[i])}")
     theta_cols = [c for c in table.columns if str(c).startswith("theta_")]
+    if not theta_cols and (style >= 0).any():
+        i = int(np.argmax(style >= 0))
+        raise ValueError(f"{path}: track {int(table['track_id'].iloc[i])} has a style >= 0 but the sidecar has no "
+                         f"theta_<feature> columns; a PIRL driver (style >= 0) needs its weights, background traffic "
+                         f"(style -1) none")
     if theta_cols:
         theta = table[theta_cols].to_numpy(dtype=float)
         known = np.isfinite(theta)
@@ -502,7 +514,7 @@ def _sidecar(track_file: Path) -> pd.DataFrame | None:
                              f"{theta_cols[j]} = {float(theta[i, j])!r} for track {int(table['track_id'].iloc[i])} "
                              f"({int(bad.any(axis=1).sum())} track(s) with such weights)")
         partly = known.any(axis=1) & ~known.all(axis=1)
-        styled = table["style"].to_numpy(dtype=float) >= 0 if "style" in table else np.zeros(len(table), bool)
+        styled = style >= 0
         unknown = (partly | (styled & ~known.all(axis=1)))
         if unknown.any():
             i = int(np.argmax(unknown))
@@ -520,6 +532,11 @@ def _check_truth_rows(path: Path, truth: pd.DataFrame, track_ids: np.ndarray) ->
     if without_row:
         raise ValueError(f"{path.parent / GROUND_TRUTH_FILE}: no row for {len(without_row)} track(s) of "
                          f"{path.name} (e.g. {without_row[:5]}); the sidecar needs one row per track")
+
+
+def _truth_ids(truth_ids: dict, file: Path, truth: pd.DataFrame) -> tuple[set, set, set, list]:
+    """The entry of ``truth_ids`` (`load_replay`) of the sidecar beside ``file``, added when missing."""
+    return truth_ids.setdefault(file.parent, (set(int(t) for t in truth.index), set(), set(), [0]))
 
 
 def load_replay(
@@ -625,7 +642,8 @@ def load_replay(
     pending = []  # (segment, s_local (n,), d (n,), xy (n, 2), meta)
     n_tracks = 0
     n_steps_counts: Counter = Counter()
-    truth_ids: dict[Path, tuple[set, set]] = {}  # sidecar directory -> (its track ids, ids of tracks read)
+    # sidecar directory -> (its track ids, ids of tracks read, names of the files read, tracks dropped as broken)
+    truth_ids: dict[Path, tuple[set, set, set, list]] = {}
     for file in (Path(f) for f in track_files):
         steps_flags = None
         if selection == "steps":
@@ -642,14 +660,17 @@ def load_replay(
             log.warning("%s failed validation (%s); keeping its valid tracks", file, exc)
             df, n_bad = read_tracks_lenient(file)
             skipped["invalid rows (track dropped)"] += n_bad
+            if truth is not None:
+                _truth_ids(truth_ids, file, truth)[3][0] += max(n_bad, 1)
             if df is None:
                 if not n_bad:
                     skipped["unreadable file"] += 1
                 continue
         if truth is not None:
             _check_truth_rows(file, truth, df["track_id"].to_numpy())
-            truth_ids.setdefault(file.parent, (set(int(t) for t in truth.index), set()))[1].update(
-                int(t) for t in df["track_id"].unique())
+            _, read, names, _ = _truth_ids(truth_ids, file, truth)
+            read.update(int(t) for t in df["track_id"].unique())
+            names.add(file.name)
         df = df[df["agent_type"].isin(rule.agent_types)].reset_index(drop=True)
         lead = leader_frames(df, rule)
         lead_centre = leader_frames(df, CENTRE_RULE)
@@ -738,11 +759,17 @@ def load_replay(
                 extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)
                 extra["settled"] = _frame_steps(settled(usable, settle_frames), restart, speed, stride)[0]
             pending.append((paths[key], s_local[sel], d[sel], xy[sel], dict(meta, _extra=extra)))
-    for directory, (rows, read) in truth_ids.items():
+    for directory, (rows, read, names, dropped) in truth_ids.items():
         unmatched = sorted(rows - read)
+        others = sorted({p.name for p in directory.glob("vehicle_tracks_*.csv")} - names)
+        if unmatched and not others and not dropped[0]:  # every track beside the sidecar was read: its rows are wrong
+            raise ValueError(f"{directory / GROUND_TRUTH_FILE}: {len(unmatched)} row(s) match no track of "
+                             f"{', '.join(sorted(names))} (e.g. track_id {unmatched[:5]}); the sidecar holds one row "
+                             "per track of the track file(s) beside it and no other")
         if unmatched:  # other files' tracks, or tracks dropped as broken: no truth goes missing
-            log.warning("%s: %d ground-truth row(s) match no track read from this directory (e.g. %s); ignored",
-                        directory / GROUND_TRUTH_FILE, len(unmatched), unmatched[:5])
+            log.warning("%s: %d ground-truth row(s) match no track read from this directory (e.g. %s; %s); ignored",
+                        directory / GROUND_TRUTH_FILE, len(unmatched), unmatched[:5],
+                        f"track files not read: {others[:3]}" if others else "tracks dropped as broken")
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
     composite = CompositePath(tuple(path_list))

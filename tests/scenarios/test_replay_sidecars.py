@@ -76,13 +76,59 @@ def test_a_bad_ground_truth_sidecar_is_an_error_naming_the_fault(tmp_path, track
         load_replay([tracks], osm)
 
 
-def test_ground_truth_rows_matching_no_track_are_a_warning_naming_the_count(tmp_path, caplog):
+def test_ground_truth_rows_matching_no_track_are_an_error_when_every_track_file_was_read(tmp_path):
     tracks, osm = _scene_dir(tmp_path)
     write_ground_truth(tmp_path, [1, 2, 3, 4, 98, 99], [0, 0, 1, 1, 0, 1])
+    with pytest.raises(ValueError, match=r"ground_truth.csv: 2 row\(s\) match no track of vehicle_tracks_000.csv "
+                                         r"\(e.g. track_id \[98, 99\]\); the sidecar holds one row per track"):
+        load_replay([tracks], osm)
+
+
+def test_ground_truth_rows_of_track_files_not_read_are_a_warning_naming_the_count(tmp_path, caplog):
+    tracks, osm = _scene_dir(tmp_path)
+    write_ground_truth(tmp_path, [1, 2, 3, 4, 98, 99], [0, 0, 1, 1, 0, 1])
+    (tmp_path / "vehicle_tracks_001.csv").write_text(tracks.read_text())  # the other tracks' file, not replayed
     with caplog.at_level(logging.WARNING, logger="pirl_sim.scenarios.replay"):
         scene = load_replay([tracks], osm)
-    assert "2 ground-truth row(s) match no track" in caplog.text
+    assert "2 ground-truth row(s) match no track" in caplog.text and "vehicle_tracks_001.csv" in caplog.text
     assert all("theta" in t.metadata for t in scene.trajectories)
+
+
+
+def test_ground_truth_rows_of_tracks_dropped_as_broken_are_a_warning(tmp_path, caplog):
+    tracks, osm = _scene_dir(tmp_path)
+    write_ground_truth(tmp_path, [1, 2, 3, 4], [0, 0, 1, 1])
+    df = pd.read_csv(tracks)
+    df.loc[df["track_id"] == 4, "length"] = -4.0  # track 4 is dropped by the lenient reading
+    df.to_csv(tracks, index=False)
+    with caplog.at_level(logging.WARNING, logger="pirl_sim.scenarios.replay"):
+        scene = load_replay([tracks], osm)
+    assert "1 ground-truth row(s) match no track" in caplog.text and "tracks dropped as broken" in caplog.text
+    assert sorted({t.metadata["track_id"] for t in scene.trajectories}) == [1, 2, 3]
+
+@pytest.mark.parametrize("style, match", [
+    (-5, r"style must be an integer >= 0 \(a PIRL driver's\), -1 \(background traffic\) or empty, got -5.0 for "
+         r"track 2"),
+    (0.5, r"style must be an integer >= 0 .* got 0.5 for track 2"),
+    (np.inf, r"style must be an integer >= 0 .* got inf for track 2"),
+])
+def test_ground_truth_with_a_bad_style_is_an_error(tmp_path, style, match):
+    tracks, osm = _scene_dir(tmp_path)
+    write_ground_truth(tmp_path, [1, 2, 3, 4], [0, 0, 1, 1])
+    gt = pd.read_csv(tmp_path / "ground_truth.csv")
+    gt["style"] = gt["style"].astype(float)
+    gt.loc[1, "style"] = style
+    gt.to_csv(tmp_path / "ground_truth.csv", index=False)
+    with pytest.raises(ValueError, match=rf"ground_truth.csv: {match}"):
+        load_replay([tracks], osm)
+
+
+def test_ground_truth_styles_without_any_weight_column_are_an_error(tmp_path):
+    tracks, osm = _scene_dir(tmp_path)
+    pd.DataFrame({"track_id": [1, 2, 3, 4], "style": [-1, 0, 1, 1]}).to_csv(tmp_path / "ground_truth.csv", index=False)
+    with pytest.raises(ValueError, match=r"ground_truth.csv: track 2 has a style >= 0 but the sidecar has no "
+                                         r"theta_<feature> columns"):
+        load_replay([tracks], osm)
 
 
 @pytest.mark.parametrize("value, match", [
