@@ -27,11 +27,13 @@ from .base import population_prior
 from .model_io import SavableLearner
 from .weight_space import demo_posteriors, style_log_likelihoods
 
-__all__ = ["PIRLGMM", "PIRLDPGMM", "SPACES", "INITS", "WEIGHT_MIXTURES"]
+__all__ = ["PIRLGMM", "PIRLDPGMM", "SPACES", "INITS", "WEIGHT_MIXTURES", "COVARIANCE_TYPES"]
 
 SPACES = ("features", "weights")
 INITS = ("deconvolution", "random")  #: PIRLGMM's starts in weight space (module doc)
 WEIGHT_MIXTURES = ("dirichlet-process", "mml")  #: PIRLDPGMM's mixtures in weight space (module doc)
+COVARIANCE_TYPES = ("full", "tied", "diag", "spherical")  #: as in `sklearn.mixture.GaussianMixture`
+_SEED_RANGE = 2**32  # integer seeds of random_state are in [0, 2**32) (numpy's and scikit-learn's)
 
 
 def _merge_rows(result, sub, rows: np.ndarray):
@@ -66,6 +68,13 @@ class _MixtureLearner(SavableLearner):
             raise ValueError(f"space must be one of {SPACES}, got {self.space!r}")
         if not is_positive_int(self.n_init):
             raise ValueError(f"n_init must be a positive integer (restarts), got {self.n_init!r}")
+        if not isinstance(self.covariance_type, str) or self.covariance_type not in COVARIANCE_TYPES:
+            raise ValueError(f"covariance_type must be one of {COVARIANCE_TYPES}, got {self.covariance_type!r}")
+        seed = self.random_state
+        if seed is not None and not isinstance(seed, np.random.RandomState) and (
+                isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < _SEED_RANGE):
+            raise ValueError(f"random_state must be None, an integer seed in [0, 2**32) or a numpy RandomState, got "
+                             f"{seed!r}")
         if self.space == "weights":
             refine = self.refine
             if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
@@ -640,6 +649,12 @@ class PIRLDPGMM(_MixtureLearner):
         if not is_positive_int(self.max_iter):
             raise ValueError(f"max_iter must be a positive number of iterations of the mixture's fit, got "
                              f"{self.max_iter!r}")
+        alpha = self.weight_concentration_prior
+        number = (int, float, np.integer, np.floating)
+        if alpha is not None and (isinstance(alpha, bool) or not isinstance(alpha, number) or not np.isfinite(alpha)
+                                  or alpha <= 0):
+            raise ValueError(f"weight_concentration_prior must be None (1 / max_components) or a finite number > 0, "
+                             f"got {alpha!r}")
         if self.space == "weights" and self.weight_mixture not in WEIGHT_MIXTURES:
             raise ValueError(f"weight_mixture must be one of {WEIGHT_MIXTURES}, got {self.weight_mixture!r}")
 

@@ -113,6 +113,23 @@ def test_dpgmm_without_iterations_is_refused(data, max_iter):
             PIRLDPGMM(max_iter=max_iter, space=space).fit(data.train)
 
 
+@pytest.mark.parametrize("cls, params, match", [
+    (PIRLGMM, {"covariance_type": "foo"}, r"covariance_type must be one of \('full', 'tied', 'diag', 'spherical'\), "
+                                          r"got 'foo'"),
+    (PIRLDPGMM, {"covariance_type": None}, r"covariance_type must be one of .*got None"),
+    (PIRLGMM, {"random_state": -1}, r"random_state must be None, an integer seed in \[0, 2\*\*32\) or a numpy "
+                                    r"RandomState, got -1"),
+    (PIRLDPGMM, {"random_state": "foo"}, r"random_state must be None, an integer seed .*got 'foo'"),
+    (PIRLDPGMM, {"weight_concentration_prior": -1.0}, r"weight_concentration_prior must be None \(1 / max_components\) "
+                                                      r"or a finite number > 0, got -1.0"),
+    (PIRLDPGMM, {"weight_concentration_prior": float("nan")}, r"weight_concentration_prior must be .*got nan"),
+])
+def test_mixture_parameters_are_checked_before_the_fit(data, cls, params, match):
+    for space in ("features", "weights"):
+        with pytest.raises(ValueError, match=match):
+            cls(**params, space=space).fit(data.train)
+
+
 @pytest.fixture(scope="module")
 def passage():
     with warnings.catch_warnings():

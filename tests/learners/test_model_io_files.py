@@ -227,6 +227,21 @@ def test_a_file_with_invalid_parameters_is_refused(knn_file, tmp_path, param, va
         load_learner(tmp_path / "p.npz")
 
 
+
+@pytest.mark.parametrize("param,value,message", [
+    ("covariance_type", "foo", r"covariance_type must be one of \('full', 'tied', 'diag', 'spherical'\), got 'foo'"),
+    ("weight_concentration_prior", -1.0, "weight_concentration_prior must be None"),
+    ("random_state", "seed", r"random_state must be None, an integer seed in \[0, 2\*\*32\)"),
+    ("max_iter", 0, "max_iter must be a positive number of iterations"),
+])
+def test_a_mixture_file_with_invalid_parameters_is_refused(synthetic, tmp_path, param, value, message):
+    path = _fit(PIRLDPGMM, {"random_state": 0}, synthetic.train).save(tmp_path / "dp.npz")
+    arrays, header = _arrays(path)
+    header["params"]["__dict__"] = [[k, value if k == param else v] for k, v in header["params"]["__dict__"]]
+    _write(tmp_path / "p.npz", arrays, header)
+    with pytest.raises(ValueError, match=rf"p\.npz: invalid parameters of the PIRLDPGMM: {message}"):
+        load_learner(tmp_path / "p.npz")
+
 def test_a_failed_save_leaves_no_temporary_file(synthetic, tmp_path, monkeypatch):
     learner = _fit(TIRL, {}, synthetic.train[:24])
     (tmp_path / "taken.npz").mkdir()  # the target is a directory: the final rename fails
