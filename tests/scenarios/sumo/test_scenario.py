@@ -86,6 +86,8 @@ def test_plan_is_seeded_and_follows_the_population():
      r"unknown feature name\(s\) 'brake_sq'"),
     ({"population": {"styles": [{"preset": "reckless"}]}}, "unknown style name 'reckless'"),
     ({"network": {"radius": -25.0}}, "network: radius must be > 0"),
+    ({"network": {"radius": 1e7}}, r"network: radius must be in \[5, 500\] m, got 10000000.0"),  # routes for minutes
+    ({"network": {"approach_length": 1e7}}, r"network: approach_length must be in \[1, 2000\] m"),
     ({"population": {"styles": [{"name": "a", "mean": {"speed_dev": 1.0, "acc_sq": 1.0},
                                  "cov": {"speed_dev": {"speed_dev": 1.0, "acc_sq": 2.0},
                                          "acc_sq": {"acc_sq": 1.0}}}]}}, "cov must be positive definite"),
@@ -310,6 +312,14 @@ def test_cli_rejects_bad_density_options(tmp_path, capsys):
         main(["simulate", "sumo", "--lanes", "0", "--out", str(tmp_path / "b")])
     assert "--lanes" in capsys.readouterr().err
 
+
+
+def test_cli_refuses_an_oversized_scenario_network_before_any_work(tmp_path, capsys, no_sumo):
+    (tmp_path / "big.toml").write_text("[network]\nradius = 1e7\n")  # its route paths took minutes
+    assert main(["simulate", "sumo", "--scenario", str(tmp_path / "big.toml"), "--quiet",
+                 "--out", str(tmp_path / "out")]) == 2
+    assert "big.toml: network: radius must be in [5, 500] m, got 10000000.0" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 def test_higher_demand_fills_the_roundabout():
     """Same vehicles, four times the demand: more PIRL drivers in the network at once, counted per step."""
