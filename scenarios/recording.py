@@ -357,7 +357,12 @@ def read_recording(directory) -> ScenarioRecording:
     if not info_path.is_file():
         raise ValueError(f"{d}: no {INFO_FILE}: the recording is incomplete (a run that crashed while "
                          "writing) or not a pirl_sim recording")
-    info = json.loads(info_path.read_text(encoding="utf-8"))
+    try:
+        info = json.loads(info_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{info_path}: not UTF-8 JSON ({exc}); a recording's {INFO_FILE} is a JSON object") from None
+    if not isinstance(info, dict):
+        raise ValueError(f"{info_path}: a recording's {INFO_FILE} is a JSON object, got a {type(info).__name__}")
     if "step_length_s" in info:
         step = info["step_length_s"]
         if isinstance(step, bool) or not isinstance(step, (int, float)) or not math.isfinite(step) or step <= 0:
@@ -371,10 +376,14 @@ def read_recording(directory) -> ScenarioRecording:
     gt_path = d / GROUND_TRUTH_FILE
     if not gt_path.is_file():
         raise FileNotFoundError(f"ground truth not found: {gt_path}")
-    gt = pd.read_csv(gt_path, dtype={"agent_id": str, "route_id": str, "style_name": str, "status": str},
-                     keep_default_na=False, na_values={c: [""] for c in GROUND_TRUTH_COLUMNS
-                                                       if c not in ("agent_id", "route_id", "style_name",
-                                                                    "status")})
+    try:
+        gt = pd.read_csv(gt_path, dtype={"agent_id": str, "route_id": str, "style_name": str, "status": str},
+                         keep_default_na=False, na_values={c: [""] for c in GROUND_TRUTH_COLUMNS
+                                                           if c not in ("agent_id", "route_id", "style_name",
+                                                                        "status")}, encoding="utf-8")
+    except (UnicodeDecodeError, pd.errors.EmptyDataError, pd.errors.ParserError) as exc:
+        raise ValueError(f"{gt_path}: not a UTF-8 CSV table ({type(exc).__name__}: {exc}); the ground truth has the "
+                         f"columns {', '.join(GROUND_TRUTH_COLUMNS)}") from None
     if tuple(gt.columns) != GROUND_TRUTH_COLUMNS:
         raise ValueError(f"{gt_path}: expected the columns {', '.join(GROUND_TRUTH_COLUMNS)}, found "
                          f"{', '.join(map(str, gt.columns))}")

@@ -118,6 +118,20 @@ def test_a_crash_while_writing_leaves_no_half_file_and_an_incomplete_directory(t
         read_recording(out)
 
 
+
+@pytest.mark.parametrize("name, content, match", [
+    ("ground_truth.csv", b"track_id,agent_id\n1,\xe9\n", r"ground_truth.csv: not a UTF-8 CSV table \(UnicodeDecode"),
+    ("ground_truth.csv", b"", r"ground_truth.csv: not a UTF-8 CSV table \(EmptyDataError"),
+    ("run.json", b'{"format": "\xe9"}', r"run.json: not UTF-8 JSON \('utf-8' codec can't decode byte 0xe9"),
+    ("run.json", b"{", r"run.json: not UTF-8 JSON \(Expecting property name"),
+    ("run.json", b"[]", r"run.json: a recording's run.json is a JSON object, got a list"),
+])
+def test_an_unreadable_sidecar_is_a_value_error_naming_the_file(tmp_path, name, content, match):
+    write_recording(make_recording(), tmp_path)
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(ValueError, match=match):
+        read_recording(tmp_path)
+
 def test_interaction_tracks_sorted_by_track_then_frame():
     df = interaction_tracks(make_recording().tracks)
     assert list(df.columns) == list(VEHICLE_COLUMNS)
