@@ -488,13 +488,14 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     examples = {"t": dt * np.arange(-proto.history, proto.horizon + 1),
                 "truth": np.stack([test[windows[w][0]].states[windows[w][1] - proto.history:
                                                              windows[w][1] + proto.horizon + 1, 0] for w in shown])}
-    out = {}
+    out, plane = {}, {}
     for name, key, _ in methods:
         if key == "cv-xy":  # in the plane, at the velocity between the last two recorded positions
             last = np.stack([np.asarray(test[i].metadata["xy"])[step - 1 : step + 1] for i, step in windows])
             pred = last[:, 1:] + (last[:, 1:] - last[:, :1]) / dt * (dt * np.arange(1, proto.horizon + 1))[:, None]
             err = np.linalg.norm(pred - _recorded_xy(test, windows, proto.horizon), axis=-1)
             s_pred, fit_s, pred_s, extra, path = None, 0.0, 0.0, {}, {}
+            plane[name] = pred
         else:
             s_pred, fit_s, pred_s, extra = predicted[name]
             err = _errors(model, test, windows, s_pred, proto, profile=profile)
@@ -504,7 +505,34 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
         for k in proto.fde_steps:
             row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
         out[name] = {"row": row, "errors": err.mean(axis=1), "shown": None if s_pred is None else s_pred[shown]}
+    examples.update(_scenes(model, test, windows, methods, out, predicted, plane, proto, profile))
     return {"methods": out, "examples": examples}
+
+
+def _scenes(model, test, windows, methods, out, predicted, plane, proto, profile) -> dict:
+    """The windows where the best learner (lowest MED of the methods that are not baselines) beats CA by most
+    and loses to it by most, in the plane: ``scene_windows`` [gain, loss], ``scene_history`` (2, history + 1, 2) and ``scene_future`` (2, horizon, 2)
+    [m]; each method's entry gets ``scene`` (2, horizon, 2), its predictions there. Nothing without CA or a
+    learner."""
+    names = [name for name, _, _ in methods]
+    learners = [i for i, (_, key, _) in enumerate(methods) if key not in METHODS]
+    ca = [i for i, (_, key, _) in enumerate(methods) if key == "ca"]
+    for entry in out.values():
+        entry["scene"] = None
+    if not learners or not ca:
+        return {}
+    best = min(learners, key=lambda i: out[names[i]]["row"]["med"])
+    diff = out[names[ca[0]]]["errors"] - out[names[best]]["errors"]
+    chosen = [int(np.argmax(diff)), int(np.argmin(diff))]
+    at = [windows[w] for w in chosen]
+    for name, _, _ in methods:
+        if name in plane:
+            out[name]["scene"] = plane[name][chosen]
+        else:
+            out[name]["scene"] = _positions(model, test, at, predicted[name][0][chosen], proto, profile=profile)
+    history = np.stack([np.asarray(test[i].metadata["xy"])[step - proto.history : step + 1] for i, step in at])
+    return {"scene_windows": np.array(chosen, dtype=float),
+            "scene_history": history, "scene_future": _recorded_xy(test, at, proto.horizon)}
 
 
 # ------------------------------------------------------------------------------------------ the sweep scenario
@@ -660,7 +688,8 @@ def decode_method(result: dict) -> dict:
     result = result["replay"]
     row = {k: (np.nan if v is None else v) for k, v in result["row"]}
     shown = None if result["shown"] is None else np.array(result["shown"], dtype=float)
-    entry = {"row": row, "errors": np.array(result["errors"], dtype=float), "shown": shown}
+    scene = None if result.get("scene") is None else np.array(result["scene"], dtype=float)
+    entry = {"row": row, "errors": np.array(result["errors"], dtype=float), "shown": shown, "scene": scene}
     return entry, {k: np.array(v, dtype=float) for k, v in result["examples"].items()}
 
 
@@ -691,7 +720,7 @@ def run_recorded_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
             "weight_error": row.get("weight_error"), "ari": row.get("ari"), "n_styles": None,
             "n_train": row["n_train"], "n_test": row["n_test"], "n_predictions": row["n_windows"],
             "n_warnings": int(row.get("irl_convergence_warnings", 0) + row.get("hessian_regularization_warnings", 0)),
-            "replay": {"row": list(row.items()), "errors": m["errors"], "shown": m["shown"],
+            "replay": {"row": list(row.items()), "errors": m["errors"], "shown": m["shown"], "scene": m["scene"],
                        "examples": res["examples"]}})
         out.append((scores, {"fit_s": row["fit_s"], "evaluate_s": row["predict_s"]}))
     return out

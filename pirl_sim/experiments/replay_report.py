@@ -5,11 +5,12 @@ The experiment itself, what a split seed computes, is the sweep engine's ``recor
 through the engine (`pirl_sim.cli.replay`: cells kept in the output directory, resumable) and gathers the stored
 cells into the result dict (`collect_replay`) that the template writes (`write_replay_results`: ``rows.csv``,
 ``summary.csv/.md``, ``paired.csv``, ``paired_ca.csv``, ``README.md``, ``clusters.png``, ``s_t.png``,
-``knn_k.png``).
+``knn_k.png``, ``scene_gain.png`` and ``scene_loss.png``).
 """
 
 from __future__ import annotations
 
+import io
 import re
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from pirl_sim.evaluation.direct import DIRECT
 from pirl_sim.experiments.recorded import (  # noqa: F401  (ReplayProtocol, predict_path_states: the replay's names)
     _IRL_WARNINGS,
     HINDSIGHT,
+    METHODS,
     ReplayProtocol,
     _track_keys,
     predict_path_states,
@@ -59,11 +61,13 @@ def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=(
             errors[(seed, name)] = m["errors"]
     first = per_seed[proto.seeds[0]]
     examples = {**first["examples"], "predictions": {name: m["shown"] for name, m in first["methods"].items()
-                                                     if m["shown"] is not None}}
+                                                     if m["shown"] is not None},
+                "scenes": {name: m["scene"] for name, m in first["methods"].items() if m.get("scene") is not None}}
     return {"rows": pd.DataFrame(rows), "paired": paired_differences(errors, "TIRL"),
             "paired_ca": paired_differences(errors, "CA (path)"), "errors": errors,
             "selected": len(_track_keys(tracks)[1]), "selected_pieces": len(tracks), "examples": examples,
-            "history": proto.history, "horizon": proto.horizon,
+            "history": proto.history, "horizon": proto.horizon, "seeds": tuple(proto.seeds),
+            "learners": tuple(name for name, key, _ in learner_specs if key not in METHODS),
             "gmm_k": next((int(p.get("n_components", 3)) for _, key, p in learner_specs if key == "pirl-gmm"), 3)}
 
 
@@ -154,7 +158,49 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "",
         "![clusters](clusters.png) ![S-T](s_t.png)" + (" ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""),
     ]
+    if (out / "scene_gain.png").exists():
+        lines += ["", f"Where {_scene_best(result)} beats CA (path) most and loses to it most (split seed "
+                  f"{result['seeds'][0]}; black: history, dashed: what was recorded):", "",
+                  "![gain](scene_gain.png) ![loss](scene_loss.png)"]
     atomic_write_text(out / "README.md", "\n".join(lines) + "\n")
+
+
+SCENE_KINDS = ("gain", "loss")  #: scene_<kind>.png: where the best learner beats CA (path) most, loses most
+_CA = "CA (path)"
+
+
+def _scene_best(result: dict) -> str | None:
+    """The learner of the scenes: the lowest mean MED on the first split seed among the learners (not baselines)."""
+    rows = result["rows"]
+    learners = set(result.get("learners", ()))
+    first = rows[(rows["seed"] == result["seeds"][0]) & rows["method"].isin(learners)]
+    return None if first.empty else str(first.loc[first["med"].idxmin(), "method"])
+
+
+def _write_scenes(result: dict, scene, out: Path) -> None:
+    """scene_gain.png and scene_loss.png: the two windows of the first split seed where the best learner beats
+    CA (path) most and loses to it most, on the matched routes' centre lines (nothing without those methods)."""
+    ex = result["examples"]
+    best = _scene_best(result)
+    preds = ex.get("scenes", {})
+    if best is None or best not in preds or _CA not in preds or "scene_history" not in ex:
+        return
+    from pirl_sim.viz import PredictionWindow, Road, draw_prediction
+
+    segments = getattr(scene.model.path, "segments", (scene.model.path,))
+    road = Road((), (), tuple(np.column_stack([p.x, p.y]) for p in segments), source="matched routes")
+    errors = result["errors"]
+    seed = result["seeds"][0]
+    for k, kind in enumerate(SCENE_KINDS):
+        w = int(ex["scene_windows"][k])
+        names = [best, _CA]
+        window = PredictionWindow(history=ex["scene_history"][k], future=ex["scene_future"][k],
+                                  predictions=np.stack([preds[n][k] for n in names]), probabilities=[0.5, 0.5],
+                                  labels=tuple(f"{n}: {errors[(seed, n)][w]:.2f} m" for n in names))
+        title = f"{best} {'beats' if kind == 'gain' else 'loses to'} CA (path) most"
+        buf = io.BytesIO()
+        draw_prediction(window, road=road, title=title).savefig(buf, format="png")
+        atomic_write_bytes(out / f"scene_{kind}.png", buf.getvalue())
 
 
 def _speed_lines(result: dict) -> list[str]:
@@ -204,6 +250,7 @@ def _write_figures(result: dict, scene, out) -> None:
         preds = {k: np.concatenate([ex["truth"][:, h : h + 1], v], axis=1)
                  for k, v in ex["predictions"].items()}
         atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(ex["t"], ex["truth"], preds, h))
+    _write_scenes(result, scene, out)
     rows = result["rows"]
     knn = rows[rows["method"].str.startswith("PIRL-kNN (k=")]
     if knn["method"].nunique() > 1:

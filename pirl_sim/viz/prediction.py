@@ -81,6 +81,7 @@ class PredictionWindow:
     frame: int | None = None
     track_id: int | None = None
     time_s: float | None = None
+    labels: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "history", _xy("history", self.history))
@@ -107,6 +108,12 @@ class PredictionWindow:
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
                 raise ValueError(f"{name} must be an integer or None, got {v!r}")
+        if self.labels is not None:
+            labels = tuple(self.labels) if not isinstance(self.labels, str) else None
+            if labels is None or len(labels) != pred.shape[0] or not all(isinstance(x, str) for x in labels):
+                raise ValueError(f"labels must be {pred.shape[0]} strings, one per predicted future, got "
+                                 f"{self.labels!r}")
+            object.__setattr__(self, "labels", labels)
         if self.time_s is not None and not np.isfinite(float(self.time_s)):
             raise ValueError(f"time_s must be a finite number of seconds or None, got {self.time_s!r}")
 
@@ -203,7 +210,8 @@ class PredictionView:
         self._clock.set_visible(window.time_s is not None)
         handles = [self._history] + ([self._future] if window.future is not None else []) + self._modes[:window.k]
         labels = ["history"] + (["recorded future"] if window.future is not None else []) + \
-            [f"mode {i + 1}: p = {p:.2f}" for i, p in enumerate(window.probabilities)]
+            (list(window.labels) if window.labels is not None
+             else [f"mode {i + 1}: p = {p:.2f}" for i, p in enumerate(window.probabilities)])
         self.ax.legend(handles, labels, loc="best", fontsize="small", framealpha=0.85)
         if self.extent is None:
             pts = window.points()

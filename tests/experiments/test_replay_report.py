@@ -4,6 +4,7 @@ outputs of a replay with background tracks."""
 
 import warnings
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -197,3 +198,28 @@ def test_replay_fits_the_desired_speed_per_split(passage_root, tmp_path):
     assert set(fixed["a_lat"]) == {2.0} and set(fixed["v_max"]) == {12.0}
     default = replay_with_engine(tracks, osm, ["tirl"], proto, tmp_path / "default")
     assert set(default["rows"]["a_lat"]) == {default["scene"].a_lat}
+
+
+def test_scenes_show_where_the_best_learner_beats_ca_most_and_loses_most(mixed_result, tmp_path):
+    from matplotlib.colors import to_rgb
+    from matplotlib.image import imread
+
+    from pirl_sim.experiments.replay_report import _scene_best
+    from pirl_sim.viz.prediction import HISTORY_COLOR
+
+    scene, result = mixed_result
+    ex, errors, seed = result["examples"], result["errors"], result["seeds"][0]
+    best = _scene_best(result)
+    assert best in ("TIRL", "PIRL-GMM (k=2)")
+    diff = errors[(seed, "CA (path)")] - errors[(seed, best)]
+    gain, loss = (int(w) for w in ex["scene_windows"])
+    assert diff[gain] == diff.max() and diff[loss] == diff.min()
+    for k, w in enumerate((gain, loss)):  # the stored positions give the window's MED back
+        for name in (best, "CA (path)"):
+            err = np.linalg.norm(ex["scenes"][name][k] - ex["scene_future"][k], axis=-1).mean()
+            assert err == pytest.approx(errors[(seed, name)][w], rel=1e-9, abs=1e-9)
+    write_replay_results(result, scene, tmp_path, "test")
+    for kind in ("gain", "loss"):
+        img = imread(tmp_path / f"scene_{kind}.png")[..., :3]
+        assert np.all(np.abs(img - to_rgb(HISTORY_COLOR)) < 0.05, axis=-1).sum() > 20  # the history is drawn
+    assert "![gain](scene_gain.png)" in (tmp_path / "README.md").read_text()
