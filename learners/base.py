@@ -71,37 +71,20 @@ class BaseLearner(BaseEstimator):
 
     Parameters
     ----------
-    model : DriverModel or None
-        Dynamics, features and predictor. None: the paper's synthetic point-mass LQR model.
-    window : int or None
-        Feature window in steps (see module doc).
-    stride : int
-        Step between training windows.
-    windows : {"sliding", "first"}
-        Which training windows: every ``stride`` steps, or only the first ``window`` steps of each trajectory
-        (for problems whose histories always start at the beginning of an episode, like the synthetic one).
-    feature_transform : {"log", "none"}
-        Feature space for clustering and look-ups, always standardised afterwards.
-    log_bounds : (float, float)
-        Box on the IRL's log-weights (see `pirl_sim.irl`).
+    model : DriverModel or None           dynamics, features and predictor; None: the paper's synthetic point mass
+    window : int or None                  feature window [steps] (module doc)
+    stride : int                          step between training windows
+    windows : {"sliding", "first"}        every ``stride`` steps, or only the first ``window`` steps of a trajectory
+    feature_transform : {"log", "none"}   feature space of clustering and look-ups, standardised afterwards
+    log_bounds : (float, float)           box on the IRL's log-weights (`pirl_sim.irl`)
     likelihood : {"trajectory", "receding"}
-        The IRL's model of a demonstration. "trajectory": the paper's, one open-loop optimum of a cost over
-        the whole demonstration (Laplace approximation, `pirl_sim.irl`). "receding": a driver who re-plans
-        every step, each step's control the first of the MPC's plan over ``horizon`` steps plus noise
-        (`pirl_sim.receding`; per-step masks in the ``step_mask`` metadata are honoured). Its fitted
-        ``irl_result_`` also has ``sigma`` (residual noise per group).
-    horizon : int or None
-        The drivers' MPC horizon [steps]; required with ``likelihood="receding"``.
-    step_stride : int
-        With ``likelihood="receding"``: score every ``step_stride``-th recorded step.
-    irl_hessian : {"auto", "exact", "gauss_newton"}
-        With ``likelihood="trajectory"``: the cost Hessian inside the Laplace likelihood (`pirl_sim.irl.fit_weights`):
-        "auto" (default) fits with the exact one and refits with the Gauss-Newton one the groups whose exact
-        Hessian was indefinite at the solution or that did not converge.
-    irl_max_iter : int
-        Newton iterations of the IRL (`pirl_sim.irl.fit_weights` ``max_iter``; its Gauss-Newton refit may take
-        5x). Short, smooth segments can need more than the default 100: on DR_USA_Roundabout_EP, 2 of 10,624
-        next-steps segments of PIRL-kNN took 850-1,250 iterations.
+        The IRL's model of a demonstration: one open-loop optimum (the paper's, `pirl_sim.irl`) or a driver who
+        re-plans every step (`pirl_sim.receding`; honours ``step_mask``).
+    horizon : int or None                 the drivers' MPC horizon [steps]; required with ``likelihood="receding"``
+    step_stride : int                     ``likelihood="receding"``: score every ``step_stride``-th recorded step
+    irl_hessian : {"auto", "exact", "gauss_newton"}   ``likelihood="trajectory"``: the cost Hessian of the Laplace
+        likelihood (`pirl_sim.irl.fit_weights`)
+    irl_max_iter : int                    Newton iterations of the IRL (its Gauss-Newton refit may take 5x)
     """
 
     # ------------------------------------------------------------------ validation helpers
@@ -283,24 +266,19 @@ class BaseLearner(BaseEstimator):
                         random_state=None) -> tuple[np.ndarray, np.ndarray]:
         """K predicted futures of each history with their probabilities (multi-modal prediction).
 
-        This base version has a single future, the point prediction of `predict_states`, with probability 1
-        (K = 1 whatever ``n_futures`` asks: a learner with one cost per history has nothing else to offer, e.g.
-        TIRL); the probabilistic learners override it (PIRL-GMM/DPGMM: one future per style or weights drawn from
-        the style mixture; PIRL-kNN: neighbours drawn by their votes).
+        Here one future, the point prediction of `predict_states`, with probability 1 (K = 1); the probabilistic
+        learners override it ("The learners" page, Multi-modal prediction).
 
         Parameters
         ----------
         histories : Trajectory or sequence of M Trajectory
-        horizon : int           predicted steps, >= 1
-        n_futures : int or None  K, the number of futures asked for (>= 1); None: the learner's own choice
-        random_state : None, int or numpy.random.Generator
-            Seed of the draws of the learners that draw (`numpy.random.default_rng`); unused here.
+        horizon : int                predicted steps, >= 1
+        n_futures, random_state : int or None, seed   K >= 1 asked for (None: the learner's choice); seed of the draws
 
         Returns
         -------
-        states : array (M, K, horizon + 1, n_x), or (K, horizon + 1, n_x) for one history
-            Row 0 of every future is the last state of its history.
-        proba : array (M, K) or (K,)     probability of each future; rows sum to 1
+        states, proba : array (M, K, horizon + 1, n_x), (M, K)   futures from the history's last state (row 0),
+                                     and their probabilities (rows sum to 1); without M for one history
         """
         self._check_futures_args(horizon, n_futures)
         states = self.predict_states(histories, horizon)

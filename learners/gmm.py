@@ -328,18 +328,12 @@ class _MixtureLearner(SavableLearner):
 
     def predict_futures(self, histories, horizon: int, n_futures: int | None = None,
                         random_state=None) -> tuple[np.ndarray, np.ndarray]:
-        """K predicted futures of each history with their probabilities.
+        """K predicted futures of each history with their probabilities ("The learners" page, Multi-modal prediction).
 
-        - ``n_futures=None``: one future per style, K = ``n_styles_``, under each style's weights ``theta_[j]``,
-          with probability p(style | history) (`predict_proba`).
-        - ``n_futures=K``, ``space="weights"``: K weights drawn from the posterior over the weights,
-          approximated as the mixture sum_j p(j | history) N(z; ``style_log_means_[j]``,
-          ``style_log_covariances_[j]``) over the log normalised weights z (the deconvolved mixture: the spread
-          of the drivers' own weights within each style; the history updates which style, not where within it);
-          each future has probability 1 / K (Monte Carlo draws). Draws use ``random_state``
-          (`numpy.random.default_rng`: an int, a Generator, or None for fresh entropy).
-        - ``n_futures=K``, ``space="features"``: a feature-space style has one weight vector and no spread, so
-          the min(K, ``n_styles_``) most probable styles, probabilities renormalised over them.
+        ``n_futures=None``: one future per style under its weights ``theta_[j]``, with p(style | history).
+        ``n_futures=K``: in weight space, K weights drawn (``random_state``) from sum_j p(j | history) N(z;
+        ``style_log_means_[j]``, ``style_log_covariances_[j]``), each with probability 1 / K; in feature space, the
+        min(K, ``n_styles_``) most probable styles, probabilities renormalised over them.
 
         Returns
         -------
@@ -435,28 +429,15 @@ class PIRLGMM(_MixtureLearner):
 
     Parameters
     ----------
-    n_components : int or "bic"
-        Number of clusters, or "bic" to choose it in 1..max_components by the Bayesian information criterion.
-    max_components : int
-        Upper end of the BIC search.
-    covariance_type : str
-        As in `sklearn.mixture.GaussianMixture`.
-    min_cluster_size : int
-        Components with fewer training samples are dropped (see module doc).
-    n_init : int
-        EM restarts.
-    random_state : int, Generator-seeded int or None
-        Seed of the EM initialisation.
-    space : {"features", "weights"}
-        What is clustered: the (transformed, standardised) features, the paper's; or the per-demonstration
-        posteriors over the log normalised weights, by extreme deconvolution (module doc).
-    refine : int
-        (``space="weights"``) passes of hard EM over the IRL likelihoods after the deconvolution (module doc);
-        with ``init="random"`` the most passes of the EM.
-    init : {"deconvolution", "random"}
-        (``space="weights"``) where the styles start: the deconvolved mixture of the per-demonstration posteriors,
-        or random equal-size clusters with hard EM over the IRL likelihoods alone (Babeș-Vroman et al. 2011;
-        ``n_init`` restarts; module doc).
+    n_components : int or "bic"          number of clusters, or chosen in 1..max_components by BIC
+    max_components : int                 upper end of the BIC search
+    covariance_type : str                as in `sklearn.mixture.GaussianMixture`
+    min_cluster_size : int               components with fewer training samples are dropped
+    n_init : int                         EM restarts
+    random_state : int or None           seed of the EM initialisation
+    space : {"features", "weights"}      cluster the features (the paper's) or the per-demonstration weight posteriors
+    refine : int                         (``space="weights"``) passes of hard EM over the IRL likelihoods
+    init : {"deconvolution", "random"}   (``space="weights"``) styles start from the deconvolved mixture, or at random
 
     Attributes
     ----------
@@ -574,19 +555,13 @@ class PIRLDPGMM(_MixtureLearner):
 
     Parameters
     ----------
-    max_components : int
-        Truncation level of the Dirichlet process.
-    weight_concentration_prior : float or None
-        Dirichlet-process concentration (smaller favours fewer styles); None = 1 / max_components.
-    min_cluster_size : int
-        Components with fewer training samples are not counted as styles (see module doc).
-    space : {"features", "weights"}
-        As `PIRLGMM`; in weight space the number of styles comes from the mixture ``weight_mixture``.
-    weight_mixture : {"dirichlet-process", "mml"}
-        (``space="weights"``) a Dirichlet-process mixture of the per-demonstration posteriors by truncated
-        stick-breaking variational inference (`pirl_sim.deconvolution.dp_deconvolution`, truncation
-        ``max_components``, concentration ``weight_concentration_prior``), or the extreme-deconvolution mixture
-        started with ``max_components`` and pruned by minimum message length (module doc).
+    max_components : int                   truncation level of the Dirichlet process
+    weight_concentration_prior : float or None   concentration (smaller favours fewer styles); None: 1 / max_components
+    min_cluster_size : int                 components with fewer training samples are not counted as styles
+    space : {"features", "weights"}        as `PIRLGMM`
+    weight_mixture : {"dirichlet-process", "mml"}   (``space="weights"``) a Dirichlet-process mixture of the
+        per-demonstration posteriors (`pirl_sim.deconvolution.dp_deconvolution`), or extreme deconvolution pruned
+        by minimum message length
     Other parameters as `PIRLGMM`.
 
     Attributes

@@ -52,88 +52,49 @@ SELECTOR_ITER = 100
 class PIRLKNN(SavableLearner):
     """PIRL with a k-nearest-neighbour prior over per-demonstration costs.
 
+    Offline, one cost per training demonstration (``target="next"``: per next-steps segment); online, the costs of
+    the k look-up samples nearest to a history, averaged with their votes. What each option is for: "The learners"
+    page of the documentation (PIRL-kNN, PIRL-select and "In detail: learners.knn").
+
     Parameters
     ----------
-    n_neighbors : int
-        k; must not exceed the number of training samples.
-    average : {"log", "linear"}
-    prior : {None, "population"}
-    weighting : {"distance", "likelihood"}
-        The neighbours' votes: 1 / distance (the paper's) or their likelihood of the history (module doc).
-    target : {"demo", "next"}
-        What each look-up sample's cost is fitted on: its whole demonstration (the paper's) or the
-        ``target_steps`` steps that follow the sample's window (module doc; needs ``window``).
-    target_steps : int or None
-        Length of the next-steps segments [steps], with ``target="next"`` (e.g. the prediction horizon).
-    state_features : tuple of int
-        Components of the last state of each window appended to the look-up space (after the feature
-        transform, standardised with it); () the paper's features only.
-    state_lags : tuple of int
-        Steps before each window's end at which ``state_features`` are taken (0: the last state); e.g.
-        (0, 5, 10) adds the speed and acceleration 5 and 10 steps earlier, i.e. how the driver got there.
-    lookup_features : bool
-        Whether the window's (transformed) cost features are in the look-up space; False looks up by
-        ``state_features`` alone (needs some). On the development roundabouts the next-steps costs are
-        found better by how the history moved than by its features (module doc).
+    n_neighbors : int                         k; at most the number of training samples
+    average : {"log", "linear"}               average the log weights (default) or the weights
+    prior : {None, "population"}              "population": MAP refits under a log-normal prior of the first pass
+    weighting : {"distance", "likelihood"}    votes 1 / distance (the paper's) or p(history | theta_i)
+    target : {"demo", "next"}                 fit each sample's cost on its whole demonstration or on the
+                                              ``target_steps`` steps after its window (needs ``window``)
+    target_steps : int or None                length of the next-steps segments [steps] (``target="next"``)
+    state_features : tuple of int             components of each window's last state added to the look-up space
+    state_lags : tuple of int                 steps before the window's end at which ``state_features`` are taken
+    lookup_features : bool                    whether the window's cost features are in the look-up space
     aggregate : {"weights", "futures", "selected"}
-        How `predict_states` uses the neighbours: one future under their averaged weights, or the vote-weighted
-        mean of their futures, each under its own cost (module doc); "selected" (``target="next"``): no
-        neighbours, the futures of a bank of ``n_candidates`` costs weighted as ``selector`` learned (below;
-        module doc, `pirl_sim.learners.selector`); such a learner cannot be saved (its regressions are tree
-        ensembles, which `save`'s pickle-free format does not hold: a TypeError).
-    selector : {"forecast", "errors"}
-        ``aggregate="selected"``: how the choice among the bank's costs is learned, both from the look-up keys
-        and the place (the path's point [m] and heading at the window's end, `place_keys`). "forecast": one
-        regression of the positions over the next ``target_steps`` steps (`FutureRegression`, on every
-        training window), and online the mixture of the bank's futures from the query's state nearest to that
-        forecast (`mixture_weights`); "errors": one regression of each bank cost's rollout error
-        (`ErrorRegression`, on up to `SELECTION_WINDOWS` training windows), and online ``softmin(predicted
-        error / temperature)`` (module doc of `pirl_sim.learners.selector`).
-    n_candidates : int
-        ``aggregate="selected"``: size of the bank of costs (k-means medoids of the next-steps costs' log
-        weights; fewer when medoids coincide, every cost when there are no more than ``n_candidates``).
-    temperature : float
-        ``aggregate="selected"``, ``selector="errors"``: [m] > 0, the softmin's scale over the predicted mean |error| along the path.
-    lookup_history : bool
-        With ``target="next"``: the training histories' look-up values from `Trajectory.history_window` (each
-        history's states estimated from its own observations, as an online query's are) instead of the
-        training track's smoothed states. The next-steps segments keep the smoothed states unless
-        ``segment_start="history"``.
-    segment_start : {"track", "history"}
-        With ``target="next"``: where each next-steps segment whose cost the IRL fits starts. "track": the
-        training track's own (smoothed) states; "history": the last state of its history as
-        ``lookup_history`` estimates it (what an online prediction starts from), with the controls that then
-        follow the track's positions and speeds best (`pirl_sim.dynamics.LinearDynamics.steer`, `STEER`). A
-        cost fitted from the smoothed start, rolled out from the online estimate, inherits that estimate's
-        error in speed and acceleration (module doc); needs ``lookup_history=True``.
-    lookup_ahead : tuple of float
-        Distances ahead [m] at which the road's |curvature| (the model's, `PathDriverModel.curvature`) at the
-        window's end enters the look-up space, standardised with the rest; () none. What the road ahead does
-        decides much of what a driver does next (module doc).
-    ahead_weights : tuple of float
-        Weights >= 0 of the road-ahead coordinates (after standardising; 0 leaves the road out, 1 weighs each
-        distance as one speed or acceleration). One: that weight. Several (``target="next"``): the one whose
-        look-up predicts the positions over the next steps of up to `AHEAD_VALIDATION` held-out training
-        windows best, each window's neighbours taken from other recorded tracks only (``ahead_scores_``); how
-        much the road ahead tells differs between roundabouts (README).
+        One future under the averaged weights, the voted mean of the neighbours' futures, or (``target="next"``)
+        a learned choice among a bank of costs (`pirl_sim.learners.selector`; such a learner cannot be saved).
+    selector : {"forecast", "errors"}         ``"selected"``: regress the next positions, or each bank cost's error
+    n_candidates : int                        ``"selected"``: size of the bank of costs
+    temperature : float                       ``selector="errors"``: softmin scale [m] > 0 of the predicted errors
+    lookup_history : bool                     ``target="next"``: look-up values from `Trajectory.history_window`
+    segment_start : {"track", "history"}      where each next-steps segment starts
+                                              (`~pirl_sim.learners.knn.steer_segment`); "history" needs ``lookup_history``
+    lookup_ahead : tuple of float             distances ahead [m] of the road's |curvature| in the look-up space
+    ahead_weights : tuple of float            weights >= 0 of the road-ahead coordinates; several: the best on
+                                              held-out windows (`AHEAD_VALIDATION`, ``ahead_scores_``)
     model, window, stride, feature_transform, log_bounds, irl_max_iter : see `BaseLearner`.
 
     Attributes
     ----------
-    demo_theta_ : array (M, K)     normalised weights of each training demonstration (``target="next"``: of
-                                   each next-steps segment, one per look-up sample)
+    demo_theta_ : array (M, K)     normalised weights of each training demonstration (or next-steps segment)
     sample_theta_ : array (S, K)   weights of each look-up sample (window or demonstration)
     n_weights_at_bound_ : int      demonstrations with a normalised weight at the log bound
     n_scale_at_bound_ : int        demonstrations whose scale (rationality) reached the bound
     control_rms_, episode_steps_   (``weighting="likelihood"``) as `PIRLGMM`'s, for the likelihoods
-    ahead_weight_ : float          the road-ahead weight in use (the chosen one of ``ahead_weights``)
+    ahead_weight_ : float          the road-ahead weight in use
     ahead_scores_ : dict           {candidate weight: held-out mean |error| along the path [m]} (several only)
     key_scale_ : array (d,)        factors on the standardised look-up coordinates
-    bank_ : array (C,)             (``aggregate="selected"``) the look-up samples whose costs form the bank
-    selector_ : FutureRegression or ErrorRegression  (``aggregate="selected"``) the positions over the next
-                                   steps, or each bank cost's errors [m], regressed on the selector's keys
-    bank_errors_ : array (N, C)    (``selector="errors"``) the bank's rollout errors [m] on the training
-                                   windows the selector learned from
+    bank_ : array (C,)             (``"selected"``) the look-up samples whose costs form the bank
+    selector_ : FutureRegression or ErrorRegression   (``"selected"``) the selector's regression
+    bank_errors_ : array (N, C)    (``selector="errors"``) the bank's rollout errors [m] on the selector's windows
     """
 
     def __init__(
@@ -395,11 +356,8 @@ class PIRLKNN(SavableLearner):
     def with_neighbors(self, n_neighbors: int) -> PIRLKNN:
         """This fitted learner with another number of neighbours k, without refitting its IRL.
 
-        Everything PIRL-kNN learns except its nearest-neighbour index is independent of k (the IRL result and
-        per-demonstration weights, the look-up samples and their owners, the feature scaling): the copy shares
-        those and gets a new index over the same look-up points, built as `fit` builds it, including the choice
-        of the road ahead's weight among several ``ahead_weights``, which depends on k. Its predictions are
-        identical to fitting with ``n_neighbors`` (tested); a sweep over k fits once.
+        The copy shares everything but the nearest-neighbour index (and the choice among several ``ahead_weights``,
+        which depends on k): its predictions equal a fit with ``n_neighbors``, so a sweep over k fits once.
 
         Parameters
         ----------
@@ -407,8 +365,7 @@ class PIRLKNN(SavableLearner):
 
         Returns
         -------
-        PIRLKNN
-            A shallow copy (fitted arrays shared, not copied); this learner is not changed.
+        learner : PIRLKNN     a shallow copy (fitted arrays shared, not copied); this learner is not changed
         """
         from sklearn.base import clone
         from sklearn.utils.validation import check_is_fitted
@@ -431,24 +388,16 @@ class PIRLKNN(SavableLearner):
     HEAD_PARAMS = ("n_neighbors", "aggregate", "selector", "n_candidates", "temperature")
 
     def with_aggregate(self, trajectories, **params) -> PIRLKNN:
-        """This fitted learner with other `HEAD_PARAMS` (e.g. ``aggregate="selected"`` after ``"futures"``),
-        finished on the same training ``trajectories`` as `fit` finishes, without refitting its IRL.
+        """This fitted learner with other `HEAD_PARAMS` (e.g. ``aggregate="selected"`` after ``"futures"``), finished on
+        the same training ``trajectories`` as `fit` finishes, without refitting its IRL.
 
-        The per-demonstration costs, the look-up samples and the feature scaling do not depend on these
-        parameters; the copy gets its own index (and choice of the road ahead's weight) and, with
-        ``aggregate="selected"``, its own bank and selector, so its predictions are those of a fit with the
-        parameters (tested). ``trajectories`` must be the ones this learner was fitted on.
+        The copy gets its own index, road-ahead weight and, with ``aggregate="selected"``, bank and selector, so its
+        predictions are those of a fit with the parameters. ValueError for a parameter outside `HEAD_PARAMS`, a value
+        `fit` would reject, or other ``trajectories`` than this learner was fitted on.
 
         Returns
         -------
-        PIRLKNN
-            A shallow copy (fitted arrays shared); this learner is not changed.
-
-        Raises
-        ------
-        ValueError
-            A parameter outside `HEAD_PARAMS` or a value `fit` would reject, or ``trajectories`` that do not
-            give this learner's look-up samples.
+        learner : PIRLKNN     a shallow copy (fitted arrays shared); this learner is not changed
         """
         from sklearn.utils.validation import check_is_fitted
 
@@ -542,21 +491,15 @@ class PIRLKNN(SavableLearner):
 
     def predict_futures(self, histories, horizon: int, n_futures: int | None = None,
                         random_state=None) -> tuple[np.ndarray, np.ndarray]:
-        """K predicted futures of each history with their probabilities.
+        """K predicted futures of each history with their probabilities: neighbours drawn by their votes.
 
-        The posterior over the weights is the neighbours' vote: the k neighbours' demonstrations with the weights
-        `infer_weights` averages (1 / distance, or the likelihood of the history with
-        ``weighting="likelihood"``; a demonstration that is a neighbour through several windows gets the sum
-        of its votes). ``n_futures=None``: one future per neighbouring demonstration, in order of vote, padded
-        as below to K = k. With ``aggregate="selected"`` the bank's costs take the neighbours' place (k = the
-        bank's size), with the learned probabilities as votes. ``n_futures=K``: min(K, k) demonstrations drawn
-        without replacement
-        with probabilities proportional to their votes (Gumbel top-K with ``random_state``, an int, a
-        `numpy.random.Generator` or None). Each future is the MPC's prediction under its demonstration's
-        weights ``demo_theta_``, with probability its vote renormalised over the K chosen. When fewer than K
-        demonstrations have a positive vote (exact matches), the rest are other neighbours at probability 0
-        (zero votes are drawn last); when fewer than K distinct demonstrations are neighbours, the first is
-        repeated at probability 0.
+        ``n_futures=None``: one future per neighbouring demonstration (or bank cost), in order of vote; ``n_futures=K``:
+        min(K, k) drawn without replacement by vote (Gumbel top-K), each under its weights ``demo_theta_``, padded at
+        probability 0 ("The learners" page, In detail: learners.knn).
+
+        Parameters
+        ----------
+        histories, horizon, n_futures, random_state : see `~pirl_sim.learners.base.BaseLearner.predict_futures`.
 
         Returns
         -------

@@ -70,20 +70,14 @@ def demo_posteriors(model: DriverModel, trajectories: Sequence[Trajectory], resu
     ----------
     model : DriverModel
     trajectories : sequence of M Trajectory
-    result : IRLResult or RecedingResult
-        The per-demonstration fit (group i = trajectory i).
-    likelihood : {"trajectory", "receding"}
-    log_bounds : (low, high)
-    horizon, step_stride : the receding likelihood's MPC horizon [steps] and step stride
-    loss : {"cauchy", "gauss"}  the receding likelihood's noise model
-    prior : LogNormalPrior, optional
-        (trajectory likelihood) the prior of the demonstrations in ``prior_rows`` (bool (M,)), which were fitted as
-        MAP under it: their information includes its precision.
+    result : IRLResult or RecedingResult   the per-demonstration fit (group i = trajectory i)
+    likelihood, log_bounds : {"trajectory", "receding"}, (low, high)
+    horizon, step_stride, loss : the receding likelihood's MPC horizon [steps], step stride and noise model
+    prior, prior_rows : LogNormalPrior, bool array (M,), optional   the prior of the rows fitted as MAP under it
 
     Returns
     -------
-    means : array (M, D)        log normalised weights of the non-reference features
-    covariances : array (M, D, D)
+    means, covariances : array (M, D), (M, D, D)   log normalised weights of the non-reference features
     """
     feats = model.features
     K, ref = feats.n_features, feats.reference_index
@@ -152,15 +146,12 @@ def style_log_likelihoods(model: DriverModel, histories: Sequence[Trajectory], *
     model : DriverModel
     histories : sequence of M Trajectory
     likelihood : {"trajectory", "receding"}
-    theta : array (J, K)          absolute weights per style (trajectory likelihood)
-    normalized : array (J, K)     normalised weights per style (receding likelihood)
+    theta, normalized : array (J, K)   absolute (trajectory likelihood) and normalised (receding) weights per style
     gauss_newton : array (J,) bool, optional  styles fitted with the Gauss-Newton cost Hessian (trajectory)
     sigma : array (J,)            fitted residual noise per style (receding) [control units]
     noise_floor_controls : array (S, n_u)  controls whose RMS floors the Cauchy scale (the training steps')
     horizon, step_stride, loss : as `demo_posteriors`
-    episode_steps : int, optional
-        N: histories are the first steps of episodes of N steps (trajectory likelihood; module doc). Histories
-        of N or more steps are scored whole.
+    episode_steps : int, optional   N: histories are the first steps of episodes of N steps (trajectory likelihood)
     """
     histories = model.check(histories)
     M = len(histories)

@@ -144,28 +144,16 @@ def extreme_deconvolution(
 
     Parameters
     ----------
-    X : array (N, D)
-        Noisy points (here: per-demonstration log weights).
-    S : array (N, D, D)
-        Their measurement covariances (symmetric positive semi-definite).
-    n_components : int
-        J (with ``prune``: the largest number of components; fewer may survive).
-    rng : numpy.random.Generator
-        Seeds the initialisations (k-means++ on X, one seed per restart).
-    n_init : int
-        Restarts; the fit with the highest (penalised, with ``prune``) log-likelihood is kept.
-    max_iter : int
-        EM iterations per restart.
-    tol : float
-        Stop when the log-likelihood per point changes by less than this [nats].
-    reg_covar : float
-        Added to the diagonal of every component covariance V_j (keeps it positive definite).
-    prune : bool
-        Figueiredo & Jain's minimum-message-length weight update (module doc).
+    X, S : array (N, D), (N, D, D)    noisy points (here: per-demonstration log weights) and their covariances
+    n_components : int                J (with ``prune``: the largest number of components)
+    rng : numpy.random.Generator      seeds the k-means++ initialisations, one seed per restart
+    n_init, max_iter, tol : int, int, float   restarts (highest log-likelihood kept), EM iterations, tolerance [nats]
+    reg_covar : float                 added to the diagonal of every component covariance V_j
+    prune : bool                      Figueiredo & Jain's minimum-message-length weight update (module doc)
 
     Returns
     -------
-    XDMixture
+    mixture : XDMixture
     """
     X, S = _check_fit(X, S, rng, ("n_components", n_components), n_init, max_iter, reg_covar)
     N, D = X.shape
@@ -307,33 +295,16 @@ def dp_deconvolution(
 
     Parameters
     ----------
-    X : array (N, D)
-        Noisy points (here: per-demonstration log weights).
-    S : array (N, D, D)
-        Their measurement covariances (symmetric positive semi-definite).
-    max_components : int
-        T, the truncation of the stick-breaking construction (at most N).
-    rng : numpy.random.Generator
-        Seeds the initialisations (k-means++ on the well-measured coordinates, one seed per restart).
-    concentration : float or None
-        alpha of the Dirichlet process (> 0; smaller favours fewer components); None: 1 / max_components.
-    n_init : int
-        Restarts; the one with the highest evidence lower bound is kept.
-    max_iter : int
-        Variational iterations per restart.
-    tol : float
-        Stop when no expected share N_j / N, coordinate of a posterior mean of mu_j or entry of E[Lambda_j]^-1
-        changes by more than ``tol`` in an iteration.
-    reg_covar : float
-        Added to the diagonal of the Wishart prior's scale and of every measurement covariance (> 0).
+    X, S : array (N, D), (N, D, D)    noisy points (here: per-demonstration log weights) and their covariances
+    max_components : int              T, the truncation of the stick-breaking construction (at most N)
+    rng : numpy.random.Generator      seeds the k-means++ initialisations, one seed per restart
+    concentration : float or None     alpha of the Dirichlet process, > 0; None: 1 / max_components
+    n_init, max_iter, tol : int, int, float   restarts (highest evidence lower bound kept), iterations, tolerance
+    reg_covar : float                 added to the diagonals of the Wishart scale and every covariance, > 0
 
     Returns
     -------
-    XDMixture
-        The components that hold at least half a point's expected mass (N_j >= 0.5), in stick order:
-        ``weights`` E[pi_j] renormalised over them, ``means`` the posterior means of mu_j, ``covariances``
-        E[Lambda_j]^-1; ``log_likelihood`` the evidence lower bound [nats] (up to terms that do not depend on
-        the fit); ``n_iter``, ``converged``.
+    mixture : XDMixture               components with N_j >= 0.5, in stick order; ``log_likelihood``: the ELBO [nats]
     """
     X, S = _check_fit(X, S, rng, ("max_components", max_components), n_init, max_iter, reg_covar)
     N, D = X.shape

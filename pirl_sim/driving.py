@@ -84,17 +84,8 @@ def desired_speed_along(k, dk, d2k, a_lat: float, v_max: float):
 class CompositePath:
     """Several reference paths laid end to end on one arc-length axis, separated by straight gaps.
 
-    Recorded scenes have one path per route, but a learner works with one driver model. Putting path k at
-    ``s`` in ``[offset_k, offset_k + length_k]`` lets one speed profile and one model serve every route: a
-    trajectory on path k carries arc lengths shifted by ``offset_k``. Between paths lies a gap of ``gap``
-    metres of zero curvature (the desired speed there is the speed limit), which is also what a prediction
-    running past the end of its path sees (the straight-line extension of `ReferencePath`).
-
-    Each gap is split at its middle: its first half belongs to the path before it (a track or prediction
-    running past that path's end), its second half to the path after it (a track that starts before its
-    path's first point, at a negative local arc length). Path k thus owns composite arc lengths
-    ``[offset_k - gap/2, offset_k + length_k + gap/2)`` (the first path everything below, the last everything
-    above), and a point there is placed on path k, extrapolated straight beyond its ends.
+    Path k lies at ``s`` in ``[offset_k, offset_k + length_k]``, so one speed profile and one model serve every
+    route; each gap is split at its middle between the paths either side ("The cost model and its features" page).
 
     Parameters
     ----------
@@ -452,11 +443,8 @@ def fit_longitudinal_states(
 ) -> tuple[np.ndarray, np.ndarray]:
     """States and controls that best explain observed path positions, by least squares through the dynamics.
 
-    Solves ``min_{x0, U} sum_k (s_k(x0, U) - s_obs_k)^2 + jerk_weight * sum_k u_k^2`` (ridge on the
-    controls only), so speed and acceleration come out consistent with the dynamics instead of from noisy
-    finite differences — the start state of a prediction should be the last state of this fit. This is
-    :func:`estimate_longitudinal_states` from positions only with ``sigma_j = sigma_s / sqrt(jerk_weight)``
-    (the same normal equations); with observed speeds as well, use that function.
+    Solves ``min_{x0, U} sum_k (s_k(x0, U) - s_obs_k)^2 + jerk_weight * sum_k u_k^2``: `estimate_longitudinal_states`
+    from positions only, with ``sigma_j = sigma_s / sqrt(jerk_weight)``.
 
     Parameters
     ----------
@@ -495,87 +483,21 @@ def estimate_longitudinal_states(
 ) -> tuple[np.ndarray, np.ndarray]:
     """States and controls (x0, U) through the dynamics that best explain observed positions and speeds.
 
-    Model: the observed arc lengths are ``s_obs_k = s_k(x0, U) + e_k``, e_k iid N(0, sigma_s^2), the
-    observed speeds ``v_obs_k = v_k(x0, U) + f_k``, f_k iid N(0, sigma_v^2), the jerks have the prior
-    u_k iid N(0, sigma_j^2) and x0 a flat prior; states follow ``x_{k+1} = A x_k + B u_k`` exactly. The
-    estimate is the posterior mode (= mean), i.e. the weighted least squares
-
-        min_{x0, U}  sum_k (s_k - s_obs_k)^2 / sigma_s^2 + sum_k (v_k - v_obs_k)^2 / sigma_v^2
-                     + sum_{k observed} (a_k - a_obs_k)^2 / sigma_a^2 + sum_k u_k^2 / sigma_j^2,
-
-    one linear solve of size n_x + (n - 1) n_u. Without ``v_obs`` only the positions enter (then only the
-    ratio sigma_s / sigma_j matters; :func:`fit_longitudinal_states` is this with
-    ``jerk_weight = (sigma_s / sigma_j)^2``).
-
-    Defaults (measured on ``simulate sumo --seed 0``: 64 PIRL tracks, the drivers' true MPC start states
-    and applied jerks logged inside :class:`~pirl_sim.scenarios.drivers.PirlDrivers`, compared on the 13,056
-    steps of 0.1 s whose command SUMO carried out; true jerk RMS 0.85 m/s^3). Simulator speeds are exact,
-    but the model is not: ``s`` is the projection on the route's reference path, which lies up to ~0.2 m
-    off the lane centre, so ds/dt differs from the simulator's speed by ~1 % in curves, and the positions
-    and speeds disagree by up to 5 cm over a track. Hence speeds are trusted tightly (sigma_v = 0.001 m/s)
-    and positions loosely (sigma_s = 0.1 m: any sigma_s >= 0.1 m gives the same states and jerks to 1e-4,
-    so the offset costs nothing but the 2-5 cm of s; sigma_s = 0.01 m pulls the speeds 1 mm/s off and
-    doubles the jerk error), sigma_j = 3 m/s^3, sigma_a = 0.01 m/s^2. Errors (RMS / max), estimate minus
-    truth:
-
-    ======================================== ============= ============= ============= ===========
-    data (driver steps of the recording)      s [m]         v [m/s]       a [m/s^2]    j [m/s^3]
-    ======================================== ============= ============= ============= ===========
-    39 tracks without interaction, positions  0.025 / 0.10  0.045 / 0.23  0.087 / 0.41 0.22 / 1.4
-    (``fit_longitudinal_states``, 1e-2)
-    same, positions and speeds (defaults)     0.024 / 0.05  3e-5 / 2e-4   6e-4 / 0.008 0.012 / 0.14
-    all 64 tracks, usable steps, positions    0.021 / 0.22  0.050 / 1.0   0.15 / 3.5   0.43 / 8.0
-    all 64, positions + speeds + restarts     0.022 / 0.06  3e-5 / 1e-3   0.005 / 0.17 0.13 / 2.3
-    (``step_mask`` breaks, ``a_obs``)
-    all 64, positions + speeds, one fit       0.026 / 0.08  4e-4 / 0.016  0.067 / 2.8  1.5 / 63
-    ======================================== ============= ============= ============= ===========
-
-    The remaining error on interacting tracks sits at the first steps of short runs between overrides (a
-    run's start acceleration is pinned only by its restart observation and a few speeds). With noisy
-    speeds the per-step jerk is sensitive: speed noise sigma adds ~2.8 sigma / dt^2 to it unless sigma_j is
-    lowered (1 mm/s of noise with sigma_j = 1 m/s^3: jerk RMS error 0.29 m/s^3; with sigma_j = 0.1:
-    0.04); raise sigma_v / lower sigma_j for measured data.
+    The posterior mode under Gaussian noise and a Gaussian jerk prior: one least squares ("The cost model and its
+    features" page, The state estimate); without ``v_obs``, `fit_longitudinal_states`.
 
     Parameters
     ----------
-    s_obs : array (n,)
-        Observed arc lengths [m] at the model's dt, n >= 2.
-    dynamics : LinearDynamics
-        Position as state 0 and speed as state 1 (e.g. :func:`pirl_sim.dynamics.longitudinal`).
-    v_obs : array (n,), optional
-        Observed speeds [m/s] at the same times (e.g. ``hypot(vx, vy)``).
-    sigma_s : float
-        Position noise [m], > 0.
-    sigma_v : float
-        Speed noise [m/s], > 0 (unused without ``v_obs``).
-    sigma_j : float
-        Prior standard deviation of the jerks [m/s^3], > 0.
-    a_obs : array (n,), optional
-        Observed accelerations [m/s^2] (state 2), NaN where not observed (e.g. only where a driver
-        re-started from a measured acceleration); noise N(0, sigma_a^2).
-    sigma_a : float
-        Acceleration noise [m/s^2], > 0 (unused without ``a_obs``).
-    step_mask : array (n - 1,) of bool, optional
-        Steps across which the dynamics hold (default: all). A False step breaks the track: each run of
-        frames joined by True steps is fitted on its own (its own x0), because there the simulator did not
-        carry out the driver's command and the driver re-started from a measured state (an acceleration that
-        jumps, which no jerk of the model explains; fitting across such a step rings into its neighbours).
-        A frame with no True step on either side takes its state from the fit of the whole track. A False
-        step's control is the jerk that carries the acceleration across, (a_{k+1} - a_k) / dt; its positions
-        and speeds do not follow the dynamics.
+    s_obs, v_obs : array (n,)        observed arc lengths [m] at the model's dt (n >= 2); speeds [m/s] (optional)
+    dynamics : LinearDynamics        position as state 0, speed as state 1 (e.g. `pirl_sim.dynamics.longitudinal`)
+    sigma_s, sigma_v, sigma_j, sigma_a : float
+        Noise of positions and speeds, jerk prior, noise of accelerations [m, m/s, m/s^3, m/s^2], > 0.
+    a_obs : array (n,), optional     observed accelerations [m/s^2], NaN where not observed
+    step_mask : array (n - 1,) of bool, optional   steps across which the dynamics hold (default all)
 
     Returns
     -------
-    states : array (n, n_x)
-        [m, m/s, m/s^2] for the longitudinal model.
-    controls : array (n - 1, n_u)
-        [m/s^3]. ``states[k + 1] = A states[k] + B controls[k]`` on every True step of ``step_mask``.
-
-    Raises
-    ------
-    ValueError
-        Non-finite or wrongly shaped ``s_obs`` / ``v_obs``, ``v_obs`` of another length, or a sigma that is
-        not a finite number > 0.
+    states, controls : array (n, n_x), (n - 1, n_u)   [m, m/s, m/s^2], [m/s^3]; ValueError for bad inputs
     """
     s_obs = _observations("s_obs", s_obs)
     if v_obs is not None:

@@ -118,30 +118,19 @@ class LinearDynamics:
         return np.concatenate([x0[..., None, :], future], axis=-2)
 
     def steer(self, x0: np.ndarray, targets: np.ndarray, weights, ridge: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
-        """Controls that carry the fixed start ``x0`` as near as they can to target states: least squares
-        ``sum_k sum_i weights[i] (x_k,i - targets[k-1, i])^2 + ridge sum_k |u_k|^2`` over k = 1 .. N.
+        """Controls that carry the fixed start ``x0`` as near as they can to target states (least squares).
 
-        Used to re-start a recorded segment from another estimate of its first state (e.g. the one an online
-        predictor has, `pirl_sim.learners.PIRLKNN` with ``segment_start="history"``): the result is a
-        trajectory of these dynamics from ``x0`` that follows the segment.
+        Minimises ``sum_k sum_i weights[i] (x_k,i - targets[k-1, i])^2 + ridge sum_k |u_k|^2`` over k = 1 .. N, e.g.
+        to re-start a recorded segment (`pirl_sim.learners.PIRLKNN`'s ``segment_start``).
 
         Parameters
         ----------
-        x0 : array (n_x,)               the start, kept exactly
-        targets : array (N, n_x)        states x_1 .. x_N to follow (entries with weight 0 are ignored)
-        weights : array (n_x,)          >= 0, per state entry [1 / unit^2]; at least one > 0
-        ridge : float                   > 0, on the controls [1 / unit^2]
+        x0, targets : array (n_x,), (N, n_x)    the start, kept exactly; states x_1 .. x_N to follow (weight 0: ignored)
+        weights, ridge : array (n_x,), float    >= 0 per state entry (one > 0), and > 0 on the controls [1 / unit^2]
 
         Returns
         -------
-        states : array (N + 1, n_x), starting at ``x0``
-        controls : array (N, n_u)
-
-        Raises
-        ------
-        ValueError
-            Shapes that do not match the dynamics, non-finite values where the weight is positive, negative
-            weights, or a ridge that is not > 0.
+        states, controls : array (N + 1, n_x), (N, n_u)   from ``x0``; ValueError for bad shapes, values or weights
         """
         x0 = np.asarray(x0, dtype=float)
         targets = np.asarray(targets, dtype=float)

@@ -226,16 +226,13 @@ class FeatureSet:
         Parameters
         ----------
         dynamics : LinearDynamics
-        states : array, shape (M, N + 1, n_x)
-        controls : array, shape (M, N, n_u)
-        gauss_newton : bool
-            Drop the residuals' second derivatives (``2 r . d2r``): the Hessians become the positive
-            semi-definite Gauss-Newton ones (for the MPC's sequential scheme); exact when False.
+        states, controls : array (M, N + 1, n_x), (M, N, n_u)
+        gauss_newton : bool       drop the residuals' second derivatives (``2 r . d2r``): positive semi-definite
+                                  Gauss-Newton Hessians (for the MPC's sequential scheme)
 
         Returns
         -------
-        FeatureDerivatives
-            ``hess`` has a leading dimension of 1 when every feature is quadratic (shared Hessians).
+        derivatives : FeatureDerivatives   ``hess`` has a leading dimension of 1 when every feature is quadratic
         """
         states, controls = _check_arrays(states, controls)
         M, N, n_u = controls.shape
@@ -258,23 +255,18 @@ class FeatureSet:
     ) -> FeatureDerivatives:
         """Feature values and gradients, and the Hessian of the cost ``theta . f`` only, in the stacked controls.
 
-        What a Newton step on the cost (and its implicit derivatives in theta) needs, without the per-feature
-        Hessians of every trajectory: the constant Hessians of quadratic features are added once, scaled.
+        What a Newton step on the cost needs, without the per-feature Hessians of every trajectory.
 
         Parameters
         ----------
         dynamics : LinearDynamics
-        states : array, shape (M, N + 1, n_x)
-        controls : array, shape (M, N, n_u)
-        theta : array, shape (M, K)
-            Weights per trajectory.
-        gauss_newton : bool
-            The Gauss-Newton Hessian instead of the exact one (see `derivatives`).
+        states, controls : array (M, N + 1, n_x), (M, N, n_u)
+        theta : array (M, K)            weights per trajectory
+        gauss_newton : bool             the Gauss-Newton Hessian instead of the exact one (`derivatives`)
 
         Returns
         -------
-        FeatureDerivatives
-            ``values`` (M, K), ``grad`` (M, K, d) and ``hess`` (M, d, d) = sum_k theta_k hess f_k.
+        derivatives : FeatureDerivatives   ``values`` (M, K), ``grad`` (M, K, d), ``hess`` (M, d, d) of the cost
         """
         states, controls = _check_arrays(states, controls)
         M, N = controls.shape[:2]

@@ -215,20 +215,15 @@ def laplace_nll(theta: np.ndarray, block: LaplaceBlock, order: int = 1, eps: flo
 
     Parameters
     ----------
-    theta : array, shape (M, K)
-        Absolute weights (scale included), one row per demonstration of the block; must be > 0 for features
-        whose Hessians are only positive semi-definite.
+    theta : array (M, K)     absolute weights (scale included), one row per demonstration; > 0 for features whose
+                             Hessians are only positive semi-definite
     block : LaplaceBlock
-    order : {0, 1, 2}
-        0: values only; 1: and gradients; 2: and Hessians.
+    order : {0, 1, 2}        0: values only; 1: and gradients; 2: and Hessians
 
     Returns
     -------
-    nll : array (M,)
-    grad : array (M, K) or None
-    hess : array (M, K, K) or None
-    n_regularized : int   demonstrations whose Hessian needed a shift
-    worst_eig : float     most negative eigenvalue met (inf if none)
+    nll, grad, hess : array (M,), (M, K) or None, (M, K, K) or None
+    n_regularized, worst_eig : int, float   demonstrations whose Hessian needed a shift; most negative eigenvalue
     """
     nll, grad, hess, bad, worst = _laplace_nll(theta, block, order, eps)
     return nll, grad, hess, int(bad.sum()), worst
@@ -304,13 +299,11 @@ class IRLResult:
     theta : array (G, K)        absolute weights, beta * normalised
     normalized : array (G, K)   weights divided by the reference feature's weight (the reported form)
     beta : array (G,)           scale (the reference weight)
-    neg_log_likelihood : array (G,)  summed over the group's demonstrations (prior excluded), under the Hessian
-                                     form the group was fitted with
+    neg_log_likelihood : array (G,)  summed over the group's demonstrations (prior excluded)
     at_bound : array (G, K) bool     coordinate w at its bound at the end
     converged : array (G,) bool      see the module doc
-    n_iter : int
-    n_regularized : int              demonstrations whose Hessian needed a shift at the solution
-    gauss_newton : array (G,) bool   groups fitted with Gauss-Newton Hessians (module doc); None: not recorded
+    n_iter, n_regularized : int      iterations; demonstrations whose Hessian needed a shift at the solution
+    gauss_newton : array (G,) bool   groups fitted with Gauss-Newton Hessians; None: not recorded
     gradient_norm : array (G,)       largest |projected gradient| in w at the end; None: not recorded
     """
 
@@ -376,29 +369,18 @@ def fit_weights(
 
     Parameters
     ----------
-    blocks : LaplaceBlock or sequence of them
-        Demonstrations, grouped by length.
-    labels : int array (M_b,) per block, or None
-        Group of each demonstration, 0..G-1. None: one group per demonstration of a single block.
-    features : FeatureSet
-        Names the reference feature that fixes the normalisation.
-    n_groups : int, optional
-        G; default ``max(label) + 1``.
-    prior : LogNormalPrior, optional
-        MAP instead of ML: adds 1/2 sum ((w - mean) / std)^2 per group.
-    log_bounds : (low, high)
-        Box on every coordinate w (log beta and log normalised weights).
-    max_iter, tol : Newton iterations and tolerance on the step in w.
-    hessian : {"auto", "exact", "gauss_newton"}
-        The cost Hessian in the likelihood (module doc). "exact": the paper's, regularised where indefinite;
-        "gauss_newton": the Gauss-Newton one for every group (blocks without attached Gauss-Newton Hessians
-        use their own); "auto": exact, and Gauss-Newton for the groups where the exact fit needed a
-        regularisation at its solution or did not converge and Gauss-Newton Hessians are attached (that refit
-        may take `GAUSS_NEWTON_ITER_FACTOR` x ``max_iter`` iterations).
+    blocks : LaplaceBlock or sequence of them   demonstrations, grouped by length
+    labels : int array (M_b,) per block, or None   group of each, 0..G-1; None: one group per demonstration
+    features : FeatureSet                       names the reference feature that fixes the normalisation
+    n_groups : int, optional                    G; default ``max(label) + 1``
+    prior : LogNormalPrior, optional            MAP: adds 1/2 sum ((w - mean) / std)^2 per group
+    log_bounds : (low, high)                    box on every coordinate w (log beta and log normalised weights)
+    max_iter, tol : int, float                  Newton iterations, and tolerance on the step in w
+    hessian : {"auto", "exact", "gauss_newton"}   the cost Hessian in the likelihood (module doc)
 
     Returns
     -------
-    IRLResult
+    result : IRLResult
     """
     if isinstance(blocks, LaplaceBlock):
         blocks = [blocks]

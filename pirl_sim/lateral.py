@@ -76,21 +76,18 @@ class MeanOffsetProfile:
 
     def fit_plane(self, path, xy: np.ndarray, *, min_speed_step: float = 0.1, window: float = 2.0,
                   max_offset: float = 4.0, max_angle: float = 0.5, margin: float = 20.0) -> "MeanOffsetProfile":
-        """Fit on samples in the plane, pooled over routes: each route's bins get the median offset, across
-        that route, of the training samples near the bin's centreline point that move along it.
+        """Fit on samples in the plane, pooled over routes: each bin gets the median offset of the training samples near
+        its centreline point that move along it (bins with fewer than ``min_count`` samples stay empty).
 
         Parameters
         ----------
         path : ReferencePath or pirl_sim.driving.CompositePath   the routes (a ReferencePath is route 0)
         xy : list of arrays (n_i, 2) [m]   training tracks' positions, one array per track, in time order
         min_speed_step : float [m]   a sample counts when its track moved at least this far per step around it
-                                     (a standing car has no heading)
-        window : float [m]           samples within +- window along the route's tangent of a bin's point
-        max_offset : float [m]       ... and within +- max_offset across it
+        window, max_offset : float [m]   samples within +- window along and +- max_offset across a bin's point
         max_angle : float [rad]      ... whose heading is within this angle of the route's
-        margin : float [m]           bins also this far beyond each route's ends (predictions run past them)
-
-        Returns a new fitted profile; bins with fewer than ``min_count`` samples stay empty.
+        margin : float [m]           bins also this far beyond each route's ends (predictions run past them); returns
+                                     a new fitted profile
         """
         from scipy.spatial import cKDTree
 
@@ -224,7 +221,7 @@ def predict_offsets(kind: str, d0: float, segment: int, s0: float, s_pred: np.nd
 @dataclass(frozen=True)
 class NeighbourOffsets:
     """Lateral offsets from the mean path plus the change of deviation of the nearest training windows
-    (module doc, ``"neighbours"``).
+    (module doc, ``"neighbours"``; the look-up: "The cost model and its features" page).
 
     Parameters
     ----------
@@ -235,12 +232,6 @@ class NeighbourOffsets:
     position_scale : float [m]    a distance in the plane of this much counts as 1 in the look-up
     heading_weight : float        the unit heading vector's weight in the look-up
     offset_scale : float [m]      a deviation difference of this much counts as 1
-
-    The look-up of a window ending at step k: its position (x, y) [m] at k, its heading, and its deviation
-    ``delta`` [m] from the mean path at k and ``deviation_times`` earlier (how it has been moving across the
-    path). On the development roundabouts (one split each, a throwaway comparison) the deviation 0.5 s and 1 s
-    back found better neighbours than a lateral speed: the lateral floor of DR_CHN_Roundabout_LN fell to 0.81 x
-    that of ``"plane"`` against 0.86 x, DR_USA_Roundabout_FT's to 0.88 x against 0.89 x.
     """
 
     n_neighbors: int = 20

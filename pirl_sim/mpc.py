@@ -408,25 +408,14 @@ def _pd_rows(H: np.ndarray) -> np.ndarray:
 
 
 class _OuterExpansion:
-    """Second-order model of the cost ``theta . f`` in the stacked controls U, for one horizon, assembled by
-    one matrix product (the Newton model of `SequentialMPC`).
-
-    Every feature is ``scale * sum_n ||r(x_n, u_{n-1})||^2`` with x_n = G_n U + (start terms) and u_{n-1} = E_n U,
-    so its Hessian is ``sum_n B_n^T S_n B_n`` with the stage basis B_n = [G_n; E_n] (q = n_x + n_u rows of
-    length d = N n_u) and the stage matrix S_n = 2 J_n^T J_n (+ 2 r . d2r in the state block; J_n = [Jx, Ju]).
-    With the outer products O_n,ab = B_n,a B_n,b^T tabulated once per horizon (symmetrised pairs a <= b), the
-    cost Hessians of M plans are one product ``(M, P N + K_q) @ (P N + K_q, d^2)``: coefficients
-    ``theta_k scale_k S_n,ab`` of the P pairs (a, b) that are non-zero anywhere in the batch, and the weights
-    of the K_q quadratic features, whose constant Hessians are the last rows. The same matrices as
-    `FeatureSet.derivatives` (tested), in another summation order: they agree to floating-point rounding.
+    """Second-order model of the cost ``theta . f`` in the stacked controls, assembled by one matrix product (the
+    Newton model of `SequentialMPC`; derivation: "The cost model and its features" page, The MPC).
 
     Parameters
     ----------
     dynamics : LinearDynamics
-    features : FeatureSet
-        The reference feature must be quadratic (its Hessian is the margin of the exact-Hessian test).
-    n_steps : int
-        Horizon N [steps].
+    features : FeatureSet          its reference feature is quadratic (the margin of the exact-Hessian test)
+    n_steps : int                  horizon N [steps]
     """
 
     def __init__(self, dynamics: LinearDynamics, features: FeatureSet, n_steps: int):
@@ -564,20 +553,14 @@ class _OuterExpansion:
     def riccati(self, S: np.ndarray, sigma: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """Newton steps by a Riccati recursion over the stages, O(N) per start instead of a dense d x d solve.
 
-        Minimises ``1/2 dU^T H dU + g . dU`` with H = sum_n B_n^T S_n B_n and g = `chain` (sigma) (the same
-        step as the dense solve, to rounding) for stage Hessians S (M, N, q, q) and stage gradients sigma
-        (M, N, q); sigma None only tests definiteness. Backwards over n = N..1 the cost-to-go
-        ``1/2 x' P x + p' x`` of x_n is added to stage n's cost, mapped to (x_{n-1}, u_{n-1}) by
-        F = [[A, B], [0, I]] (Q = F' S~ F), and u_{n-1} = K x_{n-1} + k minimises it (H is positive
-        definite if and only if every Q_uu is); forwards from dx_0 = 0 the steps follow.
+        Minimises ``1/2 dU^T H dU + g . dU`` with H = sum_n B_n^T S_n B_n and g = `chain` (sigma) for stage Hessians
+        S (M, N, q, q) and gradients sigma (M, N, q); sigma None only tests definiteness ("The cost model and its
+        features" page, The MPC).
 
         Returns
         -------
-        ok : array (M,) of bool
-            H is positive definite (every Q_uu is): where the condensed Hessian's Cholesky factorisation
-            succeeds, to rounding.
-        step : array (M, N, n_u) or None
-            -H^-1 g where ok (other rows hold no meaningful values).
+        ok : array (M,) of bool                  H is positive definite (every Q_uu is)
+        step : array (M, N, n_u) or None         -H^-1 g where ok (other rows hold no meaningful values)
         """
         M, N = S.shape[:2]
         n_x, n_u, q = self.dynamics.n_x, self.dynamics.n_u, self.q
@@ -697,38 +680,18 @@ class _OuterExpansion:
 class SequentialMPC:
     """MPC for features that are not quadratic in the controls (e.g. a desired speed that depends on position).
 
-    Sequential scheme: starting from zero controls, the cost is expanded to second order around the current
-    trajectory (exact Hessian, shifted where it is not positive definite), the quadratic model is minimised,
-    and the step repeated until the controls move less than ``tol`` or ``n_iter`` steps were taken. Unconstrained steps are
-    batched closed-form solves over all starts; with `Bounds`, the starts whose unconstrained solution breaks a
-    bound are re-solved as a sequence of bounded QPs (`BoxQP`), each expanded at the
-    previous solution (the first at the unconstrained optimum), until the controls move less than ``qp_tol``
-    or ``n_qp_iter`` QPs were solved. Starts outside the state
-    bounds are first moved inside them (`BoxQP.clip_start`); if the bounded QP is still infeasible the
-    unconstrained solution is kept and counted in ``n_infeasible``.
+    Batched Newton steps on the exact cost; starts that break a bound are re-solved by bounded QPs (`BoxQP`), and
+    an infeasible one keeps its unconstrained solution (``n_infeasible``). The scheme: "The cost model and its
+    features" page, The MPC.
 
     Parameters
     ----------
-    dynamics : LinearDynamics
-    features : FeatureSet
-    bounds : Bounds or None
-    n_iter : int     most unconstrained Newton iterations
-    tol : float      stop when no control moves more than this [control units]
-    n_qp_iter : int  most bounded QPs for a start whose unconstrained solution breaks a bound
-    qp_tol : float   stop the QP sequence when no control moves more than this [control units]
-    solver : str     QP solver of the bounded QPs, see `BoxQP`
-    assembly : {"outer", "stagewise"}
-        How the Newton model's Hessians are built: ``"outer"`` (default) by one matrix product over
-        tabulated stage outer products (`_OuterExpansion`, ~3x faster on the roundabout model), or
-        ``"stagewise"`` through `FeatureSet.derivatives` (the previous path, kept as the benchmarks'
-        baseline). Both give the same matrices to floating-point rounding. ``"outer"`` falls back to
-        ``"stagewise"`` when the reference feature is not quadratic.
-    riccati_rows : int or None
-        With ``assembly="outer"`` and no warm start (``init`` None), batches of at least this many starts
-        (default `RICCATI_MIN_ROWS`) take their unconstrained Newton steps by a Riccati recursion over the
-        stages instead of assembling and solving the dense d x d model (the same steps and the same
-        exact/Gauss-Newton choice, to rounding); None: always dense. Warm-started calls (the simulators'
-        drivers: one or two Newton steps) and the bounded QPs use the dense model.
+    dynamics, features, bounds : LinearDynamics, FeatureSet, Bounds or None
+    n_iter, tol : int, float         most Newton iterations; stop when no control moves more than ``tol``
+    n_qp_iter, qp_tol : int, float   most bounded QPs per start; stop when no control moves more than ``qp_tol``
+    solver : str                     QP solver of the bounded QPs (`BoxQP`)
+    assembly : {"outer", "stagewise"}   Hessians from tabulated stage outer products, or `FeatureSet.derivatives`
+    riccati_rows : int or None       cold-started batches of at least this many starts use a Riccati recursion
     """
 
     def __init__(

@@ -73,27 +73,18 @@ def desired_speed_from_curvature(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Curvature-limited speed ``min(sqrt(a_lat / |kappa|), v_max)`` and its slope along the path.
 
-    The cap is active where ``|kappa| <= a_lat / v_max**2``; there the result is ``v_max`` without any
-    division, so ``kappa == 0`` gives ``v_max`` without warnings.
+    The cap is active where ``|kappa| <= a_lat / v_max**2``; there the result is ``v_max`` without any division.
 
     Parameters
     ----------
-    kappa : array_like, any shape
-        Signed curvature [1/m].
-    dkappa_ds : array_like, broadcastable with `kappa`
-        Its derivative along the path [1/m^2].
-    a_lat : float
-        Lateral acceleration [m/s^2], > 0.
-    v_max : float
-        Speed cap [m/s], > 0.
+    kappa : array_like                signed curvature [1/m], any shape
+    dkappa_ds : array_like            its derivative along the path [1/m^2], broadcastable with ``kappa``
+    a_lat, v_max : float              lateral acceleration [m/s^2] and speed cap [m/s], > 0
 
     Returns
     -------
-    v : ndarray, broadcast shape
-        Desired speed [m/s].
-    dv_ds : ndarray, broadcast shape
-        ``-0.5 * sqrt(a_lat) * sign(kappa) * |kappa|**-1.5 * dkappa_ds`` [1/s] where the cap is not active,
-        0 where it is (``|kappa| <= a_lat / v_max**2``; the one-sided value at the kink).
+    v, dv_ds : ndarray                desired speed [m/s] and its slope [1/s] (0 where the cap is active; the
+                                      one-sided value at the kink), of the broadcast shape
     """
     a_lat = _positive_number("a_lat", a_lat)
     v_max = _positive_number("v_max", v_max)
@@ -114,29 +105,16 @@ def desired_speed_from_curvature(
 class ReferencePath:
     """A reference path tabulated on an arc-length grid, interpolated linearly.
 
-    Build one from a noisy centerline with `from_polyline`; the constructor only validates a table.
+    Build one from a noisy centerline with `from_polyline`; the constructor only validates a table (ValueError,
+    TypeError).
 
     Parameters
     ----------
-    s : array, shape (n,)
-        Arc length [m], strictly increasing from 0, n >= 2.
-    x, y : array, shape (n,)
-        Position [m].
-    heading : array, shape (n,)
-        Direction of travel [rad], counter-clockwise from +x, unwrapped (continuous along the table).
-    kappa : array, shape (n,)
-        Signed curvature [1/m], positive turning left.
-    closed : bool
-        The path is a loop: the last row is the first point again, and arc lengths wrap modulo `length`
-        instead of being range-checked.
-
-    Raises
-    ------
-    ValueError
-        Wrong shapes, unequal lengths, n < 2, non-finite values, ``s`` not strictly increasing from 0, or a
-        closed path whose last point is not its first.
-    TypeError
-        Non-numeric arrays or a non-bool ``closed``.
+    s : array (n,)           arc length [m], strictly increasing from 0, n >= 2
+    x, y : array (n,)        position [m]
+    heading : array (n,)     direction of travel [rad], counter-clockwise from +x, unwrapped
+    kappa : array (n,)       signed curvature [1/m], positive turning left
+    closed : bool            a loop: the last row is the first point again, and arc lengths wrap modulo `length`
     """
 
     s: np.ndarray
@@ -190,36 +168,20 @@ class ReferencePath:
         smoothing: float = DEFAULT_SMOOTHING,
         closed: bool = False,
     ) -> "ReferencePath":
-        """Smooth a centerline polyline and tabulate it by arc length.
+        """Smooth a centerline polyline and tabulate it by arc length ("The cost model and its features" page).
 
         Parameters
         ----------
-        points : array_like, shape (P, 2)
-            Vertices [m] in driving order. Consecutive duplicates are dropped; for ``closed=True`` a last
-            point equal to the first is dropped too and the loop closes from the last point to the first.
-        spacing : float
-            Largest grid step [m], > 0, of both the resampling and the output table. The table uses the
-            uniform step ``length / ceil(length / spacing)``.
-        smoothing : float
-            Smoothing length ``ell`` [m], >= 0: the fit is a low-pass filter with gain
-            ``1 / (1 + (k * ell)**4)`` at wavenumber ``k`` [rad/m] (wavelength ``2 pi ell`` halved).
-            Curvature of a circle of radius R is biased up by ``~ (ell / R)**4``. 0 interpolates the
-            resampled polyline (only for clean, dense input).
-        closed : bool
-            Treat the polyline as a loop (e.g. a roundabout ring).
+        points : array_like (P, 2)   vertices [m] in driving order; consecutive duplicates (``closed``: a last point
+                                     equal to the first) are dropped
+        spacing : float              largest grid step [m], > 0; the table's step is ``length / ceil(length / spacing)``
+        smoothing : float            smoothing length ``ell`` [m], >= 0; 0 interpolates the resampled polyline
+        closed : bool                treat the polyline as a loop (e.g. a roundabout ring)
 
         Returns
         -------
-        ReferencePath
-
-        Raises
-        ------
-        ValueError
-            Wrong shape, non-finite points, fewer than 2 distinct points (3 if closed), a polyline
-            shorter than ``spacing``, a non-positive ``spacing`` / negative ``smoothing``, or a smoothing
-            length that folds the curve back on itself.
-        TypeError
-            Non-numeric points or parameters.
+        path : ReferencePath         ValueError / TypeError for bad points or parameters, or a smoothing length that
+                                     folds the curve back on itself
         """
         spacing = _positive_number("spacing", spacing)
         ell = _positive_number("smoothing", smoothing, allow_zero=True)
@@ -340,20 +302,12 @@ class ReferencePath:
 
         Parameters
         ----------
-        s : array_like, any shape
-            Arc length [m] in ``[0, length]`` (any value for a closed path, wrapped).
-        extrapolate : bool
-            Extend an open path beyond its ends as straight lines along the end headings.
+        s : array_like           arc length [m] in ``[0, length]`` (closed path: any value, wrapped); else ValueError
+        extrapolate : bool       extend an open path beyond its ends as straight lines along the end headings
 
         Returns
         -------
-        ndarray, shape s.shape + (2,)
-            Position [m].
-
-        Raises
-        ------
-        ValueError
-            ``s`` non-finite, or outside ``[0, length]`` on an open path without ``extrapolate``.
+        xy : ndarray             shape s.shape + (2,), position [m]
         """
         return self._frame(s, extrapolate)[0]
 
@@ -374,21 +328,17 @@ class ReferencePath:
     # ------------------------------------------------------------------ Frenet frame
 
     def to_cartesian(self, s: Any, d: Any, *, extrapolate: bool = False) -> np.ndarray:
-        """Point at arc length s and signed lateral offset d.
+        """Point at arc length s and signed lateral offset d: ``position(s) + d * (-sin(heading), cos(heading))`` [m].
 
         Parameters
         ----------
-        s : array_like
-            Arc length [m]; range rules as in `position`.
-        d : array_like, broadcastable with `s`
-            Lateral offset [m], positive to the left of the direction of travel.
-        extrapolate : bool
-            As in `position`.
+        s : array_like              arc length [m]; range rules as in `position`
+        d : array_like              lateral offset [m], positive to the left, broadcastable with ``s``
+        extrapolate : bool          as in `position`
 
         Returns
         -------
-        ndarray, shape broadcast(s, d).shape + (2,)
-            ``position(s) + d * (-sin(heading(s)), cos(heading(s)))`` [m].
+        xy : ndarray                shape broadcast(s, d).shape + (2,)
         """
         s_arr = _as_float_array("s", s)
         d_arr = _as_float_array("d", d)
@@ -452,41 +402,18 @@ class ReferencePath:
                   track: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Project points onto the path: arc length and signed lateral offset.
 
-        The nearest table vertex (k-d tree) gives the two candidate segments; the closer chord projection
-        starts a Newton solve of ``(p - position(s)) . tangent(s) = 0`` on the interpolated geometry, so the
-        result inverts `to_cartesian` exactly for ``|d| < 1 / |kappa|`` (the offset must not reach the
-        local centre of curvature).
+        Inverts `to_cartesian` for ``|d| < 1 / |kappa|``; the method: "The cost model and its features" page.
 
         Parameters
         ----------
-        xy : array_like, shape (..., 2)
-            Points [m].
-        extrapolate : bool
-            Allow projections beyond the ends of an open path onto the straight extensions (s < 0 or
-            s > length). Without it such points raise.
-        max_iter : int
-            Newton iteration limit.
-        track : bool
-            ``xy`` (n, 2) is one vehicle's positions in time order: each foot point is sought near the previous
-            one. A path that passes the same place twice (a route once around a roundabout and on past its
-            entry) has two foot points there at about the same distance; projecting each point on its own
-            jumps between them (tens of metres of arc length from one step to the next). With ``track``, the
-            first point takes the foot of smallest arc length among those within `TRACK_TIE` of its nearest,
-            and every later point the nearest foot within `TRACK_STEP` of the previous point's arc length
-            (`ReferencePath._follow_track`).
+        xy : array_like (..., 2)    points [m]; with ``track``, (n, 2) in time order
+        extrapolate : bool          allow projections onto the straight extensions of an open path (else ValueError)
+        max_iter : int              Newton iteration limit (ValueError without convergence)
+        track : bool                seek each foot point near the previous one (a path may pass a place twice)
 
         Returns
         -------
-        s : ndarray, shape (...)
-            Arc length [m] of the foot point (in ``[0, length)`` for a closed path).
-        d : ndarray, shape (...)
-            Signed lateral offset [m], positive to the left.
-
-        Raises
-        ------
-        ValueError
-            Wrong shape or non-finite points, a projection beyond the ends without ``extrapolate``, or no
-            convergence (points beyond the local centre of curvature).
+        s, d : ndarray (...)        arc length [m] of the foot point (``[0, length)`` if closed), offset [m], left > 0
         """
         if not is_positive_int(max_iter):
             raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
@@ -566,20 +493,14 @@ class ReferencePath:
 
         Parameters
         ----------
-        s : array_like, any shape
-            Arc length [m]; range rules as in `position`.
-        a_lat : float
-            Lateral acceleration [m/s^2], > 0.
-        v_max : float
-            Speed cap [m/s], > 0.
-        extrapolate : bool
-            As in `position` (curvature 0, so ``v_max``, on the extensions).
+        s : array_like           arc length [m]; range rules as in `position`
+        a_lat, v_max : float     lateral acceleration [m/s^2] and speed cap [m/s], > 0
+        extrapolate : bool       as in `position` (curvature 0, so ``v_max``, on the extensions)
 
         Returns
         -------
-        v, dv_ds : ndarray, shape s.shape
-            The slope uses the curvature slope of the table segment starting at or before s (right-hand
-            derivative at table nodes) and is 0 where the cap is active.
+        v, dv_ds : ndarray       shape s.shape; the slope of the table segment at or before s (right-hand derivative
+                                 at nodes), 0 where the cap is active
         """
         kappa, dkappa = self._curvature_and_slope(s, extrapolate)
         return desired_speed_from_curvature(kappa, dkappa, a_lat=a_lat, v_max=v_max)

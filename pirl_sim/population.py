@@ -192,14 +192,11 @@ def sample_boltzmann_controls(
     Parameters
     ----------
     x0 : array (M, n_x)
-    theta : array (M, K) or (K,)
-        Absolute weights (the scale is the rationality).
+    theta : array (M, K) or (K,)   absolute weights (the scale is the rationality)
     n_steps : int
     rng : numpy.random.Generator
-    mh_steps : int
-        Independence Metropolis-Hastings steps per chain for non-quadratic features.
-    return_acceptance : bool
-        Also return the mean acceptance rate of the Metropolis steps (1.0 for quadratic features).
+    mh_steps : int                 independence Metropolis-Hastings steps per chain (non-quadratic features)
+    return_acceptance : bool       also return the mean acceptance rate (1.0 for quadratic features)
 
     Returns
     -------

@@ -472,38 +472,23 @@ def fit_receding(
     max_iter: int = 50,
     tol: float = 1e-3,
 ) -> RecedingResult:
-    """Maximum-likelihood normalised weights per group of trajectories under the receding-horizon model.
+    """Receding-horizon IRL: maximum-likelihood normalised weights per group of trajectories.
 
     Parameters
     ----------
-    model : DriverModel
-        Dynamics, features and bounds of the drivers' MPC (its dt must be the trajectories' step).
-    trajectories : sequence of Trajectory
-        Each step t contributes (states[t], controls[t]) unless its `STEP_MASK` metadata is False there. A
-        horizon longer than a trajectory is fine: the driver's plans also ran past the recorded end.
-    labels : int array (M,), optional
-        Group of each trajectory (default: one group per trajectory).
-    horizon : int
-        The drivers' MPC horizon H [steps].
-    n_groups : int, optional
-        G; default ``max(labels) + 1``. A group without usable steps keeps its start weights, unconverged.
-    stride : int
-        Score every ``stride``-th step only (neighbouring steps carry nearly the same information).
-    loss : {"cauchy", "gauss"}
-        Residual noise model. "gauss": e_t ~ N(0, sigma^2), least squares. "cauchy" (default): heavy-tailed
-        e_t ~ Cauchy(0, c) with c = 2.385 sigma and sigma the residuals' robust scale (1.4826 x median |r|,
-        re-estimated every iteration), so that a few steps where the driver did something else (a re-plan
-        from a cold start, an unrecorded override) cannot pull the weights; sigma still estimates the
-        standard deviation of Gaussian control noise.
-    log_bounds : (low, high)
-        Box on the log normalised weights.
-    init : array (K,) or (G, K), optional
-        Start weights (normalised); default 1 for every feature.
-    max_iter, tol : Levenberg-Marquardt iterations; stop when no log weight moves more than ``tol``.
+    model : DriverModel                 the drivers' MPC model; its dt is the trajectories' step
+    trajectories : sequence of Trajectory   each step counts unless its `STEP_MASK` metadata is False there
+    labels : int array (M,), optional   group of each trajectory (default: one group per trajectory)
+    n_groups : int, optional            G; default ``max(labels) + 1`` (a group without usable steps keeps its start)
+    horizon, stride : int               the drivers' MPC horizon H [steps]; score every ``stride``-th step
+    loss : {"cauchy", "gauss"}          residual noise model: heavy-tailed (default), or least squares
+    log_bounds : (low, high)            box on the log normalised weights
+    init : array (K,) or (G, K), optional   start weights (normalised); default 1 for every feature
+    max_iter, tol : int, float          Levenberg-Marquardt iterations; stop when no log weight moves more
 
     Returns
     -------
-    RecedingResult
+    result : RecedingResult
     """
     trajectories = model.check(trajectories)
     feats = model.features

@@ -102,15 +102,10 @@ def interval(values, name: str, *, method: str = "bootstrap", confidence: float 
     ----------
     values : array (n,)
     name : {"median", "p90", "mean"}
-    method : {"bootstrap", "analytic"}
-        ``"bootstrap"``: percentile bootstrap over ``n_boot`` resamples drawn by ``rng`` (required).
-        ``"analytic"``: for a quantile the distribution-free interval between two order statistics whose
-        ranks are the binomial(n, q) quantiles of (1 -/+ confidence) / 2 (clipped to the smallest and largest
-        value when n is too small for the coverage); for the mean, mean -/+ t s / sqrt(n).
+    method : {"bootstrap", "analytic"}   percentile bootstrap, or order statistics (quantiles) / t interval (mean)
     confidence : float in (0, 1)
-    n_boot : int >= 100
-    rng : numpy.random.Generator
-        The bootstrap's resampling (same generator state, same interval).
+    n_boot : int >= 100                  bootstrap resamples
+    rng : numpy.random.Generator         the bootstrap's resampling (required with it)
 
     Returns
     -------
@@ -163,10 +158,8 @@ def weight_scores(inferred: np.ndarray, true: np.ndarray, styles, model, style_n
 
     Returns
     -------
-    list of dict
-        One per (feature, style) with ``feature``, ``style`` ("all" or the style's name), ``n`` (rows),
-        ``median_abs_log_err`` and ``p90_abs_log_err`` of |log(inferred / true)| and ``spearman`` of true vs
-        inferred weights (None when either is constant or n < 3).
+    rows : list of dict                one per (feature, style): ``n``, ``median_abs_log_err``, ``p90_abs_log_err``
+                                       of |log(inferred / true)|, ``spearman`` (None if constant or n < 3)
     """
     names = list(model.features.names)
     ref = model.features.reference_index
@@ -238,17 +231,11 @@ def fit_track_weights(model, trajectories: Sequence[Trajectory], *, likelihood: 
     ----------
     model : DriverModel
     trajectories : sequence of Trajectory (n)
-    likelihood : {"receding", "trajectory"}
-        ``"receding"``: the driver re-plans every step with an MPC of ``horizon`` steps
-        (:func:`pirl_sim.receding.fit_receding`, steps whose ``step_mask`` metadata is False left out);
-        ``"trajectory"``: the paper's likelihood, one open-loop optimum per trajectory
-        (:func:`pirl_sim.irl.fit_weights`, Gauss-Newton refits where the exact Hessian is indefinite).
-    horizon : int
-        [steps] required with ``"receding"``.
-    stride : int
-        ``"receding"``: score every ``stride``-th step.
-    log_bounds : (low, high)
-        Box on the log normalised weights.
+    likelihood : {"receding", "trajectory"}   `pirl_sim.receding.fit_receding` (``step_mask`` honoured), or
+                                   the paper's `pirl_sim.irl.fit_weights` (Gauss-Newton refits where indefinite)
+    horizon : int                  [steps], required with ``"receding"``
+    stride : int                   ``"receding"``: score every ``stride``-th step
+    log_bounds : (low, high)       box on the log normalised weights
     """
     from .irl import attach_gauss_newton, fit_weights
     from .receding import fit_receding
@@ -285,26 +272,20 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class RecoveryReport:
-    """Fitted vs true weights of n tracks, summarised per feature, over all tracks and per style.
+    """Fitted vs true weights of n tracks, per feature, over all tracks and per style (arrays: read-only copies).
 
     Attributes
     ----------
     features : tuple of str (F,)    the free features (the reference feature, weight 1, is left out)
-    true : array (n, F)             true normalised weights, each finite and > 0
-    estimated : array (n, F)        fitted normalised weights, each finite and > 0
+    true, estimated : array (n, F)  true and fitted normalised weights, finite and > 0; errors ``log(estimated / true)``
     track_ids : int array (n,)      unique
-    styles : tuple of str (n,)      each track's true style name (:data:`NO_STYLE` when unknown; not "all")
+    styles : tuple of str (n,)      each track's true style name (`NO_STYLE` when unknown; not "all")
     converged : bool array (n,)     whether each track's fit converged (all True when not known)
     fitted_steps : int array (n,)   steps each fit scored (0 when not known)
-    reference : str                 the reference feature
-    source : str                    what the tracks are (e.g. "sumo seed 0"), for messages
-    method : {"bootstrap", "analytic"}   interval method (:func:`interval`)
+    reference, source : str         the reference feature; what the tracks are (e.g. "sumo seed 0")
+    method : {"bootstrap", "analytic"}   interval method (`interval`)
     confidence : float              of the intervals, in (0, 1)
-    n_boot : int                    bootstrap resamples
-    seed : int                      seeds the bootstrap: same report, same intervals
-
-    All arrays are read-only copies. Errors are ``log(estimated / true)`` [nats, i.e. |error| 0.05 is about
-    5 % of the weight].
+    n_boot, seed : int              bootstrap resamples and their seed (same report, same intervals)
     """
 
     features: tuple[str, ...]

@@ -29,24 +29,18 @@ def simulate_receding_horizon(
     control_noise: float = 0.0,
     metadata: dict | None = None,
 ) -> list[Trajectory]:
-    """Simulate M drivers for ``n_steps`` steps, each applying the first control of its MPC plan.
+    """Simulate M drivers for ``n_steps`` steps, each applying the first control of its MPC plan (metadata
+    ``theta_schedule`` (n_steps, K) of each trajectory: the weights in force).
 
     Parameters
     ----------
     model : DriverModel
     x0 : array (M, n_x)
-    theta : array (K,), (M, K), (n_steps, M, K), or a callable ``step -> (M, K)``
-        Normalised weights in force at each step (a style switch is a change along the first axis).
-    n_steps : int        simulated steps
-    horizon : int        MPC horizon [steps]
-    rng : numpy.random.Generator, required when control_noise > 0
-    control_noise : float
-        Standard deviation of Gaussian noise added to each applied control [control units].
+    theta : array (K,), (M, K), (n_steps, M, K), or callable ``step -> (M, K)``   normalised weights in force
+    n_steps, horizon : int     simulated steps; MPC horizon [steps]
+    rng : numpy.random.Generator   required when control_noise > 0
+    control_noise : float      standard deviation of Gaussian noise on each applied control [control units]
     metadata : dict, optional  added to every trajectory's metadata
-
-    Returns
-    -------
-    list of Trajectory, one per driver; metadata ``theta_schedule`` (n_steps, K) holds the weights in force.
     """
     x = np.atleast_2d(np.asarray(x0, dtype=float))
     M = x.shape[0]

@@ -110,29 +110,18 @@ def recovery_misses(report, tolerances, *, statistic: str = "median", bound: str
 
 def assert_recovered(report, tolerances, *, statistic: str = "median", bound: str = "estimate",
                      styles="all") -> None:
-    """Assert that a :class:`~pirl_sim.recovery.RecoveryReport` recovers the weights within tolerances.
+    """Assert that a `~pirl_sim.recovery.RecoveryReport` recovers the weights within tolerances: AssertionError listing
+    every (feature, style, statistic) out of tolerance with its value, interval and limit.
 
     Parameters
     ----------
     report : RecoveryReport
-    tolerances : mapping
-        ``{feature: limit}`` for ``statistic``, or ``{statistic: {feature: limit}}`` for several (statistics
-        "median", "p90", "mean" of |log(theta_hat / theta)|, limits >= 0); the feature ``"*"`` sets every
-        feature's limit (named features override it).
-    statistic : str
-        The statistic of a flat ``{feature: limit}``.
-    bound : {"estimate", "high"}
-        Compare the statistic itself, or the upper end of its confidence interval (the report's
-        ``confidence``; a statistical test: passes only if the data make a larger error unlikely).
-    styles : "all", "each" or list of str
-        Over all tracks; over all tracks and each style; or these groups ("all" and/or style names).
-
-    Raises
-    ------
-    AssertionError
-        Listing every (feature, style, statistic) out of tolerance with its value, interval and limit.
-    TypeError, ValueError
-        Bad arguments (unknown feature, statistic, style or bound, a negative limit).
+    tolerances : mapping        ``{feature: limit}`` for ``statistic``, or ``{statistic: {feature: limit}}`` (limits
+                                >= 0 on "median", "p90", "mean" of |log(theta_hat / theta)|; feature ``"*"``: all)
+    statistic : str             the statistic of a flat ``{feature: limit}``
+    bound : {"estimate", "high"}   compare the statistic, or the upper end of its confidence interval (a test)
+    styles : "all", "each" or list of str   over all tracks; all and each style; or these groups (bad arguments:
+                                TypeError, ValueError)
     """
     misses = recovery_misses(report, tolerances, statistic=statistic, bound=bound, styles=styles)
     if misses:

@@ -92,18 +92,12 @@ def apply_thread_policy(option: str | int | None = None) -> int | None:
 
     Parameters
     ----------
-    option : str or int, optional
-        ``--blas-threads`` as given (a positive integer or ``"auto"``); None: the environment variable, else 1.
+    option : str or int, optional   ``--blas-threads`` (a positive integer or ``"auto"``); None: the environment
+                                    variable, else 1; ValueError for a bad value
 
     Returns
     -------
-    int or None
-        The thread count set, or None for ``auto`` (nothing changed).
-
-    Raises
-    ------
-    ValueError
-        For a bad option or environment value (named, with the value).
+    threads : int or None           the thread count set, or None for ``auto`` (nothing changed)
     """
     n = resolve_blas_threads(option)
     if n is None:

@@ -38,21 +38,15 @@ class Trajectory:
 
     Parameters
     ----------
-    states : array, shape (N + 1, n_x)
-        States x_0 .. x_N, units as the dynamics model names them (e.g. [m, m/s]).
-    controls : array, shape (N, n_u)
-        Controls u_0 .. u_{N-1} (e.g. [m/s^2] or jerk [m/s^3]).
-    dt : float
-        Sampling period [s], > 0.
-    metadata : mapping, optional
-        Free-form facts about the demonstration, e.g. ``{"theta": ..., "style": 1, "track_id": 7}``.
+    states : array (N + 1, n_x)    states x_0 .. x_N, units as the dynamics model names them (e.g. [m, m/s])
+    controls : array (N, n_u)      controls u_0 .. u_{N-1} (e.g. jerk [m/s^3])
+    dt : float                     sampling period [s], > 0
+    metadata : mapping, optional   free-form facts, e.g. ``{"theta": ..., "style": 1, "track_id": 7}``
 
     Raises
     ------
-    ValueError
-        Wrong dimensions, non-finite values, fewer than one step, or not one more state than controls.
-    TypeError
-        Non-numeric arrays or a non-numeric ``dt``.
+    ValueError, TypeError
+        Wrong dimensions, non-finite or non-numeric values, fewer than one step, or not one more state than controls.
     """
 
     states: np.ndarray

@@ -89,18 +89,12 @@ class EgoSpec:
 
     Attributes
     ----------
-    route_id : str
-        Its route, one of the simulation's catalogue.
-    speed : float
-        [m/s] at insertion, >= 0.
-    depart : float
-        [s] insertion time, >= 0. SUMO inserts it at the start of its route then, once the entry has room;
-        highway-env places it when the simulation starts (0 only).
-    route_s : float
-        [m] route coordinate where highway-env places it (at most 10 m before the route's end), >= 0; SUMO
-        inserts at the route's start (0 only).
-    speed_mode : int or None
-        SUMO speed mode of this vehicle, in [0, 127]; None: the scenario's. highway-env has none (None only).
+    route_id : str                 its route, one of the simulation's catalogue
+    speed : float                  [m/s] at insertion, >= 0
+    depart : float                 [s] insertion time, >= 0 (SUMO: once the entry has room; highway-env: 0 only)
+    route_s : float                [m] route coordinate where highway-env places it (at most 10 m before the
+                                   route's end), >= 0; SUMO inserts at the route's start (0 only)
+    speed_mode : int or None       SUMO speed mode of this vehicle, in [0, 127]; None: the scenario's (highway-env)
     vehicle_id : str
     """
 
@@ -182,19 +176,12 @@ class SimulatorAdapter(Protocol):
         Parameters
         ----------
         config : config_type
-        seed : int
-            Seeds the drivers' control noise, background behaviour and the simulator.
-        plan : pandas.DataFrame
-            From :meth:`plan`.
-        ego : EgoSpec, optional
-            An extra vehicle the caller drives; recorded as a non-PIRL track with style name ``"ego"``.
-        wrap_controller : callable, optional
-            ``wrap_controller(drivers)``: the batch controller the simulator asks every step instead of the
-            PIRL drivers (e.g. one that also commands the ego); the simulation's ``controller`` stays the
-            drivers.
-        cache_network : bool
-            Reuse the road and reference paths built for an equal network earlier in this process (an env's
-            resets); False builds them afresh.
+        seed : int                      seeds the drivers' control noise, background behaviour and the simulator
+        plan : pandas.DataFrame         from `plan`
+        ego : EgoSpec, optional         an extra vehicle the caller drives; recorded as a non-PIRL track, style "ego"
+        wrap_controller : callable, optional   ``wrap_controller(drivers)``: the batch controller asked every step
+                                        instead of the PIRL drivers (the simulation's ``controller`` stays the drivers)
+        cache_network : bool            reuse the road and paths built for an equal network in this process (resets)
         """
 
     def info(self, config) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -211,32 +198,20 @@ class SimulatorAdapter(Protocol):
 
 def run_scenario(adapter: SimulatorAdapter, config=None, seed: int = 0, *, out_dir=None,
                  progress: Progress | None = None):
-    """Plan, simulate and record one scenario of ``adapter``'s simulator.
+    """Plan, simulate and record one scenario of ``adapter``'s simulator (TypeError / ValueError before it starts).
 
     Parameters
     ----------
     adapter : SimulatorAdapter
-    config : adapter.config_type, optional
-        Default ``adapter.config_type()``.
-    seed : int
-        Seeds every draw and the simulator; the same seed gives byte-identical files.
-    out_dir : str or os.PathLike, optional
-        Where to write the recording; nothing is written there before the simulation has finished.
-    progress : callable, optional
-        Called every simulated second as ``progress(time_s, n_finished, n_vehicles)``.
+    config : adapter.config_type, optional    default ``adapter.config_type()``
+    seed : int                                seeds every draw and the simulator (same seed, byte-identical files)
+    out_dir : str or os.PathLike, optional    where to write the recording, once the simulation has finished
+    progress : callable, optional             ``progress(time_s, n_finished, n_vehicles)``, every simulated second
 
     Returns
     -------
-    The adapter's result; its ``timing`` holds ``sim_time_s``, ``wall_time_s``, the PIRL drivers' ``plan_time_s``
-    and ``n_plans``, ``n_steps``, ``mean_vehicles`` / ``max_vehicles`` and ``mean_pirl`` / ``max_pirl`` in the
-    network per step, ``real_time_factor`` and the simulator's own times.
-
-    Raises
-    ------
-    TypeError
-        ``config`` is not the adapter's configuration type.
-    ValueError
-        A bad seed, or a configuration the simulator cannot run, before it starts.
+    The adapter's result; its ``timing`` holds ``sim_time_s``, ``wall_time_s``, ``plan_time_s``, ``n_plans``,
+    ``n_steps``, the mean and max vehicles and PIRL vehicles per step, ``real_time_factor`` and the simulator's own.
     """
     config = adapter.config_type() if config is None else config
     if not isinstance(config, adapter.config_type):

@@ -97,86 +97,38 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
                             settle_frames: int = SETTLE_FRAMES, exact_tol: float = EXACT_TOL) -> list[Trajectory]:
     """Recorded tracks as longitudinal demonstrations (s, v, a; jerk) on the routes' global axis.
 
-    Each track's positions are projected on its route's reference path
-    (:meth:`pirl_sim.paths.ReferencePath.to_frenet`), shifted to the route's place on the global axis,
-    sampled every ``dt`` and turned into states and controls consistent with the dynamics by
-    :func:`pirl_sim.driving.estimate_longitudinal_states` (``estimate="speeds"``: positions and the recorded
-    speeds hypot(vx, vy)) or :func:`pirl_sim.driving.fit_longitudinal_states` (``"positions"``).
-
-    Where the recording has ``driver_steps``, every demonstration gets ``step_mask`` and the estimate
-    follows what the drivers did: the dynamics are fitted only across usable steps (a run of usable steps
-    is fitted on its own), and after a frame whose command was not the driver's own or was overridden the
-    driver re-started from the measured acceleration (v_k - v_{k-1}) / 0.1 s moved into the MPC's bounds
-    [-4, 3] m/s^2 (what :class:`~pirl_sim.scenarios.drivers.PirlDrivers` does), which enters as an
-    observed acceleration (``sigma_a``).
+    Each track is projected on its route's reference path, shifted to the route's place on the global axis, sampled
+    every ``dt`` and estimated through the dynamics (`pirl_sim.driving.estimate_longitudinal_states` or
+    `pirl_sim.driving.fit_longitudinal_states`). With ``driver_steps`` the estimate follows what the drivers did
+    (documentation: "Weight recovery on simulated runs", What counts as a step).
 
     Parameters
     ----------
     recording : ScenarioRecording
-    routes : RouteSet
-        Must hold every selected track's route.
-    dt : float
-        [s], a whole multiple of the 0.1 s frames.
-    pirl_only : bool
-        Only tracks driven by PIRL drivers (``selection="steps"``: must be True).
-    non_interacting : bool
-        ``selection="tracks"``: leave out tracks that interacted, collided or were removed early.
-    min_steps : int
-        Leave out shorter tracks [steps of dt]; with ``selection="steps"``, tracks with fewer usable steps.
-    selection : {"tracks", "steps"}
-        ``"tracks"``: whole tracks as selected by ``pirl_only`` / ``non_interacting`` (the default).
-        ``"steps"``: every PIRL track, with metadata ``step_mask`` (bool, (n_steps,)): True where step t's
-        control is the driver's own unaltered one (commanded at that frame, not overridden, no collision
-        at either end). With dt = 0.1 s a step is a frame; with a coarser dt a step is usable only if all
-        of its frames are (the driver still re-planned every 0.1 s, so the jerk of a coarser step is not
-        one of its commands). Needs ``recording.driver_steps``.
-    estimate : {"speeds", "positions"}
-        State estimate from positions and speeds (noise model ``sigma_s``, ``sigma_v``, ``sigma_j``,
-        ``sigma_a``: see :func:`~pirl_sim.driving.estimate_longitudinal_states`) or from positions only
-        (ridge ``jerk_weight``, as :func:`~pirl_sim.driving.fit_longitudinal_states`; with driver steps:
-        ``sigma_s = 1``, ``sigma_j = 1 / sqrt(jerk_weight)`` per run of usable steps).
-    jerk_weight : float
-        Ridge on the jerks of the position-only fit.
-    sigma_s, sigma_v, sigma_j, sigma_a : float
-        Noise model of the speed-aware estimate [m, m/s, m/s^3, m/s^2].
-    arc_length : {"observed", "fit"}
-        The states' arc length s: each recorded position projected on its route (``"observed"``, the
-        default: what a simulated driver plans from, and exact in a simulation), or the estimate's
-        dynamically consistent s (``"fit"``). The projection of a vehicle that drives off the path's centre
-        line does not advance at its speed (ds/dt = v cos(heading error) / (1 - kappa d)), so the fitted s
-        drifts from it: 0.26-0.31 m RMS, up to 1 m, on highway-env tracks, which moves v_des(s) and biased
-        the receding-horizon IRL (acc_sq weights of "tracks desired speed" drivers at their bound; median
-        |log error| 0.026 / 0.039 with "fit" vs 0.0006 / 0.001 with "observed" on highway-env seed 0).
-        Speeds, accelerations and jerks come from the estimate either way.
-    settle_frames : int
-        With driver steps: the first ``settle_frames`` frames (re-plans, 0.1 s each) after a frame that was
-        not the driver's own leave ``step_mask`` too (they stay in the state estimate). The simulated drivers re-plan by one
-        Newton step and one QP from their previous plan (a real-time iteration), which re-converges over
-        several steps after a restart; measured at the true weights on ``simulate sumo --seed 0`` /
-        ``simulate highway --seed 0``, the applied jerk differs from the converged MPC's by more than
-        0.05 m/s^3 in 81 % / 83 % of first steps after a restart, 43 % / 58 % of third steps, 22 % / 32 %
-        of 6th-10th steps, and 0.5 % / 0.4 % beyond the 30th. Default 5: the rest is left to the receding
-        IRL's robust loss.
-    exact_tol : float
-        [m/s] With driver steps that record the command error: a step whose command the simulator carried
-        out less exactly than this (below the run's ``override_tol``, so not flagged ``overridden``, e.g.
-        SUMO trimming the speed by a few mm/s) leaves ``step_mask`` too: the driver then planned from its
-        own acceleration while the recorded speed says otherwise, and the speed-trusting estimate rings
-        around it (measured on ``simulate sumo --seed 1``: 328 of 13,153 commands carried out with an
-        error between 1e-6 and 0.01 m/s; the jerks estimated around them alternate in sign up to 0.85 m/s^3).
+    routes : RouteSet                      holds every selected track's route
+    dt : float                             [s], a whole multiple of the 0.1 s frames
+    pirl_only : bool                       only PIRL drivers' tracks (``selection="steps"``: must be True)
+    non_interacting : bool                 ``"tracks"``: leave out tracks that interacted, collided or left early
+    min_steps : int                        shortest track [steps of dt] (``"steps"``: usable steps)
+    selection : {"tracks", "steps"}        whole tracks, or every PIRL track with ``step_mask`` (needs driver steps)
+    estimate : {"speeds", "positions"}     from positions and speeds, or positions only (ridge ``jerk_weight``)
+    jerk_weight : float                    ridge on the jerks of the position-only fit
+    sigma_s, sigma_v, sigma_j, sigma_a : float   noise model of ``"speeds"`` [m, m/s, m/s^3, m/s^2]
+    arc_length : {"observed", "fit"}       s from the projected positions, or the estimate's own s
+    settle_frames : int                    re-plans after a frame not the driver's own that also leave ``step_mask``
+    exact_tol : float                      [m/s] a command carried out less exactly than this leaves ``step_mask``
 
     Returns
     -------
     list of Trajectory
-        In track order; metadata ``track_id``, ``agent_id``, ``route_id``, ``is_pirl``, ``style``,
-        ``style_name``, ``theta`` (normalised weights, NaN for background), ``interacted``, ``first_frame``
-        (frame id of the first state) and, where the recording has driver steps, ``step_mask``.
+        In track order; metadata ``track_id``, ``agent_id``, ``route_id``, ``is_pirl``, ``style``, ``style_name``,
+        ``theta`` (NaN for background), ``interacted``, ``first_frame`` and, with driver steps, ``step_mask``.
 
     Raises
     ------
     ValueError
-        A ``dt`` off the frame grid, an unknown ``selection`` or ``estimate``, ``selection="steps"``
-        without driver steps or with ``pirl_only=False``, or a track with gaps in its frames.
+        A ``dt`` off the frame grid, an unknown option, ``"steps"`` without driver steps or with
+        ``pirl_only=False``, or a track with gaps in its frames.
     """
     stride = _stride(dt)
     if selection not in SELECTIONS:
@@ -268,28 +220,18 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
 def step_selection_summary(recording: ScenarioRecording, *, dt: float = FRAME_DT_S,
                            min_steps: int = 10, settle_frames: int = SETTLE_FRAMES,
                            exact_tol: float = EXACT_TOL) -> pd.DataFrame:
-    """How many steps and tracks each selection rule removes, per style (PIRL tracks only).
+    """How many steps and tracks each selection rule removes, per style (PIRL tracks only; ValueError without driver
+    steps or for a ``dt`` off the frame grid).
 
-    Counts are in steps of ``dt`` (a step of several frames counts under a rule if any of its frames does);
-    the rules overlap, so the removed counts need not add up.
+    Counts are in steps of ``dt`` (a step counts under a rule if any of its frames does); the rules overlap.
 
     Returns
     -------
     pandas.DataFrame
-        One row per style name (sorted) and a row ``"all"``; columns ``tracks``, ``steps`` (all steps of
-        the PIRL tracks long enough to give ``min_steps`` steps), ``not_commanded`` (the simulator drove:
-        handed back at a standstill, crashed), ``overridden``, ``altered`` (carried out less exactly than ``exact_tol``), ``collided``, ``settling``
-        (the driver's own steps within
-        ``settle_frames`` of a restart, see :func:`recorded_demonstrations`), ``usable`` (steps kept by the
-        mask), ``tracks_few_usable`` (tracks with fewer than ``min_steps`` usable steps: dropped by
-        ``selection="steps"``), ``steps_kept`` / ``tracks_kept`` (``selection="steps"``), and for
-        comparison ``tracks_interacted`` (dropped by ``selection="tracks"``) and ``steps_tracks_selection``
-        (steps ``selection="tracks"`` keeps).
-
-    Raises
-    ------
-    ValueError
-        Without driver steps, or a ``dt`` off the frame grid.
+        One row per style name (sorted) and ``"all"``; columns ``tracks``, ``steps``, ``not_commanded``,
+        ``overridden``, ``altered`` (below ``exact_tol``), ``collided``, ``settling`` (``settle_frames``),
+        ``usable``, ``tracks_few_usable``, ``steps_kept`` / ``tracks_kept`` (``selection="steps"``) and, for
+        comparison, ``tracks_interacted`` and ``steps_tracks_selection`` (``selection="tracks"``).
     """
     stride = _stride(dt)
     if recording.driver_steps is None:

@@ -50,21 +50,13 @@ def _build() -> dict:
 class CompiledDriverMPC:
     """`SequentialMPC.controls` and `RouteSet.project` of the PIRL drivers, compiled (see the module doc).
 
+    ImportError without numba; the numpy path covers every model.
+
     Parameters
     ----------
-    model : RouteSetDriverModel
-        The paper's roundabout model on a route set (`~pirl_sim.scenarios.drivers.route_set_model`).
-    mpc : SequentialMPC
-        The model's predictor: its ``n_iter``, ``tol``, ``n_qp_iter``, ``qp_tol``, bounds and bounded-QP
-        solver are used, and its ``n_qp`` / ``n_infeasible`` counters kept up.
-
-    Raises
-    ------
-    KernelUnsupported
-        The model is not the paper's three features on a `RouteSetProfile` with a (s, v, a) / jerk model and
-        bounds (the numpy path covers every model).
-    ImportError
-        numba is not installed.
+    model : RouteSetDriverModel    the paper's roundabout model on a route set (else `KernelUnsupported`)
+    mpc : SequentialMPC            the model's predictor: its iteration limits, tolerances, bounds and QP solver
+                                   are used, and its ``n_qp`` / ``n_infeasible`` counters kept up
     """
 
     def __init__(self, model, mpc):
@@ -122,21 +114,14 @@ class CompiledDriverMPC:
     def controls(self, x0: np.ndarray, theta: np.ndarray, n_steps: int, init: np.ndarray) -> np.ndarray:
         """Controls (M, N, 1) [m/s^3] as `SequentialMPC.controls` (warm-started from ``init``).
 
+        ValueError for arrays of other shapes, non-finite starts or warm starts, or negative weights.
+
         Parameters
         ----------
-        x0 : array (M, 3)
-            Starts (s [m] on the route set's global axis, v [m/s], a [m/s^2]); moved inside the state bounds.
-        theta : array (M, 3)
-            Weights (speed_dev, acc_sq, jerk_sq), >= 0, jerk_sq > 0.
-        n_steps : int
-            Horizon N [steps], >= 1.
-        init : array (M, N, 1)
-            Warm starts [m/s^3], finite.
-
-        Raises
-        ------
-        ValueError
-            For arrays of other shapes, non-finite starts or warm starts, or negative weights.
+        x0 : array (M, 3)        starts (s [m] on the global axis, v [m/s], a [m/s^2]), moved inside the state bounds
+        theta : array (M, 3)     weights (speed_dev, acc_sq, jerk_sq), >= 0, jerk_sq > 0
+        n_steps : int            horizon N [steps], >= 1
+        init : array (M, N, 1)   warm starts [m/s^3], finite
         """
         from pirl_sim.mpc import _check_horizon
 

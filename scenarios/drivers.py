@@ -107,48 +107,23 @@ class PirlDrivers:
 
     Parameters
     ----------
-    model : RouteSetDriverModel
-        Its dynamics' ``dt`` must be the simulation's step length.
-    drivers : mapping vehicle id -> (route id, theta)
-        Each PIRL vehicle's route (in ``model.routes``) and normalised weights (K,) in feature order.
-    horizon : int
-        MPC horizon [steps], >= 1.
-    control_noise : float
-        Standard deviation [m/s^3] of Gaussian noise added to each applied jerk.
-    rng : numpy.random.Generator, optional
-        Required when ``control_noise > 0``.
-    override_tol : float
-        [m/s] The simulator carried a command out when its speed is within this of the command; then the
-        driver's own planned acceleration is its next start acceleration, otherwise the measured one.
-    stop_speed, resume_speed : float
-        [m/s] Standstill hand-back: a vehicle slower than ``stop_speed`` (the simulator stopped it, e.g. to
-        yield at an entry) is handed back to the simulator's car-following model (command None) until it drives faster than
-        ``resume_speed``, then its MPC re-plans from a cold start. Why: the driver model has no reason to
-        start from a standstill where the desired speed rises ahead. Its cost, mean (v - v_des(s))^2 plus
-        acceleration and jerk terms, is lowest at low speed where v_des is low, so from v = 0 every plan
-        defers the start and the receding horizon never starts (measured: at several points of every
-        route for the "minimises acceleration" and "no preference" styles, longer horizons worse).
+    model : RouteSetDriverModel             its dynamics' ``dt`` is the simulation's step length
+    drivers : mapping vehicle id -> (route id, theta)   each PIRL vehicle's route and normalised weights (K,)
+    horizon : int                           MPC horizon [steps], >= 1
+    control_noise : float                   standard deviation [m/s^3] of Gaussian noise on each applied jerk
+    rng : numpy.random.Generator, optional  required when ``control_noise > 0``
+    override_tol : float                    [m/s] a command is carried out when the speed is within this of it
+    stop_speed, resume_speed : float        [m/s] standstill hand-back: below ``stop_speed`` the simulator drives
+                                            (command None) until faster than ``resume_speed``
     kernel : {"auto", "numba", "numpy"}
-        How the drivers re-plan and are projected onto their routes: ``"numba"``, compiled loops
-        (:class:`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`: the same plans as the numpy MPC to
-        rounding, several times faster at a simulator step's batch sizes); ``"numpy"``, the batched
-        :class:`pirl_sim.mpc.SequentialMPC` and :meth:`RouteSet.project` (the reference); ``"auto"``
-        (default), numba where it is installed (the ``sumo`` extra) and the model is the paper's roundabout
-        model, numpy otherwise.
+        Compiled loops (`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`), the numpy reference, or numba where it
+        is installed and the model is the paper's roundabout model (``"auto"``).
 
     Attributes
     ----------
-    n_calls : int
-        Batched MPC calls so far (one per step with PIRL vehicles).
-    n_plans : int
-        Vehicle re-plans so far.
-    plan_time_s : float
-        Wall time [s] spent in the MPC.
-    control_time_s : float
-        Wall time [s] spent in :meth:`commands` (projection, MPC, bookkeeping).
-    handbacks : dict
-        vehicle id -> how often it was handed back to the simulator at a standstill (vehicles handed back at least
-        once).
+    n_calls, n_plans : int                  batched MPC calls and vehicle re-plans so far
+    plan_time_s, control_time_s : float     wall time [s] in the MPC, and in `commands`
+    handbacks : dict                        vehicle id -> times handed back at a standstill
     """
 
     model: RouteSetDriverModel

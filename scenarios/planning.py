@@ -68,25 +68,14 @@ def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed
     Parameters
     ----------
     population : PopulationConfig
-    route_ids : sequence of str
-        The route catalogue in its canonical order (draws index into it).
-    seed : int
-        In [0, 2**31).
-    pirl_routes, background_routes : sequence of str, optional
-        Routes PIRL / background vehicles draw theirs from, uniformly; None: all of ``route_ids``.
+    route_ids : sequence of str        the route catalogue in its canonical order (draws index into it)
+    seed : int                         in [0, 2**31)
+    pirl_routes, background_routes : sequence of str, optional   routes PIRL / background vehicles draw from; None: all
 
     Returns
     -------
-    pandas.DataFrame
-        Columns :data:`PLAN_COLUMNS`, one row per vehicle in departure order: ``vehicle_id`` ("veh000",
-        ...), ``depart`` [s], ``route_id``, ``is_pirl``, ``style`` (index into the population's styles; -1
-        for background), ``style_name`` ("background" for background) and the normalised weights
-        ``theta_speed_dev``, ``theta_acc_sq``, ``theta_jerk_sq`` (NaN for background).
-
-    Raises
-    ------
-    ValueError
-        A bad seed, an empty catalogue or unknown route ids.
+    plan : pandas.DataFrame            `PLAN_COLUMNS`, one row per vehicle in departure order (``style`` -1 and NaN
+                                       weights for background); ValueError for a bad seed or unknown routes
     """
     if not isinstance(population, PopulationConfig):
         raise TypeError(f"population must be a PopulationConfig, got {type(population).__name__}")

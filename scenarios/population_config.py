@@ -119,25 +119,17 @@ def _feature_mapping(label: str, mapping: Any, *, allow_reference: bool) -> dict
 
 @dataclass(frozen=True)
 class StyleConfig:
-    """One driving style: a Gaussian over the normalised weights of ``speed_dev`` and ``acc_sq``.
+    """One driving style: a Gaussian over the normalised weights of ``speed_dev`` and ``acc_sq`` (draws kept positive
+    by redrawing, `pirl_sim.population.Population.sample_weights`).
 
     Attributes
     ----------
-    name : str
-        Unique within a population; non-empty.
-    weight : float
-        Mixture weight, > 0 (normalised over the styles).
-    mean : mapping {feature name: float}
-        Mean normalised weights of both free features, > 0 (``jerk_sq`` may be given and must then be 1).
-    std : mapping {feature name: float}
-        Independent standard deviations, >= 0 (0 where omitted). Exclusive with ``cov``.
-    cov : mapping {feature name: {feature name: float}} or None
-        Full covariance over the two free features, by name: symmetric and positive definite (a
-        degenerate spread is given through ``std`` with zeros instead). Exclusive with ``std``.
-
-    Notes
-    -----
-    Draws are kept positive by redrawing (:meth:`pirl_sim.population.Population.sample_weights`).
+    name : str                    unique within a population, non-empty
+    weight : float                mixture weight, > 0 (normalised over the styles)
+    mean : mapping {feature name: float}   mean normalised weights of both free features, > 0 (``jerk_sq``: 1)
+    std : mapping {feature name: float}    independent standard deviations, >= 0 (0 where omitted); not with ``cov``
+    cov : mapping {feature name: {feature name: float}} or None   full covariance over the two free features,
+        symmetric positive definite (a degenerate spread goes through ``std``); not with ``std``
     """
 
     name: str
@@ -273,24 +265,17 @@ PRESET_STYLES: Mapping[str, StyleConfig] = FrozenMapping(
 
 @dataclass(frozen=True)
 class PopulationConfig:
-    """What a simulated scenario's traffic is made of (validated on construction).
+    """What a simulated scenario's traffic is made of (validated on construction; "SUMO roundabouts" page).
 
     Attributes
     ----------
-    styles : tuple of StyleConfig
-        At least one, unique names.
-    background_share : float
-        Share in [0, 1] of vehicles driven by the simulator's own model (cost weights unknown). The number
-        of background vehicles is ``round(background_share * n_vehicles)``.
-    n_vehicles : int
-        Vehicles in the scenario, 1 <= n_vehicles <= :data:`MAX_VEHICLES`.
-    depart_interval : float
-        Mean time between consecutive departures [s], > 0 (a rate of 3600 / depart_interval veh/h).
-    arrivals : Arrivals or str
-        ``"regular"`` (exactly ``depart_interval`` apart) or ``"poisson"`` (exponential gaps).
-    control_noise : float
-        Standard deviation of Gaussian noise on each applied jerk [m/s^3], in [0, :data:`MAX_CONTROL_NOISE`]
-        (the driver model's jerk bound, 8 m/s^3).
+    styles : tuple of StyleConfig      at least one, unique names
+    background_share : float           share in [0, 1] of vehicles driven by the simulator's own model
+                                       (``round(background_share * n_vehicles)`` of them)
+    n_vehicles : int                   vehicles in the scenario, 1 <= n_vehicles <= `MAX_VEHICLES`
+    depart_interval : float            mean time between consecutive departures [s], > 0
+    arrivals : Arrivals or str         ``"regular"`` (exactly ``depart_interval`` apart) or ``"poisson"``
+    control_noise : float              std of Gaussian noise on each applied jerk [m/s^3], <= `MAX_CONTROL_NOISE`
     """
 
     styles: tuple[StyleConfig, ...] = field(default_factory=lambda: tuple(PRESET_STYLES.values()))
@@ -432,24 +417,15 @@ _STYLE_KEYS = ("name", "preset", "weight", "mean", "std", "cov")
 
 
 def population_from_dict(data: Mapping[str, Any], *, source: str = "population") -> PopulationConfig:
-    """Build a :class:`PopulationConfig` from plain data (the parsed TOML).
+    """Build a `PopulationConfig` from plain data (the parsed TOML; ValueError for unknown keys or preset names,
+    listing the known ones, and everything `PopulationConfig` and `StyleConfig` reject).
 
     Parameters
     ----------
-    data : mapping
-        Keys as the attributes of :class:`PopulationConfig`, plus ``depart_rate`` [veh/h] as an alternative
-        to ``depart_interval`` (not both). ``styles`` is a list of tables with ``name``, ``weight``, ``mean``,
-        ``std`` or ``cov``; a table with ``preset = "<name>"`` takes that style of :data:`PRESET_STYLES`
-        (``weight`` and ``name`` may override the preset's). Omitted keys take the defaults of
-        :class:`PopulationConfig`.
-    source : str
-        Named in error messages (e.g. the file).
-
-    Raises
-    ------
-    ValueError
-        Unknown keys (the message lists the valid ones), unknown preset style names (listing the known
-        ones), and everything :class:`PopulationConfig` and :class:`StyleConfig` reject.
+    data : mapping     keys as the attributes of `PopulationConfig`, or ``depart_rate`` [veh/h] instead of
+                       ``depart_interval``; ``styles`` a list of tables (``name``, ``weight``, ``mean``, ``std`` or
+                       ``cov``, or ``preset = "<name>"`` of `PRESET_STYLES`); omitted keys take the defaults
+    source : str       named in error messages (e.g. the file)
     """
     if not isinstance(data, Mapping):
         raise ValueError(f"{source}: expected a table of settings, got {type(data).__name__}")

@@ -84,38 +84,17 @@ BACKGROUND_STYLE_NAME = "background"  #: ``style_name`` of background traffic
 
 @dataclass(frozen=True, eq=False)
 class ScenarioRecording:
-    """A simulated run in simulator-neutral form (validated on construction).
+    """A simulated run in simulator-neutral form (validated on construction, ValueError; file-formats page).
 
     Attributes
     ----------
-    tracks : pandas.DataFrame
-        Columns :data:`TRACK_COLUMNS`: ``track_id`` (int >= 1), ``time_s`` [s] on the 100 ms grid and
-        >= 0.1 s, ``agent_type`` (e.g. "car"), x, y [m], vx, vy [m/s], psi_rad [rad], length, width [m];
-        any row order (the file is written by track, then frame).
-    ground_truth : pandas.DataFrame
-        Columns :data:`GROUND_TRUTH_COLUMNS`, one row per track of ``tracks`` (same ids), sorted by
-        ``track_id``. PIRL rows have ``style >= 0``, a style name and positive ``theta_*`` with
-        ``theta_jerk_sq = 1``; background rows have ``style = -1``, ``style_name = "background"``, NaN
-        weights, NA ``interacted`` and NaN ``overridden_fraction``.
-    lanes : mapping str -> numpy.ndarray
-        Lane centerlines (P, 2) [m] for the map.
-    successors : mapping str -> sequence of str
-        Lane successors for the map.
-    info : mapping
-        JSON-serialisable description of the run (simulator, seed, configuration); no wall-clock times,
-        so that equal runs write equal bytes.
-    driver_steps : pandas.DataFrame or None
-        Per-step flags of the PIRL drivers (see the module docstring), columns :data:`DRIVER_STEP_COLUMNS`:
-        ``track_id``, ``frame_id`` (int, exactly the frames of every PIRL track, no other track), bool
-        ``commanded``, ``overridden`` (only where commanded), ``collided``; stored sorted by track, then
-        frame. None: not recorded.
-
-    Raises
-    ------
-    ValueError
-        Wrong or missing columns, times off the 100 ms grid, tracks without ground truth (or the reverse),
-        inconsistent PIRL/background rows, unknown statuses, an ``info`` that JSON cannot encode, or
-        ``driver_steps`` that do not cover exactly the PIRL tracks' frames.
+    tracks : pandas.DataFrame               `TRACK_COLUMNS`; ``time_s`` [s] on the 100 ms grid, >= 0.1 s; any row order
+    ground_truth : pandas.DataFrame         `GROUND_TRUTH_COLUMNS`, one row per track, sorted by ``track_id``
+    lanes : mapping str -> numpy.ndarray    lane centerlines (P, 2) [m] for the map
+    successors : mapping str -> sequence of str   lane successors for the map
+    info : mapping                          JSON-serialisable description of the run, without wall-clock times
+    driver_steps : pandas.DataFrame or None   per-step flags of the PIRL drivers (`DRIVER_STEP_COLUMNS`), exactly
+                                            the PIRL tracks' frames; None: not recorded
     """
 
     tracks: pd.DataFrame
@@ -283,25 +262,17 @@ def _ground_truth_csv(gt: pd.DataFrame) -> str:
 
 
 def write_recording(recording: ScenarioRecording, out_dir, *, lane_width: float = 3.5) -> RecordingFiles:
-    """Write a recording into ``out_dir`` (see the module docstring for the files and their order).
+    """Write a recording into ``out_dir`` (the files and their order: the file-formats page, Simulated recordings).
 
     Parameters
     ----------
     recording : ScenarioRecording
-    out_dir : str or os.PathLike
-        Created if missing; a previous recording there is replaced.
-    lane_width : float
-        Lane width [m] of the map's lanelets.
+    out_dir : str or os.PathLike     created if missing; a previous recording there is replaced
+    lane_width : float               lane width [m] of the map's lanelets
 
     Returns
     -------
-    RecordingFiles
-
-    Raises
-    ------
-    ValueError
-        If the map cannot be written (lanes that do not meet their successors, ...); ``run.json`` is then
-        not written.
+    files : RecordingFiles           ValueError when the map cannot be written (then ``run.json`` is not written)
     """
     if not isinstance(recording, ScenarioRecording):
         raise TypeError(f"recording must be a ScenarioRecording, got {type(recording).__name__}")

@@ -175,13 +175,7 @@ GAPS = ("bumper", "centre")  #: distance to a leader: bumper to bumper (vehicle 
 
 @dataclass(frozen=True)
 class SelectionRule:
-    """When a vehicle ahead counts as a leader, and which tracks are replayed (see module doc).
-
-    A vehicle j is the leader of track i at a frame when it is ahead of i (within 90 degrees of its heading),
-    drives in a similar direction (headings within ``max_heading_diff_deg``) and its gap is less than
-    ``standstill + time_gap * v_i``. ``gap="bumper"``: the centre distance minus half of each vehicle's
-    length (the ``length`` column; a queue of 4.6 m cars standing 6-7.5 m apart centre to centre has
-    bumper gaps of 1.4-2.9 m); ``"centre"``: centre to centre (`CENTRE_RULE`, which misses standing queues).
+    """When a vehicle ahead counts as a leader, and which tracks are replayed ("Simulators and data" page).
 
     Attributes
     ----------
@@ -190,7 +184,8 @@ class SelectionRule:
     max_heading_diff_deg : float    leaders drive within this angle of the track's heading
     min_duration : float [s]        shorter tracks are skipped
     agent_types : tuple of str      agent_type values that are replayed
-    gap : {"bumper", "centre"}      how the gap to a leader is measured
+    gap : {"bumper", "centre"}      centre distance minus half of each vehicle's length, or centre to centre
+                                    (`CENTRE_RULE`, which misses standing queues)
     """
 
     time_gap: float = 1.5
@@ -258,27 +253,18 @@ class HistoryEstimator:
 
 @dataclass(frozen=True)
 class ReplayScene:
-    """Recorded tracks as driver-model trajectories.
+    """Recorded tracks as driver-model trajectories (metadata: "Simulators and data" page).
 
     Attributes
     ----------
     model : PathDriverModel       on a `CompositePath` of every matched route
-    trajectories : list of Trajectory
-        (s, v, a) states with metadata ``track_id``, ``file``, ``route`` (lanelet ids), ``segment``,
-        ``d`` (n + 1,) lateral offsets [m], ``xy`` (n + 1, 2) recorded positions [m] at the model's dt,
-        ``interacted`` and, from a sidecar, ``theta`` (normalised) and ``style``; with
-        ``selection="steps"`` also ``step_mask`` (bool, (n,)).
-        Long tracks are cut into several trajectories (``piece`` 0, 1, ... in metadata): there are more
-        trajectories than tracks.
+    trajectories : list of Trajectory   (s, v, a) states; long tracks are cut into pieces (metadata ``piece``)
     skipped : dict {reason: number of tracks}
     n_tracks : int                tracks read (of the replayed agent types)
     repairs : dict {what: count}  route-matching repairs of kept tracks (see module doc)
     selection : {"tracks", "steps"}  how `selected` chooses (module doc)
-    steps : dict {what: count}   with ``selection="steps"``: steps of dt kept and left out by the masks
+    steps : dict {what: count}    with ``selection="steps"``: steps of dt kept and left out by the masks
     features : {"paper", "speed-level", "following"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
-    Every trajectory also carries its observations ``s_obs`` (n + 1,) [m] (composite arc lengths) and ``v_obs``
-    (n + 1,) [m/s] and the ``estimator`` (`HistoryEstimator`) of its states in its metadata, so that
-    `Trajectory.history_window` estimates a window from its own observations.
     """
 
     model: PathDriverModel
@@ -565,48 +551,24 @@ def load_replay(
 
     Parameters
     ----------
-    track_files : paths of ``vehicle_tracks_*.csv`` files (see `pirl_sim.io.interaction.find_track_files`)
+    track_files : paths of ``vehicle_tracks_*.csv`` files (`pirl_sim.io.interaction.find_track_files`)
     map_path : the Lanelet2 OSM map
-    dt : float [s]        model step, a multiple of the 0.1 s frames
-    rule : SelectionRule
-    max_offset : float [m]  route matching tolerance
-    jerk_weight : float   smoothing of the position-only state estimate (see `fit_longitudinal_states`)
-    max_steps : int or None
-        Longer tracks are cut into consecutive pieces of at most this many steps (metadata ``piece``); the
-        per-demonstration IRL costs O(steps^3), and a 20 s piece holds a whole roundabout passage.
-        Experiments split train and test by track, never by piece.
-    estimate : {"positions", "speeds"}
-        State estimate from the positions only, or from positions and recorded speeds (module doc).
-    noise : EstimateNoise
-        Noise model of ``estimate="speeds"`` (default `MEASURED_NOISE`; `SIMULATED_NOISE` for simulators'
-        exact speeds).
-    selection : {"tracks", "steps"}
-        ``"steps"`` needs ``driver_steps.csv`` beside every track file (module doc).
-    min_usable_steps : int
-        ``selection="steps"``: a track (piece) with fewer usable steps of dt is skipped.
-    smoothing : float [m]
-        Smoothing length of the routes' reference paths (`ReferencePath.from_polyline`).
-    speed_smoothing : float [m]
-        Further smoothing of the paths' curvature for the desired speed, as the simulated drivers'
-        `pirl_sim.scenarios.drivers.RouteSet` does (0: none).
-    a_lat, v_max : float
-        Desired-speed parameters [m/s^2, m/s] (`pirl_sim.driving.SpeedProfile`).
-    arc_length : {"fit", "observed"}
-        The states' arc length: the estimate's (dynamically consistent, smooths position noise: real data) or
-        the recorded positions' projection (what simulated drivers plan from; see
-        `pirl_sim.scenarios.demonstrations.recorded_demonstrations`). Speeds, accelerations and jerks come
-        from the estimate either way.
-    settle_frames : int or None
-        ``selection="steps"``: frames after each frame that was not the driver's own that also leave
-        ``step_mask`` (not the estimate) while the drivers' real-time MPC re-converges; default
-        `pirl_sim.scenarios.demonstrations.SETTLE_FRAMES`.
-    features : {"paper", "speed-level", "following"}
-        The model's feature set (`pirl_sim.driving.roundabout_features`). ``"following"`` adds to the states
-        the gap to the vehicle ahead and its speed (`pirl_sim.dynamics.following`): the recorded car ahead
-        within 2 m of the heading line, or what the car yields to at a conflict point
-        (`pirl_sim.scenarios.conflicts`), whichever is nearer; `NO_LEADER_GAP` when neither.
-    conflicts : ConflictRule
-        When a car yields at a conflict point (``features="following"``).
+    dt : float [s]                    model step, a multiple of the 0.1 s frames
+    rule : SelectionRule              which tracks interacted
+    max_offset : float [m]            route matching tolerance
+    jerk_weight : float               smoothing of the position-only state estimate (`fit_longitudinal_states`)
+    max_steps : int or None           longer tracks are cut into pieces of at most this many steps (``piece``)
+    estimate : {"positions", "speeds"}   state estimate from positions only, or positions and recorded speeds
+    noise : EstimateNoise             noise model of ``"speeds"`` (`MEASURED_NOISE`; `SIMULATED_NOISE`)
+    selection : {"tracks", "steps"}   ``"steps"`` needs ``driver_steps.csv`` beside every track file
+    min_usable_steps : int            ``"steps"``: a piece with fewer usable steps of dt is skipped
+    smoothing, speed_smoothing : float [m]   smoothing of the reference paths, and of their curvature for v_des
+    a_lat, v_max : float              desired-speed parameters [m/s^2, m/s] (`pirl_sim.driving.SpeedProfile`)
+    arc_length : {"fit", "observed"}  s from the estimate (real data) or the projected positions
+    settle_frames : int or None       ``"steps"``: re-plans left out after a restart
+                                      (`pirl_sim.scenarios.demonstrations.SETTLE_FRAMES`)
+    features : {"paper", "speed-level", "following"}   the feature set (`pirl_sim.driving.roundabout_features`)
+    conflicts : ConflictRule          when a car yields at a conflict point (``features="following"``)
     """
     from .demonstrations import SETTLE_FRAMES
 

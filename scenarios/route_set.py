@@ -22,31 +22,15 @@ MIN_SLOPE = -0.05  # as ReferencePath.to_frenet: floor on the Newton slope (far 
 
 @dataclass(frozen=True, eq=False)
 class RouteSet:
-    """Reference paths of several routes on one global arc-length axis (see the module docstring).
+    """Reference paths of several routes on one global arc-length axis (module doc; ValueError when invalid).
 
     Parameters
     ----------
-    route_ids : tuple of str
-        Unique route ids; route ``r`` starts at ``r * spacing`` on the global axis.
-    paths : tuple of ReferencePath
-        One open path per route, each shorter than ``spacing / 4``.
-    spacing : float
-        [m], > 0.
-    speed_smoothing : float
-        Smoothing length [m], >= 0, applied to each path's curvature table before it sets the desired speed
-        (the smoothing spline of :meth:`pirl_sim.paths.ReferencePath.from_polyline`, applied to kappa(s),
-        ends held constant). 0: each path's own curvature, and :class:`RouteSetProfile` equals
-        :class:`pirl_sim.driving.SpeedProfile` of each path exactly. It separates the two jobs of a
-        reference path: the geometry (the Frenet projection of recorded positions) wants a path close to
-        the lane, the desired speed a curvature seen at the scale a driver looks ahead; smoothing the
-        geometry itself by 8 m cuts the corners of the entries' S-bends by up to 1.5 m, which distorts
-        projected speeds by up to 1 m/s there (2 m: within 0.2 m of the lanes, 0.1 m/s).
-
-    Raises
-    ------
-    ValueError
-        Repeated ids, a count mismatch, a closed path, a path too long for ``spacing``, or a negative
-        ``speed_smoothing``.
+    route_ids : tuple of str          unique route ids; route ``r`` starts at ``r * spacing`` on the global axis
+    paths : tuple of ReferencePath    one open path per route, each shorter than ``spacing / 4``
+    spacing : float                   [m], > 0
+    speed_smoothing : float           smoothing length [m], >= 0, of each path's curvature for the desired speed;
+                                      0: `RouteSetProfile` equals each path's `pirl_sim.driving.SpeedProfile`
     """
 
     route_ids: tuple[str, ...]
@@ -193,24 +177,16 @@ class RouteSet:
 
         Parameters
         ----------
-        route_index : array_like of int, shape (M,)
-        xy : array_like, shape (M, 2)
-            Points [m].
-        s_guess : array_like, shape (M,), optional
-            Starting arc lengths [m] along each route, within a few metres of the answer (e.g. where the
-            vehicle's plan put it); NaN or None: :meth:`pirl_sim.paths.ReferencePath.to_frenet` finds it.
-        tol : float
-            [m] Newton stops when no point moves more.
+        route_index : array_like of int (M,)
+        xy : array_like (M, 2)             points [m]
+        s_guess : array_like (M,), optional   start arc lengths [m] within a few metres; NaN or None: from
+                               `~pirl_sim.paths.ReferencePath.to_frenet`
+        tol : float                        [m] Newton stops when no point moves more
 
         Returns
         -------
-        numpy.ndarray, shape (M,)
-            Local arc length [m] along each route (beyond ``[0, length]`` on the straight extensions).
-
-        Raises
-        ------
-        ValueError
-            If the Newton iteration does not converge (a point beyond the local centre of curvature).
+        s : numpy.ndarray (M,)             local arc length [m] along each route (beyond ``[0, length]`` on the
+                                           straight extensions); ValueError when Newton does not converge
         """
         r = np.asarray(route_index, dtype=np.int64).reshape(-1)
         q = np.asarray(xy, dtype=float).reshape(-1, 2)

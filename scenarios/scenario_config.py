@@ -55,24 +55,16 @@ class MpcDriverConfig:
 
     Attributes
     ----------
-    horizon : int
-        MPC horizon [steps of 0.1 s], >= 1.
-    n_iter, n_qp_iter : int
-        Newton iterations and bounded QPs per re-plan (warm-started: 1 each is a real-time iteration), >= 1.
-    a_lat, v_max : float
-        Desired speed: comfortable lateral acceleration [m/s^2] and speed cap [m/s], > 0.
-    smoothing : float
-        Smoothing length [m], >= 0, of the routes' reference paths (their geometry, on which recorded
-        positions are projected): 2 m keeps the paths within 0.2 m of the lanes' centre lines.
-    speed_smoothing : float
-        Further smoothing length [m], >= 0, of the paths' curvature for the desired speed (see
-        :class:`~pirl_sim.scenarios.drivers.RouteSet`; each simulator's default is set for its network).
-    depart_speed : float
-        Speed [m/s] at insertion, >= 0.
-    stop_speed, resume_speed : float
-        [m/s] Standstill hand-back of :class:`~pirl_sim.scenarios.drivers.PirlDrivers`: a PIRL vehicle slower
-        than ``stop_speed`` is driven by the simulator's car-following model until it is faster than
-        ``resume_speed`` (its track is then flagged ``interacted``), 0 <= stop_speed <= resume_speed.
+    horizon : int                  MPC horizon [steps of 0.1 s], >= 1
+    n_iter, n_qp_iter : int        Newton iterations and bounded QPs per re-plan (1 each: a real-time iteration), >= 1
+    a_lat, v_max : float           desired speed: lateral acceleration [m/s^2] and speed cap [m/s], > 0
+    smoothing : float              smoothing length [m], >= 0, of the routes' reference paths (2 m: within 0.2 m of
+                                   the lanes' centre lines)
+    speed_smoothing : float        further smoothing [m], >= 0, of the curvature for the desired speed
+                                   (`~pirl_sim.scenarios.drivers.RouteSet`)
+    depart_speed : float           speed [m/s] at insertion, >= 0
+    stop_speed, resume_speed : float   [m/s] standstill hand-back of `~pirl_sim.scenarios.drivers.PirlDrivers`
+                                   (the track is then flagged ``interacted``), 0 <= stop_speed <= resume_speed
     """
 
     horizon: int = 30
@@ -124,25 +116,17 @@ def from_table(label: str, data: Any, cls, **overrides):
 
 def scenario_from_table(cls, data: Any, source: str, population: PopulationConfig | None,
                         tables: Mapping[str, Callable[[Any, str], Any]]):
-    """A simulator's scenario configuration ``cls`` from a parsed TOML file.
+    """A simulator's scenario configuration ``cls`` from a parsed TOML file (ValueError, prefixed by ``source``, for
+    unknown keys, listing the valid ones, and every invalid value).
 
     Parameters
     ----------
-    cls : type
-        The configuration (a frozen dataclass with a ``population`` field); the top-level keys of ``data``
-        are its fields.
+    cls : type                     the configuration: a frozen dataclass with a ``population`` field, whose fields are
+                                   the top-level keys of ``data``
     data : mapping
-    source : str
-        Named in error messages.
-    population : PopulationConfig or None
-        Used instead of the ``population`` table of ``data`` (which must then be absent).
-    tables : mapping field name -> callable
-        ``parse(table, label)`` turns the sub-table of a field into its value (e.g. :func:`from_table`).
-
-    Raises
-    ------
-    ValueError
-        Unknown keys (listing the valid ones) and every invalid value, prefixed by ``source``.
+    source : str                   named in error messages
+    population : PopulationConfig or None   used instead of the ``population`` table of ``data`` (then absent)
+    tables : mapping field name -> callable   ``parse(table, label)`` turns a field's sub-table into its value
     """
     kwargs = config_table(source, data, cls)
     for name, parse in tables.items():

@@ -344,14 +344,10 @@ class ReplaySettings:
     options : ReplayOptions      as given
     dt : float                   [s] model step
     mpc_horizon : int or None    [steps of dt] the drivers' MPC horizon (with a scan and none given: its first)
-    rollout : {"open", "closed"}
-    selection : {"tracks", "steps", "free", "all"}
-    estimate : {"positions", "speeds"}
+    rollout, selection, estimate, features, desired_speed : str   as the options, resolved
     noise : EstimateNoise        of the state estimate
     recording : DriverSettings or None  the drivers' settings from a pirl_sim recording's ``run.json``
     simulated : bool             whether the tracks are a pirl_sim recording (a ``run.json`` beside them)
-    features : {"paper", "speed-level", "following"}
-    desired_speed : {"fit", "fixed"}
     notes : tuple of str         the defaults taken from ``run.json``, to tell the user
     """
 

@@ -57,13 +57,11 @@ def preset_config(name: str, *, seed: int = 0, params: dict | None = None,
 
 def run_preset(name: str, out_dir, *, seed: int = 0, params: dict | None = None, history_steps: int | None = None,
                workers: int | None = 0, progress: bool = True, command: str | None = None) -> pd.DataFrame:
-    """Run the preset ``name`` through the sweep engine into ``out_dir`` and write its files
-    (`pirl_sim.experiments.reproduce.write_reproduction`).
+    """Run the preset ``name`` into ``out_dir``; write its files (`pirl_sim.experiments.reproduce.write_reproduction`).
 
     Parameters
     ----------
-    name, seed, params, history_steps
-        See `preset_config`.
+    name, seed, params, history_steps : see `preset_config`.
     out_dir : path               output directory; its finished cells are reused (resume)
     workers : int or None        sweep workers (0: in this process; None: the usable cores)
     progress : bool              progress bar and status lines on stderr
@@ -71,15 +69,8 @@ def run_preset(name: str, out_dir, *, seed: int = 0, params: dict | None = None,
 
     Returns
     -------
-    DataFrame
-        The main table (``table.csv``).
-
-    Raises
-    ------
-    ValueError
-        ``out_dir`` is not a writable directory (checked before any work), or a bad parameter.
-    RuntimeError
-        Some cells failed (``out_dir/errors/``); the finished ones are kept and the same call resumes.
+    table : DataFrame            the main table (``table.csv``); ValueError for an unwritable ``out_dir`` or a bad
+                                 parameter, RuntimeError when cells failed (``out_dir/errors/``; the call resumes)
     """
     out = check_output_dir(out_dir, "out_dir")  # before the work: a bad directory fails now, not at the end
     config = preset_config(name, seed=seed, params=params, history_steps=history_steps)

@@ -65,15 +65,11 @@ class SweepRun:
     ----------
     out : Path                  results directory
     table : DataFrame           one row per finished cell (`TABLE_COLUMNS`)
-    computed : list of str      keys computed by this run, in the order they finished
-    cached : list of str        keys found in the store
+    computed, cached : list of str   keys computed by this run (in the order they finished), keys found in the store
     failed : dict {key: str}    cells that raised (not in the table)
-    code_version : str
-    executor : str              where the cells ran
-    wall_s : float [s]          the whole call
-    startup_s : float [s]       starting and warming up the workers
-    work_s : float [s]          sum of the computed cells' own time (``cell_s``)
-    cpu_s : float [s]           sum of their CPU time (``cpu_s``)
+    code_version, executor : str   the code version; where the cells ran
+    wall_s, startup_s : float [s]   the whole call; starting and warming up the workers
+    work_s, cpu_s : float [s]   sums of the computed cells' own time (``cell_s``) and CPU time (``cpu_s``)
     simulated : list of str     simulation keys simulated by this run
     records : dict {key: dict}  the stored record of every finished cell (`pirl_sim.engine.store`)
     keys : list of str          every cell's key, in the config's order (`cell_keys`)
@@ -140,22 +136,18 @@ def run_sweep(
 
     Parameters
     ----------
-    config : SweepConfig        validated (see `pirl_sim.engine.config.load_config`)
-    out_dir : path              results directory (created); reused: finished cells are not run again
-    executor : executor or None an object of `pirl_sim.engine.executors` (kept open); None: made from
-                                ``workers`` / ``scheduler`` / ``scheduler_file`` and closed at the end
+    config : SweepConfig        validated (`pirl_sim.engine.config.load_config`)
+    out_dir : path              results directory (created); finished cells are not run again
+    executor : executor or None   of `pirl_sim.engine.executors` (kept open); None: made from the next three
     workers : int or None       local worker processes (None: the usable cores; 0: in this process)
-    scheduler : str or None     Dask scheduler address ``tcp://HOST:PORT``
-    scheduler_file : path or None   instead: the file ``dask scheduler --scheduler-file PATH`` wrote
-    progress : bool             progress bar with ETA on ``stream`` (default stderr)
+    scheduler, scheduler_file : str or path, optional   Dask scheduler address ``tcp://HOST:PORT``, or its file
+    progress, stream : bool, file   progress bar with ETA, on ``stream`` (default stderr)
     command : str or None       recorded in ``sweep.json``
-    tables : bool               write the tidy tables (``table.parquet``, ``table.csv``, ``recovery.parquet``,
-                                ``weights.csv``); False: only the store and ``sweep.json`` (a report template
-                                writes its own files, `pirl_sim.experiments.reproduce`)
+    tables : bool               write the tidy tables; False: only the store and ``sweep.json``
 
     Returns
     -------
-    SweepRun
+    run : SweepRun
     """
     t_start = time.perf_counter()
     out = Path(out_dir)

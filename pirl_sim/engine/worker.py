@@ -178,25 +178,16 @@ def run_cell(spec: dict, code_version: str | None = None, store_root: str | None
 
     Parameters
     ----------
-    spec : dict
-        `pirl_sim.engine.config.Cell.spec`: scenario, scenario_params, data_fingerprint, protocol (Protocol
-        fields), learner, learner_params, seed.
-    code_version : str or None
-        The sweep's `pirl_sim.engine.store.code_version`; a worker running other code raises RuntimeError.
-    store_root : str or None
-        The sweep's results directory: where simulated scenarios' recorded runs are (`run_simulation`).
+    spec : dict                  `pirl_sim.engine.config.Cell.spec`
+    code_version : str or None   the sweep's `pirl_sim.engine.store.code_version`; other code raises RuntimeError
+    store_root : str or None     the sweep's results directory, where simulated runs are (`run_simulation`)
 
     Returns
     -------
     dict
-        ``scores``: med, med_std, fde [m], weight_error (median |log| ratio, None without truth), ari (None
-        for learners without clusters or data without styles), n_styles, n_train, n_test, n_predictions,
-        n_warnings, and the online protocol's `ONLINE_SCORES` (module doc; None elsewhere); ``timings`` [s]:
-        generate_s (0 when cached), fit_s, evaluate_s (the online scores included), cell_s (wall clock), cpu_s
-        (CPU time of the worker process: below cell_s when the worker waited for a core);
-        ``recovery`` (see `_recovery`) or None; ``weights``: `pirl_sim.recovery.weight_scores` (per free feature,
-        overall and per style) or None; ``warnings``: distinct warning messages (of the data generation
-        too, when this cell generated the data); ``worker``: host, pid.
+        ``scores`` (errors [m], weight error, ARI, counts and `ONLINE_SCORES`; None where not defined),
+        ``timings`` [s], ``recovery``, ``weights`` (`pirl_sim.recovery.weight_scores`), ``warnings``, ``worker``.
+        The keys: the sweeps page, The result store and resumption.
     """
     return run_cells([spec], code_version, store_root, raise_errors=True)[0]
 

@@ -219,31 +219,17 @@ def _towards(current: float, target: float, max_change: float | None) -> float:
 
 
 class ResidualAction(*_wrapper_bases()):
-    """The agent's action as a correction to a baseline ego's (see the module docstring).
+    """The agent's action as a correction to a baseline ego's (module doc; "The gymnasium environment" page).
 
     Parameters
     ----------
-    env : gymnasium.Env
-        ``pirl_sim/Roundabout-v0`` (possibly wrapped; the baseline reads the unwrapped env).
-    baseline : str or baseline object
-        A name of :data:`BASELINES` or an object with ``reset(env)`` and ``act(env)``; default ``"idm"``.
-    scale : float
-        > 0: the agent's action in [-1, 1] moves the baseline's action by up to ``scale`` (in action units:
-        1 is ``a_max`` up or ``-a_min`` down).
-    shield : bool
-        Cap the applied action at the traffic's rules (:func:`interaction_limit`, highway backend): the agent
-        may drive faster than the baseline's desired speed, never closer to its leader or past a stop line
-        than the IDM's limits allow (as the PIRL drivers' commands are capped).
-    max_change : float or None
-        > 0: the correction moves towards ``scale * action`` by at most this much per agent step (action units;
-        the agent sets a target, the correction follows it at a bounded rate, so its jerk is bounded); None:
-        at once.
-    observe : bool
-        Let the agent see what it corrects (residual policy learning gives the residual policy the base
-        policy's action): the observation becomes a ``Dict`` of the env's (``"kinematics"``) and
-        ``"residual"``, a ``Box(-1, 1, (3,))`` of the baseline's action for the coming step, the correction
-        in force divided by ``scale`` (with ``max_change`` the agent's action only moves it), and the shield's
-        cap in action units (1 where nothing caps: no shield, or no leader and no stop line).
+    env : gymnasium.Env                  ``pirl_sim/Roundabout-v0`` (possibly wrapped)
+    baseline : str or baseline object    a name of `BASELINES`, or an object with ``reset(env)`` and ``act(env)``
+    scale : float                        > 0: action in [-1, 1] moves the baseline's by up to ``scale`` action units
+    shield : bool                        cap the applied action at the traffic's rules (`interaction_limit`)
+    max_change : float or None           > 0: the correction follows ``scale * action`` by at most this per step
+    observe : bool                       add a ``"residual"`` Box(-1, 1, (3,)) to the observation: the baseline's
+                                         action, the correction in force / ``scale`` and the shield's cap
 
     ``info["baseline_action"]`` and ``info["applied_action"]`` give both actions of each step.
     """
@@ -307,26 +293,15 @@ class ResidualAction(*_wrapper_bases()):
 
 
 class DesiredSpeedAction(*_wrapper_bases()):
-    """The agent's action as the IDM ego's desired-speed factor (see the module docstring; highway backend).
+    """The agent's action as the IDM ego's desired-speed factor (module doc; "The gymnasium environment" page).
 
     Parameters
     ----------
-    env : gymnasium.Env
-        ``pirl_sim/Roundabout-v0`` on the highway backend (possibly wrapped).
-    scale : float
-        In (0, 1): the agent's action in [-1, 1] sets the factor ``1 + scale * action`` on v_des(s), so the
-        IDM ego drives towards between ``1 - scale`` and ``1 + scale`` times the route's desired speed.
-    max_change : float or None
-        > 0: the factor moves towards ``1 + scale * action`` by at most this much per agent step (the agent
-        sets a target); None: at once.
-    observe : bool
-        The observation becomes a ``Dict`` of the env's (``"kinematics"``) and ``"speed"``, a
-        ``Box(-1, 1, (2,))``: the factor in force as ``(factor - 1) / scale`` and v_des(s) / v_max here.
-    on_approach : bool
-        False (default): the factor applies once the ego is in the ring (its route past the entry's S-bend);
-        before, it drives at the IDM's desired speed whatever the action (the factor still follows the
-        actions). True: everywhere (the approach's collisions at the entry showed up in design probes with
-        factors above 1 on it; the IDM ego had none on the same episodes).
+    env : gymnasium.Env           ``pirl_sim/Roundabout-v0`` on the highway backend (possibly wrapped)
+    scale : float                 in (0, 1): the action in [-1, 1] sets the factor ``1 + scale * action`` on v_des(s)
+    max_change : float or None    > 0: the factor follows its target by at most this per agent step; None: at once
+    observe : bool                add a ``"speed"`` Box(-1, 1, (2,)): ``(factor - 1) / scale`` and v_des(s) / v_max
+    on_approach : bool            apply the factor on the approach too, not only from the ring on
 
     ``info["speed_factor"]`` (the factor set), ``info["applied_factor"]`` (the one the IDM drove with) and
     ``info["applied_action"]`` (the acceleration action) describe each step.

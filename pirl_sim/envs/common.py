@@ -178,17 +178,12 @@ class EgoReward:
 
     Parameters
     ----------
-    config : mapping
-        The env's configuration (``reward``, ``reward_theta``, the reward scales, ``duration``,
-        ``policy_frequency``; ``drivers.v_max`` scales the progress).
-    routes : RouteSet
-        Reference paths of the routes (:class:`~pirl_sim.scenarios.drivers.RouteSet`).
-    profile : callable
-        Desired speed along the routes' global axis, ``profile(s) -> (v_des, dv_des, d2v_des)``.
-    route : str
-        The ego's route id.
-    xy : array, shape (2,)
-        The ego's position [m] at the start.
+    config : mapping          the env's configuration (``reward``, ``reward_theta``, the reward scales, ``duration``,
+                              ``policy_frequency``; ``drivers.v_max`` scales the progress)
+    routes : RouteSet         reference paths of the routes
+    profile : callable        desired speed along the routes' global axis, ``profile(s) -> (v_des, dv_des, d2v_des)``
+    route : str               the ego's route id
+    xy : array (2,)           the ego's position [m] at the start
     """
 
     def __init__(self, config: Mapping, routes, profile, route: str, xy) -> None:

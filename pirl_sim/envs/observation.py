@@ -29,22 +29,16 @@ def kinematics_rows(states: np.ndarray, features, *, absolute: bool = False, fea
 
     Parameters
     ----------
-    states : array, shape (n, 4)
-        ``x`` [m], ``y`` [m], ``speed`` [m/s], ``heading`` [rad] of the observer (row 0) and the observed
-        vehicles in row order.
-    features : sequence of str
-        Names in :data:`DIRECT_FEATURES`.
-    absolute : bool
-        False: ``x``, ``y``, ``vx``, ``vy`` of rows 1.. relative to the observer (as ``Vehicle.to_dict``).
-    features_range : mapping name -> [low, high], optional
-        Mapped linearly to [-1, 1] when ``normalize`` (highway-env's ``utils.lmap``), then clipped to
-        [-1, 1] when ``clip``.
-    vehicles_count : int, optional
-        Rows of the result; missing rows are zeros (default: n).
+    states : array (n, 4)         ``x``, ``y`` [m], ``speed`` [m/s], ``heading`` [rad]; the observer is row 0
+    features : sequence of str    names in `DIRECT_FEATURES`
+    absolute : bool               False: ``x``, ``y``, ``vx``, ``vy`` of rows 1.. relative to the observer
+    features_range : mapping name -> [low, high], optional   mapped to [-1, 1] when ``normalize`` (``utils.lmap``)
+    normalize, clip : bool        map ``features_range`` to [-1, 1]; clip to [-1, 1]
+    vehicles_count : int, optional   rows of the result; missing rows are zeros (default: n)
 
     Returns
     -------
-    numpy.ndarray, shape (vehicles_count, len(features)), float64
+    rows : numpy.ndarray (vehicles_count, len(features)), float64
     """
     states = np.asarray(states, dtype=float).reshape(-1, 4)
     unknown = [f for f in features if f not in DIRECT_FEATURES]

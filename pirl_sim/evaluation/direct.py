@@ -23,25 +23,19 @@ DIRECT = "direct regression (no cost)"  #: the replay's row label
 
 
 class DirectRegression:
-    """Arc lengths over the next steps regressed on the history and the place (module doc).
+    """Arc lengths over the next steps regressed on the history and the place (module doc; fitted: ``regression_``,
+    one `~pirl_sim.learners.selector.FutureRegression` per step ahead, and ``n_samples_`` training windows).
 
     Parameters
     ----------
     model : PathDriverModel        the scene's model: dynamics (s, v, a), path and desired speed's curvature
-    window : int                   history length [steps]
-    horizon : int                  steps predicted
+    window, horizon : int          history length and predicted steps [steps]
     lags : tuple of int            steps before the history's end at which v and a are keys (each <= window)
     ahead : tuple of float         distances [m] beyond the history's end at which |curvature| is a key
     stride : int                   every stride-th training window
-    online : bool                  training histories estimated from their own observations (True) or taken
-                                   from the training track's smoothed states (False, as ``start="track"``)
-    max_iter, learning_rate : boosting iterations and rate of each step's ensemble
-    random_state : int             seed of the ensembles (no early stopping: same data, same bytes)
-
-    Attributes
-    ----------
-    regression_ : FutureRegression  one fitted ensemble per step ahead (`pirl_sim.learners.selector`)
-    n_samples_ : int               training windows
+    online : bool                  training histories estimated from their own observations, or smoothed states
+    max_iter, learning_rate : int, float   boosting iterations and rate of each step's ensemble
+    random_state : int             seed of the ensembles (same data, same bytes)
     """
 
     def __init__(self, model, window: int, horizon: int, *, lags=(0, 2, 5), ahead=(0.0, 10.0, 20.0, 30.0, 45.0),

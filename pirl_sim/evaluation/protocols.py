@@ -104,26 +104,19 @@ PAPER_PROTOCOL = Protocol()
 
 def evaluate(learner, test: Sequence[Trajectory], protocol: Protocol, *, n_futures: int | None = None,
              random_state=None, nll_sigma: float = NLL_SIGMA) -> dict:
-    """Score a fitted learner on test trajectories.
+    """Score a fitted learner on test trajectories ("Protocols and metrics" page).
 
     Parameters
     ----------
-    learner : a fitted learner
-    test : sequence of Trajectory
-    protocol : Protocol
-    n_futures : int or None
-        K >= 1: also score K predicted futures per history (module doc; online and rolling protocols only).
-    random_state : None, int or numpy.random.Generator
-        Seed of the learners' draws of futures (one `numpy.random.default_rng` for the whole evaluation).
-    nll_sigma : float
-        Standard deviation [m] per step and coordinate of the NLL's Gaussian mixture.
+    learner, test, protocol : a fitted learner, sequence of Trajectory, Protocol
+    n_futures : int or None       K >= 1: also score K futures per history (online and rolling protocols)
+    random_state : None, int or numpy.random.Generator   seed of the learners' draws of futures
+    nll_sigma : float             standard deviation [m] per step and coordinate of the NLL's Gaussian mixture
 
     Returns
     -------
-    dict with ``med`` [m] (the paper's MED: per-trajectory mean distance, averaged), ``med_std`` (spread of
-    the per-trajectory values), ``fde`` [m], ``weight_error`` (median |log| ratio of inferred to true
-    normalised weights, when the truth is in the metadata), ``infer_predict_s`` and ``n_test``; with
-    ``n_futures`` also ``k_futures``, ``min_ade``, ``min_fde``, ``miss_rate`` and ``nll`` (module doc).
+    scores : dict                 ``med``, ``med_std``, ``fde`` [m], ``weight_error``, ``infer_predict_s``, ``n_test``;
+                                  with ``n_futures``: ``k_futures``, ``min_ade``, ``min_fde``, ``miss_rate``, ``nll``
     """
     test = list(test)
     if not test:
@@ -194,8 +187,7 @@ def future_scores(learner, histories: Sequence[Trajectory], truth_states: np.nda
 
     Returns
     -------
-    dict: ``k_futures`` and the (M,) arrays of ``min_ade``, ``min_fde`` [m], ``miss_rate`` and ``nll`` [nats per
-    predicted step] (`evaluate` averages them over every case).
+    scores : dict         ``k_futures`` and (M,) arrays ``min_ade``, ``min_fde`` [m], ``miss_rate``, ``nll`` [nats/step]
     """
     model = learner.model_
     H = truth_states.shape[1] - 1

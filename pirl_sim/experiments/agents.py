@@ -115,46 +115,22 @@ class PPOEgo(_Policy):
 
     Parameters
     ----------
-    style_observation : str
-        The observation mode (:data:`MODES`): the neighbours' weights as columns, none, true or inferred.
-    action : str
-        :data:`ACTIONS`.
-    residual_scale : float
-        With a residual action: the largest correction in action units (> 0; 1 is ``a_max`` up or ``-a_min``
-        down); with ``"idm-speed"``: the largest change of the desired-speed factor, in (0, 1).
-    max_change : float or None
-        With a residual action: the largest change of the correction per agent step (action units, > 0; the
-        action sets its target), None: unbounded (:class:`~pirl_sim.envs.baselines.ResidualAction`); with
-        ``"idm-speed"`` the same for the factor (:class:`~pirl_sim.envs.baselines.DesiredSpeedAction`).
-    steps : int
-        Environment steps of training (agent steps of 0.2 s).
-    n_steps, batch_size, n_epochs : int
-        PPO's rollout length, minibatch size and epochs per update.
-    gamma : float
-        Discount, in (0, 1].
-    learning_rate : float
-    log_std_init : float
-        Initial log standard deviation of the Gaussian actions.
-    use_sde : bool
-        Generalised state-dependent exploration (gSDE): smooth exploration noise, redrawn every rollout. With
-        independent noise every 0.2 s the exploration's jerk alone costs more than the rest of the comfort term.
+    style_observation : str                the observation mode (`MODES`)
+    action : str                           `ACTIONS`
+    residual_scale : float                 largest correction in action units (> 0; 1 is ``a_max`` up or ``-a_min``
+                                           down); ``"idm-speed"``: largest change of the desired-speed factor, in (0, 1)
+    max_change : float or None             largest change of the correction (or factor) per agent step; None: unbounded
+    steps : int                            environment steps of training (agent steps of 0.2 s)
+    n_steps, batch_size, n_epochs : int    PPO's rollout length, minibatch size and epochs per update
+    gamma, learning_rate : float           discount in (0, 1], and learning rate
+    log_std_init : float                   initial log standard deviation of the Gaussian actions
+    use_sde : bool                         generalised state-dependent exploration (gSDE)
     observe_residual : bool
-        With a residual action: the agent also observes the IDM ego's action, its correction in force and the
-        shield's cap (:class:`~pirl_sim.envs.baselines.ResidualAction` ``observe``); with ``"idm-speed"``: the
-        factor in force and the desired speed here (:class:`~pirl_sim.envs.baselines.DesiredSpeedAction`).
-    select_every : int or None
-        Model selection on validation episodes: every ``select_every`` environment steps of training (rounded
-        up to whole rollouts of ``n_steps``) and at its end, the deterministic policy is scored on
-        ``select_episodes`` validation episodes (env seeds ``select_seed``, ``select_seed + 1``, ...; disjoint
-        from the evaluation seeds and the training seed), and the policy with the best mean validation return
-        is the one evaluated (SB3's ``EvalCallback`` best-model practice with fixed episode seeds). None: the
-        policy at the end of training.
-    select_episodes : int
-        Validation episodes per check (with ``select_every``).
-    select_seed : int
-        Env seed of the first validation episode.
-    random_state : int or None
-        Training seed (PPO's and its env's); the sweep sets it to the cell's seed.
+        Also observe what the action changes (``observe`` of `~pirl_sim.envs.baselines.ResidualAction`,
+        `~pirl_sim.envs.baselines.DesiredSpeedAction`).
+    select_every : int or None             model selection every this many environment steps; None: the last policy
+    select_episodes, select_seed : int     validation episodes per check, and the env seed of the first
+    random_state : int or None             training seed (PPO's and its env's); the sweep sets the cell's seed
     """
 
     name = "ppo"

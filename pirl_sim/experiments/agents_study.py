@@ -45,61 +45,27 @@ class AgentsConfig:
 
     Attributes
     ----------
-    modes : tuple of str
-        Observation modes to train (:data:`MODES`).
-    action : str
-        PPO's action (:data:`ACTIONS`).
-    direct_modes : tuple of str
-        Observation modes in which PPO also learns the direct action (a reference: what the residual buys);
-        empty: none.
-    residual_scale : float or None
-        With a residual action: the largest correction, in action units (> 0); with ``"idm-speed"``: the largest
-        change of the IDM's desired-speed factor, in (0, 1). None: the action's default
-        (:data:`DEFAULT_SCALES`).
-    max_change : float or None
-        The largest change of the correction (or factor) per agent step (> 0; the action sets its target);
-        None: unbounded.
-    seeds : tuple of int
-        Training seeds (PPO's and its env's), >= 0.
-    steps : int
-        Environment steps of PPO training per run (agent steps of 0.2 s).
-    eval_seeds : tuple of int
-        Env seeds of the evaluation episodes (the same for every policy): consecutive integers, disjoint from
-        ``seeds``. 200 by default: with 50 the paired interval of PPO's return against the IDM ego's was
-        about +-1.7 wide, wider than the differences it had to decide, as the baselines' rare missed exits
-        (-10 each) dominate the spread.
-    baselines : tuple of str
-        Scripted egos to evaluate (:data:`BASELINE_POLICIES`).
-    initial_vehicles : int
-        Vehicles on the road at reset.
-    depart_interval : float
-        [s] mean time between the traffic's departures (the population's; default population otherwise).
-    duration : float
-        [s] episode time limit.
-    learner_seed : int
-        Seed of the highway-env recording the ``"inferred"`` mode's learner is fitted on.
-    n_steps, batch_size, n_epochs : int
-        PPO's rollout length, minibatch size and epochs per update.
-    gamma : float
-        PPO's discount.
-    learning_rate : float
-    log_std_init : float
-        Initial log standard deviation of PPO's Gaussian actions.
-    use_sde : bool
-        Generalised state-dependent exploration (SB3's gSDE): the exploration noise is a function of the
-        observation, redrawn every rollout, so the explored accelerations change smoothly. With independent
-        noise every 0.2 s the jerk of the exploration alone costs more than the rest of the comfort term.
-    observe_residual : bool
-        PPO also observes what its action changes: with a residual action the IDM ego's action, its correction in
-        force and the shield's cap (`pirl_sim.envs.baselines.ResidualAction`'s ``observe``), with ``"idm-speed"``
-        the desired-speed factor in force and v_des here (`pirl_sim.envs.baselines.DesiredSpeedAction`'s
-        ``observe``); the direct runs never do.
-    select_every : int or None
-        Model selection: every this many environment steps (and at the end) the policy is scored on
-        ``select_episodes`` validation episodes (env seeds from ``select_seed``, disjoint from ``eval_seeds`` and
-        ``seeds``) and the best one is evaluated (`pirl_sim.experiments.agents.PPOEgo`); None: the last policy.
-    select_episodes : int
-    select_seed : int
+    modes : tuple of str                  observation modes to train (`MODES`)
+    action : str                          PPO's action (`ACTIONS`)
+    direct_modes : tuple of str           modes in which PPO also learns the direct action (a reference)
+    residual_scale : float or None        largest correction, or change of the IDM's desired-speed factor in (0, 1);
+                                          None: `DEFAULT_SCALES`
+    max_change : float or None            largest change of the correction (or factor) per agent step; None: unbounded
+    seeds : tuple of int                  training seeds (PPO's and its env's), >= 0
+    steps : int                           environment steps of PPO training per run (agent steps of 0.2 s)
+    eval_seeds : tuple of int             env seeds of the evaluation episodes: consecutive, disjoint from ``seeds``
+    baselines : tuple of str              scripted egos to evaluate (`BASELINE_POLICIES`)
+    initial_vehicles : int                vehicles on the road at reset
+    depart_interval : float               [s] mean time between the traffic's departures
+    duration : float                      [s] episode time limit
+    learner_seed : int                    seed of the highway-env recording the ``"inferred"`` learner is fitted on
+    n_steps, batch_size, n_epochs : int   PPO's rollout length, minibatch size and epochs per update
+    gamma, learning_rate : float          PPO's discount and learning rate
+    log_std_init : float                  initial log standard deviation of PPO's Gaussian actions
+    use_sde : bool                        state-dependent exploration (SB3's gSDE)
+    observe_residual : bool               PPO also observes what its action changes (not in the direct runs)
+    select_every : int or None            model selection every this many env steps; None: the last policy
+    select_episodes, select_seed : int    validation episodes of the selection, and their first env seed
     """
 
     modes: tuple[str, ...] = MODES

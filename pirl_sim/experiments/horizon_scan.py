@@ -51,16 +51,11 @@ def scan_seed(scene, seed: int, horizons: Sequence[int], proto, *, step_stride: 
     horizons : sequence of int          MPC horizons H [steps of the scene's dt]
     proto : pirl_sim.experiments.recorded.ReplayProtocol   test fraction and prediction windows
     step_stride : int                   score every ``step_stride``-th recorded step in the fit
-    desired_speed : None, "fit" or (a_lat, v_max)
-        The scene's desired speed, one fitted on the seed's training tracks
-        (`pirl_sim.experiments.recorded.fit_scene_speed`), or given [m/s^2, m/s].
+    desired_speed : None, "fit" or (a_lat, v_max)   the scene's, one fitted on the training tracks, or given
 
     Returns
     -------
-    list of dict, one row per horizon: ``horizon``, ``horizon_s``, ``train_nll``, ``test_nll`` (per scored
-    control, under the training fit's Cauchy scale), ``test_rms`` (RMS residual [m/s^3]), ``sigma`` (training
-    fit), ``med`` (closed-loop, [m]), ``med_open`` (open-loop plan over max(H, prediction horizon)), the fitted
-    weights ``theta_<feature>``, step counts and ``fit_s``.
+    rows : list of dict                 one per horizon (``horizon``, NLLs, ``sigma``, MEDs, weights, ``fit_s``)
     """
     horizons = [int(h) for h in horizons]
     if not horizons or any(h < 1 for h in horizons):

@@ -62,12 +62,9 @@ def ego_demonstration(env, *, theta: Mapping[str, float], style_name: str, track
     ----------
     env : PirlRoundaboutEnv       (unwrapped) made with ``record_tracks=True``
     theta : mapping               the policy's normalised weights ``{"speed_dev", "acc_sq"}``
-    style_name : str              the metadata ``style_name`` (a group of the report)
-    track_id : int                the metadata ``track_id`` (unique within a report)
-    own : bool array (frames,), optional
-        Per agent step since the reset (``policy_frequency`` 10: per frame), whether the applied action was the
-        policy's own model command; the demonstration's ``step_mask`` is it, without the
-        :data:`~pirl_sim.scenarios.demonstrations.SETTLE_FRAMES` frames after each False.
+    style_name, track_id : str, int   the metadata ``style_name`` (a group of the report) and ``track_id`` (unique)
+    own : bool array (frames,), optional   per frame: the applied action was the policy's own command;
+        ``step_mask`` is it, without `~pirl_sim.scenarios.demonstrations.SETTLE_FRAMES` frames after a False
     min_steps : int               a shorter ego track raises ValueError
 
     Returns
@@ -228,16 +225,11 @@ class PpoRecoveryConfig:
     seeds : tuple of int     PPO training seeds (PPO's and its env's)
     steps : int              environment steps of training per seed (agent steps of 0.1 s)
     eval_seeds : tuple of int  env seeds of the evaluation episodes, disjoint from ``seeds``
-    n_vehicles : int         vehicles of the env's population (PIRL drivers and background) in an episode
-    initial_vehicles : int   of them on the road at reset (the others depart every ``depart_interval``)
-    depart_interval : float  [s] mean time between the population's departures
-    duration : float         [s] episode time limit
-    normalize_reward : bool  train on rewards scaled by a running estimate of the return's standard deviation
-                             (SB3's ``VecNormalize``; the "theta" reward's costs are of the order of 10-1000
-                             per episode)
+    n_vehicles, initial_vehicles : int   vehicles of an episode's population, and those on the road at reset
+    depart_interval, duration : float   [s] mean time between departures; episode time limit
+    normalize_reward : bool  train on rewards scaled by a running estimate of the return's std (``VecNormalize``)
     n_steps, batch_size, n_epochs : int   PPO's rollout length, minibatch size, epochs per update
-    gamma : float            PPO's discount (per 0.1 s step)
-    learning_rate : float
+    gamma, learning_rate : float   PPO's discount (per 0.1 s step) and learning rate
     log_std_init : float     initial log standard deviation of PPO's Gaussian actions
     use_sde : bool           generalised state-dependent exploration (smooth exploration noise)
     """

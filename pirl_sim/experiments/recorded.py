@@ -62,25 +62,16 @@ class ReplayProtocol:
 
     Attributes
     ----------
-    history : int             observed steps before each prediction
-    horizon : int             predicted steps
-    stride : int              steps between predictions along a track
-    fde_steps : tuple of int  horizons at which displacement errors are reported
-    test_fraction : float     share of tracks in the test set
-    seeds : tuple of int      split seeds
+    history, horizon : int        observed steps before each prediction, and predicted steps
+    stride : int                  steps between predictions along a track
+    fde_steps : tuple of int      horizons at which displacement errors are reported
+    test_fraction : float         share of tracks in the test set
+    seeds : tuple of int          split seeds
     rollout : {"open", "closed"}  how learners' weights become a prediction (module doc)
-    mpc_horizon : int or None     the MPC's planning horizon [steps]; required for ``rollout="closed"``
-                                  (None with "open": plan over ``horizon``)
-    lateral : {"hold", "mean-path", "plane", "neighbours"}  lateral offsets of every path-based prediction
-                                  (`pirl_sim.lateral`): the last observed one held, or the training tracks' mean
-                                  path per route, or their mean path pooled in the plane over routes, or that
-                                  plus the change of deviation of the nearest training windows
-    start : {"history", "track"}  the states a prediction starts from and its learners see: estimated from
-                                  the window's history alone (`ReplayScene.history_window`; what an online
-                                  predictor knows), or the whole piece's estimate (a smoother that also saw the
-                                  recorded future). With "history", read the
-                                  scene with ``estimate="speeds"``: a position-only fit over a short history damps
-                                  the jerks so hard that its last speed lags the car's
+    mpc_horizon : int or None     the MPC's planning horizon [steps]; required with "closed" (None: ``horizon``)
+    lateral : {"hold", "mean-path", "plane", "neighbours"}   lateral offsets of predictions (`pirl_sim.lateral`)
+    start : {"history", "track"}  predictions start from the history's own estimate (`ReplayScene.history_window`),
+                                  or the whole piece's; with "history" read the scene with ``estimate="speeds"``
     """
 
     history: int = 10
@@ -385,28 +376,16 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     ----------
     scene : pirl_sim.scenarios.replay.ReplayScene
     seed : int                   the split seed (``proto.seeds`` is not used)
-    methods : list of (name, key, params)
-        ``key``: a pseudo-learner of `METHODS` (no params) or a learner of `pirl_sim.learners.LEARNERS`, fitted
-        on the training pieces with ``params``; ``name`` names its row (``method``).
+    methods : list of (name, key, params)   ``key``: a pseudo-learner of `METHODS` or a learner of
+                                 `pirl_sim.learners.LEARNERS` fitted with ``params``; ``name``: its row's ``method``
     proto : ReplayProtocol
-    desired_speed : None, "fit" or (a_lat, v_max)
-        The scene's own, fitted on this split's training pieces (`fit_scene_speed`), or given [m/s^2, m/s].
-    n_futures : int              K > 0: also score K futures of every learner: ``min_ade@K``, ``min_fde@K``,
-                                 ``miss_rate@K`` (INTERACTION's rule), ``nll_per_step@K`` (mixture NLL, sigma 1 m)
+    desired_speed : None, "fit" or (a_lat, v_max)   the scene's own, fitted on the split (`fit_scene_speed`), or given
+    n_futures : int              K > 0: also score K futures (``min_ade@K``, ..., mixture NLL with sigma 1 m)
 
     Returns
     -------
-    dict
-        ``methods``: {name: {"row": dict, "errors": (W,) MED per window [m], "shown": (n, horizon) predicted arc
-        lengths of the example windows, or None for ``cv-xy``}}, in the order of ``methods``; ``examples``:
-        {"t": (history + horizon + 1,) [s], "truth": (n, history + horizon + 1) recorded arc lengths} of up to 4
-        example windows.
-
-    Raises
-    ------
-    ValueError
-        An unknown method key, futures or an averaging learner with a closed-loop rollout, fewer than 4 usable
-        tracks, or no test window.
+    result : dict                ``methods`` {name: {"row", "errors" (W,) MED [m], "shown"}}, ``examples``; ValueError
+                                 for an unknown method, futures with closed loops, under 4 usable tracks, no test window
     """
     from pirl_sim.learners import LEARNERS, make_learner
     from pirl_sim.learners.knn import MIXTURES, steer_segment

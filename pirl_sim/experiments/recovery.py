@@ -61,8 +61,7 @@ TARGETS: dict[str, tuple[tuple[str, str, float], ...]] = {
 # ---------------------------------------------------------------------------------------------- one run
 @dataclass(frozen=True, eq=False)
 class RunRecovery:
-    """Recovered weights of one run: per track (``tracks``, and ``weights`` as a
-    :class:`pirl_sim.recovery.RecoveryReport`) and per style (TIRL).
+    """Recovered weights of one run, per track and per style (TIRL); columns: "Weight recovery on simulated runs".
 
     Attributes
     ----------
@@ -70,21 +69,12 @@ class RunRecovery:
     seed : int
     control_noise : float           [m/s^3] standard deviation of the noise on every applied jerk
     n_pirl_tracks : int             PIRL tracks in the run (usable or not)
-    tracks : pandas.DataFrame
-        One row per usable PIRL track: ``track_id``, ``style_name``, ``steps`` (of the track),
-        ``usable_steps`` (its step mask), ``fitted_steps`` (scored with the stride), for each free feature f
-        ``theta_f`` (true, normalised), ``theta_hat_f`` and ``log_err_f`` = log(theta_hat_f / theta_f),
-        ``sigma`` [m/s^3] (fitted residual scale), ``converged``, ``at_bound`` (a log weight at its bound).
-    styles : pandas.DataFrame
-        One row per style: ``style_name``, ``tracks``, ``fitted_steps``, ``theta_mean_f`` (mean true
-        normalised weight of the style's usable tracks), ``theta_tirl_f`` (TIRL on those tracks),
-        ``log_err_f`` = log(theta_tirl_f / theta_mean_f), ``sigma``, ``converged``.
-    selection : pandas.DataFrame
-        :meth:`RecordedRun.step_selection_summary` (rows per style and "all").
-    fit_time_s, tirl_time_s : float
-        Wall time [s] of the per-track fit and of the per-style TIRL fits.
-    weights : pirl_sim.recovery.RecoveryReport
-        The per-track weights as the recovery API's report (errors per feature and style with intervals).
+    tracks : pandas.DataFrame       one row per usable PIRL track (``tracks.csv``)
+    styles : pandas.DataFrame       one row per style, TIRL on its usable tracks (``styles.csv``)
+    selection : pandas.DataFrame    rows per style and "all"
+                                    (`~pirl_sim.scenarios.demonstrations.RecordedRun.step_selection_summary`)
+    fit_time_s, tirl_time_s : float   wall time [s] of the per-track fit and of the per-style TIRL fits
+    weights : pirl_sim.recovery.RecoveryReport   the per-track weights as the recovery API's report
     """
 
     simulator: str

@@ -49,13 +49,8 @@ def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path 
 
     Returns
     -------
-    dict
-        Normalised, JSON-serialisable parameters: what a cell key hashes and what ``build`` receives.
-
-    Raises
-    ------
-    ValueError
-        Unknown scenario or parameter (the valid ones are listed), or a bad value.
+    params : dict                normalised, JSON-serialisable: what a cell key hashes and ``build`` receives;
+                                 ValueError for an unknown scenario or parameter (listing the valid ones) or value
     """
     spec = scenario_spec(name)
     unknown = [k for k in given if k not in spec.params]

@@ -37,21 +37,19 @@ __all__ = ["ReplayProtocol", "collect_replay", "paired_differences", "summarize"
 
 
 def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=()) -> dict:
-    """The replay's result dict from `pirl_sim.experiments.recorded.replay_seed`'s output per split seed ({seed:
-    output}, rows in the order of ``proto.seeds`` and then of each output's methods; ``pirl-sim replay`` rebuilds
-    it from the stored cells, `pirl_sim.cli.replay.replay_results`); ``gmm_k``, the clusters of the cluster
-    figure, is the first PIRL-GMM learner's ``n_components`` (3 without one) of ``learner_specs`` [(name, key,
-    params)].
+    """The replay's result dict from the outputs of `pirl_sim.experiments.recorded.replay_seed` per split seed.
+
+    ``per_seed``: {seed: output}, taken in the order of ``proto.seeds``, then of each output's methods (``pirl-sim
+    replay`` rebuilds them from the stored cells); ``gmm_k`` of the cluster figure is the first PIRL-GMM learner's
+    ``n_components`` in ``learner_specs`` [(name, key, params)], else 3.
 
     Returns
     -------
-    dict with ``rows`` (tidy DataFrame: seed, method, med, med_path, de@..., n_windows, counts, a_lat, v_max,
-    lateral_floor, fit_s, predict_s; for learners their fit diagnostics ``irl_converged`` / ``irl_groups``,
-    ``irl_convergence_warnings``, ``hessian_regularization_warnings``, ``irl_from`` (the method whose fit a
-    PIRL-kNN learner reused, else empty) and, with ground truth, ``ari``, ``weight_error``, ``irl_weight_error``),
-    ``paired`` / ``paired_ca`` (paired differences against TIRL / CA (path)), ``errors`` {(seed, method):
-    per-window MED (W,)}, ``selected`` and ``selected_pieces`` (tracks used and their pieces), the S-T figure's
-    ``examples``, ``history``, ``horizon`` and ``gmm_k``.
+    result : dict
+        ``rows`` (tidy DataFrame: seed, method, scores, counts, desired speed, times and, for learners, the IRL's
+        diagnostics and, with ground truth, ``ari`` and weight errors), ``paired`` / ``paired_ca`` (differences
+        against TIRL / CA (path)), ``errors`` {(seed, method): per-window MED (W,)}, ``selected`` and
+        ``selected_pieces``, the S-T figure's ``examples``, ``history``, ``horizon`` and ``gmm_k``.
     """
     tracks = usable_tracks(scene, proto)
     rows, errors = [], {}

@@ -34,22 +34,14 @@ PARAM_KINDS = ("int", "float", "range", "rationality", "mix", "styles", "path", 
 
 @dataclass(frozen=True)
 class Param:
-    """One scenario parameter.
+    """One scenario parameter (the kinds: "Sweeps" page, The config).
 
     Attributes
     ----------
     kind : {"int", "float", "range", "rationality", "mix", "styles", "path", "bool", "choice", "table"}
-        ``range`` is a [low, high] pair; ``rationality`` a Boltzmann beta > 0 or ``inf`` (exact optima);
-        ``mix`` a table {style name: mixture weight >= 0} over the scenario's styles (0 drops a style);
-        ``styles`` a list of preset style names or tables {name, weight, mean, std} (feature name -> value);
-        ``path`` a file or directory, relative paths taken from the config file's directory; ``choice`` one of
-        ``choices``; ``table`` a table of values that the scenario's ``check`` validates.
-    default : JSON value or None
-        None for ``path`` means required.
-    doc : str
-        Meaning and unit.
-    choices : tuple of str
-        The allowed values of a ``choice``.
+    default : JSON value or None   None for ``path`` means required
+    doc : str                      meaning and unit
+    choices : tuple of str         the allowed values of a ``choice``
     """
 
     kind: str
@@ -111,45 +103,26 @@ class TrainShape:
 
 @dataclass(frozen=True)
 class ScenarioSpec:
-    """A registered scenario (see module doc).
+    """A registered scenario (module doc; the architecture page explains each field).
 
     Attributes
     ----------
-    name : str
-    summary : str
+    name, summary : str
     params : mapping {name: Param}
-    check : callable(dict) -> dict
-        Complete parameters (defaults merged, kinds converted) -> normalised JSON-serialisable parameters;
-        raises ValueError naming the problem.
+    check : callable(dict) -> dict            complete parameters -> normalised JSON-serialisable ones; ValueError
     build : callable(dict, int) -> ScenarioData, or None (a scenario whose ``run_cells`` reads its own data)
     train_shape : callable(dict) -> TrainShape
-    fingerprint : callable(dict) -> str or None
-        Hash of the data files a scenario reads (None: nothing read).
-    simulation : callable(dict) -> dict, or None
-        Simulated scenarios: the parameters the simulation depends on (see module doc); ``build`` then takes
-        the directory of the recorded run as a third argument.
-    simulate : callable(dict, int, Path), or None
-        Records one run of ``simulation(params)`` and a seed into a directory.
-    driver_horizon : callable(dict) -> int or None
-        The drivers' MPC horizon [steps], where the scenario knows it: the default ``horizon`` of learners
-        with ``likelihood = "receding"``.
-    run_cells : callable(specs) -> list of (scores, timings), or None
-        (a simulated kind's: ``run_cells(specs, simulation_dir)``, the recorded run of the cells' seed)
-        A scenario's own cell runner (module-level), for the cells of one task (``task_group``; the sweep's
-        `pirl_sim.engine.worker.run_cells` adds the shared timings, warnings and worker); None: the
-        sweep's (`pirl_sim.engine.worker.run_cells`, learners scored by `pirl_sim.evaluation.protocols.evaluate`).
-    task_group : callable(dict) -> str or None, or None
-        Which cells run as one task (equal strings; None: alone); None: PIRL-kNN k-grids
-        (`pirl_sim.engine.worker.knn_group`).
-    check_protocol : callable(dict, dict), or None
-        Checked with the parameters and every protocol (`Protocol` fields) at the config check: ValueError
-        (its message follows the scenario's name) for a protocol the scenario cannot run; None: every one.
-    learners : tuple of str, or None
-        The only learners (sweep names) this scenario runs, checked at the config check; None: the learners
-        and baselines that are not some scenario's own (a learner class's ``scenarios`` names where it runs).
-    code : tuple of str
-        Modules (``.*``: packages) that compute this scenario's cells besides `pirl_sim.engine.store.CELL_CODE`:
-        their source is part of this scenario's cell keys only (`pirl_sim.engine.store.code_version`).
+    fingerprint : callable(dict) -> str or None    hash of the data files a scenario reads (None: nothing read)
+    simulation : callable(dict) -> dict, or None   the parameters a simulation depends on
+    simulate : callable(dict, int, Path), or None  records one run of ``simulation(params)`` and a seed
+    driver_horizon : callable(dict) -> int or None   the drivers' MPC horizon [steps], where the scenario knows it
+    run_cells : callable(specs) -> list of (scores, timings), or None   the scenario's own cell runner; None: the
+        sweep's (`pirl_sim.engine.worker.run_cells`)
+    task_group : callable(dict) -> str or None, or None   which cells run as one task; None:
+        `pirl_sim.engine.worker.knn_group`
+    check_protocol : callable(dict, dict), or None   ValueError for a protocol the scenario cannot run
+    learners : tuple of str, or None          the only learners this scenario runs; None: those not another's own
+    code : tuple of str                       modules hashed into this scenario's cell keys only
     """
 
     name: str

@@ -57,39 +57,17 @@ Where = Callable[[int], str]  # row position -> "line N" style location
 # ----------------------------------------------------------------------------------------------
 
 def read_tracks(path, *, kind: str = "auto") -> pd.DataFrame:
-    """Read one INTERACTION track CSV file and validate it.
+    """Read one INTERACTION track CSV file and validate it (file-formats page: columns, units, checks).
 
     Parameters
     ----------
-    path : str or os.PathLike
-        The ``vehicle_tracks_NNN.csv`` or ``pedestrian_tracks_NNN.csv`` file.
-    kind : {"auto", "vehicle", "pedestrian"}
-        Expected format; ``"auto"`` takes it from the header.
+    path : str or os.PathLike                  the ``vehicle_tracks_NNN.csv`` or ``pedestrian_tracks_NNN.csv`` file
+    kind : {"auto", "vehicle", "pedestrian"}   expected format; ``"auto"`` takes it from the header
 
     Returns
     -------
-    pandas.DataFrame
-        One row per line of the file, in file order, columns as in the header.
-        ``track_id``, ``frame_id``, ``timestamp_ms`` [ms] are int64 (a pedestrian file's ``track_id`` is str
-        when any id is not a whole number, e.g. ``P1``), ``agent_type`` is str,
-        ``x``, ``y`` [m], ``vx``, ``vy`` [m/s], ``psi_rad`` [rad], ``length``, ``width`` [m] are float64.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` does not exist.
-    ValueError
-        If ``kind`` is invalid or the file is malformed: not UTF-8 text, wrong header, rows with the wrong
-        number of fields, values that are not numbers or not finite, a vehicle ``length`` or ``width`` <= 0 or
-        above `MAX_LENGTH_M` / `MAX_WIDTH_M`, duplicated ``(track_id, frame_id)``,
-        frames not strictly increasing within a track, ``timestamp_ms`` not ``100 ms * frame_id``
-        plus one constant offset, or no rows at all. The message names the file, the line
-        (header = line 1) and the column.
-
-    Notes
-    -----
-    Blank lines are skipped. A last line cut mid-row is caught by its field count, but a cut inside
-    the last field leaves a shorter, still valid number and cannot be detected.
+    tracks : pandas.DataFrame                  one row per line, in file order, the header's columns;
+                                               FileNotFoundError, or ValueError naming the file, line and column
     """
     _check_kind(kind)
     path = Path(path)
@@ -135,31 +113,18 @@ def _not_utf8(path: Path) -> str:
 def read_tracks_lenient(path) -> tuple[pd.DataFrame | None, int]:
     """Read the valid tracks of a vehicle track file, dropping every track with a bad row.
 
-    The forgiving counterpart of :func:`read_tracks`, for files of which one broken row should not cost
-    the good tracks. A track is dropped, whole, when any of its rows
-
-    - has the wrong number of fields, or a value that is not what its column holds: an integer for
-      ``track_id``, ``frame_id``, ``timestamp_ms`` (``"1.5"`` is not read as 1), a finite number for the
-      float columns, a non-empty ``agent_type``;
-    - repeats a ``frame_id`` of the track, or its frames do not increase strictly in file order;
-    - has a ``timestamp_ms`` that is not ``100 ms * frame_id`` plus the file's offset (the offset most
-      rows have), e.g. timestamps running backwards;
-    - has a ``length`` or ``width`` <= 0 or above `MAX_LENGTH_M` / `MAX_WIDTH_M`.
+    The forgiving counterpart of `read_tracks`: a track is dropped, whole, when any of its rows fails a check (the
+    file-formats page, INTERACTION tracks, lists them).
 
     Parameters
     ----------
-    path : str or os.PathLike
-        A ``vehicle_tracks_NNN.csv`` file.
+    path : str or os.PathLike              a ``vehicle_tracks_NNN.csv`` file
 
     Returns
     -------
-    frame : pandas.DataFrame or None
-        The rows of the kept tracks, in file order, as :func:`read_tracks` returns them (it passes
-        :func:`read_tracks`' checks); None when the file is unreadable (missing, not UTF-8, not CSV, not
-        the vehicle header) or no track is left.
-    n_dropped : int
-        Tracks dropped, plus one for each row whose ``track_id`` is not an integer (it belongs to no track
-        that could be named).
+    frame : pandas.DataFrame or None       the kept tracks' rows in file order, as `read_tracks` returns them; None
+                                           when the file is unreadable or no track is left
+    n_dropped : int                        tracks dropped, plus one per row whose ``track_id`` is not an integer
     """
     path = Path(path)
     try:
@@ -230,35 +195,19 @@ def _lenient_row(row: list[str], n: int) -> list | None:
 
 
 def write_tracks(df: pd.DataFrame, path, *, kind: str = "auto") -> Path:
-    """Validate ``df`` and write it atomically as an INTERACTION track CSV file.
+    """Validate ``df`` and write it atomically as an INTERACTION track CSV file (exact round trip; file-formats page).
 
     Parameters
     ----------
-    df : pandas.DataFrame
-        Tracks with the columns of :data:`VEHICLE_COLUMNS` or :data:`PEDESTRIAN_COLUMNS` (any order,
-        no other columns; the index is not written). Units as in :func:`read_tracks`.
-    path : str or os.PathLike
-        Target file; missing parent directories are created.
-    kind : {"auto", "vehicle", "pedestrian"}
-        Format to write; ``"auto"`` takes it from the columns of ``df``.
+    df : pandas.DataFrame                      columns of `VEHICLE_COLUMNS` or `PEDESTRIAN_COLUMNS` (any order, no
+                                               others; the index is not written), units as in `read_tracks`
+    path : str or os.PathLike                  target file; missing parent directories are created
+    kind : {"auto", "vehicle", "pedestrian"}   format to write; ``"auto"`` takes it from the columns
 
     Returns
     -------
-    pathlib.Path
-        The written file.
-
-    Raises
-    ------
-    ValueError
-        If ``kind`` is invalid or ``df`` fails the checks of :func:`read_tracks`; the message names the
-        row (and the line it would have in the file) and the column. Nothing is written then.
-
-    Notes
-    -----
-    Columns are written in header order, integers as integers and floats as the shortest decimal
-    that parses back to the same float64, so a write/read round trip is exact. The text goes to a
-    temporary file in the target directory that is renamed over ``path`` with :func:`os.replace`
-    only once complete, so a crash never leaves a partial file at ``path``.
+    path : pathlib.Path                        the written file; ValueError (naming row, line and column) for an
+                                               invalid ``kind`` or ``df``, and then nothing is written
     """
     _check_kind(kind)
     path = Path(path)
@@ -298,24 +247,17 @@ def split_tracks(df: pd.DataFrame) -> dict[int, pd.DataFrame]:
 
 
 def iter_track_arrays(df: pd.DataFrame) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
-    """Iterate over the tracks of a table as numpy arrays.
+    """Iterate over the tracks of a table as numpy arrays, by ascending ``track_id``, samples in ``frame_id`` order.
 
     Parameters
     ----------
-    df : pandas.DataFrame
-        Tracks as returned by :func:`read_tracks`.
+    df : pandas.DataFrame          tracks as returned by `read_tracks`
 
     Yields
     ------
     track_id : int (str for a pedestrian file's named tracks)
-    t_s : numpy.ndarray, shape (n,)
-        Time stamps [s] (``timestamp_ms / 1000``), increasing.
-    xy : numpy.ndarray, shape (n, 2)
-        Positions ``(x, y)`` [m].
-    v_xy : numpy.ndarray, shape (n, 2)
-        Velocities ``(vx, vy)`` [m/s].
-
-    Tracks come in ascending ``track_id`` order, the samples of each in ``frame_id`` order.
+    t_s : numpy.ndarray (n,)       time stamps [s] (``timestamp_ms / 1000``), increasing
+    xy, v_xy : numpy.ndarray (n, 2)   positions (x, y) [m] and velocities (vx, vy) [m/s]
     """
     _require_columns(df, ("track_id", "frame_id", "timestamp_ms", "x", "y", "vx", "vy"))
     tracks = split_tracks(df)
@@ -335,20 +277,12 @@ def find_track_files(directory) -> list[Path]:
 
     Parameters
     ----------
-    directory : str or os.PathLike
-        A ``recorded_trackfiles/<scenario>`` directory.
+    directory : str or os.PathLike   a ``recorded_trackfiles/<scenario>`` directory
 
     Returns
     -------
-    list of pathlib.Path
-        The ``vehicle_tracks_*.csv`` files in ``directory`` (not recursive), sorted by name.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``directory`` does not exist.
-    ValueError
-        If it holds no such file.
+    paths : list of pathlib.Path     its ``vehicle_tracks_*.csv`` files (not recursive), sorted by name;
+                                     FileNotFoundError without the directory, ValueError without such a file
     """
     directory = Path(directory)
     if not directory.is_dir():

@@ -109,18 +109,12 @@ class LaneletMap:
 
     Attributes
     ----------
-    path : pathlib.Path
-        The file it was read from.
-    map : lanelet2.core.LaneletMap
-        The lanelet2 map, coordinates in the local UTM frame [m].
-    routing_graph : lanelet2.routing.RoutingGraph
-        Routing graph for German traffic rules and vehicles (successor, left/right lane-change and
-        adjacent relations).
-    traffic_rules : lanelet2.traffic_rules.TrafficRules
-        The rules the routing graph was built with (kept alive beside it).
-    centerlines : dict[int, numpy.ndarray]
-        Lanelet id -> centerline, shape (P, 2), x, y in metres, in the lanelet's own direction.
-        The arrays are read-only.
+    path : pathlib.Path                                   the file it was read from
+    map : lanelet2.core.LaneletMap                        coordinates in the local UTM frame [m]
+    routing_graph : lanelet2.routing.RoutingGraph         German traffic rules, vehicles (successor, lane-change and
+                                                          adjacent relations)
+    traffic_rules : lanelet2.traffic_rules.TrafficRules   the rules the routing graph was built with
+    centerlines : dict[int, numpy.ndarray]                lanelet id -> read-only (P, 2) x, y [m], in its direction
     """
 
     path: Path
@@ -155,32 +149,16 @@ class LaneletMap:
 
 
 def load_map(path) -> LaneletMap:
-    """Read a Lanelet2 OSM map in the INTERACTION frame.
+    """Read a Lanelet2 OSM map in the INTERACTION frame (nodes projected with ``UtmProjector(Origin(0, 0))``).
 
     Parameters
     ----------
-    path : str or os.PathLike
-        The ``.osm`` file. Nodes carry lat/lon [deg]; they are projected with
-        ``UtmProjector(Origin(0, 0))`` to local x, y [m], the frame of INTERACTION tracks.
+    path : str or os.PathLike     the ``.osm`` file
 
     Returns
     -------
-    LaneletMap
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` does not exist.
-    ValueError
-        If the file is not well-formed XML or has a DTD (``<!DOCTYPE``: lanelet2 does not expand its entities), a
-        node's ``lat`` or ``lon`` is missing, not a plain ASCII decimal number (digit separators, other scripts'
-        digits) or out of range (the message names the node; lanelet2 would read another value silently),
-        lanelet2 reports any error while reading it (a broken reference, a lanelet without exactly one left and
-        right border, ...), a lanelet is degenerate (a border of fewer than two nodes, or left and right
-        borders on the same points) or it has no lanelets; the message
-        names the file and the reason. lanelet2 would return a partial map in the error case, whose
-        broken lanelets crash the process (segmentation fault) when their centerline is computed, so it
-        is never used. ``lanelet2.io.load`` rejects the same files.
+    lmap : LaneletMap             FileNotFoundError, or ValueError naming the file and the reason for a file that
+                                  lanelet2 would misread or read partly (file-formats page, Lanelet2 maps)
     """
     lanelet2 = _lanelet2()
     path = Path(path)
@@ -413,36 +391,20 @@ class _MatchIndex:
 
 @dataclass(frozen=True)
 class RouteMatch:
-    """The lanelet route a track drove.
+    """The lanelet route a track drove (`match_route`).
 
     Attributes
     ----------
-    lanelet_ids : tuple[int, ...]
-        Lanelets in driving order, connected by routing-graph relations (successor, or a lane change to
-        a left/right neighbour). A lanelet appears twice if the track came back to it.
-    inverted : tuple[bool, ...]
-        Per entry of ``lanelet_ids``: True if it was driven against its own direction (only possible on
-        lanelets that are not one-way).
-    relations : tuple[str, ...]
-        How each lanelet was entered from the one before: ``"successor"``, ``"left"``, ``"right"``,
-        ``"adjacent_left"`` or ``"adjacent_right"`` (a neighbour across a line that forbids lane
-        changes). One shorter than ``lanelet_ids``.
-    centerline : numpy.ndarray
-        (P, 2) x, y [m]: the centerlines of the route concatenated, joint points once. Where the route
-        changes lane it leaves one centerline and joins the next at the point where the track crossed.
-    point_route_index : numpy.ndarray
-        (n,) int: for each track point, the position in ``lanelet_ids`` of its lanelet; -1 for a point
-        off-map or unconnected.
-    offsets : numpy.ndarray
-        (n,) distance [m] of each track point from ``centerline``.
-    max_offset : float
-        The ``max_offset`` [m] of the match.
-    n_off_map : int
-        Points farther than ``max_offset`` from every lanelet centerline and outside every lanelet.
-    unconnected : numpy.ndarray
-        (n,) bool: on-map points left out of the route because no path through the routing graph (or only
-        a long detour) joins their lanelets to the route's: a stray point, or the part of a track on the
-        far side of a break in the graph (the shorter part is left out).
+    lanelet_ids : tuple[int, ...]         lanelets in driving order (one appears twice if the track came back)
+    inverted : tuple[bool, ...]           per lanelet: driven against its own direction
+    relations : tuple[str, ...]           how each lanelet was entered from the one before: ``"successor"``,
+                                          ``"left"``, ``"right"``, ``"adjacent_left"`` or ``"adjacent_right"``
+    centerline : numpy.ndarray            (P, 2) x, y [m]: the route's centerlines, joined where the track changes lane
+    point_route_index : numpy.ndarray     (n,) int: index in ``lanelet_ids`` of each point; -1 off-map or unconnected
+    offsets : numpy.ndarray               (n,) distance [m] of each track point from ``centerline``
+    max_offset : float                    the ``max_offset`` [m] of the match
+    n_off_map : int                       points farther than ``max_offset`` from every lanelet and outside every one
+    unconnected : numpy.ndarray           (n,) bool: on-map points no path through the routing graph joins to the route
     """
 
     lanelet_ids: tuple[int, ...]
@@ -471,53 +433,19 @@ class RouteMatch:
 
 
 def match_route(lmap: LaneletMap, xy, *, max_offset: float = 3.0, psi=None) -> RouteMatch:
-    """Find the sequence of lanelets a track drove.
-
-    Every point gets candidate lanelets: those whose centerline is within ``max_offset`` of it or whose
-    polygon contains it (each passable direction of a lanelet is a candidate of its own). A Viterbi
-    search then picks one candidate per point minimising
-
-    - per point, (distance to the candidate's centerline / ``max_offset``)² plus, where the direction of
-      travel is known, 1 - cos(angle between it and the lanelet's direction) (0 along, 2 against), and
-    - per change of lanelet between consecutive matched points, the cost of the cheapest path between
-      them in the routing graph: 1 per successor or allowed lane change (left/right), 3 per crossing to
-      an adjacent lanelet where a lane change is not allowed; no path, no transition;
-    - per on-map point left out of the route (*unconnected*), 10.
-
-    so among the routes the track is consistent with, the one with the fewest lanelet changes wins, and
-    lanelets skipped between two points (short ones, or gaps of off-map points) are filled in from the
-    graph. Off-map points take no part in the search. A point whose lanelets no path joins to the rest of
-    the route (or only a detour of about ten lanelet changes) is left out instead of failing the whole
-    track; where the track crosses a real break in the graph, the part with more points is kept as the route
-    and the other part is marked unconnected (``RouteMatch.unconnected``).
+    """Find the sequence of lanelets a track drove, by a Viterbi search over candidate lanelets (file-formats page).
 
     Parameters
     ----------
-    lmap : LaneletMap
-        From :func:`load_map`.
-    xy : array_like
-        (n, 2) track positions x, y [m] in the map frame, in time order.
-    max_offset : float
-        Largest distance [m] from a centerline at which a point counts as on that lanelet.
-    psi : array_like, optional
-        (n,) vehicle heading [rad] (INTERACTION ``psi_rad``). If omitted, the direction of motion over
-        ±2 points is used where the vehicle moved at least 1 m over them.
+    lmap : LaneletMap                  from `load_map`
+    xy : array_like (n, 2)             track positions x, y [m] in the map frame, in time order
+    max_offset : float                 largest distance [m] from a centerline at which a point is on that lanelet
+    psi : array_like (n,), optional    heading [rad]; default: the direction of motion over +-2 points
 
     Returns
     -------
-    RouteMatch
-
-    Raises
-    ------
-    ValueError
-        If ``xy`` or ``psi`` is malformed, ``max_offset`` is not positive, or every point is off-map (the
-        message gives how many points).
-
-    Examples
-    --------
-    >>> lmap = load_map("maps/DR_USA_Roundabout_SR.osm")           # doctest: +SKIP
-    >>> m = match_route(lmap, track[["x", "y"]].to_numpy())        # doctest: +SKIP
-    >>> m.lanelet_ids, m.fraction_within                           # doctest: +SKIP
+    match : RouteMatch                 ValueError for malformed ``xy`` or ``psi``, ``max_offset`` <= 0, or every
+                                       point off-map
     """
     from scipy.sparse.csgraph import dijkstra
 
@@ -612,7 +540,8 @@ def match_route(lmap: LaneletMap, xy, *, max_offset: float = 3.0, psi=None) -> R
 
 
 def _viterbi_with_skips(emission: np.ndarray, dist: np.ndarray, skip_cost: float) -> np.ndarray:
-    """The cheapest assignment of points to nodes, where a point may also be left out.
+    """The cheapest assignment of points to nodes, where a point may also be left out (the state is the node of the
+    last matched point, so a left-out point does not break the chain).
 
     Parameters
     ----------
@@ -622,12 +551,7 @@ def _viterbi_with_skips(emission: np.ndarray, dist: np.ndarray, skip_cost: float
 
     Returns
     -------
-    array (T,) int: the node of each point, -1 where it was left out. At least one point is matched when any
-    point has a candidate.
-
-    The state after point t is the node of the last matched point (or "none yet"), so a left-out point does
-    not break the chain: the next matched point is joined to the last matched one. Minimises the sum of the
-    matched points' emissions, the moves between consecutive matched points and skip_cost per left-out point.
+    nodes : array (T,) int    the node of each point, -1 where left out (at least one matched if any has a candidate)
     """
     T, S = emission.shape
     none = S  # state: no point matched yet
@@ -705,40 +629,20 @@ def write_map(
     *,
     lane_width: float = 3.5,
 ) -> dict[str, int]:
-    """Write lanes of a simulated scene as a Lanelet2 OSM map in the INTERACTION frame.
-
-    Each lane becomes a lanelet (``type=lanelet``, ``subtype=road``, ``location=urban``,
-    ``one_way=yes``, ``name=<lane name>``) whose left and right boundaries are its centerline offset by
-    ``+lane_width/2`` to the left and right (solid thin lines). Where a lane has a successor, its last
-    boundary nodes and the successor's first ones are the same OSM nodes (so the routing graph links
-    them); their offset direction is the mean of the directions of all lanes meeting there. Node lat/lon
-    [deg] are the inverse of ``UtmProjector(Origin(0, 0))`` (:func:`projector`), so :func:`load_map`
-    returns the input centerlines. The file is written atomically.
+    """Write lanes of a simulated scene as a Lanelet2 OSM map in the INTERACTION frame (file-formats page).
 
     Parameters
     ----------
-    centerlines : mapping of str to array_like
-        Lane name -> centerline (P, 2), x, y [m], P >= 2, in driving direction, consecutive points
-        distinct. Lanelet ids are 1, 2, ... in this order.
-    successors : mapping of str to sequence of str
-        Lane name -> names of the lanes that follow it. A lane's end must be within
-        :data:`JOINT_TOLERANCE` (0.01 m) of each successor's start.
-    path : str or os.PathLike
-        The ``.osm`` file to write (the extension is what lanelet2 reads it by).
-    lane_width : float
-        Distance [m] between a lane's boundaries.
+    centerlines : mapping str -> array_like (P, 2)   lane name -> centerline x, y [m] in driving direction, P >= 2;
+                                                     lanelet ids are 1, 2, ... in this order
+    successors : mapping str -> sequence of str      lane name -> the lanes that follow it (within `JOINT_TOLERANCE`)
+    path : str or os.PathLike                        the ``.osm`` file, written atomically
+    lane_width : float                               distance [m] between a lane's boundaries, > 0
 
     Returns
     -------
-    dict[str, int]
-        Lane name -> lanelet id in the file (also available after loading as
-        :meth:`LaneletMap.ids_by_name`).
-
-    Raises
-    ------
-    ValueError
-        If a centerline is malformed, a successor names an unknown lane, a lane's end is farther than
-        the tolerance from a successor's start, lanes meet head-on, or ``lane_width`` is not positive.
+    ids : dict[str, int]                             lane name -> lanelet id (`LaneletMap.ids_by_name`); ValueError
+                                                     for malformed lanes, or unknown or distant successors
     """
     lanelet2 = _lanelet2()
     if not (math.isfinite(lane_width) and lane_width > 0):

@@ -47,24 +47,14 @@ def frame_schedule(frames: TrackFrames, *, start_s: float | None = None, end_s: 
     Parameters
     ----------
     frames : TrackFrames
-    start_s, end_s : float, optional
-        Time span [s] of the recording (its own timestamps, ``timestamp_ms / 1000``), half-open; default the
-        whole recording.
-    fps : float
-        Video frames per second.
-    speed : float
-        Recording seconds per video second (1 = real time).
+    start_s, end_s : float, optional   half-open time span [s] of the recording's own timestamps; default all of it
+    fps : float                        video frames per second
+    speed : float                      recording seconds per video second (1 = real time)
 
     Returns
     -------
-    numpy.ndarray
-        ``(N,)`` int64 ``frame_id`` values, ``N = round((end_s - start_s) * fps / speed)``.
-
-    Raises
-    ------
-    ValueError
-        If the span is not inside the recording (the message gives the recording's time and frame range), is
-        empty or shorter than one video frame, or ``fps`` or ``speed`` is not a positive number.
+    frame_ids : numpy.ndarray          (N,) int64, ``N = round((end_s - start_s) * fps / speed)``; ValueError for a
+                                       span outside the recording or shorter than a video frame, or a bad fps, speed
     """
     fps = check_fps(fps)
     speed = _number("speed", speed)
@@ -109,29 +99,18 @@ def _check_stack(n: int, size_px) -> None:
 def iter_scene_frames(tracks, *, start_s: float | None = None, end_s: float | None = None, fps: float = 10.0,
                       speed: float = 1.0, progress: Progress = None, size_px: tuple[int, int] = DEFAULT_SIZE_PX,
                       dpi: float = DEFAULT_DPI, **view_options) -> Iterator[np.ndarray]:
-    """Frames of a recording over a time span, drawn one by one.
+    """Frames of a recording over a time span, drawn one by one (arguments checked before the first is drawn).
 
     Parameters
     ----------
-    tracks : pandas.DataFrame or TrackFrames
-        INTERACTION-format rows.
-    start_s, end_s, fps, speed
-        As :func:`frame_schedule`.
-    progress : bool or callable, optional
-        ``True``: a tqdm bar on stderr; a callable: ``progress(done, total)`` after each frame.
-    size_px, dpi, **view_options
-        As :class:`pirl_sim.viz.SceneView` (``road``, ``color_by``, ``trail_s``, ``show_tracks``, ``extent``,
-        ``title``, ...).
+    tracks : pandas.DataFrame or TrackFrames   INTERACTION-format rows
+    start_s, end_s, fps, speed : see `frame_schedule`
+    progress : bool or callable, optional      True: a tqdm bar on stderr; a callable: ``progress(done, total)``
+    size_px, dpi, **view_options : see `pirl_sim.viz.SceneView` (``road``, ``color_by``, ``trail_s``, ...)
 
     Yields
     ------
-    numpy.ndarray
-        ``(H, W, 3)`` uint8, one per video frame (a new array each time).
-
-    Raises
-    ------
-    ValueError
-        As :func:`frame_schedule` and :class:`pirl_sim.viz.SceneView`, before the first frame is drawn.
+    frame : numpy.ndarray                      (H, W, 3) uint8, one per video frame (a new array each time)
     """
     view = SceneView(tracks, size_px=size_px, dpi=dpi, **view_options)
     schedule = frame_schedule(view.frames, start_s=start_s, end_s=end_s, fps=fps, speed=speed)
@@ -169,28 +148,17 @@ def render_scene_frames(tracks, **options) -> np.ndarray:
 
 def animate_scene(tracks, path, *, start_s: float | None = None, end_s: float | None = None, fps: float = 10.0,
                   speed: float = 1.0, progress: Progress = None, **view_options) -> Path:
-    """Write an animation of a recording over a time span.
+    """Write an animation of a recording over a time span (arguments checked before anything is drawn).
 
     Parameters
     ----------
     tracks : pandas.DataFrame or TrackFrames
-    path : str or os.PathLike
-        ``.gif`` (Pillow) or ``.mp4`` (ffmpeg, which must be on PATH).
-    start_s, end_s, fps, speed, progress, **view_options
-        As :func:`iter_scene_frames`.
+    path : str or os.PathLike          ``.gif`` (Pillow) or ``.mp4`` (ffmpeg on PATH, else RuntimeError)
+    start_s, end_s, fps, speed, progress, **view_options : see `iter_scene_frames`
 
     Returns
     -------
-    pathlib.Path
-        The file written.
-
-    Raises
-    ------
-    ValueError
-        For an unknown suffix (the message lists ``.gif``, ``.mp4``), a bad span, fps or view option; checked
-        before anything is drawn.
-    RuntimeError
-        For ``.mp4`` without ffmpeg on PATH.
+    path : pathlib.Path                the file written; ValueError for another suffix, a bad span, fps or option
     """
     check_format(path)
     frames = iter_scene_frames(tracks, start_s=start_s, end_s=end_s, fps=fps, speed=speed, progress=progress,
@@ -227,22 +195,15 @@ def iter_prediction_frames(windows: Iterable[PredictionWindow], *, repeat: int =
 
     Parameters
     ----------
-    windows : iterable of PredictionWindow
-        E.g. one track's windows as its present advances.
-    repeat : int
-        Video frames per window (a window shown ``repeat / fps`` seconds).
-    progress : bool or callable, optional
-        As :func:`iter_scene_frames`.
-    extent : tuple of float, optional
-        ``(xmin, xmax, ymin, ymax)`` [m]; default all windows' points with a 5 m margin, fixed for the whole
-        animation.
-    **view_options
-        ``road``, ``tracks``, ``size_px``, ``dpi``, ``title`` of :class:`pirl_sim.viz.PredictionView`.
+    windows : iterable of PredictionWindow   e.g. one track's windows as its present advances
+    repeat : int                          video frames per window
+    progress : bool or callable, optional   as `iter_scene_frames`
+    extent : tuple of float, optional     ``(xmin, xmax, ymin, ymax)`` [m]; default all windows' points + 5 m, fixed
+    **view_options : see `pirl_sim.viz.PredictionView` (``road``, ``tracks``, ``size_px``, ``dpi``, ``title``)
 
     Yields
     ------
-    numpy.ndarray
-        ``(H, W, 3)`` uint8.
+    frame : numpy.ndarray                 (H, W, 3) uint8
     """
     windows = _windows(windows)
     if isinstance(repeat, bool) or not isinstance(repeat, (int, np.integer)) or repeat < 1:

@@ -32,19 +32,12 @@ def distinct_colors(k: int) -> np.ndarray:
 
     Parameters
     ----------
-    k : int
-        How many, >= 1. Up to 19 come from a qualitative palette (tab10 without grey, then colours chosen
-        to stay at least 60 apart in RGB); beyond that, hues evenly spaced round the colour wheel.
+    k : int                  how many, >= 1 (else ValueError); up to 19 from a qualitative palette (tab10 without
+                             grey, then colours at least 60 apart in RGB), beyond that hues evenly spaced
 
     Returns
     -------
-    numpy.ndarray
-        ``(k, 4)`` RGBA in [0, 1], all different.
-
-    Raises
-    ------
-    ValueError
-        If ``k`` is not a positive integer.
+    colors : numpy.ndarray   (k, 4) RGBA in [0, 1], all different
     """
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
         raise ValueError(f"k must be a positive integer, got {k!r}")
@@ -101,37 +94,20 @@ def _values(table: pd.DataFrame, color_by, label: str | None) -> tuple[pd.Series
 
 def color_rows(table: pd.DataFrame, color_by=None, *, categorical: bool | None = None, cmap: str = "viridis",
                vmin: float | None = None, vmax: float | None = None, label: str | None = None) -> RowColors:
-    """Colour each row of a track table.
+    """Colour each row of a track table (ValueError / TypeError for an unknown column or a bad ``color_by``, ``cmap``).
 
     Parameters
     ----------
-    table : pandas.DataFrame
-        Rows with a ``track_id`` column.
-    color_by : str, mapping or None
-        ``None``: one colour per track (no legend). A column name (``"speed"`` also works without such a column
-        when ``vx``, ``vy`` exist: hypot(vx, vy) [m/s]). A mapping ``track_id -> value`` (a style label per track,
-        an inferred weight per track); tracks it leaves out are grey.
-    categorical : bool, optional
-        Legend of labels (True) or colour bar of numbers (False). Default: labels for text, booleans and
-        integers with at most 12 distinct values; numbers otherwise.
-    cmap : str
-        Colormap name for numbers.
-    vmin, vmax : float, optional
-        Colour bar range; default the values' range.
-    label : str, optional
-        Title of the legend or colour bar; default the column name.
+    table : pandas.DataFrame            rows with a ``track_id`` column
+    color_by : str, mapping or None     None: a colour per track (no legend); a column (``"speed"``: hypot(vx, vy)
+                                        [m/s]); or ``track_id -> value`` (tracks left out are grey)
+    categorical : bool, optional        labels or numbers; default labels for text, booleans, integers of <= 12 values
+    cmap, vmin, vmax : str, float, float   colormap and colour bar range of numbers (default the values' range)
+    label : str, optional               title of the legend or colour bar; default the column name
 
     Returns
     -------
-    RowColors
-
-    Raises
-    ------
-    ValueError
-        If ``color_by`` names a column the table lacks (the message lists the columns), a mapping names none of
-        its tracks, or numbers are asked for values that are not numbers, or ``cmap`` is not a colormap.
-    TypeError
-        If ``color_by`` is neither None, a str nor a mapping.
+    colors : RowColors
     """
     n = len(table)
     if color_by is None:

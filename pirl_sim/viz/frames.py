@@ -22,34 +22,16 @@ class TrackFrames:
 
     Parameters
     ----------
-    tracks : pandas.DataFrame
-        One row per vehicle and frame with at least :data:`SCENE_COLUMNS`: ``track_id``, ``frame_id`` (int),
-        ``timestamp_ms`` [ms] (``dt_ms * frame_id`` + a constant), ``x``, ``y`` [m], ``psi_rad`` [rad],
-        ``length``, ``width`` [m], all finite. Other columns are kept (for colouring).
+    tracks : pandas.DataFrame    one row per vehicle and frame with at least `SCENE_COLUMNS`, all finite, on evenly
+                                 spaced frames; other columns are kept. TypeError / ValueError otherwise.
 
     Attributes
     ----------
-    table : pandas.DataFrame
-        The rows, sorted, index reset.
-    track_id, frame_id : numpy.ndarray
-        ``(n,)`` int64.
-    x, y, psi, length, width : numpy.ndarray
-        ``(n,)`` float64 [m], [rad].
-    first_frame, last_frame : int
-        Frame range of the recording (inclusive).
-    dt_ms : float
-        Time between consecutive frames [ms] (100 when there is only one frame).
-    t0_ms : float
-        Timestamp of ``first_frame`` [ms].
-
-    Raises
-    ------
-    TypeError
-        If ``tracks`` is not a DataFrame.
-    ValueError
-        If a column is missing (the message lists the missing and present ones), not numeric or not finite,
-        the table is empty, a ``(track_id, frame_id)`` pair repeats, or the timestamps are not evenly spaced
-        frames.
+    table : pandas.DataFrame                  the rows, sorted, index reset
+    track_id, frame_id : numpy.ndarray        (n,) int64
+    x, y, psi, length, width : numpy.ndarray  (n,) float64 [m, m, rad, m, m]
+    first_frame, last_frame : int             frame range of the recording (inclusive)
+    dt_ms, t0_ms : float                      time between frames (100 for one frame), time of ``first_frame`` [ms]
     """
 
     def __init__(self, tracks: pd.DataFrame) -> None:

@@ -21,26 +21,15 @@ _MARGIN_M = 5.0  # [m] around the road when the extent is automatic
 
 
 class LiveView:
-    """A figure of a road; :meth:`render` draws vehicles on it and returns the pixels.
+    """A figure of a road; `render` draws vehicles on it and returns the pixels (TypeError / ValueError if invalid).
 
     Parameters
     ----------
-    road : Road
-        Drawn once, beneath the vehicles.
-    extent : tuple of float, optional
-        ``(xmin, xmax, ymin, ymax)`` [m]; default the road's bounds with a 5 m margin (1:1 aspect kept).
-    size_px : tuple of int
-        Width, height [px].
-    dpi : float
-        Dots per inch (sizes of text and lines).
+    road : Road                          drawn once, beneath the vehicles
+    extent : tuple of float, optional    ``(xmin, xmax, ymin, ymax)`` [m]; default the road's bounds + 5 m, 1:1
+    size_px : tuple of int               width, height [px]
+    dpi : float                          dots per inch (sizes of text and lines)
     title : str, optional
-
-    Raises
-    ------
-    TypeError
-        If ``road`` is not a `Road`.
-    ValueError
-        A bad extent or size.
     """
 
     def __init__(self, road: Road, *, extent=None, size_px: tuple[int, int] = DEFAULT_SIZE_PX,

@@ -19,36 +19,19 @@ _MARGIN_M = 5.0  # [m] around the tracks when the extent is automatic
 def draw_recording(tracks, *, road: Road | None = None, color_by=None, extent=None,
                    size_px: tuple[int, int] = DEFAULT_SIZE_PX, dpi: float = DEFAULT_DPI, title: str | None = None,
                    linewidth: float = 1.2, **color_options) -> Figure:
-    """A figure of every track of a recording over its road, coloured by ``color_by``.
+    """A figure of every track of a recording over its road, coloured by ``color_by`` (ValueError if undrawable).
 
     Parameters
     ----------
-    tracks : pandas.DataFrame or TrackFrames
-        INTERACTION-format rows (:data:`pirl_sim.viz.frames.SCENE_COLUMNS` at least).
-    road : Road, optional
-        Drawn beneath.
-    color_by : str, mapping or None
-        As :func:`pirl_sim.viz.draw_tracks`: None, a column (``"speed"`` from ``vx``, ``vy``), or a mapping
-        ``track_id -> value`` (a style label, an inferred weight); explained by a legend or a colour bar.
-    extent : tuple of float, optional
-        ``(xmin, xmax, ymin, ymax)`` [m]; default the tracks' bounding box with a 5 m margin (1:1 aspect).
-    size_px, dpi, title
-        As :func:`pirl_sim.viz.draw_scene`.
-    linewidth : float
-        [pt].
-    **color_options
-        ``categorical``, ``cmap``, ``vmin``, ``vmax``, ``label`` of :func:`pirl_sim.viz.colors.color_rows`.
+    tracks : pandas.DataFrame or TrackFrames   INTERACTION-format rows (`pirl_sim.viz.frames.SCENE_COLUMNS` at least)
+    road, color_by : Road, optional; str, mapping or None   drawn beneath; as `pirl_sim.viz.tracks.draw_tracks`
+    extent : tuple of float, optional          ``(xmin, xmax, ymin, ymax)`` [m]; default the tracks' box + 5 m, 1:1
+    size_px, dpi, title, linewidth : see `pirl_sim.viz.scene.draw_scene`; the lines' width [pt]
+    **color_options : see `pirl_sim.viz.colors.color_rows` (``categorical``, ``cmap``, ``vmin``, ``vmax``, ``label``)
 
     Returns
     -------
-    matplotlib.figure.Figure
-        With an Agg canvas.
-
-    Raises
-    ------
-    ValueError
-        If ``color_by`` names a column the table lacks (the message lists the columns), or the table cannot be
-        drawn.
+    figure : matplotlib.figure.Figure          with an Agg canvas
     """
     frames = tracks if isinstance(tracks, TrackFrames) else TrackFrames(tracks)
     if road is not None and not isinstance(road, Road):

@@ -48,30 +48,17 @@ def _xy(name: str, value, *, min_points: int = 1) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class PredictionWindow:
-    """One prediction: what was seen, what happened and what was predicted.
+    """One prediction: what was seen, what happened and what was predicted (validated on construction, ValueError).
 
     Attributes
     ----------
-    history : numpy.ndarray
-        ``(T, 2)`` observed positions x, y [m], oldest first, T >= 1; the last is the present.
-    predictions : numpy.ndarray
-        ``(K, H, 2)`` predicted future positions [m], K >= 1 modes, H >= 1 steps.
-    probabilities : numpy.ndarray
-        ``(K,)`` probability of each mode, >= 0, summing to 1 (within 1e-3).
-    future : numpy.ndarray or None
-        ``(F, 2)`` recorded future positions [m], if known.
-    frame : int or None
-        The recording's ``frame_id`` at the present, to draw the other vehicles then (with a track table).
-    track_id : int or None
-        The predicted vehicle, left out of the other vehicles.
-    time_s : float or None
-        Time [s] of the present, shown in the figure.
-
-    Raises
-    ------
-    ValueError
-        If a shape is wrong (the message gives the shape found and the one expected), a value is not finite,
-        or the probabilities are negative or do not sum to 1.
+    history : numpy.ndarray            (T, 2) observed positions x, y [m], oldest first, T >= 1; the last is the present
+    predictions : numpy.ndarray        (K, H, 2) predicted future positions [m], K >= 1 modes, H >= 1 steps
+    probabilities : numpy.ndarray      (K,) probability of each mode, >= 0, summing to 1 (within 1e-3)
+    future : numpy.ndarray or None     (F, 2) recorded future positions [m], if known
+    frame : int or None                the recording's ``frame_id`` at the present (to draw the other vehicles)
+    track_id : int or None             the predicted vehicle, left out of the other vehicles
+    time_s : float or None             time [s] of the present, shown in the figure
     """
 
     history: np.ndarray
@@ -131,20 +118,15 @@ class PredictionWindow:
 
 
 class PredictionView:
-    """A reusable figure of prediction windows: :meth:`update` to a window, :meth:`render` to an array.
+    """A reusable figure of prediction windows: `update` to a window, `render` to an array.
 
     Parameters
     ----------
-    road : Road, optional
-        Drawn beneath.
-    tracks : pandas.DataFrame or TrackFrames, optional
-        A recording; the other vehicles at a window's ``frame`` are drawn as grey boxes.
-    extent : tuple of float, optional
-        ``(xmin, xmax, ymin, ymax)`` [m] shown; default each window's points with a 5 m margin (an animation
-        passes the union over its windows so the view stays put).
-    max_k : int
-        Most futures a window may have (colours are fixed per mode index 0..max_k-1).
-    size_px, dpi : as :func:`pirl_sim.viz.new_figure`.
+    road : Road, optional                    drawn beneath
+    tracks : pandas.DataFrame or TrackFrames, optional   the other vehicles at a window's ``frame``, as grey boxes
+    extent : tuple of float, optional        ``(xmin, xmax, ymin, ymax)`` [m]; default each window's points + 5 m
+    max_k : int                              most futures a window may have (colours fixed per mode index)
+    size_px, dpi : see `pirl_sim.viz.raster.new_figure`.
     title : str, optional
     """
 

@@ -23,20 +23,12 @@ def new_figure(size_px: tuple[int, int] = DEFAULT_SIZE_PX, *, dpi: float = DEFAU
 
     Parameters
     ----------
-    size_px : tuple of int
-        Width and height [px], each at least 16.
-    dpi : float
-        Dots per inch; only the relative size of text and lines changes with it, not the pixel size.
+    size_px : tuple of int         width and height [px], integers >= 16 (else ValueError)
+    dpi : float                    dots per inch, > 0: the relative size of text and lines, not the pixel size
 
     Returns
     -------
-    matplotlib.figure.Figure
-        Its ``canvas`` is a ``FigureCanvasAgg``; :func:`figure_to_array` renders it to ``(H, W, 3)``.
-
-    Raises
-    ------
-    ValueError
-        If a size is not an integer of at least 16 pixels, or ``dpi`` is not a positive number.
+    figure : matplotlib.figure.Figure   its ``canvas`` is a ``FigureCanvasAgg`` (`figure_to_array` renders it)
     """
     size = check_size(size_px)
     if isinstance(dpi, bool) or not isinstance(dpi, (int, float, np.integer, np.floating)) \
@@ -83,21 +75,12 @@ def figure_to_array(fig: Figure, *, draw: bool = True) -> np.ndarray:
 
     Parameters
     ----------
-    fig : matplotlib.figure.Figure
-        A figure with an Agg canvas (as from :func:`new_figure`).
-    draw : bool
-        Render the whole figure first. ``False`` returns the canvas buffer as it is, for callers that updated
-        it themselves (blitting).
+    fig : matplotlib.figure.Figure   a figure with an Agg canvas (`new_figure`); else TypeError
+    draw : bool                      render the whole figure first; False: the canvas buffer as it is (blitting)
 
     Returns
     -------
-    numpy.ndarray
-        ``(H, W, 3)`` uint8, row 0 at the top, a copy.
-
-    Raises
-    ------
-    TypeError
-        If ``fig`` is not a figure drawn by Agg.
+    pixels : numpy.ndarray           (H, W, 3) uint8, row 0 at the top, a copy
     """
     if not isinstance(fig, Figure):
         raise TypeError(f"fig must be a matplotlib Figure, got {type(fig).__name__}")
@@ -111,25 +94,17 @@ def figure_to_array(fig: Figure, *, draw: bool = True) -> np.ndarray:
 
 
 def data_to_pixel(ax, xy) -> np.ndarray:
-    """Pixel positions of data points in the array :func:`figure_to_array` returns.
+    """Pixel positions of data points in the array `figure_to_array` returns.
 
     Parameters
     ----------
-    ax : matplotlib.axes.Axes
-        The axes whose data coordinates ``xy`` are in (limits as last set).
-    xy : array_like
-        ``(N, 2)`` or ``(2,)`` data coordinates, x, y [m].
+    ax : matplotlib.axes.Axes     the axes whose data coordinates ``xy`` are in (limits as last set)
+    xy : array_like               (N, 2) or (2,) data coordinates x, y [m], finite (else ValueError)
 
     Returns
     -------
-    numpy.ndarray
-        ``(N, 2)`` or ``(2,)`` float, column and row [px] (row 0 at the top); the pixel holding the point is
-        ``array[int(row), int(col)]``.
-
-    Raises
-    ------
-    ValueError
-        If ``xy`` is not of shape (N, 2) or (2,) or holds values that are not finite.
+    pixels : numpy.ndarray        (N, 2) or (2,) float, column and row [px] (row 0 at the top): the pixel holding a
+                                  point is ``array[int(row), int(col)]``
     """
     pts = np.asarray(xy, dtype=float)
     single = pts.shape == (2,)

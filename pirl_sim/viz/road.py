@@ -38,24 +38,15 @@ def _polylines(lines, name: str) -> tuple[np.ndarray, ...]:
 
 @dataclass(frozen=True, eq=False)
 class Road:
-    """Lane boundaries and centre lines of a road, x, y [m] in the frame of the tracks driven on it.
+    """Lane boundaries and centre lines of a road, x, y [m] in the frame of the tracks driven on it (validated on
+    construction: finite (P, 2) polylines, P >= 2, one style per boundary, at least one line).
 
     Attributes
     ----------
-    boundaries : tuple of numpy.ndarray
-        Lane borders, each ``(P, 2)`` [m], P >= 2; a border shared by two lanes appears once.
-    styles : tuple of str
-        One of :data:`BOUNDARY_STYLES` per boundary.
-    centerlines : tuple of numpy.ndarray
-        Lane centre lines, each ``(P, 2)`` [m], in driving direction.
-    source : str
-        Where the road came from (a file name or a description), for titles and messages.
-
-    Raises
-    ------
-    ValueError
-        If a polyline is not ``(P, 2)`` with P >= 2 and finite, ``styles`` does not match ``boundaries`` one to
-        one or names a style not in :data:`BOUNDARY_STYLES`, or the road has no line at all.
+    boundaries : tuple of numpy.ndarray    lane borders, each (P, 2) [m]; a border shared by two lanes appears once
+    styles : tuple of str                  one of `BOUNDARY_STYLES` per boundary
+    centerlines : tuple of numpy.ndarray   lane centre lines, each (P, 2) [m], in driving direction
+    source : str                           where the road came from (a file name or a description)
     """
 
     boundaries: tuple[np.ndarray, ...]
@@ -89,27 +80,19 @@ class Road:
 
 
 def draw_road(ax, road: Road, *, centerlines: bool = True, zorder: float = 1.0) -> list[LineCollection]:
-    """Draw a road's boundaries (by style) and, optionally, its centre lines on ``ax``.
+    """Draw a road's boundaries (by style) and, optionally, its centre lines on ``ax`` (TypeError for another road).
 
     Parameters
     ----------
     ax : matplotlib.axes.Axes
     road : Road
-    centerlines : bool
-        Draw the lane centre lines too (thin, dashed, light blue).
-    zorder : float
-        Drawing order of the road's lines; vehicles and tracks are drawn above 2.
+    centerlines : bool           draw the lane centre lines too (thin, dashed, light blue)
+    zorder : float               drawing order of the road's lines; vehicles and tracks are drawn above 2
 
     Returns
     -------
-    list of matplotlib.collections.LineCollection
-        One collection per style present (and one for the centre lines), already added to ``ax``. The axes'
-        data limits grow to hold the road; set the view with ``ax.set_xlim``/``set_ylim`` or ``autoscale``.
-
-    Raises
-    ------
-    TypeError
-        If ``road`` is not a :class:`Road`.
+    lines : list of matplotlib.collections.LineCollection   one per style present (and one for the centre lines),
+        added to ``ax``, whose data limits grow to hold the road
     """
     if not isinstance(road, Road):
         raise TypeError(f"road must be a pirl_sim.viz.Road (see pirl_sim.viz.road_sources), got {type(road).__name__}")

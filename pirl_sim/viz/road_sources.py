@@ -26,21 +26,13 @@ def offset_polyline(line, offset: float) -> np.ndarray:
 
     Parameters
     ----------
-    line : array_like
-        ``(P, 2)`` x, y [m], P >= 2, consecutive points distinct.
-    offset : float
-        Lateral distance [m]; at each vertex the two neighbouring segments' normals are averaged (mitred,
-        limited to 4x at sharp corners).
+    line : array_like (P, 2)     x, y [m], P >= 2, consecutive points distinct (else ValueError)
+    offset : float               lateral distance [m]; at a vertex the segments' normals are averaged (mitred,
+                                 limited to 4x at sharp corners)
 
     Returns
     -------
-    numpy.ndarray
-        ``(P, 2)`` [m].
-
-    Raises
-    ------
-    ValueError
-        If ``line`` is not ``(P, 2)`` with P >= 2, or two consecutive points coincide.
+    moved : numpy.ndarray (P, 2)   [m]
     """
     pts = np.asarray(line, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
@@ -85,25 +77,14 @@ def road_from_lanelet2(lanelet_map) -> Road:
 
     Parameters
     ----------
-    lanelet_map : str, os.PathLike or pirl_sim.io.lanelet2_map.LaneletMap
-        An INTERACTION-style ``.osm`` file (read with :func:`pirl_sim.io.lanelet2_map.load_map`) or a map it
-        returned.
+    lanelet_map : str, os.PathLike or pirl_sim.io.lanelet2_map.LaneletMap   an INTERACTION-style ``.osm`` file
+        (read with `pirl_sim.io.lanelet2_map.load_map`) or a map it returned
 
     Returns
     -------
-    Road
-        A bound shared by two lanelets appears once. Styles from the bound's tags: ``type=virtual`` (or no
-        type) -> ``"virtual"``, a ``subtype`` containing ``dashed`` -> ``"dashed"``, else ``"solid"`` (painted
-        lines, kerbs, walls).
-
-    Raises
-    ------
-    ValueError
-        If the map has no lanelets (the message names the file), or the file is not a readable Lanelet2 map.
-    TypeError
-        If ``lanelet_map`` is neither a path nor a ``LaneletMap``.
-    ImportError
-        Without the lanelet2 package (``pip install 'pirl_sim[maps]'``).
+    road : Road
+        A bound shared by two lanelets appears once, styled by its tags ("Drawing scenes" page). ValueError for a
+        map without lanelets or unreadable, TypeError, ImportError without lanelet2 (``pirl_sim[maps]``).
     """
     from pirl_sim.io.lanelet2_map import LaneletMap, load_map
 
@@ -138,24 +119,13 @@ def road_from_sumo(net, *, internal: bool = True) -> Road:
 
     Parameters
     ----------
-    net : str, os.PathLike, pirl_sim.scenarios.sumo.NetworkFiles or sumolib.net.Net
-        A ``.net.xml`` file or a network (read with :func:`pirl_sim.scenarios.sumo.network.load_net`).
-    internal : bool
-        Draw junction-internal lanes (the connections through junctions) too, with virtual borders.
+    net : str, os.PathLike, pirl_sim.scenarios.sumo.NetworkFiles or sumolib.net.Net   a ``.net.xml`` file or network
+    internal : bool                    draw junction-internal lanes too, with virtual borders
 
     Returns
     -------
-    Road
-        On a normal edge the outer borders are ``"solid"`` and the borders between its lanes ``"dashed"``.
-
-    Raises
-    ------
-    ValueError
-        If the network has no lanes.
-    FileNotFoundError, TypeError
-        As :func:`pirl_sim.scenarios.sumo.network.load_net`.
-    ImportError
-        Without sumolib (``pip install 'pirl_sim[sumo]'``).
+    road : Road                        outer borders of an edge ``"solid"``, borders between its lanes ``"dashed"``;
+                                       ValueError without lanes, ImportError without sumolib (``pirl_sim[sumo]``)
     """
     from pirl_sim.scenarios.sumo.network import load_net
 
@@ -190,31 +160,18 @@ def road_from_sumo(net, *, internal: bool = True) -> Road:
 # ----------------------------------------------------------------------------------------------
 
 def road_from_highway(network=None, *, geometry=None) -> Road:
-    """The lanes of highway-env's roundabout (:mod:`pirl_sim.scenarios.highway.network`).
+    """The lanes of highway-env's roundabout (`pirl_sim.scenarios.highway.network`).
 
     Parameters
     ----------
-    network : highway_env.road.road.RoadNetwork, optional
-        A road network; by default the scenario's roundabout,
-        :func:`pirl_sim.scenarios.highway.network.build_network` of ``geometry``.
-    geometry : pirl_sim.scenarios.highway.network.RoundaboutGeometry, optional
-        The roundabout to build when ``network`` is not given (default radius 20 m). Not allowed with
-        ``network``.
+    network : highway_env.road.road.RoadNetwork, optional   default: the scenario's roundabout of ``geometry``
+    geometry : pirl_sim.scenarios.highway.network.RoundaboutGeometry, optional   the roundabout to build without
+        ``network`` (default radius 20 m); not with ``network``
 
     Returns
     -------
-    Road
-        Lane borders sampled every 0.5 m at +-half the lane's width, styled by highway-env's line types
-        (striped -> ``"dashed"``, none -> ``"virtual"``, continuous -> ``"solid"``).
-
-    Raises
-    ------
-    ValueError
-        If both ``network`` and ``geometry`` are given, or the network has no lanes.
-    TypeError
-        If ``network`` has no lane graph.
-    ImportError
-        Without highway-env (``pip install 'pirl_sim[highway]'``).
+    road : Road      lane borders every 0.5 m at +-half the lane's width, styled by highway-env's line types;
+                     ValueError / TypeError for both arguments or no lanes, ImportError without highway-env
     """
     from highway_env.road.lane import LineType
 

@@ -64,35 +64,22 @@ class SceneView:
 
     Parameters
     ----------
-    tracks : pandas.DataFrame or TrackFrames
-        INTERACTION-format rows (:data:`pirl_sim.viz.frames.SCENE_COLUMNS` at least).
-    road : Road, optional
-        Drawn beneath (see :mod:`pirl_sim.viz.road_sources`).
-    color_by : str, mapping or None
-        Colour of the vehicles (and trails, tracks): None for one colour per track, a column (``"speed"``
-        works from ``vx``, ``vy``) or a mapping ``track_id -> value``; see
-        :func:`pirl_sim.viz.colors.color_rows`. A legend or colour bar explains it.
-    categorical, cmap, vmin, vmax, label
-        As :func:`pirl_sim.viz.colors.color_rows`.
-    trail_s : float
-        Length [s] of the trail drawn behind each vehicle; 0 for none.
-    show_tracks : bool
-        Draw every whole track faintly beneath (part of the static background).
-    extent : tuple of float, optional
-        ``(xmin, xmax, ymin, ymax)`` [m] shown; default the tracks' (and road's, when it is not much larger)
-        bounding box with a 5 m margin. The aspect ratio is kept 1:1, so one side may show more.
-    size_px : tuple of int
-        Figure width, height [px].
-    dpi : float
-        Dots per inch (sizes of text and lines).
+    tracks : pandas.DataFrame or TrackFrames   INTERACTION-format rows, `pirl_sim.viz.frames.SCENE_COLUMNS` at least
+    road : Road, optional                      drawn beneath (`pirl_sim.viz.road_sources`)
+    color_by : str, mapping or None            None: a colour per track; a column (``"speed"``: from ``vx``, ``vy``)
+                                               or ``track_id -> value`` (`pirl_sim.viz.colors.color_rows`)
+    categorical, cmap, vmin, vmax, label : see `pirl_sim.viz.colors.color_rows`
+    trail_s : float                            length [s] of the trail behind each vehicle; 0: none
+    show_tracks : bool                         draw every whole track faintly beneath
+    extent : tuple of float, optional          ``(xmin, xmax, ymin, ymax)`` [m]; default the bounding box + 5 m, 1:1
+    size_px : tuple of int                     figure width, height [px]
+    dpi : float                                dots per inch (sizes of text and lines)
     title : str, optional
-        Figure title.
 
     Raises
     ------
     ValueError, TypeError
-        For a track table that cannot be drawn, an unknown colour column (the message lists the columns), a
-        bad extent, size or trail length.
+        A track table that cannot be drawn, an unknown colour column, a bad extent, size or trail length.
     """
 
     def __init__(self, tracks, *, road: Road | None = None, color_by=None, categorical: bool | None = None,
@@ -208,25 +195,15 @@ def draw_scene(tracks, frame: int, *, road: Road | None = None, color_by=None, s
 
     Parameters
     ----------
-    tracks : pandas.DataFrame or TrackFrames
-        INTERACTION-format rows.
-    frame : int
-        A ``frame_id`` of the recording.
-    road, color_by, show_tracks, trail_s, extent, size_px, dpi, title
-        As :class:`SceneView`.
-    **color_options
-        ``categorical``, ``cmap``, ``vmin``, ``vmax``, ``label`` of :func:`pirl_sim.viz.colors.color_rows`.
+    tracks : pandas.DataFrame or TrackFrames   INTERACTION-format rows
+    frame : int                                a ``frame_id`` of the recording
+    road, color_by, show_tracks, trail_s, extent, size_px, dpi, title : see `SceneView`
+    **color_options : see `pirl_sim.viz.colors.color_rows` (``categorical``, ``cmap``, ``vmin``, ``vmax``, ``label``)
 
     Returns
     -------
-    matplotlib.figure.Figure
-        With an Agg canvas: ``fig.savefig("scene.png")`` or :func:`pirl_sim.viz.figure_to_array`.
-
-    Raises
-    ------
-    ValueError
-        If ``frame`` is outside the recording (the message names the frame range), ``color_by`` names an
-        unknown column (the message lists the columns), or the table cannot be drawn.
+    figure : matplotlib.figure.Figure          with an Agg canvas (`pirl_sim.viz.raster.figure_to_array`); ValueError
+                                               for a frame outside the recording, an unknown column or an undrawable table
     """
     view = SceneView(tracks, road=road, color_by=color_by, show_tracks=show_tracks, trail_s=trail_s, extent=extent,
                      size_px=size_px, dpi=dpi, title=title, **color_options)

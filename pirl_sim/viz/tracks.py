@@ -87,35 +87,20 @@ def explain_colors(ax, colors: RowColors, *, loc: str = "upper right") -> object
 def draw_tracks(ax, tracks, *, color_by=None, categorical: bool | None = None, cmap: str = "viridis",
                 vmin: float | None = None, vmax: float | None = None, label: str | None = None,
                 linewidth: float = 1.5, explain: bool = True, zorder: float = 2.5) -> LineCollection:
-    """Draw every track of a table as a line, coloured by ``color_by``.
+    """Draw every track of a table as a line, coloured by ``color_by`` (a segment takes its first row's colour).
 
     Parameters
     ----------
     ax : matplotlib.axes.Axes
-    tracks : pandas.DataFrame or TrackFrames
-        INTERACTION-format rows (:data:`pirl_sim.viz.frames.SCENE_COLUMNS` at least).
-    color_by : str, mapping or None
-        As :func:`pirl_sim.viz.colors.color_rows`: None (a colour per track), a column (``"speed"`` from
-        ``vx``, ``vy`` if there is no such column) or a mapping ``track_id -> value``. A segment takes the colour
-        of the row it starts at, so a column that changes along a track (speed) colours the track piecewise.
-    categorical, cmap, vmin, vmax, label
-        As :func:`pirl_sim.viz.colors.color_rows`.
-    linewidth : float
-        [pt].
-    explain : bool
-        Add a legend (labels) or colour bar (numbers).
-    zorder : float
+    tracks : pandas.DataFrame or TrackFrames   INTERACTION-format rows (`pirl_sim.viz.frames.SCENE_COLUMNS` at least)
+    color_by, categorical, cmap, vmin, vmax, label : see `pirl_sim.viz.colors.color_rows`
+    linewidth, zorder : float                  [pt]; drawing order
+    explain : bool                             add a legend (labels) or colour bar (numbers)
 
     Returns
     -------
-    matplotlib.collections.LineCollection
-        One artist for all tracks, added to ``ax``.
-
-    Raises
-    ------
-    ValueError
-        If ``color_by`` names a column the table lacks (the message lists the columns), or the table lacks a
-        column drawing needs.
+    lines : matplotlib.collections.LineCollection   one artist for all tracks, added to ``ax`` (ValueError: a
+                                                    column is missing)
     """
     frames = tracks if isinstance(tracks, TrackFrames) else TrackFrames(tracks)
     colors = color_rows(frames.table, color_by, categorical=categorical, cmap=cmap, vmin=vmin, vmax=vmax, label=label)

@@ -13,34 +13,19 @@ _RECTANGLE = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
 
 
 def box_corners(x, y, psi, length, width, *, nose: bool = True) -> np.ndarray:
-    """Outline polygons of vehicles centred at ``(x, y)`` heading ``psi``.
+    """Outline polygons of vehicles centred at ``(x, y)`` heading ``psi`` (example: "Drawing scenes" page).
 
     Parameters
     ----------
-    x, y : array_like
-        ``(N,)`` centre [m].
-    psi : array_like
-        ``(N,)`` heading [rad], counter-clockwise from +x.
-    length, width : array_like
-        ``(N,)`` size [m], along and across the heading.
-    nose : bool
-        Cut the front corners (six vertices) so the heading shows; ``False`` gives plain rectangles (four
-        vertices: rear right, front right, front left, rear left).
+    x, y : array_like            (N,) centre [m]
+    psi : array_like             (N,) heading [rad], counter-clockwise from +x
+    length, width : array_like   (N,) size [m], along and across the heading
+    nose : bool                  cut the front corners (six vertices) so the heading shows; False: rectangles
 
     Returns
     -------
-    numpy.ndarray
-        ``(N, 6, 2)`` or ``(N, 4, 2)`` vertices [m], counter-clockwise.
-
-    Raises
-    ------
-    ValueError
-        If the inputs do not broadcast to one shape ``(N,)``.
-
-    Examples
-    --------
-    >>> box_corners([0.0], [0.0], [0.0], [4.0], [2.0], nose=False)[0].tolist()
-    [[-2.0, -1.0], [2.0, -1.0], [2.0, 1.0], [-2.0, 1.0]]
+    corners : numpy.ndarray      (N, 6, 2) or (N, 4, 2) vertices [m], counter-clockwise (ValueError: inputs that
+                                 do not broadcast to one shape (N,))
     """
     try:
         x, y, psi, length, width = np.broadcast_arrays(*(np.asarray(v, dtype=float)

@@ -201,22 +201,14 @@ def open_writer(path, fps: float) -> GifWriter | Mp4Writer:
 
     Parameters
     ----------
-    path : str or os.PathLike
-        Target file, ``.gif`` or ``.mp4`` (case-insensitive); its folder is created.
-    fps : float
-        Frames per second of the animation.
+    path : str or os.PathLike     target file, ``.gif`` or ``.mp4`` (case-insensitive); its folder is created
+    fps : float                   frames per second of the animation, > 0
 
     Returns
     -------
-    GifWriter or Mp4Writer
-        Use as a context manager; ``append(frame)`` each ``(H, W, 3)`` uint8 frame.
-
-    Raises
-    ------
-    ValueError
-        If the suffix is not one of :data:`FORMATS` or ``fps`` is not a positive number.
-    RuntimeError
-        For ``.mp4`` when ffmpeg is not on PATH.
+    writer : GifWriter or Mp4Writer
+        A context manager; ``append(frame)`` each (H, W, 3) uint8 frame. ValueError for another suffix (`FORMATS`)
+        or a bad ``fps``, RuntimeError for ``.mp4`` without ffmpeg on PATH.
     """
     suffix = check_format(path)
     check_fps(fps)

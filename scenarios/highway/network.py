@@ -100,16 +100,11 @@ class RouteLanes:
     Attributes
     ----------
     route_id : str
-    lanes : tuple of LaneIndex
-        ``(from, to, 0)`` in driving order.
-    lengths : numpy.ndarray
-        Each lane's length [m] (highway-env's ``lane.length``: the chord for sine lanes).
-    offsets : numpy.ndarray
-        Route coordinate [m] of each lane's start (cumulative lengths).
-    entry_lane : int
-        Position in ``lanes`` of the entry's S-bend (the lane that ends where the route joins the ring).
-    merge_node : str
-        The ring node where the route joins the ring (e.g. ``"se"``).
+    lanes : tuple of LaneIndex      ``(from, to, 0)`` in driving order
+    lengths : numpy.ndarray         each lane's length [m] (highway-env's ``lane.length``: the chord for sine lanes)
+    offsets : numpy.ndarray         route coordinate [m] of each lane's start (cumulative lengths)
+    entry_lane : int                position in ``lanes`` of the entry's S-bend (ends where the route joins the ring)
+    merge_node : str                the ring node where the route joins the ring (e.g. ``"se"``)
     """
 
     route_id: str

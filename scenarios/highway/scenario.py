@@ -63,19 +63,13 @@ class HighwayScenarioConfig:
 
     Attributes
     ----------
-    geometry : RoundaboutGeometry
-        Ring radius (default 20 m, highway-env's).
-    population : PopulationConfig
-        Default: the paper's three styles, 20 % background (the SUMO scenario's default).
-    drivers : DriverConfig
-        The PIRL drivers' model and MPC.
-    rules : TrafficRules
-        Leaders, yielding, crash removal.
-    pirl_routes, background_routes : tuple of str or None
-        Routes (of :data:`ROUTE_IDS`) PIRL / background vehicles draw theirs from, uniformly; None: all.
-    max_duration : float or None
-        Longest simulated time [s], > 0; None: last departure + 300 s. The run stops earlier once every
-        vehicle has left.
+    geometry : RoundaboutGeometry        ring radius (default 20 m, highway-env's)
+    population : PopulationConfig        default: the paper's three styles, 20 % background
+    drivers : DriverConfig               the PIRL drivers' model and MPC
+    rules : TrafficRules                 leaders, yielding, crash removal
+    pirl_routes, background_routes : tuple of str or None   routes (of `ROUTE_IDS`) PIRL / background vehicles
+                                         draw from, uniformly; None: all
+    max_duration : float or None         longest simulated time [s], > 0; None: last departure + 300 s
     """
 
     geometry: RoundaboutGeometry = field(default_factory=RoundaboutGeometry)
@@ -171,20 +165,13 @@ class HighwayScenarioResult:
     ----------
     config : HighwayScenarioConfig
     seed : int
-    vehicles : pandas.DataFrame
-        The plan (:func:`~.planning.plan_population`).
-    summary : pandas.DataFrame
-        One row per vehicle that was on the road (:meth:`~.traffic.RoundaboutTraffic.summary`).
-    recording : ScenarioRecording
-        What :func:`~pirl_sim.scenarios.recording.write_recording` writes.
-    routes : RouteSet
-        Reference paths of every route on one arc-length axis.
-    model : RouteSetDriverModel
-        The drivers' model (converged MPC settings) for learning and prediction.
-    timing : dict
-        ``sim_time_s``, ``wall_time_s``, ``act_time_s`` (deciding commands, MPC included), ``plan_time_s``
-        (MPC), ``n_steps``, ``n_plans``, ``mean_vehicles`` and ``max_vehicles`` on the road per step,
-        ``real_time_factor``.
+    vehicles : pandas.DataFrame      the plan (`~pirl_sim.scenarios.planning.plan_population`)
+    summary : pandas.DataFrame       one row per vehicle that was on the road
+                                     (`~pirl_sim.scenarios.highway.traffic.RoundaboutTraffic.summary`)
+    recording : ScenarioRecording    what `~pirl_sim.scenarios.recording.write_recording` writes
+    routes : RouteSet                reference paths of every route on one arc-length axis
+    model : RouteSetDriverModel      the drivers' model (converged MPC settings) for learning and prediction
+    timing : dict                    times [s] and counts, as `pirl_sim.scenarios.contract.run_scenario` gives them
     files : RecordingFiles or None
     """
 
@@ -229,23 +216,14 @@ def build_routes(config: HighwayScenarioConfig, *, cache: bool = False):
 
 def run_highway_scenario(config: HighwayScenarioConfig | None = None, seed: int = 0, *, out_dir=None,
                          progress: Progress | None = None) -> HighwayScenarioResult:
-    """Plan, simulate and record one scenario (see the module docstring).
+    """Plan, simulate and record one scenario (see the module docstring; ValueError before anything runs).
 
     Parameters
     ----------
-    config : HighwayScenarioConfig, optional
-        Default ``HighwayScenarioConfig()``.
-    seed : int
-        Seeds every draw; the same seed gives byte-identical files.
-    out_dir : str or os.PathLike, optional
-        Where to write the recording; nothing is written before the simulation has finished.
-    progress : callable, optional
-        Called every simulated second as ``progress(time_s, n_finished, n_vehicles)``.
-
-    Raises
-    ------
-    ValueError
-        A bad seed or configuration, before anything runs.
+    config : HighwayScenarioConfig, optional   default ``HighwayScenarioConfig()``
+    seed : int                                 seeds every draw (same seed, byte-identical files)
+    out_dir : str or os.PathLike, optional     where to write the recording, once the simulation has finished
+    progress : callable, optional              ``progress(time_s, n_finished, n_vehicles)``, every simulated second
     """
     return run_scenario(HighwayAdapter(), config, seed, out_dir=out_dir, progress=progress)
 

@@ -62,22 +62,16 @@ _STANDSTILL = 0.1  # [m/s] slower counts as stopped at the line
 
 @dataclass(frozen=True)
 class DriverConfig(MpcDriverConfig):
-    """The PIRL drivers' model and MPC (:class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`, as the
-    SUMO scenario's, without SUMO's vehicle type; validated on construction).
+    """The PIRL drivers' model and MPC (`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`, whose other attributes
+    it has, as the SUMO scenario's, without SUMO's vehicle type; validated on construction).
 
     Attributes
     ----------
-    speed_smoothing : float
-        Default 8 m (see :mod:`~pirl_sim.scenarios.highway.network` for why).
-    depart_speed : float
-        Speed [m/s] at insertion (capped by the desired speed there).
-    stop_speed, resume_speed : float
-        [m/s] standstill hand-back: IDM drives a PIRL vehicle slower than ``stop_speed`` until it is faster
-        than ``resume_speed``.
-    override_tol : float
-        [m/s] a command counts as overridden when the speed after the step misses it by more, > 0.
-
-    The other attributes are :class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`'s.
+    speed_smoothing : float            default 8 m (`~pirl_sim.scenarios.highway.network` says why)
+    depart_speed : float               speed [m/s] at insertion (capped by the desired speed there)
+    stop_speed, resume_speed : float   [m/s] standstill hand-back: IDM drives a PIRL vehicle slower than
+                                       ``stop_speed`` until it is faster than ``resume_speed``
+    override_tol : float               [m/s] a command is overridden when the speed after the step misses it by more
     """
 
     speed_smoothing: float = 8.0
@@ -95,32 +89,18 @@ class TrafficRules:
 
     Attributes
     ----------
-    lookahead : float
-        [m] how far ahead on its route a vehicle looks for a leader, > 0.
-    yield_distance : float
-        [m] an entering vehicle decides whether to yield within this distance of the ring, > 0.
-    yield_lookback : float
-        [m] ring vehicles up to this far before the merge node count, > 0.
-    yield_headway : float
-        [s] time a ring vehicle must stay away after the entering vehicle has cleared the node, >= 0.
-    yield_min_distance : float
-        [m] a ring vehicle closer than this to the node always conflicts, >= 0.
-    entry_acceleration : float
-        [m/s^2] acceleration assumed for clearing the node, > 0.
-    max_deceleration : float
-        [m/s^2] a vehicle that would need more to stop before the node commits (and goes), > 0.
-    stop_clearance : float
-        [m] lateral clearance, >= 0, between a vehicle waiting at an entry and the ring lane's edge (a
-        vehicle's half width from the ring's centre line): sets where the stop line is.
-    stop_margin : float
-        [m] waiting vehicles stop this far before the stop line (the IDM's jam gap there), >= 0.
-    crash_removal_delay : float or None
-        [s] crashed vehicles are removed this long after the crash, >= 0; None: never (they stay on the
-        road, stopped).
-    initial_spacing : float
-        [m] least distance between vehicles placed at a reset (env), > 0.
-    background_speed_factor_std : float
-        Standard deviation of background drivers' speed factors (mean 1, clipped to [0.7, 1.3]), >= 0.
+    lookahead : float                  [m] how far ahead on its route a vehicle looks for a leader, > 0
+    yield_distance : float             [m] an entering vehicle decides whether to yield within this of the ring, > 0
+    yield_lookback : float             [m] ring vehicles up to this far before the merge node count, > 0
+    yield_headway : float              [s] a ring vehicle's time away from the node after the entering one cleared it
+    yield_min_distance : float         [m] a ring vehicle closer than this to the node always conflicts, >= 0
+    entry_acceleration : float         [m/s^2] acceleration assumed for clearing the node, > 0
+    max_deceleration : float           [m/s^2] a vehicle that would need more to stop before the node goes, > 0
+    stop_clearance : float             [m] lateral clearance of a waiting vehicle from the ring lane's edge, >= 0
+    stop_margin : float                [m] waiting vehicles stop this far before the stop line (IDM jam gap), >= 0
+    crash_removal_delay : float or None   [s] crashed vehicles are removed this long after the crash; None: never
+    initial_spacing : float            [m] least distance between vehicles placed at a reset, > 0
+    background_speed_factor_std : float   std of background drivers' speed factors (mean 1, in [0.7, 1.3]), >= 0
     """
 
     lookahead: float = 80.0
@@ -168,18 +148,12 @@ def idm_acceleration(v: float, v0: float, gap: float | None = None, v_lead: floa
 
     Parameters
     ----------
-    v, v0 : float
-        Speed and desired speed [m/s].
-    gap : float or None
-        Bumper-to-bumper gap [m] to the leader (None: no leader).
-    v_lead : float
-        Leader speed [m/s].
-    delta : float
-        Exponent of the free-road term.
-    s0 : float
-        Jam gap [m].
-    free : bool
-        False: leave out the free-road term (``a_max`` instead): the limit an obstacle imposes.
+    v, v0 : float          speed and desired speed [m/s]
+    gap : float or None    bumper-to-bumper gap [m] to the leader (None: no leader)
+    v_lead : float         leader speed [m/s]
+    delta : float          exponent of the free-road term
+    s0 : float             jam gap [m]
+    free : bool            False: ``a_max`` instead of the free-road term (the limit an obstacle imposes)
     """
     v = max(v, 0.0)
     a = IDM_A_MAX * (1.0 - (v / max(v0, _EPS)) ** delta) if free else IDM_A_MAX
@@ -245,37 +219,24 @@ class RoundaboutTraffic(Road):
 
     Parameters
     ----------
-    network : highway_env.road.road.RoadNetwork
-        From :func:`~pirl_sim.scenarios.highway.network.build_network`.
-    routes : mapping route id -> RouteLanes
-        The route catalogue (:func:`~pirl_sim.scenarios.highway.network.route_catalogue`); every planned route
-        must be in it.
-    route_set : RouteSet
-        Reference paths of the same routes (:func:`~pirl_sim.scenarios.highway.network.route_set`).
-    plan : pandas.DataFrame
-        Vehicles to insert (:func:`~.planning.plan_population` columns), departing at ``depart`` [s] of
-        this traffic's clock (which starts at 0).
+    network : highway_env.road.road.RoadNetwork   from `~pirl_sim.scenarios.highway.network.build_network`
+    routes : mapping route id -> RouteLanes       the route catalogue; holds every planned route
+    route_set : RouteSet                          reference paths of the same routes
+    plan : pandas.DataFrame                       vehicles to insert (`~pirl_sim.scenarios.planning.plan_population`)
+                                                  departing at ``depart`` [s] of this traffic's clock
     drivers : DriverConfig
     rules : TrafficRules
-    control_noise : float
-        [m/s^3] std of Gaussian noise on PIRL drivers' applied jerk.
-    noise_rng, behaviour_rng : numpy.random.Generator
-        Control noise; background drivers' parameters and initial placement.
-    np_random : numpy.random.Generator, optional
-        highway-env's road generator (the env's ``np_random``).
-    record : bool
-        Keep every vehicle's state every step (for :meth:`recording`).
-    record_history : bool
-        highway-env's trajectory display.
+    control_noise : float                         [m/s^3] std of Gaussian noise on PIRL drivers' applied jerk
+    noise_rng, behaviour_rng : numpy.random.Generator   control noise; background drivers' parameters and placement
+    np_random : numpy.random.Generator, optional  highway-env's road generator (the env's ``np_random``)
+    record, record_history : bool                 keep every vehicle's state every step (`recording`); highway-env's
+                                                  trajectory display
 
     Attributes
     ----------
-    time : float
-        [s] since the start.
-    controller : PirlDrivers
-        The PIRL drivers' batched MPC controller (its ``plan_time_s``, ``n_plans``, ... count the work).
-    act_time_s : float
-        Wall time [s] spent deciding commands (controller included).
+    time : float                 [s] since the start
+    controller : PirlDrivers     the PIRL drivers' batched MPC controller
+    act_time_s : float           wall time [s] spent deciding commands (controller included)
     """
 
     def __init__(self, network, routes: Mapping[str, RouteLanes], route_set: RouteSet, plan: pd.DataFrame, *,

@@ -44,19 +44,13 @@ class RouteFollowing:
     Attributes
     ----------
     vehicle_id : str
-    kind : str
-        :data:`PIRL`, :data:`BACKGROUND` or :data:`EGO`.
+    kind : str                       `PIRL`, `BACKGROUND` or `EGO`
     route_lanes : RouteLanes
-    route_pos : int
-        Position of the current lane in ``route_lanes.lanes``.
-    route_s : float
-        Route coordinate [m] of the vehicle's centre.
-    lane_s, lane_lat : float
-        Coordinates [m] on the current lane.
-    command_acceleration : float
-        Longitudinal command [m/s^2] applied at the next :meth:`act`.
-    applied_acceleration : float
-        Acceleration [m/s^2] the last step carried out (speed change / dt).
+    route_pos : int                  position of the current lane in ``route_lanes.lanes``
+    route_s : float                  route coordinate [m] of the vehicle's centre
+    lane_s, lane_lat : float         coordinates [m] on the current lane
+    command_acceleration : float     longitudinal command [m/s^2] applied at the next `act`
+    applied_acceleration : float     acceleration [m/s^2] the last step carried out (speed change / dt)
     """
 
     vehicle_id: str = ""

@@ -56,44 +56,20 @@ GEOMETRY_RANGES = {"radius": (5.0, 500.0), "approach_length": (1.0, 2000.0), "la
 
 @dataclass(frozen=True)
 class RoundaboutSpec:
-    """Geometry and traffic rules of a roundabout (validated on construction).
+    """Geometry and traffic rules of a roundabout (validated on construction; `GEOMETRY_RANGES` bounds every value).
 
     Attributes
     ----------
-    radius : float
-        Ring centre-line radius [m], in [5, 500] (`GEOMETRY_RANGES` bounds every length and count).
-    n_arms : int
-        Number of arms, >= 3, evenly spaced.
-    lanes : int
-        Lanes on the ring and on every arm edge, >= 1.
-    approach_length : float
-        Length of each arm edge [m], > 0.
-    ring_segments : int
-        The ring's shape is a polygon of about this many straight pieces over the full circle (each ring
-        edge gets its share, at least one), >= ``n_arms``. The default, 64, keeps the chords within
-        ``radius * (1 - cos(pi / 64))`` (2.4 cm at 20 m) of the circle.
-    speed_limit : float
-        Speed limit on all edges [m/s], > 0.
-    lane_width : float
-        [m], > 0.
-    splitter_width : float
-        Width of the island between an arm's in and out lanes [m], >= 0.
-    center : (float, float)
-        Centre of the ring [m].
-    first_arm_deg : float
-        Direction of arm 0 [deg], counter-clockwise from +x.
-    junction_radius : float
-        Turning radius netconvert gives the curves between arms and ring [m], > 0 (netconvert's own
-        default is 4 m). Larger radii make the S-bend where a right-turning entry meets the left-curving
-        ring milder (SUMO keeps both bumpers on the lane, so on an S-bend the body heading and the
-        centre's direction of motion differ, by up to ~0.09 rad with 6 m, ~0.11 rad with 4 m) but make
-        the junctions bigger; :func:`build_network` rejects junctions that run into each other.
-    entry_visibility : float or None
-        Distance [m] before an entry's stop line from which its drivers see the traffic on the ring (the
-        ``visibility`` of SUMO's entry -> ring connections), > 0; None keeps SUMO's default of 4.5 m for
-        yielding links. With 4.5 m a SUMO vehicle must approach every entry slowly enough to stop at the
-        line, whether or not anybody comes (a lone car is braked at its maximum deceleration ~20 m before
-        the line); with a larger visibility it yields only when ring traffic actually conflicts.
+    radius : float                     ring centre-line radius [m], in [5, 500]
+    n_arms, lanes : int                number of arms (>= 3, evenly spaced); lanes on the ring and every arm edge
+    approach_length : float            length of each arm edge [m], > 0
+    ring_segments : int                straight pieces of the ring's polygon over the full circle, >= ``n_arms``
+    speed_limit : float                on all edges [m/s], > 0
+    lane_width, splitter_width : float   [m] > 0; width of the island between an arm's in and out lanes, >= 0
+    center, first_arm_deg : (float, float), float   centre of the ring [m]; direction of arm 0 [deg] from +x
+    junction_radius : float            netconvert's turning radius between arms and ring [m], > 0
+    entry_visibility : float or None   distance [m] before an entry's stop line from which its drivers see the ring,
+                                       > 0; None: SUMO's 4.5 m
     """
 
     radius: float = 20.0
@@ -228,19 +204,12 @@ def route_edges(spec: RoundaboutSpec, entry_arm: int, exit_arm: int) -> list[str
     Parameters
     ----------
     spec : RoundaboutSpec
-    entry_arm, exit_arm : int
-        Different arm indices in ``[0, n_arms)``; ``exit_arm = entry_arm + 1`` is the first exit (a right
-        turn), larger offsets go further round.
+    entry_arm, exit_arm : int      different arm indices in ``[0, n_arms)`` (else ValueError); ``entry_arm + 1`` is
+                                   the first exit (a right turn)
 
     Returns
     -------
-    list of str
-        ``[arm{entry}_in, ring{entry}_{entry+1}, ..., ring{exit-1}_{exit}, arm{exit}_out]``.
-
-    Raises
-    ------
-    ValueError
-        If an arm index is out of range or both are the same (no U-turn routes).
+    edges : list of str            ``[arm{entry}_in, ring{entry}_{entry+1}, ..., ring{exit-1}_{exit}, arm{exit}_out]``
     """
     n = spec.n_arms
     entry_arm = _check_arm(spec, entry_arm, "entry_arm")
@@ -376,30 +345,18 @@ def _plain_xml(spec: RoundaboutSpec) -> tuple[str, str, str]:
 
 
 def build_network(spec: RoundaboutSpec, out_dir, *, name: str = "roundabout") -> NetworkFiles:
-    """Write ``{name}.nod.xml``, ``{name}.edg.xml`` and, through netconvert, ``{name}.net.xml``.
-
-    Every file appears atomically (written beside its target, then renamed over it), so concurrent
-    builders of the same network never see a half-written file.
+    """Write ``{name}.nod.xml``, ``{name}.edg.xml`` and, through netconvert, ``{name}.net.xml``, each atomically.
 
     Parameters
     ----------
     spec : RoundaboutSpec
-    out_dir : str or os.PathLike
-        Created if missing.
-    name : str
-        File name stem.
+    out_dir : str or os.PathLike     created if missing
+    name : str                       file name stem
 
     Returns
     -------
-    NetworkFiles
-
-    Raises
-    ------
-    ValueError
-        If the junctions of neighbouring arms overlap (netconvert then squeezes the ring edge between
-        them to nothing): the message suggests what to change.
-    RuntimeError
-        If netconvert fails (its output is in the message).
+    files : NetworkFiles             ValueError for overlapping junctions of neighbouring arms (the message says
+                                     what to change), RuntimeError when netconvert fails
     """
     import sumolib  # heavy optional dependency, imported lazily
 
@@ -484,19 +441,14 @@ def load_net(net):
 def validate_route(net, edges, *, route_id: str | None = None) -> list[str]:
     """Check that ``edges`` is a drivable route of ``net``; return it as a list.
 
+    ValueError (naming the route and the offending edges) for an empty route, an unknown or internal edge, or two
+    consecutive edges that are not connected.
+
     Parameters
     ----------
     net : str, os.PathLike, NetworkFiles or sumolib.net.Net
-    edges : sequence of str
-        Normal (not junction-internal) edge ids in driving order.
-    route_id : str, optional
-        Named in error messages.
-
-    Raises
-    ------
-    ValueError
-        If the route is empty, names an edge the network does not have (or an internal edge), or two
-        consecutive edges are not connected; the message names the route and the offending edges.
+    edges : sequence of str        normal (not junction-internal) edge ids in driving order
+    route_id : str, optional       named in error messages
     """
     label = f"route {route_id!r}" if route_id is not None else "route"
     if isinstance(edges, str):
@@ -541,36 +493,19 @@ def _densify(shape, max_spacing: float | None) -> np.ndarray:
 
 def route_centerline(net, route_edges, *, route_id: str | None = None,
                      max_spacing: float | None = 1.0) -> np.ndarray:
-    """Reference path along a route: lane shapes joined through the junction-internal lanes.
-
-    For each pair of consecutive edges the connection between them is taken (the rightmost one, or the
-    one continuing in the lane the previous connection arrived in), and the shapes of the lane it leaves
-    from and of its internal lane(s) (the connection's ``via`` lane and any further internal lanes that
-    lane leads to, when an internal junction splits it) are appended, then the last edge's lane.
-    Consecutive points closer than 1 mm are merged. Straight pieces of a lane shape longer than
-    ``max_spacing`` are subdivided (points on the same straight line); the joins between lanes are left
-    as SUMO made them, so a gap there would show.
+    """Reference path along a route: lane shapes joined through the junction-internal lanes (SUMO page).
 
     Parameters
     ----------
-    net : str, os.PathLike, NetworkFiles or sumolib.net.Net
-        A network built with internal links (netconvert's default, and :func:`build_network`'s).
+    net : str, os.PathLike, NetworkFiles or sumolib.net.Net   a network built with internal links
     route_edges : sequence of str
-    route_id : str, optional
-        Named in error messages.
-    max_spacing : float or None
-        Largest distance [m] between consecutive points within one lane shape; None keeps SUMO's points.
+    route_id : str, optional           named in error messages
+    max_spacing : float or None        largest distance [m] between points within one lane shape; None: SUMO's points
 
     Returns
     -------
-    numpy.ndarray, shape (P, 2)
-        x, y [m] in network coordinates, in driving order.
-
-    Raises
-    ------
-    ValueError
-        If the route is not drivable (see :func:`validate_route`), the network has no internal lanes, or
-        ``max_spacing`` is not positive.
+    xy : numpy.ndarray (P, 2)          x, y [m] in network coordinates, in driving order; ValueError for a route that
+                                       is not drivable (`validate_route`), no internal lanes or ``max_spacing`` <= 0
     """
     if max_spacing is not None and not (math.isfinite(max_spacing) and max_spacing > 0):
         raise ValueError(f"max_spacing must be a positive number of metres or None, got {max_spacing!r}")
@@ -611,25 +546,17 @@ def route_centerline(net, route_edges, *, route_id: str | None = None,
 
 def route_set(net, routes, *, smoothing: float | None = None, speed_smoothing: float = 0.0,
               spacing: float | None = None):
-    """Reference paths along routes of a network (:func:`route_centerline`, smoothed) on one global arc-length
-    axis (:class:`~pirl_sim.scenarios.drivers.RouteSet`).
+    """Reference paths along routes of a network (`route_centerline`, smoothed) on one global arc-length axis
+    (`~pirl_sim.scenarios.drivers.RouteSet`; ValueError for a route not drivable in ``net``).
 
     Parameters
     ----------
     net : str, os.PathLike, NetworkFiles or sumolib.net.Net
     routes : mapping or iterable of (route_id, edges)
-    smoothing : float, optional
-        Smoothing length [m] of the paths' geometry (:meth:`pirl_sim.paths.ReferencePath.from_polyline`;
-        default ``pirl_sim.paths.DEFAULT_SMOOTHING``).
-    speed_smoothing : float
-        Further smoothing length [m] of their curvature for the desired speed (see ``RouteSet``).
-    spacing : float, optional
-        [m] (default ``ROUTE_SPACING``).
-
-    Raises
-    ------
-    ValueError
-        If a route is not drivable in ``net`` (see :func:`validate_route`).
+    smoothing : float, optional     smoothing length [m] of the paths' geometry (default
+                                    ``pirl_sim.paths.DEFAULT_SMOOTHING``)
+    speed_smoothing : float         further smoothing length [m] of their curvature for the desired speed
+    spacing : float, optional       [m] (default ``ROUTE_SPACING``)
     """
     from pirl_sim.paths import DEFAULT_SMOOTHING, ReferencePath
 
@@ -647,14 +574,8 @@ def route_set(net, routes, *, smoothing: float | None = None, speed_smoothing: f
 def lane_graph(net) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
     """Every lane of a network (junction-internal lanes included) as centerlines with successor links.
 
-    The form :func:`pirl_sim.io.lanelet2_map.write_map` takes, so the network can be written as a
-    Lanelet2 map with one lanelet per lane (the arms' lanes, the ring's lanes and each junction
-    connection), successors connected. Successors of a normal lane are the internal lanes of its
-    connections (or the target lanes where a connection has none); successors of an internal lane are
-    the lanes its connections lead to. SUMO writes shapes with 1 cm precision and custom connection
-    shapes, so a lane may end up to ~1 cm from its successor's start; every group of lane ends and starts
-    that meet is moved to the mean of its points, so they meet exactly (moves larger than
-    :data:`LANE_JOINT_SNAP` raise).
+    The form `pirl_sim.io.lanelet2_map.write_map` takes; lane ends and starts that meet are moved to their mean
+    (ValueError beyond `LANE_JOINT_SNAP`; SUMO page, Network geometry).
 
     Parameters
     ----------
@@ -662,16 +583,8 @@ def lane_graph(net) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
 
     Returns
     -------
-    centerlines : dict of str to numpy.ndarray
-        Lane id -> (P, 2) x, y [m], in driving direction, consecutive points distinct (closer than 1 mm
-        merged), sorted by lane id.
-    successors : dict of str to list of str
-        Lane id -> ids of the lanes that follow it (sorted), for every lane with a successor.
-
-    Raises
-    ------
-    ValueError
-        If a lane's end is farther than :data:`LANE_JOINT_SNAP` from a successor's start.
+    centerlines : dict of str to numpy.ndarray     lane id -> (P, 2) x, y [m] in driving direction, sorted by lane id
+    successors : dict of str to list of str        lane id -> ids of the lanes that follow it (sorted)
     """
     net = load_net(net)
     lines: dict[str, np.ndarray] = {}

@@ -108,21 +108,15 @@ def speed_mode(*, safe_speed: bool = True, max_accel: bool = True, max_decel: bo
 
     Parameters
     ----------
-    safe_speed : bool
-        bit 0: never faster than the car-following model's safe speed.
-    max_accel, max_decel : bool
-        bits 1, 2: respect the vehicle type's maximum acceleration / deceleration.
-    right_of_way : bool
-        bit 3: respect right of way towards foes approaching the junction.
-    red_light : bool
-        bit 4: brake hard to avoid passing a red light.
-    ignore_junction_foes : bool
-        bit 5 (inverted): disregard right of way towards foes already inside the junction.
+    safe_speed : bool              bit 0: never faster than the car-following model's safe speed
+    max_accel, max_decel : bool    bits 1, 2: the vehicle type's maximum acceleration / deceleration
+    right_of_way : bool            bit 3: right of way towards foes approaching the junction
+    red_light : bool               bit 4: brake hard to avoid passing a red light
+    ignore_junction_foes : bool    bit 5 (inverted): disregard right of way towards foes already in the junction
 
     Returns
     -------
-    int
-        E.g. 31 with all defaults, 25 without the acceleration bounds.
+    mode : int                     e.g. 31 with all defaults, 25 without the acceleration bounds
     """
     bits = (safe_speed, max_accel, max_decel, right_of_way, red_light, ignore_junction_foes)
     return sum(int(bool(b)) << i for i, b in enumerate(bits))
@@ -160,25 +154,15 @@ def sumo_command(net_path, *, seed: int = 0, step_length: float = DEFAULT_STEP_L
     Parameters
     ----------
     net_path : str or os.PathLike
-    seed : int
-        SUMO's random seed (``--seed``): same seed, same simulation.
-    step_length : float
-        [s]
-    extra_args : sequence of str
-        Appended (e.g. ``["--additional-files", "types.add.xml"]``).
-    collision_action : {"warn", "remove", "teleport", "none"}
-        SUMO's ``--collision.action`` (SUMO refuses an option given twice, so it is a parameter here and
-        not an extra argument).
+    seed : int                        SUMO's random seed (``--seed``): same seed, same simulation
+    step_length : float               [s]
+    extra_args : sequence of str      appended (e.g. ``["--additional-files", "types.add.xml"]``)
+    collision_action : {"warn", "remove", "teleport", "none"}   SUMO's ``--collision.action``
 
     Returns
     -------
-    list of str
-        ``[sumo, -n, net, --step-length, ..., --no-step-log, --no-warnings, --seed, ..., --collision.action,
-        <collision_action>, --time-to-teleport, -1, --begin, 0, --collision.check-junctions, true,
-        *extra_args]``. Collisions are reported and by default the vehicles stay (``warn``), jammed vehicles
-        are never teleported away, and
-        collisions inside junctions are checked too (SUMO's default checks lanes only, and a roundabout's
-        conflicts are inside its junctions).
+    cmd : list of str                 ``[sumo, -n, net, --step-length, ...]``: the flags of the SUMO page (Running
+                                      SUMO), then ``extra_args``
     """
     import sumolib
 
@@ -202,16 +186,12 @@ class VehicleSpec:
     Attributes
     ----------
     vehicle_id : str
-    route_id : str
-        One of the run's routes.
-    depart : float
-        Scheduled insertion time [s], >= 0 (SUMO delays the insertion while the start of the route is
-        occupied).
-    depart_speed : str or float
-        SUMO ``departSpeed``: a speed [m/s] or one of "max", "desired", "speedLimit", "random", "avg", "last".
-    type_id : str
-        Vehicle type; ``"DEFAULT_VEHTYPE"`` (passenger car, Krauss, 5 m x 1.8 m) unless more types are
-        loaded with ``extra_args``.
+    route_id : str              one of the run's routes
+    depart : float              scheduled insertion time [s], >= 0 (SUMO delays it while the route's start is occupied)
+    depart_speed : str or float   SUMO ``departSpeed``: a speed [m/s] or "max", "desired", "speedLimit", "random",
+                                "avg", "last"
+    type_id : str               vehicle type; ``"DEFAULT_VEHTYPE"`` (passenger car, Krauss, 5 m x 1.8 m) unless more
+                                types are loaded with ``extra_args``
     """
 
     vehicle_id: str
@@ -270,21 +250,14 @@ class Observation:
 
     Attributes
     ----------
-    time : float
-        [s]
+    time : float                        [s]
     vehicle_id : str
     ego : VehicleState
-    others : Mapping[str, VehicleState]
-        Every other vehicle in the network at this time (read-only; the runner passes a view of one shared
-        table, so building it costs nothing per vehicle).
-    leader : (str, float) or None
-        SUMO's leader on the ego's route within the lookahead and the gap to it [m] (front bumper of ego
-        to back of leader, minus ego's minGap), or None. Vehicles about to merge from an entry are not
-        leaders; look at ``others`` for them. The runner asks SUMO for it on first access only (one call
-        per vehicle and step otherwise), so read it during the controller call: afterwards an observation
-        whose leader was never read raises ``RuntimeError`` on access.
-    route_edges : tuple of str
-        The ego's route.
+    others : Mapping[str, VehicleState]   every other vehicle in the network now (a read-only view of one table)
+    leader : (str, float) or None       SUMO's leader on the route within the lookahead and the gap [m] (bumper
+                                        to bumper minus ego's minGap); vehicles merging from an entry are not
+                                        leaders. Read it during the controller call (later: RuntimeError).
+    route_edges : tuple of str          the ego's route
     """
 
     __slots__ = ("time", "vehicle_id", "ego", "_others", "_states", "route_edges", "_leader", "_leader_fn", "_run")
@@ -390,26 +363,16 @@ class ConstantSpeed:
 
 @dataclass(frozen=True)
 class SumoRecording:
-    """Result of a run.
+    """Result of a run (columns: "SUMO roundabouts" page, Running SUMO).
 
     Attributes
     ----------
-    frame : pandas.DataFrame
-        One row per vehicle per step, columns :data:`RECORD_COLUMNS`, ordered by step and then by the
-        order the vehicles were given in. ``commanded_speed`` [m/s] is NaN where no command was given;
-        ``overridden`` (nullable boolean) is NA there and where the vehicle left before the command could
-        be checked. ``collided`` is true at the times SUMO reported the vehicle in a collision;
-        ``arrived`` / ``vanished`` are true on a vehicle's last row when it left the network in the next
-        step at the end of its route / anywhere else.
-    summary : pandas.DataFrame
-        One row per vehicle, columns :data:`SUMMARY_COLUMNS`. ``status`` is "arrived", "vanished",
-        "running" (still in the network at the end) or "not_departed"; ``removed_early`` is
-        ``status == "vanished"``; ``overridden_fraction`` is the share of checked commands SUMO overrode
-        (NaN without commands).
-    wall_time_s : float
-        Wall-clock time of the stepping [s] (SUMO start and vehicle insertion excluded).
-    sim_time_s : float
-        Simulated time [s].
+    frame : pandas.DataFrame       one row per vehicle per step (`RECORD_COLUMNS`), by step, then vehicle order;
+                                   ``commanded_speed`` NaN and ``overridden`` NA where not commanded or checked
+    summary : pandas.DataFrame     one row per vehicle (`SUMMARY_COLUMNS`): ``status`` ("arrived", "vanished",
+                                   "running", "not_departed"), ``removed_early``, ``overridden_fraction``
+    wall_time_s : float            wall-clock time of the stepping [s] (SUMO start and insertion excluded)
+    sim_time_s : float             simulated time [s]
     backend : str
     seed : int
     """
@@ -443,50 +406,35 @@ class _VehicleRecord:
 class SumoRun:
     """One SUMO simulation of a network with given routes and vehicles (a context manager).
 
-    Everything is validated when the run is constructed, before SUMO starts: routes against the network
-    (with sumolib, edges exist and connect), vehicles against the routes, controlled ids against the
-    vehicles.
+    Routes, vehicles and controlled ids are validated when the run is constructed, before SUMO starts. Controller,
+    speed mode and collisions: the SUMO page of the documentation (Running SUMO).
 
     Parameters
     ----------
-    net : str, os.PathLike or NetworkFiles
-        The ``*.net.xml``.
-    routes : mapping str -> sequence of str, or iterable of (route_id, edges)
-        E.g. ``network.routes(spec)``.
+    net : str, os.PathLike or NetworkFiles   the ``*.net.xml``
+    routes : mapping str -> sequence of str, or iterable of (route_id, edges)   e.g. ``network.routes(spec)``
     vehicles : iterable of VehicleSpec
-    pirl_ids : iterable of str
-        Vehicles driven by ``controller``.
-    controller : Controller, optional
-        Required when ``pirl_ids`` is not empty.
-    seed : int
-        SUMO's ``--seed``.
-    step_length : float
-        [s]
+    pirl_ids : iterable of str            vehicles driven by ``controller``
+    controller : Controller, optional     required when ``pirl_ids`` is not empty
+    seed : int                            SUMO's ``--seed``
+    step_length : float                   [s]
     backend : {"libsumo", "traci"}
-    speed_mode : int
-        TraCI speed mode of the controlled vehicles (see the module docstring and :func:`speed_mode`).
-    override_tol : float
-        [m/s] a command counts as overridden when SUMO's speed after the step differs by more.
-    leader_lookahead : float
-        [m] distance within which ``Observation.leader`` is looked for.
-    extra_args : sequence of str
-        Appended to the SUMO command line.
-    collision_action : {"warn", "remove", "teleport", "none"}
-        SUMO's ``--collision.action`` (see the module docstring).
-    speed_modes : mapping vehicle id -> int, optional
-        Speed modes of single controlled vehicles instead of ``speed_mode`` (e.g. an agent's vehicle that
-        may crash).
+    speed_mode : int                      TraCI speed mode of the controlled vehicles (`speed_mode`)
+    override_tol : float                  [m/s] a command is overridden when the speed misses it by more
+    leader_lookahead : float              [m] distance within which ``Observation.leader`` is looked for
+    extra_args : sequence of str          appended to the SUMO command line
+    collision_action : {"warn", "remove", "teleport", "none"}   SUMO's ``--collision.action``
+    speed_modes : mapping vehicle id -> int, optional   per-vehicle speed modes instead of ``speed_mode``
 
     Attributes
     ----------
-    colliding : frozenset of str
-        Vehicles SUMO reported in a collision in the last step.
+    colliding : frozenset of str          vehicles SUMO reported in a collision in the last step
 
     Raises
     ------
     ValueError
-        For unknown backends, unreachable or unknown routes, duplicate vehicle ids, vehicles on unknown
-        routes, controlled ids that are not vehicles, a missing controller, or bad numbers.
+        Unknown backends, unreachable or unknown routes, duplicate vehicle ids, vehicles on unknown routes,
+        controlled ids that are not vehicles, a missing controller, or bad numbers.
     """
 
     def __init__(self, net, routes, vehicles: Iterable[VehicleSpec], *, pirl_ids: Iterable[str] = (),
@@ -902,45 +850,34 @@ class SumoRun:
 
 def simulate(net, routes, vehicles: Iterable[VehicleSpec], duration: float, *,
              until_empty: bool = True, **kwargs) -> SumoRecording:
-    """Build a :class:`SumoRun`, run it for ``duration`` [s] and close it (also on errors).
+    """Build a `SumoRun`, run it for ``duration`` [s] and close it (also on errors).
 
     Parameters
     ----------
-    net, routes, vehicles
-        As for :class:`SumoRun`.
-    duration : float
-        [s]
-    until_empty : bool
-        See :meth:`SumoRun.run`.
-    **kwargs
-        Passed to :class:`SumoRun` (``pirl_ids``, ``controller``, ``seed``, ``backend``, ...).
+    net, routes, vehicles : see `SumoRun`.
+    duration : float          [s]
+    until_empty : bool        see `SumoRun.run`
+    **kwargs : passed to `SumoRun` (``pirl_ids``, ``controller``, ``seed``, ``backend``, ...).
 
     Returns
     -------
-    SumoRecording
+    recording : SumoRecording
     """
     with SumoRun(net, routes, vehicles, **kwargs) as run:
         return run.run(duration, until_empty=until_empty)
 
 
 def run_in_subprocess(fn: Callable[..., Any], *args, **kwargs) -> Any:
-    """Call ``fn(*args, **kwargs)`` in a fresh spawned worker process and return its result.
+    """Call ``fn(*args, **kwargs)`` in a fresh spawned worker process and return its result (or re-raise).
 
-    libsumo holds one simulation per process, and a forked child would inherit the parent's libsumo
-    state; a spawned child starts clean. ``fn``, the arguments (controllers included) and the result must
-    be picklable: module-level functions and classes, not lambdas or closures. The child imports the
-    caller's ``__main__`` module, so a script calling this needs the ``if __name__ == "__main__":`` guard.
-    Starting the child costs ~1 s (Python, numpy, pandas, libsumo imports).
+    libsumo holds one simulation per process, and a forked child would inherit its state. ``fn``, the arguments
+    and the result must be picklable; a calling script needs the ``if __name__ == "__main__":`` guard (SUMO page).
 
     Parameters
     ----------
     fn : callable
     *args, **kwargs
         Passed to ``fn``.
-
-    Returns
-    -------
-    Whatever ``fn`` returns; its exceptions are re-raised here.
     """
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:

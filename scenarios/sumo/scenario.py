@@ -84,25 +84,15 @@ DEFAULT_NETWORK = RoundaboutSpec(radius=25.0, junction_radius=10.0, entry_visibi
 
 @dataclass(frozen=True)
 class DriverConfig(MpcDriverConfig):
-    """The PIRL drivers' model and MPC (:class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`) and their
-    SUMO vehicle type (validated on construction).
+    """The PIRL drivers' model and MPC (`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`, whose other attributes
+    it has) and their SUMO vehicle type (validated on construction).
 
     Attributes
     ----------
-    speed_smoothing : float
-        Default 10 m: it rounds the S-bend where an entry meets the ring. With 4 m its curvature peaks make
-        the desired speed dip to ~4.6 m/s over ~10 m, and drivers that dislike braking stop there in free
-        flow (measured on the default network: with 7 m "no preference" drivers still stop, with 8 m none
-        does, 10 m leaves a margin).
-    depart_speed : float
-        Speed [m/s] at insertion (SUMO delays the insertion while it is unsafe).
-    accel, decel : float
-        SUMO vehicle-type limits [m/s^2] of PIRL vehicles, > 0; keep them above the MPC's bounds (3 and
-        4 m/s^2) so that SUMO overrides a command only for safety or right of way.
-    speed_factor : float
-        SUMO speed factor of PIRL vehicles (their speed cap is speed limit x factor), > 0.
-
-    The other attributes are :class:`~pirl_sim.scenarios.scenario_config.MpcDriverConfig`'s.
+    speed_smoothing : float     default 10 m, which rounds the S-bend where an entry meets the ring (SUMO page)
+    depart_speed : float        speed [m/s] at insertion (SUMO delays the insertion while it is unsafe)
+    accel, decel : float        SUMO vehicle-type limits [m/s^2] of PIRL vehicles, > 0, above the MPC's bounds
+    speed_factor : float        SUMO speed factor of PIRL vehicles (their speed cap: speed limit x factor), > 0
     """
 
     speed_smoothing: float = 10.0
@@ -123,35 +113,17 @@ class SumoScenarioConfig:
 
     Attributes
     ----------
-    network : RoundaboutSpec
-        Default :data:`DEFAULT_NETWORK`.
-    population : PopulationConfig
-        Default: the paper's three styles, 20 % background
-        (:data:`~pirl_sim.scenarios.population_config.DEFAULT_POPULATION`).
+    network : RoundaboutSpec                   default `DEFAULT_NETWORK`
+    population : PopulationConfig              default `~pirl_sim.scenarios.population_config.DEFAULT_POPULATION`
     drivers : DriverConfig
-    routes : mapping route id -> edge ids, or None
-        The route catalogue (kept sorted by id); None: every entry-to-exit route of the roundabout
-        (:func:`~.network.routes`).
-    pirl_routes, background_routes : tuple of str or None
-        Routes (ids in the catalogue) PIRL / background vehicles draw theirs from, uniformly; None: all.
-    speed_mode : int
-        SUMO speed mode of PIRL vehicles, in [0, 127] (see the module docstring).
-    collision_action : {"warn", "remove", "teleport", "none"}
-        SUMO's ``--collision.action``.
-    override_tol : float
-        [m/s] a command counts as overridden when SUMO's speed after the step differs by more, > 0.
-    max_duration : float or None
-        Longest simulated time [s], > 0; None: last departure + 300 s. The run stops earlier once every
-        vehicle has left.
-    demand_per_arm : float or None
-        Traffic demand [vehicles per hour per arm], > 0: sets the population's ``depart_interval`` to
-        ``3600 / (demand_per_arm * network.n_arms)`` s (its ``arrivals``, regular or Poisson, and
-        ``n_vehicles`` stay). Every vehicle draws its route uniformly, and every arm is the entry of as many
-        routes of the default catalogue, so each arm gets this demand in expectation (not so with
-        ``pirl_routes`` / ``background_routes`` or a catalogue that favours some arms). Vehicles SUMO cannot
-        insert yet (an approach backed up to its start) wait and enter later: a demand above the
-        roundabout's capacity lengthens the run rather than filling it further. None: ``depart_interval``
-        as the population gives it.
+    routes : mapping route id -> edge ids, or None   route catalogue; None: every entry-to-exit route
+    pirl_routes, background_routes : tuple of str or None   routes PIRL / background vehicles draw from; None: all
+    speed_mode : int                           SUMO speed mode of PIRL vehicles, in [0, 127]
+    collision_action : {"warn", "remove", "teleport", "none"}   SUMO's ``--collision.action``
+    override_tol : float                       [m/s] a command is overridden when the speed misses it by more, > 0
+    max_duration : float or None               longest simulated time [s]; None: last departure + 300 s
+    demand_per_arm : float or None             [vehicles per hour per arm] > 0: sets the population's
+                                               ``depart_interval`` (SUMO page, Populations); None: as given
     """
 
     network: RoundaboutSpec = DEFAULT_NETWORK
@@ -264,16 +236,13 @@ def plan_vehicles(config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
     Parameters
     ----------
     config : SumoScenarioConfig
-    seed : int
-        In [0, 2**31).
+    seed : int                   in [0, 2**31)
 
     Returns
     -------
-    pandas.DataFrame
-        One row per vehicle in departure order: ``vehicle_id`` ("veh000", ...), ``depart`` [s],
-        ``route_id``, ``is_pirl``, ``style`` (index into the population's styles; -1 for background),
-        ``style_name`` ("background" for background) and ``theta_speed_dev``, ``theta_acc_sq``,
-        ``theta_jerk_sq`` (normalised weights, NaN for background).
+    plan : pandas.DataFrame      one row per vehicle in departure order, the columns of
+                                 `~pirl_sim.scenarios.planning.plan_population` (``style`` -1 and NaN weights for
+                                 background)
     """
     if not isinstance(config, SumoScenarioConfig):
         raise TypeError(f"config must be a SumoScenarioConfig, got {type(config).__name__}")
@@ -309,24 +278,13 @@ class SumoScenarioResult:
     config : SumoScenarioConfig
     seed : int
     backend : str
-    vehicles : pandas.DataFrame
-        The plan (:func:`plan_vehicles`).
-    sumo : SumoRecording
-        The runner's raw per-step recording (commands, overrides, SUMO's edges and lanes, ...).
-    recording : ScenarioRecording
-        Tracks, ground truth, map lanes and info: what :func:`write_recording` writes.
-    routes : RouteSet
-        Reference paths of every route on one arc-length axis.
-    model : RouteSetDriverModel
-        The drivers' model (converged MPC settings) for learning and prediction.
-    timing : dict
-        ``sim_time_s``, ``wall_time_s`` (stepping, controller included), ``control_time_s``,
-        ``plan_time_s`` (MPC), ``n_steps``, ``n_plans``, ``mean_vehicles`` and ``max_vehicles`` in the
-        network per step, ``mean_pirl`` and ``max_pirl`` (PIRL drivers in the network per step, whether
-        their MPC drives them or SUMO holds them at a standstill), ``real_time_factor`` (simulated / wall
-        seconds).
-    files : RecordingFiles or None
-        When written.
+    vehicles : pandas.DataFrame      the plan (`plan_vehicles`)
+    sumo : SumoRecording             the runner's raw per-step recording (commands, overrides, edges, lanes, ...)
+    recording : ScenarioRecording    what `~pirl_sim.scenarios.recording.write_recording` writes
+    routes : RouteSet                reference paths of every route on one arc-length axis
+    model : RouteSetDriverModel      the drivers' model (converged MPC settings) for learning and prediction
+    timing : dict                    times [s] and counts, as `pirl_sim.scenarios.contract.run_scenario` gives them
+    files : RecordingFiles or None   when written
     """
 
     config: SumoScenarioConfig
@@ -351,25 +309,16 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
 
     Parameters
     ----------
-    config : SumoScenarioConfig, optional
-        Default: ``SumoScenarioConfig()`` (4-arm, 20 m roundabout; the default population).
-    seed : int
-        Seeds every draw and SUMO; the same seed gives byte-identical files.
-    out_dir : str or os.PathLike, optional
-        Where to write the recording (:func:`pirl_sim.scenarios.recording.write_recording`) and the network
-        (``network/``). Nothing is written there before the simulation has finished.
+    config : SumoScenarioConfig, optional   default: 4-arm, 20 m roundabout, the default population
+    seed : int                              seeds every draw and SUMO (same seed, byte-identical files)
+    out_dir : str or os.PathLike, optional  where to write the recording and ``network/``, once the simulation ends
     backend : {"libsumo", "traci"}
-    progress : callable, optional
-        Called every simulated second as ``progress(time_s, n_finished, n_vehicles)``.
+    progress : callable, optional           ``progress(time_s, n_finished, n_vehicles)``, every simulated second
 
     Returns
     -------
-    SumoScenarioResult
-
-    Raises
-    ------
-    ValueError
-        Bad seed or backend, or a route that is not drivable in the built network: before SUMO starts.
+    result : SumoScenarioResult             ValueError before SUMO starts for a bad seed or backend, or a route
+                                            that is not drivable in the built network
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
