@@ -9,9 +9,10 @@ The docs' "Realism" page explains the features, the weights and how this differs
 
 from __future__ import annotations
 
+import io
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -378,7 +379,7 @@ class RealismScore:
     """
 
     table: pd.DataFrame
-    meta_metric: float = field()
+    meta_metric: float
 
 
 def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, features: Sequence[FeatureSpec] = FEATURES,
@@ -520,8 +521,6 @@ def realism_figure(reference: TrackFeatures, sources: Mapping[str, Sequence[Trac
         ax.set_visible(False)
     axes.flat[0].legend(fontsize=7)
     fig.tight_layout()
-    import io
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     atomic_write_bytes(path, buf.getvalue())
