@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from .validation import is_positive_int
 
-__all__ = ["ReferencePath", "desired_speed_from_curvature"]
+__all__ = ["ReferencePath", "desired_speed_from_curvature", "polyline_distances"]
 
 DEFAULT_SMOOTHING = 4.0
 """Default smoothing length ``ell`` [m] of `ReferencePath.from_polyline`."""
@@ -545,3 +545,33 @@ def _pad_periodic(t: np.ndarray, xy: np.ndarray, pad: float):
     all_xy = np.tile(base_xy, (len(shifts), 1))
     keep = (all_t >= -pad) & (all_t <= total + pad)
     return all_t[keep], all_xy[keep]
+
+
+def polyline_distances(lines, xy, *, spacing: float = 0.5) -> np.ndarray:
+    """Distance [m] from each point to the nearest of several polylines, shape (n,).
+
+    Exact distances to the segments of the polyline points (every ``spacing`` m along each segment) nearest to
+    each point. ``lines``: polylines of shape (P, 2), P >= 2; ``xy``: points of shape (n, 2) [m]."""
+    from scipy.spatial import cKDTree
+
+    starts, ends, pts, owner = [], [], [], []
+    for line in lines:
+        line = np.asarray(line, dtype=float)
+        for p, q in zip(line[:-1], line[1:]):
+            k = max(int(np.ceil(np.hypot(*(q - p)) / spacing)), 1)
+            pts.append(p + np.linspace(0.0, 1.0, k + 1)[:, None] * (q - p))
+            owner.append(np.full(k + 1, len(starts)))
+            starts.append(p)
+            ends.append(q)
+    if not pts:
+        raise ValueError("polyline_distances: no polyline with two points or more")
+    a, b = np.array(starts), np.array(ends)
+    owner = np.concatenate(owner)
+    xy = np.asarray(xy, dtype=float)
+    k = min(6, len(owner))
+    _, idx = cKDTree(np.concatenate(pts)).query(xy, k=k)
+    seg = owner[idx.reshape(len(xy), k)]                     # (n, k) candidate segments
+    e = b[seg] - a[seg]
+    w = xy[:, None, :] - a[seg]
+    u = np.clip(np.sum(w * e, -1) / np.maximum(np.sum(e * e, -1), 1e-12), 0.0, 1.0)
+    return np.sqrt(np.sum((w - u[..., None] * e) ** 2, -1)).min(axis=1)

@@ -74,8 +74,9 @@ class RecordedDemand:
             raise ValueError(f"duration_s must be a finite number of seconds > 0, got {duration_s!r}")
         sizes = np.array([(d.length, d.width) for d in self.departures])
         out = []
+        shares = self.route_probabilities()
         for entry, rate in self.rates().items():
-            routes = self.route_probabilities()[entry]
+            routes = shares[entry]
             keys = list(routes)
             n = rng.poisson(rate * duration / 3600.0)
             times = np.sort(rng.uniform(0.0, duration, n))

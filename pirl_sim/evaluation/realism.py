@@ -336,30 +336,13 @@ def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]
             "time_headway": headway, "time_to_collision": ttc, "_collides": collides}
 
 
-def _lane_offsets(lmap, xy: np.ndarray, spacing: float = 0.5) -> np.ndarray:
-    """Distance [m] from each point to the nearest lanelet centre line, shape (n,): exact distances to the
-    segments of the centre-line points nearest to it (points every ``spacing`` m)."""
-    from scipy.spatial import cKDTree
+def _lane_offsets(lmap, xy: np.ndarray) -> np.ndarray:
+    """Distance [m] from each point to the nearest lanelet centre line, shape (n,)."""
+    from pirl_sim.paths import polyline_distances
 
-    starts, ends, pts, owner = [], [], [], []
-    for line in lmap.centerlines.values():
-        for p, q in zip(line[:-1], line[1:]):
-            k = max(int(np.ceil(np.hypot(*(q - p)) / spacing)), 1)
-            pts.append(p + np.linspace(0.0, 1.0, k + 1)[:, None] * (q - p))
-            owner.append(np.full(k + 1, len(starts)))
-            starts.append(p)
-            ends.append(q)
-    if not pts:
+    if not lmap.centerlines:
         raise ValueError(f"map {getattr(lmap, 'path', '')} has no lanelets: lane offsets need centre lines")
-    a, b = np.array(starts), np.array(ends)
-    owner = np.concatenate(owner)
-    k = min(6, len(owner))
-    _, idx = cKDTree(np.concatenate(pts)).query(xy, k=k)
-    seg = owner[idx.reshape(len(xy), k)]                     # (n, k) candidate segments
-    e = b[seg] - a[seg]
-    w = xy[:, None, :] - a[seg]
-    u = np.clip(np.sum(w * e, -1) / np.maximum(np.sum(e * e, -1), 1e-12), 0.0, 1.0)
-    return np.sqrt(np.sum((w - u[..., None] * e) ** 2, -1)).min(axis=1)
+    return polyline_distances(lmap.centerlines.values(), xy)
 
 
 @dataclass(frozen=True)

@@ -249,28 +249,14 @@ def lane_distances(net, xy, *, spacing: float = 0.5) -> np.ndarray:
     numpy.ndarray, shape (n,)
     """
     import sumolib
-    from scipy.spatial import cKDTree
+
+    from pirl_sim.paths import polyline_distances
 
     if isinstance(net, (str, os.PathLike)):
         net = sumolib.net.readNet(str(net), withInternal=True)
     xy = np.asarray(xy, dtype=float)
     if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
         raise ValueError(f"xy must be finite points of shape (n, 2), got shape {xy.shape}")
-    a, b, pts, owner = [], [], [], []
-    for edge in net.getEdges(withInternal=True):
-        for lane in edge.getLanes():
-            shape = np.asarray(lane.getShape(), dtype=float)[:, :2]
-            for p, q in zip(shape[:-1], shape[1:]):
-                k = max(int(np.ceil(np.hypot(*(q - p)) / spacing)), 1)
-                pts.append(p + np.linspace(0.0, 1.0, k + 1)[:, None] * (q - p))
-                owner.append(np.full(k + 1, len(a)))
-                a.append(p)
-                b.append(q)
-    a, b, owner = np.array(a), np.array(b), np.concatenate(owner)
-    k = min(6, len(owner))
-    _, idx = cKDTree(np.concatenate(pts)).query(xy, k=k)
-    seg = owner[idx.reshape(len(xy), k)]
-    e = b[seg] - a[seg]
-    w = xy[:, None, :] - a[seg]
-    u = np.clip(np.sum(w * e, -1) / np.maximum(np.sum(e * e, -1), 1e-12), 0.0, 1.0)
-    return np.sqrt(np.sum((w - u[..., None] * e) ** 2, -1)).min(axis=1)
+    lanes = [np.asarray(lane.getShape(), dtype=float)[:, :2]
+             for edge in net.getEdges(withInternal=True) for lane in edge.getLanes()]
+    return polyline_distances(lanes, xy, spacing=spacing)
