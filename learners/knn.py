@@ -47,6 +47,9 @@ AHEAD_VALIDATION = 1000
 #: boosting iterations of each bank cost's error regression
 SELECTION_WINDOWS = 4000
 SELECTOR_ITER = 100
+#: ``selector="forecast"``: principal components of the next-steps residuals that the forecast regresses (one
+#: boosted ensemble each, `FutureRegression`); None: one ensemble per step
+FORECAST_COMPONENTS = None
 
 
 class PIRLKNN(SavableLearner):
@@ -381,7 +384,7 @@ class PIRLKNN(SavableLearner):
         x0, truth = data["x0"], data["truth"]
         if self.selector == "forecast":
             base = constant_acceleration_positions(self.model_.dynamics, x0, truth.shape[1])
-            self.selector_ = FutureRegression().fit(keys, base, truth)
+            self.selector_ = FutureRegression(n_components=FORECAST_COMPONENTS).fit(keys, base, truth)
             return
         pick = np.unique(np.linspace(0, len(x0) - 1, min(SELECTION_WINDOWS, len(x0))).astype(int))
         self.bank_errors_ = rollout_errors(self.model_, x0[pick], self.demo_theta_[self.bank_], truth[pick])
