@@ -84,28 +84,54 @@ class FutureRegression:
     minus a given base (e.g. constant acceleration from the window's end), ``s_k = base_k + g_k(keys)``. PIRL-select's
     forecast and the replay's direct regression (`pirl_sim.evaluation.direct`) are both this.
 
+    ``n_components=n``: the residuals ``s - base`` (N, F) are first reduced to their mean and ``n`` principal
+    components (SVD of the centred residuals), and one ensemble per component regresses its score,
+    ``s = base + mean + sum_c g_c(keys) v_c``: n ensembles instead of F. The residual futures of driving are
+    smooth in time, so a few components hold nearly all their variance (``explained_variance_ratio_``).
+
     Attributes
     ----------
-    models_ : list of F fitted regressors
+    models_ : list of F (or n_components) fitted regressors
+    mean_ : array (F,)                 (n_components) the residuals' mean
+    components_ : array (n, F)         (n_components) their principal directions, orthonormal rows
+    explained_variance_ratio_ : array (n,)  (n_components) the share of the residuals' variance of each
     """
 
-    def __init__(self, max_iter: int = 200, learning_rate: float = 0.05, random_state: int = 0) -> None:
+    def __init__(self, max_iter: int = 200, learning_rate: float = 0.05, random_state: int = 0,
+                 n_components: int | None = None) -> None:
         self.max_iter, self.learning_rate, self.random_state = int(max_iter), float(learning_rate), int(random_state)
+        if n_components is not None and (isinstance(n_components, bool) or not isinstance(n_components, (int, np.integer))
+                                         or n_components < 1):
+            raise ValueError(f"n_components must be a positive integer or None, got {n_components!r}")
+        self.n_components = None if n_components is None else int(n_components)
+
+    def _regressor(self):
+        from sklearn.ensemble import HistGradientBoostingRegressor
+
+        return HistGradientBoostingRegressor(max_iter=self.max_iter, learning_rate=self.learning_rate,
+                                             early_stopping=False, random_state=self.random_state)
 
     def fit(self, keys: np.ndarray, base: np.ndarray, truth: np.ndarray) -> FutureRegression:
         """keys (N, d); base and truth (N, F) [m]."""
-        from sklearn.ensemble import HistGradientBoostingRegressor
-
         y = np.asarray(truth, dtype=float) - np.asarray(base, dtype=float)
-        self.models_ = [HistGradientBoostingRegressor(max_iter=self.max_iter, learning_rate=self.learning_rate,
-                                                      early_stopping=False, random_state=self.random_state)
-                        .fit(keys, y[:, k])
-                        for k in range(y.shape[1])]
+        if self.n_components is None or self.n_components >= y.shape[1]:
+            self.models_ = [self._regressor().fit(keys, y[:, k]) for k in range(y.shape[1])]
+            return self
+        self.mean_ = y.mean(axis=0)
+        _, sv, vt = np.linalg.svd(y - self.mean_, full_matrices=False)
+        n = self.n_components
+        self.components_ = vt[:n]
+        self.explained_variance_ratio_ = sv[:n] ** 2 / max(float(np.sum(sv**2)), np.finfo(float).tiny)
+        scores = (y - self.mean_) @ self.components_.T
+        self.models_ = [self._regressor().fit(keys, scores[:, c]) for c in range(n)]
         return self
 
     def predict(self, keys: np.ndarray, base: np.ndarray) -> np.ndarray:
         """Forecast positions (M, F) [m] for keys (M, d) and the base (M, F) [m]."""
-        return np.asarray(base, dtype=float) + np.stack([m.predict(keys) for m in self.models_], axis=1)
+        g = np.stack([m.predict(keys) for m in self.models_], axis=1)
+        if getattr(self, "components_", None) is not None:
+            g = self.mean_ + g @ self.components_
+        return np.asarray(base, dtype=float) + g
 
 
 def mixture_weights(futures: np.ndarray, target: np.ndarray) -> np.ndarray:

@@ -189,17 +189,25 @@ def _positions(model, test, windows, s_pred, proto, lateral: str | None = None, 
     out = np.empty((len(windows), proto.horizon, 2))
     composite = isinstance(model.path, CompositePath)
     neighbours = profile.predict(test, windows, s_pred) if lateral == "neighbours" else None
+    offsets = np.empty((len(windows), proto.horizon))
+    segments = np.full(len(windows), -1)  # the track's own route, or -1: the path's segment at each point
     for w, (i, step) in enumerate(windows):
         t = test[i]
         seg = int(t.metadata.get("segment", 0))
-        on = {"segment": seg} if composite and "segment" in t.metadata else {}
+        if composite and "segment" in t.metadata:
+            segments[w] = seg
         if lateral == "recorded":
-            d = t.metadata["d"][step + 1 : step + 1 + proto.horizon]
+            offsets[w] = t.metadata["d"][step + 1 : step + 1 + proto.horizon]
         elif neighbours is not None:
-            d = neighbours[w]
+            offsets[w] = neighbours[w]
         else:
-            d = predict_offsets(lateral, t.metadata["d"][step], seg, observed_s(t)[step], s_pred[w], profile)
-        out[w] = model.path.to_cartesian(s_pred[w], d, **on)
+            offsets[w] = predict_offsets(lateral, t.metadata["d"][step], seg, observed_s(t)[step], s_pred[w], profile)
+    s_pred = np.asarray(s_pred, dtype=float)
+    on_route = segments >= 0  # mapped point by point, so all windows of each kind in one call
+    if on_route.any():
+        out[on_route] = model.path.to_cartesian(s_pred[on_route], offsets[on_route], segment=segments[on_route, None])
+    if not on_route.all():
+        out[~on_route] = model.path.to_cartesian(s_pred[~on_route], offsets[~on_route])
     return out
 
 

@@ -215,3 +215,37 @@ def test_mpc_bad_input(model):
     )
     with pytest.raises(RuntimeError, match="infeasible"):
         infeasible.predict(np.array([[0.0, 3.0]]), [1.0, 1.0], 5)
+
+
+@pytest.mark.parametrize("solver", ["daqp", "casadi:qpoases"])
+def test_solve_many_equals_row_by_row(path_model, solver):
+    """`BoxQP.solve_many` (the bounds of all rows at once, then the solver per row) gives `solve`'s controls on
+    random bounded problems, most of them on a bound, and marks the infeasible ones (a start too fast to stop
+    within the speed bound) instead of raising."""
+    from pirl_sim.mpc import BoxQP
+
+    pytest.importorskip("daqp" if solver == "daqp" else "casadi")
+    p = path_model.predictor()
+    rng = np.random.default_rng(3)
+    N, M = 15, 60
+    x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(0, 14, M), rng.uniform(-3.5, 2.5, M)])
+    x0[-1] = [0.0, 35.0, 3.0]  # far above the speed bound: no control gets it back in time
+    R = rng.normal(size=(M, N, N))
+    A = R @ np.swapaxes(R, 1, 2) + 0.5 * np.eye(N)
+    b = rng.normal(0, 40.0, (M, N))  # strong pulls: most unconstrained optima break a bound
+    many = BoxQP(p.dynamics, p.bounds, solver)
+    U, feasible = many.solve_many(A, b, x0, N)
+    one = BoxQP(p.dynamics, p.bounds, solver)
+    on_bound = 0
+    for m in range(M):
+        try:
+            ref = one.solve(A[m], b[m], x0[m], N)
+        except RuntimeError:
+            assert not feasible[m] and np.isnan(U[m]).all()
+            continue
+        assert feasible[m]
+        np.testing.assert_allclose(U[m], ref, atol=1e-9, rtol=0)
+        free = -np.linalg.solve(A[m], b[m])
+        on_bound += bool(one.violation(x0[m : m + 1], free[None, :, None])[0] > 1e-9)
+    assert not feasible[-1]
+    assert on_bound > M // 2

@@ -155,6 +155,49 @@ def test_saving_a_selected_learner_is_refused_by_name(tmp_path):
     assert not (tmp_path / "sel.npz").exists()
 
 
+def test_future_regression_on_principal_components():
+    """n_components: the residuals' mean and leading components, one ensemble per component; on residuals of
+    rank 2 two components hold all the variance and predict as one ensemble per step does; as many components
+    as steps is the per-step regression itself."""
+    rng = np.random.default_rng(0)
+    keys = rng.uniform(0, 1, (400, 2))
+    steps = np.arange(1, 7)
+    truth = keys[:, :1] * steps + np.sin(3 * keys[:, 1:]) * steps**2 / 10  # rank 2 in the steps
+    base = rng.normal(0, 1, (400, 6))
+    per_step = FutureRegression(100, 0.1).fit(keys, base, truth + base)
+    pca = FutureRegression(100, 0.1, n_components=2).fit(keys, base, truth + base)
+    assert len(pca.models_) == 2 and len(per_step.models_) == 6
+    np.testing.assert_allclose(pca.components_ @ pca.components_.T, np.eye(2), atol=1e-12)
+    assert pca.explained_variance_ratio_.sum() > 1 - 1e-12
+    query, qbase = rng.uniform(0.1, 0.9, (50, 2)), rng.normal(0, 1, (50, 6))
+    want = qbase + query[:, :1] * steps + np.sin(3 * query[:, 1:]) * steps**2 / 10
+    for reg in (per_step, pca):  # targets up to ~8 m
+        assert np.abs(reg.predict(query, qbase) - want).mean() < 0.1
+    assert np.abs(pca.predict(query, qbase) - per_step.predict(query, qbase)).mean() < 0.05
+    every = FutureRegression(100, 0.1, n_components=6).fit(keys, base, truth + base)
+    np.testing.assert_array_equal(every.predict(query, qbase), per_step.predict(query, qbase))
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="n_components must be a positive integer or None"):
+            FutureRegression(n_components=bad)
+
+
+def test_a_selection_finished_on_other_trajectories_reads_them():
+    """with_aggregate reuses the fit's estimated histories only for the trajectories it was fitted on: others
+    with as many windows are read afresh."""
+    model = synthetic_model()
+    rng = np.random.default_rng(5)
+    train = _two_kinds(model, rng, 12)
+    futures = _learner(model, n_neighbors=2).set_params(aggregate="futures").fit(train)
+    moved = [Trajectory(t.states + 0.25, t.controls, t.dt, t.metadata) for t in train]
+    head = {"aggregate": "selected", "n_candidates": 4, "n_neighbors": 3}
+    same, other = futures.with_aggregate(train, **head), futures.with_aggregate(moved, **head)
+    assert same._next_data is futures._next_data
+    samples, _, _, truth = futures._next_pairs(model, moved)
+    np.testing.assert_array_equal(other._next_data["truth"], truth)
+    np.testing.assert_array_equal(other._next_data["x0"], np.stack([h.states[-1] for h in samples]))
+    assert not np.array_equal(other._next_data["x0"], futures._next_data["x0"])
+
+
 @pytest.mark.parametrize("selector", ["forecast", "errors"])
 def test_a_selection_finished_on_another_aggregates_fit_predicts_as_its_own_fit(selector):
     """with_aggregate: the next-steps costs of a futures-averaging fit, finished as a selection, predict exactly as
