@@ -10,8 +10,8 @@ from contextlib import contextmanager
 
 from pirl_sim.threads import resolve_blas_threads, thread_policy
 
-from . import (agents, fit_model, policy_recovery, predict, realism, recover, replay, report, reproduce, show,
-               simulate, sweep, weight_space)
+from . import (agents, calibrate, fit_model, policy_recovery, predict, realism, recover, replay, report, reproduce,
+               show, simulate, sweep, weight_space)
 from .common import add_blas_threads_option
 
 __all__ = ["main", "build_parser", "package_version", "cli_logging", "COMMANDS"]
@@ -28,6 +28,7 @@ COMMANDS = {
     "fit-model": fit_model,
     "predict": predict,
     "realism": realism,
+    "calibrate": calibrate,
     "agents": agents,
     "policy-recovery": policy_recovery,
     "weight-space": weight_space,

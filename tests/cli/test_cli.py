@@ -14,7 +14,7 @@ from pirl_sim.cli import COMMANDS, build_parser, main
 
 CLI_DIR = Path(__file__).resolve().parents[2] / "pirl_sim" / "cli"
 EXPECTED = {"reproduce", "simulate", "show", "sweep", "report", "recover", "replay", "fit-model", "predict",
-            "realism", "agents", "policy-recovery", "weight-space"}
+            "realism", "calibrate", "agents", "policy-recovery", "weight-space"}
 #: libraries that building the parser must not import (a command imports them when it runs)
 HEAVY = ("numpy", "pandas", "scipy", "sklearn", "matplotlib", "torch", "gymnasium", "highway_env",
          "stable_baselines3", "pyarrow", "libsumo", "traci", "dask", "distributed", "tqdm")

@@ -1,0 +1,80 @@
+"""``pirl-sim calibrate``: fit a population of PIRL drivers to a recording and write it as a scenario TOML that
+``pirl-sim simulate`` runs (`pirl_sim.experiments.calibrate`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pirl_sim.validation import positive_int_arg, seed_arg
+
+from .common import add_track_options, error
+
+__all__ = ["add_parser", "run"]
+
+
+def _share(text: str) -> float:
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a number in [0, 1], got {text!r}")
+    return value
+
+
+def add_parser(subparsers) -> None:
+    """Add ``calibrate`` to the command's subparsers."""
+    p = subparsers.add_parser(
+        "calibrate",
+        help="fit a driver population to a recording; write a scenario TOML for simulate",
+        description="Fit a population of PIRL drivers to recorded cars (INTERACTION track files on their Lanelet2 "
+        "map): the desired speed's a_lat and v_max, one weight vector per car by the receding-horizon IRL on its "
+        "free-flow steps (the simulated drivers' features, step and horizon), and a Gaussian mixture over the log "
+        "weights with the number of styles chosen by BIC. Writes a scenario TOML ([drivers], [population]) for "
+        "pirl-sim simulate sumo|highway --scenario; the simulated drivers' weights are drawn from the mixture "
+        "and written to the ground truth.",
+    )
+    add_track_options(p)
+    p.add_argument("--out", type=Path, required=True, help="scenario TOML to write")
+    p.add_argument("--max-styles", type=positive_int_arg, default=4,
+                   help="largest number of styles the BIC chooses among (default 4)")
+    p.add_argument("--stride", type=positive_int_arg, default=2,
+                   help="score every STRIDE-th free-flow step in the per-car fits (default 2)")
+    p.add_argument("--n-vehicles", type=positive_int_arg, default=80,
+                   help="vehicles in the written population (default 80)")
+    p.add_argument("--background-share", type=_share, default=0.0,
+                   help="share of them driven by the simulator's own model (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the mixture's EM initialisation (default 0)")
+
+
+def run(args) -> int:
+    """``pirl-sim calibrate``: 0, or 2 for a bad option or unusable data."""
+    from pirl_sim.experiments.calibrate import calibrate
+    from pirl_sim.io.atomic import atomic_write_text
+    from pirl_sim.io.interaction import find_track_files
+    from pirl_sim.progress import reporter
+
+    say = reporter(not args.quiet)
+    try:
+        if not args.tracks.exists():
+            raise ValueError(f"--tracks {str(args.tracks)!r}: no such file or folder")
+        if not args.map.is_file():
+            raise ValueError(f"--map {str(args.map)!r}: no such file")
+        files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
+        if args.files is not None:
+            files = sorted(files, key=lambda f: Path(f).name)[: args.files]
+        cal = calibrate(files, args.map, max_styles=args.max_styles, stride=args.stride, seed=args.seed,
+                        progress=say)
+        text = cal.scenario_toml(", ".join(Path(f).name for f in files), args.n_vehicles, args.background_share)
+        atomic_write_text(args.out, text)
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        return error(exc)
+    print(f"{cal.n_styles} style(s) from {len(cal.log_weights)} cars; desired speed a_lat {cal.a_lat:.3g} m/s^2, "
+          f"v_max {cal.v_max:.3g} m/s; {cal.depart_rate:.0f} cars/h")
+    for style in cal.styles():
+        print(f"  {style['name']}: share {style['weight']:.2f}, mean weights "
+              + ", ".join(f"{k} {v:.3g}" for k, v in style["mean"].items()))
+    print(f"wrote {args.out}")
+    return 0

@@ -1,0 +1,269 @@
+"""A simulated population calibrated on recorded roundabout traffic.
+
+`calibrate` reads INTERACTION track files on their Lanelet2 map with the simulated PIRL drivers' own model
+(features ``speed_dev``, ``acc_sq``, ``jerk_sq``; their re-planning step and MPC horizon; their reference-path
+smoothing), fits the desired speed's a_lat and v_max to the recorded speeds (`pirl_sim.speed_fit`), fits one
+weight vector per recorded car by the receding-horizon IRL on its free-flow steps (`pirl_sim.receding`), and
+fits a Gaussian mixture to the log weights with the number of styles chosen by BIC. `Calibration.scenario_toml`
+writes the result as a scenario TOML (``[drivers]`` and ``[population]``) that ``pirl-sim simulate`` runs: the
+simulated drivers' weights are then drawn from the fitted mixture and written to the ground-truth sidecar, so
+they stay known. How each step works and what the figures mean: the documentation's "Calibration" page.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+__all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS"]
+
+#: fewest usable recorded cars a calibration fits a mixture to
+MIN_TRACKS = 10
+#: box on the log normalised weights of the per-car fits (a weight at its lower bound: the feature does not count)
+LOG_BOUNDS = (-20.0, 20.0)
+#: the features whose weights differ between drivers (``jerk_sq`` is the reference, 1 for everybody)
+FREE = ("speed_dev", "acc_sq")
+
+
+def lognormal_moments(mu: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (K,) and standard deviation (K,) of exp(X) for independent X_k ~ N(mu_k, var_k): the weights of a style
+    whose log weights are Gaussian, as the population's Gaussian over the weights takes them (moment matching)."""
+    mu, var = np.asarray(mu, float), np.asarray(var, float)
+    mean = np.exp(mu + var / 2)
+    return mean, mean * np.sqrt(np.expm1(var))
+
+
+def fit_styles(log_weights: np.ndarray, max_styles: int = 4, seed: int = 0):
+    """Gaussian mixtures (diagonal covariances) of 1 .. ``max_styles`` components fitted to ``log_weights`` (n, K);
+    returns (the one of least BIC, {n_components: BIC})."""
+    from sklearn.mixture import GaussianMixture
+
+    x = np.asarray(log_weights, float)
+    fits, bic = {}, {}
+    for n in range(1, min(int(max_styles), len(x)) + 1):
+        gmm = GaussianMixture(n, covariance_type="diag", reg_covar=1e-4, n_init=3, random_state=seed).fit(x)
+        fits[n], bic[n] = gmm, float(gmm.bic(x))
+    best = min(bic, key=bic.get)
+    return fits[best], bic
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A population fitted to a recording (`calibrate`).
+
+    Attributes
+    ----------
+    a_lat, v_max : float [m/s^2, m/s]     the desired speed's fitted lateral-acceleration limit and speed cap
+    horizon, dt : int, float [steps, s]   the drivers' MPC horizon and re-planning step the weights were fitted with
+    cars : tuple of (str, int)            (track file name, track id) of each fitted car
+    log_weights : array (n, 2)            per car, log normalised weights of ``speed_dev``, ``acc_sq``
+    at_bound : array (n, 2) bool          a log weight at `LOG_BOUNDS`
+    converged : array (n,) bool           the car's fit converged
+    style_share : array (S,)              the mixture's component weights (sum 1)
+    style_log_mean, style_log_var : array (S, 2)   each style's Gaussian over the log weights (independent)
+    bic : dict {n_styles: BIC}            of every mixture size tried; the least is kept
+    depart_rate : float [veh/h]           recorded cars per hour of recording
+    n_cars : int                          cars read from the recording
+    duration_s : float [s]                summed length of the track files
+    """
+
+    a_lat: float
+    v_max: float
+    horizon: int
+    dt: float
+    cars: tuple
+    log_weights: np.ndarray
+    at_bound: np.ndarray
+    converged: np.ndarray
+    style_share: np.ndarray
+    style_log_mean: np.ndarray
+    style_log_var: np.ndarray
+    bic: dict = field(default_factory=dict)
+    depart_rate: float = math.nan
+    n_cars: int = 0
+    duration_s: float = math.nan
+
+    def __post_init__(self) -> None:
+        n, s = len(self.log_weights), len(self.style_share)
+        if len(self.cars) != n or np.shape(self.log_weights) != (n, len(FREE)) or np.shape(self.at_bound) != (n, len(FREE)):
+            raise ValueError(f"cars, log_weights and at_bound must be as many as the cars ({n}), over {len(FREE)} "
+                             "features")
+        if np.shape(self.style_log_mean) != (s, len(FREE)) or np.shape(self.style_log_var) != (s, len(FREE)):
+            raise ValueError(f"style_log_mean and style_log_var must hold {s} styles over {len(FREE)} features")
+        if not np.all(np.isfinite(self.log_weights)):
+            raise ValueError("log_weights must be finite")
+
+    @property
+    def n_styles(self) -> int:
+        """S, the number of styles the BIC chose."""
+        return len(self.style_share)
+
+    def styles(self) -> list[dict]:
+        """Each style as a population's style table: name, weight, mean and std over the weights (moment-matched
+        to the style's log-normal, `lognormal_moments`), in order of decreasing share."""
+        out = []
+        for i in np.argsort(-self.style_share, kind="stable"):
+            mean, std = lognormal_moments(self.style_log_mean[i], self.style_log_var[i])
+            out.append({"name": f"calibrated {len(out) + 1}", "weight": float(self.style_share[i]),
+                        "mean": {f: float(m) for f, m in zip(FREE, mean)},
+                        "std": {f: float(x) for f, x in zip(FREE, std)}})
+        return out
+
+    def population(self, n_vehicles: int = 80, background_share: float = 0.0):
+        """The calibrated `~pirl_sim.scenarios.population_config.PopulationConfig`: its styles, departures at the
+        recorded rate (Poisson), ``n_vehicles`` of which ``background_share`` driven by the simulator's model."""
+        from pirl_sim.scenarios.population_config import population_from_dict
+
+        return population_from_dict({"n_vehicles": n_vehicles, "depart_interval": 3600.0 / self.depart_rate,
+                                     "arrivals": "poisson", "background_share": background_share,
+                                     "control_noise": 0.0, "styles": self.styles()}, source="calibrated population")
+
+    def scenario_toml(self, source: str = "", n_vehicles: int = 80, background_share: float = 0.0) -> str:
+        """A scenario TOML (``[drivers]``: the fitted desired speed and the fit's horizon; ``[population]``) that
+        ``pirl-sim simulate sumo|highway --scenario`` reads; comments give the fit's figures."""
+        pop = self.population(n_vehicles, background_share).to_dict()
+        lines = [f"# pirl_sim population calibrated on {source or 'a recording'}: {self.n_cars} cars, "
+                 f"{len(self.log_weights)} fitted, {self.duration_s / 60:.1f} min recorded",
+                 f"# styles chosen by BIC over 1..{max(self.bic)} components: "
+                 + ", ".join(f"{n}: {b:.1f}" for n, b in sorted(self.bic.items())),
+                 f"# log weights at their bound: speed_dev {self.at_bound[:, 0].mean():.0%}, "
+                 f"acc_sq {self.at_bound[:, 1].mean():.0%}; converged fits {self.converged.mean():.0%}",
+                 "", "[drivers]", f"horizon = {self.horizon}",
+                 f"a_lat = {self.a_lat!r}   # [m/s^2] fitted to the recorded speeds",
+                 f"v_max = {self.v_max!r}   # [m/s]", "", "[population]"]
+        lines += [f"{k} = {_toml(pop[k])}" for k in ("n_vehicles", "depart_interval", "arrivals", "background_share",
+                                                         "control_noise")]
+        for style, order in zip(pop["styles"], np.argsort(-self.style_share, kind="stable")):
+            mu, sd = self.style_log_mean[order], np.sqrt(self.style_log_var[order])
+            lines += ["", "[[population.styles]]",
+                      "# log weights: " + ", ".join(f"{f} {m:.3g} +- {s:.3g}" for f, m, s in zip(FREE, mu, sd))]
+            lines += [f"{k} = {_toml(v)}" for k, v in style.items()]
+        return "\n".join(lines) + "\n"
+
+
+def _toml(v) -> str:
+    """A scalar or (nested) inline table as TOML."""
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return repr(float(v)) if isinstance(v, float) else str(v)
+
+
+def _own_steps(trajectories) -> list:
+    """Free-flow runs read with the `following` features, as trajectories of the drivers' own model ((s, v, a)
+    states) whose step mask leaves out every step at which the car yields at a conflict point: the simulated
+    drivers' cost knows neither a vehicle ahead nor a conflict, so only what it can explain is fitted."""
+    from pirl_sim.receding import STEP_MASK
+    from pirl_sim.trajectory import Trajectory
+
+    out = []
+    for t in trajectories:
+        yielding = np.asarray(t.metadata["yielding"], dtype=bool)
+        own = ~(yielding[:-1] | yielding[1:])
+        if own.any():
+            out.append(Trajectory(t.states[:, :3], t.controls, t.dt, dict(t.metadata, **{STEP_MASK: own})))
+    return out
+
+
+def _recorded_duration(files: Sequence[Path]) -> float:
+    """Summed time span [s] of the track files."""
+    from pirl_sim.io.interaction import read_tracks
+
+    total = 0.0
+    for f in files:
+        t = read_tracks(f)["timestamp_ms"].to_numpy()
+        total += (t.max() - t.min()) / 1000.0 if len(t) else 0.0
+    return total
+
+
+def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_styles: int = 4, stride: int = 2,
+              seed: int = 0, drivers=None, desired_speed="fit", min_tracks: int = MIN_TRACKS,
+              progress: Callable[[str], None] | None = None) -> Calibration:
+    """Fit a population of PIRL drivers to recorded cars (module doc).
+
+    Parameters
+    ----------
+    track_files : paths of ``vehicle_tracks_*.csv`` files of one roundabout
+    map_path : path of its Lanelet2 map
+    max_styles : int              largest number of styles the BIC chooses among, >= 1
+    stride : int                  score every ``stride``-th free-flow step in the per-car fits, >= 1
+    seed : int                    of the mixture's EM initialisation
+    drivers : MpcDriverConfig, optional   the simulated drivers whose model is fitted (default: the simulators')
+    desired_speed : "fit" or (float, float)   a_lat [m/s^2] and v_max [m/s] fitted to the speeds, or given
+    min_tracks : int              fewest usable cars, >= 2
+    progress : callable(str), optional    told what is being done
+
+    Raises
+    ------
+    ValueError
+        A bad parameter; no track file; a map the tracks do not match; fewer than ``min_tracks`` usable cars.
+    """
+    from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
+    from pirl_sim.dynamics import longitudinal
+    from pirl_sim.receding import fit_receding
+    from pirl_sim.speed_fit import fit_desired_speed
+    from pirl_sim.scenarios.replay import load_replay, track_key
+    from pirl_sim.scenarios.scenario_config import MpcDriverConfig
+    from pirl_sim.validation import is_positive_int
+
+    for name, value, low in (("max_styles", max_styles, 1), ("stride", stride, 1), ("min_tracks", min_tracks, 2)):
+        if not is_positive_int(value) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if not (isinstance(desired_speed, str) and desired_speed == "fit"):
+        pair = np.asarray(desired_speed, dtype=float) if not isinstance(desired_speed, str) else np.array([])
+        if pair.shape != (2,) or not np.all(np.isfinite(pair)) or np.any(pair <= 0):
+            raise ValueError(f"desired_speed must be 'fit' or (a_lat, v_max), two numbers > 0 [m/s^2, m/s], got "
+                             f"{desired_speed!r}")
+        desired_speed = tuple(float(x) for x in pair)
+    drivers = MpcDriverConfig() if drivers is None else drivers
+    if not isinstance(drivers, MpcDriverConfig):
+        raise TypeError(f"drivers must be an MpcDriverConfig, got {type(drivers).__name__}")
+    files = [Path(f) for f in track_files]
+    if not files:
+        raise ValueError("calibrate needs at least one track file, got none")
+    say = progress or (lambda _msg: None)
+    dt = 0.1  # the simulated drivers re-plan every frame
+    say(f"reading {len(files)} track file(s) on {Path(map_path).name}")
+    scene = load_replay(files, map_path, dt=dt, features="following", selection="free", estimate="speeds",
+                        smoothing=drivers.smoothing, speed_smoothing=drivers.speed_smoothing, max_steps=None)
+    demos = _own_steps(scene.selected)
+    keys = list(dict.fromkeys(track_key(t) for t in demos))
+    if len(keys) < min_tracks:
+        raise ValueError(f"{len(keys)} usable car(s) in {len(files)} track file(s) (of {scene.n_tracks} read; "
+                         f"skipped: {scene.skipped}): a mixture needs at least {min_tracks}; give more track files "
+                         "or check that they were recorded on this map")
+    if desired_speed == "fit":
+        fit = fit_desired_speed(scene.curvature(np.concatenate([t.states[:, 0] for t in demos])),
+                                np.concatenate([t.states[:, 1] for t in demos]))
+        desired_speed = (fit.a_lat, fit.v_max)
+    a_lat, v_max = desired_speed
+    model = PathDriverModel(longitudinal(dt), roundabout_features(SpeedProfile(scene.profile_path, a_lat, v_max)),
+                            scene.model.bounds, path=scene.model.path)
+    say(f"desired speed: a_lat {a_lat:.3g} m/s^2, v_max {v_max:.3g} m/s; fitting the weights of {len(keys)} cars "
+        f"(horizon {drivers.horizon} steps of {dt:g} s)")
+    index = {k: i for i, k in enumerate(keys)}
+    labels = np.array([index[track_key(t)] for t in demos])
+    res = fit_receding(model, demos, labels, horizon=drivers.horizon, stride=stride, log_bounds=LOG_BOUNDS)
+    names = list(model.features.names)
+    cols = [names.index(f) for f in FREE]
+    log_w = np.log(res.normalized[:, cols])
+    gmm, bic = fit_styles(log_w, max_styles, seed)
+    say(f"{gmm.n_components} style(s) by BIC")
+    duration = _recorded_duration(files)
+    if not duration > 0:
+        raise ValueError(f"the track files span {duration:g} s: no departure rate can be read from them")
+    return Calibration(a_lat=float(a_lat), v_max=float(v_max), horizon=drivers.horizon, dt=dt,
+                       cars=tuple((Path(f).name, int(i)) for f, i in keys), log_weights=log_w,
+                       at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged),
+                       style_share=gmm.weights_, style_log_mean=gmm.means_, style_log_var=gmm.covariances_,
+                       bic=bic, depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks),
+                       duration_s=duration)
