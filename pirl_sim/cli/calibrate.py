@@ -38,6 +38,9 @@ def add_parser(subparsers) -> None:
     )
     add_track_options(p)
     p.add_argument("--out", type=Path, required=True, help="scenario TOML to write")
+    p.add_argument("--desired-speed", choices=("likelihood", "speeds"), default="likelihood",
+                   help="the desired speed's a_lat and v_max: of greatest likelihood of the cars' driving (their "
+                        "weights fitted at each; slower) or fitted to the recorded speeds alone (default likelihood)")
     p.add_argument("--max-styles", type=positive_int_arg, default=4,
                    help="largest number of styles the BIC chooses among (default 4)")
     p.add_argument("--stride", type=positive_int_arg, default=2,
@@ -66,6 +69,7 @@ def run(args) -> int:
         if args.files is not None:
             files = sorted(files, key=lambda f: Path(f).name)[: args.files]
         cal = calibrate(files, args.map, max_styles=args.max_styles, stride=args.stride, seed=args.seed,
+                        desired_speed=args.desired_speed,
                         progress=say)
         text = cal.scenario_toml(", ".join(Path(f).name for f in files), args.n_vehicles, args.background_share)
         atomic_write_text(args.out, text)

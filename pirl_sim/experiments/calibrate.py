@@ -2,9 +2,9 @@
 
 `calibrate` reads INTERACTION track files on their Lanelet2 map with the simulated PIRL drivers' own model
 (features ``speed_dev``, ``acc_sq``, ``jerk_sq``; their re-planning step and MPC horizon; their reference-path
-smoothing), fits the desired speed's a_lat and v_max to the recorded speeds (`pirl_sim.speed_fit`), fits one
-weight vector per recorded car by the receding-horizon IRL on its free-flow steps (`pirl_sim.receding`), and
-fits a Gaussian mixture to the log weights with the number of styles chosen by BIC. `Calibration.scenario_toml`
+smoothing), fits one weight vector per recorded car by the receding-horizon IRL on the steps where it neither
+follows nor yields (`pirl_sim.receding`) under the desired speed (a_lat, v_max) of greatest likelihood, and fits
+a Gaussian mixture to the log weights with the number of styles chosen by BIC. `Calibration.scenario_toml`
 writes the result as a scenario TOML (``[drivers]`` and ``[population]``) that ``pirl-sim simulate`` runs: the
 simulated drivers' weights are then drawn from the fitted mixture and written to the ground-truth sidecar, so
 they stay known. How each step works and what the figures mean: the documentation's "Calibration" page.
@@ -19,12 +19,20 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS"]
+__all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX"]
 
 #: fewest usable recorded cars a calibration fits a mixture to
 MIN_TRACKS = 10
 #: box on the log normalised weights of the per-car fits (a weight at its lower bound: the feature does not count)
 LOG_BOUNDS = (-20.0, 20.0)
+#: largest variance of a style's log weights that `Calibration.styles` moment-matches: the population's Gaussian
+#: over the weights cannot hold a wider log-normal (its standard deviation grows as exp(variance))
+LOG_VAR_MAX = 1.0
+#: the desired speed of greatest likelihood (``desired_speed="likelihood"``) is searched on up to this many cars,
+#: scoring every PROFILE_STRIDE-th free step, in at most PROFILE_EVALUATIONS fits
+PROFILE_CARS = 12
+PROFILE_STRIDE = 5
+PROFILE_EVALUATIONS = 30
 #: the features whose weights differ between drivers (``jerk_sq`` is the reference, 1 for everybody)
 FREE = ("speed_dev", "acc_sq")
 
@@ -104,10 +112,11 @@ class Calibration:
 
     def styles(self) -> list[dict]:
         """Each style as a population's style table: name, weight, mean and std over the weights (moment-matched
-        to the style's log-normal, `lognormal_moments`), in order of decreasing share."""
+        to the style's log-normal, `lognormal_moments`, its log variance capped at `LOG_VAR_MAX`), in order of
+        decreasing share."""
         out = []
         for i in np.argsort(-self.style_share, kind="stable"):
-            mean, std = lognormal_moments(self.style_log_mean[i], self.style_log_var[i])
+            mean, std = lognormal_moments(self.style_log_mean[i], np.minimum(self.style_log_var[i], LOG_VAR_MAX))
             out.append({"name": f"calibrated {len(out) + 1}", "weight": float(self.style_share[i]),
                         "mean": {f: float(m) for f, m in zip(FREE, mean)},
                         "std": {f: float(x) for f, x in zip(FREE, std)}})
@@ -131,7 +140,8 @@ class Calibration:
                  f"# styles chosen by BIC over 1..{max(self.bic)} components: "
                  + ", ".join(f"{n}: {b:.1f}" for n, b in sorted(self.bic.items())),
                  f"# log weights at their bound: speed_dev {self.at_bound[:, 0].mean():.0%}, "
-                 f"acc_sq {self.at_bound[:, 1].mean():.0%}; converged fits {self.converged.mean():.0%}",
+                 f"acc_sq {self.at_bound[:, 1].mean():.0%}; converged fits {self.converged.mean():.0%}; styles "
+                 f"whose log variance was capped at {LOG_VAR_MAX:g}: {int((self.style_log_var > LOG_VAR_MAX).any(1).sum())}",
                  "", "[drivers]", f"horizon = {self.horizon}",
                  f"a_lat = {self.a_lat!r}   # [m/s^2] fitted to the recorded speeds",
                  f"v_max = {self.v_max!r}   # [m/s]", "", "[population]"]
@@ -172,6 +182,39 @@ def _own_steps(trajectories) -> list:
     return out
 
 
+def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tuple[float, float]:
+    """(a_lat, v_max) of least summed receding-horizon negative log-likelihood of up to `PROFILE_CARS` evenly
+    chosen cars (every `PROFILE_STRIDE`-th step), each car's weights fitted anew at every point (warm-started):
+    Nelder-Mead over the log parameters from ``start``, within `pirl_sim.speed_fit`'s ranges."""
+    from scipy.optimize import minimize
+
+    from pirl_sim.receding import fit_receding
+    from pirl_sim.speed_fit import A_LAT_RANGE, V_MAX_RANGE
+
+    n_cars = int(labels.max()) + 1
+    chosen = np.unique(np.linspace(0, n_cars - 1, min(PROFILE_CARS, n_cars)).round().astype(int))
+    keep = np.isin(labels, chosen)
+    sub = [t for t, k in zip(demos, keep) if k]
+    sub_labels = np.searchsorted(chosen, labels[keep])
+    lo, hi = np.log([A_LAT_RANGE[0], V_MAX_RANGE[0]]), np.log([A_LAT_RANGE[1], V_MAX_RANGE[1]])
+    warm = {"init": None}
+
+    def nll(x: np.ndarray) -> float:
+        x = np.clip(x, lo, hi)
+        res = fit_receding(model_at(*np.exp(x)), sub, sub_labels, horizon=horizon, stride=PROFILE_STRIDE,
+                           log_bounds=LOG_BOUNDS, init=warm["init"])
+        warm["init"] = res.normalized
+        return float(res.neg_log_likelihood.sum())
+
+    say(f"desired speed of greatest likelihood of {len(chosen)} cars, from a_lat {start[0]:.3g} m/s^2, "
+        f"v_max {start[1]:.3g} m/s (the speeds' fit)")
+    x0 = np.clip(np.log(start), lo, hi)
+    out = minimize(nll, x0, method="Nelder-Mead",
+                   options={"xatol": 0.01, "fatol": 0.5, "maxfev": PROFILE_EVALUATIONS,
+                            "initial_simplex": np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.05]])})
+    return tuple(float(v) for v in np.exp(np.clip(out.x, lo, hi)))
+
+
 def _recorded_duration(files: Sequence[Path]) -> float:
     """Summed time span [s] of the track files."""
     from pirl_sim.io.interaction import read_tracks
@@ -184,7 +227,7 @@ def _recorded_duration(files: Sequence[Path]) -> float:
 
 
 def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_styles: int = 4, stride: int = 2,
-              seed: int = 0, drivers=None, desired_speed="fit", min_tracks: int = MIN_TRACKS,
+              seed: int = 0, drivers=None, desired_speed="likelihood", min_tracks: int = MIN_TRACKS,
               progress: Callable[[str], None] | None = None) -> Calibration:
     """Fit a population of PIRL drivers to recorded cars (module doc).
 
@@ -196,7 +239,10 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     stride : int                  score every ``stride``-th free-flow step in the per-car fits, >= 1
     seed : int                    of the mixture's EM initialisation
     drivers : MpcDriverConfig, optional   the simulated drivers whose model is fitted (default: the simulators')
-    desired_speed : "fit" or (float, float)   a_lat [m/s^2] and v_max [m/s] fitted to the speeds, or given
+    desired_speed : "likelihood", "speeds" or (float, float)
+        a_lat [m/s^2] and v_max [m/s]: of greatest receding-horizon likelihood of the cars (with their weights
+        fitted at each, on up to `PROFILE_CARS` cars), fitted to the recorded speeds alone (`pirl_sim.speed_fit`;
+        biased where drivers lag behind their desired speed, which pulls the weights to their bounds), or given
     min_tracks : int              fewest usable cars, >= 2
     progress : callable(str), optional    told what is being done
 
@@ -218,10 +264,11 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    if not (isinstance(desired_speed, str) and desired_speed == "fit"):
+    if not (isinstance(desired_speed, str) and desired_speed in ("likelihood", "speeds")):
         pair = np.asarray(desired_speed, dtype=float) if not isinstance(desired_speed, str) else np.array([])
         if pair.shape != (2,) or not np.all(np.isfinite(pair)) or np.any(pair <= 0):
-            raise ValueError(f"desired_speed must be 'fit' or (a_lat, v_max), two numbers > 0 [m/s^2, m/s], got "
+            raise ValueError(f"desired_speed must be 'likelihood', 'speeds' or (a_lat, v_max), two numbers > 0 "
+                             f"[m/s^2, m/s], got "
                              f"{desired_speed!r}")
         desired_speed = tuple(float(x) for x in pair)
     drivers = MpcDriverConfig() if drivers is None else drivers
@@ -241,17 +288,22 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
         raise ValueError(f"{len(keys)} usable car(s) in {len(files)} track file(s) (of {scene.n_tracks} read; "
                          f"skipped: {scene.skipped}): a mixture needs at least {min_tracks}; give more track files "
                          "or check that they were recorded on this map")
-    if desired_speed == "fit":
-        fit = fit_desired_speed(scene.curvature(np.concatenate([t.states[:, 0] for t in demos])),
-                                np.concatenate([t.states[:, 1] for t in demos]))
-        desired_speed = (fit.a_lat, fit.v_max)
-    a_lat, v_max = desired_speed
-    model = PathDriverModel(longitudinal(dt), roundabout_features(SpeedProfile(scene.profile_path, a_lat, v_max)),
-                            scene.model.bounds, path=scene.model.path)
-    say(f"desired speed: a_lat {a_lat:.3g} m/s^2, v_max {v_max:.3g} m/s; fitting the weights of {len(keys)} cars "
-        f"(horizon {drivers.horizon} steps of {dt:g} s)")
     index = {k: i for i, k in enumerate(keys)}
     labels = np.array([index[track_key(t)] for t in demos])
+
+    def model_at(a_lat: float, v_max: float):
+        return PathDriverModel(longitudinal(dt), roundabout_features(SpeedProfile(scene.profile_path, a_lat, v_max)),
+                               scene.model.bounds, path=scene.model.path)
+
+    if isinstance(desired_speed, str):
+        fit = fit_desired_speed(scene.curvature(np.concatenate([t.states[:, 0] for t in demos])),
+                                np.concatenate([t.states[:, 1] for t in demos]))
+        desired_speed = (fit.a_lat, fit.v_max) if desired_speed == "speeds" else _most_likely_speed(
+            model_at, demos, labels, (fit.a_lat, fit.v_max), drivers.horizon, say)
+    a_lat, v_max = desired_speed
+    model = model_at(a_lat, v_max)
+    say(f"desired speed: a_lat {a_lat:.3g} m/s^2, v_max {v_max:.3g} m/s; fitting the weights of {len(keys)} cars "
+        f"(horizon {drivers.horizon} steps of {dt:g} s)")
     res = fit_receding(model, demos, labels, horizon=drivers.horizon, stride=stride, log_bounds=LOG_BOUNDS)
     names = list(model.features.names)
     cols = [names.index(f) for f in FREE]

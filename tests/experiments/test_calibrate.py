@@ -81,8 +81,8 @@ def test_a_calibration_checks_its_shapes():
     ({"stride": 1.5}, "stride must be an integer >= 1, got 1.5"),
     ({"min_tracks": 1}, "min_tracks must be an integer >= 2, got 1"),
     ({"seed": -1}, "seed must be a non-negative integer, got -1"),
-    ({"desired_speed": (0.0, 13.9)}, r"desired_speed must be 'fit' or \(a_lat, v_max\)"),
-    ({"desired_speed": "fitted"}, r"desired_speed must be 'fit' or \(a_lat, v_max\)"),
+    ({"desired_speed": (0.0, 13.9)}, r"desired_speed must be 'likelihood', 'speeds' or \(a_lat, v_max\)"),
+    ({"desired_speed": "fitted"}, r"desired_speed must be 'likelihood', 'speeds' or \(a_lat, v_max\)"),
     ({"drivers": {"horizon": 30}}, "drivers must be an MpcDriverConfig, got dict"),
 ])
 def test_bad_parameters_are_refused_before_reading(tmp_path, kwargs, message):
