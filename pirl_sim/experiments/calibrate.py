@@ -68,15 +68,12 @@ class Calibration:
     a_lat, v_max : float [m/s^2, m/s]     the desired speed's fitted lateral-acceleration limit and speed cap
     horizon, dt : int, float [steps, s]   the drivers' MPC horizon and re-planning step the weights were fitted with
     cars : tuple of (str, int)            (track file name, track id) of each fitted car
-    log_weights : array (n, 2)            per car, log normalised weights of ``speed_dev``, ``acc_sq``
-    at_bound : array (n, 2) bool          a log weight at `LOG_BOUNDS`
+    log_weights, at_bound : array (n, 2)   per car, log normalised weights of ``speed_dev``, ``acc_sq``; at `LOG_BOUNDS`
     converged : array (n,) bool           the car's fit converged
     style_share : array (S,)              the mixture's component weights (sum 1)
     style_log_mean, style_log_var : array (S, 2)   each style's Gaussian over the log weights (independent)
     bic : dict {n_styles: BIC}            of every mixture size tried; the least is kept
-    depart_rate : float [veh/h]           recorded cars per hour of recording
-    n_cars : int                          cars read from the recording
-    duration_s : float [s]                summed length of the track files
+    depart_rate, n_cars, duration_s       cars per hour [veh/h], cars read, summed length of the files [s]
     """
 
     a_lat: float
@@ -97,7 +94,8 @@ class Calibration:
 
     def __post_init__(self) -> None:
         n, s = len(self.log_weights), len(self.style_share)
-        if len(self.cars) != n or np.shape(self.log_weights) != (n, len(FREE)) or np.shape(self.at_bound) != (n, len(FREE)):
+        k = len(FREE)
+        if len(self.cars) != n or np.shape(self.log_weights) != (n, k) or np.shape(self.at_bound) != (n, k):
             raise ValueError(f"cars, log_weights and at_bound must be as many as the cars ({n}), over {len(FREE)} "
                              "features")
         if np.shape(self.style_log_mean) != (s, len(FREE)) or np.shape(self.style_log_var) != (s, len(FREE)):
@@ -135,13 +133,14 @@ class Calibration:
         """A scenario TOML (``[drivers]``: the fitted desired speed and the fit's horizon; ``[population]``) that
         ``pirl-sim simulate sumo|highway --scenario`` reads; comments give the fit's figures."""
         pop = self.population(n_vehicles, background_share).to_dict()
+        capped = int((self.style_log_var > LOG_VAR_MAX).any(axis=1).sum())
         lines = [f"# pirl_sim population calibrated on {source or 'a recording'}: {self.n_cars} cars, "
                  f"{len(self.log_weights)} fitted, {self.duration_s / 60:.1f} min recorded",
                  f"# styles chosen by BIC over 1..{max(self.bic)} components: "
                  + ", ".join(f"{n}: {b:.1f}" for n, b in sorted(self.bic.items())),
                  f"# log weights at their bound: speed_dev {self.at_bound[:, 0].mean():.0%}, "
                  f"acc_sq {self.at_bound[:, 1].mean():.0%}; converged fits {self.converged.mean():.0%}; styles "
-                 f"whose log variance was capped at {LOG_VAR_MAX:g}: {int((self.style_log_var > LOG_VAR_MAX).any(1).sum())}",
+                 f"whose log variance was capped at {LOG_VAR_MAX:g}: {capped}",
                  "", "[drivers]", f"horizon = {self.horizon}",
                  f"a_lat = {self.a_lat!r}   # [m/s^2] fitted to the recorded speeds",
                  f"v_max = {self.v_max!r}   # [m/s]", "", "[population]"]
@@ -235,21 +234,17 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     ----------
     track_files : paths of ``vehicle_tracks_*.csv`` files of one roundabout
     map_path : path of its Lanelet2 map
-    max_styles : int              largest number of styles the BIC chooses among, >= 1
-    stride : int                  score every ``stride``-th free-flow step in the per-car fits, >= 1
+    max_styles, stride : int      largest number of styles the BIC chooses; score every stride-th step
     seed : int                    of the mixture's EM initialisation
     drivers : MpcDriverConfig, optional   the simulated drivers whose model is fitted (default: the simulators')
-    desired_speed : "likelihood", "speeds" or (float, float)
-        a_lat [m/s^2] and v_max [m/s]: of greatest receding-horizon likelihood of the cars (with their weights
-        fitted at each, on up to `PROFILE_CARS` cars), fitted to the recorded speeds alone (`pirl_sim.speed_fit`;
-        biased where drivers lag behind their desired speed, which pulls the weights to their bounds), or given
+    desired_speed : "likelihood", "speeds" or (float, float)   a_lat [m/s^2], v_max [m/s]: of greatest likelihood
+                                  (`PROFILE_CARS` cars), fitted to the speeds alone, or given ("Calibration" page)
     min_tracks : int              fewest usable cars, >= 2
     progress : callable(str), optional    told what is being done
 
     Raises
     ------
-    ValueError
-        A bad parameter; no track file; a map the tracks do not match; fewer than ``min_tracks`` usable cars.
+    ValueError    a bad parameter; no track file; fewer than ``min_tracks`` usable cars (e.g. tracks off the map)
     """
     from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
     from pirl_sim.dynamics import longitudinal
