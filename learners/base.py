@@ -66,24 +66,18 @@ def check_horizon(horizon) -> int:
 
 
 class BaseLearner(BaseEstimator):
-    """Shared machinery; subclasses implement ``_fit`` and ``_infer``. The parameters below are common to every
-    learner.
+    """Shared machinery; subclasses implement ``_fit`` and ``_infer``. The parameters are common to every learner.
 
     Parameters
     ----------
     model : DriverModel or None           dynamics, features and predictor; None: the paper's synthetic point mass
-    window : int or None                  feature window [steps] (module doc)
-    stride : int                          step between training windows
+    window, stride : int or None, int     feature window [steps] (module doc); step between training windows
     windows : {"sliding", "first"}        every ``stride`` steps, or only the first ``window`` steps of a trajectory
     feature_transform : {"log", "none"}   feature space of clustering and look-ups, standardised afterwards
     log_bounds : (float, float)           box on the IRL's log-weights (`pirl_sim.irl`)
-    likelihood : {"trajectory", "receding"}
-        The IRL's model of a demonstration: one open-loop optimum (the paper's, `pirl_sim.irl`) or a driver who
-        re-plans every step (`pirl_sim.receding`; honours ``step_mask``).
-    horizon : int or None                 the drivers' MPC horizon [steps]; required with ``likelihood="receding"``
-    step_stride : int                     ``likelihood="receding"``: score every ``step_stride``-th recorded step
-    irl_hessian : {"auto", "exact", "gauss_newton"}   ``likelihood="trajectory"``: the cost Hessian of the Laplace
-        likelihood (`pirl_sim.irl.fit_weights`)
+    likelihood : {"trajectory", "receding"}   one open-loop plan (`pirl_sim.irl`) or re-planning (`pirl_sim.receding`)
+    horizon, step_stride : int or None, int   ``"receding"``: the drivers' MPC horizon [steps] (required); step stride
+    irl_hessian : {"auto", "exact", "gauss_newton"}   ``"trajectory"``: the cost Hessian (`pirl_sim.irl.fit_weights`)
     irl_max_iter : int                    Newton iterations of the IRL (its Gauss-Newton refit may take 5x)
     """
 
@@ -264,10 +258,9 @@ class BaseLearner(BaseEstimator):
 
     def predict_futures(self, histories: Trajectory | Sequence[Trajectory], horizon: int, n_futures: int | None = None,
                         random_state=None) -> tuple[np.ndarray, np.ndarray]:
-        """K predicted futures of each history with their probabilities (multi-modal prediction).
-
-        Here one future, the point prediction of `predict_states`, with probability 1 (K = 1); the probabilistic
-        learners override it ("The learners" page, Multi-modal prediction).
+        """K predicted futures of each history with their probabilities (multi-modal prediction): here one, the point
+        prediction of `predict_states`, with probability 1 (K = 1); the probabilistic learners override it ("The
+        learners" page, Multi-modal prediction).
 
         Parameters
         ----------

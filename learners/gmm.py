@@ -425,33 +425,20 @@ class _MixtureLearner(SavableLearner):
 
 
 class PIRLGMM(_MixtureLearner):
-    """PIRL with a Gaussian-mixture prior over features (EM), one cost per cluster.
+    """PIRL with a Gaussian-mixture prior over features (EM), one cost per cluster ("The learners" page; every parameter
+    and attribute in full: "In detail: learners.gmm").
 
     Parameters
     ----------
-    n_components : int or "bic"          number of clusters, or chosen in 1..max_components by BIC
-    max_components : int                 upper end of the BIC search
-    covariance_type : str                as in `sklearn.mixture.GaussianMixture`
+    n_components, max_components : int or "bic", int   number of clusters, or chosen in 1..max_components by BIC
+    covariance_type, n_init, random_state : str, int, int or None   `sklearn.mixture.GaussianMixture`'s; restarts, seed
     min_cluster_size : int               components with fewer training samples are dropped
-    n_init : int                         EM restarts
-    random_state : int or None           seed of the EM initialisation
-    space : {"features", "weights"}      cluster the features (the paper's) or the per-demonstration weight posteriors
-    refine : int                         (``space="weights"``) passes of hard EM over the IRL likelihoods
-    init : {"deconvolution", "random"}   (``space="weights"``) styles start from the deconvolved mixture, or at random
+    space, refine, init : str, int, str   cluster the features (the paper's) or the weight posteriors; see the page
 
     Attributes
     ----------
-    theta_ : array (n_styles_, K)   normalised weights per cluster
-    labels_ : array (M,)            cluster of each training trajectory
-    n_styles_ : int
-    style_weights_ : array (n_styles_,)  mixture weight of each style (sums to 1)
-    mixture_ : GaussianMixture      (``space="features"``)
-    bic_ : dict {k: BIC} when n_components == "bic"
-    demo_theta_ : array (M, K)      (``space="weights"``) per-demonstration normalised weights
-    demo_log_weights_ : array (M, K-1), demo_log_covariances_ : array (M, K-1, K-1)
-                                    (``space="weights"``) their posteriors over the non-reference log weights
-    style_log_means_ : array (n_styles_, K-1), style_log_covariances_ : array (n_styles_, K-1, K-1)
-                                    (``space="weights"``) the deconvolved mixture's components
+    theta_, labels_, n_styles_ : array (n_styles_, K), (M,), int   normalised weights per cluster; each one's cluster
+    style_weights_, mixture_, bic_, demo_theta_, demo_log_*, style_log_* : see the page.
     """
 
     def __init__(
@@ -551,18 +538,15 @@ class PIRLGMM(_MixtureLearner):
 
 
 class PIRLDPGMM(_MixtureLearner):
-    """PIRL with a Dirichlet-process Gaussian mixture: the number of styles is inferred.
+    """PIRL with a Dirichlet-process Gaussian mixture: the number of styles is inferred ("The learners" page).
 
     Parameters
     ----------
     max_components : int                   truncation level of the Dirichlet process
     weight_concentration_prior : float or None   concentration (smaller favours fewer styles); None: 1 / max_components
     min_cluster_size : int                 components with fewer training samples are not counted as styles
-    space : {"features", "weights"}        as `PIRLGMM`
-    weight_mixture : {"dirichlet-process", "mml"}   (``space="weights"``) a Dirichlet-process mixture of the
-        per-demonstration posteriors (`pirl_sim.deconvolution.dp_deconvolution`), or extreme deconvolution pruned
-        by minimum message length
-    Other parameters as `PIRLGMM`.
+    weight_mixture : {"dirichlet-process", "mml"}   (``space="weights"``) how the weight posteriors are mixed (the page)
+    space, covariance_type, n_init, random_state, refine, ... : as `PIRLGMM`.
 
     Attributes
     ----------

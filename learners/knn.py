@@ -58,51 +58,20 @@ FORECAST_LEARNING_RATE = 0.05
 
 
 class PIRLKNN(SavableLearner):
-    """PIRL with a k-nearest-neighbour prior over per-demonstration costs.
-
-    Offline, one cost per training demonstration (``target="next"``: per next-steps segment); online, the costs of
-    the k look-up samples nearest to a history, averaged with their votes. What each option is for: "The learners"
-    page of the documentation (PIRL-kNN, PIRL-select and "In detail: learners.knn").
+    """PIRL with a k-nearest-neighbour prior over per-demonstration costs ("The learners" page: PIRL-kNN, PIRL-select;
+    "In detail: learners.knn" lists every parameter and attribute, one line each, and says what each option is for).
 
     Parameters
     ----------
-    n_neighbors : int                         k; at most the number of training samples
-    average : {"log", "linear"}               average the log weights (default) or the weights
-    prior : {None, "population"}              "population": MAP refits under a log-normal prior of the first pass
-    weighting : {"distance", "likelihood"}    votes 1 / distance (the paper's) or p(history | theta_i)
-    target : {"demo", "next"}                 fit each sample's cost on its whole demonstration or on the
-                                              ``target_steps`` steps after its window (needs ``window``)
-    target_steps : int or None                length of the next-steps segments [steps] (``target="next"``)
-    state_features : tuple of int             components of each window's last state added to the look-up space
-    state_lags : tuple of int                 steps before the window's end at which ``state_features`` are taken
-    lookup_features : bool                    whether the window's cost features are in the look-up space
-    aggregate : {"weights", "futures", "selected"}
-        One future under the averaged weights, the voted mean of the neighbours' futures, or (``target="next"``)
-        a learned choice among a bank of costs (`pirl_sim.learners.selector`; such a learner cannot be saved).
-    selector : {"forecast", "errors"}         ``"selected"``: regress the next positions, or each bank cost's error
-    n_candidates : int                        ``"selected"``: size of the bank of costs
-    temperature : float                       ``selector="errors"``: softmin scale [m] > 0 of the predicted errors
-    lookup_history : bool                     ``target="next"``: look-up values from `Trajectory.history_window`
-    segment_start : {"track", "history"}      where each next-steps segment starts
-                                              (`~pirl_sim.learners.knn.steer_segment`); "history" needs ``lookup_history``
-    lookup_ahead : tuple of float             distances ahead [m] of the road's |curvature| in the look-up space
-    ahead_weights : tuple of float            weights >= 0 of the road-ahead coordinates; several: the best on
-                                              held-out windows (`AHEAD_VALIDATION`, ``ahead_scores_``)
+    n_neighbors, average, prior, weighting : int, str   k (at most the training samples); how the costs are combined
+    target, target_steps, state_features, state_lags, lookup_features, lookup_history, segment_start : see the page.
+    lookup_ahead, ahead_weights : tuple of float   distances ahead [m] of the road's curvature in the look-up; weights
+    aggregate, selector, n_candidates, temperature : see the page (``"selected"``: `pirl_sim.learners.selector`).
     model, window, stride, feature_transform, log_bounds, irl_max_iter : see `BaseLearner`.
 
     Attributes
     ----------
-    demo_theta_ : array (M, K)     normalised weights of each training demonstration (or next-steps segment)
-    sample_theta_ : array (S, K)   weights of each look-up sample (window or demonstration)
-    n_weights_at_bound_ : int      demonstrations with a normalised weight at the log bound
-    n_scale_at_bound_ : int        demonstrations whose scale (rationality) reached the bound
-    control_rms_, episode_steps_   (``weighting="likelihood"``) as `PIRLGMM`'s, for the likelihoods
-    ahead_weight_ : float          the road-ahead weight in use
-    ahead_scores_ : dict           {candidate weight: held-out mean |error| along the path [m]} (several only)
-    key_scale_ : array (d,)        factors on the standardised look-up coordinates
-    bank_ : array (C,)             (``"selected"``) the look-up samples whose costs form the bank
-    selector_ : FutureRegression or ErrorRegression   (``"selected"``) the selector's regression
-    bank_errors_ : array (N, C)    (``selector="errors"``) the bank's rollout errors [m] on the selector's windows
+    demo_theta_, sample_theta_ : array (M, K), (S, K)   weights of each demonstration (or segment), each look-up sample
     """
 
     def __init__(

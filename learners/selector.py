@@ -84,17 +84,15 @@ class FutureRegression:
     minus a given base (e.g. constant acceleration from the window's end), ``s_k = base_k + g_k(keys)``. PIRL-select's
     forecast and the replay's direct regression (`pirl_sim.evaluation.direct`) are both this.
 
-    ``n_components=n``: the residuals ``s - base`` (N, F) are first reduced to their mean and ``n`` principal
-    components (SVD of the centred residuals), and one ensemble per component regresses its score,
-    ``s = base + mean + sum_c g_c(keys) v_c``: n ensembles instead of F. The residual futures of driving are
-    smooth in time, so a few components hold nearly all their variance (``explained_variance_ratio_``).
+    ``n_components=n``: one ensemble per principal component of the residuals ``s - base`` instead of one per step
+    ("The learners" page, "In detail: learners.selector").
 
     Attributes
     ----------
     models_ : list of F (or n_components) fitted regressors
     mean_ : array (F,)                 (n_components) the residuals' mean
     components_ : array (n, F)         (n_components) their principal directions, orthonormal rows
-    explained_variance_ratio_ : array (n,)  (n_components) the share of the residuals' variance of each
+    explained_variance_ratio_ : array (n,)   (n_components) the share of the residuals' variance of each
     """
 
     def __init__(self, max_iter: int = 200, learning_rate: float = 0.05, random_state: int = 0,

@@ -481,17 +481,14 @@ def estimate_longitudinal_states(
     sigma_a: float = ESTIMATE_SIGMA_A,
     step_mask: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """States and controls (x0, U) through the dynamics that best explain observed positions and speeds.
-
-    The posterior mode under Gaussian noise and a Gaussian jerk prior: one least squares ("The cost model and its
-    features" page, The state estimate); without ``v_obs``, `fit_longitudinal_states`.
+    """States and controls (x0, U) through the dynamics that best explain observed positions and speeds: one least
+    squares ("The cost model and its features" page, The state estimate); without ``v_obs``, `fit_longitudinal_states`.
 
     Parameters
     ----------
     s_obs, v_obs : array (n,)        observed arc lengths [m] at the model's dt (n >= 2); speeds [m/s] (optional)
     dynamics : LinearDynamics        position as state 0, speed as state 1 (e.g. `pirl_sim.dynamics.longitudinal`)
-    sigma_s, sigma_v, sigma_j, sigma_a : float
-        Noise of positions and speeds, jerk prior, noise of accelerations [m, m/s, m/s^3, m/s^2], > 0.
+    sigma_s, sigma_v, sigma_j, sigma_a : float   noise of s and v, jerk prior, noise of a [m, m/s, m/s^3, m/s^2], > 0
     a_obs : array (n,), optional     observed accelerations [m/s^2], NaN where not observed
     step_mask : array (n - 1,) of bool, optional   steps across which the dynamics hold (default all)
 

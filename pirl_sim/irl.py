@@ -427,10 +427,8 @@ def fit_weights(
 
     Parameters
     ----------
-    blocks : LaplaceBlock or sequence of them   demonstrations, grouped by length
-    labels : int array (M_b,) per block, or None   group of each, 0..G-1; None: one group per demonstration
-    features : FeatureSet                       names the reference feature that fixes the normalisation
-    n_groups : int, optional                    G; default ``max(label) + 1``
+    blocks, features : LaplaceBlock or sequence, FeatureSet   demonstrations by length; the reference feature
+    labels, n_groups : int arrays (M_b,) or None, int   group of each, 0..G-1 (None: one each); G (default max + 1)
     prior : LogNormalPrior, optional            MAP: adds 1/2 sum ((w - mean) / std)^2 per group
     log_bounds : (low, high)                    box on every coordinate w (log beta and log normalised weights)
     max_iter, tol : int, float                  Newton iterations, and tolerance on the step in w

@@ -476,14 +476,11 @@ def fit_receding(
 
     Parameters
     ----------
-    model : DriverModel                 the drivers' MPC model; its dt is the trajectories' step
+    model, horizon : DriverModel, int   the drivers' MPC model (its dt: the trajectories' step) and horizon H [steps]
     trajectories : sequence of Trajectory   each step counts unless its `STEP_MASK` metadata is False there
-    labels : int array (M,), optional   group of each trajectory (default: one group per trajectory)
-    n_groups : int, optional            G; default ``max(labels) + 1`` (a group without usable steps keeps its start)
-    horizon, stride : int               the drivers' MPC horizon H [steps]; score every ``stride``-th step
-    loss : {"cauchy", "gauss"}          residual noise model: heavy-tailed (default), or least squares
-    log_bounds : (low, high)            box on the log normalised weights
-    init : array (K,) or (G, K), optional   start weights (normalised); default 1 for every feature
+    labels, n_groups : int array (M,), int, optional   group of each trajectory (default: one each); G (see the page)
+    stride, loss : int, {"cauchy", "gauss"}   score every ``stride``-th step; residual noise model (see the page)
+    log_bounds, init : (low, high), array (K,) or (G, K) or None   box on the log normalised weights; start (see page)
     max_iter, tol : int, float          Levenberg-Marquardt iterations; stop when no log weight moves more
 
     Returns

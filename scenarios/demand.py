@@ -99,11 +99,8 @@ def _in_order(route: tuple[int, ...], lanelets: list[int]) -> int:
 
 
 def demand_from_tracks(tracks: pd.DataFrame, lmap, routes, *, min_share: float = 0.5) -> RecordedDemand:
-    """The demand of a recording on a map's routes.
-
-    Each track is matched to the map (`pirl_sim.io.lanelet2_map.match_route`) and given the route that holds most
-    of its lanelets in order (the shortest of equals); its departure is its first time stamp less the time to
-    drive, at its first speed (at least 3 m/s), from the route's start to its first position.
+    """The demand of a recording on a map's routes: each track's best-matching route and departure time ("Realism of
+    simulated traffic" page: SUMO's drivers on FT's own geometry and demand, which says how they are found).
 
     Parameters
     ----------
@@ -111,8 +108,7 @@ def demand_from_tracks(tracks: pd.DataFrame, lmap, routes, *, min_share: float =
     lmap : pirl_sim.io.lanelet2_map.LaneletMap
     routes : sequence of sequence of int   entry-to-exit lanelet routes (e.g. from
                                            `pirl_sim.scenarios.sumo.lanelet_network.lanelet_routes`)
-    min_share : float               a track whose best route holds less than this share of its matched lanelets
-                                    counts as unmatched
+    min_share : float               a track whose best route holds less of its matched lanelets counts as unmatched
 
     Returns
     -------

@@ -95,40 +95,20 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
                             sigma_v: float = ESTIMATE_SIGMA_V, sigma_j: float = ESTIMATE_SIGMA_J,
                             sigma_a: float = ESTIMATE_SIGMA_A, arc_length: str = "observed",
                             settle_frames: int = SETTLE_FRAMES, exact_tol: float = EXACT_TOL) -> list[Trajectory]:
-    """Recorded tracks as longitudinal demonstrations (s, v, a; jerk) on the routes' global axis.
-
-    Each track is projected on its route's reference path, shifted to the route's place on the global axis, sampled
-    every ``dt`` and estimated through the dynamics (`pirl_sim.driving.estimate_longitudinal_states` or
-    `pirl_sim.driving.fit_longitudinal_states`). With ``driver_steps`` the estimate follows what the drivers did
-    (documentation: "Weight recovery on simulated runs", What counts as a step).
+    """Recorded tracks as longitudinal demonstrations (s, v, a; jerk) on the routes' global axis ("Weight recovery on
+    simulated runs" page: What counts as a step; "In detail: recorded_demonstrations" has how, and every option).
 
     Parameters
     ----------
-    recording : ScenarioRecording
-    routes : RouteSet                      holds every selected track's route
+    recording, routes : ScenarioRecording, RouteSet   the run, and reference paths holding every selected track's route
     dt : float                             [s], a whole multiple of the 0.1 s frames
-    pirl_only : bool                       only PIRL drivers' tracks (``selection="steps"``: must be True)
-    non_interacting : bool                 ``"tracks"``: leave out tracks that interacted, collided or left early
-    min_steps : int                        shortest track [steps of dt] (``"steps"``: usable steps)
-    selection : {"tracks", "steps"}        whole tracks, or every PIRL track with ``step_mask`` (needs driver steps)
-    estimate : {"speeds", "positions"}     from positions and speeds, or positions only (ridge ``jerk_weight``)
-    jerk_weight : float                    ridge on the jerks of the position-only fit
-    sigma_s, sigma_v, sigma_j, sigma_a : float   noise model of ``"speeds"`` [m, m/s, m/s^3, m/s^2]
-    arc_length : {"observed", "fit"}       s from the projected positions, or the estimate's own s
-    settle_frames : int                    re-plans after a frame not the driver's own that also leave ``step_mask``
-    exact_tol : float                      [m/s] a command carried out less exactly than this leaves ``step_mask``
+    pirl_only, non_interacting, min_steps, selection : bool, bool, int, {"tracks", "steps"}   which tracks and steps
+    estimate, jerk_weight, sigma_s, sigma_v, sigma_j, sigma_a, arc_length : the state estimate (see the page)
+    settle_frames, exact_tol : int, float   re-plans, and [m/s] inexact commands, that also leave ``step_mask``
 
     Returns
     -------
-    list of Trajectory
-        In track order; metadata ``track_id``, ``agent_id``, ``route_id``, ``is_pirl``, ``style``, ``style_name``,
-        ``theta`` (NaN for background), ``interacted``, ``first_frame`` and, with driver steps, ``step_mask``.
-
-    Raises
-    ------
-    ValueError
-        A ``dt`` off the frame grid, an unknown option, ``"steps"`` without driver steps or with
-        ``pirl_only=False``, or a track with gaps in its frames.
+    demonstrations : list of Trajectory   in track order, metadata as the page lists; ValueError for bad options
     """
     stride = _stride(dt)
     if selection not in SELECTIONS:

@@ -103,27 +103,20 @@ def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT
 
 @dataclass
 class PirlDrivers:
-    """Batch controller of a simulator's PIRL vehicles: every one re-plans with its MPC every step.
+    """Batch controller of a simulator's PIRL vehicles: each re-plans with its MPC every step ("Simulators and data").
 
     Parameters
     ----------
-    model : RouteSetDriverModel             its dynamics' ``dt`` is the simulation's step length
+    model, horizon : RouteSetDriverModel, int   its dynamics' ``dt`` is the simulation's step; MPC horizon [steps] >= 1
     drivers : mapping vehicle id -> (route id, theta)   each PIRL vehicle's route and normalised weights (K,)
-    horizon : int                           MPC horizon [steps], >= 1
-    control_noise : float                   standard deviation [m/s^3] of Gaussian noise on each applied jerk
-    rng : numpy.random.Generator, optional  required when ``control_noise > 0``
-    override_tol : float                    [m/s] a command is carried out when the speed is within this of it
-    stop_speed, resume_speed : float        [m/s] standstill hand-back: below ``stop_speed`` the simulator drives
-                                            (command None) until faster than ``resume_speed``
-    kernel : {"auto", "numba", "numpy"}
-        Compiled loops (`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`), the numpy reference, or numba where it
-        is installed and the model is the paper's roundabout model (``"auto"``).
+    control_noise, rng : float, Generator or None   std [m/s^3] of noise on each applied jerk; its generator (if > 0)
+    override_tol, stop_speed, resume_speed : float   [m/s] a command is carried out within this; standstill hand-back
+    kernel : {"auto", "numba", "numpy"}   compiled loops (`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`), or not
 
     Attributes
     ----------
     n_calls, n_plans : int                  batched MPC calls and vehicle re-plans so far
-    plan_time_s, control_time_s : float     wall time [s] in the MPC, and in `commands`
-    handbacks : dict                        vehicle id -> times handed back at a standstill
+    plan_time_s, control_time_s, handbacks : float, float, dict   wall time [s] in the MPC, in `commands`; see the page
     """
 
     model: RouteSetDriverModel

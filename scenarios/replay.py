@@ -547,28 +547,19 @@ def load_replay(
     features: str = "paper",
     conflicts: ConflictRule = ConflictRule(),
 ) -> ReplayScene:
-    """Read track files recorded on one map into a `ReplayScene`.
+    """Read track files recorded on one map into a `ReplayScene` ("Simulators and data" page: Recorded tracks into
+    trajectories, and "In detail: load_replay" for every parameter in full).
 
     Parameters
     ----------
-    track_files : paths of ``vehicle_tracks_*.csv`` files (`pirl_sim.io.interaction.find_track_files`)
-    map_path : the Lanelet2 OSM map
-    dt : float [s]                    model step, a multiple of the 0.1 s frames
-    rule : SelectionRule              which tracks interacted
-    max_offset : float [m]            route matching tolerance
-    jerk_weight : float               smoothing of the position-only state estimate (`fit_longitudinal_states`)
-    max_steps : int or None           longer tracks are cut into pieces of at most this many steps (``piece``)
-    estimate : {"positions", "speeds"}   state estimate from positions only, or positions and recorded speeds
-    noise : EstimateNoise             noise model of ``"speeds"`` (`MEASURED_NOISE`; `SIMULATED_NOISE`)
-    selection : {"tracks", "steps"}   ``"steps"`` needs ``driver_steps.csv`` beside every track file
-    min_usable_steps : int            ``"steps"``: a piece with fewer usable steps of dt is skipped
-    smoothing, speed_smoothing : float [m]   smoothing of the reference paths, and of their curvature for v_des
-    a_lat, v_max : float              desired-speed parameters [m/s^2, m/s] (`pirl_sim.driving.SpeedProfile`)
-    arc_length : {"fit", "observed"}  s from the estimate (real data) or the projected positions
-    settle_frames : int or None       ``"steps"``: re-plans left out after a restart
-                                      (`pirl_sim.scenarios.demonstrations.SETTLE_FRAMES`)
+    track_files, map_path : paths of ``vehicle_tracks_*.csv`` (`pirl_sim.io.interaction.find_track_files`), OSM map
+    dt, max_steps : float [s], int or None   model step (multiple of 0.1 s); longer tracks cut into pieces (``piece``)
+    rule, max_offset, conflicts : SelectionRule, float [m], ConflictRule   interactions; route matching; yielding
+    estimate, noise, jerk_weight : str, EstimateNoise, float   state estimate (`MEASURED_NOISE`; `SIMULATED_NOISE`)
+    selection, min_usable_steps, settle_frames : str, int, int or None   ``"steps"``: ``driver_steps.csv`` masks
+    smoothing, speed_smoothing, a_lat, v_max : float   [m] reference paths, v_des curvature; [m/s^2, m/s] v_des
+    arc_length : {"fit", "observed"}   s from the estimate (real data) or the projected positions
     features : {"paper", "speed-level", "following"}   the feature set (`pirl_sim.driving.roundabout_features`)
-    conflicts : ConflictRule          when a car yields at a conflict point (``features="following"``)
     """
     from .demonstrations import SETTLE_FRAMES
 

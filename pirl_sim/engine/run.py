@@ -136,14 +136,12 @@ def run_sweep(
 
     Parameters
     ----------
-    config : SweepConfig        validated (`pirl_sim.engine.config.load_config`)
-    out_dir : path              results directory (created); finished cells are not run again
+    config, out_dir : SweepConfig, path   validated (`pirl_sim.engine.config.load_config`); results directory (created)
     executor : executor or None   of `pirl_sim.engine.executors` (kept open); None: made from the next three
     workers : int or None       local worker processes (None: the usable cores; 0: in this process)
     scheduler, scheduler_file : str or path, optional   Dask scheduler address ``tcp://HOST:PORT``, or its file
     progress, stream : bool, file   progress bar with ETA, on ``stream`` (default stderr)
-    command : str or None       recorded in ``sweep.json``
-    tables : bool               write the tidy tables; False: only the store and ``sweep.json``
+    command, tables : str or None, bool   recorded in ``sweep.json``; write the tidy tables (False: only the store)
 
     Returns
     -------

@@ -27,18 +27,12 @@ class FeatureSpec:
 
     Parameters
     ----------
-    name, unit : str
-        The feature's name (a key of `TrackFeatures`) and unit.
-    low, high : float
-        The histogram's range; values outside it count in the first or last bin.
-    bins : int
-        Number of equal bins (>= 2).
-    weight : float
-        Weight in the meta-metric (>= 0; weights are normalised over the features scored).
-    per : {"step", "vehicle"}
-        One value per recorded time step of a vehicle, or one per vehicle.
-    needs_map : bool
-        Computed only when a Lanelet2 map is given.
+    name, unit : str          the feature's name (a key of `TrackFeatures`) and unit
+    low, high : float         the histogram's range; values outside it count in the first or last bin
+    bins : int                number of equal bins (>= 2)
+    weight : float            weight in the meta-metric (>= 0; weights are normalised over the features scored)
+    per : {"step", "vehicle"}   one value per recorded time step of a vehicle, or one per vehicle
+    needs_map : bool          computed only when a Lanelet2 map is given
     """
 
     name: str
@@ -146,10 +140,8 @@ def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[Featur
         INTERACTION vehicle columns (`pirl_sim.io.interaction.read_tracks`): ``track_id``, ``frame_id``,
         ``timestamp_ms``, ``x``, ``y`` [m], ``vx``, ``vy`` [m/s], ``length``, ``width`` [m]; ``psi_rad`` [rad]
         if present (else the heading of the velocity).
-    lmap : pirl_sim.io.lanelet2_map.LaneletMap, optional
-        The map, for the map features (``lane_offset``: distance to the nearest lanelet centre line).
-    features : sequence of FeatureSpec
-        Which features to compute (default `FEATURES`); map features are left out without ``lmap``.
+    lmap : pirl_sim.io.lanelet2_map.LaneletMap, optional   the map, for the map features (``lane_offset``)
+    features : sequence of FeatureSpec   which (default `FEATURES`); map features are left out without ``lmap``
 
     Returns
     -------
@@ -371,14 +363,11 @@ def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, feature
 
     Parameters
     ----------
-    reference, simulated : TrackFeatures
-        The recording (scored) and the rollouts (their histograms score it).
-    features : sequence of FeatureSpec
-        Histogram ranges and default weights (`FEATURES`).
-    pseudocount : float
-        Added to every bin's count before normalising (additive smoothing; the challenge uses 0.1).
-    weights : mapping, optional
-        Feature name -> weight, replacing the defaults of the features named.
+    reference, simulated : TrackFeatures   the recording (scored) and the rollouts (their histograms score it)
+    features : sequence of FeatureSpec     histogram ranges and default weights (`FEATURES`)
+    pseudocount : float                    added to every bin's count before normalising (additive smoothing; the
+                                           challenge uses 0.1)
+    weights : mapping, optional            feature name -> weight, replacing the defaults of the features named
 
     Returns
     -------
@@ -435,20 +424,16 @@ def compare_sources(reference: TrackFeatures, sources: Mapping[str, Iterable[Tra
 
     Parameters
     ----------
-    reference : TrackFeatures
-    sources : mapping
-        Source label -> its rollouts' features (one `TrackFeatures` per rollout).
+    reference, sources : TrackFeatures, mapping   the recording; label -> its rollouts (one `TrackFeatures` each)
     **kwargs
         Passed to `score_realism`.
 
     Returns
     -------
-    summary : pandas.DataFrame
-        One row per source: ``source``, ``rollouts``, ``meta_metric`` (mean over rollouts), ``ci95`` (half-width
-        of its 95 % interval; NaN for one rollout), ``min``, ``max``.
-    features : pandas.DataFrame
-        One row per source, rollout and feature: the columns of `RealismScore.table` with ``source`` and
-        ``rollout``.
+    summary : pandas.DataFrame   one row per source: ``source``, ``rollouts``, ``meta_metric`` (mean over rollouts),
+                                 ``ci95`` (half-width of its 95 % interval; NaN for one rollout), ``min``, ``max``
+    features : pandas.DataFrame   one row per source, rollout and feature: the columns of `RealismScore.table` with
+                                  ``source`` and ``rollout``
     """
     from .stats import ci95
 

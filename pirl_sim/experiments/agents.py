@@ -111,25 +111,19 @@ class MpcEgo(_Policy):
 
 
 class PPOEgo(_Policy):
-    """stable-baselines3's PPO ("MlpPolicy" on the flattened observation), trained in the cell.
+    """stable-baselines3's PPO ("MlpPolicy" on the flattened observation), trained in the cell (every parameter in full:
+    the "Agents among drivers of known styles" page, "In detail: AgentsConfig and PPOEgo").
 
     Parameters
     ----------
-    style_observation : str                the observation mode (`MODES`)
-    action : str                           `ACTIONS`
-    residual_scale : float                 largest correction in action units (> 0; 1 is ``a_max`` up or ``-a_min``
-                                           down); ``"idm-speed"``: largest change of the desired-speed factor, in (0, 1)
-    max_change : float or None             largest change of the correction (or factor) per agent step; None: unbounded
-    steps : int                            environment steps of training (agent steps of 0.2 s)
-    n_steps, batch_size, n_epochs : int    PPO's rollout length, minibatch size and epochs per update
-    gamma, learning_rate : float           discount in (0, 1], and learning rate
-    log_std_init : float                   initial log standard deviation of the Gaussian actions
-    use_sde : bool                         generalised state-dependent exploration (gSDE)
+    style_observation, action : str        the observation mode (`MODES`); `ACTIONS`
+    residual_scale : float                 largest correction in action units (> 0), or of the desired-speed factor
+    max_change, steps : float or None, int   largest change of the correction per agent step (None: any); training steps
+    n_steps, batch_size, n_epochs, gamma, learning_rate, log_std_init, use_sde : PPO's settings (see the page)
     observe_residual : bool
         Also observe what the action changes (``observe`` of `~pirl_sim.envs.baselines.ResidualAction`,
         `~pirl_sim.envs.baselines.DesiredSpeedAction`).
-    select_every : int or None             model selection every this many environment steps; None: the last policy
-    select_episodes, select_seed : int     validation episodes per check, and the env seed of the first
+    select_every, select_episodes, select_seed : int or None, int, int   model selection (see the page)
     random_state : int or None             training seed (PPO's and its env's); the sweep sets the cell's seed
     """
 

@@ -41,31 +41,19 @@ DEFAULT_SCALES = {"residual-idm": 1.0, "shielded-residual-idm": 1.0, "idm-speed"
 
 @dataclass(frozen=True)
 class AgentsConfig:
-    """Settings of the experiment (validated on construction; ``ValueError`` naming the value).
+    """Settings of the experiment (validated on construction; ``ValueError`` naming the value). Every attribute in full:
+    the "Agents among drivers of known styles" page, "In detail: AgentsConfig and PPOEgo".
 
     Attributes
     ----------
-    modes : tuple of str                  observation modes to train (`MODES`)
-    action : str                          PPO's action (`ACTIONS`)
-    direct_modes : tuple of str           modes in which PPO also learns the direct action (a reference)
-    residual_scale : float or None        largest correction, or change of the IDM's desired-speed factor in (0, 1);
-                                          None: `DEFAULT_SCALES`
-    max_change : float or None            largest change of the correction (or factor) per agent step; None: unbounded
-    seeds : tuple of int                  training seeds (PPO's and its env's), >= 0
-    steps : int                           environment steps of PPO training per run (agent steps of 0.2 s)
-    eval_seeds : tuple of int             env seeds of the evaluation episodes: consecutive, disjoint from ``seeds``
+    modes, direct_modes, action : tuple of str, tuple of str, str   modes to train (`MODES`); also direct; `ACTIONS`
+    residual_scale, max_change : float or None   largest correction (None: `DEFAULT_SCALES`); its change per step
+    seeds, steps, eval_seeds : tuple of int, int, tuple of int   training seeds; env steps of training; evaluation seeds
     baselines : tuple of str              scripted egos to evaluate (`BASELINE_POLICIES`)
-    initial_vehicles : int                vehicles on the road at reset
-    depart_interval : float               [s] mean time between the traffic's departures
-    duration : float                      [s] episode time limit
+    initial_vehicles, depart_interval, duration : int, float, float   vehicles at reset; [s] mean headway; [s] limit
     learner_seed : int                    seed of the highway-env recording the ``"inferred"`` learner is fitted on
-    n_steps, batch_size, n_epochs : int   PPO's rollout length, minibatch size and epochs per update
-    gamma, learning_rate : float          PPO's discount and learning rate
-    log_std_init : float                  initial log standard deviation of PPO's Gaussian actions
-    use_sde : bool                        state-dependent exploration (SB3's gSDE)
-    observe_residual : bool               PPO also observes what its action changes (not in the direct runs)
-    select_every : int or None            model selection every this many env steps; None: the last policy
-    select_episodes, select_seed : int    validation episodes of the selection, and their first env seed
+    n_steps, batch_size, n_epochs, gamma, learning_rate, log_std_init, use_sde : PPO's settings (see the page)
+    observe_residual, select_every, select_episodes, select_seed : bool, int or None, int, int   see the page
     """
 
     modes: tuple[str, ...] = MODES

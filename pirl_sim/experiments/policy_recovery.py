@@ -222,12 +222,11 @@ class PpoRecoveryConfig:
     Attributes
     ----------
     theta : mapping          the ``"theta"`` reward's normalised weights {speed_dev, acc_sq} (jerk_sq = 1)
-    seeds : tuple of int     PPO training seeds (PPO's and its env's)
-    steps : int              environment steps of training per seed (agent steps of 0.1 s)
-    eval_seeds : tuple of int  env seeds of the evaluation episodes, disjoint from ``seeds``
+    seeds, steps : tuple of int, int   PPO training seeds (PPO's and its env's); env steps of training per seed (0.1 s)
+    eval_seeds : tuple of int   env seeds of the evaluation episodes, disjoint from ``seeds``
     n_vehicles, initial_vehicles : int   vehicles of an episode's population, and those on the road at reset
     depart_interval, duration : float   [s] mean time between departures; episode time limit
-    normalize_reward : bool  train on rewards scaled by a running estimate of the return's std (``VecNormalize``)
+    normalize_reward : bool   train on rewards scaled by a running estimate of the return's std (``VecNormalize``)
     n_steps, batch_size, n_epochs : int   PPO's rollout length, minibatch size, epochs per update
     gamma, learning_rate : float   PPO's discount (per 0.1 s step) and learning rate
     log_std_init : float     initial log standard deviation of PPO's Gaussian actions

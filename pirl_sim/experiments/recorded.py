@@ -382,11 +382,9 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
 
     Parameters
     ----------
-    scene : pirl_sim.scenarios.replay.ReplayScene
-    seed : int                   the split seed (``proto.seeds`` is not used)
+    scene, seed, proto : pirl_sim.scenarios.replay.ReplayScene, int, ReplayProtocol   split seed (not ``proto.seeds``)
     methods : list of (name, key, params)   ``key``: a pseudo-learner of `METHODS` or a learner of
                                  `pirl_sim.learners.LEARNERS` fitted with ``params``; ``name``: its row's ``method``
-    proto : ReplayProtocol
     desired_speed : None, "fit" or (a_lat, v_max)   the scene's own, fitted on the split (`fit_scene_speed`), or given
     n_futures : int              K > 0: also score K futures (``min_ade@K``, ..., mixture NLL with sigma 1 m)
 

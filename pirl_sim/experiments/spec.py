@@ -103,26 +103,19 @@ class TrainShape:
 
 @dataclass(frozen=True)
 class ScenarioSpec:
-    """A registered scenario (module doc; the architecture page explains each field).
+    """A registered scenario (module doc; the architecture page explains each field and gives its signature).
 
     Attributes
     ----------
-    name, summary : str
-    params : mapping {name: Param}
+    name, summary, params : str, str, mapping {name: Param}
     check : callable(dict) -> dict            complete parameters -> normalised JSON-serialisable ones; ValueError
-    build : callable(dict, int) -> ScenarioData, or None (a scenario whose ``run_cells`` reads its own data)
-    train_shape : callable(dict) -> TrainShape
-    fingerprint : callable(dict) -> str or None    hash of the data files a scenario reads (None: nothing read)
-    simulation : callable(dict) -> dict, or None   the parameters a simulation depends on
-    simulate : callable(dict, int, Path), or None  records one run of ``simulation(params)`` and a seed
-    driver_horizon : callable(dict) -> int or None   the drivers' MPC horizon [steps], where the scenario knows it
-    run_cells : callable(specs) -> list of (scores, timings), or None   the scenario's own cell runner; None: the
-        sweep's (`pirl_sim.engine.worker.run_cells`)
-    task_group : callable(dict) -> str or None, or None   which cells run as one task; None:
-        `pirl_sim.engine.worker.knn_group`
+    build, train_shape : callable   (dict, int) -> ScenarioData, or None (``run_cells`` reads its data); -> TrainShape
+    fingerprint, simulation : callable or None   hash of the data files a scenario reads; a simulation's parameters
+    simulate, driver_horizon : callable or None   records one run of ``simulation(params)``; the MPC horizon [steps]
+    run_cells : callable(specs), or None      the scenario's own cell runner; None: `pirl_sim.engine.worker.run_cells`
+    task_group : callable(dict), or None      which cells run as one task; None: `pirl_sim.engine.worker.knn_group`
     check_protocol : callable(dict, dict), or None   ValueError for a protocol the scenario cannot run
-    learners : tuple of str, or None          the only learners this scenario runs; None: those not another's own
-    code : tuple of str                       modules hashed into this scenario's cell keys only
+    learners, code : tuple of str (or None)   the only learners this scenario runs; modules hashed into its keys only
     """
 
     name: str

@@ -60,21 +60,15 @@ def check_extent(extent) -> tuple[float, float, float, float]:
 
 
 class SceneView:
-    """A reusable figure of a recording: update it to any frame and render it to an array.
+    """A reusable figure of a recording: update it to any frame and render it to an array ("Drawing scenes" page).
 
     Parameters
     ----------
     tracks : pandas.DataFrame or TrackFrames   INTERACTION-format rows, `pirl_sim.viz.frames.SCENE_COLUMNS` at least
     road : Road, optional                      drawn beneath (`pirl_sim.viz.road_sources`)
-    color_by : str, mapping or None            None: a colour per track; a column (``"speed"``: from ``vx``, ``vy``)
-                                               or ``track_id -> value`` (`pirl_sim.viz.colors.color_rows`)
-    categorical, cmap, vmin, vmax, label : see `pirl_sim.viz.colors.color_rows`
-    trail_s : float                            length [s] of the trail behind each vehicle; 0: none
-    show_tracks : bool                         draw every whole track faintly beneath
-    extent : tuple of float, optional          ``(xmin, xmax, ymin, ymax)`` [m]; default the bounding box + 5 m, 1:1
-    size_px : tuple of int                     figure width, height [px]
-    dpi : float                                dots per inch (sizes of text and lines)
-    title : str, optional
+    color_by, categorical, cmap, vmin, vmax, label : see `pirl_sim.viz.colors.color_rows` (None: a colour per track)
+    trail_s, show_tracks, extent : float, bool, tuple or None   trail [s] (0: none); all tracks faintly; see the page
+    size_px, dpi, title : tuple of int, float, str or None   figure width, height [px]; dots per inch; title
 
     Raises
     ------

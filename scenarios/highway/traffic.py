@@ -94,10 +94,8 @@ class TrafficRules:
     yield_lookback : float             [m] ring vehicles up to this far before the merge node count, > 0
     yield_headway : float              [s] a ring vehicle's time away from the node after the entering one cleared it
     yield_min_distance : float         [m] a ring vehicle closer than this to the node always conflicts, >= 0
-    entry_acceleration : float         [m/s^2] acceleration assumed for clearing the node, > 0
-    max_deceleration : float           [m/s^2] a vehicle that would need more to stop before the node goes, > 0
-    stop_clearance : float             [m] lateral clearance of a waiting vehicle from the ring lane's edge, >= 0
-    stop_margin : float                [m] waiting vehicles stop this far before the stop line (IDM jam gap), >= 0
+    entry_acceleration, max_deceleration : float   [m/s^2] assumed to clear the node; more needed to stop: go, > 0
+    stop_clearance, stop_margin : float   [m] waiting vehicles' clearance from the ring lane; gap to the stop line, >= 0
     crash_removal_delay : float or None   [s] crashed vehicles are removed this long after the crash; None: never
     initial_spacing : float            [m] least distance between vehicles placed at a reset, > 0
     background_speed_factor_std : float   std of background drivers' speed factors (mean 1, in [0.7, 1.3]), >= 0
@@ -215,22 +213,14 @@ class _Departure:
 
 
 class RoundaboutTraffic(Road):
-    """highway-env ``Road`` whose ``act``/``step`` run the roundabout's traffic (see the module docstring).
+    """highway-env ``Road`` whose ``act``/``step`` run the roundabout's traffic ("highway-env roundabouts": Traffic).
 
     Parameters
     ----------
-    network : highway_env.road.road.RoadNetwork   from `~pirl_sim.scenarios.highway.network.build_network`
-    routes : mapping route id -> RouteLanes       the route catalogue; holds every planned route
-    route_set : RouteSet                          reference paths of the same routes
-    plan : pandas.DataFrame                       vehicles to insert (`~pirl_sim.scenarios.planning.plan_population`)
-                                                  departing at ``depart`` [s] of this traffic's clock
-    drivers : DriverConfig
-    rules : TrafficRules
-    control_noise : float                         [m/s^3] std of Gaussian noise on PIRL drivers' applied jerk
-    noise_rng, behaviour_rng : numpy.random.Generator   control noise; background drivers' parameters and placement
-    np_random : numpy.random.Generator, optional  highway-env's road generator (the env's ``np_random``)
-    record, record_history : bool                 keep every vehicle's state every step (`recording`); highway-env's
-                                                  trajectory display
+    network, routes, route_set : RoadNetwork, mapping, RouteSet   the road, its routes' lanes, their reference paths
+    plan : pandas.DataFrame               vehicles to insert (`~pirl_sim.scenarios.planning.plan_population`)
+    drivers, rules, control_noise : DriverConfig, TrafficRules, float   [m/s^3] std of noise on PIRL drivers' jerk
+    noise_rng, behaviour_rng, np_random, record, record_history : Generators and bools, see the page.
 
     Attributes
     ----------

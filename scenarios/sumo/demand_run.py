@@ -22,19 +22,14 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
     Parameters
     ----------
     net : path or pirl_sim.scenarios.sumo.lanelet_network.LaneletNetwork
-    departures : sequence of pirl_sim.scenarios.demand.Departure
-        Routes are lanelet ids (edges ``ll<id>``).
-    out : path
-        The track file to write (INTERACTION vehicle columns, 0.1 s frames; x, y the box centre).
-    seed : int
-        SUMO's random seed (its drivers' imperfection and speed factors).
-    end_s : float, optional
-        Stop at this time [s] (default: when every vehicle has arrived, at most an hour after the last departure).
+    departures : sequence of pirl_sim.scenarios.demand.Departure   routes are lanelet ids (edges ``ll<id>``)
+    out : path                  the track file to write (INTERACTION vehicle columns, 0.1 s frames; x, y the box centre)
+    seed : int                  SUMO's random seed (its drivers' imperfection and speed factors)
+    end_s : float, optional     stop at this time [s] (default: all arrived, at most an hour after the last departure)
 
     Returns
     -------
-    pathlib.Path
-        ``out``.
+    path : pathlib.Path         ``out``
     """
     import libsumo
 

@@ -157,31 +157,19 @@ def _shape(points: np.ndarray) -> str:
 
 def network_from_lanelet2(lmap, out_dir, *, name: str = "lanelets", junction_radius: float = 1.0,
                           speed: float = 13.89, join_tolerance: float = 0.5) -> LaneletNetwork:
-    """Write a SUMO network of a Lanelet2 map.
+    """Write a SUMO network of a Lanelet2 map ("SUMO roundabouts" page: Real roundabouts from Lanelet2 maps).
 
     Parameters
     ----------
-    lmap : pirl_sim.io.lanelet2_map.LaneletMap or path
-        The map (a path is read with `pirl_sim.io.lanelet2_map.load_map`).
-    out_dir : path
-        Folder for ``{name}.nod.xml``, ``.edg.xml``, ``.con.xml`` and ``.net.xml`` (created if missing).
-    junction_radius : float
-        netconvert's default junction radius [m]: how far edges are cut back at a node for the curves between them.
-    speed : float
-        Speed limit of every edge [m/s].
-    join_tolerance : float
-        Largest distance [m] between a lanelet's end and a successor's start.
+    lmap : pirl_sim.io.lanelet2_map.LaneletMap or path   the map (a path: `pirl_sim.io.lanelet2_map.load_map`)
+    out_dir : path              folder for ``{name}.nod.xml``, ``.edg.xml``, ``.con.xml`` and ``.net.xml`` (created)
+    junction_radius : float     netconvert's default junction radius [m] (how far edges are cut back at a node)
+    speed : float               speed limit of every edge [m/s]
+    join_tolerance : float      largest distance [m] between a lanelet's end and a successor's start
 
     Returns
     -------
-    LaneletNetwork
-
-    Raises
-    ------
-    ValueError
-        A bad parameter, a map without lanelets or routes, successors that do not meet.
-    RuntimeError
-        If netconvert fails (its message included).
+    network : LaneletNetwork    ValueError for a bad parameter, map or successors; RuntimeError if netconvert fails
     """
     import sumolib
 

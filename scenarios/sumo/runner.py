@@ -404,37 +404,20 @@ class _VehicleRecord:
 
 
 class SumoRun:
-    """One SUMO simulation of a network with given routes and vehicles (a context manager).
-
-    Routes, vehicles and controlled ids are validated when the run is constructed, before SUMO starts. Controller,
-    speed mode and collisions: the SUMO page of the documentation (Running SUMO).
+    """One SUMO simulation of given routes and vehicles, a context manager ("SUMO roundabouts": "In detail: SumoRun").
 
     Parameters
     ----------
-    net : str, os.PathLike or NetworkFiles   the ``*.net.xml``
-    routes : mapping str -> sequence of str, or iterable of (route_id, edges)   e.g. ``network.routes(spec)``
-    vehicles : iterable of VehicleSpec
-    pirl_ids : iterable of str            vehicles driven by ``controller``
-    controller : Controller, optional     required when ``pirl_ids`` is not empty
-    seed : int                            SUMO's ``--seed``
-    step_length : float                   [s]
-    backend : {"libsumo", "traci"}
-    speed_mode : int                      TraCI speed mode of the controlled vehicles (`speed_mode`)
-    override_tol : float                  [m/s] a command is overridden when the speed misses it by more
-    leader_lookahead : float              [m] distance within which ``Observation.leader`` is looked for
-    extra_args : sequence of str          appended to the SUMO command line
-    collision_action : {"warn", "remove", "teleport", "none"}   SUMO's ``--collision.action``
-    speed_modes : mapping vehicle id -> int, optional   per-vehicle speed modes instead of ``speed_mode``
+    net, routes, vehicles : str, os.PathLike or NetworkFiles; routes; VehicleSpecs   e.g. ``network.routes(spec)``
+    pirl_ids, controller : iterable of str, Controller or None   vehicles driven by ``controller`` (then required)
+    seed, step_length, backend : int, float, {"libsumo", "traci"}   SUMO's ``--seed``; [s]; how SUMO is run
+    speed_mode, speed_modes : int, mapping vehicle id -> int or None   TraCI speed mode (`speed_mode`), per vehicle
+    override_tol, leader_lookahead : float   [m/s] a command missed by more is overridden; [m] ``Observation.leader``
+    extra_args, collision_action : sequence of str, str   appended to SUMO's command line; its ``--collision.action``
 
     Attributes
     ----------
     colliding : frozenset of str          vehicles SUMO reported in a collision in the last step
-
-    Raises
-    ------
-    ValueError
-        Unknown backends, unreachable or unknown routes, duplicate vehicle ids, vehicles on unknown routes,
-        controlled ids that are not vehicles, a missing controller, or bad numbers.
     """
 
     def __init__(self, net, routes, vehicles: Iterable[VehicleSpec], *, pirl_ids: Iterable[str] = (),

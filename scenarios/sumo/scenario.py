@@ -122,8 +122,7 @@ class SumoScenarioConfig:
     collision_action : {"warn", "remove", "teleport", "none"}   SUMO's ``--collision.action``
     override_tol : float                       [m/s] a command is overridden when the speed misses it by more, > 0
     max_duration : float or None               longest simulated time [s]; None: last departure + 300 s
-    demand_per_arm : float or None             [vehicles per hour per arm] > 0: sets the population's
-                                               ``depart_interval`` (SUMO page, Populations); None: as given
+    demand_per_arm : float or None             [vehicles/h/arm] > 0: sets ``depart_interval`` (SUMO page); None: as is
     """
 
     network: RoundaboutSpec = DEFAULT_NETWORK
