@@ -232,15 +232,13 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
 
     Parameters
     ----------
-    track_files : paths of ``vehicle_tracks_*.csv`` files of one roundabout
-    map_path : path of its Lanelet2 map
+    track_files, map_path : paths   ``vehicle_tracks_*.csv`` files of one roundabout; its Lanelet2 map
     max_styles, stride : int      largest number of styles the BIC chooses; score every stride-th step
     seed : int                    of the mixture's EM initialisation
     drivers : MpcDriverConfig, optional   the simulated drivers whose model is fitted (default: the simulators')
     desired_speed : "likelihood", "speeds" or (float, float)   a_lat [m/s^2], v_max [m/s]: of greatest likelihood
                                   (`PROFILE_CARS` cars), fitted to the speeds alone, or given ("Calibration" page)
-    min_tracks : int              fewest usable cars, >= 2
-    progress : callable(str), optional    told what is being done
+    min_tracks, progress : int, callable(str)   fewest usable cars (>= 2); told what is being done (optional)
 
     Raises
     ------
