@@ -21,7 +21,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
               "pirl_sim.population", "pirl_sim.driving", "pirl_sim.irl", "pirl_sim.receding", "pirl_sim.mpc",
               "pirl_sim.metrics", "pirl_sim.deconvolution", "pirl_sim.validation", "pirl_sim.recovery",
               "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit", "pirl_sim.threads",
-              "pirl_sim.progress", "pirl_sim.testing", "pirl_sim.layers", "pirl_sim.io")),
+              "pirl_sim.progress", "pirl_sim.testing", "pirl_sim.layers", "pirl_sim.typecheck", "pirl_sim.io")),
     ("learners", ("pirl_sim.learners",)),
     ("scenarios", ("pirl_sim.scenarios",)),
     ("viz", ("pirl_sim.viz",)),
