@@ -138,7 +138,7 @@ def check(repo: Path) -> tuple[dict[str, set[str]], list[Violation]]:
     """The import graph of the checkout ``repo`` (the package root left out) and what breaks the layers."""
     files = module_files(repo)
     known = set(files)
-    graph = {m: set() for m in files if m != ROOT}
+    graph: dict[str, set[str]] = {m: set() for m in files if m != ROOT}
     for name, path in files.items():
         if name == ROOT:
             continue
