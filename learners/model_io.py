@@ -274,8 +274,8 @@ class _Decoder:
 
     def path(self, cfg: dict):
         if cfg["kind"] == "reference":
-            return ReferencePath(*(self.array(cfg[n]) for n in ("s", "x", "y",  # type: ignore[arg-type, misc]
-                                                                "heading", "kappa")),
+            return ReferencePath(*(self.array(cfg[n])  # type: ignore[arg-type, misc]
+                                   for n in ("s", "x", "y", "heading", "kappa")),
                                  closed=bool(cfg["closed"]))
         if cfg["kind"] == "composite":
             comp = CompositePath(tuple(self.path(p) for p in cfg["segments"]), gap=cfg["gap"], spacing=cfg["spacing"])

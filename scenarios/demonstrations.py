@@ -211,9 +211,8 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
             "theta": theta, "interacted": None if pd.isna(row.interacted) else bool(row.interacted),
             "first_frame": int(frames[0])}
         if mask is not None:
-            meta["step_mask"] = _step_mask(settled(f["usable"].to_numpy(dtype=bool),  # type: ignore[index]
-                                                   settle_frames), stride,
-                                           n_steps)
+            meta["step_mask"] = _step_mask(
+                settled(f["usable"].to_numpy(dtype=bool), settle_frames), stride, n_steps)  # type: ignore[index]
         out.append(Trajectory(states, controls, dt, meta))
     return out
 

@@ -310,8 +310,8 @@ class ReplayScene:
         """The curvature [1/m] the desired speed sees at composite arc lengths s (smoothed by
         ``speed_smoothing``)."""
         path = self.profile_path if self.profile_path is not None else self.model.path
-        return SpeedProfile(path, self.a_lat,  # type: ignore[arg-type]
-                            self.v_max).curvature(np.asarray(s, dtype=float))[0]
+        return SpeedProfile(path, self.a_lat, self.v_max).curvature(  # type: ignore[arg-type]
+            np.asarray(s, dtype=float))[0]
 
     @property
     def selected(self) -> list[Trajectory]:
@@ -721,8 +721,8 @@ def load_replay(
                                               track["psi_rad"].to_numpy(dtype=float)[keep], path_list[paths[key]])
             if usable is not None:
                 extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)  # type: ignore[arg-type]
-                extra["settled"] = _frame_steps(settled(usable, settle_frames), restart,  # type: ignore[arg-type]
-                                                speed, stride)[0]
+                extra["settled"] = _frame_steps(settled(usable, settle_frames),
+                                                restart, speed, stride)[0]  # type: ignore[arg-type]
             pending.append((paths[key], s_local[sel], d[sel], xy[sel], dict(meta, _extra=extra)))
     for directory, (rows, read, names, dropped) in truth_ids.items():
         unmatched = sorted(rows - read)
@@ -827,8 +827,8 @@ def load_replay(
                 if b - a < 2:
                     n_steps_counts["free steps in runs shorter than 2 steps (left out)"] += b - a
                     continue
-                cut_meta = {k: meta[k][a : b + 1] for k in ("d", "xy", "yielding", "s_obs",  # type: ignore[index]
-                                                            "v_obs") if k in meta}
+                cut_meta = {k: meta[k][a : b + 1]  # type: ignore[index]
+                            for k in ("d", "xy", "yielding", "s_obs", "v_obs") if k in meta}
                 trajectories.append(Trajectory(states[a : b + 1], controls[a:b], dt,
                                                dict(meta, **cut_meta, free_run=r, free_start=a)))
             continue

@@ -309,8 +309,8 @@ class PirlRoundaboutEnv(AbstractEnv):
     def define_spaces(self) -> None:
         obs = dict(self.config["observation"])
         c = self.config
-        if getattr(self, "_style",
-                   None) is None or self._style.mode != c["style_observation"]:  # type: ignore[has-type]
+        if (getattr(self, "_style", None) is None
+                or self._style.mode != c["style_observation"]):  # type: ignore[has-type]
             self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
         self._style_width = self._style.width
         if obs["type"] == "Kinematics":  # highway-env's, pandas-free, remembering its rows (for info)

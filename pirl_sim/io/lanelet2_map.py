@@ -717,8 +717,8 @@ def write_map(
         offsets = _left_offsets(line, half)
         left, right = [], []
         for i, p in enumerate(line):
-            key = ("start", name) if i == 0 else ("end",  # type: ignore[assignment]
-                                                  name) if i == len(line) - 1 else None
+            key = (("start", name) if i == 0  # type: ignore[assignment]
+                   else ("end", name) if i == len(line) - 1 else None)
             if key is not None and key in parent:
                 root = find(key)
                 if root not in joint_nodes:

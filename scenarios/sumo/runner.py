@@ -726,8 +726,8 @@ class SumoRun:
                                      f"about at t = {t} s: {stray}")
             for vid, obs in observations.items():
                 rec = self._veh[vid]
-                cmd = batch.get(vid) if batch is not None else self.controller(t,  # type: ignore[assignment, misc]
-                                                                               vid, obs)
+                cmd = (batch.get(vid) if batch is not None  # type: ignore[assignment]
+                       else self.controller(t, vid, obs))  # type: ignore[misc]
                 if cmd is None:
                     if rec.commanded:
                         api.vehicle.setSpeed(vid, -1.0)
