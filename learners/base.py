@@ -337,8 +337,8 @@ class BaseLearner(BaseEstimator):
             idx = np.flatnonzero(lengths == n)
             states = self.predict_states([histories[i] for i in idx], int(n))
             for j, i in enumerate(idx):
-                predicted[i] = self.model_.positions(states[j, 1:])
-        return -med(predicted, [self.model_.positions(f.states[1:]) for f in futures])
+                predicted[i] = self.model_.positions(states[j, 1:])  # type: ignore[call-overload]
+        return -med(predicted, [self.model_.positions(f.states[1:]) for f in futures])  # type: ignore[arg-type]
 
     # subclasses
     def _fit(self, model: DriverModel, trajectories: list[Trajectory]) -> None:  # pragma: no cover

@@ -242,7 +242,7 @@ class _MixtureLearner(SavableLearner):
             raise ValueError(f"init='random' needs a fixed number of styles: n_components must be a positive integer, "
                              f"got {k!r}")
         M = len(trajectories)
-        if k > M:
+        if k > M:  # type: ignore[operator]
             raise ValueError(f"n_components={k} is larger than the number of training demonstrations ({M})")
         if not is_positive_int(self.n_init):
             raise ValueError(f"n_init must be a positive integer, got {self.n_init!r}")
@@ -251,11 +251,11 @@ class _MixtureLearner(SavableLearner):
         names = ("labels_", "irl_result_", "theta_", "style_weights_", "n_refined_", "control_rms_", "episode_steps_",
                  "em_collapse_sizes_")
         for _ in range(int(self.n_init)):
-            self.n_styles_ = int(k)
-            self.labels_ = rng.permutation(np.arange(M) % k)
+            self.n_styles_ = int(k)  # type: ignore[arg-type]
+            self.labels_ = rng.permutation(np.arange(M) % k)  # type: ignore[operator]
             res = self._irl(model, trajectories, self.labels_, self.n_styles_)
             self.irl_result_, self.theta_ = res, res.normalized
-            self.style_weights_ = np.full(k, 1.0 / k)
+            self.style_weights_ = np.full(k, 1.0 / k)  # type: ignore[operator]
             self._set_noise_scale(trajectories)
             stop = self._hard_em(model, trajectories, passes)
             ll = self._style_log_likelihood(trajectories) + np.log(self.style_weights_)[None]
@@ -263,8 +263,8 @@ class _MixtureLearner(SavableLearner):
             if score > best_score:
                 best, best_score = {n: getattr(self, n) for n in names}, score
                 best["stop"] = stop
-        stop = best.pop("stop")
-        for n, v in best.items():
+        stop = best.pop("stop")  # type: ignore[union-attr]
+        for n, v in best.items():  # type: ignore[union-attr]
             setattr(self, n, v)
         if stop == "collapsed" and passes:
             sizes = self.em_collapse_sizes_

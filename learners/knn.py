@@ -324,7 +324,7 @@ class PIRLKNN(SavableLearner):
             return
         pick = np.unique(np.linspace(0, len(x0) - 1, min(SELECTION_WINDOWS, len(x0))).astype(int))
         self.bank_errors_ = rollout_errors(self.model_, x0[pick], self.demo_theta_[self.bank_], truth[pick])
-        self.selector_ = ErrorRegression(SELECTOR_ITER).fit(keys[pick], self.bank_errors_)
+        self.selector_ = ErrorRegression(SELECTOR_ITER).fit(keys[pick], self.bank_errors_)  # type: ignore[assignment]
 
     def _selection(self, histories, x0: np.ndarray, bank_states: np.ndarray | None = None) -> np.ndarray:
         """The bank's probabilities (M, C) for each history (``aggregate="selected"``) with last states ``x0``
@@ -332,7 +332,7 @@ class PIRLKNN(SavableLearner):
         out."""
         keys = np.hstack([self._lookup(histories), place_keys(self.model_, self._query_windows(histories))])
         if self.selector == "errors":
-            return softmin(self.selector_.predict(keys), self.temperature)
+            return softmin(self.selector_.predict(keys), self.temperature)  # type: ignore[call-arg]
         F = int(self.target_steps)
         if bank_states is None:
             bank_states = self._bank_futures(x0, F)
@@ -425,7 +425,7 @@ class PIRLKNN(SavableLearner):
                              f"({n_samples})")
         out._index(int(out.n_neighbors))
         if out.aggregate == "selected":
-            out._fit_selector(data)
+            out._fit_selector(data)  # type: ignore[arg-type]
         return out
 
     def _ahead_weights(self) -> tuple[float, ...]:

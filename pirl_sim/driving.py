@@ -128,12 +128,13 @@ class CompositePath:
 
     @property
     def length(self) -> float:
-        return float(self.s[-1])
+        return float(self.s[-1])  # type: ignore[attr-defined]
 
     def segment_of(self, s: np.ndarray) -> np.ndarray:
         """Index of the path that composite arc length s [m] belongs to: the path whose range, extended by
         half a gap at either end, holds s (see class doc)."""
-        starts = self.offsets - 0.5 * self.gap  # where each path's share of the gap before it begins
+        # where each path's share of the gap before it begins
+        starts = self.offsets - 0.5 * self.gap  # type: ignore[attr-defined]
         return np.clip(np.searchsorted(starts, np.asarray(s, dtype=float), side="right") - 1, 0, None)
 
     def local_range(self, segment: int) -> tuple[float, float]:
@@ -163,7 +164,8 @@ class CompositePath:
                 raise ValueError(f"segment must be integer path indices in [0, {n_seg}), got {segment!r}")
         for k in np.unique(seg):
             sel = seg == k
-            out[sel] = self.segments[k].to_cartesian(s[sel] - self.offsets[k], d[sel], extrapolate=True)
+            out[sel] = self.segments[k].to_cartesian(s[sel] - self.offsets[k], d[sel],  # type: ignore[attr-defined]
+                                                     extrapolate=True)
         return out
 
 
@@ -275,7 +277,8 @@ class SpeedDeviationResidual:
 
 def speed_deviation_feature(profile: SpeedProfile, name: str = "speed_dev", reduction: str = "mean") -> Feature:
     """mean_k (v_k - v_des(s_k))^2 with exact derivatives through the speed profile."""
-    return Feature(name, SpeedDeviationResidual(profile), reduction=reduction, quadratic=False)
+    return Feature(name, SpeedDeviationResidual(profile), reduction=reduction,  # type: ignore[arg-type]
+                   quadratic=False)
 
 
 @dataclass(frozen=True)
@@ -422,7 +425,7 @@ class PathDriverModel(DriverModel):
     def positions(self, states: np.ndarray, offset: np.ndarray | float = 0.0) -> np.ndarray:
         """Cartesian positions (..., 2) [m] of states (..., n_x) at lateral offset d [m] from the path."""
         s = np.asarray(states)[..., 0]
-        return self.path.to_cartesian(s, np.broadcast_to(offset, s.shape), extrapolate=True)
+        return self.path.to_cartesian(s, np.broadcast_to(offset, s.shape), extrapolate=True)  # type: ignore[union-attr]
 
 
 def roundabout_model(
@@ -435,7 +438,8 @@ def roundabout_model(
 ) -> PathDriverModel:
     """The paper's roundabout model on a path: longitudinal dynamics at ``dt``, the three features, bounds."""
     dyn: LinearDynamics = longitudinal(dt)
-    return PathDriverModel(dyn, roundabout_features(SpeedProfile(path, a_lat, v_max)), bounds, path=path)
+    return PathDriverModel(dyn, roundabout_features(SpeedProfile(path, a_lat, v_max)),  # type: ignore[arg-type]
+                           bounds, path=path)
 
 
 def fit_longitudinal_states(

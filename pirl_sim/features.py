@@ -276,12 +276,13 @@ class FeatureSet:
             raise ValueError(f"theta must have shape {(M, self.n_features)}, got {theta.shape}")
         values = np.empty((M, self.n_features))
         grad = np.empty((M, self.n_features, d))
-        shared, own = [], []
+        shared, own = [], []  # type: ignore[var-annotated]
         for k, value, g, Hk in self._terms(dynamics, states, controls, gauss_newton, factored=True):
             values[:, k], grad[:, k] = value, g
             (shared if Hk.shape[0] == 1 else own).append((k, Hk))
         if shared:  # constant Hessians: one pass over the output
-            hess = np.einsum("mq,qij->mij", theta[:, [k for k, _ in shared]], np.concatenate([H for _, H in shared]))
+            hess = np.einsum("mq,qij->mij", theta[:, [k for k, _ in shared]],  # type: ignore[index]
+                             np.concatenate([H for _, H in shared]))
         else:
             hess = np.zeros((M, d, d))
         for k, Hk in own:
@@ -489,13 +490,13 @@ def _selector_jacobians(sel: tuple[int, ...], n_in: int, n_other: int) -> tuple[
 
 def squared_state(name: str, index: Sequence[int] | None = None, *, reduction: str = "sum") -> Feature:
     """reduce_k ||x_k[index]||^2 (all states if index is None)."""
-    return Feature(name, SquaredStateResidual(name, None if index is None else tuple(index)), reduction=reduction,
-                   quadratic=True)
+    return Feature(name, SquaredStateResidual(name, None if index is None else tuple(index)),
+                   reduction=reduction, quadratic=True)  # type: ignore[arg-type]
 
 
 def squared_control(name: str, *, reduction: str = "sum") -> Feature:
     """reduce_k ||u_{k-1}||^2."""
-    return Feature(name, SquaredControlResidual(), reduction=reduction, quadratic=True)
+    return Feature(name, SquaredControlResidual(), reduction=reduction, quadratic=True)  # type: ignore[arg-type]
 
 
 def lqr_features() -> FeatureSet:

@@ -243,8 +243,8 @@ def _laplace_nll(theta: np.ndarray, block: LaplaceBlock, order: int = 1, eps: fl
         return _laplace_nll_einsum(theta, block, order, eps)
     M, K = theta.shape
     hess = block.hess
-    shared = hess.shape[0] == 1  # one set of Hessians for every demonstration of the block
-    hflat = hess.reshape(hess.shape[0], K, d * d)
+    shared = hess.shape[0] == 1  # type: ignore[union-attr]  # one set of Hessians for every demonstration of the block
+    hflat = hess.reshape(hess.shape[0], K, d * d)  # type: ignore[union-attr]
     G = np.einsum("mk,mkd->md", theta, block.grad)
     H = (theta @ hflat[0] if shared else (theta[:, None, :] @ hflat)[:, 0]).reshape(M, d, d)
     L, H, bad, worst = _shift_to_pd_rows(H, eps)
@@ -259,14 +259,14 @@ def _laplace_nll(theta: np.ndarray, block: LaplaceBlock, order: int = 1, eps: fl
         Hk_h = (h @ hflat[0].reshape(K * d, d).T).reshape(M, K, d)  # H_k h (H_k symmetric)
         trace = Hinv.reshape(M, d * d) @ hflat[0].T  # tr(H^-1 H_k)
     else:
-        Hk_h = (hess.reshape(M, K * d, d) @ h[:, :, None]).reshape(M, K, d)
+        Hk_h = (hess.reshape(M, K * d, d) @ h[:, :, None]).reshape(M, K, d)  # type: ignore[union-attr]
         trace = (hflat @ Hinv.reshape(M, d * d, 1))[..., 0]
     grad = (block.grad @ h[:, :, None])[..., 0] - 0.5 * (Hk_h @ h[:, :, None])[..., 0] - 0.5 * trace
     if order == 1:
         return nll, grad, None, bad, worst
     E = block.grad - Hk_h
     term1 = (E @ Hinv) @ np.swapaxes(E, 1, 2)
-    hess_b = np.broadcast_to(hess, (M,) + hess.shape[1:]) if shared else hess
+    hess_b = np.broadcast_to(hess, (M,) + hess.shape[1:]) if shared else hess  # type: ignore[arg-type, union-attr]
     B = Hinv[:, None] @ hess_b  # H^-1 H_k
     Bt = np.swapaxes(B, 2, 3).reshape(M, K, d * d)
     term2 = 0.5 * (B.reshape(M, K, d * d) @ np.swapaxes(Bt, 1, 2))  # tr(H^-1 H_k H^-1 H_l) / 2
@@ -284,7 +284,7 @@ def _laplace_nll_einsum(theta: np.ndarray, block: LaplaceBlock, order: int = 1, 
     """`_laplace_nll` of a block of short demonstrations (d < `_BLAS_MIN_DIM`): einsums and batched solves."""
     d = block.dim
     G = np.einsum("mk,mkd->md", theta, block.grad)
-    H = np.einsum("mk,mkij->mij", theta, block.hess)
+    H = np.einsum("mk,mkij->mij", theta, block.hess)  # type: ignore[arg-type]
     L, H, bad, worst = _shift_to_pd_rows(H, eps)
     logdet = 2.0 * np.sum(np.log(np.einsum("mii->mi", L)), axis=1)
     y = np.linalg.solve(L, G[..., None])[..., 0]
@@ -293,12 +293,14 @@ def _laplace_nll_einsum(theta: np.ndarray, block: LaplaceBlock, order: int = 1, 
         return nll, None, None, bad, worst
     Hinv = np.linalg.inv(H)
     h = np.einsum("mij,mj->mi", Hinv, G)
-    hess_b = np.broadcast_to(block.hess, (G.shape[0],) + block.hess.shape[1:]) if block.hess.shape[0] == 1 else block.hess
-    Hk_h = np.einsum("mkij,mj->mki", hess_b, h)
+    hess_b = (np.broadcast_to(block.hess,  # type: ignore[arg-type]
+                              (G.shape[0],) + block.hess.shape[1:])  # type: ignore[union-attr]
+              if block.hess.shape[0] == 1 else block.hess)  # type: ignore[union-attr]
+    Hk_h = np.einsum("mkij,mj->mki", hess_b, h)  # type: ignore[arg-type]
     grad = (
         np.einsum("mki,mi->mk", block.grad, h)
         - 0.5 * np.einsum("mki,mi->mk", Hk_h, h)
-        - 0.5 * np.einsum("mij,mkij->mk", Hinv, hess_b)
+        - 0.5 * np.einsum("mij,mkij->mk", Hinv, hess_b)  # type: ignore[arg-type]
     )
     if order == 1:
         return nll, grad, None, bad, worst
@@ -576,9 +578,9 @@ def _newton(blocks, labels, G, n_demos, *, features, prior, low, high, max_iter,
             totals["worst"] = min(totals["worst"], worst)
             np.add.at(f, lab, nll)
             if order >= 1:
-                np.add.at(g, lab, dg)
+                np.add.at(g, lab, dg)  # type: ignore[arg-type]
             if order >= 2:
-                np.add.at(H, lab, dH)
+                np.add.at(H, lab, dH)  # type: ignore[arg-type]
         if order >= 1:
             totals["g_theta"] = g
             # chain rule: phi = log theta = P w
@@ -660,7 +662,7 @@ def _newton(blocks, labels, G, n_demos, *, features, prior, low, high, max_iter,
             break
         _, _, _ = objective(w, 1)
         g_theta = totals["g_theta"]
-        trapped = (w[:, others] < _TRAP_LOG) & (g_theta[:, others] < 0)
+        trapped = (w[:, others] < _TRAP_LOG) & (g_theta[:, others] < 0)  # type: ignore[index]
         if not trapped.any():
             break
         best_w, best_f = w.copy(), f.copy()
@@ -681,7 +683,8 @@ def _newton(blocks, labels, G, n_demos, *, features, prior, low, high, max_iter,
     f, gw, _ = objective(w, 1)  # every group at the solution: values and regularisation counts
     grad_norm = projected(w, gw)
     converged = (done & ~stalled) | (grad_norm <= _GTOL_STALLED * np.maximum(n_demos, 1.0))
-    return {"w": w, "f": f, "gw": gw, "converged": converged, "reg": totals["reg"].astype(int),
+    return {"w": w, "f": f, "gw": gw, "converged": converged,
+            "reg": totals["reg"].astype(int),  # type: ignore[attr-defined]
             "worst": totals["worst"], "grad_norm": grad_norm, "n_iter": n_iter}
 
 

@@ -21,7 +21,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
               "pirl_sim.population", "pirl_sim.driving", "pirl_sim.irl", "pirl_sim.receding", "pirl_sim.mpc",
               "pirl_sim.metrics", "pirl_sim.deconvolution", "pirl_sim.validation", "pirl_sim.recovery",
               "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit", "pirl_sim.threads",
-              "pirl_sim.progress", "pirl_sim.testing", "pirl_sim.layers", "pirl_sim.io")),
+              "pirl_sim.progress", "pirl_sim.testing", "pirl_sim.layers", "pirl_sim.typecheck", "pirl_sim.io")),
     ("learners", ("pirl_sim.learners",)),
     ("scenarios", ("pirl_sim.scenarios",)),
     ("viz", ("pirl_sim.viz",)),
@@ -138,7 +138,7 @@ def check(repo: Path) -> tuple[dict[str, set[str]], list[Violation]]:
     """The import graph of the checkout ``repo`` (the package root left out) and what breaks the layers."""
     files = module_files(repo)
     known = set(files)
-    graph = {m: set() for m in files if m != ROOT}
+    graph: dict[str, set[str]] = {m: set() for m in files if m != ROOT}
     for name, path in files.items():
         if name == ROOT:
             continue

@@ -57,7 +57,7 @@ def med(predicted: Sequence[np.ndarray] | np.ndarray, truth: Sequence[np.ndarray
     Takes equal-length arrays (M, T, P) or sequences of (T_i, P) arrays of different lengths.
     """
     if isinstance(predicted, np.ndarray) and predicted.ndim == 3:
-        return float(euclidean_errors(predicted, truth).mean(axis=1).mean())
+        return float(euclidean_errors(predicted, truth).mean(axis=1).mean())  # type: ignore[arg-type]
     predicted, truth = list(predicted), list(truth)
     if len(predicted) != len(truth) or not predicted:
         raise ValueError(f"need the same non-zero number of predictions and truths, got {len(predicted)} and {len(truth)}")

@@ -613,7 +613,7 @@ class _OuterExpansion:
                 Qux = Q[:, nxx:nxx + nux]
                 if n_u == 1:
                     quu = Q[:, nxx + nux]
-                    pivots[n] = quu
+                    pivots[n] = quu  # type: ignore[index]
                     neg_inv = -1.0 / quu
                     K = Qux * neg_inv[:, None]  # (M, n_x)
                     P = Q[:, :nxx] + (Qux[:, :, None] * K[:, None, :]).reshape(M, nxx)
@@ -636,7 +636,7 @@ class _OuterExpansion:
                         p = qv[:, :n_x] + (QxuT @ kk[..., None])[..., 0]
                         gains.append((K, kk))
             if pivots is not None:
-                ok = (pivots > 0.0).all(axis=0)
+                ok = (pivots > 0.0).all(axis=0)  # type: ignore[assignment]
             if SG is None:
                 return ok, None
             A_t, B_t = self.dynamics.A.T, self.dynamics.B.T
@@ -683,7 +683,7 @@ class _OuterExpansion:
             # one recursion over the test and the exact matrices together (each numpy call's fixed cost
             # dominates at this size); Gauss-Newton steps for the rows that fail the test, in a second one
             ok, step = self.riccati(np.concatenate([S, S + margin]), np.concatenate([sigma, sigma]))
-            step = step[M:]
+            step = step[M:]  # type: ignore[index]
             bad = np.flatnonzero(~ok[:M])
             if len(bad):
                 step[bad] = self.riccati(gauss_newton(bad), sigma[bad])[1]
@@ -694,7 +694,7 @@ class _OuterExpansion:
             if len(bad):  # Gauss-Newton where the exact Hessian is not safely positive definite
                 S[bad] = gauss_newton(bad)
             _, step = self.riccati(S, sigma)
-        return step, np.einsum("mk,mk->m", theta, values)
+        return step, np.einsum("mk,mk->m", theta, values)  # type: ignore[return-value]
 
     def hessians(self, theta: np.ndarray, jj: dict, ww: dict | None, ref_share: float,
                  rows: np.ndarray | None = None) -> np.ndarray:
@@ -858,7 +858,8 @@ class SequentialMPC:
         d = n_steps * self.dynamics.n_u
         cost = np.empty(M)
         fresh = np.zeros(M, dtype=bool)
-        at = {}  # "A" (M, d, d) and "b" (M, d): the kept models, allocated when first needed
+        # "A" (M, d, d) and "b" (M, d): the kept models, allocated when first needed
+        at = {}  # type: ignore[var-annotated]
 
         def model(rows):
             stale = rows[~fresh[rows]]
@@ -889,7 +890,7 @@ class SequentialMPC:
             A, b = model(rows)
             return -_solve_pd(A, b).reshape((len(rows),) + U.shape[1:]) - U[rows]
 
-        if not riccati or len(todo) < self.riccati_rows:
+        if not riccati or len(todo) < self.riccati_rows:  # type: ignore[operator]
             model(np.arange(M))
         for _ in range(self.n_iter):
             if not len(todo):

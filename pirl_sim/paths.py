@@ -527,7 +527,7 @@ def _pad_arc(t: np.ndarray, xy: np.ndarray, h: float, pad: float, window: float)
         mid = 0.5 * (tau[0] + tau[-1])
         m1, m2 = poly.polyval(mid, poly.polyder(coef)), poly.polyval(mid, poly.polyder(coef, 2))
         kappa = (m1[0] * m2[1] - m1[1] * m2[0]) / np.hypot(*m1) ** 3
-        theta = np.arctan2(d1[1], d1[0])
+        theta = np.arctan2(d1[1], d1[0])  # type: ignore[index]
         half = 0.5 * kappa * new  # an arc of length L and curvature k has chord L sinc(k L / 2) at angle k L / 2
         chord = new * np.sinc(half / np.pi)
         start = poly.polyval(0.0, coef)
@@ -554,7 +554,7 @@ def polyline_distances(lines, xy, *, spacing: float = 0.5) -> np.ndarray:
     each point. ``lines``: polylines of shape (P, 2), P >= 2; ``xy``: points of shape (n, 2) [m]."""
     from scipy.spatial import cKDTree
 
-    starts, ends, pts, owner = [], [], [], []
+    starts, ends, pts, owner = [], [], [], []  # type: ignore[var-annotated]
     for line in lines:
         line = np.asarray(line, dtype=float)
         for p, q in zip(line[:-1], line[1:]):
@@ -566,7 +566,7 @@ def polyline_distances(lines, xy, *, spacing: float = 0.5) -> np.ndarray:
     if not pts:
         raise ValueError("polyline_distances: no polyline with two points or more")
     a, b = np.array(starts), np.array(ends)
-    owner = np.concatenate(owner)
+    owner = np.concatenate(owner)  # type: ignore[assignment]
     xy = np.asarray(xy, dtype=float)
     k = min(6, len(owner))
     _, idx = cKDTree(np.concatenate(pts)).query(xy, k=k)

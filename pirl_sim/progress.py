@@ -27,7 +27,7 @@ class LineStream:
     def __init__(self, stream) -> None:
         self.stream = stream
         self.muted = False
-        self._last = None
+        self._last: str | None = None
 
     def write(self, text: str) -> int:
         line = text.replace("\r", "").rstrip()

@@ -103,7 +103,8 @@ class RecedingPolicy:
         self.max_iter = int(max_iter)
         self._qp = BoxQP(model.dynamics, model.bounds) if model.bounds is not None else None
         if self._qp is not None:
-            self._x_lo, self._x_hi, self._u_lo, self._u_hi = model.bounds.resolve(model.dynamics)
+            self._x_lo, self._x_hi, self._u_lo, self._u_hi = (
+                model.bounds.resolve(model.dynamics))  # type: ignore[union-attr, var-annotated]
         self.n_qp = 0
         self._cond: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -249,7 +250,7 @@ class RecedingPolicy:
                 _, A, _, _ = shift_to_pd(hess[bad], 1e-9)
                 b = g - np.einsum("mij,mj->mi", A, U[bad].reshape(len(bad), -1))
                 moved = np.full(len(bad), -1.0)
-                for j, m in enumerate(bad):
+                for j, m in enumerate(bad):  # type: ignore[assignment]
                     try:
                         new = self._qp.solve(A[j], b[j], x0[m], H).reshape(H, n_u)
                     except RuntimeError:  # infeasible from this start: keep the plan, unconverged

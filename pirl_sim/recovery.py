@@ -128,7 +128,7 @@ def interval(values, name: str, *, method: str = "bootstrap", confidence: float 
     if n < 2:
         return math.nan, math.nan
     if method == "bootstrap":
-        samples = v[rng.integers(0, n, size=(int(n_boot), n))]
+        samples = v[rng.integers(0, n, size=(int(n_boot), n))]  # type: ignore[union-attr]
         if name == "mean":
             stat = samples.mean(axis=1)
         else:
@@ -252,14 +252,16 @@ def fit_track_weights(model, trajectories: Sequence[Trajectory], *, likelihood: 
     if likelihood == "receding":
         if not is_positive_int(horizon):
             raise ValueError(f"likelihood='receding' needs horizon, a positive number of steps; got {horizon!r}")
-        res = fit_receding(model, trajectories, horizon=int(horizon), stride=stride, log_bounds=log_bounds)
-        return TrackFits(res.normalized, res.converged.astype(bool), res.at_bound.any(axis=1),
+        res = fit_receding(model, trajectories, horizon=int(horizon), stride=stride,  # type: ignore[arg-type]
+                           log_bounds=log_bounds)
+        return TrackFits(res.normalized, res.converged.astype(bool), res.at_bound.any(axis=1),  # type: ignore[arg-type]
                          res.n_steps.astype(np.int64), np.asarray(res.sigma, dtype=float))
     blocks = attach_gauss_newton(model.laplace_blocks(trajectories), model.features, model.dynamics, trajectories)
     labels = np.arange(n)
-    res = fit_weights([b for b, _ in blocks], [labels[idx] for _, idx in blocks], model.features, n_groups=n,
+    res = fit_weights([b for b, _ in blocks], [labels[idx] for _, idx in blocks],  # type: ignore[assignment]
+                      model.features, n_groups=n,
                       log_bounds=log_bounds)
-    return TrackFits(res.normalized, res.converged.astype(bool), res.at_bound.any(axis=1),
+    return TrackFits(res.normalized, res.converged.astype(bool), res.at_bound.any(axis=1),  # type: ignore[arg-type]
                      np.array([t.n_steps for t in trajectories], dtype=np.int64), np.full(n, math.nan))
 
 

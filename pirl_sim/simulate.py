@@ -71,7 +71,7 @@ def simulate_receding_horizon(
             plan = predictor.controls(x, schedule[k], horizon)
         u = plan[:, 0]
         if control_noise > 0:
-            u = u + control_noise * rng.standard_normal(u.shape)
+            u = u + control_noise * rng.standard_normal(u.shape)  # type: ignore[union-attr]
         x = x @ dyn.A.T + u @ dyn.B.T
         controls[:, k] = u
         states[:, k + 1] = x

@@ -19,7 +19,8 @@ SEED_LIMIT = 2**31  #: seeds are integers in [0, SEED_LIMIT): numpy and scikit-l
 
 def is_positive_int(value) -> bool:
     """True for an integer >= 1 (Python or numpy), False for bools, floats, strings and everything else."""
-    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= 1
+    return (not isinstance(value, bool)  # type: ignore[return-value]
+            and isinstance(value, (int, np.integer)) and value >= 1)
 
 
 def number(label: str, value, *, low: float | None = None, allow_equal: bool = True, finite: bool = True) -> float:

@@ -218,7 +218,7 @@ def run_scenario(adapter: SimulatorAdapter, config=None, seed: int = 0, *, out_d
         raise TypeError(f"config must be a {adapter.config_type.__name__}, got {type(config).__name__}")
     seed = check_seed(seed)
     plan = adapter.plan(config, seed)
-    duration = config.max_duration or float(plan["depart"].max()) + EXTRA_TIME_S
+    duration = config.max_duration or float(plan["depart"].max()) + EXTRA_TIME_S  # type: ignore[attr-defined]
     n_max = max(1, round(duration / STEP))
     present, present_pirl = [], []
     with adapter.start(config, seed, plan) as sim:
@@ -234,7 +234,8 @@ def run_scenario(adapter: SimulatorAdapter, config=None, seed: int = 0, *, out_d
         if progress is not None:
             progress(sim.time, sim.n_finished, len(plan))
         head, tail = adapter.info(config)
-        info = {"simulator": adapter.name, **head, "seed": seed, "step_length_s": STEP, "config": config.to_dict(),
+        info = {"simulator": adapter.name, **head, "seed": seed, "step_length_s": STEP,
+                "config": config.to_dict(),  # type: ignore[attr-defined]
                 **tail, "n_vehicles": int(len(plan)), "n_not_departed": int(sim.n_not_departed),
                 "sim_time_s": round(sim.time, 6)}
         recording = sim.recording(info)

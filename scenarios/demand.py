@@ -73,7 +73,7 @@ class RecordedDemand:
         if not (math.isfinite(duration) and duration > 0):
             raise ValueError(f"duration_s must be a finite number of seconds > 0, got {duration_s!r}")
         sizes = np.array([(d.length, d.width) for d in self.departures])
-        out = []
+        out = []  # type: ignore[var-annotated]
         shares = self.route_probabilities()
         for entry, rate in self.rates().items():
             routes = shares[entry]

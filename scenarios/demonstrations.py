@@ -64,7 +64,7 @@ def _frame_flags(recording: ScenarioRecording, exact_tol: float = EXACT_TOL) -> 
     acceleration at k: its step k - 1 was not commanded or overridden)."""
     steps = recording.driver_steps
     out = {}
-    for tid, g in steps.groupby("track_id", sort=True):
+    for tid, g in steps.groupby("track_id", sort=True):  # type: ignore[union-attr]
         g = g.set_index("frame_id")
         own = g["commanded"].to_numpy() & ~g["overridden"].to_numpy()
         altered = own & (g["command_error"].to_numpy(dtype=float) > exact_tol)  # NaN (unknown): not altered
@@ -77,7 +77,7 @@ def _frame_flags(recording: ScenarioRecording, exact_tol: float = EXACT_TOL) -> 
 
 def _step_mask(usable: np.ndarray, stride: int, n_steps: int) -> np.ndarray:
     """Per demonstration step (``stride`` frames each): usable only if all of its frames are."""
-    return usable[: n_steps * stride].reshape(n_steps, stride).all(axis=1)
+    return usable[: n_steps * stride].reshape(n_steps, stride).all(axis=1)  # type: ignore[return-value]
 
 
 def settled(mask: np.ndarray, settle: int) -> np.ndarray:
@@ -191,8 +191,8 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
             "theta": theta, "interacted": None if pd.isna(row.interacted) else bool(row.interacted),
             "first_frame": int(frames[0])}
         if mask is not None:
-            meta["step_mask"] = _step_mask(settled(f["usable"].to_numpy(dtype=bool), settle_frames), stride,
-                                           n_steps)
+            meta["step_mask"] = _step_mask(
+                settled(f["usable"].to_numpy(dtype=bool), settle_frames), stride, n_steps)  # type: ignore[index]
         out.append(Trajectory(states, controls, dt, meta))
     return out
 

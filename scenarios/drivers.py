@@ -72,7 +72,7 @@ class RouteSetDriverModel(DriverModel):
 
     def positions(self, states: np.ndarray, offset=0.0) -> np.ndarray:
         """Cartesian positions (..., 2) [m] of states (..., n_x) at lateral offset [m] from their paths."""
-        return self.routes.position(np.asarray(states)[..., 0], offset)
+        return self.routes.position(np.asarray(states)[..., 0], offset)  # type: ignore[union-attr]
 
 
 def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT_A_LAT,
@@ -93,7 +93,8 @@ def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT
         Newton iterations and bounded QPs per MPC call.
     """
     profile = RouteSetProfile(routes, a_lat, v_max)
-    return RouteSetDriverModel(longitudinal(dt), roundabout_features(profile), bounds, routes=routes,
+    return RouteSetDriverModel(longitudinal(dt), roundabout_features(profile), bounds,  # type: ignore[arg-type]
+                               routes=routes,
                                n_iter=n_iter, n_qp_iter=n_qp_iter)
 
 
@@ -151,14 +152,14 @@ class PirlDrivers:
         dyn = self.model.dynamics
         # every driver's state in one row of arrays (gathered and scattered once per step, not per driver)
         self._slot: dict[str, int] = {}  # vehicle id -> row
-        routes_, thetas = [], []
+        routes_, thetas = [], []  # type: ignore[var-annotated]
         for vid, (rid, theta) in self.drivers.items():
             w = feats.weights(theta)
             if w.shape != (feats.n_features,) or np.any(w <= 0):
                 raise ValueError(f"driver {vid!r}: theta must be {feats.n_features} positive weights "
                                  f"{feats.names}, got {theta!r}")
             self._slot[vid] = len(routes_)
-            routes_.append(self.model.routes.index(rid))
+            routes_.append(self.model.routes.index(rid))  # type: ignore[union-attr]
             thetas.append(w)
         n = len(routes_)
         self._route = np.array(routes_, dtype=np.int64)
@@ -170,8 +171,9 @@ class PirlDrivers:
         self._plans = np.zeros((n, int(self.horizon), dyn.n_u))  # last plans (zeros: none yet)
         self._live: set[str] = set()  # vehicles planned or handed back so far, still in the network
         self._gone: set[str] = set()  # vehicles that left the network
-        self._lo, self._hi, _, _ = (self.model.bounds.resolve(dyn) if self.model.bounds is not None
-                                    else (np.full(dyn.n_x, -np.inf), np.full(dyn.n_x, np.inf), None, None))
+        self._lo, self._hi, _, _ = (
+            self.model.bounds.resolve(dyn) if self.model.bounds is not None  # type: ignore[var-annotated]
+            else (np.full(dyn.n_x, -np.inf), np.full(dyn.n_x, np.inf), None, None))
         self._mpc = self.model.predictor()
         if self.kernel not in ("auto", "numba", "numpy"):
             raise ValueError(f"kernel must be 'auto', 'numba' or 'numpy', got {self.kernel!r}")
@@ -188,7 +190,7 @@ class PirlDrivers:
 
     def __call__(self, time: float, vehicle_id: str, observation) -> float:
         """Single-vehicle :data:`~.sumo.runner.Controller` form (plans only this vehicle)."""
-        return self._plan(time, {vehicle_id: observation}, prune=False)[vehicle_id]
+        return self._plan(time, {vehicle_id: observation}, prune=False)[vehicle_id]  # type: ignore[return-value]
 
     def commands(self, time: float, observations: Mapping) -> dict[str, float | None]:
         """Commanded speeds [m/s] for every observed PIRL vehicle, planned in one batched MPC call.
@@ -213,7 +215,7 @@ class PirlDrivers:
             gone = [v for v in self._live if v not in observations]
             self._live.difference_update(gone)
             self._gone.update(gone)
-        slot, gone = self._slot, self._gone
+        slot, gone = self._slot, self._gone  # type: ignore[assignment]
         unknown = [v for v in observations if v not in slot or v in gone]
         if unknown:
             raise ValueError(f"no PIRL driver for vehicle(s) {unknown}")
@@ -249,13 +251,14 @@ class PirlDrivers:
         r = self._route[rows]
         xy = np.fromiter((c for e in egos for c in (e.x, e.y)), dtype=float, count=2 * M).reshape(M, 2)
         accel = np.fromiter((e.accel for e in egos), dtype=float, count=M)
-        project = self.model.routes.project if self._compiled is None else self._compiled.project
+        project = (self.model.routes.project  # type: ignore[union-attr]
+                   if self._compiled is None else self._compiled.project)
         s_local = project(r, xy, self._s_next[rows])
         command = self._command[rows]
         with np.errstate(invalid="ignore"):
             followed = np.isfinite(command) & (np.abs(speed - command) <= self.override_tol)
         a = np.where(followed, self._a_next[rows], accel)
-        x0 = np.column_stack([self.model.routes.to_global(r, s_local), speed, a])
+        x0 = np.column_stack([self.model.routes.to_global(r, s_local), speed, a])  # type: ignore[union-attr]
         x0 = np.clip(x0, self._lo, self._hi)  # the MPC plans from the start moved into its bounds
         at_rest = x0[:, 1] <= 0.0  # a stopped car does not decelerate further
         x0[at_rest, 2] = np.maximum(x0[at_rest, 2], 0.0)
@@ -267,10 +270,10 @@ class PirlDrivers:
         self.plan_time_s += _time.perf_counter() - t1
         u = plan[:, 0]
         if self.control_noise > 0:
-            u = u + self.control_noise * self.rng.standard_normal(u.shape)
+            u = u + self.control_noise * self.rng.standard_normal(u.shape)  # type: ignore[union-attr]
         dyn = self.model.dynamics
         x1 = x0 @ dyn.A.T + u @ dyn.B.T
-        self._s_next[rows] = x1[:, 0] - self.model.routes.offsets[r]
+        self._s_next[rows] = x1[:, 0] - self.model.routes.offsets[r]  # type: ignore[union-attr]
         self._a_next[rows] = x1[:, 2]
         cmd = np.maximum(x1[:, 1], 0.0)
         self._command[rows] = cmd

@@ -162,8 +162,8 @@ def recording(data: PassageData, *, frames_apart: int = 100):
     for k, t in enumerate(data.train + data.test):
         X = fine.rollout(t.states[0], np.repeat(t.controls, sub, axis=0))
         s, v = X[:, 0], X[:, 1]
-        xy = model.path.position(s, extrapolate=True)
-        psi = model.path.heading_at(s, extrapolate=True)
+        xy = model.path.position(s, extrapolate=True)  # type: ignore[union-attr]
+        psi = model.path.heading_at(s, extrapolate=True)  # type: ignore[union-attr]
         frame = 1 + k * frames_apart + np.arange(len(s))
         rows.append(pd.DataFrame({
             "track_id": k + 1, "time_s": frame / 10.0, "agent_type": "car", "x": xy[:, 0], "y": xy[:, 1],

@@ -75,7 +75,7 @@ class FrozenMapping(Mapping):
         return iter(self._data)
 
     def __len__(self) -> int:
-        return len(self._data)
+        return len(self._data)  # type: ignore[attr-defined]
 
     def __setattr__(self, name, value):
         raise AttributeError("FrozenMapping is read-only")
@@ -84,10 +84,10 @@ class FrozenMapping(Mapping):
         return (FrozenMapping, (self._data,))
 
     def __hash__(self) -> int:
-        return hash(tuple(self._data.items()))
+        return hash(tuple(self._data.items()))  # type: ignore[attr-defined]
 
     def __repr__(self) -> str:
-        return repr(self._data)
+        return repr(self._data)  # type: ignore[attr-defined]
 
 
 class Arrivals(str, enum.Enum):

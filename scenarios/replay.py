@@ -302,14 +302,16 @@ class ReplayScene:
         """The scene's model with other desired-speed parameters [m/s^2, m/s] (same paths, dynamics and
         feature set)."""
         path = self.profile_path if self.profile_path is not None else self.model.path
-        features = roundabout_features(SpeedProfile(path, float(a_lat), float(v_max)), self.features)
+        features = roundabout_features(SpeedProfile(path, float(a_lat), float(v_max)),  # type: ignore[arg-type]
+                                       self.features)
         return PathDriverModel(self.model.dynamics, features, self.model.bounds, path=self.model.path)
 
     def curvature(self, s: np.ndarray) -> np.ndarray:
         """The curvature [1/m] the desired speed sees at composite arc lengths s (smoothed by
         ``speed_smoothing``)."""
         path = self.profile_path if self.profile_path is not None else self.model.path
-        return SpeedProfile(path, self.a_lat, self.v_max).curvature(np.asarray(s, dtype=float))[0]
+        return SpeedProfile(path, self.a_lat, self.v_max).curvature(  # type: ignore[arg-type]
+            np.asarray(s, dtype=float))[0]
 
     @property
     def selected(self) -> list[Trajectory]:
@@ -694,7 +696,7 @@ def load_replay(
                 keep = slice(keep.start + part.start, keep.start + part.stop)
                 xy, speed, s_local, d = xy[part], speed[part], s_local[part], d[part]
                 if usable is not None:
-                    usable, restart = usable[part], restart[part]
+                    usable, restart = usable[part], restart[part]  # type: ignore[index]
             sel = slice(0, None, stride)
             meta = {"track_id": int(track_id), "file": str(file), "route": key, "interacted": flags[int(track_id)],
                     "interacted_centre": flags_centre[int(track_id)]}
@@ -709,8 +711,9 @@ def load_replay(
                 meta["_motion"] = TrackMotion(frames[keep], s_local, speed, xy,
                                               track["psi_rad"].to_numpy(dtype=float)[keep], path_list[paths[key]])
             if usable is not None:
-                extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)
-                extra["settled"] = _frame_steps(settled(usable, settle_frames), restart, speed, stride)[0]
+                extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)  # type: ignore[arg-type]
+                extra["settled"] = _frame_steps(settled(usable, settle_frames),
+                                                restart, speed, stride)[0]  # type: ignore[arg-type]
             pending.append((paths[key], s_local[sel], d[sel], xy[sel], dict(meta, _extra=extra)))
     for directory, (rows, read, names, dropped) in truth_ids.items():
         unmatched = sorted(rows - read)
@@ -732,7 +735,8 @@ def load_replay(
         if s_local.min() < low or s_local.max() > high:  # would fall onto a neighbouring route's share
             skipped["runs more than half a route gap beyond its route's ends"] += 1
             log.info("track %s of %s skipped: local arc lengths [%.0f, %.0f] m outside [%.0f, %.0f] m",
-                     meta["track_id"], Path(meta["file"]).name, s_local.min(), s_local.max(), low, high)
+                     meta["track_id"], Path(meta["file"]).name,  # type: ignore[arg-type]
+                     s_local.min(), s_local.max(), low, high)
             continue
         placed.append((segment, s_local, d, xy, meta))
     pending = placed
@@ -742,7 +746,7 @@ def load_replay(
         _add_yield_gaps(pending, stride, conflicts)
     model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max, features)
     estimator = HistoryEstimator(float(dt), estimate, noise, jerk_weight, arc_length)
-    names = model.features.names
+    names = model.features.names  # type: ignore[assignment]
     trajectories = []
     track_rows = []
     if max_steps is not None and not is_positive_int(max_steps):
@@ -752,52 +756,57 @@ def load_replay(
         n = len(s_local) - 1
         size = n if max_steps is None else max_steps
         starts = list(range(0, max(n - 1, 1), size))
-        extra = meta.pop("_extra")
+        extra = meta.pop("_extra")  # type: ignore[assignment]
         for p, a in enumerate(starts):
             b = min(a + size, n)
             if b - a < 2:
                 continue
-            cut = {k: v[a : b + 1] for k, v in extra.items() if k not in ("usable", "settled", "free")}
-            cut["free"] = extra["free"][a:b]
+            cut = {k: v[a : b + 1] for k,  # type: ignore[assignment]
+                   v in extra.items() if k not in ("usable", "settled", "free")}
+            cut["free"] = extra["free"][a:b]  # type: ignore[index]
             if "usable" in extra:
-                cut["estimate_mask"], cut["step_mask"] = extra["usable"][a:b], extra["settled"][a:b]
+                cut["estimate_mask"], cut["step_mask"] = (extra["usable"][a:b],  # type: ignore[index]
+                                                          extra["settled"][a:b])
             pieces.append((segment, s_local[a : b + 1], d[a : b + 1], xy[a : b + 1], dict(meta, piece=p), cut))
     for segment, s_local, d, xy, meta, cut in pieces:
-        mask = cut.get("step_mask")
+        mask = cut.get("step_mask")  # type: ignore[attr-defined]
         if mask is not None:
             n_steps_counts["steps"] += len(mask)
-            own = cut["estimate_mask"]
+            own = cut["estimate_mask"]  # type: ignore[index]
             n_steps_counts["steps not the driver's own (masked)"] += int((~own).sum())
             n_steps_counts["steps settling after a restart (masked)"] += int((own & ~mask).sum())
             if int(mask.sum()) < min_usable_steps:
                 skipped["pieces with fewer than min_usable_steps driver's own steps"] += 1
                 n_steps_counts["steps of pieces skipped for too few usable steps"] += len(mask)
                 continue
-        s = s_local + composite.offsets[segment]
-        states, controls = _estimate(s, cut, cut.get("estimate_mask"), dt, estimate, noise, jerk_weight, arc_length)
+        s = s_local + composite.offsets[segment]  # type: ignore[attr-defined]
+        states, controls = _estimate(s, cut, cut.get("estimate_mask"), dt, estimate,  # type: ignore[attr-defined]
+                                     noise, jerk_weight, arc_length)
         if features == "following":  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
-            states = np.column_stack([states, cut["gap"], cut["v_lead"]])
-            meta = dict(meta, yielding=cut["yielding"])
-            n_steps_counts["steps yielding at a conflict point"] += int(cut["yielding"][:-1].sum())
-            n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &
-                                                                   ~cut["yielding"])[:-1].sum())
+            states = np.column_stack([states, cut["gap"], cut["v_lead"]])  # type: ignore[index]
+            meta = dict(meta, yielding=cut["yielding"])  # type: ignore[index]
+            n_steps_counts["steps yielding at a conflict point"] += int(
+                cut["yielding"][:-1].sum())  # type: ignore[index]
+            n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &  # type: ignore[index]
+                                                                   ~cut["yielding"])[:-1].sum())  # type: ignore[index]
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy), s_obs=np.asarray(s),
-                    v_obs=np.asarray(cut["v"]), estimator=estimator)
+                    v_obs=np.asarray(cut["v"]), estimator=estimator)  # type: ignore[index]
         if mask is not None:
             meta["step_mask"] = mask
         truth = meta.pop("truth", None)
-        given = [] if truth is None else [k for k in truth if str(k).startswith("theta_")]
-        if given and not all(f"theta_{n}" in truth for n in names):
-            missing = [f"theta_{n}" for n in names if f"theta_{n}" not in truth]
-            raise ValueError(f"{Path(meta['file']).parent / GROUND_TRUTH_FILE}: weights without the column(s) "
+        given = [] if truth is None else [k for k in truth if str(k).startswith("theta_")]  # type: ignore[attr-defined]
+        if given and not all(f"theta_{n}" in truth for n in names):  # type: ignore[operator]
+            missing = [f"theta_{n}" for n in names if f"theta_{n}" not in truth]  # type: ignore[operator]
+            raise ValueError(f"{Path(meta['file']).parent / GROUND_TRUTH_FILE}: "  # type: ignore[arg-type]
+                             "weights without the column(s) "
                              f"{', '.join(missing)}; the replay's features need {', '.join(f'theta_{n}' for n in names)}")
-        if truth is not None and all(f"theta_{n}" in truth for n in names):
-            theta = np.array([float(truth[f"theta_{n}"]) for n in names])
+        if truth is not None and all(f"theta_{n}" in truth for n in names):  # type: ignore[operator]
+            theta = np.array([float(truth[f"theta_{n}"]) for n in names])  # type: ignore[index]
             if np.all(np.isfinite(theta)) and np.all(theta > 0):
                 meta["theta"] = model.features.normalize(theta)
-            if "style" in truth and np.isfinite(truth["style"]):
-                meta["style"] = int(truth["style"])
-        free = cut["free"]
+            if "style" in truth and np.isfinite(truth["style"]):  # type: ignore[index, operator]
+                meta["style"] = int(truth["style"])  # type: ignore[index]
+        free = cut["free"]  # type: ignore[index]
         track_rows.append({"file": meta["file"], "track_id": meta["track_id"], "piece": meta["piece"],
                            "n_steps": len(free), "interacted": meta["interacted"],
                            "interacted_centre": meta["interacted_centre"], "free_steps": int(free.sum()),
@@ -809,7 +818,8 @@ def load_replay(
                 if b - a < 2:
                     n_steps_counts["free steps in runs shorter than 2 steps (left out)"] += b - a
                     continue
-                cut_meta = {k: meta[k][a : b + 1] for k in ("d", "xy", "yielding", "s_obs", "v_obs") if k in meta}
+                cut_meta = {k: meta[k][a : b + 1]  # type: ignore[index]
+                            for k in ("d", "xy", "yielding", "s_obs", "v_obs") if k in meta}
                 trajectories.append(Trajectory(states[a : b + 1], controls[a:b], dt,
                                                dict(meta, **cut_meta, free_run=r, free_start=a)))
             continue
@@ -890,8 +900,8 @@ def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a
     the curvature smoothed per path by ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`)."""
     profile_path = _profile_path(composite, speed_smoothing)
     dynamics = following(dt) if features == "following" else longitudinal(dt)
-    features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max), features)
-    return PathDriverModel(dynamics, features, DEFAULT_BOUNDS, path=composite)
+    features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max), features)  # type: ignore[assignment]
+    return PathDriverModel(dynamics, features, DEFAULT_BOUNDS, path=composite)  # type: ignore[arg-type]
 
 
 #: gap [m] standing in for "no vehicle ahead" in the states of `pirl_sim.dynamics.following`
@@ -943,7 +953,7 @@ def _driver_steps(track_file: Path) -> dict[int, pd.DataFrame]:
     if missing:
         raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; per-step driver flags need the columns "
                          f"{', '.join(DRIVER_STEP_FLAGS)}")
-    return _frame_flags(SimpleNamespace(driver_steps=steps))
+    return _frame_flags(SimpleNamespace(driver_steps=steps))  # type: ignore[arg-type]
 
 
 def _frame_steps(usable: np.ndarray, restart: np.ndarray, speed: np.ndarray, stride: int):

@@ -208,7 +208,7 @@ class RouteSet:
             if np.max(np.abs(step), initial=0.0) <= tol:
                 break
         else:
-            k = int(np.argmax(np.abs(step)))
+            k = int(np.argmax(np.abs(step)))  # type: ignore[assignment]
             raise ValueError(f"point {q[k].tolist()} on route {self.route_ids[r[k]]!r}: no foot point after "
                              f"{NEWTON_MAX_ITER} Newton steps (last step {step[k]:.3g} m)")
         return s

@@ -8,6 +8,7 @@ import math
 import shlex
 import sys
 from pathlib import Path
+from typing import Any
 
 from pirl_sim.threads import AUTO, DEFAULT_THREADS, ENV_VAR, blas_threads_arg
 from pirl_sim.validation import positive_int_arg
@@ -146,7 +147,7 @@ def load_track_scene(args, dt: float, say, receding: bool = False, *, features: 
     files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
     if args.files is not None:
         files = sorted(files, key=lambda f: Path(f).name)[: args.files]
-    load = {"dt": dt, "features": features, **({"selection": selection} if selection else {})}
+    load: dict[str, Any] = {"dt": dt, "features": features, **({"selection": selection} if selection else {})}
     rec = recording_settings(args.tracks)
     if is_recording(args.tracks):
         load.update(arc_length="observed", noise=SIMULATED_NOISE)

@@ -114,7 +114,7 @@ def run(args) -> int:
     except (ValueError, TypeError, FileNotFoundError) as exc:
         return error(exc)
     names = model.features.names
-    theta = np.atleast_2d(getattr(learner, "theta_", getattr(learner, "demo_theta_", None)))
+    theta = np.atleast_2d(getattr(learner, "theta_", getattr(learner, "demo_theta_", None)))  # type: ignore[arg-type]
     label = "style" if theta.shape[0] > 1 and hasattr(learner, "n_styles_") else "demo" if theta.shape[0] > 1 else ""
     print(f"{type(learner).__name__}: {theta.shape[0]} weight vector(s) over {list(names)}")
     for i, row in enumerate(theta[:10]):

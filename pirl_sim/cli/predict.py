@@ -81,6 +81,7 @@ def _model_settings(model) -> dict:
     """How to read tracks for a saved model: its feature set and its desired speed's a_lat [m/s^2] and v_max
     [m/s] (`load_track_scene`'s keywords)."""
     names = model.features.names
+    out: dict[str, str | float]
     out = {"features": "following" if "headway" in names else "speed-level" if "speed_sq" in names else "paper"}
     for feature in model.features.features:
         profile = getattr(feature.residual, "profile", None)

@@ -61,7 +61,7 @@ def run(args) -> int:
     sims = list(SIMULATORS) if args.simulator == "both" else [args.simulator]
     command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
 
-    def config():
+    def make_config():
         population = {} if args.population is None else toml_text.load(args.population, "population config")[0]
         jobs = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
                              control_noise=args.control_noise, noise_seeds=args.noise_seeds,
@@ -69,13 +69,14 @@ def run(args) -> int:
         return parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
                             source=str(args.population or "pirl-sim recover")), jobs
 
-    result, config, jobs, status = run_study("recovery", config, args, command,
+    result, config, jobs, status = run_study("recovery", make_config, args, command,
                                              "simulations/\ncells/\nerrors/\nsweep.json\n")
     if status is not None:
         return status
     store, simulated, sim_time = ResultStore(args.out), [], []
     for cell in config.cells:
-        sk = simulation_key("recovery", SPEC.simulation(dict(cell.scenario_params)), cell.seed, result.code_version)
+        sk = simulation_key("recovery", SPEC.simulation(dict(cell.scenario_params)),  # type: ignore[misc]
+                            cell.seed, result.code_version)
         record = store.simulation_dir(sk) / SIMULATION_RECORD
         simulated.append(sk in result.simulated)
         sim_time.append(float(json.loads(record.read_text("utf-8"))["timings"]["simulate_s"]) if record.is_file()

@@ -19,10 +19,15 @@ import argparse
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
 
 from .common import command_line, error, interrupted, seconds_to_steps
+
+if TYPE_CHECKING:
+    from pirl_sim.experiments.recorded import ReplayProtocol
+    from pirl_sim.scenarios.replay import DriverSettings, EstimateNoise
 
 __all__ = ["add_parser", "run", "ReplayOptions", "ReplaySettings", "replay_results", "PRESETS", "data_preset"]
 
@@ -39,7 +44,7 @@ _KNN = {"prior": "population", "stride": 2, "irl_max_iter": 400}
 # entries 1, 2) now, 0.5 s and 1 s ago and the road's curvature ahead (`ReplaySettings.learner_entries`)
 _NEXT = {**_KNN, "target": "next", "state_features": (1, 2), "lookup_features": False}
 #: the sweep config's learner entry of each --learners key and pseudo-learner, before the options' parameters
-LEARNER_ENTRIES = {
+LEARNER_ENTRIES: dict[str, dict[str, Any]] = {
     "cv": {"name": "cv", "label": "CV (path)"},
     "ca": {"name": "ca", "label": "CA (path)"},
     "tirl": {"name": "tirl"},
@@ -88,7 +93,7 @@ def _horizon_arg(text: str) -> int:
 
 
 #: a field's annotation (without ``| None``) -> its option's argparse arguments (those of the field's metadata aside)
-_ARGPARSE = {"Path": {"type": Path}, "bool": {"action": "store_true"}, "str": {"type": str},
+_ARGPARSE: dict[str, dict[str, Any]] = {"Path": {"type": Path}, "bool": {"action": "store_true"}, "str": {"type": str},
              "int": {"type": positive_int_arg}, "float": {"type": positive_float_arg},
              "tuple[int, ...]": {"type": list_arg(int, low=1)}, "tuple[str, ...]": {"type": list_arg(str, empty=True)},
              "tuple[float, ...]": {"type": list_arg(float, low=0, empty=True)}}
@@ -245,9 +250,10 @@ class ReplayOptions:
                 object.__setattr__(self, name, PRESETS[self.preset][name])
         if self.table is None and (self.tracks is None or self.map is None):
             raise ValueError("replay needs --tracks and --map (or --table ROOT)")
-        unknown = [k for k in self.learners if k not in LEARNERS]
+        unknown = [k for k in self.learners if k not in LEARNERS]  # type: ignore[union-attr]  # learners set above
         if unknown or not self.learners:
-            raise ValueError(f"unknown learners {unknown or list(self.learners)}; choose from {sorted(LEARNERS)}")
+            raise ValueError(f"unknown learners {unknown or list(self.learners)}; "  # type: ignore[arg-type]
+                             f"choose from {sorted(LEARNERS)}")
         if self.selection == "steps" and self.likelihood != "receding":
             raise ValueError("--selection steps needs --likelihood receding: the trajectory likelihood scores whole "
                              "trajectories and cannot leave the overridden steps out")
@@ -293,7 +299,9 @@ class ReplayOptions:
         from pirl_sim.scenarios.replay import (DRIVER_STEPS_FILE, MEASURED_NOISE, SIMULATED_NOISE, EstimateNoise,
                                                is_recording, recording_settings)
 
-        rec, receding, notes = recording_settings(self.tracks), self.likelihood == "receding", []
+        tracks = self.tracks
+        assert tracks is not None  # __post_init__: --tracks unless --table, which resolves each roundabout's
+        rec, receding, notes = recording_settings(tracks), self.likelihood == "receding", []
         if self.dt is None and receding and rec is not None:
             notes.append(f"--dt {rec.dt:g} s: the drivers' re-planning step (run.json)")
         dt = float(self.dt) if self.dt is not None else rec.dt if receding and rec is not None else 0.2
@@ -311,9 +319,9 @@ class ReplayOptions:
             raise ValueError(f"{'--likelihood receding' if receding else '--rollout closed'} needs the drivers' MPC "
                              f"horizon: give --mpc-horizon H (steps of --dt = {dt:g} s); {self.tracks} is not a "
                              "pirl_sim recording with a run.json to take it from")
-        steps_file = (self.tracks if self.tracks.is_dir() else self.tracks.parent) / DRIVER_STEPS_FILE
-        simulated = is_recording(self.tracks)
-        preset = data_preset(self.tracks, self.preset)
+        steps_file = (tracks if tracks.is_dir() else tracks.parent) / DRIVER_STEPS_FILE
+        simulated = is_recording(tracks)
+        preset = data_preset(tracks, self.preset)
         features, desired_speed = self.features or preset["features"], self.desired_speed or preset["desired_speed"]
         selection = self.selection or ("steps" if receding and steps_file.is_file() else
                                        "all" if features == "following" else preset["selection"])
@@ -379,7 +387,8 @@ class ReplaySettings:
                               horizon=seconds_to_steps(o.horizon, dt, "--horizon"),
                               fde_steps=tuple(sorted({_steps(x, dt) for x in (1.0, 2.0, o.horizon) if x <= o.horizon})),
                               stride=_steps(1.0, dt), seeds=tuple(range(o.seeds)), rollout=self.rollout,
-                              mpc_horizon=self.mpc_horizon, lateral=o.lateral, start=o.start)
+                              mpc_horizon=self.mpc_horizon, lateral=o.lateral,  # type: ignore[arg-type]  # a preset's
+                              start=o.start)
 
     def load(self) -> dict:
         """How the scene is read: keyword arguments of `pirl_sim.scenarios.replay.load_replay` besides the files
@@ -406,10 +415,11 @@ class ReplaySettings:
         from pirl_sim.experiments.recorded import history_lags
 
         o, p = self.options, self.protocol()
-        rank = {k: i for i, k in enumerate(o.learners)}
-        irl = {"likelihood": "receding", "horizon": int(p.mpc_horizon)} if o.likelihood == "receding" else {}
+        rank = {k: i for i, k in enumerate(o.learners)}  # type: ignore[arg-type]  # set by __post_init__
+        irl = ({"likelihood": "receding", "horizon": int(p.mpc_horizon)}  # type: ignore[arg-type]  # resolve: given
+               if o.likelihood == "receding" else {})
         entries = [dict(LEARNER_ENTRIES["cv"]), dict(LEARNER_ENTRIES["ca"])]
-        for key in ([] if "tirl" in rank else ["tirl"]) + sorted(rank, key=rank.get):
+        for key in ([] if "tirl" in rank else ["tirl"]) + sorted(rank, key=rank.__getitem__):
             params = {k: v for k, v in LEARNER_ENTRIES[key].get("params", {}).items() if not (irl and k == "prior")}
             params.update(irl, **({"n_components": o.gmm_k} if key == "pirl-gmm" else {}))
             if key in (NEXT_KNN, SELECT):
@@ -579,9 +589,9 @@ def _run_table(options: ReplayOptions, say) -> int:
     rows = []
     for name in options.roundabouts:
         t0 = time.perf_counter()
-        o = dataclasses.replace(options, tracks=options.table / "recorded_trackfiles" / name,
-                                map=options.table / "maps" / f"{name}.osm")
-        if not o.map.is_file():
+        o = dataclasses.replace(options, tracks=options.table / "recorded_trackfiles" / name,  # type: ignore[operator]
+                                map=options.table / "maps" / f"{name}.osm")  # type: ignore[operator]
+        if not o.map.is_file():  # type: ignore[union-attr]
             raise FileNotFoundError(f"no map {o.map}")
         result, scene, proto = _replay(o.resolve(), options.out / name, lambda m: say(f"{name}: {m}"))
         if result is None:  # --dry-run

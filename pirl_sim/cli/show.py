@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from pirl_sim.validation import positive_float_arg
 
@@ -121,6 +122,7 @@ def run(args) -> int:
         from pirl_sim.viz import TrackFrames, animate_scene, draw_recording, draw_scene, road_from_lanelet2
 
         road = road_from_lanelet2(map_path) if map_path is not None else None
+        options: dict[str, Any]
         color, options = args.color_by, {}
         if color == _STYLE and _STYLE not in tracks.columns:
             color, options = _styles(folder), {"categorical": True, "label": "style"}

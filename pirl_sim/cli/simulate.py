@@ -13,6 +13,7 @@ import functools
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
 
@@ -120,7 +121,7 @@ class ProgressBar:
     def __init__(self, stream=None, every: float = 5.0):
         self.stream = sys.stderr if stream is None else stream
         self.every = every
-        self._bar = None
+        self._bar: Any = None  # a tqdm bar (an untyped library) from the first call
 
     def __call__(self, time_s: float, n_done: int, n_total: int) -> None:
         if self._bar is None:
@@ -148,8 +149,9 @@ def run(args: argparse.Namespace) -> int:
 
         simulate = functools.partial(run_sumo_scenario, backend=args.backend)
     else:
-        from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig as Config, load_scenario
-        from pirl_sim.scenarios.highway.scenario import run_highway_scenario as simulate
+        from pirl_sim.scenarios.highway.scenario import (  # type: ignore[assignment]  # either simulator's
+            HighwayScenarioConfig as Config, load_scenario)
+        from pirl_sim.scenarios.highway.scenario import run_highway_scenario as simulate  # type: ignore[assignment]
     try:
         population = load_population(args.population) if args.population is not None else None
         if args.scenario is not None:

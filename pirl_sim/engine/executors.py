@@ -257,6 +257,7 @@ class _Deferred:
     """A cell to run in the calling process when `InlineExecutor.as_completed` reaches it."""
 
     def __init__(self, fn, args) -> None:
+        self._error: Exception | None
         self._fn, self._args, self._done, self._value, self._error = fn, args, False, None, None
 
     def _run(self) -> None:

@@ -4,6 +4,7 @@ progress library): redrawn in place on a terminal, a line every few seconds othe
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from pirl_sim.progress import LineStream
 
@@ -29,7 +30,7 @@ class Progress:
         self.every = every
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.computed = self.failed = 0
-        self._bar = None
+        self._bar: Any = None  # a tqdm bar (an untyped library) once started
 
     def start(self) -> None:
         """Start the clock (after worker start-up) and draw the bar."""
@@ -37,7 +38,7 @@ class Progress:
 
         if self._bar is not None:
             self._bar.close()
-        stream = self.stream if self.tty else LineStream(self.stream)
+        stream: Any = self.stream if self.tty else LineStream(self.stream)
         stream.muted = not self.tty  # tqdm draws on creation: the first line (not a terminal) has the counts below
         self._bar = bar(self.total, "sweep", enabled=self.enabled, initial=self.done, unit="cell", stream=stream,
                         every=self.every)

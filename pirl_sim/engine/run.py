@@ -260,7 +260,7 @@ def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
     in ``n_neighbors`` form one task (`pirl_sim.engine.worker.run_cells`: one IRL fit for the whole k-grid, smallest
     k first), every other cell its own; a scenario with a ``task_group`` groups its cells itself (the
     ``recorded`` scenario: the methods of one split seed)."""
-    by_group = {}
+    by_group: dict[tuple, list[str]] = {}
     for k in todo:
         group = (scenario_spec(unique[k].scenario).task_group or knn_group)(unique[k].spec())
         by_group.setdefault(("cell", k) if group is None else ("group", group), []).append(k)
@@ -273,6 +273,7 @@ def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
 def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str):
     """The simulations the cells to run need and the store lacks ({simulation key: (scenario, simulation
     parameters, seed)}), and {cell key: simulation key} of those cells."""
+    sims: dict[str, tuple[str, dict, int]]
     sims, waiting = {}, {}
     for k in todo:
         cell = unique[k]
@@ -388,7 +389,8 @@ def read_table(results) -> pd.DataFrame:
     if path.is_dir() and template_run(path):
         return _stored_table(path)
     if path.is_dir():
-        path = next((path / n for n in ("table.parquet", "table.csv") if (path / n).exists()), None)
+        path = next((path / n for n in ("table.parquet", "table.csv")  # type: ignore[assignment]  # None: checked
+                     if (path / n).exists()), None)
         if path is None:
             raise ValueError(f"{results}: no table.parquet or table.csv (run pirl-sim sweep first)")
     if not path.exists():
@@ -424,7 +426,8 @@ def _stored_table(path: Path) -> pd.DataFrame:
     records = {c["key"]: rec for c in listed if (rec := store.load(c["key"])) is not None}
     cells = [SimpleNamespace(**c, protocol=records[c["key"]]["cell"]["protocol"] if c["key"] in records else None)
              for c in listed]
-    return assemble_table(SimpleNamespace(cells=cells), [c["key"] for c in listed], records)
+    return assemble_table(SimpleNamespace(cells=cells),  # type: ignore[arg-type]  # the cells are what it reads
+                          [c["key"] for c in listed], records)
 
 
 #: columns every row of a finished cell has (a row cut short loses the last ones)

@@ -71,8 +71,8 @@ def _module_files(entry: str) -> dict[str, Path]:
         raise ValueError(f"CELL_CODE entry {entry!r}: {pkg} is a module, not a package")
     out = {}
     for root in spec.submodule_search_locations:
-        root = Path(root)
-        for f in root.rglob("*.py"):
+        root = Path(root)  # type: ignore[assignment]
+        for f in root.rglob("*.py"):  # type: ignore[attr-defined]
             if "__pycache__" in f.parts:
                 continue
             parts = list(f.relative_to(root).with_suffix("").parts)

@@ -122,7 +122,7 @@ def run_simulation(scenario: str, params: dict, seed: int, out_dir: str, code_ve
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        scenario_spec(scenario).simulate(params, seed, tmp)
+        scenario_spec(scenario).simulate(params, seed, tmp)  # type: ignore[misc]
         record = {"scenario": scenario, "simulation": params, "seed": seed, "code_version": _worker_version(),
                   "timings": {"simulate_s": time.perf_counter() - t0},
                   "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
@@ -141,11 +141,11 @@ def _simulation_dir(spec: dict, store_root: str | None) -> Path:
     """The recorded run a simulated scenario's cell reads: from the sweep's store (simulated now if absent, e.g.
     when a cell runs on its own), or a per-process temporary store without one."""
     global _TMP_STORE
-    sim_params = scenario_spec(spec["scenario"]).simulation(spec["scenario_params"])
+    sim_params = scenario_spec(spec["scenario"]).simulation(spec["scenario_params"])  # type: ignore[misc]
     if store_root is None:
         if _TMP_STORE is None:
-            _TMP_STORE = tempfile.TemporaryDirectory(prefix="pirl_sim-simulations-")
-        store_root = _TMP_STORE.name
+            _TMP_STORE = tempfile.TemporaryDirectory(prefix="pirl_sim-simulations-")  # type: ignore[assignment]
+        store_root = _TMP_STORE.name  # type: ignore[attr-defined]
     store = ResultStore(store_root)
     key = simulation_key(spec["scenario"], sim_params, spec["seed"], _worker_version())
     if not store.has_simulation(key):
@@ -164,9 +164,10 @@ def _data(spec: dict, store_root: str | None = None):
         return _CACHE[key]
     scenario = scenario_spec(spec["scenario"])
     if scenario.simulation is not None:
-        data = scenario.build(spec["scenario_params"], spec["seed"], _simulation_dir(spec, store_root))
+        data = scenario.build(spec["scenario_params"], spec["seed"],  # type: ignore[misc]
+                              _simulation_dir(spec, store_root))
     else:
-        data = scenario.build(spec["scenario_params"], spec["seed"])
+        data = scenario.build(spec["scenario_params"], spec["seed"])  # type: ignore[misc]
     _CACHE[key] = data
     while len(_CACHE) > CACHE_SIZE:
         _CACHE.popitem(last=False)

@@ -126,7 +126,8 @@ class MpcEgo:
 
         base = _highway(env, self.name)
         traffic, drv = base.road, base.config["drivers"]
-        self._drivers = PirlDrivers(traffic.model, {EGO_ID: (base.config["ego_route"], self._weights)},
+        self._drivers = PirlDrivers(traffic.model,  # type: ignore[assignment]
+                                    {EGO_ID: (base.config["ego_route"], self._weights)},
                                     horizon=drv.horizon, stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
 
     def act(self, env) -> np.ndarray:
@@ -218,7 +219,7 @@ def _towards(current: float, target: float, max_change: float | None) -> float:
     return min(max(target, current - max_change), current + max_change)
 
 
-class ResidualAction(*_wrapper_bases()):
+class ResidualAction(*_wrapper_bases()):  # type: ignore[misc]
     """The agent's action as a correction to a baseline ego's (module doc; "The gymnasium environment" page).
 
     Parameters
@@ -270,8 +271,8 @@ class ResidualAction(*_wrapper_bases()):
             cap = interaction_limit(self.env) if self.shield else math.inf
             cap = float(action_of(cap, self.env.unwrapped.action_type.acceleration_range)[0]) \
                 if math.isfinite(cap) else 1.0
-            self._next = (base, cap)
-        return self._next
+            self._next = (base, cap)  # type: ignore[assignment]
+        return self._next  # type: ignore[return-value]
 
     def _observation(self, obs):
         if not self.observe:
@@ -292,7 +293,7 @@ class ResidualAction(*_wrapper_bases()):
         return self._observation(obs), reward, terminated, truncated, info
 
 
-class DesiredSpeedAction(*_wrapper_bases()):
+class DesiredSpeedAction(*_wrapper_bases()):  # type: ignore[misc]
     """The agent's action as the IDM ego's desired-speed factor (module doc; "The gymnasium environment" page).
 
     Parameters

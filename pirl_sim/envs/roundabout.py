@@ -250,7 +250,7 @@ class PirlRoundaboutEnv(AbstractEnv):
                 raise ValueError(f"config must be a mapping, got {type(config).__name__}")
             valid = tuple(self.default_config())
             check_keys("config", config, valid)
-            merged = dict(self.config)
+            merged = dict(self.config)  # type: ignore[has-type]
             merged.update(copy.deepcopy(dict(config)))
             self._validate(merged)
             self.config = merged
@@ -309,7 +309,8 @@ class PirlRoundaboutEnv(AbstractEnv):
     def define_spaces(self) -> None:
         obs = dict(self.config["observation"])
         c = self.config
-        if getattr(self, "_style", None) is None or self._style.mode != c["style_observation"]:
+        if (getattr(self, "_style", None) is None
+                or self._style.mode != c["style_observation"]):  # type: ignore[has-type]
             self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
         self._style_width = self._style.width
         if obs["type"] == "Kinematics":  # highway-env's, pandas-free, remembering its rows (for info)
@@ -360,13 +361,14 @@ class PirlRoundaboutEnv(AbstractEnv):
         plan = adapter.plan(scenario, seed)
         ego = EgoSpec(c["ego_route"], float(c["ego_speed"]), route_s=float(c["ego_start"]), vehicle_id=EGO_ID)
         self._stack.close()
-        self._sim = sim = self._stack.enter_context(adapter.start(
+        self._sim = sim = self._stack.enter_context(adapter.start(  # type: ignore[assignment]
             scenario, seed, plan, ego=ego, cache_network=True, initial_vehicles=int(c["initial_vehicles"]),
             np_random=self.np_random, record=c["record_tracks"], record_history=c["show_trajectories"]))
         traffic = self.road = sim.traffic
         self.vehicle = sim.ego_vehicle
-        self.vehicle.color = _EGO_COLOR
-        self._ego_cost = EgoReward(c, sim.routes, traffic.profile, c["ego_route"], self.vehicle.position)
+        self.vehicle.color = _EGO_COLOR  # type: ignore[attr-defined]
+        self._ego_cost = EgoReward(c, sim.routes, traffic.profile, c["ego_route"],
+                                   self.vehicle.position)  # type: ignore[attr-defined]
         traffic.step_callbacks.append(self._log_ego)
         self._style = StyleObserver(c["style_observation"], c["style_learner"], c["style_history"])
         if self._style.mode == "inferred":
@@ -381,25 +383,27 @@ class PirlRoundaboutEnv(AbstractEnv):
     def _log_ego(self, traffic: RoundaboutTraffic) -> None:
         ego = self.vehicle
         others = [v.position for v in traffic.vehicles if v is not ego]
-        self._ego_cost.log_frame(ego.position, ego.speed, ego.applied_acceleration, clearance(ego.position, others))
+        self._ego_cost.log_frame(ego.position, ego.speed, ego.applied_acceleration,  # type: ignore[attr-defined]
+                                 clearance(ego.position, others))  # type: ignore[attr-defined]
 
     # -- stepping -------------------------------------------------------------------------------------
 
     def _simulate(self, action=None) -> None:
         """highway-env's frame loop (the action, then one frame, rendering in between), each frame one step of
         the simulation."""
-        start = self.vehicle.route_s
+        start = self.vehicle.route_s  # type: ignore[attr-defined]
         self._ego_cost.begin_step()
         frames = int(self.config["simulation_frequency"] // self.config["policy_frequency"])
         for frame in range(frames):
             if action is not None and not self.config["manual_control"] and self.steps % frames == 0:
                 self.action_type.act(action)
-            self._sim.step()
+            self._sim.step()  # type: ignore[attr-defined]
             self.steps += 1
             if frame < frames - 1:  # the last frame renders through render() as usual
                 self._automatic_rendering()
         self.enable_auto_render = False
-        self._ego_cost.step_terms(progress=self.vehicle.route_s - start, crashed=self.vehicle.crashed,
+        self._ego_cost.step_terms(progress=self.vehicle.route_s - start,  # type: ignore[attr-defined]
+                                  crashed=self.vehicle.crashed,  # type: ignore[attr-defined]
                                 arrived=self._arrived, time=self.time)
 
     @property
@@ -413,7 +417,7 @@ class PirlRoundaboutEnv(AbstractEnv):
         return self._ego_cost.reward()
 
     def _is_terminated(self) -> bool:
-        return bool(self.vehicle.crashed or self._arrived)
+        return bool(self.vehicle.crashed or self._arrived)  # type: ignore[attr-defined]
 
     def _is_truncated(self) -> bool:
         return bool(self.time >= self.config["duration"] - 1e-9)
@@ -435,11 +439,11 @@ class PirlRoundaboutEnv(AbstractEnv):
 
     def _info(self, obs, action=None) -> dict:
         return {
-            "speed": float(self.vehicle.speed),
+            "speed": float(self.vehicle.speed),  # type: ignore[attr-defined]
             "time": float(self.time),
-            "crashed": bool(self.vehicle.crashed),
+            "crashed": bool(self.vehicle.crashed),  # type: ignore[attr-defined]
             "arrived": bool(self._arrived),
-            "progress": float(self.vehicle.route_s),
+            "progress": float(self.vehicle.route_s),  # type: ignore[attr-defined]
             "features": self._ego_cost.features.copy(),
             "rewards": self._rewards(action),
             "n_vehicles": len(self.road.vehicles),

@@ -79,10 +79,10 @@ def check_style_config(c: dict, route_ids: Sequence[str]) -> None:
     if not isinstance(model, RouteSetDriverModel):
         raise ValueError(f"style_learner's model must be a RouteSetDriverModel (the roundabout's routes), got "
                          f"{type(model).__name__}")
-    missing = [r for r in route_ids if r not in model.routes.route_ids]
+    missing = [r for r in route_ids if r not in model.routes.route_ids]  # type: ignore[union-attr]
     if missing:
         raise ValueError(f"style_learner's model lacks the env's routes {missing}; it has "
-                         f"{', '.join(model.routes.route_ids)}")
+                         f"{', '.join(model.routes.route_ids)}")  # type: ignore[union-attr]
     if not math.isclose(model.dynamics.dt, _FRAME_DT):
         raise ValueError(f"style_learner's model steps by {model.dynamics.dt} s; the env's frames are {_FRAME_DT} s")
 

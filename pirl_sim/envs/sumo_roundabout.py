@@ -252,26 +252,27 @@ class PirlRoundaboutSumoEnv(gym.Env):
         ego = EgoSpec(c["ego_route"], float(c["ego_speed"]), depart=warmup, speed_mode=int(c["ego_speed_mode"]),
                       vehicle_id=EGO_ID)
         try:
-            self._sim = self._stack.enter_context(adapter.start(scenario, plan_seed, plan, ego=ego,
-                                                                wrap_controller=_Controller, cache_network=True))
+            self._sim = self._stack.enter_context(adapter.start(  # type: ignore[assignment]
+                scenario, plan_seed, plan, ego=ego,
+                wrap_controller=_Controller, cache_network=True))  # type: ignore[arg-type]
         except RuntimeError as exc:
             if c["sumo_binding"] == "libsumo" and "one simulation per process" in str(exc):
                 raise RuntimeError("libsumo runs one simulation per process and another SUMO run of this process "
                                    "holds it: close that env or run first, or make this env with "
                                    "sumo_binding='traci'") from exc
             raise
-        self._last_sim, self._controller = self._sim, self._sim.batch_controller
+        self._last_sim, self._controller = self._sim, self._sim.batch_controller  # type: ignore[attr-defined]
         while self._controller.ego is None:  # the traffic's warm-up, then the ego's insertion
             self._sumo_step()
-            if self._sim.run.time > warmup + _MAX_WAIT:
+            if self._sim.run.time > warmup + _MAX_WAIT:  # type: ignore[attr-defined]
                 self._stop()
                 raise RuntimeError(f"the ego could not enter {c['ego_route']!r} within {_MAX_WAIT:.0f} s after the "
                                    "warm-up (its entry stayed blocked)")
-        self._t0 = self._sim.run.time
+        self._t0 = self._sim.run.time  # type: ignore[attr-defined]
         self.time = 0.0
         self._controller.acceleration = 0.0
         ego = self._controller.ego.ego
-        paths = self._sim.routes
+        paths = self._sim.routes  # type: ignore[attr-defined]
         self._ego_cost = EgoReward(c, paths, RouteSetProfile(paths, drv.a_lat, drv.v_max), c["ego_route"],
                                  (ego.x, ego.y))
         self._crashed = self._arrived = False
@@ -359,14 +360,14 @@ class PirlRoundaboutSumoEnv(gym.Env):
         if self._window is None or not plt.fignum_exists(self._window[0].number):
             fig, ax = plt.subplots()
             ax.set_axis_off()
-            self._window = (fig, ax.imshow(frame))
-        self._window[1].set_data(frame)
+            self._window = (fig, ax.imshow(frame))  # type: ignore[assignment]
+        self._window[1].set_data(frame)  # type: ignore[index]
         plt.pause(1.0 / self.metadata["render_fps"])
 
     def _sumo_step(self) -> None:
         # the controller sees the ego only in steps it is asked (some controlled vehicle in the network)
         self._controller.ego = None
-        self._sim.step()
+        self._sim.step()  # type: ignore[attr-defined]
 
     # -- observation and info -----------------------------------------------------------------------
 
@@ -384,7 +385,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
                 near.append((dist, vid, st))
         if o.get("order", "sorted") == "sorted":
             near.sort(key=lambda item: (item[0], item[1]))
-        self._frame = ([EGO_ID, *others], [ego, *others.values()])
+        self._frame = ([EGO_ID, *others], [ego, *others.values()])  # type: ignore[assignment]
         near = near[:self._count - 1]
         states = np.array([[ego.x, ego.y, ego.speed, ego.psi_rad]] +
                           [[st.x, st.y, st.speed, st.psi_rad] for _, _, st in near], dtype=float)
@@ -392,7 +393,7 @@ class PirlRoundaboutSumoEnv(gym.Env):
                               features_range=o.get("features_range"), normalize=o.get("normalize", True),
                               clip=o.get("clip", True), vehicles_count=self._count)
         rows = [self._who.get(vid, _Neighbour(vid, "", -1, np.zeros(len(FEATURE_NAMES)))) for _, vid, _ in near]
-        rows += [None] * (self._count - 1 - len(rows))
+        rows += [None] * (self._count - 1 - len(rows))  # type: ignore[list-item]
         if o.get("order", "sorted") == "shuffled":
             rows = shuffle_rows(obs, rows, self.np_random)
         self._rows = rows
@@ -410,7 +411,8 @@ class PirlRoundaboutSumoEnv(gym.Env):
             "progress": float(self._ego_cost.s_path),
             "features": self._ego_cost.features.copy(),
             "rewards": dict(self._ego_cost.terms),
-            "n_vehicles": (len(now.others) + 1) if now is not None else self._sim.n_present,
+            "n_vehicles": ((len(now.others) + 1) if now is not None
+                           else self._sim.n_present),  # type: ignore[attr-defined]
             **neighbour_info(self._rows),
             "style_names": self.config["population"].style_names,
             "feature_names": FEATURE_NAMES,

@@ -88,15 +88,15 @@ class Protocol:
         """Parameters a learner needs to follow this protocol."""
         if self.kind == "paper":
             return {"window": None}
-        return {"window": int(self.history_steps), "windows": self.window_mode}
+        return {"window": int(self.history_steps), "windows": self.window_mode}  # type: ignore[arg-type]
 
     def steps_needed(self) -> int:
         """The shortest test trajectory this protocol can score [steps]."""
         if self.kind == "paper":
             return 1
         if self.kind == "online":
-            return self.history_steps + 1
-        return self.history_steps + self.horizon
+            return self.history_steps + 1  # type: ignore[operator]
+        return self.history_steps + self.horizon  # type: ignore[operator]
 
 
 PAPER_PROTOCOL = Protocol()
@@ -218,16 +218,16 @@ def cases(test: Sequence[Trajectory], protocol: Protocol):
     if protocol.kind != "rolling":
         start = 0 if protocol.kind == "paper" else protocol.history_steps
         n = min(t.n_steps for t in test)
-        if start >= n:
+        if start >= n:  # type: ignore[operator]
             raise ValueError(f"history of {start} steps leaves nothing to predict in trajectories of {n} steps")
         return ([t if start == 0 else t.window(0, start) for t in test], [t.states[start:] for t in test],
                 np.arange(len(test)))
     T, H = protocol.history_steps, protocol.horizon
     histories, futures, owners = [], [], []
     for i, t in enumerate(test):
-        for step in range(T, t.n_steps - H + 1, protocol.stride):
-            histories.append(t.window(step - T, step))
-            futures.append(t.states[step : step + H + 1])
+        for step in range(T, t.n_steps - H + 1, protocol.stride):  # type: ignore[arg-type, operator]
+            histories.append(t.window(step - T, step))  # type: ignore[operator]
+            futures.append(t.states[step : step + H + 1])  # type: ignore[operator]
             owners.append(i)
     return histories, futures, np.asarray(owners, dtype=int)
 

@@ -300,9 +300,9 @@ def _ppo_run(params: dict, lp: dict, seed: int) -> dict:
             select_time += time.perf_counter() - t1
             selection.append([int(model.num_timesteps), score])
             if score > best[0]:
-                best = (score, copy.deepcopy(model.policy.state_dict()))
+                best = (score, copy.deepcopy(model.policy.state_dict()))  # type: ignore[assignment]
         val_env.close()
-        model.policy.load_state_dict(best[1])
+        model.policy.load_state_dict(best[1])  # type: ignore[arg-type]
     train_time = time.perf_counter() - t0
     ends = np.cumsum(env.get_episode_lengths())
     curve = [[int(n), float(r)] for n, r in zip(ends, env.get_episode_rewards())]

@@ -339,11 +339,11 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
             curves.append(means.ffill().fillna(c[0, 1]).to_numpy())
         if not curves:
             continue
-        curves = np.array(curves)
+        stacked = np.array(curves)
         col = colours[k % len(colours)]
-        ax.plot(grid, curves.mean(axis=0), color=col, label=f"{policy.upper()[:3]}{policy[3:]}, {mode} "
-                f"({len(curves)} seeds; dots: evaluation)")
-        ax.fill_between(grid, curves.min(axis=0), curves.max(axis=0), color=col, alpha=0.2, lw=0)
+        ax.plot(grid, stacked.mean(axis=0), color=col, label=f"{policy.upper()[:3]}{policy[3:]}, {mode} "
+                f"({len(stacked)} seeds; dots: evaluation)")
+        ax.fill_between(grid, stacked.min(axis=0), stacked.max(axis=0), color=col, alpha=0.2, lw=0)
         ax.plot(np.full(len(finals), grid[-1]), finals, "o", color=col, ms=4)
     styles = ["--", ":", "-."]
     for k, r in enumerate(r for r in records if not r["policy"].startswith("ppo")):

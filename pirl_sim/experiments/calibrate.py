@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Sequence, cast
 
 import numpy as np
 
@@ -55,7 +55,7 @@ def fit_styles(log_weights: np.ndarray, max_styles: int = 4, seed: int = 0):
     for n in range(1, min(int(max_styles), len(x)) + 1):
         gmm = GaussianMixture(n, covariance_type="diag", reg_covar=1e-4, n_init=3, random_state=seed).fit(x)
         fits[n], bic[n] = gmm, float(gmm.bic(x))
-    best = min(bic, key=bic.get)
+    best = min(bic, key=bic.__getitem__)
     return fits[best], bic
 
 
@@ -112,7 +112,7 @@ class Calibration:
         """Each style as a population's style table: name, weight, mean and std over the weights (moment-matched
         to the style's log-normal, `lognormal_moments`, its log variance capped at `LOG_VAR_MAX`), in order of
         decreasing share."""
-        out = []
+        out: list[dict] = []
         for i in np.argsort(-self.style_share, kind="stable"):
             mean, std = lognormal_moments(self.style_log_mean[i], np.minimum(self.style_log_var[i], LOG_VAR_MAX))
             out.append({"name": f"calibrated {len(out) + 1}", "weight": float(self.style_share[i]),
@@ -196,7 +196,7 @@ def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tup
     sub = [t for t, k in zip(demos, keep) if k]
     sub_labels = np.searchsorted(chosen, labels[keep])
     lo, hi = np.log([A_LAT_RANGE[0], V_MAX_RANGE[0]]), np.log([A_LAT_RANGE[1], V_MAX_RANGE[1]])
-    warm = {"init": None}
+    warm: dict[str, np.ndarray | None] = {"init": None}
 
     def nll(x: np.ndarray) -> float:
         x = np.clip(x, lo, hi)
@@ -211,7 +211,7 @@ def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tup
     out = minimize(nll, x0, method="Nelder-Mead",
                    options={"xatol": 0.01, "fatol": 0.5, "maxfev": PROFILE_EVALUATIONS,
                             "initial_simplex": np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.05]])})
-    return tuple(float(v) for v in np.exp(np.clip(out.x, lo, hi)))
+    return cast(tuple[float, float], tuple(float(v) for v in np.exp(np.clip(out.x, lo, hi))))
 
 
 def _recorded_duration(files: Sequence[Path]) -> float:
@@ -285,7 +285,8 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     labels = np.array([index[track_key(t)] for t in demos])
 
     def model_at(a_lat: float, v_max: float):
-        return PathDriverModel(longitudinal(dt), roundabout_features(SpeedProfile(scene.profile_path, a_lat, v_max)),
+        profile = SpeedProfile(scene.profile_path, a_lat, v_max)  # type: ignore[arg-type]  # a CompositePath
+        return PathDriverModel(longitudinal(dt), roundabout_features(profile),
                                scene.model.bounds, path=scene.model.path)
 
     if isinstance(desired_speed, str):

@@ -131,7 +131,8 @@ def run_scan_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
     [column, value] pairs in order: stored JSON sorts a dict's keys)."""
     proto, desired_speed, _ = _replay_settings(specs[0])
     scene = load_scene(specs[0]["scenario_params"])
-    rows = {}  # id(spec) -> its row; one scan per step stride (the command's cells share one)
+    # id(spec) -> its row; one scan per step stride (the command's cells share one)
+    rows = {}  # type: ignore[var-annotated]
     for stride in {s["learner_params"]["step_stride"] for s in specs}:
         group = [s for s in specs if s["learner_params"]["step_stride"] == stride]
         horizons = [s["learner_params"]["horizon"] for s in group]
@@ -143,7 +144,7 @@ def run_scan_cells(specs: list[dict]) -> list[tuple[dict, dict]]:
 
 def _check_protocol(params: dict, protocol: dict) -> None:
     """The recorded kind's check, without its rollout settings (the scan predicts both ways with each H)."""
-    RECORDED.check_protocol(dict(params, replay={k: v for k, v in params["replay"].items()
+    RECORDED.check_protocol(dict(params, replay={k: v for k, v in params["replay"].items()  # type: ignore[misc]
                                                  if k not in ("rollout", "mpc_horizon")}), protocol)
 
 

@@ -127,7 +127,7 @@ def run_learner_cells(specs: list[dict], data, test: list, protocol, generate_s:
                     learner = {**LEARNERS, **BASELINES}[spec["learner"]](
                         model=data.model, **params, **protocol.learner_params())
                     learner.fit(data.train)
-                    shared = []
+                    shared = []  # type: ignore[var-annotated]
                 else:  # the same fit with another k
                     learner = fitted.with_neighbors(params["n_neighbors"])
                     shared = fit_warnings
@@ -167,13 +167,14 @@ def run_learner_cells(specs: list[dict], data, test: list, protocol, generate_s:
         if scores["k_futures"] is not None:
             scores["k_futures"] = int(scores["k_futures"])
         results.append({
-            "scores": scores,
-            "timings": {"generate_s": 0.0 if charged else generate_s, "fit_s": fit_s, "evaluate_s": evaluate_s,
+            "scores": scores,  # type: ignore[dict-item]
+            "timings": {"generate_s": 0.0 if charged else generate_s, "fit_s": fit_s,  # type: ignore[dict-item]
+                        "evaluate_s": evaluate_s,
                         "cell_s": time.perf_counter() - t_cell, "cpu_s": time.process_time() - cpu_cell},
-            "recovery": recovery,
-            "weights": weight_scores,
-            "warnings": found,
-            "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+            "recovery": recovery,  # type: ignore[dict-item]
+            "weights": weight_scores,  # type: ignore[dict-item]
+            "warnings": found,  # type: ignore[dict-item]
+            "worker": {"host": socket.gethostname(), "pid": os.getpid()},  # type: ignore[dict-item]
         })
         charged = True
         t_cell, cpu_cell = time.perf_counter(), time.process_time()  # the next cell's own time

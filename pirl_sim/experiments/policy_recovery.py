@@ -107,7 +107,7 @@ class _LoggedMpcEgo:
         self.policy.reset(env)
         self.own = []
         drivers = self.policy._drivers
-        commands = drivers.commands
+        commands = drivers.commands  # type: ignore[attr-defined]
         self._last = None
 
         def logged(t, observations):
@@ -115,7 +115,7 @@ class _LoggedMpcEgo:
             self._last = out[EGO_ID]
             return out
 
-        drivers.commands = logged
+        drivers.commands = logged  # type: ignore[attr-defined]
 
     def act(self, env) -> np.ndarray:
         from pirl_sim.scenarios.highway.traffic import STEP_LENGTH
@@ -172,7 +172,7 @@ def mpc_ego_demonstrations(policies: Mapping[str, Mapping[str, float]], seeds: S
         if len(ego_speeds) != len(seeds) or not all(math.isfinite(v) and v >= 0 for v in ego_speeds):
             raise ValueError(f"ego_speeds must be {len(seeds)} speeds >= 0 m/s (one per seed), got {ego_speeds!r}")
     env = gym.make(ENV_ID, config=_check_env_config(config)).unwrapped
-    demos, episodes = [], []
+    demos, episodes = [], []  # type: ignore[var-annotated]
     try:
         for name, theta in policies.items():
             ego = _LoggedMpcEgo(theta)
@@ -182,7 +182,7 @@ def mpc_ego_demonstrations(policies: Mapping[str, Mapping[str, float]], seeds: S
                 d = ego_demonstration(env, theta=theta, style_name=name, track_id=len(demos), own=np.array(ego.own))
                 demos.append(d)
                 episodes.append({"policy": name, **ep, "own_steps": int(np.sum(ego.own))})
-        model, horizon = env.road.model, int(env.config["drivers"].horizon)
+        model, horizon = env.road.model, int(env.config["drivers"].horizon)  # type: ignore[attr-defined]
     finally:
         env.close()
     return model, horizon, demos, episodes
@@ -348,7 +348,7 @@ def _train_ppo(config: dict, lp: dict, seed: int):
         env = DummyVecEnv([lambda: gym.wrappers.FlattenObservation(
             gym.make(ENV_ID, config={**config, "policy_frequency": 10}))])
         if lp["normalize_reward"]:
-            env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=lp["gamma"])
+            env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=lp["gamma"])  # type: ignore[assignment]
         model = PPO("MlpPolicy", env, n_steps=lp["n_steps"], batch_size=lp["batch_size"], n_epochs=lp["n_epochs"],
                     gamma=lp["gamma"], learning_rate=lp["learning_rate"], use_sde=lp["use_sde"], seed=seed,
                     verbose=0, device="cpu", policy_kwargs={"log_std_init": lp["log_std_init"]})
@@ -368,13 +368,13 @@ def _ppo_demonstrations(policy, config: dict, eval_seeds: list[int], seed: int):
     from pirl_sim.envs.baselines import drive_episode
 
     env = gym.wrappers.FlattenObservation(gym.make(ENV_ID, config=_check_env_config(config)))
-    base, demos, episodes = env.unwrapped, [], []
+    base, demos, episodes = env.unwrapped, [], []  # type: ignore[var-annotated]
     for s in eval_seeds:
         ep = drive_episode(env, lambda obs: policy.predict(obs, deterministic=True)[0], s)
         episodes.append({"policy": "ppo", "train_seed": seed, **ep})
         demos.append(ego_demonstration(base, theta=config["reward_theta"], style_name=f"ppo seed {seed}",
                                        track_id=len(demos)))
-    model, horizon = base.road.model, int(base.config["drivers"].horizon)
+    model, horizon = base.road.model, int(base.config["drivers"].horizon)  # type: ignore[attr-defined]
     env.close()
     return model, horizon, demos, episodes
 
@@ -454,9 +454,12 @@ def collect_records(records: Sequence[dict]) -> dict:
 
     def report(recs: list[dict], source: str) -> RecoveryReport:
         fit = {k: [v for r in recs for v in r["fit"][k]] for k in TRACK_FIELDS}
-        return RecoveryReport(tuple(recs[0]["fit"]["features"]), fit["true"], fit["estimated"],
-                              np.arange(len(fit["styles"])), tuple(fit["styles"]), fit["converged"],
-                              fit["fitted_steps"], reference=recs[0]["fit"]["reference"], source=source)
+        return RecoveryReport(tuple(recs[0]["fit"]["features"]), fit["true"],  # type: ignore[arg-type]
+                              fit["estimated"],  # type: ignore[arg-type]
+                              np.arange(len(fit["styles"])), tuple(fit["styles"]),
+                              fit["converged"],  # type: ignore[arg-type]
+                              fit["fitted_steps"],  # type: ignore[arg-type]
+                              reference=recs[0]["fit"]["reference"], source=source)
 
     episodes = [dict(zip(r["episodes"]["columns"], row)) for r in mpc + ppo for row in r["episodes"]["rows"]]
     times = {"mpc_drive_s": mpc[0]["drive_s"], **{f"ppo_train_seed{r['train_seed']}_s": r["train_s"] for r in ppo},

@@ -174,7 +174,8 @@ def predict_path_states(model, x0: np.ndarray, theta: np.ndarray, horizon: int, 
         return model.predict_states(x0, theta, _open_plan(horizon, mpc_horizon))[:, : horizon + 1]
     if not is_positive_int(mpc_horizon):
         raise ValueError(f"rollout='closed' needs mpc_horizon, a positive number of steps, got {mpc_horizon!r}")
-    trajs = simulate_receding_horizon(model, physical_starts(x0), theta, horizon, int(mpc_horizon))
+    trajs = simulate_receding_horizon(model, physical_starts(x0), theta, horizon,
+                                      int(mpc_horizon))  # type: ignore[arg-type]
     return np.stack([t.states for t in trajs])
 
 
@@ -254,7 +255,8 @@ def fit_lateral_profile(train, kind: str = "mean-path", path=None, horizon: int 
             raise ValueError("the 'neighbours' lateral model needs the prediction horizon [steps]")
         return NeighbourOffsets().fit(fit_lateral_profile(train, "plane", path), train, horizon)
     if kind == "plane":
-        pooled = MeanOffsetProfile().fit_plane(path, [np.asarray(t.metadata["xy"], dtype=float) for t in train])
+        pooled = MeanOffsetProfile().fit_plane(
+            path, [np.asarray(t.metadata["xy"], dtype=float) for t in train])  # type: ignore[arg-type]
         return fit_lateral_profile(train, "mean-path").backed_by(pooled)
     segment = np.concatenate([np.full(t.n_steps + 1, int(t.metadata.get("segment", 0))) for t in train])
     s = np.concatenate([observed_s(t) for t in train])  # where each offset was observed
@@ -285,7 +287,8 @@ def _fit_with_diagnostics(fit) -> dict:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
     res = getattr(learner, "irl_result_", None)
     converged = np.asarray(res.converged, dtype=bool) if res is not None else np.zeros(0, dtype=bool)
-    out["irl_converged"], out["irl_groups"], out["irl_from"] = int(converged.sum()), int(converged.size), ""
+    out["irl_converged"], out["irl_groups"], out["irl_from"] = (int(converged.sum()), int(converged.size),
+                                                                 "")  # type: ignore[assignment]
     return out
 
 
@@ -419,7 +422,8 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     histories = start_histories(scene, test, windows, proto)
     x0 = np.stack([h.states[-1] for h in histories])
     reuse = _shared_knn_fits(methods)
-    predicted, fitted = {}, {}  # name -> (s_pred, fit_s, predict_s, extra); spec index -> (learner, diagnostics)
+    # name -> (s_pred, fit_s, predict_s, extra); spec index -> (learner, diagnostics)
+    predicted, fitted = {}, {}  # type: ignore[var-annotated]
     for i in sorted(range(len(methods)), key=lambda i: i in reuse):  # shared fits first
         name, key, params = methods[i]
         t0 = time.perf_counter()
@@ -459,7 +463,8 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             if mixture:
                 s_pred = learner.predict_states(histories, plan)[:, 1 : proto.horizon + 1, 0]
             else:
-                s_pred = predict_path_states(model, x0, theta, proto.horizon, rollout=proto.rollout,
+                s_pred = predict_path_states(model, x0, theta, proto.horizon,  # type: ignore[arg-type]
+                                             rollout=proto.rollout,
                                              mpc_horizon=proto.mpc_horizon)[:, 1:, 0]
             extra = {**_truth_scores(learner, train, test, windows, theta, model, has_truth), **diag}
             if len(getattr(learner, "lookup_ahead", ())):  # the road-ahead weight in use (chosen or given)
@@ -479,7 +484,7 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             last = np.stack([np.asarray(test[i].metadata["xy"])[step - 1 : step + 1] for i, step in windows])
             pred = last[:, 1:] + (last[:, 1:] - last[:, :1]) / dt * (dt * np.arange(1, proto.horizon + 1))[:, None]
             err = np.linalg.norm(pred - _recorded_xy(test, windows, proto.horizon), axis=-1)
-            s_pred, fit_s, pred_s, extra, path = None, 0.0, 0.0, {}, {}
+            s_pred, fit_s, pred_s, extra, path = None, 0.0, 0.0, {}, {}  # type: ignore[assignment]
             plane[name] = pred
         else:
             s_pred, fit_s, pred_s, extra = predicted[name]
@@ -675,7 +680,7 @@ def decode_method(result: dict) -> dict:
     shown = None if result["shown"] is None else np.array(result["shown"], dtype=float)
     scene = None if result.get("scene") is None else np.array(result["scene"], dtype=float)
     entry = {"row": row, "errors": np.array(result["errors"], dtype=float), "shown": shown, "scene": scene}
-    return entry, {k: np.array(v, dtype=float) for k, v in result["examples"].items()}
+    return entry, {k: np.array(v, dtype=float) for k, v in result["examples"].items()}  # type: ignore[return-value]
 
 
 def run_recorded_cells(specs: list[dict]) -> list[tuple[dict, dict]]:

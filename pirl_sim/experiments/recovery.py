@@ -144,7 +144,7 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
     rows["at_bound"] = res.at_bound
     tracks = pd.DataFrame(rows)
     weights = RecoveryReport(FREE_FEATURES, truth[:, free], res.normalized[:, free], np.asarray(rows["track_id"]),
-                             tuple(rows["style_name"]), res.converged, res.fitted_steps,
+                             tuple(rows["style_name"]), res.converged, res.fitted_steps,  # type: ignore[arg-type]
                              reference=names[run.model.features.reference_index],
                              source=f"{simulator} seed {int(info['seed'])}")
 
@@ -301,8 +301,8 @@ def _population(params: dict):
     if params["n_vehicles"]:
         changes["n_vehicles"] = int(params["n_vehicles"])
     if params["control_noise"] >= 0:
-        changes["control_noise"] = float(params["control_noise"])
-    return dataclasses.replace(pop, **changes) if changes else pop
+        changes["control_noise"] = float(params["control_noise"])  # type: ignore[assignment]
+    return dataclasses.replace(pop, **changes) if changes else pop  # type: ignore[arg-type]
 
 
 def _check(params: dict) -> dict:
@@ -429,7 +429,7 @@ class RecoveryResult:
     def _unique(self) -> dict[int, tuple[RunRecovery, bool, float]]:
         """Each report once, with its first job's ``simulated`` and ``sim_time_s`` (a noise level equal to the
         population's own shares the main job's report)."""
-        out = {}
+        out = {}  # type: ignore[var-annotated]
         for r, s, t in zip(self.reports, self.simulated, self.sim_time_s):
             out.setdefault(id(r), (r, s, t))
         return out
@@ -439,8 +439,8 @@ class RecoveryResult:
         as the first columns."""
         out = pd.concat([frame(r).assign(simulator=r.simulator, control_noise=r.control_noise, seed=r.seed)
                          for r, _, _ in self._unique().values()], ignore_index=True)
-        first = ["simulator", "control_noise", "seed", *first]
-        return out[first + [c for c in out.columns if c not in first]]
+        first = ["simulator", "control_noise", "seed", *first]  # type: ignore[assignment]
+        return out[first + [c for c in out.columns if c not in first]]  # type: ignore[operator]
 
     def styles(self) -> pd.DataFrame:
         """Per-style TIRL rows of every job (simulator, control_noise, seed first)."""

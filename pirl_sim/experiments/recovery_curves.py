@@ -134,7 +134,7 @@ def curves_markdown(table: pd.DataFrame, fmt) -> list[str]:
     lines = []
     for exp, s in summary.groupby("experiment", sort=False):
         axis = s["axis"].iloc[0]
-        cells = {}
+        cells: dict[str, dict[str, str]] = {}
         for _, r in s.iterrows():
             text = fmt(r["mean"]) + ("" if not np.isfinite(r["ci"]) else f" ± {r['ci']:.2g}")
             cells.setdefault(r["learner"], {})[f"{r['x']:g}"] = text

@@ -193,7 +193,8 @@ def _write_scenes(result: dict, scene, out: Path) -> None:
         w = int(ex["scene_windows"][k])
         names = [best, _CA]
         window = PredictionWindow(history=ex["scene_history"][k], future=ex["scene_future"][k],
-                                  predictions=np.stack([preds[n][k] for n in names]), probabilities=[0.5, 0.5],
+                                  predictions=np.stack([preds[n][k] for n in names]),
+                                  probabilities=np.array([0.5, 0.5]),
                                   labels=tuple(f"{n}: {errors[(seed, n)][w]:.2f} m" for n in names))
         title = f"{best} {'beats' if kind == 'gain' else 'loses to'} CA (path) most"
         buf = io.BytesIO()
@@ -253,7 +254,8 @@ def _write_figures(result: dict, scene, out) -> None:
     knn = rows[rows["method"].str.startswith("PIRL-kNN (k=")]
     if knn["method"].nunique() > 1:
         per_seed = knn.groupby("method")["med"].agg(["mean", "std"]).reset_index()
-        per_seed["k"] = [int(re.search(r"k=(\d+)", m).group(1)) for m in per_seed["method"]]
+        per_seed["k"] = [int(re.search(r"k=(\d+)", m).group(1))  # type: ignore[union-attr]  # "PIRL-kNN (k=K)"
+                         for m in per_seed["method"]]
         table = pd.DataFrame({"protocol": "replay (std over seeds)", "k": per_seed["k"],
                               "med": per_seed["mean"], "med_std": per_seed["std"].fillna(0.0)}).sort_values("k")
         atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(table, "PIRL-kNN on replayed tracks: MED vs k"))

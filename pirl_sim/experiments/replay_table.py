@@ -15,6 +15,7 @@ regression's MED relative to CA (`pirl_sim.evaluation.direct`: no cost, what the
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -33,7 +34,7 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
     """Aggregate figures of one roundabout's replay (module doc)."""
     rows = result["rows"]
     fde = max((c for c in rows.columns if c.startswith("de@")), key=lambda c: float(c[3:-1]))  # the last horizon
-    methods = {}
+    methods: dict[str, dict[str, Any]] = {}
     for m, g in rows.groupby("method", sort=False):
         methods[m] = {"med": float(g["med"].mean()), "med_se": _se(g["med"]),
                       "fde": float(g[fde].mean()), "fde_se": _se(g[fde])}

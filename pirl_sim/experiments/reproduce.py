@@ -136,7 +136,7 @@ def _passage_figures(cells, scenario, history_steps: int, out) -> dict:
 
     cells = [c for c in cells if c.experiment == "table"]
     spec = cells[0].spec()
-    data = scenario_spec(spec["scenario"]).build(spec["scenario_params"], spec["seed"])
+    data = scenario_spec(spec["scenario"]).build(spec["scenario_params"], spec["seed"])  # type: ignore[misc]
     model = data.model
 
     def fitted(cell):

@@ -194,10 +194,10 @@ def convert_param(kind: str, label: str, value, base_dir: Path | None, choices: 
             return None
         if not isinstance(value, (list, tuple)) or not value:
             raise ValueError(f"{label} must be a non-empty list of styles, got {value!r}")
-        out = []
+        out = []  # type: ignore[assignment]
         for i, s in enumerate(value):
             if isinstance(s, str):
-                out.append(s)
+                out.append(s)  # type: ignore[attr-defined]
                 continue
             if not isinstance(s, Mapping):
                 raise ValueError(f"{label}[{i}] must be a preset name or a table {{name, weight, mean, std}}")
@@ -213,7 +213,7 @@ def convert_param(kind: str, label: str, value, base_dir: Path | None, choices: 
                 if not isinstance(table, Mapping):
                     raise ValueError(f"{label}[{i}].{part} must be a table {{feature name = value}}")
                 entry[part] = {str(k): number(f"{label}[{i}].{part}[{k!r}]", v, finite=False) for k, v in table.items()}
-            out.append(entry)
+            out.append(entry)  # type: ignore[attr-defined]
         return out
     if kind == "table":
         if value is not None and not isinstance(value, Mapping):

@@ -63,7 +63,7 @@ def experiment_data(experiment: str, seed: int):
 
     if experiment.startswith("synthetic"):
         spread = {"position_range": (2.0, 8.0), "velocity_range": (-1.0, 1.0)} if experiment.endswith("spread") else {}
-        data = generate_synthetic(SyntheticConfig(seed=seed, **spread))
+        data = generate_synthetic(SyntheticConfig(seed=seed, **spread))  # type: ignore[arg-type]
         return data.model, data.train, data.test, None
     model, rng = synthetic_model(), np.random.default_rng(seed)
     if experiment == "lq-3-styles":  # Boltzmann-rational, spread starts
@@ -75,7 +75,7 @@ def experiment_data(experiment: str, seed: int):
     if experiment == "passage":
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            data = generate_passage(PassageConfig(seed=seed))
+            data = generate_passage(PassageConfig(seed=seed))  # type: ignore[assignment]
         return data.model, data.train, data.test, _style_means(data.train, 3, data.model.features.n_features)
     style = np.repeat([0, 1, 2], 50)  # lq-receding: LQ drivers who re-plan
     q = np.asarray(LQ_STYLE_Q)[style] * np.exp(rng.normal(0.0, 0.1, style.size))
@@ -193,7 +193,7 @@ def study_config(experiments, seeds) -> tuple[dict, list[str]]:
         knn = [(f"PIRL-kNN (k={few})", "pirl-knn", {"n_neighbors": few}),
                ("PIRL-kNN (k=50), likelihood", "pirl-knn", {"n_neighbors": 50, "weighting": "likelihood"})]
         if experiment == "passage":  # as reproduce passage
-            knn = [(name, key, {**p, "prior": "population"}) for name, key, p in knn]
+            knn = [(name, key, {**p, "prior": "population"}) for name, key, p in knn]  # type: ignore[dict-item]
         for protocol in (PAPER_PROTOCOL,) if experiment == "lq-receding" else (PAPER_PROTOCOL, ONLINE):
             learners = [("TIRL", "tirl", {}), *knn,
                         (f"PIRL-GMM (k={k}), features", "pirl-gmm", {"n_components": k}),
@@ -205,7 +205,7 @@ def study_config(experiments, seeds) -> tuple[dict, list[str]]:
                 learners.append((f"PIRL-GMM (k={k}), weights, random start", "pirl-gmm", {
                     "n_components": k, "space": "weights", "init": "random", "refine": RANDOM_START_PASSES}))
             if experiment == "lq-receding":  # the mixtures only, receding-horizon likelihood
-                learners = [(name, key, {**p, "likelihood": "receding", "horizon": 15})
+                learners = [(name, key, {**p, "likelihood": "receding", "horizon": 15})  # type: ignore[dict-item]
                             for name, key, p in learners[3:]]
             blocks.append({"scenario": "weight-space", "label": f"{experiment}, {protocol.name}",
                            "params": {"experiment": experiment}, "protocols": [dataclasses.asdict(protocol)],
@@ -287,7 +287,8 @@ def write_study(rows: list[dict], names: list[str], out, command: str) -> pd.Dat
 
     drawn = [(r["futures"], r["seed"]) for r, n in zip(rows, names) if n == FIGURE_LEARNER and "futures" in r]
     for f, seed in drawn[:1]:
-        png = futures_figure(PassageConfig().model(), f["true"], f["states"], f["proba"], ONLINE.history_steps, seed)
+        png = futures_figure(PassageConfig().model(), f["true"], f["states"], f["proba"],
+                             ONLINE.history_steps, seed)  # type: ignore[arg-type]
         atomic_write_bytes(out / "futures.png", png)
     table = pd.DataFrame([{**{k: np.nan if v is None else v for k, v in r.items()}, "learner": n}
                           for r, n in zip(rows, names)])

@@ -185,7 +185,7 @@ def _lenient_row(row: list[str], n: int) -> list | None:
             out.append(text)
         else:
             try:
-                value = float(text)
+                value = float(text)  # type: ignore[assignment]
             except ValueError:
                 return None
             if not np.isfinite(value) or (name in _SIZE_LIMITS and not 0.0 < value <= _SIZE_LIMITS[name]):
@@ -240,7 +240,7 @@ def split_tracks(df: pd.DataFrame) -> dict[int, pd.DataFrame]:
     """
     _require_columns(df, ("track_id", "frame_id"))
     return {
-        (track_id if isinstance(track_id, str) else int(track_id)):
+        (track_id if isinstance(track_id, str) else int(track_id)):  # type: ignore[misc]
             rows.sort_values("frame_id", kind="stable").reset_index(drop=True)
         for track_id, rows in df.groupby("track_id", sort=True)
     }

@@ -415,7 +415,7 @@ class RouteMatch:
     offsets: np.ndarray = field(repr=False)
     max_offset: float
     n_off_map: int
-    unconnected: np.ndarray = field(default=None, repr=False)
+    unconnected: np.ndarray = field(default=None, repr=False)  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         if self.unconnected is None:
@@ -610,7 +610,7 @@ def _route_centerline(idx: _MatchIndex, route: Sequence[int], switch: Sequence[n
     for k in range(1, len(route)):
         if switch[k] is None:
             continue
-        q = switch[k][None, :]
+        q = switch[k][None, :]  # type: ignore[index]
         a, b = route[k - 1], route[k]
         end[k - 1] = float(_project(q, idx.lines[a], idx.cums[a])[1][0])
         start[k] = float(_project(q, idx.lines[b], idx.cums[b])[1][0])
@@ -717,7 +717,8 @@ def write_map(
         offsets = _left_offsets(line, half)
         left, right = [], []
         for i, p in enumerate(line):
-            key = ("start", name) if i == 0 else ("end", name) if i == len(line) - 1 else None
+            key = (("start", name) if i == 0  # type: ignore[assignment]
+                   else ("end", name) if i == len(line) - 1 else None)
             if key is not None and key in parent:
                 root = find(key)
                 if root not in joint_nodes:
@@ -776,7 +777,7 @@ def _checked_centerlines(centerlines: Mapping[str, np.ndarray]) -> dict[str, np.
 
 
 def _checked_successors(successors: Mapping[str, Sequence[str]], lines: Mapping[str, np.ndarray]):
-    links = []
+    links = []  # type: ignore[var-annotated]
     for a, nexts in successors.items():
         if isinstance(nexts, str):
             raise ValueError(f"successors[{a!r}] must be a list of lane names, got the string {nexts!r}")

@@ -51,7 +51,7 @@ def loads(text: str, source: str) -> dict[str, Any]:
         if depth > MAX_DEPTH:
             raise ValueError(too_deep)
         items = value.values() if isinstance(value, dict) else value
-        todo.extend((v, depth + 1) for v in items if isinstance(v, (dict, list)))
+        todo.extend((v, depth + 1) for v in items if isinstance(v, (dict, list)))  # type: ignore[misc]
     return data
 
 

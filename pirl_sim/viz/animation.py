@@ -117,7 +117,7 @@ def iter_scene_frames(tracks, *, start_s: float | None = None, end_s: float | No
     return _iterate(schedule, view.render, progress, "drawing frames")
 
 
-def _iterate(items: Sequence, draw: Callable, progress: Progress, desc: str) -> Iterator[np.ndarray]:
+def _iterate(items: Sequence | np.ndarray, draw: Callable, progress: Progress, desc: str) -> Iterator[np.ndarray]:
     step, close = _progress(progress, len(items), desc)
 
     def frames():

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from matplotlib import colormaps
-from matplotlib.colors import Normalize, to_rgba
+from matplotlib.colors import Colormap, Normalize, to_rgba
 
 __all__ = ["distinct_colors", "color_rows", "RowColors", "MISSING_COLOR", "SPEED"]
 
@@ -65,7 +65,7 @@ class RowColors:
     rgba: np.ndarray
     label: str = ""
     legend: tuple = ()
-    cmap: object = None
+    cmap: Colormap | None = None
     norm: Normalize | None = None
 
 

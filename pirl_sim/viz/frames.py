@@ -34,6 +34,8 @@ class TrackFrames:
     dt_ms, t0_ms : float                      time between frames (100 for one frame), time of ``first_frame`` [ms]
     """
 
+    table: pd.DataFrame
+
     def __init__(self, tracks: pd.DataFrame) -> None:
         if isinstance(tracks, TrackFrames):
             tracks = tracks.table

@@ -7,6 +7,8 @@ with it.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from matplotlib.collections import PolyCollection
 
@@ -47,7 +49,7 @@ class LiveView:
             x0, y0, x1, y1 = road.bounds
             extent = (x0 - _MARGIN_M, x1 + _MARGIN_M, y0 - _MARGIN_M, y1 + _MARGIN_M)
         fit_equal_aspect(self.ax, check_extent(extent))
-        self._background = None
+        self._background: Any = None  # the Agg canvas's saved region
 
     def render(self, x, y, psi, length, width, colors, time: float | None = None) -> np.ndarray:
         """The road with one box per vehicle, as ``(H, W, 3)`` uint8.
@@ -67,8 +69,9 @@ class LiveView:
         """
         x = np.asarray(x, dtype=float)
         colors = np.asarray(colors, dtype=float).reshape(len(x), -1)
-        self._boxes.set_verts(box_corners(x, np.asarray(y, dtype=float), np.asarray(psi, dtype=float),
-                                          np.asarray(length, dtype=float), np.asarray(width, dtype=float)))
+        corners = box_corners(x, np.asarray(y, dtype=float), np.asarray(psi, dtype=float),
+                              np.asarray(length, dtype=float), np.asarray(width, dtype=float))
+        self._boxes.set_verts(corners)  # type: ignore[arg-type]  # an (n, 4, 2) array of polygons
         self._boxes.set_facecolor(colors)
         self._clock.set_text("" if time is None else f"t = {time:.1f} s")
         canvas = self.figure.canvas
@@ -78,8 +81,8 @@ class LiveView:
             canvas.draw()
             self._boxes.set_visible(True)
             self._clock.set_visible(True)
-            self._background = canvas.copy_from_bbox(self.figure.bbox)
-        canvas.restore_region(self._background)
+            self._background = canvas.copy_from_bbox(self.figure.bbox)  # type: ignore[attr-defined]  # Agg canvas
+        canvas.restore_region(self._background)  # type: ignore[attr-defined]
         self.ax.draw_artist(self._boxes)
         self.ax.draw_artist(self._clock)
         return figure_to_array(self.figure, draw=False)

@@ -187,7 +187,7 @@ class PredictionView:
             if window.track_id is not None:
                 rows = rows[f.track_id[rows] != window.track_id]
             verts = box_corners(f.x[rows], f.y[rows], f.psi[rows], f.length[rows], f.width[rows])
-        self._others.set_verts(verts)
+        self._others.set_verts(verts)  # type: ignore[arg-type]  # an (n, 4, 2) array of polygons
         self._clock.set_text("" if window.time_s is None else f"t = {window.time_s:.1f} s")
         self._clock.set_visible(window.time_s is not None)
         handles = [self._history] + ([self._future] if window.future is not None else []) + self._modes[:window.k]

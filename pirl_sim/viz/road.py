@@ -7,6 +7,7 @@ line collections (one artist per marking style), so a road of thousands of point
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -97,9 +98,11 @@ def draw_road(ax, road: Road, *, centerlines: bool = True, zorder: float = 1.0) 
     if not isinstance(road, Road):
         raise TypeError(f"road must be a pirl_sim.viz.Road (see pirl_sim.viz.road_sources), got {type(road).__name__}")
     artists = []
-    groups = [("centerline", road.centerlines)] if centerlines and road.centerlines else []
+    groups: list[tuple[str, Sequence[np.ndarray]]] = []
+    if centerlines and road.centerlines:
+        groups.append(("centerline", road.centerlines))
     for style in BOUNDARY_STYLES:
-        lines = [b for b, s in zip(road.boundaries, road.styles) if s == style]
+        lines: Sequence[np.ndarray] = [b for b, s in zip(road.boundaries, road.styles) if s == style]
         if lines:
             groups.append((style, lines))
     for role, lines in groups:

@@ -8,6 +8,8 @@ cached background (road, whole tracks, legend, axes), which is what makes animat
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
@@ -95,7 +97,7 @@ class SceneView:
             segs, start = track_segments(self.frames)
             faint = self.colors.rgba[start].copy()
             faint[:, 3] = 0.35
-            ax.add_collection(LineCollection(segs, colors=faint, linewidths=0.8, zorder=2))
+            ax.add_collection(LineCollection(segs, colors=faint, linewidths=0.8, zorder=2))  # type: ignore[arg-type]
         self._boxes = PolyCollection([], closed=True, edgecolors="black", linewidths=0.6, zorder=4)
         self._trails = LineCollection([], linewidths=2.0, zorder=3, capstyle="round")
         ax.add_collection(self._trails, autolim=False)
@@ -112,8 +114,8 @@ class SceneView:
         self._clock = ax.text(0.5 * box_w, 1.0 - 0.5 * box_h, "", transform=ax.transAxes, ha="center", va="center",
                               fontsize="small", zorder=6, clip_on=True)
         self._dynamic = (self._trails, self._boxes, self._clock)
-        self._background = None
-        self._background_key = None
+        self._background: Any = None  # the Agg canvas's saved region
+        self._background_key: tuple[tuple[int, int], float] | None = None
         self.frame: int | None = None
 
     def _set_extent(self, road: Road | None, extent) -> None:
@@ -141,8 +143,9 @@ class SceneView:
         """
         f = self.frames
         rows = f.rows(frame)
-        self._boxes.set_verts(box_corners(f.x[rows], f.y[rows], f.psi[rows], f.length[rows], f.width[rows]))
-        self._boxes.set_facecolor(self.colors.rgba[rows])
+        corners = box_corners(f.x[rows], f.y[rows], f.psi[rows], f.length[rows], f.width[rows])
+        self._boxes.set_verts(corners)  # type: ignore[arg-type]  # an (n, 4, 2) array of polygons
+        self._boxes.set_facecolor(self.colors.rgba[rows])  # type: ignore[arg-type]
         if self._trail_frames > 0:
             lines, last = track_polylines(f, f.rows_between(frame - self._trail_frames, frame))
             self._trails.set_segments(lines)
@@ -170,9 +173,9 @@ class SceneView:
             canvas.draw()
             for artist in self._dynamic:
                 artist.set_visible(True)
-            self._background = canvas.copy_from_bbox(self.figure.bbox)
+            self._background = canvas.copy_from_bbox(self.figure.bbox)  # type: ignore[attr-defined]  # Agg canvas
             self._background_key = key
-        canvas.restore_region(self._background)
+        canvas.restore_region(self._background)  # type: ignore[attr-defined]
         for artist in self._dynamic:
             self.ax.draw_artist(artist)
         return figure_to_array(self.figure, draw=False)

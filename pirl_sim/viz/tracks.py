@@ -105,7 +105,8 @@ def draw_tracks(ax, tracks, *, color_by=None, categorical: bool | None = None, c
     frames = tracks if isinstance(tracks, TrackFrames) else TrackFrames(tracks)
     colors = color_rows(frames.table, color_by, categorical=categorical, cmap=cmap, vmin=vmin, vmax=vmax, label=label)
     segs, start = track_segments(frames)
-    coll = LineCollection(segs, colors=colors.rgba[start], linewidths=linewidth, zorder=zorder, capstyle="round")
+    coll = LineCollection(segs,  # type: ignore[arg-type]  # an (n, 2, 2) array of segments
+                          colors=colors.rgba[start], linewidths=linewidth, zorder=zorder, capstyle="round")
     ax.add_collection(coll, autolim=True)
     ax.autoscale_view()
     if explain:

@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+from typing import IO, Any
 
 import numpy as np
 
@@ -108,7 +109,7 @@ class GifWriter(_Writer):
 
     def __init__(self, path, fps: float) -> None:
         super().__init__(path, fps)
-        self._frames = []
+        self._frames: list[Any] = []  # PIL images
 
     def _append(self, arr: np.ndarray) -> None:
         from PIL import Image
@@ -134,12 +135,13 @@ class Mp4Writer(_Writer):
     suffix = ".mp4"
 
     def __init__(self, path, fps: float) -> None:
-        self._exe = shutil.which("ffmpeg")
-        if self._exe is None:
+        exe = shutil.which("ffmpeg")
+        if exe is None:
             raise RuntimeError(_NO_FFMPEG.format(name=Path(path).name))
+        self._exe: str = exe
         super().__init__(path, fps)
-        self._proc = None
-        self._log = None
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._log: IO[bytes] | None = None
 
     def _append(self, arr: np.ndarray) -> None:
         if self._proc is None:
@@ -149,12 +151,14 @@ class Mp4Writer(_Writer):
                    "-r", f"{self.fps:g}", "-i", "-", "-an", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",
                    "-c:v", "libx264", "-preset", "veryfast", "-pix_fmt", "yuv420p", "-f", "mp4", str(self._tmp)]
             self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log)
+        assert self._proc.stdin is not None  # stdin=PIPE
         try:
             self._proc.stdin.write(np.ascontiguousarray(arr).tobytes())
         except BrokenPipeError:
             self._fail()
 
     def _finish(self) -> None:
+        assert self._proc is not None and self._proc.stdin is not None and self._log is not None  # a frame came
         self._proc.stdin.close()
         self._proc.wait(timeout=_FFMPEG_TIMEOUT_S)
         if self._proc.returncode != 0:
@@ -162,6 +166,7 @@ class Mp4Writer(_Writer):
         self._log.close()
 
     def _fail(self) -> None:
+        assert self._proc is not None and self._log is not None  # ffmpeg was started
         self._proc.kill()
         self._proc.wait()
         self._log.seek(0)

@@ -225,7 +225,7 @@ def run_highway_scenario(config: HighwayScenarioConfig | None = None, seed: int 
     out_dir : str or os.PathLike, optional     where to write the recording, once the simulation has finished
     progress : callable, optional              ``progress(time_s, n_finished, n_vehicles)``, every simulated second
     """
-    return run_scenario(HighwayAdapter(), config, seed, out_dir=out_dir, progress=progress)
+    return run_scenario(HighwayAdapter(), config, seed, out_dir=out_dir, progress=progress)  # type: ignore[arg-type]
 
 
 class HighwayAdapter:
@@ -301,7 +301,7 @@ class _HighwaySimulation:
             np_random=np_random, record=self.record, record_history=self.record_history)
         self.controller = traffic.controller
         if self.wrap_controller is not None:
-            traffic.controller = self.wrap_controller(self.controller)
+            traffic.controller = self.wrap_controller(self.controller)  # type: ignore[assignment]
         ego = self.ego_spec
         if ego is not None:
             route_s = min(ego.route_s, catalogue[ego.route_id].length - EGO_END_MARGIN)

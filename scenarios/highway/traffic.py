@@ -443,7 +443,7 @@ class RoundaboutTraffic(Road):
             free = all(not (isinstance(v, RouteFollowing) and v.lane_index[:2] == first and v.lane_s < need)
                        for v in self.vehicles)
             if not free:
-                blocked.add(first)
+                blocked.add(first)  # type: ignore[arg-type]
                 keep.append(d)
                 continue
             kind = PIRL if d.is_pirl else BACKGROUND
@@ -489,14 +489,14 @@ class RoundaboutTraffic(Road):
         for o in merging:
             if o is v:
                 continue
-            m = route.start_pos.get(o.route_lanes.merge_node)
+            m = route.start_pos.get(o.route_lanes.merge_node)  # type: ignore[assignment]
             if m is not None and m > k:  # the node is ahead of v on its route
                 d = route.offsets[m] - o.merge_distance - s
                 if 0.0 < d < best_d:
                     best_d, best = d, o
         if best is None:
             return None, 0.0
-        return best_d - 0.5 * (v.LENGTH + best.LENGTH), best.speed
+        return best_d - 0.5 * (v.LENGTH + best.LENGTH), best.speed  # type: ignore[attr-defined]
 
     def _must_yield(self, v: RouteFollowing, others: list) -> bool:
         """Gap acceptance at ``v``'s merge node (see the module docstring); updates ``v.committed``."""
@@ -506,7 +506,7 @@ class RoundaboutTraffic(Road):
             return False
         node = v.route_lanes.merge_node
         upstream = self._upstream[node]
-        t_clear = _time_to_cover(d + v.LENGTH, v.speed, rules.entry_acceleration)
+        t_clear = _time_to_cover(d + v.LENGTH, v.speed, rules.entry_acceleration)  # type: ignore[attr-defined]
         conflict = False
         for o in others:
             if o is v or o.crashed:
@@ -527,7 +527,7 @@ class RoundaboutTraffic(Road):
             if d_o < rules.yield_min_distance or d_o / max(o.speed, 0.1) < t_clear + rules.yield_headway:
                 conflict = True
                 break
-        stop_gap = d - 0.5 * v.LENGTH - self._stop_offset[node] - rules.stop_margin
+        stop_gap = d - 0.5 * v.LENGTH - self._stop_offset[node] - rules.stop_margin  # type: ignore[attr-defined]
         if stop_gap > 0.0:
             can_stop = v.speed ** 2 / (2.0 * stop_gap) <= rules.max_deceleration
         else:
@@ -547,11 +547,14 @@ class RoundaboutTraffic(Road):
             occupancy.merging.append(v)
         free = free_v0 is not None
         v0 = free_v0 if free else 1.0
-        a = idm_acceleration(v.speed, v0, gap, v_lead, delta=delta, free=free) if gap is not None \
-            else (idm_acceleration(v.speed, v0, delta=delta) if free else math.inf)
+        a = (idm_acceleration(v.speed, v0, gap, v_lead, delta=delta,  # type: ignore[arg-type]
+                              free=free) if gap is not None
+             else (idm_acceleration(v.speed, v0, delta=delta) if free else math.inf))  # type: ignore[arg-type]
         if v.yielding:
-            stop_gap = v.merge_distance - 0.5 * v.LENGTH - self._stop_offset[v.route_lanes.merge_node]
-            a = min(a, idm_acceleration(v.speed, v0, stop_gap, 0.0, delta=delta, s0=self.rules.stop_margin,
+            stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
+                        - self._stop_offset[v.route_lanes.merge_node])
+            a = min(a, idm_acceleration(v.speed, v0, stop_gap, 0.0, delta=delta,  # type: ignore[arg-type]
+                                        s0=self.rules.stop_margin,
                                         free=free))
         return a
 
@@ -574,15 +577,18 @@ class RoundaboutTraffic(Road):
                 continue
             track = self.tracks[v.vehicle_id]
             if v.kind == BACKGROUND:
-                a = self._limit(v, others, occupancy, free_v0=v.speed_factor * v_des[id(v)], delta=v.DELTA)
+                a = self._limit(v, others, occupancy,
+                                free_v0=v.speed_factor * v_des[id(v)], delta=v.DELTA)  # type: ignore[attr-defined]
             else:
                 cmd = commands.get(v.vehicle_id)
                 if cmd is None:  # handed back at a standstill: highway-env's IDM towards the desired speed
                     track.handed_back = True
-                    a = self._limit(v, others, occupancy, free_v0=v_des[id(v)], delta=v.DELTA)
+                    a = self._limit(v, others, occupancy, free_v0=v_des[id(v)],
+                                    delta=v.DELTA)  # type: ignore[attr-defined]
                 else:
                     a_cmd = (cmd - v.speed) / STEP_LENGTH
-                    a = min(a_cmd, self._limit(v, others, occupancy, free_v0=None, delta=v.DELTA))
+                    a = min(a_cmd, self._limit(v, others, occupancy, free_v0=None,
+                                               delta=v.DELTA))  # type: ignore[attr-defined]
                     self._commands[v.vehicle_id] = a_cmd
                     track.n_commands += 1
                     if a < a_cmd - tol:
@@ -627,8 +633,8 @@ class RoundaboutTraffic(Road):
         self.time = round(self.frame * STEP_LENGTH, 9)
         delay = self.rules.crash_removal_delay
         keep = []
-        for v in self.vehicles:
-            track = self.tracks.get(getattr(v, "vehicle_id", None))
+        for v in self.vehicles:  # type: ignore[has-type]
+            track = self.tracks.get(getattr(v, "vehicle_id", None))  # type: ignore[arg-type]
             if track is None:
                 keep.append(v)
                 continue
@@ -636,14 +642,15 @@ class RoundaboutTraffic(Road):
                 track.collided, track.crash_time = True, self.time
             if v.kind != EGO and v.remaining <= 0.0:
                 track.status = "arrived"
-            elif v.kind != EGO and track.collided and delay is not None and self.time - track.crash_time >= delay - 1e-9:
+            elif (v.kind != EGO and track.collided and delay is not None
+                  and self.time - track.crash_time >= delay - 1e-9):  # type: ignore[operator]
                 track.status, track.removed_early = "vanished", True
             else:
                 keep.append(v)
         self.vehicles = keep
         if self.record:
             for v in keep:
-                track = self.tracks.get(getattr(v, "vehicle_id", None))
+                track = self.tracks.get(getattr(v, "vehicle_id", None))  # type: ignore[arg-type]
                 if track is None:
                     continue
                 track.n_frames += 1

@@ -101,13 +101,13 @@ def lanelet_routes(lmap, *, max_routes: int = 10_000) -> list[tuple[str, tuple[s
                 found.append(path)
                 if len(found) > max_routes:
                     raise ValueError(f"map {lmap.path}: more than {max_routes} entry-to-exit routes")
-            stack.extend((s, path + (s,)) for s in reversed(nxt))
+            stack.extend((s, path + (s,)) for s in reversed(nxt))  # type: ignore[misc]
     if not found:
         raise ValueError(f"map {lmap.path}: no route leads from an entry lanelet (no predecessor) to an exit "
                          "lanelet (no successor): is it a roundabout map with entries and exits?")
     found.sort()
-    out, seen = [], {}
-    for path in found:
+    out, seen = [], {}  # type: ignore[var-annotated]
+    for path in found:  # type: ignore[assignment]
         key = f"r{path[0]}_{path[-1]}"
         seen[key] = seen.get(key, 0) + 1
         out.append((key if seen[key] == 1 else f"{key}_{seen[key] - 1}", tuple(edge_id(l) for l in path)))
@@ -143,7 +143,7 @@ def _nodes(lmap, succ, tolerance: float):
     names = {root: f"n{k}" for k, root in enumerate(sorted(groups, key=str))}
     pos = {names[r]: np.mean(p, axis=0) for r, p in groups.items()}
     start = {lid: names[find(("start", lid))] for lid in lines}
-    end = {lid: names[find(("end", lid))] for lid in lines}
+    end = {lid: names[find(("end", lid))] for lid in lines}  # type: ignore[assignment]
     return start, end, pos
 
 

@@ -277,8 +277,10 @@ class Observation:
         ``__init__``): ``others`` is a view of ``states`` made on first access, the leader asked from ``run``
         on first access."""
         obs = object.__new__(cls)
-        obs.time, obs.vehicle_id, obs.ego, obs._others, obs._states = time, vehicle_id, states[vehicle_id], None, states
-        obs.route_edges, obs._leader, obs._leader_fn, obs._run = route_edges, None, _leader_from_run, run
+        obs.time, obs.vehicle_id, obs.ego, obs._others, obs._states = (
+            time, vehicle_id, states[vehicle_id], None, states)  # type: ignore[assignment]
+        obs.route_edges, obs._leader, obs._leader_fn, obs._run = (route_edges, None, _leader_from_run,
+                                                                  run)  # type: ignore[assignment]
         return obs
 
     @property
@@ -291,7 +293,8 @@ class Observation:
     def leader(self) -> tuple[str, float] | None:
         fn = self._leader_fn
         if fn is not None:
-            self._leader = self._run._leader(self.vehicle_id) if fn is _leader_from_run else fn()
+            self._leader = (self._run._leader(self.vehicle_id)  # type: ignore[attr-defined]
+                            if fn is _leader_from_run else fn())
             self._leader_fn = None
         return self._leader
 
@@ -460,7 +463,7 @@ class SumoRun:
 
         self.vehicles: list[VehicleSpec] = list(vehicles)
         seen: set[str] = set()
-        for v in self.vehicles:
+        for v in self.vehicles:  # type: ignore[assignment]
             if not isinstance(v, VehicleSpec):
                 raise ValueError(f"vehicles must be VehicleSpec instances, got {v!r}")
             if v.vehicle_id in seen:
@@ -696,7 +699,7 @@ class SumoRun:
                 observations[vid] = of_run(self, t, vid, frozen_states, self.routes[rec.spec.route_id])
             batch = None
             if observations and self._batch:
-                batch = self.controller.commands(t, MappingProxyType(observations))
+                batch = self.controller.commands(t, MappingProxyType(observations))  # type: ignore[union-attr]
                 if not isinstance(batch, Mapping):
                     raise ValueError(f"controller.commands returned {type(batch).__name__} at t = {t} s; "
                                      "expected a mapping vehicle id -> speed or None")
@@ -706,7 +709,8 @@ class SumoRun:
                                      f"about at t = {t} s: {stray}")
             for vid, obs in observations.items():
                 rec = self._veh[vid]
-                cmd = batch.get(vid) if batch is not None else self.controller(t, vid, obs)
+                cmd = (batch.get(vid) if batch is not None  # type: ignore[assignment]
+                       else self.controller(t, vid, obs))  # type: ignore[misc]
                 if cmd is None:
                     if rec.commanded:
                         api.vehicle.setSpeed(vid, -1.0)
@@ -793,8 +797,9 @@ class SumoRun:
 
     def recording(self) -> SumoRecording:
         """The recording so far as tidy DataFrames."""
-        cols = dict(zip(_FIXED_COLUMNS, zip(*self._rows))) if self._rows else {c: [] for c in _FIXED_COLUMNS}
-        cols.update(self._cols)
+        cols = dict(zip(_FIXED_COLUMNS,
+                        zip(*self._rows))) if self._rows else {c: [] for c in _FIXED_COLUMNS}  # type: ignore[misc]
+        cols.update(self._cols)  # type: ignore[arg-type]
         frame = pd.DataFrame({c: cols[c] for c in RECORD_COLUMNS})
         frame = frame.astype({
             "step": "int64", "time": "float64", "vehicle_id": "object", "route_id": "object", "pirl": "bool",

@@ -174,7 +174,7 @@ class SumoScenarioConfig:
     def route_catalogue(self) -> dict[str, tuple[str, ...]]:
         """Route id -> edge ids of every route of the scenario (not yet checked against a built network)."""
         if self.routes is not None:
-            return dict(self.routes)
+            return dict(self.routes)  # type: ignore[arg-type]
         return {rid: tuple(edges) for rid, edges in network_routes(self.network)}
 
     def to_dict(self) -> dict[str, Any]:
@@ -321,7 +321,8 @@ def run_sumo_scenario(config: SumoScenarioConfig | None = None, seed: int = 0, *
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    return run_scenario(SumoAdapter(backend), config, seed, out_dir=out_dir, progress=progress)
+    return run_scenario(SumoAdapter(backend), config, seed, out_dir=out_dir,  # type: ignore[arg-type]
+                        progress=progress)
 
 
 @dataclass(frozen=True)
@@ -370,7 +371,8 @@ class SumoAdapter:
     def result(self, config, seed, plan, sim: _SumoSimulation, recording, timing, files) -> SumoScenarioResult:
         drv = config.drivers
         learner_model = route_set_model(sim.routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max)
-        return SumoScenarioResult(config, seed, self.backend, plan, sim.sumo_recording, recording, sim.routes,
+        return SumoScenarioResult(config, seed, self.backend, plan, sim.sumo_recording,  # type: ignore[arg-type]
+                                  recording, sim.routes,
                                   learner_model, timing, files)
 
 
@@ -473,7 +475,8 @@ class _SumoSimulation:
             self.batch_controller = (self.controller if self.wrap_controller is None
                                      else self.wrap_controller(self.controller))
             self.run = SumoRun(files.net, built.catalogue, self.specs, pirl_ids=driven,
-                               controller=self.batch_controller, seed=self.seed, step_length=STEP_LENGTH,
+                               controller=self.batch_controller,  # type: ignore[arg-type]
+                               seed=self.seed, step_length=STEP_LENGTH,
                                backend=self.backend, speed_mode=config.speed_mode, override_tol=config.override_tol,
                                collision_action=config.collision_action, speed_modes=speed_modes,
                                extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true"))
