@@ -130,8 +130,8 @@ class Calibration:
                                      "control_noise": 0.0, "styles": self.styles()}, source="calibrated population")
 
     def scenario_toml(self, source: str = "", n_vehicles: int = 80, background_share: float = 0.0) -> str:
-        """A scenario TOML (``[drivers]``: the fitted desired speed and the fit's horizon; ``[population]``) that
-        ``pirl-sim simulate sumo|highway --scenario`` reads; comments give the fit's figures."""
+        """A scenario TOML (``[drivers]``: the fitted desired speed, insertion at its cap, the fit's horizon;
+        ``[population]``) that ``pirl-sim simulate sumo|highway --scenario`` reads; comments give the figures."""
         pop = self.population(n_vehicles, background_share).to_dict()
         capped = int((self.style_log_var > LOG_VAR_MAX).any(axis=1).sum())
         lines = [f"# pirl_sim population calibrated on {source or 'a recording'}: {self.n_cars} cars, "
@@ -142,8 +142,9 @@ class Calibration:
                  f"acc_sq {self.at_bound[:, 1].mean():.0%}; converged fits {self.converged.mean():.0%}; styles "
                  f"whose log variance was capped at {LOG_VAR_MAX:g}: {capped}",
                  "", "[drivers]", f"horizon = {self.horizon}",
-                 f"a_lat = {self.a_lat!r}   # [m/s^2] fitted to the recorded speeds",
-                 f"v_max = {self.v_max!r}   # [m/s]", "", "[population]"]
+                 f"a_lat = {self.a_lat!r}   # [m/s^2] the desired speed's lateral-acceleration limit",
+                 f"v_max = {self.v_max!r}   # [m/s] and speed cap",
+                 f"depart_speed = {self.v_max!r}   # [m/s] at insertion: the speed cap", "", "[population]"]
         lines += [f"{k} = {_toml(pop[k])}" for k in ("n_vehicles", "depart_interval", "arrivals", "background_share",
                                                          "control_noise")]
         for style, order in zip(pop["styles"], np.argsort(-self.style_share, kind="stable")):

@@ -56,7 +56,8 @@ def test_the_scenario_toml_is_read_by_both_simulators_with_the_calibrated_styles
     path.write_text(cal.scenario_toml("f.csv", n_vehicles=40, background_share=0.1))
     for load in (load_sumo, load_highway):
         config = load(path)
-        assert (config.drivers.a_lat, config.drivers.v_max, config.drivers.horizon) == (1.7, 12.5, 30)
+        drivers = config.drivers
+        assert (drivers.a_lat, drivers.v_max, drivers.depart_speed, drivers.horizon) == (1.7, 12.5, 12.5, 30)
         pop = config.population
         assert (pop.n_vehicles, pop.background_share, pop.arrivals.value) == (40, 0.1, "poisson")
         assert pop.depart_interval == pytest.approx(6.0)  # 600 cars per hour
