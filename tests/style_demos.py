@@ -1,7 +1,8 @@
 """Demonstrations of drivers with known styles that several learner test modules fit (tests/learners,
-tests/evaluation): plain functions; the module fixtures built from them (``styles_data``, ``fitted``,
-``three_styles``) are in tests/conftest.py. Test modules ``from style_demos import ...`` (tests/conftest.py puts
-tests/ on sys.path)."""
+tests/evaluation, tests/core): plain functions; the module fixtures built from them (``styles_data``, ``fitted``,
+``three_styles``) are in tests/conftest.py, the test modules' ``passage`` fixtures call `roundabout_passages`; and
+`assert_pirl_gmm_finds_the_styles`, the simulated scenarios' clustering check (tests/scenarios/highway, sumo). Test
+modules ``from style_demos import ...`` (tests/conftest.py puts tests/ on sys.path)."""
 
 import numpy as np
 
@@ -28,6 +29,43 @@ def three_style_demonstrations(seed, n, n_steps, n_train):
     x0 = np.column_stack([rng.uniform(2.0, 8.0, n), rng.uniform(-1.0, 1.0, n)])
     demos = generate_demonstrations(model, three_style_population(model, 100.0), x0, n_steps, rng)
     return model, demos[:n_train], demos[n_train:]
+
+
+def roundabout_passages(n_trajectories=240, n_train=200, seed=1, **config):
+    """A generated roundabout passage (`pirl_sim.scenarios.passage.generate`: drivers of its known styles), its
+    UserWarnings silenced: ``n_trajectories`` passages, the first ``n_train`` for training; ``config``: other
+    `PassageConfig` fields."""
+    import warnings
+
+    from pirl_sim.scenarios.passage import PassageConfig, generate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return generate(PassageConfig(n_trajectories=n_trajectories, n_train=n_train, seed=seed, **config))
+
+
+def assert_pirl_gmm_finds_the_styles(demos, routes, ground_truth, dt, ari_target):
+    """``demos``, a simulated scenario's PIRL tracks without interaction, are at least 24, at least 5 of each of the
+    three styles, and PIRL-GMM with three components (on `route_set_model` of ``routes`` at step ``dt`` [s]) clusters
+    them into their true styles with an adjusted Rand index >= ``ari_target``; prints the counts (``ground_truth``:
+    the recording's table of all tracks) and the index."""
+    import warnings
+
+    from pirl_sim.learners import PIRLGMM
+    from pirl_sim.metrics import adjusted_rand_index
+    from pirl_sim.scenarios.drivers import route_set_model
+
+    truth = np.array([d.metadata["style"] for d in demos])
+    counts = np.bincount(truth, minlength=3)
+    print(f"\n{len(ground_truth)} tracks, {int(ground_truth['is_pirl'].sum())} PIRL, {len(demos)} without "
+          f"interaction (per style {counts.tolist()})")
+    assert len(demos) >= 24 and counts.min() >= 5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # IRL convergence warnings: weights are not what this test checks
+        gmm = PIRLGMM(route_set_model(routes, dt=dt), n_components=3, random_state=0).fit(demos)
+    ari = adjusted_rand_index(truth, gmm.labels_)
+    print(f"ARI of PIRL-GMM (k=3) clusters vs the true styles: {ari:.3f}")
+    assert ari >= ari_target
 
 
 def _phase(model, x0, theta, n):

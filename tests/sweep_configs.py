@@ -3,9 +3,11 @@ of the helpers that parse them. Test modules ``from sweep_configs import ...`` (
 sys.path; under --import-mode=importlib a test module cannot import another test module).
 
 - `TINY`: a small synthetic sweep (2 seeds x 2 protocols x 4 learner variants = 16 cells), parsed by `sweep_config`;
+  its one experiment table, `TINY_EXPERIMENT`;
 - `BAD`: configs derived from `TINY` that fail, each with the message that names its problem;
 - `TINY_PASSAGE`: a passage sweep of paper and online cells, parsed and keyed by `passage_cells`;
-- `TINY_LOG`: a one-cell synthetic sweep (TIRL, seed 0) for the command line's logging.
+- `TINY_LOG`: a one-cell synthetic sweep (TIRL, seed 0) for the command line's logging;
+- `sweep_toml`: the TOML text of a sweep from its name, seeds and experiment tables (the layout of all of them).
 """
 
 from __future__ import annotations
@@ -14,17 +16,24 @@ import tomllib
 
 from pirl_sim.engine import parse_config
 
-TINY = """
-name = "tiny"
-seeds = [0, 1]
 
-[[experiments]]
+def sweep_toml(name: str | None, seeds, *experiments: str) -> str:
+    """The TOML text of a sweep config: its ``name`` line (none where ``name`` is None) and ``seeds`` line, then an
+    ``[[experiments]]`` table of each of ``experiments`` (the table's own lines: scenario, params, protocols,
+    learners, ...), a blank line before each table."""
+    head = ("" if name is None else f'name = "{name}"\n') + f"seeds = {list(seeds)}\n"
+    return "\n" + head + "".join(f"\n[[experiments]]\n{table.strip()}\n" for table in experiments)
+
+
+#: the experiment table of `TINY` (the Dask test's sweep runs it too): 2 protocols x 4 learner variants per seed
+TINY_EXPERIMENT = """
 scenario = "synthetic"
 params = { n_trajectories = 80, n_train = 60 }
 protocols = ["paper", { kind = "online", history_steps = 10 }]
 learners = ["tirl", { name = "pirl-gmm", params = { n_components = 2 } },
             { name = "pirl-knn", grid = { n_neighbors = [1, 4] } }]
 """
+TINY = sweep_toml("tiny", [0, 1], TINY_EXPERIMENT)
 
 
 def sweep_config(text: str = TINY, **kw):
@@ -78,11 +87,7 @@ BAD = {
 }
 
 
-TINY_PASSAGE = """
-name = "tiny online"
-seeds = [1]
-
-[[experiments]]
+TINY_PASSAGE = sweep_toml("tiny online", [1], """
 scenario = "passage"
 params = { n_trajectories = 60, n_train = 45 }
 protocols = ["paper", { kind = "online", history_steps = 10 }]
@@ -90,7 +95,7 @@ learners = [
     "tirl",
     { name = "pirl-gmm", label = "PIRL-GMM in weight space", params = { n_components = 3, space = "weights" } },
 ]
-"""
+""")
 
 
 def passage_cells():
@@ -99,13 +104,9 @@ def passage_cells():
     return {(c.protocol["kind"], c.learner_label): c for c in cfg.cells}, cfg
 
 
-TINY_LOG = """
-name = "tiny-log"
-seeds = [0]
-
-[[experiments]]
+TINY_LOG = sweep_toml("tiny-log", [0], """
 scenario = "synthetic"
 params = { n_trajectories = 80, n_train = 60 }
 protocols = ["paper"]
 learners = ["tirl"]
-"""
+""")

@@ -1,5 +1,6 @@
 """Hypothesis pieces of the fuzz tests of TOML configs (sweep configs, population configs): one copy of the settings,
-the value strategies and the mutation of a parsed config. Test modules ``from toml_fuzz import ...`` after their
+the value strategies and the mutation of a parsed config; and, for those of every file reader (TOML configs, track
+files, maps), `read_or_error_naming_it`. Test modules ``from toml_fuzz import ...`` after their
 ``pytest.importorskip("hypothesis")`` (tests/conftest.py puts tests/ on sys.path)."""
 
 from __future__ import annotations
@@ -32,3 +33,13 @@ def mutated_mapping(draw, base, keys: list[str]):
         else:
             base[draw(st.text(min_size=1, max_size=6))] = draw(TOML_VALUE)
     return base
+
+
+def read_or_error_naming_it(read, path):
+    """(True, ``read(path)``), or (False, None) where ``read`` raises a ValueError: the error must name ``path`` (an
+    assertion fails where it does not)."""
+    try:
+        return True, read(path)
+    except ValueError as exc:
+        assert str(path) in str(exc)
+        return False, None

@@ -16,23 +16,10 @@ from .common import add_blas_threads_option
 
 __all__ = ["main", "build_parser", "package_version", "cli_logging", "COMMANDS"]
 
-#: the subcommands in the order of ``pirl-sim --help``: name -> module
-COMMANDS = {
-    "reproduce": reproduce,
-    "simulate": simulate,
-    "show": show,
-    "sweep": sweep,
-    "report": report,
-    "recover": recover,
-    "replay": replay,
-    "fit-model": fit_model,
-    "predict": predict,
-    "realism": realism,
-    "calibrate": calibrate,
-    "agents": agents,
-    "policy-recovery": policy_recovery,
-    "weight-space": weight_space,
-}
+#: the subcommands in the order of ``pirl-sim --help``: name (the module's, ``-`` for ``_``) -> module
+COMMANDS = {module.__name__.rpartition(".")[2].replace("_", "-"): module for module in (
+    reproduce, simulate, show, sweep, report, recover, replay, fit_model, predict, realism, calibrate, agents,
+    policy_recovery, weight_space)}
 
 
 def package_version() -> str:
@@ -85,8 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action=_VersionAction, help="show program's version number and exit")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log progress and details (INFO) on stderr, not only warnings")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in COMMANDS.values():
         module.add_parser(sub)
     add_blas_threads_option(parser)  # every command; the policy: pirl_sim.threads

@@ -8,9 +8,11 @@ from pathlib import Path
 
 from pirl_sim.validation import list_arg, positive_int_arg
 
-from .common import command_line, error, optional_arg
+from .common import command_line, error, finish, optional_arg, print_plan, subcommand
 
-__all__ = ["add_parser", "run", "MODES", "ACTIONS", "BASELINES", "DEFAULT_SCALES", "DEFAULTS"]
+__all__ = ["add_parser", "run", "DEFAULT_OUT", "MODES", "ACTIONS", "BASELINES", "DEFAULT_SCALES", "DEFAULTS"]
+
+DEFAULT_OUT = Path("results") / "agents"
 
 # Named here so that building the parser imports neither the env nor the study (a test checks they agree):
 MODES = ("none", "truth", "inferred")  #: `pirl_sim.experiments.agents.MODES`
@@ -26,29 +28,22 @@ DEFAULTS = {"action": "idm-speed", "direct_modes": ("none",), "max_change": 0.05
             "select_episodes": 10}
 
 
-def add_parser(subparsers) -> None:
-    """Add ``agents`` to the command's subparsers."""
+@subcommand("agents", help="PPO agents in a crowd of known styles against scripted egos (resumable)",
+            description="Agents in a crowd of known styles: PPO on ``pirl_sim/Roundabout-v0`` per observation mode, "
+            "against scripted egos.")
+def add_parser(ap) -> None:
+    """The options of ``agents``."""
     d = DEFAULTS
-    ap = subparsers.add_parser(
-        "agents",
-        help="PPO agents in a crowd of known styles against scripted egos (resumable)",
-        description="Agents in a crowd of known styles: PPO on ``pirl_sim/Roundabout-v0`` per observation mode, "
-                    "against scripted egos.",
-    )
-    ap.add_argument("--out", type=Path, default=Path("results") / "agents",
-                    help="output directory (default results/agents)")
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     ap.add_argument("--modes", type=list_arg(str, empty=True), default=MODES, help="observation modes, e.g. none,truth")
     ap.add_argument("--action", default=d["action"], help=f"PPO's action, one of {ACTIONS}")
     ap.add_argument("--direct-modes", type=list_arg(str, empty=True), default=d["direct_modes"],
                     help="modes in which PPO also learns the direct action (default none; '' for no such run)")
-    ap.add_argument("--residual-scale", type=float, default=None,
-                    help="largest residual correction in action units, or with idm-speed the largest change of the "
-                         f"desired-speed factor (default per action: {DEFAULT_SCALES})")
+    ap.add_argument("--residual-scale", type=float, help="largest residual correction in action units, or with "
+                    f"idm-speed the largest change of the desired-speed factor (default per action: {DEFAULT_SCALES})")
     ap.add_argument("--max-change", type=optional_arg(float, "a number"), default=d["max_change"],
-                    help="largest change of the residual (or factor) per agent step, or 'none' "
-                         "(default %(default)s)")
-    ap.add_argument("--seeds", type=list_arg(int, empty=True), default=d["seeds"],
-                    help="training seeds, e.g. 0,1,2")
+                    help="largest change of the residual (or factor) per agent step, or 'none' (default %(default)s)")
+    ap.add_argument("--seeds", type=list_arg(int, empty=True), default=d["seeds"], help="training seeds, e.g. 0,1,2")
     ap.add_argument("--steps", type=int, default=d["steps"], help="PPO steps per run")
     ap.add_argument("--episodes", type=int, default=d["episodes"],
                     help="evaluation episodes (env seeds --eval-seed, --eval-seed + 1, ...)")
@@ -92,12 +87,8 @@ def run(args) -> int:
         return error(exc)
     if args.dry_run:
         from pirl_sim.engine.presets import agents_config
-        from pirl_sim.engine.run import plan_cells
-        from pirl_sim.engine.store import ResultStore
 
-        _, _, unique, records, _ = plan_cells(agents_config(cfg), ResultStore(args.out))
-        print(f"agents experiment: {len(unique)} runs, {len(records)} already in {args.out}/, "
-              f"{len(unique) - len(records)} to run")
+        print_plan(agents_config(cfg), args.out, "agents experiment", unit="runs")
         return 0
     import pandas as pd
 
@@ -109,6 +100,5 @@ def run(args) -> int:
     with blas_threads(1):
         result = run_agents(cfg, args.out, workers=args.workers, progress=not args.quiet, command=command)
         files = write_results(cfg, result, args.out, command)
-    print(markdown_table(pd.read_csv(files["table"])))
-    print(f"wrote {', '.join(str(p) for p in files.values())} ({result.wall_time_s:.0f} s)")
-    return 0
+    return finish(f"{', '.join(str(p) for p in files.values())} ({result.wall_time_s:.0f} s)",
+                  markdown_table(pd.read_csv(files["table"])))

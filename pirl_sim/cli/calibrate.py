@@ -5,37 +5,30 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pirl_sim.validation import positive_int_arg, seed_arg
+from pirl_sim.validation import positive_int_arg
 
-from .common import add_track_options, error
+from .common import add_seed_option, add_track_options, error, finish, reworded, subcommand, track_files
 
 __all__ = ["add_parser", "run"]
 
 
 def _share(text: str) -> float:
-    import argparse
-
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
+    """A number in [0, 1] (ValueError otherwise)."""
+    value = float(text)
     if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be a number in [0, 1], got {text!r}")
+        raise ValueError(text)
     return value
 
 
-def add_parser(subparsers) -> None:
-    """Add ``calibrate`` to the command's subparsers."""
-    p = subparsers.add_parser(
-        "calibrate",
-        help="fit a driver population to a recording; write a scenario TOML for simulate",
-        description="Fit a population of PIRL drivers to recorded cars (INTERACTION track files on their Lanelet2 "
-        "map): the desired speed's a_lat and v_max, one weight vector per car by the receding-horizon IRL on its "
-        "free-flow steps (the simulated drivers' features, step and horizon), and a Gaussian mixture over the log "
-        "weights with the number of styles chosen by BIC. Writes a scenario TOML ([drivers], [population]) for "
-        "pirl-sim simulate sumo|highway --scenario; the simulated drivers' weights are drawn from the mixture "
-        "and written to the ground truth.",
-    )
+@subcommand("calibrate", help="fit a driver population to a recording; write a scenario TOML for simulate",
+            description="Fit a population of PIRL drivers to recorded cars (INTERACTION track files on their "
+            "Lanelet2 map): the desired speed's a_lat and v_max, one weight vector per car by the receding-horizon "
+            "IRL on its free-flow steps (the simulated drivers' features, step and horizon), and a Gaussian mixture "
+            "over the log weights with the number of styles chosen by BIC. Writes a scenario TOML ([drivers], "
+            "[population]) for pirl-sim simulate sumo|highway --scenario; the simulated drivers' weights are drawn "
+            "from the mixture and written to the ground truth.")
+def add_parser(p) -> None:
+    """The options of ``calibrate``."""
     add_track_options(p)
     p.add_argument("--out", type=Path, required=True, help="scenario TOML to write")
     p.add_argument("--desired-speed", choices=("likelihood", "speeds"), default="likelihood",
@@ -47,16 +40,15 @@ def add_parser(subparsers) -> None:
                    help="score every STRIDE-th free-flow step in the per-car fits (default 2)")
     p.add_argument("--n-vehicles", type=positive_int_arg, default=80,
                    help="vehicles in the written population (default 80)")
-    p.add_argument("--background-share", type=_share, default=0.0,
-                   help="share of them driven by the simulator's own model (default 0)")
-    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the mixture's EM initialisation (default 0)")
+    p.add_argument("--background-share", type=reworded(_share, "must be a number in [0, 1], got {text!r}"),
+                   default=0.0, help="share of them driven by the simulator's own model (default 0)")
+    add_seed_option(p, "the mixture's EM initialisation")
 
 
 def run(args) -> int:
     """``pirl-sim calibrate``: 0, or 2 for a bad option or unusable data."""
     from pirl_sim.experiments.calibrate import calibrate
     from pirl_sim.io.atomic import atomic_write_text
-    from pirl_sim.io.interaction import find_track_files
     from pirl_sim.progress import reporter
 
     say = reporter(not args.quiet)
@@ -65,12 +57,9 @@ def run(args) -> int:
             raise ValueError(f"--tracks {str(args.tracks)!r}: no such file or folder")
         if not args.map.is_file():
             raise ValueError(f"--map {str(args.map)!r}: no such file")
-        files = find_track_files(args.tracks) if args.tracks.is_dir() else [args.tracks]
-        if args.files is not None:
-            files = sorted(files, key=lambda f: Path(f).name)[: args.files]
+        files = track_files(args.tracks, args.files)
         cal = calibrate(files, args.map, max_styles=args.max_styles, stride=args.stride, seed=args.seed,
-                        desired_speed=args.desired_speed,
-                        progress=say)
+                        desired_speed=args.desired_speed, progress=say)
         text = cal.scenario_toml(", ".join(Path(f).name for f in files), args.n_vehicles, args.background_share)
         atomic_write_text(args.out, text)
     except (ValueError, TypeError, FileNotFoundError) as exc:
@@ -80,5 +69,4 @@ def run(args) -> int:
     for style in cal.styles():
         print(f"  {style['name']}: share {style['weight']:.2f}, mean weights "
               + ", ".join(f"{k} {v:.3g}" for k, v in style["mean"].items()))
-    print(f"wrote {args.out}")
-    return 0
+    return finish(args.out)

@@ -10,32 +10,29 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pirl_sim.validation import positive_float_arg, positive_int_arg, seed_arg
+from pirl_sim.validation import positive_float_arg, positive_int_arg
 
-from .common import add_track_options, error, load_track_scene, seconds_to_steps
+from .common import add_seed_option, add_track_options, error, finish, load_track_scene, seconds_to_steps, subcommand
 
 __all__ = ["add_parser", "run", "LEARNER_KEYS"]
 
 LEARNER_KEYS = ("tirl", "pirl-gmm", "pirl-dpgmm", "pirl-knn")
 
 
-def add_parser(subparsers) -> None:
-    """Add ``fit-model`` to the command's subparsers."""
-    fm = subparsers.add_parser(
-        "fit-model",
-        help="fit a learner on recorded tracks and write the model to a file",
-        description="Fit TIRL, PIRL-GMM, PIRL-DPGMM or PIRL-kNN on recorded tracks (INTERACTION format, Lanelet2 "
-        "map) and write it as a versioned .npz model file (pirl_sim.learners.model_io; no pickle).",
-    )
+@subcommand("fit-model", help="fit a learner on recorded tracks and write the model to a file",
+            description="Fit TIRL, PIRL-GMM, PIRL-DPGMM or PIRL-kNN on recorded tracks (INTERACTION format, "
+            "Lanelet2 map) and write it as a versioned .npz model file (pirl_sim.learners.model_io; no pickle).")
+def add_parser(fm) -> None:
+    """The options of ``fit-model``."""
     add_track_options(fm)
     fm.add_argument("--preset", choices=("best", "paper"), default="best",
                     help="the model's settings not given: 'best' (as pirl-sim replay's default: --features "
                          "speed-level, --desired-speed fit, free-flow runs of every track) or 'paper' (features "
                          "paper, the fixed desired speed, whole tracks without a leader); drivers whose model is "
                          "known (a pirl_sim recording, a ground_truth.csv) keep their own (default best)")
-    fm.add_argument("--features", choices=("paper", "speed-level"), default=None,
+    fm.add_argument("--features", choices=("paper", "speed-level"),
                     help="the cost's features (pirl_sim.driving.roundabout_features) (default: --preset's)")
-    fm.add_argument("--desired-speed", choices=("fit", "fixed"), default=None,
+    fm.add_argument("--desired-speed", choices=("fit", "fixed"),
                     help="the desired speed's a_lat and v_max fitted on the tracks (pirl_sim.speed_fit) or fixed "
                          "(1.8 m/s^2, 13.9 m/s; a pirl_sim recording's drivers' values) (default: --preset's)")
     fm.add_argument("--learner", choices=LEARNER_KEYS, default="pirl-gmm", help="the learner (default pirl-gmm)")
@@ -46,15 +43,14 @@ def add_parser(subparsers) -> None:
                          "weight posteriors (default features)")
     fm.add_argument("--window", type=positive_float_arg, default=2.0,
                     help="look-up window [s]: histories are described by their last WINDOW seconds (default 2)")
-    fm.add_argument("--dt", type=positive_float_arg, default=None,
-                    help="model step [s], a multiple of 0.1 s (default 0.2; with --likelihood receding on a pirl_sim "
-                         "recording its drivers' re-planning step)")
+    fm.add_argument("--dt", type=positive_float_arg, help="model step [s], a multiple of 0.1 s (default "
+                    "0.2; with --likelihood receding on a pirl_sim recording its drivers' re-planning step)")
     fm.add_argument("--likelihood", choices=["trajectory", "receding"], default="trajectory",
                     help="the IRL's model of a demonstration (default trajectory, the paper's)")
-    fm.add_argument("--mpc-horizon", type=positive_int_arg, default=None, metavar="H",
+    fm.add_argument("--mpc-horizon", type=positive_int_arg, metavar="H",
                     help="the drivers' MPC horizon [steps of --dt] for --likelihood receding (default: a pirl_sim "
                          "recording's drivers.horizon; required for real data)")
-    fm.add_argument("--seed", type=seed_arg, default=0, help="seed of the mixture's EM initialisation (default 0)")
+    add_seed_option(fm, "the mixture's EM initialisation")
     fm.add_argument("--out", type=Path, required=True, help="model file to write (.npz appended if missing)")
 
 
@@ -88,8 +84,7 @@ def run(args) -> int:
         from .replay import data_preset
 
         preset = data_preset(args.tracks, args.preset)
-        features = args.features or preset["features"]
-        scene = load_track_scene(args, dt, say, receding, features=features,
+        scene = load_track_scene(args, dt, say, receding, features=args.features or preset["features"],
                                  selection=None if receding else preset["selection"])
         model = scene.model
         if (args.desired_speed or preset["desired_speed"]) == "fit":
@@ -98,11 +93,9 @@ def run(args) -> int:
         params = {"model": model, "window": seconds_to_steps(args.window, dt, "--window"), "windows": "sliding"}
         if receding:
             params.update(likelihood="receding", horizon=horizon)
-        params.update({"pirl-gmm": {"n_components": args.k, "random_state": args.seed},
-                       "pirl-dpgmm": {"random_state": args.seed}, "pirl-knn": {"n_neighbors": args.k}
-                       }.get(args.learner, {}))
-        if args.space == "weights":
-            params["space"] = "weights"
+        params.update({"pirl-gmm": {"n_components": args.k, "random_state": args.seed, "space": args.space},
+                       "pirl-dpgmm": {"random_state": args.seed, "space": args.space},
+                       "pirl-knn": {"n_neighbors": args.k}}.get(args.learner, {}))
         learner = make_learner(args.learner, **params)
         say(f"fitting {type(learner).__name__} on {len(scene.selected)} trajectories")
         with warnings.catch_warnings(record=True) as caught:
@@ -127,5 +120,4 @@ def run(args) -> int:
 
         print(f"ARI of the styles against the recording's ground truth: "
               f"{adjusted_rand_index(np.asarray(styles, dtype=int), learner.labels_):.3f} ({len(styles)} trajectories)")
-    print(f"wrote {path}")
-    return 0
+    return finish(path)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
 
-from .common import command_line, run_study, workers_arg
+from .common import add_study_options, command_line, finish, run_study, subcommand
 
 __all__ = ["add_parser", "run", "DEFAULT_OUT", "DEFAULTS"]
 
@@ -19,14 +19,13 @@ DEFAULTS = {"steps": 30_000, "seeds": (0, 1, 2), "eval_seeds": tuple(range(1000,
             "n_vehicles": 8, "initial_vehicles": 2, "speed_dev": 3.0, "acc_sq": 0.3}
 
 
-def add_parser(subparsers) -> None:
-    """Add ``policy-recovery`` to the command's subparsers."""
+@subcommand("policy-recovery",
+            help="weights recovered from a PPO agent trained on the theta reward, against the reward's",
+            description="Train PPO on the env's theta reward and measure how close the weights recovered from its "
+            "driving come to the reward's weights.")
+def add_parser(p) -> None:
+    """The options of ``policy-recovery``."""
     d = DEFAULTS
-    p = subparsers.add_parser(
-        "policy-recovery",
-        help="weights recovered from a PPO agent trained on the theta reward, against the reward's",
-        description="Train PPO on the env's theta reward and measure how close the weights recovered from its "
-                    "driving come to the reward's weights.")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--steps", type=positive_int_arg, default=d["steps"],
                    help=f"PPO training steps per seed (default {d['steps']})")
@@ -42,11 +41,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--no-normalize-reward", action="store_true", help="train on the unscaled theta reward")
     p.add_argument("--speed-dev", type=positive_float_arg, default=d["speed_dev"], help="reward weight of speed_dev")
     p.add_argument("--acc-sq", type=positive_float_arg, default=d["acc_sq"], help="reward weight of acc_sq")
-    p.add_argument("--workers", type=workers_arg, default=1,
-                   help="cells (a training seed, or the MPC ego) run at once, each in its own process (default 1; "
-                        "0: in this process)")
-    p.add_argument("--dry-run", action="store_true", help="check the options and count the cells still to run")
-    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_study_options(p, "cells (a training seed, or the MPC ego) run")
 
 
 def run(args) -> int:
@@ -68,12 +63,10 @@ def run(args) -> int:
                                 duration=args.duration, normalize_reward=not args.no_normalize_reward)
         return parse_config(cfg.sweep_data(), source="pirl-sim policy-recovery"), cfg
 
-    result, _, cfg, status = run_study("policy-recovery", config, args, command)
-    if status is not None:
-        return status
-    study = collect_records([result.records[k]["result"] for k in result.keys])
-    wall = time.perf_counter() - t0
-    write_results(study, cfg, args.out, command, wall)
-    print(study["reports"]["ppo"].to_markdown())
-    print(f"wrote {args.out}/ in {wall:.0f} s")
-    return 0
+    def report(result, _, cfg) -> int:
+        study = collect_records([result.records[k]["result"] for k in result.keys])
+        wall = time.perf_counter() - t0
+        write_results(study, cfg, args.out, command, wall)
+        return finish(f"{args.out}/ in {wall:.0f} s", study["reports"]["ppo"].to_markdown())
+
+    return run_study("policy-recovery", config, report, args, command)

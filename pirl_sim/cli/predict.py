@@ -19,9 +19,10 @@ import copy
 import math
 from pathlib import Path
 
-from pirl_sim.validation import positive_float_arg, positive_int_arg, seed_arg
+from pirl_sim.validation import positive_float_arg, positive_int_arg
 
-from .common import add_track_options, error, load_track_scene, seconds_to_steps
+from .common import (add_seed_option, add_track_options, error, finish, load_track_scene, seconds_to_steps,
+                     subcommand)
 
 __all__ = ["SUBMISSION_COLUMNS", "add_parser", "history_end_frames", "proba_path", "rebind_model", "run",
            "submission_tables"]
@@ -34,28 +35,24 @@ _XY_TOLERANCE = 1e-6  # [m] a recorded position matches a trajectory's within th
 MAX_HORIZON_S = 600.0  #: [s] the longest --horizon predict takes
 
 
-def add_parser(subparsers) -> None:
-    """Add ``predict`` to the command's subparsers."""
-    pr = subparsers.add_parser(
-        "predict",
-        help="predict recorded drivers' futures with a saved model",
-        description="Read a model file written by fit-model (or learner.save) and recorded tracks; predict every "
-        "selected track's future from its first --history seconds; write one CSV row per predicted step, or with "
-        "--futures K the INTERACTION prediction challenge's submission (K modes per 0.1 s frame) and "
-        "<OUT stem>_proba.csv (the modes' probabilities).",
-    )
+@subcommand("predict", help="predict recorded drivers' futures with a saved model",
+            description="Read a model file written by fit-model (or learner.save) and recorded tracks; predict every "
+            "selected track's future from its first --history seconds; write one CSV row per predicted step, or with "
+            "--futures K the INTERACTION prediction challenge's submission (K modes per 0.1 s frame) and "
+            "<OUT stem>_proba.csv (the modes' probabilities).")
+def add_parser(pr) -> None:
+    """The options of ``predict``."""
     add_track_options(pr)
     pr.add_argument("--model", type=Path, required=True, help="model file written by fit-model")
-    pr.add_argument("--history", type=positive_float_arg, default=None,
+    pr.add_argument("--history", type=positive_float_arg,
                     help="observed history [s] (default: the model's look-up window, else 2)")
     pr.add_argument("--horizon", type=positive_float_arg, default=3.0,
                     help=f"predicted horizon [s], at most {MAX_HORIZON_S:g} (default 3)")
     pr.add_argument("--out", type=Path, required=True, help="CSV file of the predictions")
-    pr.add_argument("--futures", type=positive_int_arg, default=None, metavar="K",
+    pr.add_argument("--futures", type=positive_int_arg, metavar="K",
                     help="write the INTERACTION challenge's submission layout with K predicted modes per case, and "
                          "their probabilities in <OUT stem>_proba.csv (default: one row per predicted step)")
-    pr.add_argument("--seed", type=seed_arg, default=0,
-                    help="seed of the learners that draw their --futures (default 0)")
+    add_seed_option(pr, "the learners that draw their --futures")
 
 
 def rebind_model(learner, model):
@@ -90,14 +87,19 @@ def _model_settings(model) -> dict:
     return out
 
 
-def _check_out(out: Path, model: Path, map_path: Path, tracks: Path, label: str = "--out") -> None:
-    """ValueError when the predictions' CSV ``out`` is a directory, or one of the inputs (the model file, the map,
-    a track file or a file in the tracks directory), which writing it would overwrite; ``label`` names ``out``."""
-    if out.is_dir():
-        raise ValueError(f"{label} {str(out)!r} is a directory; give the CSV file of the predictions")
-    inputs = [model, map_path, tracks] + (sorted(tracks.iterdir()) if tracks.is_dir() else [])
-    if any(out.resolve() == p.resolve() for p in inputs):
-        raise ValueError(f"{label} {str(out)!r} is one of the inputs; writing the predictions would overwrite it")
+def _check_out(args, futures: int | None) -> None:
+    """ValueError when ``--out`` (and with ``futures`` its probabilities' file, `proba_path`) is a directory, or one
+    of the inputs (the model file, the map, a track file or a file in the tracks directory), which writing it would
+    overwrite."""
+    inputs = [args.model, args.map, args.tracks] + (sorted(args.tracks.iterdir()) if args.tracks.is_dir() else [])
+    outputs = [("--out", args.out)]
+    if futures is not None:
+        outputs.append((f"the probabilities of --out {str(args.out)!r},", proba_path(args.out)))
+    for label, out in outputs:
+        if out.is_dir():
+            raise ValueError(f"{label} {str(out)!r} is a directory; give the CSV file of the predictions")
+        if any(out.resolve() == p.resolve() for p in inputs):
+            raise ValueError(f"{label} {str(out)!r} is one of the inputs; writing the predictions would overwrite it")
 
 
 def proba_path(out: Path) -> Path:
@@ -224,10 +226,7 @@ def run(args) -> int:
         if args.horizon > MAX_HORIZON_S:
             raise ValueError(f"--horizon {args.horizon:g} s is longer than {MAX_HORIZON_S:g} s: a prediction of a "
                              "roundabout passage is seconds long, and this one would not fit in memory")
-        _check_out(args.out, args.model, args.map, args.tracks)
-        if futures is not None:
-            _check_out(proba_path(args.out), args.model, args.map, args.tracks,
-                       label=f"the probabilities of --out {str(args.out)!r},")
+        _check_out(args, futures)
         learner = load_learner(args.model)
         dt = learner.model_.dynamics.dt
         scene = load_track_scene(args, dt, say, **_model_settings(learner.model_))
@@ -249,25 +248,22 @@ def run(args) -> int:
             states, proba = learner.predict_futures(histories, horizon, n_futures=futures, random_state=args.seed)
             submission, table = submission_tables(usable, states, proba, futures, ends, scene.model.positions,
                                                   history, stride)
+        else:
+            theta = learner.infer_weights(histories)
+            states = learner.predict_states(histories, horizon)
+            styles = learner.predict_style(histories) if hasattr(learner, "predict_style") else None
     except (ValueError, TypeError, FileNotFoundError) as exc:
         return error(exc)
     if futures is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         submission.to_csv(args.out, index=False, float_format="%.3f")
         table.to_csv(proba_path(args.out), index=False)
-        print(f"{len(usable)} cases, {futures} futures, {horizon * stride} frames of 0.1 s each (history "
-              f"{history * dt:g} s, horizon {horizon * dt:g} s)")
-        print(f"wrote {args.out} and {proba_path(args.out)}")
-        return 0
-    try:
-        theta = learner.infer_weights(histories)
-        states = learner.predict_states(histories, horizon)
-        styles = learner.predict_style(histories) if hasattr(learner, "predict_style") else None
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        return error(exc)
+        return finish(f"{args.out} and {proba_path(args.out)}", f"{len(usable)} cases, {futures} futures, "
+                      f"{horizon * stride} frames of 0.1 s each (history {history * dt:g} s, horizon "
+                      f"{horizon * dt:g} s)")
     names = scene.model.features.names
     rows = []
-    for i, (t, h) in enumerate(zip(usable, histories)):
+    for i, t in enumerate(usable):
         xy = scene.model.positions(states[i, 1:])
         rec = t.metadata.get("xy")
         for k in range(horizon):
@@ -287,5 +283,4 @@ def run(args) -> int:
     if "error_m" in table:
         print(f"{len(usable)} tracks, history {history * dt:g} s, horizon {horizon * dt:g} s: mean displacement "
               f"error {table['error_m'].mean():.3g} m over {int(table['error_m'].notna().sum())} recorded steps")
-    print(f"wrote {args.out}")
-    return 0
+    return finish(args.out)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import error
+from .common import error, finish, subcommand, track_files
 
 __all__ = ["add_parser", "run"]
 
@@ -20,46 +20,31 @@ def _source(text: str) -> tuple[str, list[Path]]:
     return label, [Path(p.strip()) for p in paths.split(",") if p.strip()]
 
 
-def add_parser(subparsers) -> None:
-    """Add ``realism`` to the command's subparsers."""
-    p = subparsers.add_parser(
-        "realism",
-        help="score simulated traffic against a recording: feature likelihoods and a meta-metric",
-        description="Score how real simulated traffic is. The reference (recorded track files) is scored under "
-        "the histograms of each source's features (speed, acceleration, jerk, yaw rate and its rate, lateral "
-        "acceleration, distance to the nearest vehicle, gap, time headway and time to collision to the leader, "
-        "stopped time, collisions, and with --map the offset from the lane centre). A source is LABEL=PATH,..., "
-        "each PATH one rollout (a track file, or a folder whose track files make one rollout); the meta-metric "
-        "is given per source as the mean over its rollouts with a 95 %% interval. Give the recording's other "
-        "files as a source for the real-against-real reference row.",
-    )
+@subcommand("realism", help="score simulated traffic against a recording: feature likelihoods and a meta-metric",
+            description="Score how real simulated traffic is. The reference (recorded track files) is scored under "
+            "the histograms of each source's features (speed, acceleration, jerk, yaw rate and its rate, lateral "
+            "acceleration, distance to the nearest vehicle, gap, time headway and time to collision to the leader, "
+            "stopped time, collisions, and with --map the offset from the lane centre). A source is LABEL=PATH,..., "
+            "each PATH one rollout (a track file, or a folder whose track files make one rollout); the meta-metric "
+            "is given per source as the mean over its rollouts with a 95 %% interval. Give the recording's other "
+            "files as a source for the real-against-real reference row.")
+def add_parser(p) -> None:
+    """The options of ``realism``."""
     p.add_argument("--reference", type=Path, nargs="+", required=True, metavar="PATH",
                    help="the recorded track files (or folders of them) that are scored")
     p.add_argument("--source", type=_source, action="append", required=True, metavar="LABEL=PATH[,PATH...]",
                    help="a simulated source and its rollouts (repeat for several sources)")
-    p.add_argument("--map", type=Path, default=None, help="the Lanelet2 map (.osm): adds the lane-centre offset")
+    p.add_argument("--map", type=Path, help="the Lanelet2 map (.osm): adds the lane-centre offset")
     p.add_argument("--out", type=Path, default=Path("realism"),
                    help="output folder: summary.csv, features.csv, realism.png (default ./realism)")
 
 
-def _track_files(path: Path) -> list[Path]:
-    from pirl_sim.io.interaction import find_track_files
-
-    if path.is_file():
-        return [path]
-    if path.is_dir():
-        files = find_track_files(path)
-        if not files:
-            raise ValueError(f"{path}: no vehicle_tracks_*.csv in this folder")
-        return files
-    raise ValueError(f"{str(path)!r}: no such track file or folder")
-
-
 def _features(paths: list[Path], lmap):
+    """The features of the tracks of ``paths`` (track files, or folders of them: `track_files`) on ``lmap``."""
     from pirl_sim.evaluation.realism import TrackFeatures, track_features
     from pirl_sim.io.interaction import read_tracks
 
-    return TrackFeatures.combine([track_features(read_tracks(f), lmap) for p in paths for f in _track_files(p)])
+    return TrackFeatures.combine([track_features(read_tracks(f), lmap) for p in paths for f in track_files(p)])
 
 
 def run(args) -> int:
@@ -67,6 +52,7 @@ def run(args) -> int:
     import pandas as pd
 
     from pirl_sim.evaluation.realism import compare_sources, realism_figure
+    from pirl_sim.io.lanelet2_map import load_map
     from pirl_sim.validation import check_output_dir
 
     try:
@@ -78,11 +64,7 @@ def run(args) -> int:
             if not p.exists():
                 raise ValueError(f"{str(p)!r}: no such file or folder")
         out = check_output_dir(args.out)
-        lmap = None
-        if args.map is not None:
-            from pirl_sim.io.lanelet2_map import load_map
-
-            lmap = load_map(args.map)
+        lmap = load_map(args.map) if args.map is not None else None
         reference = _features(list(args.reference), lmap)
         sources = {label: [_features([p], lmap) for p in paths] for label, paths in args.source}
         summary, features = compare_sources(reference, sources)
@@ -96,5 +78,4 @@ def run(args) -> int:
         print(summary.round(3).to_string(index=False))
         print(features.groupby(["feature", "source"], sort=False)["likelihood"].mean().unstack("source")
               .round(3).to_string())
-    print(f"wrote {out / 'summary.csv'}, {out / 'features.csv'}, {out / 'realism.png'}")
-    return 0
+    return finish(f"{out / 'summary.csv'}, {out / 'features.csv'}, {out / 'realism.png'}")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pirl_sim.validation import list_arg, positive_int_arg, seed_arg
 
-from .common import run_study, workers_arg
+from .common import add_study_options, finish, run_study, subcommand, table_text
 
 __all__ = ["add_parser", "run", "DEFAULT_OUT", "SIMULATORS"]
 
@@ -18,33 +18,25 @@ DEFAULT_OUT = Path("results") / "recovery"
 SIMULATORS = ("sumo", "highway")
 
 
-def add_parser(subparsers) -> None:
-    """Add ``recover`` to the command's subparsers."""
-    p = subparsers.add_parser(
-        "recover",
-        help="weight recovery of the receding-horizon IRL on simulated runs (table of errors per seed)",
-        description="Simulate each seed (or reuse its run under OUT/runs), fit the receding-horizon IRL to every "
-                    "PIRL track with enough usable steps and TIRL per style, and write table.csv/.md, "
-                    "styles.csv, tracks.csv, selection.csv, times.csv, README.md (and noise.csv/.md with "
-                    "--control-noise) to --out.")
+@subcommand("recover",
+            help="weight recovery of the receding-horizon IRL on simulated runs (table of errors per seed)",
+            description="Simulate each seed (or reuse its run under OUT/runs), fit the receding-horizon IRL to every "
+            "PIRL track with enough usable steps and TIRL per style, and write table.csv/.md, styles.csv, tracks.csv, "
+            "selection.csv, times.csv, README.md (and noise.csv/.md with --control-noise) to --out.")
+def add_parser(p) -> None:
+    """The options of ``recover``."""
     p.add_argument("--simulator", choices=[*SIMULATORS, "both"], default="sumo",
                    help="sumo (default), highway, or both")
     p.add_argument("--seeds", type=seed_arg, nargs="+", default=[0, 1, 2, 3], help="seeds (default 0 1 2 3)")
-    p.add_argument("--population", type=Path, default=None, metavar="CONFIG",
-                   help="population TOML (default: the embedded one)")
-    p.add_argument("--n-vehicles", type=positive_int_arg, default=None,
-                   help="override the population's number of vehicles")
+    p.add_argument("--population", type=Path, metavar="CONFIG", help="population TOML (default: the embedded one)")
+    p.add_argument("--n-vehicles", type=positive_int_arg, help="override the population's number of vehicles")
     p.add_argument("--stride", type=positive_int_arg, default=1, help="score every STRIDE-th step (default 1)")
     p.add_argument("--min-steps", type=positive_int_arg, default=10,
                    help="usable steps a PIRL track needs to be fitted (default 10)")
-    p.add_argument("--control-noise", type=list_arg(float, low=0), default=[], metavar="LEVELS",
-                   help="noise study: comma-separated control-noise levels [m/s^3], e.g. 0,0.1,0.3,1 "
-                        "(written to noise.csv/.md)")
-    p.add_argument("--noise-seeds", type=seed_arg, nargs="+", default=None,
-                   help="seeds of the noise study (default: --seeds)")
-    p.add_argument("--workers", type=workers_arg, default=1,
-                   help="runs simulated and fitted at once, each in its own process (default 1; 0: in this process)")
-    p.add_argument("--dry-run", action="store_true", help="check the options and count the runs still to do")
+    p.add_argument("--control-noise", type=list_arg(float, low=0), default=[], metavar="LEVELS", help="noise study: "
+                   "comma-separated control-noise levels [m/s^3], e.g. 0,0.1,0.3,1 (written to noise.csv/.md)")
+    p.add_argument("--noise-seeds", type=seed_arg, nargs="+", help="seeds of the noise study (default: --seeds)")
+    add_study_options(p, "runs simulated and fitted", count="runs still to do", quiet=False)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
@@ -69,26 +61,25 @@ def run(args) -> int:
         return parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
                             source=str(args.population or "pirl-sim recover")), jobs
 
-    result, config, jobs, status = run_study("recovery", make_config, args, command,
-                                             "simulations/\ncells/\nerrors/\nsweep.json\n")
-    if status is not None:
-        return status
-    store, simulated, sim_time = ResultStore(args.out), [], []
-    for cell in config.cells:
-        sk = simulation_key("recovery", SPEC.simulation(dict(cell.scenario_params)),  # type: ignore[misc]
-                            cell.seed, result.code_version)
-        record = store.simulation_dir(sk) / SIMULATION_RECORD
-        simulated.append(sk in result.simulated)
-        sim_time.append(float(json.loads(record.read_text("utf-8"))["timings"]["simulate_s"]) if record.is_file()
-                        else 0.0)
-    records = [result.records[k]["result"] for k in result.keys]
-    study = recovery_result(jobs, records, simulated=simulated, sim_time_s=sim_time, workers=max(args.workers, 1))
-    write_recovery(study, args.out, command)
-    table = study.table()
-    print(compact_table(table).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-    for sim in sims:
-        row = table[table["simulator"] == sim].iloc[-1].to_dict()
-        missed = [f"{c} = {v:.3g} (target {op} {lim:g})" for c, op, lim, v, ok in check_targets(row, sim) if not ok]
-        print(f"{sim} (seed {row['seed']}): " + ("every target met" if not missed else "NOT met: " + "; ".join(missed)))
-    print(f"wrote {args.out}/")
-    return 0
+    def report(result, config, jobs) -> int:
+        store, simulated, sim_time = ResultStore(args.out), [], []
+        for cell in config.cells:
+            sk = simulation_key("recovery", SPEC.simulation(dict(cell.scenario_params)),  # type: ignore[misc]
+                                cell.seed, result.code_version)
+            record = store.simulation_dir(sk) / SIMULATION_RECORD
+            simulated.append(sk in result.simulated)
+            sim_time.append(float(json.loads(record.read_text("utf-8"))["timings"]["simulate_s"]) if record.is_file()
+                            else 0.0)
+        records = [result.records[k]["result"] for k in result.keys]
+        study = recovery_result(jobs, records, simulated=simulated, sim_time_s=sim_time, workers=max(args.workers, 1))
+        write_recovery(study, args.out, command)
+        table = study.table()
+        print(table_text(compact_table(table)))
+        for sim in sims:
+            row = table[table["simulator"] == sim].iloc[-1].to_dict()
+            missed = [f"{c} = {v:.3g} (target {op} {lim:g})" for c, op, lim, v, ok in check_targets(row, sim) if not ok]
+            print(f"{sim} (seed {row['seed']}): "
+                  + ("every target met" if not missed else "NOT met: " + "; ".join(missed)))
+        return finish(f"{args.out}/")
+
+    return run_study("recovery", make_config, report, args, command, "simulations/\ncells/\nerrors/\nsweep.json\n")

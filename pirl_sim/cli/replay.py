@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING, Any
 
 from pirl_sim.validation import list_arg, positive_float_arg, positive_int_arg
 
-from .common import command_line, error, interrupted, seconds_to_steps
+from .common import (command_line, driver_settings, error, finish, interrupted, print_plan, reworded,
+                     seconds_to_steps, subcommand, table_text)
 
 if TYPE_CHECKING:
     from pirl_sim.experiments.recorded import ReplayProtocol
@@ -85,13 +86,6 @@ def _preset_text(settings: dict) -> str:
     return ", ".join(f"{k.replace('_', '-')} {','.join(v) if isinstance(v, tuple) else v}" for k, v in settings.items())
 
 
-def _horizon_arg(text: str) -> int:
-    try:
-        return positive_int_arg(text)
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"--mpc-horizon must be a positive number of steps, got {text!r}") from None
-
-
 #: a field's annotation (without ``| None``) -> its option's argparse arguments (those of the field's metadata aside)
 _ARGPARSE: dict[str, dict[str, Any]] = {"Path": {"type": Path}, "bool": {"action": "store_true"}, "str": {"type": str},
              "int": {"type": positive_int_arg}, "float": {"type": positive_float_arg},
@@ -144,12 +138,11 @@ class ReplayOptions:
                            "on the history's speeds and accelerations, the road ahead and the place (row 'direct "
                            "regression (no cost)', pirl_sim.evaluation.direct): how much the history and the map tell; "
                            "never the best PIRL learner")
-    preset: str = _option("best", "the settings of --desired-speed, --features, --lateral, --learners and "
-                          "--selection that are not given (drivers whose model is known, a pirl_sim recording or "
-                          "tracks with a ground_truth.csv, keep their own features and desired speed and the paper's "
-                          f"selection): 'best' (the configuration of the README's real-roundabout table: "
-                          f"{_preset_text(_BEST)}) or 'paper' (the paper's: {_preset_text(_PAPER)}) (default best)",
-                          choices=("best", "paper"))
+    preset: str = _option("best", "the settings of --desired-speed, --features, --lateral, --learners and --selection "
+                          "that are not given (drivers whose model is known, a pirl_sim recording or tracks with a "
+                          "ground_truth.csv, keep their own features and desired speed and the paper's selection): "
+                          f"'best' (the configuration of the README's real-roundabout table: {_preset_text(_BEST)}) or "
+                          f"'paper' (the paper's: {_preset_text(_PAPER)}) (default best)", choices=("best", "paper"))
     desired_speed: str | None = _option(None, "the desired speed's a_lat and v_max: 'fit' on each split's training "
                                         "tracks (robust fit of speeds against curvature, pirl_sim.speed_fit) or "
                                         "'fixed' (--a-lat, --v-max) (default: --preset's)", choices=("fit", "fixed"))
@@ -163,12 +156,11 @@ class ReplayOptions:
                                    "velocity over a prediction; selection defaults to 'all') "
                                    "(pirl_sim.driving.roundabout_features) (default: --preset's)",
                                    choices=("paper", "speed-level", "following"))
-    lateral: str | None = _option(None, "lateral offsets of every path-based prediction (baselines and learners): "
-                                  "'hold' the last observed one, or follow the training tracks' 'mean-path' of the "
-                                  "route, or their mean path pooled over routes in the 'plane', or that plus the "
-                                  "change of deviation of the nearest training windows in the plane, 'neighbours' "
-                                  "(pirl_sim.lateral) (default: --preset's)",
-                                  choices=("hold", "mean-path", "plane", "neighbours"))
+    lateral: str | None = _option(
+        None, "lateral offsets of every path-based prediction (baselines and learners): 'hold' the last observed one, "
+        "or follow the training tracks' 'mean-path' of the route, or their mean path pooled over routes in the "
+        "'plane', or that plus the change of deviation of the nearest training windows in the plane, 'neighbours' "
+        "(pirl_sim.lateral) (default: --preset's)", choices=("hold", "mean-path", "plane", "neighbours"))
     start: str = _option("history", "the states every prediction starts from and its learners see: estimated from the "
                          "2 s history alone ('history': what an online predictor knows), or the whole track's estimate "
                          "('track': a smoother that also saw the future it predicts) (default history)",
@@ -201,9 +193,10 @@ class ReplayOptions:
     likelihood: str = _option("trajectory", "the IRL's model of a demonstration: 'trajectory' (the paper's: one "
                               "open-loop optimum) or 'receding' (each step's control is the first of an MPC plan over "
                               "--mpc-horizon steps) (default trajectory)", choices=("trajectory", "receding"))
-    mpc_horizon: int | None = _option(None, "the drivers' MPC horizon [steps of --dt] for --likelihood receding and "
-                                      "closed-loop rollouts (default: drivers.horizon of a pirl_sim recording's "
-                                      "run.json; required for real data)", metavar="H", type=_horizon_arg)
+    mpc_horizon: int | None = _option(
+        None, "the drivers' MPC horizon [steps of --dt] for --likelihood receding and closed-loop rollouts (default: "
+        "drivers.horizon of a pirl_sim recording's run.json; required for real data)", metavar="H",
+        type=reworded(positive_int_arg, "--mpc-horizon must be a positive number of steps, got {text!r}"))
     dt: float | None = _option(None, "model step [s], a multiple of the 0.1 s frames (default 0.2, the paper's; with "
                                "--likelihood receding on a pirl_sim recording its drivers' re-planning step)")
     estimate: str | None = _option(None, "state estimate from positions only or from positions and recorded speeds "
@@ -393,14 +386,11 @@ class ReplaySettings:
     def load(self) -> dict:
         """How the scene is read: keyword arguments of `pirl_sim.scenarios.replay.load_replay` besides the files
         and the map, as JSON data (the ``recorded`` kind's parameter ``load``)."""
-        o, rec = self.options, self.recording
         load = {"dt": self.dt, "estimate": self.estimate, "noise": dataclasses.asdict(self.noise),
                 "selection": self.selection, "max_steps": _steps(PIECE_DURATION, self.dt), "features": self.features}
         if self.simulated:  # simulated drivers plan from their projected positions
             load["arc_length"] = "observed"
-        if rec is not None:
-            load.update(smoothing=rec.smoothing, speed_smoothing=rec.speed_smoothing, a_lat=rec.a_lat, v_max=rec.v_max)
-        return {**load, **{k: float(v) for k, v in (("a_lat", o.a_lat), ("v_max", o.v_max)) if v is not None}}
+        return {**load, **driver_settings(self.recording, self.options.a_lat, self.options.v_max)}
 
     def learner_entries(self) -> list[dict]:
         """The sweep config's learner entries in the order of the report's rows: CV and CA along the path, the
@@ -462,17 +452,13 @@ class ReplaySettings:
                             source="<replay --scan-horizon>" if scan else "<replay>")
 
 
-def add_parser(sub) -> argparse.ArgumentParser:
-    """Add ``replay`` to the command's subparsers; returns its parser."""
-    rp = sub.add_parser(
-        "replay",
-        help="learn from recorded tracks (INTERACTION format) and score predictions against them",
-        description="Replay INTERACTION-format track files on their Lanelet2 map: select non-interacting drivers, "
-        "fit the learners, predict each test track from a history window, score MED/ADE/FDE in metres against "
-        "baselines over several split seeds.",
-    )
+@subcommand("replay", help="learn from recorded tracks (INTERACTION format) and score predictions against them",
+            description="Replay INTERACTION-format track files on their Lanelet2 map: select non-interacting "
+            "drivers, fit the learners, predict each test track from a history window, score MED/ADE/FDE in metres "
+            "against baselines over several split seeds.")
+def add_parser(rp) -> None:
+    """The options of ``replay``: `ReplayOptions.add_arguments`."""
     ReplayOptions.add_arguments(rp)
-    return rp
 
 
 def replay_results(config, run, scene, proto) -> dict:
@@ -509,15 +495,12 @@ def _run_cells(config, settings: ReplaySettings, out: Path, say) -> tuple:
     (which prints the counts). The scene is read here first: too few usable tracks fail before any cell, and
     ``--workers N`` > 1 forks N sweep workers that inherit it."""
     from pirl_sim.engine.executors import InlineExecutor, LocalExecutor
-    from pirl_sim.engine.run import plan_cells, run_sweep
-    from pirl_sim.engine.store import ResultStore
+    from pirl_sim.engine.run import run_sweep
     from pirl_sim.experiments.recorded import load_scene, recorded_files, usable_tracks
 
     o = settings.options
     if o.dry_run:
-        version, _, unique, records, _ = plan_cells(config, ResultStore(out))
-        print(f"{config.experiments[0].label} of {o.tracks}: {len(unique)} cells, {len(records)} already in "
-              f"{out}/, {len(unique) - len(records)} to run (code {version})")
+        print_plan(config, out, f"{config.experiments[0].label} of {o.tracks}", code=True)
         return None, None
     files = recorded_files(config.cells[0].scenario_params)
     say(f"reading {len(files)} track files and {o.map} (dt {settings.dt:g} s, estimate {settings.estimate}, "
@@ -558,10 +541,7 @@ def run(args) -> int:
     except KeyboardInterrupt:
         return interrupted(args.out)
     write_replay_results(result, scene, options.out, command_line("replay", []))
-    print(summarize(result).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-    print(result["paired_ca"].to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-    print(f"wrote {options.out}/")
-    return 0
+    return finish(f"{options.out}/", table_text(summarize(result)), table_text(result["paired_ca"]))
 
 
 def _scan(settings: ReplaySettings, say) -> int:
@@ -574,9 +554,7 @@ def _scan(settings: ReplaySettings, say) -> int:
     if run is None:  # --dry-run
         return 0
     table = write_scan(scan_rows([run.records[k]["result"] for k in run.keys]), out, command_line("replay", []))
-    print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
-    print(f"wrote {out}/")
-    return 0
+    return finish(f"{out}/", table_text(table, digits=4))
 
 
 def _run_table(options: ReplayOptions, say) -> int:
@@ -603,7 +581,4 @@ def _run_table(options: ReplayOptions, say) -> int:
         say(f"{name}: done in {elapsed:.0f} s")
     if options.dry_run:
         return 0
-    text = write_table(rows, options.out, command_line("replay", []))
-    print(text)
-    print(f"wrote {options.out}/")
-    return 0
+    return finish(f"{options.out}/", write_table(rows, options.out, command_line("replay", [])))

@@ -4,21 +4,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .common import error
+from .common import error, finish, subcommand
 
 __all__ = ["add_parser", "run"]
 
 
-def add_parser(subparsers) -> None:
-    """Add ``report`` to the command's subparsers."""
-    rp = subparsers.add_parser(
-        "report",
-        help="figures and a Markdown summary of a sweep's results",
-        description="Draw MED vs k, the learners side by side and weight recovery from a sweep's table, and "
-        "write README.md with the tables, orderings and the command that made them.",
-    )
+@subcommand("report", help="figures and a Markdown summary of a sweep's results",
+            description="Draw MED vs k, the learners side by side and weight recovery from a sweep's table, and "
+            "write README.md with the tables, orderings and the command that made them.")
+def add_parser(rp) -> None:
+    """The options of ``report``."""
     rp.add_argument("results", type=Path, help="results directory of pirl-sim sweep (or its table.parquet)")
-    rp.add_argument("--out", type=Path, default=None, help="where to write (default: the results directory)")
+    rp.add_argument("--out", type=Path, help="where to write (default: the results directory)")
 
 
 def run(args) -> int:
@@ -29,5 +26,4 @@ def run(args) -> int:
         written = write_report(args.results, args.out)
     except ValueError as exc:
         return error(exc)
-    print(f"wrote {', '.join(sorted(written))} to {Path(written['README.md']).parent}/")
-    return 0
+    return finish(f"{', '.join(sorted(written))} to {Path(written['README.md']).parent}/")

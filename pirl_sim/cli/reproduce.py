@@ -5,46 +5,33 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pirl_sim.validation import positive_int_arg, seed_arg
+from pirl_sim.validation import positive_int_arg
 
-from .common import command_line, error, interrupted, workers_arg
+from .common import add_seed_option, command_line, error, finish, interrupted, subcommand, table_text, workers_arg
 
 __all__ = ["add_parser", "run"]
 
 
-def add_parser(subparsers) -> None:
-    """Add ``reproduce`` to the command's subparsers."""
-    rep = subparsers.add_parser(
-        "reproduce",
-        help="reproduce one of the paper's experiments and write tables and figures",
-        description="Reproduce one of the paper's experiments; writes CSV/Markdown tables, figures and a summary. "
-        "The experiment is an embedded sweep preset (pirl_sim/experiments/configs/<experiment>.toml): its finished "
-        "cells are kept in the output directory (cells/), so an interrupted run resumes where it stopped.",
-    )
-    rep.add_argument(
-        "experiment",
-        choices=["synthetic", "passage"],
-        help="synthetic (the paper's LQR point mass) or passage (roundabout drivers of three known styles)",
-    )
-    rep.add_argument("--out", type=Path, default=None, help="output directory (default: results/<experiment>)")
-    rep.add_argument("--seed", type=seed_arg, default=0, help="seed of every random draw, in [0, 2**31) (default 0)")
-    rep.add_argument(
-        "--n-trajectories", type=positive_int_arg, default=None,
-        help="trajectories in all (default: synthetic 2000, the paper's; passage 600)",
-    )
-    rep.add_argument("--n-train", type=positive_int_arg, default=None,
+@subcommand("reproduce", help="reproduce one of the paper's experiments and write tables and figures",
+            description="Reproduce one of the paper's experiments; writes CSV/Markdown tables, figures and a summary. "
+            "The experiment is an embedded sweep preset (pirl_sim/experiments/configs/<experiment>.toml): its finished "
+            "cells are kept in the output directory (cells/), so an interrupted run resumes where it stopped.")
+def add_parser(rep) -> None:
+    """The options of ``reproduce``."""
+    rep.add_argument("experiment", choices=["synthetic", "passage"], help="synthetic (the paper's LQR point mass) or "
+                     "passage (roundabout drivers of three known styles)")
+    rep.add_argument("--out", type=Path, help="output directory (default: results/<experiment>)")
+    add_seed_option(rep, "every random draw, in [0, 2**31)")
+    rep.add_argument("--n-trajectories", type=positive_int_arg,
+                     help="trajectories in all (default: synthetic 2000, the paper's; passage 600)")
+    rep.add_argument("--n-train", type=positive_int_arg,
                      help="training trajectories (default: synthetic 1800; passage 500)")
-    rep.add_argument(
-        "--history-steps", type=positive_int_arg, default=10, help="observed steps in the online protocol (default 10)"
-    )
-    rep.add_argument(
-        "--position-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
-        help="synthetic only: start positions drawn uniformly from [LOW, HIGH] m (default 1 1: the single start)",
-    )
-    rep.add_argument(
-        "--velocity-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
-        help="synthetic only: start velocities drawn uniformly from [LOW, HIGH] m/s (default 0 0)",
-    )
+    rep.add_argument("--history-steps", type=positive_int_arg, default=10,
+                     help="observed steps in the online protocol (default 10)")
+    rep.add_argument("--position-range", type=float, nargs=2, metavar=("LOW", "HIGH"), help="synthetic "
+                     "only: start positions drawn uniformly from [LOW, HIGH] m (default 1 1: the single start)")
+    rep.add_argument("--velocity-range", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                     help="synthetic only: start velocities drawn uniformly from [LOW, HIGH] m/s (default 0 0)")
     rep.add_argument("--workers", type=workers_arg, default=0,
                      help="sweep worker processes (default 0: in this process)")
     rep.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
@@ -71,10 +58,9 @@ def run(args) -> int:
         return error(exc, 1 if isinstance(exc, RuntimeError) else 2)
     except KeyboardInterrupt:
         return interrupted(out)
-    print(table.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    print(table_text(table))
     if args.experiment == "synthetic":
         for proto in table["protocol"].unique():
             verdict = "holds" if ordering_holds(table, proto) else "does NOT hold"
             print(f"{proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) {verdict}")
-    print(f"wrote {out}/")
-    return 0
+    return finish(f"{out}/")

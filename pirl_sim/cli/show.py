@@ -8,7 +8,7 @@ from typing import Any
 
 from pirl_sim.validation import positive_float_arg
 
-from .common import error
+from .common import error, finish, subcommand, track_files
 
 __all__ = ["add_parser", "run"]
 
@@ -27,50 +27,42 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def add_parser(subparsers) -> None:
-    """Add ``show`` to the command's subparsers."""
-    p = subparsers.add_parser(
-        "show",
-        help="draw a recording on its map: one frame, every track, or an animation",
-        description="Draw an INTERACTION-format recording (a track CSV file, a folder of them, or a pirl_sim "
-        "simulated run) on its Lanelet2 map: one frame (--frame or --time) with the vehicles as oriented boxes, "
-        "every track (the default), or an animation over a time span (--span, written as .gif or .mp4 by the "
-        "suffix of --out). Tracks are coloured by --color-by: a column of the track file, 'speed', or 'style' "
-        "(the drivers' styles from the run's ground_truth.csv).",
-    )
+@subcommand("show", help="draw a recording on its map: one frame, every track, or an animation",
+            description="Draw an INTERACTION-format recording (a track CSV file, a folder of them, or a pirl_sim "
+            "simulated run) on its Lanelet2 map: one frame (--frame or --time) with the vehicles as oriented boxes, "
+            "every track (the default), or an animation over a time span (--span, written as .gif or .mp4 by the "
+            "suffix of --out). Tracks are coloured by --color-by: a column of the track file, 'speed', or 'style' "
+            "(the drivers' styles from the run's ground_truth.csv).")
+def add_parser(p) -> None:
+    """The options of ``show``."""
     p.add_argument("tracks", type=Path, help="a vehicle_tracks_*.csv file, or a folder with one (a simulated run)")
-    p.add_argument("--map", type=Path, default=None,
+    p.add_argument("--map", type=Path,
                    help="Lanelet2 map (.osm); default: map.osm beside the tracks when there is one, else no road")
     p.add_argument("--file", type=int, default=0, metavar="N",
                    help="which vehicle_tracks_*.csv of a folder, in name order (default 0: the first)")
     when = p.add_mutually_exclusive_group()
-    when.add_argument("--frame", type=int, default=None, help="draw this frame_id")
-    when.add_argument("--time", type=float, default=None, metavar="S", help="draw the frame at this time [s]")
-    when.add_argument("--span", type=float, nargs=2, default=None, metavar=("START", "END"),
+    when.add_argument("--frame", type=int, help="draw this frame_id")
+    when.add_argument("--time", type=float, metavar="S", help="draw the frame at this time [s]")
+    when.add_argument("--span", type=float, nargs=2, metavar=("START", "END"),
                       help="animate from START to END [s of the recording]")
-    p.add_argument("--color-by", default=None, metavar="COLUMN",
-                   help="colour tracks by a column of the track file, 'speed' [m/s] or 'style' (default: one "
-                   "colour per track)")
+    p.add_argument("--color-by", metavar="COLUMN", help="colour tracks by a column of the track file, "
+                   "'speed' [m/s] or 'style' (default: one colour per track)")
     p.add_argument("--fps", type=positive_float_arg, default=10.0, help="animation frames per second (default 10)")
     p.add_argument("--speed", type=positive_float_arg, default=1.0,
                    help="recording seconds per animation second (default 1: real time)")
     p.add_argument("--size", type=_size, default=(800, 600), metavar="WxH", help="image size [px] (default 800x600)")
-    p.add_argument("--out", type=Path, default=None,
-                   help=f"output .png (frames, tracks) or .gif/.mp4 (--span); default {DEFAULT_OUT}, or show.gif "
-                   "with --span")
+    p.add_argument("--out", type=Path, help="output .png (frames, tracks) or .gif/.mp4 (--span); "
+                   f"default {DEFAULT_OUT}, or show.gif with --span")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _track_file(path: Path, index: int) -> Path:
-    from pirl_sim.io.interaction import find_track_files
-
+    """The track file ``path``, or the ``index``-th of the folder ``path`` (`track_files`)."""
     if path.is_file():
         return path
     if not path.is_dir():
         raise ValueError(f"tracks {str(path)!r}: no such file or folder")
-    files = find_track_files(path)
-    if not files:
-        raise ValueError(f"{path}: no vehicle_tracks_*.csv in this folder")
+    files = track_files(path)
     if not 0 <= index < len(files):
         raise ValueError(f"--file {index}: the folder has {len(files)} track file(s), so it must be in "
                          f"[0, {len(files) - 1}]")
@@ -94,9 +86,8 @@ def _styles(folder: Path) -> dict:
 def _outputs(args, inputs: list[Path]) -> Path:
     animated = args.span is not None
     out = args.out if args.out is not None else Path("show.gif" if animated else DEFAULT_OUT)
-    suffix = out.suffix.lower()
     allowed = (".gif", ".mp4") if animated else (".png",)
-    if suffix not in allowed:
+    if out.suffix.lower() not in allowed:
         what = "an animation (--span)" if animated else "a picture"
         raise ValueError(f"--out {str(out)!r}: {what} is written as {' or '.join(allowed)}")
     if out.exists() and any(i.exists() and i.resolve() == out.resolve() for i in inputs):
@@ -121,27 +112,22 @@ def run(args) -> int:
         tracks = read_tracks(track_file)
         from pirl_sim.viz import TrackFrames, animate_scene, draw_recording, draw_scene, road_from_lanelet2
 
-        road = road_from_lanelet2(map_path) if map_path is not None else None
-        options: dict[str, Any]
-        color, options = args.color_by, {}
-        if color == _STYLE and _STYLE not in tracks.columns:
-            color, options = _styles(folder), {"categorical": True, "label": "style"}
-        title = track_file.name
+        draw: dict[str, Any] = {"road": road_from_lanelet2(map_path) if map_path is not None else None,
+                                "color_by": args.color_by, "size_px": args.size}
+        if args.color_by == _STYLE and _STYLE not in tracks.columns:
+            draw.update(color_by=_styles(folder), categorical=True, label="style")
         written = out
         if args.span is not None:
             written = animate_scene(tracks, out, start_s=args.span[0], end_s=args.span[1], fps=args.fps,
-                                    speed=args.speed, progress=not args.quiet, road=road, color_by=color,
-                                    size_px=args.size, title=title, **options)
+                                    speed=args.speed, progress=not args.quiet, title=track_file.name, **draw)
         elif args.frame is not None or args.time is not None:
             frames = TrackFrames(tracks)
             frame = args.frame if args.frame is not None else frames.frame_at(args.time)
-            draw_scene(frames, frame, road=road, color_by=color, size_px=args.size, title=f"{title}, frame {frame}",
-                       **options).savefig(out)
+            draw_scene(frames, frame, title=f"{track_file.name}, frame {frame}", **draw).savefig(out)
         else:
-            draw_recording(tracks, road=road, color_by=color, size_px=args.size, title=title, **options).savefig(out)
+            draw_recording(tracks, title=track_file.name, **draw).savefig(out)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError) as exc:
         return error(exc)
     except OSError as exc:
         return error(f"cannot write {args.out}: {exc.strerror or exc}")
-    print(f"wrote {written}")
-    return 0
+    return finish(written)

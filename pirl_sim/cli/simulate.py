@@ -10,14 +10,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import math
 import sys
 from pathlib import Path
 from typing import Any
 
-from pirl_sim.validation import check_output_dir, positive_int_arg, seed_arg
+from pirl_sim.validation import check_output_dir, positive_float_arg, positive_int_arg
 
-from .common import error
+from .common import add_seed_option, error, finish, reworded, subcommand
 
 __all__ = ["add_parser", "run", "add_simulator_parser", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT",
            "SUMO_BACKENDS"]
@@ -28,89 +27,53 @@ HIGHWAY_OUT = Path("results") / "highway_run"
 SUMO_BACKENDS = ("libsumo", "traci")
 
 
-def add_parser(subparsers) -> None:
-    """Add ``simulate`` and its simulators to the command's subparsers."""
-    sim = subparsers.add_parser(
-        "simulate",
-        help="simulate a driver population of known cost weights and record it in INTERACTION format",
-        description="Simulate a mixed-style driver population whose cost weights are known and record it: "
-                    "INTERACTION tracks, a ground-truth table and a Lanelet2 map.",
-    )
-    simulators = sim.add_subparsers(dest="simulator", metavar="SIMULATOR")
-    simulators.required = True
+@subcommand("simulate",
+            help="simulate a driver population of known cost weights and record it in INTERACTION format",
+            description="Simulate a mixed-style driver population whose cost weights are known and record it: "
+            "INTERACTION tracks, a ground-truth table and a Lanelet2 map.")
+def add_parser(sim) -> None:
+    """The simulators of ``simulate``, each a command of its own (`add_simulator_parser`)."""
+    simulators = sim.add_subparsers(dest="simulator", metavar="SIMULATOR", required=True)
+    drivers = ("with PIRL drivers (the paper's roundabout model, each with its own sampled weights, re-planning every "
+               "0.1 s) and")
     sumo = add_simulator_parser(
-        simulators, "sumo",
-        help="a SUMO roundabout (libsumo)",
-        description="Run a SUMO roundabout with PIRL drivers (the paper's roundabout model, each with its own "
-                    "sampled weights, re-planning every 0.1 s) and SUMO background traffic; write "
-                    "vehicle_tracks_000.csv, ground_truth.csv, map.osm, run.json and network/ to --out. "
-                    "Runs with no arguments (embedded default population and network).",
-        default_out=SUMO_OUT,
+        simulators, "sumo", help="a SUMO roundabout (libsumo)", default_out=SUMO_OUT, seed_of="every draw and of SUMO",
+        description=f"Run a SUMO roundabout {drivers} SUMO background traffic; write vehicle_tracks_000.csv, "
+        "ground_truth.csv, map.osm, run.json and network/ to --out. Runs with no arguments (embedded default "
+        "population and network).",
         scenario_help="scenario TOML with [network], [drivers] and route settings (default: the default 4-arm "
-                      "roundabout)",
-        seed_help="seed of every draw and of SUMO (default 0)",
-    )
+        "roundabout)")
     sumo.add_argument("--backend", choices=SUMO_BACKENDS, default="libsumo",
                       help="libsumo (default, in-process) or traci (a SUMO process over a socket, slower)")
-    sumo.add_argument("--demand", type=_positive_float, default=None, metavar="VEH_PER_H",
-                      help="traffic demand [vehicles per hour per arm]: sets the time between departures "
-                           "(3600 / (demand * arms) s; overrides the population's depart_interval); with "
-                           "--n-vehicles it sets how long the demand lasts")
-    sumo.add_argument("--lanes", type=positive_int_arg, default=None, metavar="N",
-                      help="lanes of the ring and of every arm (default: the scenario's, 1); 2 for a two-lane "
-                           "roundabout")
+    sumo.add_argument("--demand", type=reworded(positive_float_arg, "expected a number > 0, got {text!r}"),
+                      metavar="VEH_PER_H", help="traffic demand [vehicles per hour per arm]: sets the "
+                      "time between departures (3600 / (demand * arms) s; overrides the population's depart_interval); "
+                      "with --n-vehicles it sets how long the demand lasts")
+    sumo.add_argument("--lanes", type=positive_int_arg, metavar="N", help="lanes of the ring and of "
+                      "every arm (default: the scenario's, 1); 2 for a two-lane roundabout")
     add_simulator_parser(
-        simulators, "highway",
-        help="highway-env's roundabout",
-        description="Run highway-env's roundabout (roundabout-generic-v0, one ring lane) with PIRL drivers (the "
-                    "paper's roundabout model, each with its own sampled weights, re-planning every 0.1 s) and "
-                    "highway-env IDM background traffic; write vehicle_tracks_000.csv, ground_truth.csv, "
-                    "map.osm and run.json to --out. Runs with no arguments.",
-        default_out=HIGHWAY_OUT,
-        scenario_help="scenario TOML with [geometry], [drivers], [rules] and route settings",
-    )
+        simulators, "highway", help="highway-env's roundabout", default_out=HIGHWAY_OUT,
+        description=f"Run highway-env's roundabout (roundabout-generic-v0, one ring lane) {drivers} highway-env IDM "
+        "background traffic; write vehicle_tracks_000.csv, ground_truth.csv, map.osm and run.json to --out. Runs with "
+        "no arguments.", scenario_help="scenario TOML with [geometry], [drivers], [rules] and route settings")
 
 
 def add_simulator_parser(simulators, name: str, *, help: str, description: str, default_out: Path,
-                         scenario_help: str, seed_help: str = "seed of every draw (default 0)"
-                         ) -> argparse.ArgumentParser:
-    """Add the simulator ``name`` to ``simulate`` with the options every simulator has; returns its parser
-    (for options of its own)."""
+                         scenario_help: str, seed_of: str = "every draw") -> argparse.ArgumentParser:
+    """Add the simulator ``name`` to ``simulate`` with the options every simulator has (``--seed``: the seed of
+    ``seed_of``); returns its parser (for options of its own)."""
     p = simulators.add_parser(name, help=help, description=description)
-    p.add_argument("--population", type=Path, default=None, metavar="CONFIG",
+    p.add_argument("--population", type=Path, metavar="CONFIG",
                    help="population TOML (default: the embedded one, see --print-default-population)")
-    p.add_argument("--scenario", type=Path, default=None, metavar="CONFIG", help=scenario_help)
-    p.add_argument("--seed", type=seed_arg, default=0, help=seed_help)
+    p.add_argument("--scenario", type=Path, metavar="CONFIG", help=scenario_help)
+    add_seed_option(p, seed_of)
     p.add_argument("--out", type=Path, default=default_out,
                    help=f"output directory (default: {default_out.as_posix()})")
-    p.add_argument("--n-vehicles", type=positive_int_arg, default=None,
-                   help="override the population's number of vehicles")
+    p.add_argument("--n-vehicles", type=positive_int_arg, help="override the population's number of vehicles")
     p.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     p.add_argument("--print-default-population", action="store_true",
                    help="print the embedded default population as TOML and exit")
     return p
-
-
-def _positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-    return value
-
-
-def _sumo_options(config, args: argparse.Namespace):
-    """``config`` with the command line's --demand and --lanes (of ``sumo``) applied (ValueError for bad
-    combinations)."""
-    changes = {}
-    if getattr(args, "lanes", None) is not None:
-        changes["network"] = dataclasses.replace(config.network, lanes=args.lanes)
-    if getattr(args, "demand", None) is not None:
-        changes["demand_per_arm"] = args.demand
-    return dataclasses.replace(config, **changes) if changes else config
 
 
 class ProgressBar:
@@ -154,14 +117,16 @@ def run(args: argparse.Namespace) -> int:
         from pirl_sim.scenarios.highway.scenario import run_highway_scenario as simulate  # type: ignore[assignment]
     try:
         population = load_population(args.population) if args.population is not None else None
-        if args.scenario is not None:
-            config = load_scenario(args.scenario, population=population)
-        else:
-            config = Config(population=population or DEFAULT_POPULATION)
-        config = _sumo_options(config, args)
+        config = (load_scenario(args.scenario, population=population) if args.scenario is not None
+                  else Config(population=population or DEFAULT_POPULATION))
+        changes: dict[str, Any] = {}  # the options that override the configuration (ValueError for bad combinations)
+        if getattr(args, "lanes", None) is not None:  # sumo's
+            changes["network"] = dataclasses.replace(config.network, lanes=args.lanes)
+        if getattr(args, "demand", None) is not None:  # sumo's
+            changes["demand_per_arm"] = args.demand
         if args.n_vehicles is not None:
-            config = dataclasses.replace(
-                config, population=dataclasses.replace(config.population, n_vehicles=args.n_vehicles))
+            changes["population"] = dataclasses.replace(config.population, n_vehicles=args.n_vehicles)
+        config = dataclasses.replace(config, **changes)
         check_output_dir(args.out)  # before the run, not after it
         bar = None if args.quiet else ProgressBar()
         try:
@@ -180,9 +145,7 @@ def run(args: argparse.Namespace) -> int:
     if "mean_pirl" in t:
         print(f"  PIRL drivers in the network at once: mean {t['mean_pirl']:.1f}, max {t['max_pirl']}")
     for name in config.population.style_names:
-        n_style = int((pirl["style_name"] == name).sum())
-        n_clean = int((clean["style_name"] == name).sum())
-        print(f"  {name}: {n_style} PIRL tracks, {n_clean} without interaction")
+        print(f"  {name}: {int((pirl['style_name'] == name).sum())} PIRL tracks, "
+              f"{int((clean['style_name'] == name).sum())} without interaction")
     print(f"  collided: {int(gt['collided'].sum())}, removed early: {int(gt['removed_early'].sum())}")
-    print(f"wrote {args.out}/")
-    return 0
+    return finish(f"{args.out}/")

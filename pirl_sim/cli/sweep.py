@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from .common import command_line, error, interrupted, workers_arg
+from .common import command_line, error, interrupted, subcommand, workers_arg
 
 __all__ = ["add_parser", "run", "DEFAULT_OUT"]
 
@@ -14,23 +14,21 @@ DEFAULT_OUT = Path("results") / "sweep"
 log = logging.getLogger(__name__)
 
 
-def add_parser(subparsers) -> None:
-    """Add ``sweep`` to the command's subparsers."""
-    sw = subparsers.add_parser(
-        "sweep",
-        help="run a grid of scenario x learner x protocol x seed cells; resumable, local processes or Dask",
-        description="Run every cell of a sweep config (TOML) that the results directory does not hold yet: local "
-        "worker processes by default, a Dask cluster with --scheduler or --scheduler-file. Each finished cell is "
-        "stored at once (keyed by its config and the code version): run the same command again after an "
-        "interruption and only the missing cells run. Writes table.parquet / table.csv (one row per cell).",
-    )
+@subcommand("sweep",
+            help="run a grid of scenario x learner x protocol x seed cells; resumable, local processes or Dask",
+            description="Run every cell of a sweep config (TOML) that the results directory does not hold yet: local "
+            "worker processes by default, a Dask cluster with --scheduler or --scheduler-file. Each finished cell is "
+            "stored at once (keyed by its config and the code version): run the same command again after an "
+            "interruption and only the missing cells run. Writes table.parquet / table.csv (one row per cell).")
+def add_parser(sw) -> None:
+    """The options of ``sweep``."""
     sw.add_argument("config", nargs="?", default="default",
                     help="sweep config (TOML); 'default' or nothing: the embedded default (the paper's experiments)")
-    sw.add_argument("--workers", type=workers_arg, default=None,
+    sw.add_argument("--workers", type=workers_arg,
                     help="local worker processes (default: the usable cores; 0: run in this process)")
-    sw.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+    sw.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                     help="Dask scheduler to run the cells on (workers: same pirl_sim version, --nthreads 1)")
-    sw.add_argument("--scheduler-file", type=Path, default=None, metavar="PATH",
+    sw.add_argument("--scheduler-file", type=Path, metavar="PATH",
                     help="instead of --scheduler: the file 'dask scheduler --scheduler-file PATH' wrote")
     sw.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"results directory (default {DEFAULT_OUT})")
     sw.add_argument("--report", action="store_true", help="draw the figures and README.md afterwards (as report)")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from pirl_sim.validation import seed_arg
 
-from .common import run_study, workers_arg
+from .common import add_study_options, finish, run_study, subcommand
 
 __all__ = ["add_parser", "run", "EXPERIMENTS"]
 
@@ -15,22 +15,17 @@ __all__ = ["add_parser", "run", "EXPERIMENTS"]
 EXPERIMENTS = ("synthetic-spread", "synthetic", "lq-3-styles", "passage", "lq-receding")
 
 
-def add_parser(subparsers) -> None:
-    """Add ``weight-space`` to the command's subparsers."""
-    p = subparsers.add_parser(
-        "weight-space",
-        help="mixtures in feature space against mixtures in weight space (tables and a figure)",
-        description="Feature-space against weight-space mixtures: style recovery, weight errors and multi-modal "
-                    "predictions on synthetic, LQ and roundabout-passage drivers of known styles. Finished cells "
-                    "are kept in OUT/cells: the same command resumes.")
+@subcommand("weight-space", help="mixtures in feature space against mixtures in weight space (tables and a figure)",
+            description="Feature-space against weight-space mixtures: style recovery, weight errors and multi-modal "
+            "predictions on synthetic, LQ and roundabout-passage drivers of known styles. Finished cells are kept in "
+            "OUT/cells: the same command resumes.")
+def add_parser(p) -> None:
+    """The options of ``weight-space``."""
     p.add_argument("--out", type=Path, default=Path("results") / "weight_space", help="output directory")
     p.add_argument("--seeds", type=seed_arg, nargs="+", default=[0], help="seeds of every draw (default 0)")
     p.add_argument("--experiments", nargs="+", choices=EXPERIMENTS, default=list(EXPERIMENTS), metavar="NAME",
                    help=f"the experiments to run, of {', '.join(EXPERIMENTS)} (default all)")
-    p.add_argument("--workers", type=workers_arg, default=1,
-                   help="cells run at once, each in its own process (default 1; 0: in this process)")
-    p.add_argument("--dry-run", action="store_true", help="check the options and count the cells still to run")
-    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_study_options(p, "cells run")
 
 
 def run(args) -> int:
@@ -48,11 +43,8 @@ def run(args) -> int:
         data, names = study_config(experiments, args.seeds)
         return parse_config(data, source="pirl-sim weight-space"), names
 
-    result, _, names, status = run_study("weight-space", config, args, command)
-    if status is not None:
-        return status
-    out = args.out
-    table = write_study([result.records[k]["result"] for k in result.keys], names, out, command)  # in any --out
-    print(markdown(table))
-    print(f"wrote {out}/")
-    return 0
+    def report(result, _, names) -> int:
+        table = write_study([result.records[k]["result"] for k in result.keys], names, args.out, command)  # any --out
+        return finish(f"{args.out}/", markdown(table))
+
+    return run_study("weight-space", config, report, args, command)

@@ -18,24 +18,6 @@ from pirl_sim.experiments.registry import SCENARIOS, register_scenario
 from pirl_sim.experiments.spec import Param, ScenarioData, ScenarioSpec, TrainShape
 from .store import ResultStore, code_version
 
-__all__ = [
-    "Cell",
-    "SweepConfig",
-    "load_config",
-    "parse_config",
-    "default_config",
-    "run_sweep",
-    "SweepRun",
-    "assemble_table",
-    "read_table",
-    "TIMING_COLUMNS",
-    "write_report",
-    "SCENARIOS",
-    "ScenarioSpec",
-    "ScenarioData",
-    "TrainShape",
-    "Param",
-    "register_scenario",
-    "ResultStore",
-    "code_version",
-]
+__all__ = ["Cell", "SweepConfig", "load_config", "parse_config", "default_config", "run_sweep", "SweepRun",
+           "assemble_table", "read_table", "TIMING_COLUMNS", "write_report", "SCENARIOS", "ScenarioSpec",
+           "ScenarioData", "TrainShape", "Param", "register_scenario", "ResultStore", "code_version"]

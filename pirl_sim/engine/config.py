@@ -31,23 +31,9 @@ from pirl_sim.validation import SEED_LIMIT, check_keys, is_positive_int
 from pirl_sim.evaluation.baselines import BASELINES
 from pirl_sim.experiments.registry import PROTOCOL_FREE, resolve_scenario_params, scenario_spec
 
-__all__ = [
-    "Choice",
-    "GridAxis",
-    "LearnerGrid",
-    "ProtocolGrid",
-    "Experiment",
-    "Cell",
-    "SweepConfig",
-    "LEARNER_DISPLAY",
-    "load_config",
-    "parse_config",
-    "default_config",
-    "DEFAULT_CONFIG_TEXT",
-    "preset_text",
-    "canonical_json",
-    "sweep_learners",
-]
+__all__ = ["Choice", "GridAxis", "LearnerGrid", "ProtocolGrid", "Experiment", "Cell", "SweepConfig", "LEARNER_DISPLAY",
+           "load_config", "parse_config", "default_config", "DEFAULT_CONFIG_TEXT", "preset_text", "canonical_json",
+           "sweep_learners"]
 
 TOP_KEYS = ("name", "description", "seeds", "experiments")
 EXPERIMENT_KEYS = ("scenario", "label", "seeds", "params", "grid", "protocols", "learners")
@@ -81,11 +67,9 @@ def canonical_json(obj) -> str:
 def _jsonable(label: str, value):
     """TOML value -> JSON value (tuples as lists); dates, times and nan are rejected, naming the key (``label``
     and the path to the value inside it)."""
-    if isinstance(value, (bool, int, str)) or value is None:
-        return value
-    if isinstance(value, float):
-        if math.isnan(value):  # inf has uses (e.g. rationality = inf: exact optima); nan never does
-            raise ValueError(f"{label}: nan is not allowed; give a number")
+    if isinstance(value, float) and math.isnan(value):  # inf has uses (e.g. rationality = inf: exact optima)
+        raise ValueError(f"{label}: nan is not allowed; give a number")
+    if isinstance(value, (bool, int, float, str)) or value is None:
         return value
     if isinstance(value, (list, tuple)):
         return [_jsonable(f"{label}[{i}]", v) for i, v in enumerate(value)]
@@ -182,6 +166,15 @@ def _parse_grid(label: str, grid, fixed: Mapping) -> tuple[GridAxis, ...]:
     return tuple(GridAxis.parse(label, str(k), v) for k, v in grid.items())
 
 
+def _learner_defaults(name) -> dict:
+    """The default parameters of the sweep learner ``name`` less those the sweep sets (`RESERVED_LEARNER_PARAMS`);
+    ValueError naming the learners for an unknown one."""
+    learners = sweep_learners()
+    if name not in learners:
+        raise ValueError(f"unknown learner {name!r}; choose one of {', '.join(sorted(learners))}")
+    return {k: v for k, v in learners[name]().get_params().items() if k not in RESERVED_LEARNER_PARAMS}
+
+
 def _points(axes: tuple[GridAxis, ...]):
     """Every combination of the axes' choices: list of ({name: value}, [(name, label)]) (no axes: one, empty)."""
     return [({a.name: c.value for a, c in zip(axes, combo)}, [(a.name, c.label) for a, c in zip(axes, combo)])
@@ -198,31 +191,23 @@ class LearnerGrid:
     grid: tuple[GridAxis, ...] = ()
 
     def __post_init__(self) -> None:
-        LEARNERS = sweep_learners()
-        if self.name not in LEARNERS:
-            raise ValueError(f"unknown learner {self.name!r}; choose one of {', '.join(sorted(LEARNERS))}")
-        valid = tuple(k for k in LEARNERS[self.name]().get_params() if k not in RESERVED_LEARNER_PARAMS)
+        valid = tuple(_learner_defaults(self.name))
         for key in [*self.params, *(a.name for a in self.grid)]:
             if key in RESERVED_LEARNER_PARAMS:
-                raise ValueError(
-                    f"learner {self.name!r}: {key!r} is set by the sweep (model: the scenario; window, windows: the "
-                    "protocol)"
-                )
+                raise ValueError(f"learner {self.name!r}: {key!r} is set by the sweep (model: the scenario; window, "
+                                 "windows: the protocol)")
             if key not in valid:
-                raise ValueError(
-                    f"learner {self.name!r}: unknown parameter {key!r}; valid parameters: {', '.join(valid)}"
-                )
+                raise ValueError(f"learner {self.name!r}: unknown parameter {key!r}; valid parameters: "
+                                 f"{', '.join(valid)}")
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
 
     @classmethod
     def parse(cls, label: str, entry) -> "LearnerGrid":
-        if isinstance(entry, str):
-            entry = {"name": entry}
+        entry = {"name": entry} if isinstance(entry, str) else entry
         check_keys(label, entry, LEARNER_KEYS)
         if "name" not in entry:
             raise ValueError(f"{label} needs a name (one of {', '.join(LEARNER_DISPLAY)})")
-        name = entry["name"]
-        params = _params(label, entry)
+        name, params = entry["name"], _params(label, entry)
         display = entry.get("label", LEARNER_DISPLAY.get(name, str(name)))
         return cls(name, str(display), params, _parse_grid(f"{label}.grid", entry.get("grid"), params))
 
@@ -245,8 +230,7 @@ class ProtocolGrid:
 
     @classmethod
     def parse(cls, label: str, entry) -> "ProtocolGrid":
-        if isinstance(entry, str):
-            entry = {"kind": entry}
+        entry = {"kind": entry} if isinstance(entry, str) else entry
         check_keys(label, entry, PROTOCOL_KEYS)
         fields = {k: _jsonable(f"{label}.{k}", v) for k, v in entry.items() if k != "grid"}
         return cls(fields, _parse_grid(f"{label}.grid", entry.get("grid"), fields))
@@ -276,10 +260,8 @@ class Experiment:
         spec = scenario_spec(self.scenario)  # unknown scenario: ValueError naming the registered ones
         for a in self.grid:
             if a.name not in spec.params:
-                raise ValueError(
-                    f"scenario {self.scenario!r}: unknown parameter {a.name!r} in the grid; valid parameters: "
-                    f"{', '.join(spec.params)}"
-                )
+                raise ValueError(f"scenario {self.scenario!r}: unknown parameter {a.name!r} in the grid; valid "
+                                 f"parameters: {', '.join(spec.params)}")
         for what, values in (("protocol", self.protocols), ("learner", self.learners), ("seed", self.seeds)):
             if not values:
                 raise ValueError(f"empty grid: experiment {self.label!r} has no {what}")
@@ -302,16 +284,10 @@ class Experiment:
         for key, v in (("protocols", protocols), ("learners", learners)):
             if not isinstance(v, list):
                 raise ValueError(f"{label}.{key} must be a list, got {v!r}")
-        return cls(
-            scenario=scenario,
-            label=str(entry.get("label", scenario)),
-            params=params,
-            grid=grid,
-            protocols=tuple(ProtocolGrid.parse(f"{label}.protocols[{i}]", p) for i, p in enumerate(protocols)),
-            learners=tuple(LearnerGrid.parse(f"{label}.learners[{i}]", lg) for i, lg in enumerate(learners)),
-            seeds=_seeds(f"{label}.seeds", seeds),
-            base_dir=None if base_dir is None else str(base_dir),
-        )
+        return cls(scenario, str(entry.get("label", scenario)), params, grid,
+                   tuple(ProtocolGrid.parse(f"{label}.protocols[{i}]", p) for i, p in enumerate(protocols)),
+                   tuple(LearnerGrid.parse(f"{label}.learners[{i}]", lg) for i, lg in enumerate(learners)),
+                   _seeds(f"{label}.seeds", seeds), None if base_dir is None else str(base_dir))
 
 
 # ------------------------------------------------------------------------------------------ cells
@@ -348,15 +324,9 @@ class Cell:
 
     def spec(self) -> dict:
         """The cell's full configuration as plain JSON data: what a worker runs and what the key hashes."""
-        return {
-            "scenario": self.scenario,
-            "scenario_params": json.loads(canonical_json(dict(self.scenario_params))),
-            "data_fingerprint": self.data_fingerprint,
-            "protocol": dict(self.protocol),
-            "learner": self.learner,
-            "learner_params": json.loads(canonical_json(dict(self.learner_params))),
-            "seed": self.seed,
-        }
+        return {"scenario": self.scenario, "scenario_params": json.loads(canonical_json(dict(self.scenario_params))),
+                "data_fingerprint": self.data_fingerprint, "protocol": dict(self.protocol), "learner": self.learner,
+                "learner_params": json.loads(canonical_json(dict(self.learner_params))), "seed": self.seed}
 
     def key(self, code_version: str) -> str:
         """sha256 of the full configuration and the code version (32 hex digits)."""
@@ -379,8 +349,8 @@ def _learner_label(grid: LearnerGrid, params: dict, varied: list[tuple[str, str]
 def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) -> None:
     """Values we can check without data: k against the training samples, windows, enums (``log_bounds``: the
     learner's own `_check_common`)."""
-    LEARNERS = sweep_learners()
-    learner = LEARNERS[grid.name](**params, **proto.learner_params())
+    protocol_params = proto.learner_params()
+    learner = sweep_learners()[grid.name](**params, **protocol_params)
     with _named(f"{label}: "):
         learner._check_common()
     for name, bic in (("n_neighbors", False), ("n_components", True), ("max_components", False)):
@@ -389,17 +359,14 @@ def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) ->
             allowed = "a positive integer" + (' or "bic"' if bic else "")
             raise ValueError(f"{label}: {name} must be {allowed}, got {v!r}")
     kname = K_PARAMS.get(grid.name)
-    k = params.get(kname) if kname else None
-    window = proto.learner_params()["window"]
-    if isinstance(k, int) and (shape.lengths or window is None or proto.learner_params().get("windows") == "first"):
-        n = shape.n_samples(window, proto.learner_params().get("windows", "first"), params.get("stride", 1))
+    k, window = params.get(kname) if kname else None, protocol_params["window"]
+    if isinstance(k, int) and (shape.lengths or window is None or protocol_params.get("windows") == "first"):
+        n = shape.n_samples(window, protocol_params.get("windows", "first"), params.get("stride", 1))
         what = "trajectories" if window is None else f"windows of {window} steps"
         bound = "" if shape.exact else "at most "
         if k > n:
-            raise ValueError(
-                f"{label}: k = {kname} = {k} is larger than the training set ({bound}{n} training {what} from "
-                f"{bound}{shape.n_train} trajectories)"
-            )
+            raise ValueError(f"{label}: k = {kname} = {k} is larger than the training set ({bound}{n} training "
+                             f"{what} from {bound}{shape.n_train} trajectories)")
     rs = params.get("random_state")
     if rs is not None and (isinstance(rs, bool) or not isinstance(rs, int) or not 0 <= rs < SEED_LIMIT):
         raise ValueError(f"{label}: random_state must be an integer in [0, 2**31) or absent, got {rs!r}")
@@ -410,9 +377,8 @@ def _check_learner(label: str, grid: LearnerGrid, params: dict, proto, shape) ->
 
         for key, choices in (("average", AVERAGES), ("prior", PRIORS), ("weighting", WEIGHTINGS), ("target", TARGETS),
                              ("aggregate", AGGREGATES), ("selector", SELECTORS), ("segment_start", SEGMENT_STARTS)):
-            if key == "selector" and params.get("aggregate") != "selected":
-                continue  # the learner reads its selector only with aggregate="selected"
-            if key in params and params[key] not in choices:
+            read = key != "selector" or params.get("aggregate") == "selected"  # a selector only serves "selected"
+            if read and key in params and params[key] not in choices:
                 raise ValueError(f"{label}: {key} must be one of {choices}, got {params[key]!r}")
 
 
@@ -421,17 +387,12 @@ def _check_mixture(label: str, name: str, params: dict) -> None:
     on the parameters the learner passes to it, so that a bad value fails when the config is built."""
     from sklearn.mixture import BayesianGaussianMixture, GaussianMixture
 
-    if name == "pirl-gmm":
-        k = params.get("n_components", 2)
-        mixture = GaussianMixture(n_components=k if isinstance(k, int) else 1,
-                                  covariance_type=params.get("covariance_type", "full"),
-                                  n_init=params.get("n_init", 1), random_state=params.get("random_state"))
-    else:
-        mixture = BayesianGaussianMixture(
-            n_components=params.get("max_components", 1) if isinstance(params.get("max_components"), int) else 1,
-            weight_concentration_prior=params.get("weight_concentration_prior"),
-            covariance_type=params.get("covariance_type", "full"), n_init=params.get("n_init", 1),
-            max_iter=params.get("max_iter", 100), random_state=params.get("random_state"))
+    k = params.get("n_components", 2) if name == "pirl-gmm" else params.get("max_components", 1)
+    common = {"n_components": k if isinstance(k, int) else 1, "covariance_type": params.get("covariance_type", "full"),
+              "n_init": params.get("n_init", 1), "random_state": params.get("random_state")}
+    mixture = GaussianMixture(**common) if name == "pirl-gmm" else BayesianGaussianMixture(
+        **common, weight_concentration_prior=params.get("weight_concentration_prior"),
+        max_iter=params.get("max_iter", 100))
     with _named(f"{label}: ", (TypeError, ValueError)):
         mixture._validate_params()
     if "min_cluster_size" in params and not is_positive_int(params["min_cluster_size"]):
@@ -439,8 +400,6 @@ def _check_mixture(label: str, name: str, params: dict) -> None:
 
 
 def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
-    LEARNERS = sweep_learners()
-
     cells: list[Cell] = []
     for e_idx, exp in enumerate(experiments):
         elabel = f"experiment {e_idx + 1} ({exp.label})"
@@ -453,40 +412,34 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
             with _named(f"{elabel}: "):
                 params = resolve_scenario_params(exp.scenario, {**exp.params, **values}, base)
             with _named(f"{elabel}: scenario {exp.scenario!r} cannot read its data: ", (OSError, ValueError, KeyError)):
-                shape = spec.train_shape(params)
-                fingerprint = spec.fingerprint(params)
+                shape, fingerprint = spec.train_shape(params), spec.fingerprint(params)
             slabel = exp.label + (f" ({', '.join(f'{n}={lab}' for n, lab in varied)})" if varied else "")
             longest = max(shape.lengths, default=0)
-            for pgrid in exp.protocols:
-                for fields in pgrid.points():
-                    with _named(f"{elabel}: protocol {dict(fields)}: ", (TypeError, ValueError)):
-                        proto = Protocol(**fields)
-                    with _named(f"{elabel}: scenario {exp.scenario!r} ", (TypeError, ValueError)):
-                        (spec.check_protocol or (lambda *_: None))(params, dict(fields))
-                    if shape.lengths and proto.steps_needed() > longest:
-                        raise ValueError(
-                            f"{elabel}: the {proto.name} protocol needs trajectories of at least "
-                            f"{proto.steps_needed()} steps; the scenario's have at most {longest}"
-                        )
-                    for lgrid in exp.learners:
-                        defaults = {k: v for k, v in LEARNERS[lgrid.name]().get_params().items()
-                                    if k not in RESERVED_LEARNER_PARAMS}
-                        for lvalues, lvaried in _points(lgrid.grid):
-                            given = {**lgrid.params, **lvalues}
-                            llabel, k = _learner_label(lgrid, {**defaults, **given}, lvaried)
-                            for seed in exp.seeds:
-                                lparams = {**defaults, **given}
-                                if "random_state" in lparams and "random_state" not in given:
-                                    lparams["random_state"] = seed
-                                if (lparams.get("likelihood") == "receding" and lparams.get("horizon") is None
-                                        and spec.driver_horizon is not None):
-                                    lparams["horizon"] = spec.driver_horizon(params)  # the drivers' own
-                                lparams = _jsonable(llabel, lparams)
-                                _check_learner(f"{elabel}: {llabel} under the {proto.name} protocol", lgrid,
-                                               _tuples(lparams), proto, shape)
-                                cell = Cell(exp.scenario, params, fingerprint, fields, lgrid.name, lparams, seed,
-                                            exp.label, slabel, proto.name, llabel, k)
-                                own.setdefault(canonical_json(cell.spec()), cell)
+            for fields in (f for pgrid in exp.protocols for f in pgrid.points()):
+                with _named(f"{elabel}: protocol {dict(fields)}: ", (TypeError, ValueError)):
+                    proto = Protocol(**fields)
+                with _named(f"{elabel}: scenario {exp.scenario!r} ", (TypeError, ValueError)):
+                    (spec.check_protocol or (lambda *_: None))(params, dict(fields))
+                if shape.lengths and proto.steps_needed() > longest:
+                    raise ValueError(f"{elabel}: the {proto.name} protocol needs trajectories of at least "
+                                     f"{proto.steps_needed()} steps; the scenario's have at most {longest}")
+                for lgrid in exp.learners:
+                    defaults = _learner_defaults(lgrid.name)
+                    for lvalues, lvaried in _points(lgrid.grid):
+                        given = {**lgrid.params, **lvalues}
+                        lparams = {**defaults, **given}
+                        llabel, k = _learner_label(lgrid, lparams, lvaried)
+                        if (lparams.get("likelihood") == "receding" and lparams.get("horizon") is None
+                                and spec.driver_horizon is not None):
+                            lparams["horizon"] = spec.driver_horizon(params)  # the drivers' own
+                        seeded = "random_state" in defaults and "random_state" not in given  # the seed unless given
+                        for seed in exp.seeds:
+                            cell_params = _jsonable(llabel, {**lparams, "random_state": seed} if seeded else lparams)
+                            _check_learner(f"{elabel}: {llabel} under the {proto.name} protocol", lgrid,
+                                           _tuples(cell_params), proto, shape)
+                            cell = Cell(exp.scenario, params, fingerprint, fields, lgrid.name, cell_params, seed,
+                                        exp.label, slabel, proto.name, llabel, k)
+                            own.setdefault(canonical_json(cell.spec()), cell)
         cells += own.values()
     if not cells:  # pragma: no cover - every empty part is rejected above
         raise ValueError("empty grid: the sweep has no cell")
@@ -536,9 +489,8 @@ class SweepConfig:
         labels = [e.label for e in self.experiments]
         for i, lab in enumerate(labels):
             if lab in labels[:i]:
-                raise ValueError(
-                    f"experiments {labels.index(lab) + 1} and {i + 1} are both labelled {lab!r}: give one a label"
-                )
+                raise ValueError(f"experiments {labels.index(lab) + 1} and {i + 1} are both labelled {lab!r}: give "
+                                 "one a label")
         object.__setattr__(self, "cells", _expand(self.experiments))
 
 
@@ -563,9 +515,7 @@ def parse_config(data: Mapping[str, Any], *, base_dir=None, source: str = "<dict
     if not isinstance(exps, list):
         raise ValueError(f"experiments must be an array of tables ([[experiments]]), got {exps!r}")
     base = None if base_dir is None else Path(base_dir)
-    experiments = tuple(
-        Experiment.parse(f"experiments[{i}]", e, default_seeds, base) for i, e in enumerate(exps)
-    )
+    experiments = tuple(Experiment.parse(f"experiments[{i}]", e, default_seeds, base) for i, e in enumerate(exps))
     name = data.get("name", Path(source).stem if source.endswith(".toml") else "sweep")
     return SweepConfig(str(name), str(data.get("description", "")), experiments, source, text)
 

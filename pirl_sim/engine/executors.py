@@ -17,11 +17,16 @@ which `concurrent.futures` and `dask.distributed` both provide; so the same loop
 from __future__ import annotations
 
 import concurrent.futures as cf
+import json
 import multiprocessing
 import os
 import re
 import sys
 import threading
+import time
+from contextlib import suppress
+
+from pirl_sim.validation import number
 
 from . import worker as cell
 
@@ -42,8 +47,6 @@ def _parent_gone(parent_pid: int) -> bool:
 
 
 def _watch_parent_loop(parent_pid: int, interval: float) -> None:
-    import time
-
     while not _parent_gone(parent_pid):
         time.sleep(interval)
     try:
@@ -70,8 +73,7 @@ def watch_parent(parent_pid: int, interval: float = PARENT_POLL_SECONDS) -> thre
     """
     if isinstance(parent_pid, bool) or not isinstance(parent_pid, int) or parent_pid < 1:
         raise ValueError(f"parent_pid must be a positive integer, got {parent_pid!r}")
-    if not interval > 0:
-        raise ValueError(f"interval must be > 0 seconds, got {interval!r}")
+    number("interval [s]", interval, low=0, allow_equal=False, finite=False)
     if _parent_gone(parent_pid):  # died while this worker started
         os._exit(1)
     thread = threading.Thread(target=_watch_parent_loop, args=(parent_pid, interval), name="pirl-watch-parent",
@@ -148,10 +150,8 @@ def package_versions() -> dict[str, str]:
 
     found = {"pirl_sim": code_version()}
     for name in VERSIONED_PACKAGES:
-        try:
+        with suppress(metadata.PackageNotFoundError):
             found[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            pass
     return found
 
 
@@ -175,8 +175,6 @@ def check_worker_versions(client, versions=package_versions) -> None:
 def _scheduler_address(path) -> str:
     """The address in a Dask scheduler file; ValueError naming ``path`` when it is missing or unreadable (the
     client would wait for it forever)."""
-    import json
-
     try:
         with open(path, encoding="utf-8") as f:
             info = json.load(f)
@@ -318,10 +316,6 @@ def make_executor(workers: int | None = None, scheduler: str | None = None, sche
     """`DaskExecutor` for a scheduler address or a scheduler file, else `LocalExecutor` (``workers`` default: the
     usable cores), `InlineExecutor` for ``workers == 0``."""
     check_one_place(workers, scheduler, scheduler_file)
-    if scheduler is not None:
-        return DaskExecutor(scheduler)
-    if scheduler_file is not None:
-        return DaskExecutor(scheduler_file=scheduler_file)
-    if workers == 0:
-        return InlineExecutor()
-    return LocalExecutor(default_workers() if workers is None else workers)
+    if scheduler is not None or scheduler_file is not None:
+        return DaskExecutor(scheduler, scheduler_file=scheduler_file)
+    return InlineExecutor() if workers == 0 else LocalExecutor(default_workers() if workers is None else workers)

@@ -40,13 +40,11 @@ def preset_config(name: str, *, seed: int = 0, params: dict | None = None,
     if name not in reproduce.PRESETS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {', '.join(reproduce.PRESETS)}")
     text = preset_text(name)
-    data = tomllib.loads(text)
-    data["seeds"] = [seed]
+    data = {**tomllib.loads(text), "seeds": [seed]}
     for exp in data["experiments"]:
         exp["params"] = {**exp.get("params", {}), **(params or {})}
-        for proto in exp["protocols"]:
-            if history_steps is not None and proto["kind"] != "paper":
-                proto["history_steps"] = history_steps
+        for proto in (p for p in exp["protocols"] if history_steps is not None and p["kind"] != "paper"):
+            proto["history_steps"] = history_steps
         n_train = exp["params"].get("n_train", scenario_spec(exp["scenario"]).params["n_train"].default)
         for learner in exp["learners"]:
             grid = learner.get("grid", {}) if isinstance(learner, dict) else {}
@@ -94,5 +92,4 @@ def run_agents(cfg: agents_study.AgentsConfig, out, *, workers: int = 1, progres
     with (InlineExecutor() if workers == 1 else LocalExecutor(workers)) as executor:
         run = run_sweep(config, out, executor=executor, progress=progress, command=command, tables=False)
     run.check_failed("the experiment's runs")
-    return agents_study.collect_records(config.cells, run.keys, run.records, run.computed,
-                                        time.perf_counter() - t0)
+    return agents_study.collect_records(config.cells, run.keys, run.records, run.computed, time.perf_counter() - t0)

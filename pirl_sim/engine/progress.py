@@ -26,8 +26,7 @@ class Progress:
     def __init__(self, total: int, cached: int = 0, *, stream=None, enabled: bool = True, every: float = 5.0) -> None:
         self.total, self.cached = total, cached
         self.stream = sys.stderr if stream is None else stream
-        self.enabled = enabled
-        self.every = every
+        self.enabled, self.every = enabled, every
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.computed = self.failed = 0
         self._bar: Any = None  # a tqdm bar (an untyped library) once started
@@ -62,18 +61,13 @@ class Progress:
 
     def _postfix(self) -> None:
         parts = [f"{self.computed}/{self.total - self.cached} run"]
-        if self.cached:
-            parts.append(f"{self.cached} from the store")
-        if self.failed:
-            parts.append(f"{self.failed} failed")
+        parts += [f"{n} {what}" for n, what in ((self.cached, "from the store"), (self.failed, "failed")) if n]
         self._bar.set_postfix_str(", ".join(parts), refresh=False)
 
     def line(self) -> str:
         """The bar as text, e.g. ``sweep [##########--------------] 4/10 cells, 2/8 run, 2 from the store, elapsed
         00:08, ETA 00:24``."""
-        if self._bar is None or not self.enabled:
-            return ""
-        return str(self._bar)
+        return "" if self._bar is None or not self.enabled else str(self._bar)
 
     def close(self) -> None:
         if self._bar is not None:

@@ -15,7 +15,6 @@ workers, or Dask workers on this machine).
 from __future__ import annotations
 
 import datetime as _dt
-import io
 import json
 import time
 from dataclasses import dataclass, field
@@ -42,11 +41,9 @@ __all__ = ["SweepRun", "run_sweep", "plan_cells", "cell_keys", "assemble_table",
 TIMING_COLUMNS = ("generate_s", "fit_s", "evaluate_s", "cell_s", "cpu_s")
 SCORE_COLUMNS = ("med", "med_std", "fde", "weight_error", "ari", "n_styles", "n_train", "n_test", "n_predictions",
                  "n_warnings", *ONLINE_SCORES)  # the online protocol's (`pirl_sim.engine.worker`): empty elsewhere
-TABLE_COLUMNS = (
-    "key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "history_steps", "horizon",
-    "learner", "learner_label", "k", "seed", *SCORE_COLUMNS, *TIMING_COLUMNS, "scenario_params", "learner_params",
-    "code_version",
-)
+TABLE_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "history_steps",
+                 "horizon", "learner", "learner_label", "k", "seed", *SCORE_COLUMNS, *TIMING_COLUMNS, "scenario_params",
+                 "learner_params", "code_version")
 #: columns of ``weights.csv``: weight recovery per cell, free feature and true style ("all": every test history)
 WEIGHT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "learner_label", "seed", "feature",
                   "style", "n", "median_abs_log_err", "p90_abs_log_err", "spearman")
@@ -106,32 +103,14 @@ def _now() -> str:
 def _manifest(config: SweepConfig, keys: list[str], version: str, command: str | None) -> str:
     cells = [{"key": k, **c.labels(), "learner": c.learner, "scenario": c.scenario, "seed": c.seed}
              for c, k in zip(config.cells, keys)]
-    return json.dumps({
-        "name": config.name,
-        "description": config.description,
-        "source": config.source,
-        "command": command,
-        "code_version": version,
-        "n_cells": len(cells),
-        "n_unique_cells": len(set(keys)),
-        "cells": cells,
-        "config": config.text,
-    }, indent=1) + "\n"
+    return json.dumps({"name": config.name, "description": config.description, "source": config.source,
+                       "command": command, "code_version": version, "n_cells": len(cells),
+                       "n_unique_cells": len(set(keys)), "cells": cells, "config": config.text}, indent=1) + "\n"
 
 
-def run_sweep(
-    config: SweepConfig,
-    out_dir,
-    *,
-    executor=None,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    scheduler_file=None,
-    progress: bool = True,
-    command: str | None = None,
-    stream=None,
-    tables: bool = True,
-) -> SweepRun:
+def run_sweep(config: SweepConfig, out_dir, *, executor=None, workers: int | None = None, scheduler: str | None = None,
+              scheduler_file=None, progress: bool = True, command: str | None = None, stream=None,
+              tables: bool = True) -> SweepRun:
     """Run the cells of ``config`` that ``out_dir`` does not hold yet, then write the tables.
 
     Parameters
@@ -155,10 +134,8 @@ def run_sweep(
     ex = make_executor(workers, scheduler, scheduler_file) if todo and executor is None else executor
     out.mkdir(parents=True, exist_ok=True)
 
-    bar = None
+    bar, startup_s, description = None, 0.0, "nothing to run"
     computed, failed, simulated = [], {}, []
-    startup_s = 0.0
-    description = "nothing to run"
     if todo:
         futures = {}
         try:
@@ -246,10 +223,10 @@ def run_sweep(
     cached = [k for k in records if k not in set(computed)]
     table = assemble_table(config, keys, records)
     if tables:
-        _write_parquet(table, out / "table.parquet")
-        atomic_write_text(out / "table.csv", table.to_csv(index=False))
-        _write_or_remove(out / "recovery.parquet", _recovery_frame(config, keys, records))
-        _write_or_remove(out / "weights.csv", weights_table(config, keys, records))
+        _write(out / "table.parquet", table)
+        _write(out / "table.csv", table)
+        _write(out / "recovery.parquet", _recovery_frame(config, keys, records), keep_empty=False)
+        _write(out / "weights.csv", weights_table(config, keys, records), keep_empty=False)
     work_s, cpu_s = (sum((records[k]["timings"][t] for k in computed), 0.0) for t in ("cell_s", "cpu_s"))
     return SweepRun(out, table, computed, cached, failed, version, description,
                     time.perf_counter() - t_start, startup_s, work_s, cpu_s, simulated, records, keys)
@@ -276,16 +253,13 @@ def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str
     sims: dict[str, tuple[str, dict, int]]
     sims, waiting = {}, {}
     for k in todo:
-        cell = unique[k]
-        spec = scenario_spec(cell.scenario)
-        if spec.simulation is None:
-            continue
-        params = spec.simulation(json.loads(canonical_json(dict(cell.scenario_params))))
-        sk = simulation_key(cell.scenario, params, cell.seed, version)
-        if store.has_simulation(sk):
-            continue
-        sims.setdefault(sk, (cell.scenario, params, cell.seed))
-        waiting[k] = sk
+        cell, simulation = unique[k], scenario_spec(unique[k].scenario).simulation
+        if simulation is not None:
+            params = simulation(cell.spec()["scenario_params"])
+            sk = simulation_key(cell.scenario, params, cell.seed, version)
+            if not store.has_simulation(sk):
+                sims.setdefault(sk, (cell.scenario, params, cell.seed))
+                waiting[k] = sk
     return sims, waiting
 
 
@@ -340,18 +314,13 @@ def assemble_table(config: SweepConfig, keys: list[str], records: dict) -> pd.Da
     return table
 
 
-def _write_parquet(frame: pd.DataFrame, path: Path) -> None:
-    buf = io.BytesIO()
-    frame.to_parquet(buf, index=False)
-    atomic_write_bytes(path, buf.getvalue())
-
-
-def _write_or_remove(path: Path, frame: pd.DataFrame) -> None:
-    """``frame`` written to ``path`` (parquet or CSV by its suffix); without rows, ``path`` removed."""
-    if frame.empty:
+def _write(path: Path, frame: pd.DataFrame, keep_empty: bool = True) -> None:
+    """``frame`` written atomically to ``path`` (parquet or CSV by its suffix); without rows and not
+    ``keep_empty``, ``path`` removed."""
+    if frame.empty and not keep_empty:
         path.unlink(missing_ok=True)
     elif path.suffix == ".parquet":
-        _write_parquet(frame, path)
+        atomic_write_bytes(path, frame.to_parquet(index=False))
     else:
         atomic_write_text(path, frame.to_csv(index=False))
 
@@ -433,8 +402,7 @@ def _stored_table(path: Path) -> pd.DataFrame:
 #: columns every row of a finished cell has (a row cut short loses the last ones)
 _REQUIRED = ("key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "learner",
              "learner_label", "seed", "cell_s", "scenario_params", "learner_params", "code_version")
-_TEXT_COLUMNS = ("key", "experiment", "scenario", "scenario_label", "protocol", "protocol_kind", "learner",
-                 "learner_label", "scenario_params", "learner_params", "code_version")
+_TEXT_COLUMNS = tuple(c for c in _REQUIRED if c not in ("seed", "cell_s"))
 
 
 def _check_table(table: pd.DataFrame, path: Path) -> None:

@@ -59,8 +59,7 @@ def label_log_axis(ax, lo: float, hi: float) -> None:
     top = nice_above(hi) if narrow else 10.0 ** math.ceil(math.log10(hi))
     if top <= bottom:
         top = nice_above(bottom * 1.01)
-    ax.set_yscale("log")
-    ax.set_ylim(bottom, top)
+    ax.set(yscale="log", ylim=(bottom, top))
     if narrow:
         ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
@@ -136,9 +135,8 @@ def knn_vs_k_figure(ktable: pd.DataFrame, title: str):
         label_log_axis(ax, min(values), max(values))
     else:  # pragma: no cover - no positive value to show
         ax.set_yscale("log")
-    ax.set_xlabel("k (neighbours of PIRL-kNN)")
-    ax.set_ylabel("MED [m] over test trajectories\n(solid: mean, dashed: std)")
-    ax.set_title(title)
+    ax.set(xlabel="k (neighbours of PIRL-kNN)", ylabel="MED [m] over test trajectories\n(solid: mean, dashed: std)",
+           title=title)
     ax.grid(True, which="both", alpha=0.3)
     legend_below(fig, handles, labels, top=1.0)
     return fig
@@ -172,8 +170,7 @@ def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=
                     both = sel & (true_styles == t)
                     ax.scatter(logv[both, i], logv[both, j], s=12, alpha=0.7, color=f"C{c}",
                                marker=markers[int(t) % len(markers)])
-        ax.set_xlabel(f"log10 {names[i]}")
-        ax.set_ylabel(f"log10 {names[j]}")
+        ax.set(xlabel=f"log10 {names[i]}", ylabel=f"log10 {names[j]}")
         ax.grid(True, alpha=0.3)
     handles = [plt.Line2D([], [], color=f"C{c}", marker="o", ls="", label=f"cluster {c}") for c in np.unique(labels)]
     if true_styles is not None:
@@ -221,10 +218,8 @@ def weight_tracking(t: np.ndarray, inferred: np.ndarray, true: np.ndarray, label
     ax.plot(t, np.median(inferred, axis=0), color="C0", lw=2, label="inferred (median over drivers)")
     ax.step(t, true, where="post", color="k", lw=2, label="true")
     ax.axvline(switch_time, color="0.5", ls=":")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel(label)
+    ax.set(xlabel="time [s]", ylabel=label, title="Online inference follows a style switch")
     ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)
-    ax.set_title("Online inference follows a style switch")
     fig.tight_layout()
     return png_bytes(fig)

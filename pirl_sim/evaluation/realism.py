@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from pirl_sim.validation import int_at_least, number
+
 __all__ = ["FeatureSpec", "FEATURES", "TrackFeatures", "track_features", "score_realism", "RealismScore",
            "compare_sources", "box_distance", "realism_figure"]
 
@@ -47,10 +49,8 @@ class FeatureSpec:
     def __post_init__(self):
         if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low < self.high):
             raise ValueError(f"feature {self.name!r}: low={self.low!r}, high={self.high!r}; need finite low < high")
-        if not isinstance(self.bins, int) or self.bins < 2:
-            raise ValueError(f"feature {self.name!r}: bins={self.bins!r}; need an int >= 2")
-        if not (math.isfinite(self.weight) and self.weight >= 0):
-            raise ValueError(f"feature {self.name!r}: weight={self.weight!r}; need a finite weight >= 0")
+        int_at_least(f"feature {self.name!r}: bins", self.bins, 2)
+        number(f"feature {self.name!r}: weight", self.weight, low=0)
         if self.per not in ("step", "vehicle"):
             raise ValueError(f"feature {self.name!r}: per={self.per!r}; allowed: 'step', 'vehicle'")
 
@@ -124,9 +124,7 @@ class TrackFeatures:
         """The features of several recordings together (their vehicles side by side)."""
         if not parts:
             raise ValueError("combine: no TrackFeatures given")
-        names = set(parts[0].values)
-        for p in parts[1:]:
-            names &= set(p.values)
+        names = set.intersection(*(set(p.values) for p in parts))
         return TrackFeatures({n: [a for p in parts for a in p.values[n]] for n in sorted(names)},
                              sum(p.n_vehicles for p in parts), float(sum(p.duration_s for p in parts)))
 
@@ -168,66 +166,32 @@ def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[Featur
     xy = df[["x", "y"]].to_numpy(dtype=float)
     v_xy = df[["vx", "vy"]].to_numpy(dtype=float)
     speed = np.hypot(v_xy[:, 0], v_xy[:, 1])
-    psi = (df["psi_rad"].to_numpy(dtype=float) if "psi_rad" in df.columns
-           else np.arctan2(v_xy[:, 1], v_xy[:, 0]))
+    psi = df["psi_rad"].to_numpy(dtype=float) if "psi_rad" in df.columns else np.arctan2(v_xy[:, 1], v_xy[:, 0])
     ids = df["track_id"].to_numpy()
     starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
     ends = np.r_[starts[1:], len(df)]
 
-    per_row = {n: np.full(len(df), np.nan) for n in ("acceleration", "jerk", "yaw_rate", "yaw_acceleration",
-                                                      "lateral_acceleration")}
-    per_vehicle_stopped, duration = [], 0.0
+    per_row = {"speed": speed, **{n: np.full(len(df), np.nan) for n in ("acceleration", "jerk", "yaw_rate",
+                                                                        "yaw_acceleration", "lateral_acceleration")}}
+    stopped, duration = [], 0.0
     for a, b in zip(starts, ends):
         tt = t[a:b]
         if b - a >= 3 and np.all(np.diff(tt) > 0):
-            acc = np.gradient(speed[a:b], tt)
-            yaw = np.gradient(np.unwrap(psi[a:b]), tt)
-            per_row["acceleration"][a:b] = acc
-            per_row["jerk"][a:b] = np.gradient(acc, tt)
-            per_row["yaw_rate"][a:b] = yaw
-            per_row["yaw_acceleration"][a:b] = np.gradient(yaw, tt)
-            per_row["lateral_acceleration"][a:b] = speed[a:b] * yaw
+            acc, yaw = np.gradient(speed[a:b], tt), np.gradient(np.unwrap(psi[a:b]), tt)
+            for name, col in (("acceleration", acc), ("jerk", np.gradient(acc, tt)), ("yaw_rate", yaw),
+                              ("yaw_acceleration", np.gradient(yaw, tt)), ("lateral_acceleration", speed[a:b] * yaw)):
+                per_row[name][a:b] = col
         dt = np.diff(tt, append=tt[-1] + (tt[-1] - tt[-2] if b - a > 1 else 0.1))
-        per_vehicle_stopped.append(float(np.sum(dt[speed[a:b] < _STOPPED])))
+        stopped.append(np.array([np.sum(dt[speed[a:b] < _STOPPED])]))
         duration += float(tt[-1] - tt[0])
 
-    inter = _interaction_rows(df, xy, psi, speed)
-    out: dict[str, list[np.ndarray]] = {}
-    for name in names:
-        if name == "speed":
-            col = speed
-        elif name in per_row:
-            col = per_row[name]
-        elif name in inter:
-            col = inter[name]
-        elif name == "stopped_time":
-            out[name] = [np.array([s]) for s in per_vehicle_stopped]
-            continue
-        elif name == "collision":
-            hit = inter["_collides"]
-            out[name] = [np.array([float(hit[a:b].any())]) for a, b in zip(starts, ends)]
-            continue
-        elif name == "lane_offset":
-            col = _lane_offsets(lmap, xy)
-        else:  # pragma: no cover - guarded by `unknown` above
-            raise AssertionError(name)
-        out[name] = [_finite(col[a:b]) for a, b in zip(starts, ends)]
+    per_row.update(_interaction_rows(df, xy, psi, speed))
+    if "lane_offset" in names:
+        per_row["lane_offset"] = _lane_offsets(lmap, xy)
+    vehicles = {n: np.split(col, starts[1:]) for n, col in per_row.items()}  # each column's rows per vehicle
+    per_vehicle = {"stopped_time": stopped, "collision": [np.array([float(c.any())]) for c in vehicles["_collides"]]}
+    out = {n: per_vehicle[n] if n in per_vehicle else [c[np.isfinite(c)] for c in vehicles[n]] for n in names}
     return TrackFeatures(out, len(starts), duration)
-
-
-def _finite(a: np.ndarray) -> np.ndarray:
-    return a[np.isfinite(a)]
-
-
-def _corners(xy: np.ndarray, psi: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
-    """Corners of oriented boxes, shape (n, 4, 2), counter-clockwise."""
-    c, s = np.cos(psi), np.sin(psi)
-    hl, hw = length / 2.0, width / 2.0
-    lon = np.array([1, -1, -1, 1])[None, :] * hl[:, None]
-    lat = np.array([1, 1, -1, -1])[None, :] * hw[:, None]
-    x = xy[:, 0:1] + lon * c[:, None] - lat * s[:, None]
-    y = xy[:, 1:2] + lon * s[:, None] + lat * c[:, None]
-    return np.stack([x, y], axis=-1)
 
 
 def box_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -247,8 +211,7 @@ def box_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         for k in range(2):
             edge = box[:, k + 1] - box[:, k]
             axis = np.stack([-edge[:, 1], edge[:, 0]], axis=-1)
-            pa = np.einsum("pkd,pd->pk", a, axis)
-            pb = np.einsum("pkd,pd->pk", b, axis)
+            pa, pb = np.einsum("pkd,pd->pk", a, axis), np.einsum("pkd,pd->pk", b, axis)
             overlap &= (pa.max(1) >= pb.min(1)) & (pb.max(1) >= pa.min(1))
     d = np.minimum(_corner_edge_distance(a, b), _corner_edge_distance(b, a))
     return np.where(overlap, 0.0, d)
@@ -267,40 +230,35 @@ def _frame_pairs(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """All pairs (i, j), i < j, of rows with the same frame: two int arrays of equal length."""
     order = np.argsort(frames, kind="stable")
     fs = frames[order]
-    ii, jj = [], []
+    ii, jj = [np.zeros(0, dtype=np.intp)], [np.zeros(0, dtype=np.intp)]
     for k in range(1, len(fs)):
         same = fs[k:] == fs[:-k]
         if not same.any():
             break
         ii.append(order[:-k][same])
         jj.append(order[k:][same])
-    if not ii:
-        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
     return np.concatenate(ii), np.concatenate(jj)
 
 
 def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]:
     """Per row: distance to the nearest other box, collision, gap, time headway and time to collision to the
     leader (the nearest vehicle ahead in the same direction within `_LEADER_RANGE`)."""
+    from pirl_sim.viz.vehicles import box_corners
+
     n = len(df)
-    length = df["length"].to_numpy(dtype=float)
-    width = df["width"].to_numpy(dtype=float)
+    length, width = df["length"].to_numpy(dtype=float), df["width"].to_numpy(dtype=float)
     i, j = _frame_pairs(df["frame_id"].to_numpy())
-    centre = np.hypot(*(xy[i] - xy[j]).T)
-    close = centre < _NEAR
+    close = np.hypot(*(xy[i] - xy[j]).T) < _NEAR  # centres
     i, j = i[close], j[close]
-    corners = _corners(xy, psi, length, width)
+    corners = np.roll(box_corners(xy[:, 0], xy[:, 1], psi, length, width, nose=False), -2, axis=1)  # front left 1st
     d = np.concatenate([box_distance(corners[i[s]], corners[j[s]])
                         for s in np.array_split(np.arange(len(i)), max(1, len(i) // 50_000))]) if len(i) else np.zeros(0)
+    # each pair both ways round, (f, o); the leaders: the others ahead within a lane's width, heading the same way
+    f, o, dd = np.concatenate([i, j]), np.concatenate([j, i]), np.concatenate([d, d])
     nearest = np.full(n, np.inf)
-    np.minimum.at(nearest, i, d)
-    np.minimum.at(nearest, j, d)
+    np.minimum.at(nearest, f, dd)
     collides = np.zeros(n, dtype=bool)
-    collides[i[d == 0.0]] = True
-    collides[j[d == 0.0]] = True
-    # leaders: ordered pairs (follower f, other o), the other ahead within a lane's width, heading the same way
-    f = np.concatenate([i, j])
-    o = np.concatenate([j, i])
+    collides[f[dd == 0.0]] = True
     h = np.stack([np.cos(psi), np.sin(psi)], axis=-1)
     rel = xy[o] - xy[f]
     lon = np.sum(rel * h[f], -1)
@@ -312,11 +270,9 @@ def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]
     first = lon == best[f]
     leader = np.full(n, -1)
     leader[f[first]] = o[first]
-    has = leader >= 0
-    gap = np.full(n, np.nan)
-    headway = np.full(n, np.nan)
-    ttc = np.full(n, 5.0)
-    fr, ld = np.flatnonzero(has), leader[has]
+    gap, headway, ttc = np.full(n, np.nan), np.full(n, np.nan), np.full(n, 5.0)
+    fr = np.flatnonzero(leader >= 0)  # the followers and their leaders
+    ld = leader[fr]
     g = np.maximum(best[fr] - (length[fr] + length[ld]) / 2.0, 0.0)
     gap[fr] = g
     fast = speed[fr] > _MIN_HEADWAY_SPEED
@@ -375,16 +331,14 @@ def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, feature
     """
     if not isinstance(reference, TrackFeatures) or not isinstance(simulated, TrackFeatures):
         raise TypeError("reference and simulated must be TrackFeatures (see track_features)")
-    if not (isinstance(pseudocount, (int, float)) and math.isfinite(pseudocount) and pseudocount > 0):
-        raise ValueError(f"pseudocount={pseudocount!r}; need a finite number > 0")
+    number("pseudocount", pseudocount, low=0, allow_equal=False)
     specs = {f.name: f for f in features}
     weights = dict(weights or {})
     bad = [k for k in weights if k not in specs]
     if bad:
         raise ValueError(f"weights name unknown features {bad}; known: {sorted(specs)}")
     for k, w in weights.items():
-        if not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
-            raise ValueError(f"weight of {k!r} is {w!r}; need a finite number >= 0")
+        number(f"weight of {k!r}", w, low=0)
     from scipy.stats import wasserstein_distance
 
     rows = []
@@ -400,10 +354,10 @@ def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, feature
             counts = np.bincount(spec.bin_of(sim), minlength=spec.bins).astype(float) + pseudocount
             logp = np.log(counts / counts.sum())
             per_vehicle = [logp[spec.bin_of(a)] for a in ref_parts]
-            row["log_likelihood"] = float(np.mean(np.concatenate(per_vehicle)))
-            row["likelihood"] = float(np.mean([math.exp(lp.mean()) for lp in per_vehicle]))
-            ref = np.clip(np.concatenate(ref_parts), spec.low, spec.high)
-            row["wasserstein"] = float(wasserstein_distance(ref, np.clip(sim, spec.low, spec.high)))
+            row.update(log_likelihood=float(np.mean(np.concatenate(per_vehicle))),
+                       likelihood=float(np.mean([math.exp(lp.mean()) for lp in per_vehicle])),
+                       wasserstein=float(wasserstein_distance(np.clip(np.concatenate(ref_parts), spec.low, spec.high),
+                                                              np.clip(sim, spec.low, spec.high))))
         rows.append(row)
     table = pd.DataFrame(rows, columns=["feature", "unit", "weight", "n_reference", "n_simulated",
                                         "log_likelihood", "likelihood", "wasserstein"])
@@ -414,8 +368,7 @@ def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, feature
         raise ValueError("no feature has samples on both sides with a positive weight: nothing to score "
                          f"(reference: {reference.n_vehicles} vehicles, simulated: {simulated.n_vehicles})")
     table["weight"] = table["weight"] / total
-    meta = float((table["weight"] * table["likelihood"].fillna(0.0)).sum())
-    return RealismScore(table, meta)
+    return RealismScore(table, float((table["weight"] * table["likelihood"].fillna(0.0)).sum()))
 
 
 def compare_sources(reference: TrackFeatures, sources: Mapping[str, Iterable[TrackFeatures]], **kwargs
@@ -469,20 +422,17 @@ def realism_figure(reference: TrackFeatures, sources: Mapping[str, Sequence[Trac
     specs = [f for f in features if f.name in reference.values]
     if not specs:
         raise ValueError("realism_figure: the reference has none of the features asked for")
-    cols = 4
-    rows = math.ceil(len(specs) / cols)
+    rows, cols = math.ceil(len(specs) / 4), 4
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
     pooled = {label: TrackFeatures.combine(list(r)) for label, r in sources.items()}
     for ax, spec in zip(axes.flat, specs):
-        ref = reference.pooled(spec.name)
-        if len(ref):
-            ax.stairs(np.bincount(spec.bin_of(ref), minlength=spec.bins) / len(ref), spec.edges, fill=True,
-                      color="0.75", label=reference_label)
-        for label, feats in pooled.items():
-            sim = feats.pooled(spec.name) if spec.name in feats.values else np.zeros(0)
-            if len(sim):
-                ax.stairs(np.bincount(spec.bin_of(sim), minlength=spec.bins) / len(sim), spec.edges, label=label,
-                          linewidth=1.4)
+        drawn = [(reference_label, reference.pooled(spec.name), {"fill": True, "color": "0.75"})]
+        drawn += [(label, feats.pooled(spec.name), {"linewidth": 1.4}) for label, feats in pooled.items()
+                  if spec.name in feats.values]
+        for label, values, style in drawn:
+            if len(values):
+                ax.stairs(np.bincount(spec.bin_of(values), minlength=spec.bins) / len(values), spec.edges,
+                          label=label, **style)
         ax.set_title(f"{spec.name} [{spec.unit}]", fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in list(axes.flat)[len(specs):]:

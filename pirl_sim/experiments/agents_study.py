@@ -153,8 +153,8 @@ def sweep_data(cfg: AgentsConfig) -> dict:
     learners = [{"name": "ppo", "label": f"ppo {cfg.action}", "params": {**ppo, "action": cfg.action},
                  "grid": {"style_observation": list(cfg.modes)}}]
     if cfg.direct_modes and cfg.action != "direct":
-        learners.append({"name": "ppo", "label": "ppo direct", "params": {**ppo, "action": "direct",
-                                                                          "observe_residual": False},
+        direct = {**ppo, "action": "direct", "observe_residual": False}
+        learners.append({"name": "ppo", "label": "ppo direct", "params": direct,
                          "grid": {"style_observation": list(cfg.direct_modes)}})
     experiments = [{"scenario": "agents", "label": "ppo", "params": params, "seeds": list(cfg.seeds),
                     "protocols": ["paper"], "learners": learners}]
@@ -185,12 +185,11 @@ def collect_records(cells, keys, records: dict, computed, wall_time_s: float = 0
         rec = records[key]
         res = rec["result"]
         scripted = not res["policy"].startswith("ppo")
-        record = {**res, "seed": -1 if scripted else cell.seed, "wall_time_s": rec["timings"]["cell_s"],
-                  "episodes": [{**e, "time_to_exit": math.nan if e["time_to_exit"] is None else e["time_to_exit"]}
-                               for e in res["episodes"]],
-                  "settings": dict(cell.learner_params), "key": key}
-        result.records.append(record)
-        label = f"{res['policy']}" + (f" ({res['mode']}) seed {cell.seed}" if not scripted else "")
+        result.records.append({
+            **res, "seed": -1 if scripted else cell.seed, "wall_time_s": rec["timings"]["cell_s"],
+            "episodes": [{**e, "time_to_exit": math.nan if e["time_to_exit"] is None else e["time_to_exit"]}
+                         for e in res["episodes"]], "settings": dict(cell.learner_params), "key": key})
+        label = res["policy"] + ("" if scripted else f" ({res['mode']}) seed {cell.seed}")
         (result.ran if key in computed else result.skipped).append(label)
     result.records.sort(key=lambda r: (r["policy"].startswith("ppo"), r["policy"],
                                        MODES.index(r["mode"]) if r["mode"] in MODES else -1, r["seed"]))
@@ -239,10 +238,9 @@ def summary_table(episodes: pd.DataFrame) -> pd.DataFrame:
         if ppo:
             mine = g.groupby("eval_seed")[["return", "time_to_exit"]].mean()  # time: over arriving seeds
             for b, theirs in baselines.items():
-                theirs = theirs.reindex(mine.index)
-                row.update(_columns(f"vs_{b}", _t_interval((mine["return"] - theirs["return"]).to_numpy())))
-                row.update(_columns(f"tte_vs_{b}", _t_interval(  # both arrived
-                    (mine["time_to_exit"] - theirs["time_to_exit"]).to_numpy())))
+                diff = mine - theirs.reindex(mine.index)  # time to exit: on the seeds where both arrived
+                row.update(_columns(f"vs_{b}", _t_interval(diff["return"])))
+                row.update(_columns(f"tte_vs_{b}", _t_interval(diff["time_to_exit"])))
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -278,12 +276,9 @@ def terms_table(episodes: pd.DataFrame, weights=None) -> pd.DataFrame:
         return pd.DataFrame()
     rows = []
     for policy, g in episodes.groupby("policy", sort=False):
-        row = {"policy": policy, "episodes": len(g)}
-        for name, col, sign, weight in _TERMS:
-            row[name] = sign * w[weight] * float(g[col].astype(float).mean())
-        row["total"] = sum(row[name] for name, *_ in _TERMS)
-        row["return"] = float(g["return"].mean())
-        rows.append(row)
+        terms = {name: sign * w[weight] * float(g[col].astype(float).mean()) for name, col, sign, weight in _TERMS}
+        rows.append({"policy": policy, "episodes": len(g), **terms, "total": sum(terms.values()),
+                     "return": float(g["return"].mean())})
     return pd.DataFrame(rows)
 
 
@@ -298,10 +293,8 @@ def _fmt(r, mean: str, prefix: str | None = None, digits: int = 3) -> str:
     x, lo, hi = (r.get(c) for c in (mean, f"{prefix or mean}_lo", f"{prefix or mean}_hi"))
     if x is None or not np.isfinite(x):
         return "–"
-    s = f"{x:.{digits}g}"
-    if lo is not None and np.isfinite(lo) and np.isfinite(hi):
-        s += f" [{lo:.{digits}g}, {hi:.{digits}g}]"
-    return s
+    interval = lo is not None and np.isfinite(lo) and np.isfinite(hi)
+    return f"{x:.{digits}g}" + (f" [{lo:.{digits}g}, {hi:.{digits}g}]" if interval else "")
 
 
 def markdown_table(table: pd.DataFrame) -> str:
@@ -326,17 +319,9 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     ppo = [r for r in records if r["policy"].startswith("ppo")]
     for k, (policy, mode) in enumerate(dict.fromkeys((r["policy"], r["mode"]) for r in ppo)):
-        curves = []
-        finals = []
-        for r in (r for r in ppo if r["mode"] == mode and r["policy"] == policy):
-            finals.append(np.mean([e["return"] for e in r["episodes"]]))
-            c = np.array(r["curve"], dtype=float).reshape(-1, 2)
-            if len(c) < 2:
-                continue
-            # mean return of the episodes that ended in each bin of steps (carried forward over empty bins)
-            idx = np.searchsorted(grid, c[:, 0])
-            means = pd.Series([c[idx == b, 1].mean() if (idx == b).any() else np.nan for b in range(len(grid))])
-            curves.append(means.ffill().fillna(c[0, 1]).to_numpy())
+        runs = [r for r in ppo if r["mode"] == mode and r["policy"] == policy]
+        finals = [np.mean([e["return"] for e in r["episodes"]]) for r in runs]
+        curves = [c for c in (_binned_curve(r["curve"], grid) for r in runs) if c is not None]
         if not curves:
             continue
         stacked = np.array(curves)
@@ -349,9 +334,8 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
     for k, r in enumerate(r for r in records if not r["policy"].startswith("ppo")):
         ax.axhline(np.mean([e["return"] for e in r["episodes"]]), color="0.3", ls=styles[k % 3], lw=1,
                    label=f"{r['policy']} (evaluation mean)")
-    ax.set_xlabel("environment steps (0.2 s each)")
-    ax.set_ylabel("episode return (exit reward) [s]")
-    ax.set_title("PPO training on pirl_sim/Roundabout-v0: mean over seeds, band min-max")
+    ax.set(xlabel="environment steps (0.2 s each)", ylabel="episode return (exit reward) [s]",
+           title="PPO training on pirl_sim/Roundabout-v0: mean over seeds, band min-max")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2, fontsize=8, frameon=False)
     fig.tight_layout()
     path = Path(path)
@@ -360,18 +344,27 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
     return path
 
 
+def _binned_curve(curve, grid: np.ndarray) -> np.ndarray | None:
+    """A training curve [(step, return), ...] on ``grid``: the mean return of the episodes that ended in each bin
+    of steps, carried forward over empty bins (None for fewer than two episodes)."""
+    c = np.array(curve, dtype=float).reshape(-1, 2)
+    if len(c) < 2:
+        return None
+    idx = np.searchsorted(grid, c[:, 0])
+    means = pd.Series([c[idx == b, 1].mean() if (idx == b).any() else np.nan for b in range(len(grid))])
+    return means.ffill().fillna(c[0, 1]).to_numpy()
+
+
 def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str) -> dict[str, Path]:
     """``episodes.csv``, ``table.csv``, ``table.md``, ``learning_curves.png``, ``README.md`` under ``out``, from
     the records of :func:`collect_records`."""
-    out = Path(out)
-    records = result.records
+    out, records = Path(out), result.records
     episodes = episodes_table(records)
     table = summary_table(episodes)
+    md, terms = markdown_table(table), terms_table(episodes)
     files = {"episodes": atomic_write_text(out / "episodes.csv", episodes.to_csv(index=False, float_format="%.6g")),
-             "table": atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g"))}
-    md = markdown_table(table)
-    files["table_md"] = atomic_write_text(out / "table.md", md)
-    terms = terms_table(episodes)
+             "table": atomic_write_text(out / "table.csv", table.to_csv(index=False, float_format="%.6g")),
+             "table_md": atomic_write_text(out / "table.md", md)}
     if len(terms):
         files["terms"] = atomic_write_text(out / "terms.csv", terms.to_csv(index=False, float_format="%.6g"))
     files["figure"] = learning_curves(records, out / "learning_curves.png", cfg.steps)
@@ -380,8 +373,8 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
     learner_time = sum(r.get("learner_time_s", 0.0) for r in records)
     readme = [
         "# PPO against scripted egos on pirl_sim/Roundabout-v0 (exit reward)", "",
-        f"Made by `{command}` (the sweep engine's ``agents`` scenario, `pirl_sim.experiments.agents`; finished runs are "
-        "kept in `cells/`, so the same command resumes an interrupted experiment).", "",
+        f"Made by `{command}` (the sweep engine's ``agents`` scenario, `pirl_sim.experiments.agents`; finished runs "
+        "are kept in `cells/`, so the same command resumes an interrupted experiment).", "",
         "Settings (`pirl_sim.experiments.agents_study.AgentsConfig`; every run's own are in its `cells/*.json`):", "",
         "```json", json.dumps({k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()}, indent=1),
         "```", "",

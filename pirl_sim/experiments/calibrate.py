@@ -93,13 +93,11 @@ class Calibration:
     duration_s: float = math.nan
 
     def __post_init__(self) -> None:
-        n, s = len(self.log_weights), len(self.style_share)
-        k = len(FREE)
+        n, s, k = len(self.log_weights), len(self.style_share), len(FREE)
         if len(self.cars) != n or np.shape(self.log_weights) != (n, k) or np.shape(self.at_bound) != (n, k):
-            raise ValueError(f"cars, log_weights and at_bound must be as many as the cars ({n}), over {len(FREE)} "
-                             "features")
-        if np.shape(self.style_log_mean) != (s, len(FREE)) or np.shape(self.style_log_var) != (s, len(FREE)):
-            raise ValueError(f"style_log_mean and style_log_var must hold {s} styles over {len(FREE)} features")
+            raise ValueError(f"cars, log_weights and at_bound must be as many as the cars ({n}), over {k} features")
+        if np.shape(self.style_log_mean) != (s, k) or np.shape(self.style_log_var) != (s, k):
+            raise ValueError(f"style_log_mean and style_log_var must hold {s} styles over {k} features")
         if not np.all(np.isfinite(self.log_weights)):
             raise ValueError("log_weights must be finite")
 
@@ -219,11 +217,8 @@ def _recorded_duration(files: Sequence[Path]) -> float:
     """Summed time span [s] of the track files."""
     from pirl_sim.io.interaction import read_tracks
 
-    total = 0.0
-    for f in files:
-        t = read_tracks(f)["timestamp_ms"].to_numpy()
-        total += (t.max() - t.min()) / 1000.0 if len(t) else 0.0
-    return total
+    stamps = (read_tracks(f)["timestamp_ms"].to_numpy() for f in files)
+    return sum(((t.max() - t.min()) / 1000.0 if len(t) else 0.0 for t in stamps), 0.0)
 
 
 def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_styles: int = 4, stride: int = 2,
@@ -251,19 +246,17 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     from pirl_sim.speed_fit import fit_desired_speed
     from pirl_sim.scenarios.replay import load_replay, track_key
     from pirl_sim.scenarios.scenario_config import MpcDriverConfig
-    from pirl_sim.validation import is_positive_int
+    from pirl_sim.validation import int_at_least
 
     for name, value, low in (("max_styles", max_styles, 1), ("stride", stride, 1), ("min_tracks", min_tracks, 2)):
-        if not is_positive_int(value) or value < low:
-            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        int_at_least(name, value, low)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not (isinstance(desired_speed, str) and desired_speed in ("likelihood", "speeds")):
         pair = np.asarray(desired_speed, dtype=float) if not isinstance(desired_speed, str) else np.array([])
         if pair.shape != (2,) or not np.all(np.isfinite(pair)) or np.any(pair <= 0):
             raise ValueError(f"desired_speed must be 'likelihood', 'speeds' or (a_lat, v_max), two numbers > 0 "
-                             f"[m/s^2, m/s], got "
-                             f"{desired_speed!r}")
+                             f"[m/s^2, m/s], got {desired_speed!r}")
         desired_speed = tuple(float(x) for x in pair)
     drivers = MpcDriverConfig() if drivers is None else drivers
     if not isinstance(drivers, MpcDriverConfig):
@@ -300,8 +293,7 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     say(f"desired speed: a_lat {a_lat:.3g} m/s^2, v_max {v_max:.3g} m/s; fitting the weights of {len(keys)} cars "
         f"(horizon {drivers.horizon} steps of {dt:g} s)")
     res = fit_receding(model, demos, labels, horizon=drivers.horizon, stride=stride, log_bounds=LOG_BOUNDS)
-    names = list(model.features.names)
-    cols = [names.index(f) for f in FREE]
+    cols = [list(model.features.names).index(f) for f in FREE]
     log_w = np.log(res.normalized[:, cols])
     gmm, bic = fit_styles(log_w, max_styles, seed)
     say(f"{gmm.n_components} style(s) by BIC")

@@ -24,10 +24,8 @@ __all__ = ["CURVE_AXES", "curves_table", "curves_summary", "recovery_curves_figu
 
 #: recovery parameters: (where the parameter is, axis label)
 CURVE_AXES: dict[str, tuple[str, str]] = {
-    "n_train": ("scenario", "training tracks"),
-    "control_noise": ("scenario", "drivers' control noise [m/s^3]"),
-    "horizon": ("learner", "MPC horizon assumed by the learner [steps]"),
-}
+    "n_train": ("scenario", "training tracks"), "control_noise": ("scenario", "drivers' control noise [m/s^3]"),
+    "horizon": ("learner", "MPC horizon assumed by the learner [steps]")}
 
 
 def _without(label: str, name: str) -> str:
@@ -47,11 +45,9 @@ def curves_table(table: pd.DataFrame) -> pd.DataFrame:
     for exp, g in table[table["weight_error"].notna()].groupby("experiment", sort=False):
         sp = [json.loads(s) for s in g["scenario_params"]]
         lp = [json.loads(s) for s in g["learner_params"]]
-        varied = []
-        for name, (where, _) in CURVE_AXES.items():
-            values = [(p if where == "scenario" else q).get(name) for p, q in zip(sp, lp)]
-            if len({json.dumps(v) for v in values}) > 1:
-                varied.append((name, where, values))
+        axes = [(name, where, [(p if where == "scenario" else q).get(name) for p, q in zip(sp, lp)])
+                for name, (where, _) in CURVE_AXES.items()]
+        varied = [(name, where, values) for name, where, values in axes if len({json.dumps(v) for v in values}) > 1]
         if len(varied) != 1:
             continue
         name, where, values = varied[0]
@@ -97,12 +93,10 @@ def recovery_curves_figure(summary: pd.DataFrame):
     for ax, exp in zip(axes, panels):
         s = summary[summary["experiment"] == exp]
         axis = s["axis"].iloc[0]
-        positive = [v for v in s["mean"] if v > 0]
-        floor = min(positive, default=None)
-        values = list(positive)
+        values = [v for v in s["mean"] if v > 0]
+        floor = min(values, default=None)
         for learner, g in s.groupby("learner", sort=False):
-            ci = g["ci"].fillna(0.0).to_numpy()
-            m = g["mean"].to_numpy()
+            m, ci = g["mean"].to_numpy(), g["ci"].fillna(0.0).to_numpy()
             ax.errorbar(g["x"], m, yerr=np.maximum(log_yerr(m, ci, floor), 0.0), marker="o", ms=4, capsize=3,
                         color=colors[learner], label=learner)
             values += [v for v in m + ci if v > 0]
@@ -116,8 +110,7 @@ def recovery_curves_figure(summary: pd.DataFrame):
                     va="top", color="0.3")
         if values:  # a margin below the lowest point: it does not sit on the axis
             label_log_axis(ax, 0.8 * min(values), max(values))
-        ax.set_xlabel(CURVE_AXES[axis][1])
-        ax.set_ylabel("weight error (median |log ratio|)")
+        ax.set(xlabel=CURVE_AXES[axis][1], ylabel="weight error (median |log ratio|)")
         ax.set_title(exp, fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
     handles = [pyplot().Line2D([], [], color=c, marker="o", ms=4) for c in colors.values()]

@@ -23,14 +23,7 @@ from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
 from pirl_sim.scenarios.replay import selection_counts, track_key
 from pirl_sim.evaluation.direct import DIRECT
 from pirl_sim.experiments.recorded import (  # noqa: F401  (ReplayProtocol, predict_path_states: the replay's names)
-    _IRL_WARNINGS,
-    HINDSIGHT,
-    METHODS,
-    ReplayProtocol,
-    _track_keys,
-    predict_path_states,
-    usable_tracks,
-)
+    _IRL_WARNINGS, HINDSIGHT, METHODS, ReplayProtocol, _track_keys, predict_path_states, usable_tracks)
 
 __all__ = ["ReplayProtocol", "collect_replay", "paired_differences", "summarize", "selection_table",
            "write_replay_results", "predict_path_states", "HINDSIGHT", "DIRECT"]
@@ -52,11 +45,8 @@ def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=(
         ``selected_pieces``, the S-T figure's ``examples``, ``history``, ``horizon`` and ``gmm_k``.
     """
     tracks = usable_tracks(scene, proto)
-    rows, errors = [], {}
-    for seed in proto.seeds:
-        for name, m in per_seed[seed]["methods"].items():
-            rows.append(m["row"])
-            errors[(seed, name)] = m["errors"]
+    outputs = [(seed, name, m) for seed in proto.seeds for name, m in per_seed[seed]["methods"].items()]
+    rows, errors = [m["row"] for _, _, m in outputs], {(seed, name): m["errors"] for seed, name, m in outputs}
     first = per_seed[proto.seeds[0]]
     examples = {**first["examples"], "predictions": {name: m["shown"] for name, m in first["methods"].items()
                                                      if m["shown"] is not None},
@@ -90,9 +80,8 @@ def summarize(result: dict) -> pd.DataFrame:
     learners also ``irl_converged`` ("converged groups / groups", summed over seeds) and the numbers of IRL
     warnings raised while fitting (summed over seeds)."""
     rows = result["rows"]
-    scores = [c for c in rows.columns
-              if c in ("med", "med_path") or c.startswith(("de@", "min_ade@", "min_fde@", "miss_rate@", "nll_per_step@"))
-              or c in ("ari", "weight_error", "irl_weight_error")]
+    scores = [c for c in rows.columns if c in ("med", "med_path", "ari", "weight_error", "irl_weight_error")
+              or c.startswith(("de@", "min_ade@", "min_fde@", "miss_rate@", "nll_per_step@"))]
     agg = rows.groupby("method")[scores].agg(["mean", "std"])
     agg.columns = [f"{a}_{b}" for a, b in agg.columns]
     out = agg.sort_values("med_mean").reset_index()
@@ -127,35 +116,21 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     }.get(selection, ("used (not interacting, long enough)", "pieces"))
     used = f"{what}: {result['selected']} (in {result['selected_pieces']} {pieces})" + (
         f"; steps: {getattr(scene, 'steps', {})}" if selection in ("free", "steps") else "")
+    knn_k = " ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""
     lines = [
-        "# Replay experiment",
-        "",
-        f"Made by `{command}`.",
-        "",
+        "# Replay experiment", "", f"Made by `{command}`.", "",
         f"Tracks read: {scene.n_tracks}; converted: {scene.n_converted} (in {len(scene.trajectories)} pieces); "
         f"flagged as interacting: {n_inter}; {used}. Skipped: {scene.skipped or 'none'}. "
-        f"Route-matching repairs: {getattr(scene, 'repairs', None) or 'none'}.",
-        "",
+        f"Route-matching repairs: {getattr(scene, 'repairs', None) or 'none'}.", "",
         "Counts of train and test tracks per split are in rows.csv (n_train, n_test; their pieces in "
         "n_train_pieces, n_test_pieces). irl_converged: IRL groups whose Newton iteration converged / all groups, "
-        "summed over the split seeds (PIRL-kNN learners that differ only in k share one fit per split).",
-        "",
-        *_speed_lines(result),
-        *_selection_lines(scene, result),
-        "## Scores (mean and std over split seeds)",
-        "",
-        markdown(summary),
-        "",
-        "## Paired differences against TIRL (MED, per window; mean and standard error over seeds)",
-        "",
-        markdown(result["paired"]),
-        "",
-        "## Paired differences against CA (path)",
-        "",
-        markdown(result["paired_ca"]),
-        "",
-        "![clusters](clusters.png) ![S-T](s_t.png)" + (" ![MED vs k](knn_k.png)" if (out / "knn_k.png").exists() else ""),
-    ]
+        "summed over the split seeds (PIRL-kNN learners that differ only in k share one fit per split).", "",
+        *_speed_lines(result), *_selection_lines(scene, result),
+        "## Scores (mean and std over split seeds)", "", markdown(summary), "",
+        "## Paired differences against TIRL (MED, per window; mean and standard error over seeds)", "",
+        markdown(result["paired"]), "",
+        "## Paired differences against CA (path)", "", markdown(result["paired_ca"]), "",
+        f"![clusters](clusters.png) ![S-T](s_t.png){knn_k}"]
     if (out / "scene_gain.png").exists():
         lines += ["", f"Where {_scene_best(result)} beats CA (path) most and loses to it most (split seed "
                   f"{result['seeds'][0]}; black: history, dashed: what was recorded):", "",
@@ -170,8 +145,7 @@ _CA = "CA (path)"
 def _scene_best(result: dict) -> str | None:
     """The learner of the scenes: the lowest mean MED on the first split seed among the learners (not baselines)."""
     rows = result["rows"]
-    learners = set(result.get("learners", ()))
-    first = rows[(rows["seed"] == result["seeds"][0]) & rows["method"].isin(learners)]
+    first = rows[(rows["seed"] == result["seeds"][0]) & rows["method"].isin(set(result.get("learners", ())))]
     return None if first.empty else str(first.loc[first["med"].idxmin(), "method"])
 
 
@@ -187,14 +161,12 @@ def _write_scenes(result: dict, scene, out: Path) -> None:
 
     segments = getattr(scene.model.path, "segments", (scene.model.path,))
     road = Road((), (), tuple(np.column_stack([p.x, p.y]) for p in segments), source="matched routes")
-    errors = result["errors"]
-    seed = result["seeds"][0]
+    errors, seed = result["errors"], result["seeds"][0]
+    names = [best, _CA]
     for k, kind in enumerate(SCENE_KINDS):
         w = int(ex["scene_windows"][k])
-        names = [best, _CA]
-        window = PredictionWindow(history=ex["scene_history"][k], future=ex["scene_future"][k],
-                                  predictions=np.stack([preds[n][k] for n in names]),
-                                  probabilities=np.array([0.5, 0.5]),
+        window = PredictionWindow(history=ex["scene_history"][k], predictions=np.stack([preds[n][k] for n in names]),
+                                  probabilities=np.array([0.5, 0.5]), future=ex["scene_future"][k],
                                   labels=tuple(f"{n}: {errors[(seed, n)][w]:.2f} m" for n in names))
         title = f"{best} {'beats' if kind == 'gain' else 'loses to'} CA (path) most"
         buf = io.BytesIO()
@@ -233,21 +205,18 @@ def _write_figures(result: dict, scene, out) -> None:
     windows), knn_k.png (when several kNN learners ran)."""
     from pirl_sim.learners import PIRLGMM  # here: tests swap it for a recorder
 
-    tracks = scene.selected
-    model = scene.model
+    tracks, model = scene.selected, scene.model
     labels = PIRLGMM(model, n_components=min(int(result.get("gmm_k", 3)), len(tracks)),
                      random_state=0).cluster_labels(tracks)  # the clusters alone: no IRL for an illustration
     styles = np.array([int(t.metadata.get("style", -1)) for t in tracks])
-    names = None
-    if np.any(styles >= 0):  # a sidecar gives styles: tracks without one (background traffic) get a marker too
-        names = {int(s): (f"style {s}" if s >= 0 else "background (no style)") for s in np.unique(styles)}
+    names = ({int(s): (f"style {s}" if s >= 0 else "background (no style)") for s in np.unique(styles)}
+             if np.any(styles >= 0) else None)  # a sidecar gives styles: background traffic gets a marker too
     atomic_write_bytes(out / "clusters.png", figures.feature_clusters(
         model.feature_values(tracks), model.features.names, labels, styles if names else None, names))
     ex = result["examples"]
     if ex:
         h = result["history"]
-        preds = {k: np.concatenate([ex["truth"][:, h : h + 1], v], axis=1)
-                 for k, v in ex["predictions"].items()}
+        preds = {k: np.concatenate([ex["truth"][:, h : h + 1], v], axis=1) for k, v in ex["predictions"].items()}
         atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(ex["t"], ex["truth"], preds, h))
     _write_scenes(result, scene, out)
     rows = result["rows"]

@@ -25,6 +25,8 @@ from pirl_sim.io.atomic import atomic_write_text
 
 __all__ = ["table_row", "write_table", "table_markdown"]
 
+CA = "CA (path)"  #: the reference of the ratios
+
 
 def _se(x: pd.Series) -> float:
     return float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
@@ -52,27 +54,22 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
            "methods": methods, "best": best, "elapsed_s": elapsed,
            "n_windows": int(rows.groupby("seed")["n_windows"].first().sum())}
     if best is not None and best in paired.index:
-        out["best_minus_ca"] = float(paired.loc[best, "mean_difference"])
-        out["best_minus_ca_se"] = float(paired.loc[best, "standard_error"])
-        out["ratio"] = methods[best]["med"] / methods["CA (path)"]["med"]
-        per_seed = rows.pivot(index="seed", columns="method", values="med")
-        out["ratio_se"] = _se(per_seed[best] / per_seed["CA (path)"])
-        if "med_path" in methods[best] and "med_path" in methods["CA (path)"]:
+        ca, per_seed = methods[CA], rows.pivot(index="seed", columns="method", values="med")
+        out.update(best_minus_ca=float(paired.loc[best, "mean_difference"]),
+                   best_minus_ca_se=float(paired.loc[best, "standard_error"]),
+                   ratio=methods[best]["med"] / ca["med"], ratio_se=_se(per_seed[best] / per_seed[CA]))
+        if "med_path" in methods[best] and "med_path" in ca:
             path = rows.pivot(index="seed", columns="method", values="med_path")
-            out["ratio_path"] = methods[best]["med_path"] / methods["CA (path)"]["med_path"]
-            out["ratio_path_se"] = _se(path[best] / path["CA (path)"])
+            out.update(ratio_path=methods[best]["med_path"] / ca["med_path"], ratio_path_se=_se(path[best] / path[CA]))
         if DIRECT in methods:  # the reference without a cost, on the same scale
-            out["direct_ratio"] = methods[DIRECT]["med"] / methods["CA (path)"]["med"]
-            out["direct_ratio_se"] = _se(per_seed[DIRECT] / per_seed["CA (path)"])
+            out.update(direct_ratio=methods[DIRECT]["med"] / ca["med"],
+                       direct_ratio_se=_se(per_seed[DIRECT] / per_seed[CA]))
         if "lateral_floor" in rows:
             floor = rows.groupby("seed")["lateral_floor"].first()
-            out["floor_ratio"] = float(floor.mean()) / methods["CA (path)"]["med"]
-            out["floor_ratio_se"] = _se(floor / per_seed["CA (path)"])
-    order = {}
-    for key, prefix in (("TIRL", "TIRL"), ("PIRL-GMM", "PIRL-GMM"), ("PIRL-kNN", "PIRL-kNN (")):  # the paper's
-        cand = [m for m in methods if m.startswith(prefix)]
-        if cand:
-            order[key] = min(methods[m]["med"] for m in cand)
+            out.update(floor_ratio=float(floor.mean()) / ca["med"], floor_ratio_se=_se(floor / per_seed[CA]))
+    order = {key: min(v["med"] for m, v in methods.items() if m.startswith(prefix))  # the paper's learners
+             for key, prefix in (("TIRL", "TIRL"), ("PIRL-GMM", "PIRL-GMM"), ("PIRL-kNN", "PIRL-kNN ("))
+             if any(m.startswith(prefix) for m in methods)}
     out["ordering"] = " > ".join(f"{k} {v:.3f}" for k, v in sorted(order.items(), key=lambda kv: -kv[1]))
     out["paper_ordering_holds"] = (list(order) == ["TIRL", "PIRL-GMM", "PIRL-kNN"]
                                    and order["TIRL"] > order["PIRL-GMM"] > order["PIRL-kNN"])

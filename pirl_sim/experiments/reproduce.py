@@ -73,10 +73,9 @@ def report_tables(name: str, tidy: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataF
     """The main table (``table.csv``) and MED against k (``knn_k.csv``) of the preset ``name`` from the sweep's
     tidy table of its cells (`pirl_sim.engine.run.assemble_table`), rows in config order."""
     t = tidy[tidy["experiment"] == "table"]
-    table = pd.DataFrame({"protocol": t["protocol"], "learner": t["learner_label"]})
-    for c in ("med", "med_std", "fde", "weight_error", "ari", "n_styles"):
-        table[c] = t[c].astype(float)
-    table["n_test"] = t["n_test"].astype(int)
+    scores = ("med", "med_std", "fde", "weight_error", "ari", "n_styles")
+    table = pd.DataFrame({"protocol": t["protocol"], "learner": t["learner_label"],
+                          **{c: t[c].astype(float) for c in scores}, "n_test": t["n_test"].astype(int)})
     if name == "synthetic":  # the paper's values beside its protocol's rows
         table.insert(3, "paper_med", [PAPER_SYNTHETIC_MED.get(n, np.nan) if k == "paper" else np.nan
                                       for n, k in zip(table["learner"], t["protocol_kind"])])
@@ -92,40 +91,27 @@ def ordering_holds(table: pd.DataFrame, protocol_name: str) -> bool:
     return bool(t["TIRL"] > t["PIRL-GMM (k=2)"] > t["PIRL-kNN (k=1)"])
 
 
-def _config_lines(config) -> list[str]:
+def _readme(lines: list[str], config) -> str:
+    """The README's text: ``lines``, then the scenario's configuration ``config``."""
     cfg = asdict(config)
     cfg["styles"] = [f"{s.name}: weight {s.weight}, mean {dict(s.mean)}, std {dict(s.std)}" for s in config.styles]
-    return ["## Configuration", "", *(f"- {k}: {v}" for k, v in cfg.items())]
+    return "\n".join([*lines, "## Configuration", "", *(f"- {k}: {v}" for k, v in cfg.items())]) + "\n"
 
 
 def _synthetic_summary(table, ktable, config, history_steps) -> str:
-    lines = [
-        "# Synthetic reproduction",
-        "",
-        "Made by `pirl-sim reproduce synthetic` (see the project README); every number below is read from",
-        "`table.csv` and `knn_k.csv` in this directory, written by the same run.",
-        "",
-        "## MED [m]",
-        "",
-        markdown(table),
-        "",
-    ]
-    lines += [f"- {proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) "
-              f"{'holds' if ordering_holds(table, proto) else 'does NOT hold'}."
-              for proto in table["protocol"].unique()]
     best = ktable.loc[ktable.groupby("protocol", sort=False)["med"].idxmin()]
-    lines += [f"- {r['protocol']}: best kNN k = {int(r['k'])} (MED {r['med']:.3g} m)." for _, r in best.iterrows()]
-    lines += [
-        "",
+    return _readme([
+        "# Synthetic reproduction", "",
+        "Made by `pirl-sim reproduce synthetic` (see the project README); every number below is read from",
+        "`table.csv` and `knn_k.csv` in this directory, written by the same run.", "",
+        "## MED [m]", "", markdown(table), "",
+        *(f"- {proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) "
+          f"{'holds' if ordering_holds(table, proto) else 'does NOT hold'}." for proto in table["protocol"].unique()),
+        *(f"- {r['protocol']}: best kNN k = {int(r['k'])} (MED {r['med']:.3g} m)." for _, r in best.iterrows()), "",
         "`weight_error`: median over test trajectories of |log(inferred / true)| of the normalised weight q/r.",
         "`ari`: adjusted Rand index of the training clusters against the two true kernels.",
-        f"Online protocol: the first {history_steps} steps are observed, the rest predicted.",
-        "",
-        "![MED vs k](knn_k.png)",
-        "",
-        *_config_lines(config),
-    ]
-    return "\n".join(lines) + "\n"
+        f"Online protocol: the first {history_steps} steps are observed, the rest predicted.", "",
+        "![MED vs k](knn_k.png)", ""], config)
 
 
 # ---------------------------------------------------------------------------------------------- passage
@@ -143,8 +129,7 @@ def _passage_figures(cells, scenario, history_steps: int, out) -> dict:
         protocol = Protocol(**cell.protocol)
         params = {k: tuple(v) if isinstance(v, list) else v for k, v in dict(cell.learner_params).items()}
         learner = LEARNERS[cell.learner](model=model, **params, **protocol.learner_params())
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # dropped tiny mixture components: by design
+        with warnings.catch_warnings(action="ignore", category=UserWarning):  # dropped tiny mixture components
             return learner.fit(data.train)
 
     gmm = fitted(next(c for c in cells if c.learner == "pirl-gmm" and c.protocol["kind"] == "paper"))
@@ -168,55 +153,36 @@ def _style_switch(data, config, history_steps):
     from pirl_sim.learners import PIRLKNN
 
     model = data.model
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
+    with warnings.catch_warnings(action="ignore", category=UserWarning):
         knn = PIRLKNN(model, n_neighbors=10, prior="population", window=history_steps, stride=2).fit(data.train)
     by_name = {s.name: model.features.weights({**dict(s.mean), "jerk_sq": 1.0}) for s in config.styles}
     before, after = by_name["minimises acceleration"], by_name["tracks desired speed"]
     n_drivers, switch, n_steps = 8, 20, 45
     rng = np.random.default_rng(config.seed + 1)
     x0 = np.column_stack([np.zeros(n_drivers), rng.uniform(10, 12, n_drivers), np.zeros(n_drivers)])
-    trajs = simulate_receding_horizon(
-        model, x0, lambda k: np.tile(before if k < switch else after, (n_drivers, 1)), n_steps, 25,
-        rng=rng, control_noise=0.3,
-    )
+    trajs = simulate_receding_horizon(model, x0, lambda k: np.tile(before if k < switch else after, (n_drivers, 1)),
+                                      n_steps, 25, rng=rng, control_noise=0.3)
     steps = np.arange(history_steps, n_steps + 1)
-    ratio = np.stack([
-        np.log10(th[:, 0] / th[:, 1])
-        for th in (knn.infer_weights([tr.window(k - history_steps, k) for tr in trajs]) for k in steps)
-    ], axis=1)
+    inferred = (knn.infer_weights([tr.window(k - history_steps, k) for tr in trajs]) for k in steps)
+    ratio = np.stack([np.log10(th[:, 0] / th[:, 1]) for th in inferred], axis=1)
     true = np.where(steps <= switch, np.log10(before[0] / before[1]), np.log10(after[0] / after[1]))
     dt = model.dynamics.dt
     png = figures.weight_tracking(steps * dt, ratio, true, "log10(w_speed_dev / w_acc_sq)", switch * dt)
-    med = np.median(ratio, axis=0)
-    mid = 0.5 * (true[0] + true[-1])
-    crossed = steps[(steps > switch) & (med > mid)]
+    crossed = steps[(steps > switch) & (np.median(ratio, axis=0) > 0.5 * (true[0] + true[-1]))]  # half-way
     lag = int(crossed[0] - switch) if len(crossed) else None
     return png, {"switch_step": switch, "lag_steps": lag, "dt": dt}
 
 
 def _passage_summary(table, switch, config) -> str:
-    lag = switch["lag_steps"]
-    lines = [
-        "# Roundabout passage: three driving styles of known weights",
-        "",
-        "Made by `pirl-sim reproduce passage`; every number below is read from the CSV files of the same run.",
-        "",
-        "## MED [m] and style recovery",
-        "",
-        markdown(table),
-        "",
+    lag, dt = switch["lag_steps"], switch["dt"]
+    crossed = f"{lag} steps ({lag * dt:.1f} s)." if lag is not None else "no step: the switch was NOT followed."
+    return _readme([
+        "# Roundabout passage: three driving styles of known weights", "",
+        "Made by `pirl-sim reproduce passage`; every number below is read from the CSV files of the same run.", "",
+        "## MED [m] and style recovery", "", markdown(table), "",
         "`weight_error`: median |log(inferred / true)| over the normalised weights (speed_dev, acc_sq).",
-        "`ari`: adjusted Rand index of the training clusters against the three true styles.",
-        "",
-        "## Style switch",
-        "",
+        "`ari`: adjusted Rand index of the training clusters against the three true styles.", "",
+        "## Style switch", "",
         f"Drivers switch from 'minimises acceleration' to 'tracks desired speed' at step {switch['switch_step']} "
-        f"(dt {switch['dt']} s); the median inferred log weight ratio crosses half-way after "
-        + (f"{lag} steps ({lag * switch['dt']:.1f} s)." if lag is not None else "no step: the switch was NOT followed."),
-        "",
-        "![switch](switch.png) ![clusters](clusters.png) ![S-T](s_t.png) ![MED vs k](knn_k.png)",
-        "",
-        *_config_lines(config),
-    ]
-    return "\n".join(lines) + "\n"
+        f"(dt {dt} s); the median inferred log weight ratio crosses half-way after {crossed}",
+        "", "![switch](switch.png) ![clusters](clusters.png) ![S-T](s_t.png) ![MED vs k](knn_k.png)", ""], config)

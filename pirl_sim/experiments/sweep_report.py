@@ -35,17 +35,15 @@ __all__ = ["write_sweep_report", "summary_table", "best_variants", "med_vs_k_fig
 def summary_table(table: pd.DataFrame) -> pd.DataFrame:
     """Mean (and std, 95 % interval half-widths ``*_ci``) over seeds per experiment, scenario variant, protocol
     and learner variant, table order."""
-    keys = ["experiment", "scenario_label", "protocol", "learner_label"]
     t = table.assign(learner_base=[_without(x, "k") for x in table["learner_label"]],  # 'PIRL-kNN (k=10)': 'PIRL-kNN'
                      n_styles=table["n_styles"].astype(float), k=table["k"].astype(float))
-    agg = t.groupby(keys, sort=False).agg(
+    agg = t.groupby(["experiment", "scenario_label", "protocol", "learner_label"], sort=False).agg(
         learner=("learner", "first"), learner_base=("learner_base", "first"), k=("k", "first"),
         med=("med", "mean"), med_sd=("med", "std"), fde=("fde", "mean"), weight_error=("weight_error", "mean"),
         ari=("ari", "mean"), n_styles=("n_styles", "mean"), seeds=("seed", "nunique"), cell_s=("cell_s", "sum"),
         med_ci=("med", ci95), fde_ci=("fde", ci95), weight_error_ci=("weight_error", ci95), ari_ci=("ari", ci95),
         **{c: (c, "mean") for c in ONLINE_MEANS if c in t.columns},
-        **{f"{c}_ci": (c, ci95) for c in ONLINE_MEANS if c in t.columns},
-    )
+        **{f"{c}_ci": (c, ci95) for c in ONLINE_MEANS if c in t.columns})
     return agg.reset_index()
 
 
@@ -87,9 +85,7 @@ def weights_summary(weights: pd.DataFrame) -> pd.DataFrame:
 def _pm(mean, ci) -> str:
     """'mean ± ci' (just the mean without an interval)."""
     m = _fmt(mean)
-    if not m or ci is None or not np.isfinite(ci):
-        return m
-    return f"{m} ± {ci:.2g}"
+    return f"{m} ± {ci:.2g}" if m and ci is not None and np.isfinite(ci) else m
 
 
 def best_variants(summary: pd.DataFrame) -> pd.DataFrame:
@@ -137,8 +133,7 @@ def med_vs_k_figure(summary: pd.DataFrame):
         if values:
             label_log_axis(ax, min(values), max(values))
         what = K_MEANING.get(groups[-1][1]["learner"].iloc[0])
-        ax.set_xlabel(f"k ({what} of {base})" if what else f"k ({base})")
-        ax.set_ylabel("MED [m]")
+        ax.set(xlabel=f"k ({what} of {base})" if what else f"k ({base})", ylabel="MED [m]")
         ax.set_title(f"{scen}: {base}", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
     handles = [pyplot().Line2D([], [], color=c, marker="o", ms=4, label=p) for p, c in colors.items()]
@@ -150,9 +145,14 @@ def med_vs_k_figure(summary: pd.DataFrame):
 
 def _variant(scenario_label: str, experiment: str) -> str:
     """'passage population (rationality=20, mix=equal)' -> 'rationality=20, mix=equal'."""
-    if scenario_label.startswith(experiment + " (") and scenario_label.endswith(")"):
-        return scenario_label[len(experiment) + 2 : -1]
-    return scenario_label
+    inside = scenario_label.startswith(experiment + " (") and scenario_label.endswith(")")
+    return scenario_label[len(experiment) + 2 : -1] if inside else scenario_label
+
+
+def _tick(scen: str, proto: str, experiment: str, variants: bool, protocols: bool) -> str:
+    """The x tick label of a group of bars: its scenario variant and protocol where the panel has several of them."""
+    parts = ([_variant(scen, experiment).replace(", ", "\n")] if variants else []) + ([proto] if protocols else [])
+    return "\n".join(p.replace(" (", "\n(") for p in parts) or proto
 
 
 def _log_floor(values) -> float:
@@ -174,36 +174,27 @@ def learners_side_by_side_figure(best: pd.DataFrame):
         several_protocols = len({g[1] for g in groups}) > 1
         names = list(dict.fromkeys(b["learner_base"]))
         width = 0.8 / max(1, len(names))
+        at = {g: i for i, g in enumerate(groups)}  # a group's place on the x axis
+        b = b.assign(at=[at[g] for g in zip(b["scenario_label"], b["protocol"])]).sort_values("at", kind="stable")
         tops = []
         for j, name in enumerate(names):
-            xs, ys, errs, ks = [], [], [], []
-            for i, (scen, proto) in enumerate(groups):
-                r = b[(b["scenario_label"] == scen) & (b["protocol"] == proto) & (b["learner_base"] == name)]
-                if r.empty:
-                    continue
-                xs.append(i + (j - (len(names) - 1) / 2) * width)
-                ys.append(float(r["med"].iloc[0]))
-                errs.append(float(r["med_sd"].iloc[0]) if r["seeds"].iloc[0] > 1 else 0.0)
-                ks.append(r["k"].iloc[0])
+            r = b[b["learner_base"] == name]  # its bars, in group order
+            xs = (r["at"] + (j - (len(names) - 1) / 2) * width).tolist()
+            ys = r["med"].astype(float).tolist()
+            errs = [float(sd) if n > 1 else 0.0 for sd, n in zip(r["med_sd"], r["seeds"])]
             ax.bar(xs, ys, width=width, yerr=errs if any(errs) else None, color=colors[name], label=name, capsize=2)
-            for x, y, e, k in zip(xs, ys, errs, ks):
+            for x, y, e, k in zip(xs, ys, errs, r["k"]):
                 tops.append(y + e)
                 if k == k and k is not None:
                     ax.annotate(f"k={int(k)}", (x, y + e), xytext=(0, 2), textcoords="offset points", ha="center",
                                 va="bottom", rotation=90, fontsize=5.5)
-        ticks = []
-        for scen, proto in groups:
-            parts = ([_variant(scen, exp).replace(", ", "\n")] if several_variants else [])
-            parts += [proto] if several_protocols else []
-            ticks.append("\n".join(p.replace(" (", "\n(") for p in parts) or proto)
-        ax.set_xticks(range(len(groups)))
-        ax.set_xticklabels(ticks, fontsize=6)
+        ticks = [_tick(scen, proto, exp, several_variants, several_protocols) for scen, proto in groups]
+        ax.set_xticks(range(len(groups)), ticks, fontsize=6)
         floor = _log_floor(b["med"])
         positive = [t for t in tops if t == t and t > 0]
         label_log_axis(ax, floor, max(positive) * 3 if positive else floor * 10)  # room for the k labels above
         ax.set_ylabel("MED [m]")
-        title = exp if several_protocols else f"{exp}, {groups[0][1]}"
-        ax.set_title(title, fontsize=9)
+        ax.set_title(exp if several_protocols else f"{exp}, {groups[0][1]}", fontsize=9)
         ax.grid(True, axis="y", which="both", alpha=0.3)
     handles = [pyplot().Rectangle((0, 0), 1, 1, color=c) for c in colors.values()]
     fig.suptitle("Learners side by side (best k where several ran, written above its bar)", fontsize=10)
@@ -216,11 +207,8 @@ def recovery_figure(recovery: pd.DataFrame, best: pd.DataFrame):
     one column per learner (best k), one colour per feature in every panel, the legend below the panels.
     Inferred weights beyond a decade outside the true range are drawn at the edge (triangles). None when there
     is nothing to draw."""
-    if recovery is None or recovery.empty:
-        return None
     panels = []
-    for exp in dict.fromkeys(recovery["experiment"]):
-        r = recovery[recovery["experiment"] == exp]
+    for _, r in recovery.groupby("experiment", sort=False) if recovery is not None else ():
         scen, proto = r["scenario_label"].iloc[0], r["protocol"].iloc[0]
         b = best[(best["scenario_label"] == scen) & (best["protocol"] == proto)]
         labels = [lab for lab in b["learner_label"] if lab in set(r["learner_label"])]
@@ -238,27 +226,21 @@ def recovery_figure(recovery: pd.DataFrame, best: pd.DataFrame):
         true_all = r["true"].to_numpy()
         true_all = true_all[np.isfinite(true_all) & (true_all > 0)]
         lo, hi = (true_all.min() / 10, true_all.max() * 10) if true_all.size else (1e-3, 1e3)
-        for col in range(ncols):
-            ax = axes[row][col]
-            if col >= len(labels):
-                ax.set_visible(False)
-                continue
-            g = r[r["learner_label"] == labels[col]]
+        for ax in axes[row][len(labels):]:
+            ax.set_visible(False)
+        for col, (ax, label) in enumerate(zip(axes[row], labels)):
+            g = r[r["learner_label"] == label]
             for f in features:
-                c = colors[f]
                 gf = g[g["feature"] == f]
                 y = gf["inferred"].to_numpy()
                 inside = (y >= lo) & (y <= hi)
-                ax.scatter(gf["true"][inside], y[inside], s=6, alpha=0.5, color=c, label=f)
+                ax.scatter(gf["true"][inside], y[inside], s=6, alpha=0.5, color=colors[f], label=f)
                 for sel, edge, marker in ((y < lo, lo, "v"), (y > hi, hi, "^")):
                     if sel.any():
-                        ax.scatter(gf["true"][sel], np.full(sel.sum(), edge), s=14, color=c, marker=marker)
+                        ax.scatter(gf["true"][sel], np.full(sel.sum(), edge), s=14, color=colors[f], marker=marker)
             ax.plot([lo, hi], [lo, hi], "k:", lw=1)
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_xlim(lo, hi)
-            ax.set_ylim(lo / 1.3, hi * 1.3)
-            ax.set_title(labels[col], fontsize=8)
+            ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo / 1.3, hi * 1.3))
+            ax.set_title(label, fontsize=8)
             ax.set_xlabel("true weight", fontsize=7)
             ax.set_ylabel(f"{scen}\n{proto}\ninferred weight" if col == 0 else "inferred weight", fontsize=7)
             ax.tick_params(labelsize=6)
@@ -273,9 +255,7 @@ def recovery_figure(recovery: pd.DataFrame, best: pd.DataFrame):
 def _fmt(x) -> str:
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return ""
-    if isinstance(x, (float, np.floating)):
-        return f"{x:.3g}"
-    return str(x)
+    return f"{x:.3g}" if isinstance(x, (float, np.floating)) else str(x)
 
 
 def _orderings(best: pd.DataFrame) -> list[str]:
@@ -293,6 +273,17 @@ def _orderings(best: pd.DataFrame) -> list[str]:
 
 #: scenarios whose experiments report weight recovery per feature and style (drivers of known weights)
 WEIGHT_SCENARIOS = ("sumo", "highway")
+#: the README's caption of each figure, in the README's order
+CAPTIONS = {"learners.png": "Learners side by side", "med_vs_k.png": "MED vs k", "recovery.png": "Weight recovery",
+            "recovery_curves.png": "Recovery curves"}
+
+
+def _read(path: Path, read, keys: set | None = None):
+    """``read(path)``, None without the file; with ``keys``, only the rows of those cells (column ``key``)."""
+    if not path.exists():
+        return None
+    data = read(path)
+    return data if keys is None else data[data["key"].isin(keys)]
 
 
 def write_sweep_report(table: pd.DataFrame, results, out_dir, *, template: bool = False) -> dict:
@@ -321,74 +312,54 @@ def write_sweep_report(table: pd.DataFrame, results, out_dir, *, template: bool 
     table = table[~agents].reset_index(drop=True)
     res_dir = results if results.is_dir() else results.parent
     out = check_output_dir(out_dir, "the report's directory")
-    manifest_file = res_dir / "sweep.json"
-    manifest = json.loads(manifest_file.read_text(encoding="utf-8")) if manifest_file.exists() else {}
-    recovery = pd.read_parquet(res_dir / "recovery.parquet") if (res_dir / "recovery.parquet").exists() else None
-    if recovery is not None:
-        recovery = recovery[recovery["key"].isin(set(table["key"]))]
-
+    manifest = _read(res_dir / "sweep.json", lambda f: json.loads(f.read_text(encoding="utf-8"))) or {}
+    recovery = _read(res_dir / "recovery.parquet", pd.read_parquet, set(table["key"]))
     summary = summary_table(table)
     best = best_variants(summary)
-    written = {}
     figures = {"med_vs_k.png": med_vs_k_figure(summary), "learners.png": learners_side_by_side_figure(best),
                "recovery.png": recovery_figure(recovery, best),
                "recovery_curves.png": recovery_curves_figure(curves_summary(curves_table(table)))}
-    for name, fig in figures.items():  # None: nothing to draw
-        if fig is not None:
-            written[name] = atomic_write_bytes(out / name, png_bytes(fig))
-        else:
-            (out / name).unlink(missing_ok=True)
-
-    name = manifest.get("name", res_dir.name)
-    lines = [f"# Sweep {name!r}", ""]
-    if manifest.get("description"):
-        lines += [manifest["description"], ""]
-    command = manifest.get("command") or "pirl-sim sweep"
-    n_cells = manifest.get("n_cells", len(table))
-    lines += [
-        f"Made by `{command}`, then `pirl-sim report`; every number below is read from "
-        + (f"the cells stored in {res_dir}/cells/." if template else
-           "`table.parquet` (also `table.csv`) in this directory."),
-        "",
+    for name in [n for n, fig in figures.items() if fig is None]:  # nothing to draw: no figure left over
+        (out / name).unlink(missing_ok=True)
+    written = {name: atomic_write_bytes(out / name, png_bytes(fig)) for name, fig in figures.items() if fig is not None}
+    lines = [
+        f"# Sweep {manifest.get('name', res_dir.name)!r}", "",
+        *([manifest["description"], ""] if manifest.get("description") else []),
+        f"Made by `{manifest.get('command') or 'pirl-sim sweep'}`, then `pirl-sim report`; every number below is "
+        "read from " + (f"the cells stored in {res_dir}/cells/." if template else
+                        "`table.parquet` (also `table.csv`) in this directory."), "",
         f"- code version: `{manifest.get('code_version', table['code_version'].iloc[0])}`",
-        f"- cells: {len(table)} finished of {n_cells} ({table['key'].nunique()} distinct computations); "
-        f"seeds: {sorted(int(s) for s in table['seed'].unique())}",
+        f"- cells: {len(table)} finished of {manifest.get('n_cells', len(table))} ({table['key'].nunique()} "
+        f"distinct computations); seeds: {sorted(int(s) for s in table['seed'].unique())}",
         f"- cell time: {table.drop_duplicates('key')['cell_s'].sum():.0f} s in all (sum over cells, any number "
         "of workers)",
         *([f"- not summarised here: {n_agents} cells of the 'agents' scenario (episodes, not predictions; "
-           "`pirl-sim agents` writes their tables)"] if n_agents else []),
-        "",
+           "`pirl-sim agents` writes their tables)"] if n_agents else []), "",
         "MED [m]: mean over test trajectories of the mean distance between predicted and true positions; FDE [m]: "
         "final displacement; weight error: median |log(inferred / true)| of the normalised weights; ARI: "
         "adjusted Rand index of the training clusters against the true styles. Means over seeds, with several "
         "seeds ± the half-width of the mean's 95 % confidence interval (Student t); every seed's numbers are in "
         + ("its cell's file." if template else "`table.csv`.")
-        + " CV / CA: constant velocity / constant acceleration along the path (no weights).",
-        "",
-    ]
-    weights = None
+        + " CV / CA: constant velocity / constant acceleration along the path (no weights).", ""]
     weight_experiments = set(table.loc[table["scenario"].isin(WEIGHT_SCENARIOS), "experiment"])
-    if (res_dir / "weights.csv").exists():
-        weights = pd.read_csv(res_dir / "weights.csv")
-        weights = weights[weights["key"].isin(set(table["key"]))]
-        weights = weights_summary(weights) if len(weights) else None
+    weights = _read(res_dir / "weights.csv", pd.read_csv, set(table["key"]))
+    weights = weights_summary(weights) if weights is not None and len(weights) else None
     for exp, g in summary.groupby("experiment", sort=False):
         lines += [f"## {exp}", ""]
         view = _view(g, {"med": "MED [m]", "fde": "FDE [m]", "weight_error": "weight error", "ari": "ARI"})
         view["styles"] = [_fmt(x) for x in g["n_styles"]]
         view["seeds"] = g["seeds"].to_numpy()
         lines += [markdown(view, _fmt), ""]
-        online = online_view(g)
-        if online is not None:
+        if (online := online_view(g)) is not None:
             lines += ["Online protocol, style posterior and 6 futures per test history (`pirl_sim.engine.worker`): "
                       "style accuracy, the share of test histories whose most probable style given the observed "
                       "steps (p(style | history) from each learned style's likelihood) is their true one, and "
                       "style ARI, the adjusted Rand index of those styles (the ARI column above is of the "
-                      "training clusters); minADE_6 / "
-                      "minFDE_6 [m], the smallest mean / final distance of the futures to the true one; miss rate "
-                      "(the INTERACTION challenge's rule) and NLL [nats per predicted step] of the true future "
-                      "under a Gaussian mixture (sigma 0.5 m) around the futures. TIRL has one future, a "
-                      "feature-space mixture at most one per style.", "", markdown(online, _fmt), ""]
+                      "training clusters); minADE_6 / minFDE_6 [m], the smallest mean / final distance of the "
+                      "futures to the true one; miss rate (the INTERACTION challenge's rule) and NLL [nats per "
+                      "predicted step] of the true future under a Gaussian mixture (sigma 0.5 m) around the futures. "
+                      "TIRL has one future, a feature-space mixture at most one per style.", "",
+                      markdown(online, _fmt), ""]
         w = None if weights is None else weights[weights["experiment"] == exp]
         if w is not None and len(w) and exp in weight_experiments:
             overall = w[w["style"] == "all"]
@@ -402,20 +373,14 @@ def write_sweep_report(table: pd.DataFrame, results, out_dir, *, template: bool 
             if len(per_style):
                 ps = per_style.reset_index().rename(columns={"learner_label": "learner"})
                 lines += ["Median abs log error per true style (mean over seeds):", "", markdown(ps, _fmt), ""]
-        order = _orderings(best[best["experiment"] == exp])
-        if order:
+        if order := _orderings(best[best["experiment"] == exp]):
             lines += ["Orderings (best k of each learner):", "", *order, ""]
-    curves = curves_markdown(table, _fmt)
-    if curves:
+    if curves := curves_markdown(table, _fmt):
         lines += ["## Recovery curves", "", "Weight error (median |log(inferred / true)| of the normalised weights "
                   "over the test histories) against the parameter each curve varies; mean over seeds ± 95 % "
                   "interval (`pirl_sim.experiments.recovery_curves`, figure `recovery_curves.png`).", "", *curves]
-    lines += ["## Figures", ""]
-    captions = {"learners.png": "Learners side by side", "med_vs_k.png": "MED vs k", "recovery.png": "Weight recovery",
-                "recovery_curves.png": "Recovery curves"}  # in this order
-    for fname, caption in captions.items():
-        if fname in written:
-            lines += [f"![{caption}]({fname})", ""]
+    lines += ["## Figures", "", *(line for f, caption in CAPTIONS.items() if f in written
+                                  for line in (f"![{caption}]({f})", ""))]
     timing = table.drop_duplicates("key").groupby("learner", sort=False)[["fit_s", "evaluate_s", "cell_s"]].sum()
     lines += ["## Time per learner [s] (sums over cells)", "", markdown(timing.reset_index(), _fmt), ""]
     if manifest.get("config"):

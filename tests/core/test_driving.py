@@ -1,7 +1,6 @@
 """The roundabout driving model (pirl_sim.driving): desired-speed profiles and path features, sequential MPC,
 composite paths, the speed-level and headway features, and state estimation from positions and speeds."""
 
-import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -19,16 +18,15 @@ from pirl_sim.driving import (
 from pirl_sim.dynamics import longitudinal
 from pirl_sim.mpc import Bounds
 from pirl_sim.paths import ReferencePath
-from pirl_sim.scenarios.passage import PassageConfig, passage_polyline
-from pirl_sim.scenarios.passage import generate as generate_passage
+from pirl_sim.scenarios.passage import passage_polyline
 from pirl_sim.scenarios.replay import load_replay
+
+from style_demos import roundabout_passages
 
 
 @pytest.fixture(scope="module")
 def passage():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return generate_passage(PassageConfig(n_trajectories=240, n_train=200, seed=1))
+    return roundabout_passages()
 
 
 def _fd(fs, dyn, x0, U, h=1e-6):

@@ -1,22 +1,18 @@
 """Driver populations (pirl_sim.population): the Boltzmann sampler's moments, Metropolis on a curved path, and
 bad styles refused."""
 
-import warnings
-
 import numpy as np
 import pytest
 
 from pirl_sim.features import lqr_features
 from pirl_sim.population import Population, Style, sample_boltzmann_controls
-from pirl_sim.scenarios.passage import PassageConfig
-from pirl_sim.scenarios.passage import generate as generate_passage
+
+from style_demos import roundabout_passages
 
 
 @pytest.fixture(scope="module")
 def passage():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return generate_passage(PassageConfig(n_trajectories=240, n_train=200, seed=1))
+    return roundabout_passages()
 
 
 def test_boltzmann_on_a_curved_path_uses_metropolis(passage):

@@ -7,20 +7,12 @@ import pytest
 from pirl_sim.recovery import RecoveryReport, interval, spearman, statistic, weight_scores
 from pirl_sim.testing import assert_recovered, recovery_misses
 
-
-FEATURES = ("speed_dev", "acc_sq")
-
-
-def _report(errors, styles=None, **kwargs):
-    """Tracks whose |log errors| are ``errors`` (n, 2) exactly: true weights 1..n, fitted true * exp(error)."""
-    errors = np.asarray(errors, dtype=float)
-    true = np.column_stack([np.arange(1.0, len(errors) + 1), np.full(len(errors), 0.5)])
-    return RecoveryReport.from_weights(true, true * np.exp(errors), features=FEATURES, styles=styles, **kwargs)
+from recovery_reports import FEATURES, error_report
 
 
 def test_summary_figures_by_hand():
     err = np.column_stack([np.linspace(0.0, 0.1, 11), -np.linspace(0.0, 0.2, 11)])
-    rep = _report(err, styles=["a"] * 6 + ["b"] * 5, source="hand")
+    rep = error_report(err, styles=["a"] * 6 + ["b"] * 5, source="hand")
     s = rep.summary().set_index(["feature", "style"])
     assert list(s.index) == [("speed_dev", "all"), ("speed_dev", "a"), ("speed_dev", "b"),
                              ("acc_sq", "all"), ("acc_sq", "a"), ("acc_sq", "b")]
@@ -44,9 +36,9 @@ def test_summary_figures_by_hand():
 def test_bootstrap_intervals_are_seeded_and_analytic_ones_cover():
     rng = np.random.default_rng(1)
     err = np.abs(rng.normal(scale=0.1, size=(40, 2)))
-    a, b = _report(err, seed=3).summary(), _report(err, seed=3).summary()
+    a, b = error_report(err, seed=3).summary(), error_report(err, seed=3).summary()
     assert a.equals(b)
-    assert not a.equals(_report(err, seed=4).summary())  # another seed, other resamples
+    assert not a.equals(error_report(err, seed=4).summary())  # another seed, other resamples
     # the analytic median interval of 41 draws from N(0, 1) holds the true median 0 in about 95 % of samples
     draws = np.random.default_rng(2).normal(size=(400, 41))
     hits = [lo <= 0.0 <= hi for lo, hi in (interval(d, "median", method="analytic") for d in draws)]
@@ -84,7 +76,7 @@ def test_report_checks_itself(change, match):
 
 
 def test_report_is_frozen_and_read_only():
-    rep = _report(np.full((3, 2), 0.01))
+    rep = error_report(np.full((3, 2), 0.01))
     assert rep.style_names == ("(none)",) and list(rep.summary()["style"]) == ["all", "(none)"] * 2
     with pytest.raises(AttributeError):
         rep.seed = 2

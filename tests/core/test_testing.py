@@ -3,23 +3,14 @@
 import numpy as np
 import pytest
 
-from pirl_sim.recovery import RecoveryReport
 from pirl_sim.testing import assert_recovered, recovery_misses
 
-
-FEATURES = ("speed_dev", "acc_sq")
-
-
-def _report(errors, styles=None, **kwargs):
-    """Tracks whose |log errors| are ``errors`` (n, 2) exactly: true weights 1..n, fitted true * exp(error)."""
-    errors = np.asarray(errors, dtype=float)
-    true = np.column_stack([np.arange(1.0, len(errors) + 1), np.full(len(errors), 0.5)])
-    return RecoveryReport.from_weights(true, true * np.exp(errors), features=FEATURES, styles=styles, **kwargs)
+from recovery_reports import error_report
 
 
 def test_assert_recovered_passes_and_lists_every_miss():
     err = np.column_stack([np.full(10, 0.01), np.r_[np.full(5, 0.01), np.full(5, 0.3)]])
-    rep = _report(err, styles=["calm"] * 5 + ["eager"] * 5)
+    rep = error_report(err, styles=["calm"] * 5 + ["eager"] * 5)
     assert_recovered(rep, {"speed_dev": 0.02})
     assert_recovered(rep, {"*": 0.4}, statistic="p90", styles="each", bound="high")
     with pytest.raises(AssertionError) as exc:
@@ -44,6 +35,6 @@ def test_assert_recovered_passes_and_lists_every_miss():
     ({"tolerances": {"speed_dev": 0.1, "p90": {"acc_sq": 0.1}}}, TypeError, r"not mixed"),
 ])
 def test_assert_recovered_rejects_bad_arguments(kwargs, error, match):
-    rep = _report(np.full((4, 2), 0.01))
+    rep = error_report(np.full((4, 2), 0.01))
     with pytest.raises(error, match=match):
         assert_recovered(rep, **kwargs)

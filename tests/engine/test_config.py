@@ -15,7 +15,7 @@ pytest.importorskip("hypothesis")
 from hypothesis import given  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from sweep_configs import BAD, TINY, sweep_config  # noqa: E402
+from sweep_configs import BAD, TINY, sweep_config, sweep_toml  # noqa: E402
 from toml_fuzz import FUZZ, mutated_mapping  # noqa: E402
 
 
@@ -51,9 +51,7 @@ def test_bad_configs_fail_naming_the_problem(case):
 
 
 def test_grid_over_scenario_parameters_with_named_variants():
-    text = """
-seeds = [3]
-[[experiments]]
+    text = sweep_toml(None, [3], """
 scenario = "passage"
 label = "pop"
 params = { n_trajectories = 40, n_train = 30 }
@@ -63,7 +61,7 @@ learners = ["tirl"]
 rationality = [20.0, inf]
 [experiments.grid.mix]
 two = { "tracks desired speed" = 1.0, "minimises acceleration" = 2.0, "no preference" = 0.0 }
-"""
+""")
     cfg = sweep_config(text)
     assert [c.scenario_label for c in cfg.cells] == ["pop (rationality=20, mix=two)", "pop (rationality=inf, mix=two)"]
     styles = cfg.cells[0].scenario_params["styles"]

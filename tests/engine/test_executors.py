@@ -9,18 +9,16 @@ import time
 
 import pytest
 
+from sweep_configs import sweep_toml
+
 
 # A sweep whose cells take long enough that the workers are busy when the main process is killed.
-_ORPHAN_CONFIG = """
-name = "orphans"
-seeds = [0, 1, 2, 3]
-
-[[experiments]]
+_ORPHAN_CONFIG = sweep_toml("orphans", [0, 1, 2, 3], """
 scenario = "synthetic"
 params = { n_trajectories = 600, n_train = 500 }
 protocols = ["paper"]
 learners = ["tirl", "pirl-dpgmm", { name = "pirl-gmm", grid = { n_components = [2, 3] } }]
-"""
+""")
 
 
 def _group_members(pgid: int) -> list[int]:

@@ -15,35 +15,26 @@ import pandas as pd
 import pytest
 
 from pirl_sim.cli import main
-from pirl_sim.engine import TIMING_COLUMNS, executors, parse_config, run_sweep
+from pirl_sim.engine import TIMING_COLUMNS, executors, run_sweep
 from pirl_sim.engine.executors import DaskExecutor, LocalExecutor, check_worker_versions, package_versions
+
+from sweep_configs import TINY_EXPERIMENT, sweep_config, sweep_toml
 
 distributed = pytest.importorskip("dask.distributed")
 
-TEXT = """
-name = "dask"
-seeds = [0, 1]
-
-[[experiments]]
-scenario = "synthetic"
-params = { n_trajectories = 100, n_train = 80 }
-protocols = ["paper", { kind = "online", history_steps = 10 }]
-learners = ["tirl", { name = "pirl-gmm", params = { n_components = 2 } },
-            { name = "pirl-knn", grid = { n_neighbors = [1, 5] } }]
-
-[[experiments]]
+# TINY's synthetic experiment (16 cells), a passage one (4 cells) and a SUMO one (2 cells, one simulation)
+TEXT = sweep_toml("dask", [0, 1], TINY_EXPERIMENT, """
 scenario = "passage"
 params = { n_trajectories = 40, n_train = 30 }
 protocols = [{ kind = "rolling", history_steps = 10, horizon = 15, stride = 5 }]
 learners = ["tirl", { name = "pirl-knn", params = { n_neighbors = 3 } }]
-
-[[experiments]]
+""", """
 scenario = "sumo"
 seeds = [0]
 params = { n_vehicles = 8, depart_interval = 3.0 }
 protocols = [{ kind = "rolling", history_steps = 10, horizon = 10, stride = 20 }]
 learners = ["ca", { name = "tirl", params = { likelihood = "receding", step_stride = 4 } }]
-"""
+""")
 
 
 @pytest.fixture(autouse=True)
@@ -62,9 +53,7 @@ def _scores(table):
 
 
 def test_dask_local_cluster_gives_the_local_table(tmp_path):
-    import tomllib
-
-    config = parse_config(tomllib.loads(TEXT), text=TEXT)
+    config = sweep_config(TEXT)
     with LocalExecutor(2) as local:
         ran_local = run_sweep(config, tmp_path / "local", executor=local, progress=False)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -89,16 +78,12 @@ def _records(out):
     return [json.loads(p.read_text()) for p in (out / "cells").glob("*.json")]
 
 
-TINY = """
-name = "tiny"
-seeds = [0]
-
-[[experiments]]
+TINY = sweep_toml("tiny", [0], """
 scenario = "synthetic"
 params = { n_trajectories = 60, n_train = 40 }
 protocols = ["paper"]
 learners = ["cv", "tirl", { name = "pirl-knn", grid = { n_neighbors = [1, 3] } }]
-"""
+""")
 
 
 def _dask_command(name: str) -> list[str]:
@@ -188,16 +173,12 @@ def test_worker_with_other_versions_is_refused(scheduler_file, tmp_path, monkeyp
     assert not out.exists()
 
 
-SUMO = """
-name = "sumo"
-seeds = [0]
-
-[[experiments]]
+SUMO = sweep_toml("sumo", [0], """
 scenario = "sumo"
 params = { n_vehicles = 8, depart_interval = 3.0 }
 protocols = [{ kind = "rolling", history_steps = 10, horizon = 10, stride = 20 }]
 learners = ["ca"]
-"""
+""")
 
 
 @pytest.mark.slow

@@ -24,7 +24,7 @@ from pirl_sim.engine import (
 )
 from pirl_sim.experiments.spec import Param, TrainShape
 
-from sweep_configs import TINY, sweep_config
+from sweep_configs import TINY, sweep_config, sweep_toml
 
 
 def _scores(table: pd.DataFrame) -> pd.DataFrame:
@@ -128,17 +128,13 @@ def test_a_failing_cell_is_reported_and_the_others_are_kept(failing_scenario, tm
     assert len(again.cached) == 1 and list(again.failed) == [key]  # retried, still failing
 
 
-CONFIG = """
-name = "resume"
-seeds = [0, 1]
-
-[[experiments]]
+CONFIG = sweep_toml("resume", [0, 1], """
 scenario = "synthetic"
 params = { n_trajectories = 600, n_train = 500 }
 protocols = ["paper", { kind = "online", history_steps = 10 }]
 learners = ["tirl", "pirl-dpgmm", { name = "pirl-gmm", grid = { n_components = [2, 3] } },
             { name = "pirl-knn", grid = { n_neighbors = [1, 3, 5] } }]
-"""
+""")
 N_CELLS = 2 * 2 * 7
 
 
@@ -176,16 +172,12 @@ def test_sigkill_halfway_then_resume(tmp_path):
     pd.testing.assert_frame_equal(_scores(pd.read_parquet(out / "table.parquet")), _scores(uninterrupted.table))
 
 
-SUMO_CONFIG = """
-name = "resume-sumo"
-seeds = [0, 1, 2]
-
-[[experiments]]
+SUMO_CONFIG = sweep_toml("resume-sumo", [0, 1, 2], """
 scenario = "sumo"
 params = { n_vehicles = 8, depart_interval = 3.0 }
 protocols = [{ kind = "rolling", history_steps = 10, horizon = 10, stride = 20 }]
 learners = ["cv", "ca", { name = "tirl", params = { likelihood = "receding", step_stride = 4 } }]
-"""
+""")
 
 
 @pytest.mark.slow

@@ -4,20 +4,17 @@ and the report's curves (pirl_sim.experiments.recovery_curves), on a hand-made t
 from __future__ import annotations
 
 import json
-import tomllib
 from importlib import resources
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.engine import load_config, parse_config, run_sweep, write_report
+from pirl_sim.engine import load_config, run_sweep, write_report
 from pirl_sim.experiments.recovery_curves import CURVE_AXES, curves_markdown, curves_summary, curves_table, recovery_curves_figure
 from pirl_sim.experiments.sweep_report import _fmt
 
-
-def _config(text: str):
-    return parse_config(tomllib.loads(text), text=text)
+from sweep_configs import sweep_config, sweep_toml
 
 
 def test_the_preset_varies_one_recovery_parameter_per_experiment():
@@ -46,16 +43,14 @@ def test_the_preset_varies_one_recovery_parameter_per_experiment():
     ("n_train = 2.5", r"parameter 'n_train' must be an integer, got 2.5"),
 ])
 def test_n_train_is_checked_when_the_config_is_built(params, match):
-    text = f"""
-seeds = [0]
-[[experiments]]
+    text = sweep_toml(None, [0], f"""
 scenario = "sumo"
 params = {{ n_vehicles = 12, {params} }}
 protocols = [{{ kind = "rolling", history_steps = 10, horizon = 20, stride = 20 }}]
 learners = ["tirl"]
-"""
+""")
     with pytest.raises(ValueError, match=match):
-        _config(text)
+        sweep_config(text)
 
 
 def _table():
@@ -96,22 +91,20 @@ def test_curves_from_a_table():
     assert recovery_curves_figure(curves_summary(curves_table(_table().query("experiment == 'flat'")))) is None
 
 
-CURVE = """
-seeds = [0]
-[[experiments]]
+CURVE = sweep_toml(None, [0], """
 scenario = "sumo"
 label = "SUMO training tracks"
 params = { n_vehicles = 16, depart_interval = 3.0 }
 grid = { n_train = [2, 6] }
 protocols = [{ kind = "rolling", history_steps = 10, horizon = 20, stride = 20 }]
 learners = [{ name = "pirl-knn", params = { n_neighbors = 1, likelihood = "receding", step_stride = 2 } }]
-"""
+""")
 
 
 @pytest.mark.slow
 def test_a_real_sweep_draws_its_curve(tmp_path):
     pytest.importorskip("libsumo")
-    run = run_sweep(_config(CURVE), tmp_path, workers=0, progress=False)
+    run = run_sweep(sweep_config(CURVE), tmp_path, workers=0, progress=False)
     assert not run.failed and len(run.simulated) == 1  # both sizes read one simulation
     t = run.table.set_index("n_train")
     assert list(t.index) == [2, 6] and (t["weight_error"] > 0).all()

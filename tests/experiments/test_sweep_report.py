@@ -1,6 +1,7 @@
 """The sweep report's figures (pirl_sim.experiments.sweep_report) of the committed results/sweep: legends clear of
 the data, one colour per learner or feature, and what k counts."""
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import pandas as pd
@@ -42,30 +43,33 @@ def _assert_one_colour_per_series(fig):
     assert seen, "labelled series"
 
 
-def test_learners_figure_legend_clear_and_colours_per_learner():
+@contextmanager
+def _series_figure(fig):
+    """``fig``, checked first for legends clear of the data and one colour per labelled series; closed at the end."""
     from pirl_sim.evaluation.figures import pyplot
-    from pirl_sim.experiments.sweep_report import learners_side_by_side_figure
 
-    _, best = _sweep_summary()
-    fig = learners_side_by_side_figure(best)
     try:
         assert_legends_clear(fig)
         _assert_one_colour_per_series(fig)
-        texts = [t.get_text() for ax in fig.axes for t in ax.texts]
-        assert any(t.startswith("k=") for t in texts), "the best k is written at its bar"
+        yield fig
     finally:
         pyplot().close(fig)
 
 
+def test_learners_figure_legend_clear_and_colours_per_learner():
+    from pirl_sim.experiments.sweep_report import learners_side_by_side_figure
+
+    _, best = _sweep_summary()
+    with _series_figure(learners_side_by_side_figure(best)) as fig:
+        texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+        assert any(t.startswith("k=") for t in texts), "the best k is written at its bar"
+
+
 def test_med_vs_k_figure_legend_colours_and_what_k_counts():
-    from pirl_sim.evaluation.figures import pyplot
     from pirl_sim.experiments.sweep_report import med_vs_k_figure
 
     summary, _ = _sweep_summary()
-    fig = med_vs_k_figure(summary)
-    try:
-        assert_legends_clear(fig)
-        _assert_one_colour_per_series(fig)
+    with _series_figure(med_vs_k_figure(summary)) as fig:
         labels = {ax.get_title(): ax.get_xlabel() for ax in fig.axes if ax.get_visible()}
         assert any("PIRL-GMM" in t for t in labels) and any("PIRL-kNN" in t for t in labels)
         for title, xlabel in labels.items():
@@ -78,8 +82,6 @@ def test_med_vs_k_figure_legend_colours_and_what_k_counts():
         for ax in fig.axes:
             if ax.get_visible():
                 assert_tick_below_data(ax)  # the passage panel's lowest line (~0.12 m) was below every tick
-    finally:
-        pyplot().close(fig)
 
 
 def test_recovery_figure_one_colour_per_feature():

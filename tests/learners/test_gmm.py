@@ -10,9 +10,9 @@ from pirl_sim.learners import PIRLDPGMM, PIRLGMM
 from pirl_sim.metrics import adjusted_rand_index, match_styles, weight_recovery_error
 from pirl_sim.model import synthetic_model
 from pirl_sim.population import Population, Style, generate_demonstrations
-from pirl_sim.scenarios.passage import PassageConfig
-from pirl_sim.scenarios.passage import generate as generate_passage
 from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
+
+from style_demos import roundabout_passages
 
 
 STYLE_Q = np.array([0.1, 1.0, 10.0])  # normalised state_sq weight of each style (control_sq = 1)
@@ -132,9 +132,7 @@ def test_mixture_parameters_are_checked_before_the_fit(data, cls, params, match)
 
 @pytest.fixture(scope="module")
 def passage():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return generate_passage(PassageConfig(n_trajectories=240, n_train=200, seed=1))
+    return roundabout_passages()
 
 
 def test_gmm_recovers_three_styles_on_the_roundabout(passage):

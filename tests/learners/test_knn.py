@@ -14,12 +14,12 @@ from pirl_sim.learners.knn import knn_average
 from pirl_sim.metrics import weight_recovery_error
 from pirl_sim.model import synthetic_model
 from pirl_sim.population import Population, Style, generate_demonstrations
-from pirl_sim.scenarios.passage import PassageConfig
-from pirl_sim.scenarios.passage import generate as generate_passage
 from pirl_sim.scenarios.replay import load_replay
 from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
 from pirl_sim.simulate import simulate_receding_horizon
 from pirl_sim.trajectory import Trajectory
+
+from style_demos import roundabout_passages
 
 
 @pytest.fixture(scope="module")
@@ -336,9 +336,7 @@ def test_several_road_weights_are_chosen_on_held_out_windows_of_other_tracks(pas
 
 @pytest.fixture(scope="module")
 def passage():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return generate_passage(PassageConfig(n_trajectories=240, n_train=200, seed=1))
+    return roundabout_passages()
 
 
 def test_knn_beats_tirl_online(passage):

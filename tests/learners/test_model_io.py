@@ -23,10 +23,11 @@ from pirl_sim.model import DriverModel, synthetic_model
 from pirl_sim.mpc import Bounds
 from pirl_sim.paths import ReferencePath
 from pirl_sim.receding import RecedingResult
-from pirl_sim.scenarios.passage import PassageConfig, passage_polyline
-from pirl_sim.scenarios.passage import generate as generate_passage
+from pirl_sim.scenarios.passage import passage_polyline
 from pirl_sim.scenarios.replay import load_replay
 from pirl_sim.scenarios.synthetic import SyntheticConfig, generate
+
+from style_demos import roundabout_passages
 
 
 KINDS = [
@@ -48,9 +49,7 @@ def synthetic():
 
 @pytest.fixture(scope="module")
 def passage():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return generate_passage(PassageConfig(n_trajectories=60, n_train=50, n_steps=15, seed=1))
+    return roundabout_passages(n_trajectories=60, n_train=50, n_steps=15)
 
 
 def _fit(cls, params, model, train):

@@ -2,7 +2,6 @@
 line, and PIRL-GMM recovering the three styles end to end."""
 
 import filecmp
-import warnings
 
 import numpy as np
 import pytest
@@ -11,9 +10,6 @@ pytest.importorskip("highway_env")
 pytest.importorskip("lanelet2")
 
 from pirl_sim.cli import main  # noqa: E402
-from pirl_sim.learners import PIRLGMM  # noqa: E402
-from pirl_sim.metrics import adjusted_rand_index  # noqa: E402
-from pirl_sim.scenarios.drivers import route_set_model  # noqa: E402
 from pirl_sim.scenarios.highway.scenario import (  # noqa: E402
     HighwayScenarioConfig,
     load_highway_run,
@@ -30,6 +26,8 @@ from pirl_sim.scenarios.recording import (  # noqa: E402
     TRACKS_FILE,
     read_recording,
 )
+
+from style_demos import assert_pirl_gmm_finds_the_styles  # noqa: E402
 
 
 SMALL = population_from_dict({**DEFAULT_POPULATION.to_dict(), "n_vehicles": 16, "depart_interval": 3.0})
@@ -161,14 +159,4 @@ def test_pirl_gmm_recovers_the_three_styles_from_a_highway_env_population(tmp_pa
     assert not gt["collided"].any() and (gt["status"] == "arrived").all()
     run = load_highway_run(tmp_path)
     demos = run.demonstrations(dt=LEARNING_DT)
-    truth = np.array([d.metadata["style"] for d in demos])
-    counts = np.bincount(truth, minlength=3)
-    print(f"\n{len(gt)} tracks, {int(gt['is_pirl'].sum())} PIRL, {len(demos)} without interaction "
-          f"(per style {counts.tolist()})")
-    assert len(demos) >= 24 and counts.min() >= 5
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # IRL convergence warnings: weights are not what this test checks
-        gmm = PIRLGMM(route_set_model(run.routes, dt=LEARNING_DT), n_components=3, random_state=0).fit(demos)
-    ari = adjusted_rand_index(truth, gmm.labels_)
-    print(f"ARI of PIRL-GMM (k=3) clusters vs the true styles: {ari:.3f}")
-    assert ari >= ARI_TARGET
+    assert_pirl_gmm_finds_the_styles(demos, run.routes, gt, LEARNING_DT, ARI_TARGET)

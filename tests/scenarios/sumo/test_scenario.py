@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import warnings
 
 import numpy as np
 import pandas as pd
@@ -23,9 +22,7 @@ import libsumo  # noqa: E402
 from pirl_sim.cli import build_parser, main  # noqa: E402
 from pirl_sim.io.interaction import read_tracks  # noqa: E402
 from pirl_sim.io.lanelet2_map import load_map, match_route  # noqa: E402
-from pirl_sim.learners import PIRLGMM  # noqa: E402
-from pirl_sim.metrics import adjusted_rand_index  # noqa: E402
-from pirl_sim.scenarios.drivers import PirlDrivers, route_set_model  # noqa: E402
+from pirl_sim.scenarios.drivers import PirlDrivers  # noqa: E402
 from pirl_sim.scenarios.population_config import DEFAULT_POPULATION  # noqa: E402
 from pirl_sim.scenarios.recording import GROUND_TRUTH_COLUMNS, read_recording  # noqa: E402
 from pirl_sim.scenarios.sumo import (  # noqa: E402
@@ -40,6 +37,8 @@ from pirl_sim.scenarios.sumo import (  # noqa: E402
     scenario_from_dict,
     speed_mode,
 )
+
+from style_demos import assert_pirl_gmm_finds_the_styles  # noqa: E402
 
 
 SMALL = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=16)
@@ -367,19 +366,8 @@ def test_pirl_gmm_recovers_the_three_styles_from_a_sumo_population(tmp_path):
     res = run_sumo_scenario(SumoScenarioConfig(), seed=0, out_dir=tmp_path)
     run = load_sumo_run(tmp_path)
     demos = run.demonstrations(dt=LEARNING_DT)  # PIRL tracks without interaction, collision or removal
-    truth = np.array([d.metadata["style"] for d in demos])
-    counts = np.bincount(truth, minlength=3)
-    gt = res.recording.ground_truth
-    print(f"\n{len(gt)} tracks, {int(gt['is_pirl'].sum())} PIRL, {len(demos)} without interaction "
-          f"(per style {counts.tolist()})")
-    assert len(demos) >= 24 and counts.min() >= 5
     assert all(not d.metadata["interacted"] for d in demos)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # IRL convergence warnings: weights are not what this test checks
-        gmm = PIRLGMM(route_set_model(run.routes, dt=LEARNING_DT), n_components=3, random_state=0).fit(demos)
-    ari = adjusted_rand_index(truth, gmm.labels_)
-    print(f"ARI of PIRL-GMM (k=3) clusters vs the true styles: {ari:.3f}")
-    assert ari >= ARI_TARGET
+    assert_pirl_gmm_finds_the_styles(demos, run.routes, res.recording.ground_truth, LEARNING_DT, ARI_TARGET)
 
 
 def _swapped_truth(report: RecoveryReport) -> RecoveryReport:
