@@ -20,9 +20,10 @@ SIMULATORS = ("sumo", "highway")
 
 @subcommand("recover",
             help="weight recovery of the receding-horizon IRL on simulated runs (table of errors per seed)",
-            description="Simulate each seed (or reuse its run under OUT/runs), fit the receding-horizon IRL to every "
+            description="Simulate each seed (or reuse its run under OUT/simulations), fit the receding-horizon IRL to every "
             "PIRL track with enough usable steps and TIRL per style, and write table.csv/.md, styles.csv, tracks.csv, "
-            "selection.csv, times.csv, README.md (and noise.csv/.md with --control-noise) to --out.")
+            "selection.csv, times.csv, README.md (and noise.csv/.md with --control-noise) and scene_<simulator>_weights.png / "
+            "_errors.png (the first seed's tracks on the road, coloured by the fitted weight and its error) to --out.")
 def add_parser(p) -> None:
     """The options of ``recover``."""
     p.add_argument("--simulator", choices=[*SIMULATORS, "both"], default="sumo",
@@ -48,6 +49,7 @@ def run(args) -> int:
     from pirl_sim.engine.store import ResultStore, SIMULATION_RECORD, simulation_key
     from pirl_sim.experiments.recovery import (SPEC, check_targets, compact_table, recovery_jobs, recovery_result,
                                                write_recovery)
+    from pirl_sim.experiments.recovery_scenes import write_recovery_scenes
     from pirl_sim.io import toml_text
 
     sims = list(SIMULATORS) if args.simulator == "both" else [args.simulator]
@@ -62,17 +64,19 @@ def run(args) -> int:
                             source=str(args.population or "pirl-sim recover")), jobs
 
     def report(result, config, jobs) -> int:
-        store, simulated, sim_time = ResultStore(args.out), [], []
+        store, simulated, sim_time, run_dirs = ResultStore(args.out), [], [], []
         for cell in config.cells:
             sk = simulation_key("recovery", SPEC.simulation(dict(cell.scenario_params)),  # type: ignore[misc]
                                 cell.seed, result.code_version)
-            record = store.simulation_dir(sk) / SIMULATION_RECORD
+            run_dirs.append(store.simulation_dir(sk))
+            record = run_dirs[-1] / SIMULATION_RECORD
             simulated.append(sk in result.simulated)
             sim_time.append(float(json.loads(record.read_text("utf-8"))["timings"]["simulate_s"]) if record.is_file()
                             else 0.0)
         records = [result.records[k]["result"] for k in result.keys]
         study = recovery_result(jobs, records, simulated=simulated, sim_time_s=sim_time, workers=max(args.workers, 1))
         write_recovery(study, args.out, command)
+        write_recovery_scenes(study, run_dirs, args.out)
         table = study.table()
         print(table_text(compact_table(table)))
         for sim in sims:

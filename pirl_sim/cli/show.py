@@ -32,10 +32,12 @@ def _size(text: str) -> tuple[int, int]:
             "simulated run) on its Lanelet2 map: one frame (--frame or --time) with the vehicles as oriented boxes, "
             "every track (the default), or an animation over a time span (--span, written as .gif or .mp4 by the "
             "suffix of --out). Tracks are coloured by --color-by: a column of the track file, 'speed', or 'style' "
-            "(the drivers' styles from the run's ground_truth.csv).")
+            "(the drivers' styles from the run's ground_truth.csv). Given a replay's output folder, it draws one of the "
+            "replay's scenes (--window gain or loss: where the best learner beats CA most or loses to it most).")
 def add_parser(p) -> None:
     """The options of ``show``."""
-    p.add_argument("tracks", type=Path, help="a vehicle_tracks_*.csv file, or a folder with one (a simulated run)")
+    p.add_argument("tracks", type=Path, help="a vehicle_tracks_*.csv file, a folder with one (a simulated run), or "
+                   "a replay's output folder (its scenes.json: see --window)")
     p.add_argument("--map", type=Path,
                    help="Lanelet2 map (.osm); default: map.osm beside the tracks when there is one, else no road")
     p.add_argument("--file", type=int, default=0, metavar="N",
@@ -47,6 +49,8 @@ def add_parser(p) -> None:
                       help="animate from START to END [s of the recording]")
     p.add_argument("--color-by", metavar="COLUMN", help="colour tracks by a column of the track file, "
                    "'speed' [m/s] or 'style' (default: one colour per track)")
+    p.add_argument("--window", metavar="KIND", help="of a replay's output folder: the scene to draw, 'gain' (the "
+                   "best learner beats CA most, the default) or 'loss' (it loses most)")
     p.add_argument("--fps", type=positive_float_arg, default=10.0, help="animation frames per second (default 10)")
     p.add_argument("--speed", type=positive_float_arg, default=1.0,
                    help="recording seconds per animation second (default 1: real time)")
@@ -99,11 +103,31 @@ def _outputs(args, inputs: list[Path]) -> Path:
     return out
 
 
+def _replay_scene(args) -> Path:
+    """Draw the scene ``--window`` of the replay output folder ``args.tracks`` (its scenes.json) as a PNG."""
+    from pirl_sim.experiments.replay_scenes import SCENE_KINDS, draw_replay_scene
+
+    given = [f"--{name.replace('_', '-')}" for name in ("frame", "time", "span", "color_by", "map")
+             if getattr(args, name) is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)}: a replay's output folder holds pictures of prediction windows; "
+                         "choose one with --window")
+    out = _outputs(args, [])
+    draw_replay_scene(args.tracks, args.window or SCENE_KINDS[0], args.size).savefig(out)
+    return out
+
+
 def run(args) -> int:
     """``pirl-sim show``: 0, or 2 for a bad input (an unknown column, a frame outside the recording, ...)."""
+    from pirl_sim.experiments.replay_scenes import SCENES_FILE
     from pirl_sim.io.interaction import read_tracks
 
     try:
+        if args.tracks.is_dir() and (args.tracks / SCENES_FILE).is_file():
+            return finish(_replay_scene(args))
+        if args.window is not None:
+            raise ValueError(f"--window draws a scene of a replay's output folder; {str(args.tracks)!r} has no "
+                             f"{SCENES_FILE}")
         track_file = _track_file(args.tracks, args.file)
         folder = track_file.parent
         map_path = args.map if args.map is not None else (folder / "map.osm" if (folder / "map.osm").is_file()

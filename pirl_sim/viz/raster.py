@@ -52,7 +52,7 @@ def place_axes(fig: Figure, *, title: bool = False, colorbar: bool = False) -> N
     """
     w, h = fig.bbox.width, fig.bbox.height
     scale = fig.dpi / DEFAULT_DPI  # text grows with dpi
-    left, right = 68 * scale, (50 if colorbar else 12) * scale  # [px]
+    left, right = 68 * scale, (80 if colorbar else 12) * scale  # [px]: a colour bar, its ticks and label
     bottom, top = 42 * scale, (30 if title else 10) * scale
     fig.subplots_adjust(left=min(left / w, 0.3), right=max(1 - right / w, 0.7), bottom=min(bottom / h, 0.3),
                         top=max(1 - top / h, 0.7))

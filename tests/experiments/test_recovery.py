@@ -196,7 +196,8 @@ def test_rerun_reuses_the_runs_and_writes_the_same_bytes(no_spread_study):
         if name != "times.csv":  # wall times
             assert after[name] == before[name], name
     assert {"table.csv", "table.md", "styles.csv", "tracks.csv", "selection.csv", "README.md",
-            ".gitignore"} <= set(after)
+            ".gitignore", "scene_sumo_weights.png", "scene_sumo_errors.png"} <= set(after)
+    assert "![sumo weights](scene_sumo_weights.png)" in (out / "README.md").read_text()
     sel = pd.read_csv(out / "selection.csv")
     assert {"overridden", "not_commanded", "collided", "usable", "tracks_kept"} <= set(sel.columns)
 
