@@ -12,9 +12,9 @@ from pirl_sim.threads import resolve_blas_threads, thread_policy
 
 from . import (agents, calibrate, fit_model, policy_recovery, predict, realism, recover, replay, report, reproduce,
                show, simulate, sweep, weight_space)
-from .common import add_blas_threads_option
+from .common import add_blas_threads_option, error
 
-__all__ = ["main", "build_parser", "package_version", "cli_logging", "COMMANDS"]
+__all__ = ["main", "build_parser", "package_version", "cli_logging", "COMMANDS", "EXTRAS"]
 
 #: the subcommands in the order of ``pirl-sim --help``: name (the module's, ``-`` for ``_``) -> module
 COMMANDS = {module.__name__.rpartition(".")[2].replace("_", "-"): module for module in (
@@ -79,17 +79,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: optional modules -> the extra of pyproject.toml that installs them (a missing one is named with its extra)
+EXTRAS = {"sumolib": "sumo", "traci": "sumo", "libsumo": "sumo", "highway_env": "highway", "gymnasium": "highway",
+          "lanelet2": "maps", "dask": "dask", "distributed": "dask", "stable_baselines3": "rl", "torch": "rl"}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``pirl-sim`` with ``argv`` (default: the process's arguments); returns the exit status: a command's
     own, 130 for Ctrl-C and 2 for a file system error (an unwritable or full output, a directory where a file is
-    expected) that the command did not handle, each said in one line without a traceback."""
+    expected) or a missing optional module (named with its extra, `EXTRAS`) that the command did not handle, each
+    said in one line without a traceback."""
     args = build_parser().parse_args(argv)
     option = getattr(args, "blas_threads", None)
     try:
         resolve_blas_threads(option)  # a bad $PIRL_SIM_BLAS_THREADS stops the command before any work
     except ValueError as exc:
-        print(f"pirl-sim: error: {exc}", file=sys.stderr)
-        return 2
+        return error(exc)
     try:
         with thread_policy(option), cli_logging(getattr(args, "verbose", False)):  # both restored on return
             return COMMANDS[args.command].run(args)
@@ -97,5 +102,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\npirl-sim {args.command}: interrupted", file=sys.stderr)
         return 130
     except OSError as exc:
-        print(f"pirl-sim: error: {exc}", file=sys.stderr)
-        return 2
+        return error(exc)
+    except ModuleNotFoundError as exc:
+        extra = EXTRAS.get((exc.name or "").split(".")[0])
+        if extra is None:
+            raise
+        return error(f"{exc.name} is not installed; pirl-sim {args.command} needs the '{extra}' extra: "
+                     f"pip install 'pirl_sim[{extra}]' (pip install -e '.[{extra}]' in a checkout)")

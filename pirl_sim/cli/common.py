@@ -43,12 +43,9 @@ def reworded(parse: Callable[[str], Any], message: str) -> Callable[[str], Any]:
     return convert
 
 
-def workers_arg(text: str) -> int:
-    """argparse type of a sweep's ``--workers``: an integer >= 0 (0: in this process)."""
-    try:
-        return int_at_least("--workers", int(text), 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of workers >= 0, got {text}") from None
+#: argparse type of a sweep's ``--workers``: an integer >= 0 (0: in this process)
+workers_arg = reworded(lambda text: int_at_least("--workers", int(text), 0),
+                       "expected a number of workers >= 0, got {text}")
 
 
 def optional_arg(kind, what: str):

@@ -16,6 +16,7 @@ the modes' probabilities beside it in ``<OUT stem>_proba.csv`` (`submission_tabl
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from pathlib import Path
 
@@ -33,6 +34,9 @@ _FRAME_S = 0.1  # [s] an INTERACTION frame
 _FRAME_MS = 100  # [ms] an INTERACTION frame
 _XY_TOLERANCE = 1e-6  # [m] a recorded position matches a trajectory's within this
 MAX_HORIZON_S = 600.0  #: [s] the longest --horizon predict takes
+MAX_FUTURES = 100  #: the most modes --futures takes (the INTERACTION challenge scores 6)
+#: files beside a track file that predict reads (a pirl_sim recording's sidecars; `pirl_sim.scenarios.recording`)
+_SIDECARS = ("ground_truth.csv", "run.json", "driver_steps.csv", "map.osm")
 
 
 @subcommand("predict", help="predict recorded drivers' futures with a saved model",
@@ -50,7 +54,8 @@ def add_parser(pr) -> None:
                     help=f"predicted horizon [s], at most {MAX_HORIZON_S:g} (default 3)")
     pr.add_argument("--out", type=Path, required=True, help="CSV file of the predictions")
     pr.add_argument("--futures", type=positive_int_arg, metavar="K",
-                    help="write the INTERACTION challenge's submission layout with K predicted modes per case, and "
+                    help=f"write the INTERACTION challenge's submission layout with K <= {MAX_FUTURES} predicted "
+                         "modes per case, and "
                          "their probabilities in <OUT stem>_proba.csv (default: one row per predicted step)")
     add_seed_option(pr, "the learners that draw their --futures")
 
@@ -89,9 +94,10 @@ def _model_settings(model) -> dict:
 
 def _check_out(args, futures: int | None) -> None:
     """ValueError when ``--out`` (and with ``futures`` its probabilities' file, `proba_path`) is a directory, or one
-    of the inputs (the model file, the map, a track file or a file in the tracks directory), which writing it would
-    overwrite."""
-    inputs = [args.model, args.map, args.tracks] + (sorted(args.tracks.iterdir()) if args.tracks.is_dir() else [])
+    of the inputs (the model file, the map, a track file, a file in the tracks directory or a sidecar beside the
+    track file), which writing it would overwrite."""
+    inputs = [args.model, args.map, args.tracks] + (sorted(args.tracks.iterdir()) if args.tracks.is_dir() else
+                                                    [args.tracks.parent / name for name in _SIDECARS])
     outputs = [("--out", args.out)]
     if futures is not None:
         outputs.append((f"the probabilities of --out {str(args.out)!r},", proba_path(args.out)))
@@ -131,7 +137,7 @@ def history_end_frames(trajectories, history: int, stride: int) -> list[tuple[in
     the track when no frame matches."""
     import numpy as np
 
-    tables: dict = {}
+    read = functools.cache(_read_track_file)  # each file once
     out = []
     for t in trajectories:
         meta = t.metadata
@@ -140,9 +146,7 @@ def history_end_frames(trajectories, history: int, stride: int) -> list[tuple[in
                              "track_id or recorded xy)")
         file, track_id = Path(meta["file"]), meta["track_id"]
         target = np.asarray(meta["xy"], dtype=float)[: history + 1]
-        if file not in tables:
-            tables[file] = _read_track_file(file)
-        df = tables[file]
+        df = read(file)
         rows = df[df["track_id"] == track_id].sort_values("frame_id", kind="stable")
         xy = rows[["x", "y"]].to_numpy(dtype=float)
         frames = rows["frame_id"].to_numpy(dtype=np.int64)
@@ -195,16 +199,10 @@ def submission_tables(trajectories, states, proba, n_futures: int, ends, positio
         offset = float(d[history]) if d is not None and len(d) > history else 0.0
         anchor = np.asarray(t.metadata["xy"], dtype=float)[history]
         xy = positions(states[i, order, 1:], offset)  # (K, horizon, 2)
-        coords = np.empty((n_frames, 2 * K))
-        for k in range(K):
-            path = np.vstack([anchor, xy[k]])
-            coords[:, 2 * k] = np.interp(j, steps, path[:, 0])
-            coords[:, 2 * k + 1] = np.interp(j, steps, path[:, 1])
-        block = pd.DataFrame(coords, columns=[f"{c}{k}" for k in range(1, K + 1) for c in "xy"])
         firsts = (i + 1, frame + j, stamp + _FRAME_MS * j, t.metadata["track_id"], "agent", "car")
-        for position, (name, value) in enumerate(zip(SUBMISSION_COLUMNS, firsts)):
-            block.insert(position, name, value)
-        blocks.append(block)
+        modes = {f"{c}{k + 1}": np.interp(j, steps, np.r_[anchor[n], xy[k, :, n]])  # from the history's last x, y
+                 for k in range(K) for n, c in enumerate("xy")}
+        blocks.append(pd.DataFrame({**dict(zip(SUBMISSION_COLUMNS, firsts)), **modes}))
         probas.append([i + 1, *p])
     submission = pd.concat(blocks, ignore_index=True)
     table = pd.DataFrame(probas, columns=["case_id", *(f"p{k}" for k in range(1, K + 1))])
@@ -226,6 +224,9 @@ def run(args) -> int:
         if args.horizon > MAX_HORIZON_S:
             raise ValueError(f"--horizon {args.horizon:g} s is longer than {MAX_HORIZON_S:g} s: a prediction of a "
                              "roundabout passage is seconds long, and this one would not fit in memory")
+        if futures is not None and futures > MAX_FUTURES:
+            raise ValueError(f"--futures {futures}: at most {MAX_FUTURES} modes per case (the INTERACTION challenge "
+                             "scores 6)")
         _check_out(args, futures)
         learner = load_learner(args.model)
         dt = learner.model_.dynamics.dt
@@ -254,8 +255,8 @@ def run(args) -> int:
             styles = learner.predict_style(histories) if hasattr(learner, "predict_style") else None
     except (ValueError, TypeError, FileNotFoundError) as exc:
         return error(exc)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     if futures is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
         submission.to_csv(args.out, index=False, float_format="%.3f")
         table.to_csv(proba_path(args.out), index=False)
         return finish(f"{args.out} and {proba_path(args.out)}", f"{len(usable)} cases, {futures} futures, "
@@ -278,7 +279,6 @@ def run(args) -> int:
             row.update({f"theta_{n}": float(w) for n, w in zip(names, theta[i])})
             rows.append(row)
     table = pd.DataFrame(rows)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out, index=False, float_format="%.6g")
     if "error_m" in table:
         print(f"{len(usable)} tracks, history {history * dt:g} s, horizon {horizon * dt:g} s: mean displacement "

@@ -436,6 +436,16 @@ class ReplaySettings:
         from pirl_sim.experiments.horizon_scan import LEARNER
 
         o, p, scan = self.options, self.protocol(), self.options.scan_horizon is not None
+        if not scan and p.rollout != "open":
+            from pirl_sim.learners.knn import MIXTURES
+
+            mixing = [e.get("label", e["name"]) for e in self.learner_entries()
+                      if e.get("params", {}).get("aggregate") in MIXTURES]
+            if o.futures or mixing:
+                what = f"--futures {o.futures}" if o.futures else f"{', '.join(mixing)} (averaging or choosing futures)"
+                raise ValueError(f"--rollout {p.rollout} re-plans at every step (the default with --likelihood "
+                                 f"receding), but {what} predicts open-loop plans: give --rollout open, or --learners "
+                                 "without them")
         replay = {"fde_steps": list(p.fde_steps), "lateral": p.lateral, "start": p.start,
                   **({"desired_speed": "fit"} if self.desired_speed == "fit" else {}),
                   **({} if scan else {"rollout": p.rollout, "n_futures": o.futures or 0}),

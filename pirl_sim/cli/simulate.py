@@ -8,6 +8,7 @@ progress bar, errors, summary): ``sumo`` (a SUMO roundabout, libsumo or TraCI) a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
 import sys
@@ -113,8 +114,7 @@ def run(args: argparse.Namespace) -> int:
         simulate = functools.partial(run_sumo_scenario, backend=args.backend)
     else:
         from pirl_sim.scenarios.highway.scenario import (  # type: ignore[assignment]  # either simulator's
-            HighwayScenarioConfig as Config, load_scenario)
-        from pirl_sim.scenarios.highway.scenario import run_highway_scenario as simulate  # type: ignore[assignment]
+            HighwayScenarioConfig as Config, load_scenario, run_highway_scenario as simulate)
     try:
         population = load_population(args.population) if args.population is not None else None
         config = (load_scenario(args.scenario, population=population) if args.scenario is not None
@@ -128,12 +128,8 @@ def run(args: argparse.Namespace) -> int:
             changes["population"] = dataclasses.replace(config.population, n_vehicles=args.n_vehicles)
         config = dataclasses.replace(config, **changes)
         check_output_dir(args.out)  # before the run, not after it
-        bar = None if args.quiet else ProgressBar()
-        try:
-            result = simulate(config, args.seed, out_dir=args.out, progress=bar)
-        finally:
-            if bar is not None:
-                bar.close()
+        with contextlib.closing(ProgressBar()) as bar:  # draws nothing until the simulation reports
+            result = simulate(config, args.seed, out_dir=args.out, progress=None if args.quiet else bar)
     except (ValueError, FileNotFoundError) as exc:
         return error(exc)
     gt = result.recording.ground_truth

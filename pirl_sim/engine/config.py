@@ -395,6 +395,9 @@ def _check_mixture(label: str, name: str, params: dict) -> None:
         max_iter=params.get("max_iter", 100))
     with _named(f"{label}: ", (TypeError, ValueError)):
         mixture._validate_params()
+    if name == "pirl-dpgmm" and "max_iter" in params and not is_positive_int(params["max_iter"]):
+        raise ValueError(f"{label}: max_iter must be a positive number of iterations of the mixture's fit, got "
+                         f"{params['max_iter']!r}")  # scikit-learn allows 0; the learner does not
     if "min_cluster_size" in params and not is_positive_int(params["min_cluster_size"]):
         raise ValueError(f"{label}: min_cluster_size must be a positive integer, got {params['min_cluster_size']!r}")
 
@@ -441,8 +444,6 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                                         exp.label, slabel, proto.name, llabel, k)
                             own.setdefault(canonical_json(cell.spec()), cell)
         cells += own.values()
-    if not cells:  # pragma: no cover - every empty part is rejected above
-        raise ValueError("empty grid: the sweep has no cell")
     return tuple(cells)
 
 

@@ -111,8 +111,6 @@ class LocalExecutor(_Executor):
         once); not for simulated scenarios (libsumo allows one simulation per process).
     """
 
-    kind = "local"
-
     def __init__(self, workers: int, start_method: str = "spawn") -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers must be a positive integer, got {workers!r}")
@@ -200,8 +198,6 @@ class DaskExecutor(_Executor):
         Instead: the JSON file ``dask scheduler --scheduler-file PATH`` wrote (connected here, closed by `close`).
     """
 
-    kind = "dask"
-
     def __init__(self, client_or_address=None, *, scheduler_file=None) -> None:
         try:
             from dask.distributed import Client
@@ -280,7 +276,6 @@ class _Deferred:
 class InlineExecutor(_Executor):
     """Cells in the calling process, one after another (each runs when `as_completed` reaches it)."""
 
-    kind = "inline"
     workers = 1
 
     def describe(self) -> str:

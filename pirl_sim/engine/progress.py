@@ -35,8 +35,7 @@ class Progress:
         """Start the clock (after worker start-up) and draw the bar."""
         from pirl_sim.progress import bar
 
-        if self._bar is not None:
-            self._bar.close()
+        self.close()  # a bar drawn before
         stream: Any = self.stream if self.tty else LineStream(self.stream)
         stream.muted = not self.tty  # tqdm draws on creation: the first line (not a terminal) has the counts below
         self._bar = bar(self.total, "sweep", enabled=self.enabled, initial=self.done, unit="cell", stream=stream,

@@ -122,13 +122,11 @@ def knn_vs_k_figure(ktable: pd.DataFrame, title: str):
     """
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.9), dpi=100)
-    handles, labels, values = [], [], []
+    handles, values = [], []
     for c, (name, g) in enumerate(ktable.groupby("protocol", sort=False)):
-        (mean_line,) = ax.plot(g["k"], g["med"], marker="o", color=f"C{c}")
+        handles += ax.plot(g["k"], g["med"], marker="o", color=f"C{c}", label=str(name))  # the mean: in the legend
         std = g["med_std"].to_numpy(dtype=float)
         ax.plot(g["k"], np.where(std > 0, std, np.nan), ls="--", color=f"C{c}", lw=1)
-        handles.append(mean_line)
-        labels.append(str(name))
         values += [v for v in (*g["med"], *std) if v == v and v > 0]
     ax.set_xscale("log")
     if values:
@@ -138,7 +136,7 @@ def knn_vs_k_figure(ktable: pd.DataFrame, title: str):
     ax.set(xlabel="k (neighbours of PIRL-kNN)", ylabel="MED [m] over test trajectories\n(solid: mean, dashed: std)",
            title=title)
     ax.grid(True, which="both", alpha=0.3)
-    legend_below(fig, handles, labels, top=1.0)
+    legend_below(fig, handles, [h.get_label() for h in handles], top=1.0)
     return fig
 
 

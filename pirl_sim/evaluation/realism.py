@@ -392,11 +392,9 @@ def compare_sources(reference: TrackFeatures, sources: Mapping[str, Iterable[Tra
 
     summary, parts = [], []
     for label, rollouts in sources.items():
-        metas = []
-        for r, feats in enumerate(rollouts):
-            s = score_realism(reference, feats, **kwargs)
-            metas.append(s.meta_metric)
-            parts.append(s.table.assign(source=label, rollout=r))
+        scores = [score_realism(reference, feats, **kwargs) for feats in rollouts]
+        metas = [s.meta_metric for s in scores]
+        parts += [s.table.assign(source=label, rollout=r) for r, s in enumerate(scores)]
         if not metas:
             raise ValueError(f"source {label!r} has no rollouts")
         summary.append({"source": label, "rollouts": len(metas), "meta_metric": float(np.mean(metas)),
@@ -412,18 +410,15 @@ def realism_figure(reference: TrackFeatures, sources: Mapping[str, Sequence[Trac
                    features: Sequence[FeatureSpec] = FEATURES, reference_label: str = "reference"):
     """Draw each feature's distribution, the reference's filled and each source's (rollouts pooled) as a line,
     on the histogram bins of the score; write it to ``path`` (PNG) and return the figure."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     from pirl_sim.io.atomic import atomic_write_bytes
+
+    from .figures import pyplot
 
     specs = [f for f in features if f.name in reference.values]
     if not specs:
         raise ValueError("realism_figure: the reference has none of the features asked for")
     rows, cols = math.ceil(len(specs) / 4), 4
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
+    fig, axes = pyplot().subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
     pooled = {label: TrackFeatures.combine(list(r)) for label, r in sources.items()}
     for ax, spec in zip(axes.flat, specs):
         drawn = [(reference_label, reference.pooled(spec.name), {"fill": True, "color": "0.75"})]

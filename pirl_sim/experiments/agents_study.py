@@ -316,7 +316,6 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     grid = np.linspace(0, steps, 41)[1:]
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     ppo = [r for r in records if r["policy"].startswith("ppo")]
     for k, (policy, mode) in enumerate(dict.fromkeys((r["policy"], r["mode"]) for r in ppo)):
         runs = [r for r in ppo if r["mode"] == mode and r["policy"] == policy]
@@ -325,7 +324,7 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
         if not curves:
             continue
         stacked = np.array(curves)
-        col = colours[k % len(colours)]
+        col = f"C{k}"  # the colour cycle's k-th (modulo its length)
         ax.plot(grid, stacked.mean(axis=0), color=col, label=f"{policy.upper()[:3]}{policy[3:]}, {mode} "
                 f"({len(stacked)} seeds; dots: evaluation)")
         ax.fill_between(grid, stacked.min(axis=0), stacked.max(axis=0), color=col, alpha=0.2, lw=0)

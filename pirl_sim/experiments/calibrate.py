@@ -110,13 +110,11 @@ class Calibration:
         """Each style as a population's style table: name, weight, mean and std over the weights (moment-matched
         to the style's log-normal, `lognormal_moments`, its log variance capped at `LOG_VAR_MAX`), in order of
         decreasing share."""
-        out: list[dict] = []
-        for i in np.argsort(-self.style_share, kind="stable"):
-            mean, std = lognormal_moments(self.style_log_mean[i], np.minimum(self.style_log_var[i], LOG_VAR_MAX))
-            out.append({"name": f"calibrated {len(out) + 1}", "weight": float(self.style_share[i]),
-                        "mean": {f: float(m) for f, m in zip(FREE, mean)},
-                        "std": {f: float(x) for f, x in zip(FREE, std)}})
-        return out
+        order = np.argsort(-self.style_share, kind="stable")
+        means, stds = lognormal_moments(self.style_log_mean[order], np.minimum(self.style_log_var[order], LOG_VAR_MAX))
+        return [{"name": f"calibrated {n + 1}", "weight": float(self.style_share[i]),
+                 "mean": {f: float(m) for f, m in zip(FREE, mean)}, "std": {f: float(x) for f, x in zip(FREE, std)}}
+                for n, (i, mean, std) in enumerate(zip(order, means, stds))]
 
     def population(self, n_vehicles: int = 80, background_share: float = 0.0):
         """The calibrated `~pirl_sim.scenarios.population_config.PopulationConfig`: its styles, departures at the

@@ -5,13 +5,11 @@ The experiment itself, what a split seed computes, is the sweep engine's ``recor
 through the engine (`pirl_sim.cli.replay`: cells kept in the output directory, resumable) and gathers the stored
 cells into the result dict (`collect_replay`) that the template writes (`write_replay_results`: ``rows.csv``,
 ``summary.csv/.md``, ``paired.csv``, ``paired_ca.csv``, ``README.md``, ``clusters.png``, ``s_t.png``,
-``knn_k.png``, ``scene_gain.png`` and ``scene_loss.png``).
+``knn_k.png``, ``scene_gain.png``, ``scene_loss.png`` and ``scenes.json``: `pirl_sim.experiments.replay_scenes`).
 """
 
 from __future__ import annotations
 
-import io
-import re
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +22,7 @@ from pirl_sim.scenarios.replay import selection_counts, track_key
 from pirl_sim.evaluation.direct import DIRECT
 from pirl_sim.experiments.recorded import (  # noqa: F401  (ReplayProtocol, predict_path_states: the replay's names)
     _IRL_WARNINGS, HINDSIGHT, METHODS, ReplayProtocol, _track_keys, predict_path_states, usable_tracks)
+from pirl_sim.experiments.replay_scenes import scene_learner, write_replay_scenes
 
 __all__ = ["ReplayProtocol", "collect_replay", "paired_differences", "summarize", "selection_table",
            "write_replay_results", "predict_path_states", "HINDSIGHT", "DIRECT"]
@@ -68,11 +67,15 @@ def paired_differences(errors: dict, reference: str) -> pd.DataFrame:
         if any((s, reference) not in errors for s in seeds):
             continue
         per_seed = np.array([np.mean(errors[(s, m)] - errors[(s, reference)]) for s in seeds])
-        se = per_seed.std(ddof=1) / np.sqrt(len(seeds)) if len(seeds) > 1 else np.nan
         rows.append({"method": m, "reference": reference, "mean_difference": float(per_seed.mean()),
-                     "standard_error": float(se), "n_seeds": len(seeds),
+                     "standard_error": _se(per_seed), "n_seeds": len(seeds),
                      "better_in_every_seed": bool(np.all(per_seed < 0))})
     return pd.DataFrame(rows)
+
+
+def _se(x) -> float:
+    """The standard error of the mean of ``x`` (NaN for fewer than two values)."""
+    return float(np.std(x, ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
 
 
 def summarize(result: dict) -> pd.DataFrame:
@@ -132,46 +135,10 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         "## Paired differences against CA (path)", "", markdown(result["paired_ca"]), "",
         f"![clusters](clusters.png) ![S-T](s_t.png){knn_k}"]
     if (out / "scene_gain.png").exists():
-        lines += ["", f"Where {_scene_best(result)} beats CA (path) most and loses to it most (split seed "
+        lines += ["", f"Where {scene_learner(result)} beats CA (path) most and loses to it most (split seed "
                   f"{result['seeds'][0]}; black: history, dashed: what was recorded):", "",
                   "![gain](scene_gain.png) ![loss](scene_loss.png)"]
     atomic_write_text(out / "README.md", "\n".join(lines) + "\n")
-
-
-SCENE_KINDS = ("gain", "loss")  #: scene_<kind>.png: where the best learner beats CA (path) most, loses most
-_CA = "CA (path)"
-
-
-def _scene_best(result: dict) -> str | None:
-    """The learner of the scenes: the lowest mean MED on the first split seed among the learners (not baselines)."""
-    rows = result["rows"]
-    first = rows[(rows["seed"] == result["seeds"][0]) & rows["method"].isin(set(result.get("learners", ())))]
-    return None if first.empty else str(first.loc[first["med"].idxmin(), "method"])
-
-
-def _write_scenes(result: dict, scene, out: Path) -> None:
-    """scene_gain.png and scene_loss.png: the two windows of the first split seed where the best learner beats
-    CA (path) most and loses to it most, on the matched routes' centre lines (nothing without those methods)."""
-    ex = result["examples"]
-    best = _scene_best(result)
-    preds = ex.get("scenes", {})
-    if best is None or best not in preds or _CA not in preds or "scene_history" not in ex:
-        return
-    from pirl_sim.viz import PredictionWindow, Road, draw_prediction
-
-    segments = getattr(scene.model.path, "segments", (scene.model.path,))
-    road = Road((), (), tuple(np.column_stack([p.x, p.y]) for p in segments), source="matched routes")
-    errors, seed = result["errors"], result["seeds"][0]
-    names = [best, _CA]
-    for k, kind in enumerate(SCENE_KINDS):
-        w = int(ex["scene_windows"][k])
-        window = PredictionWindow(history=ex["scene_history"][k], predictions=np.stack([preds[n][k] for n in names]),
-                                  probabilities=np.array([0.5, 0.5]), future=ex["scene_future"][k],
-                                  labels=tuple(f"{n}: {errors[(seed, n)][w]:.2f} m" for n in names))
-        title = f"{best} {'beats' if kind == 'gain' else 'loses to'} CA (path) most"
-        buf = io.BytesIO()
-        draw_prediction(window, road=road, title=title).savefig(buf, format="png")
-        atomic_write_bytes(out / f"scene_{kind}.png", buf.getvalue())
 
 
 def _speed_lines(result: dict) -> list[str]:
@@ -218,13 +185,12 @@ def _write_figures(result: dict, scene, out) -> None:
         h = result["history"]
         preds = {k: np.concatenate([ex["truth"][:, h : h + 1], v], axis=1) for k, v in ex["predictions"].items()}
         atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(ex["t"], ex["truth"], preds, h))
-    _write_scenes(result, scene, out)
+    write_replay_scenes(result, scene, out)
     rows = result["rows"]
     knn = rows[rows["method"].str.startswith("PIRL-kNN (k=")]
     if knn["method"].nunique() > 1:
         per_seed = knn.groupby("method")["med"].agg(["mean", "std"]).reset_index()
-        per_seed["k"] = [int(re.search(r"k=(\d+)", m).group(1))  # type: ignore[union-attr]  # "PIRL-kNN (k=K)"
-                         for m in per_seed["method"]]
+        per_seed["k"] = per_seed["method"].str.extract(r"k=(\d+)", expand=False).astype(int)  # "PIRL-kNN (k=K)"
         table = pd.DataFrame({"protocol": "replay (std over seeds)", "k": per_seed["k"],
                               "med": per_seed["mean"], "med_std": per_seed["std"].fillna(0.0)}).sort_values("k")
         atomic_write_bytes(out / "knn_k.png", figures.knn_vs_k(table, "PIRL-kNN on replayed tracks: MED vs k"))

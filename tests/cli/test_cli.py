@@ -199,3 +199,23 @@ def test_ctrl_c_and_file_system_errors_end_a_command_in_one_line(monkeypatch, ca
     assert cli.main(["simulate", "sumo", "--out", "x"]) == status
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
+
+
+def test_a_missing_optional_module_names_its_extra(monkeypatch, tmp_path, capsys):
+    """`simulate sumo` without the sumo extra (sumolib absent: what `import sumolib` meets then) ends in one line
+    that names the extra; a missing module of no extra stays an error of the code, with its traceback."""
+    import sys
+
+    from pirl_sim import cli
+
+    monkeypatch.setitem(sys.modules, "sumolib", None)
+    assert cli.main(["simulate", "sumo", "--out", str(tmp_path / "run"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "sumolib is not installed; pirl-sim simulate needs the 'sumo' extra: pip install 'pirl_sim[sumo]'" in err
+
+    def run(args):
+        raise ModuleNotFoundError("No module named 'not_an_extra'", name="not_an_extra")
+
+    monkeypatch.setattr(cli.COMMANDS["report"], "run", run)
+    with pytest.raises(ModuleNotFoundError):
+        cli.main(["report", str(tmp_path)])

@@ -171,3 +171,21 @@ def test_a_horizon_too_long_to_hold_is_refused_before_any_work(tmp_path, capsys)
     assert code == 2 and not out.exists()
     err = capsys.readouterr().err
     assert f"--horizon 1e+09 s is longer than {MAX_HORIZON_S:g} s" in err
+
+
+def test_a_sidecar_beside_the_track_file_is_never_overwritten(fitted, capsys):
+    """Given one track file, the recording's files beside it (ground truth, run.json, ...) are inputs too."""
+    scene = fitted / "scene"
+    sidecars = [p for p in scene.iterdir() if p.name in ("ground_truth.csv", "run.json")]
+    assert sidecars
+    for target in sidecars:
+        before = target.read_bytes()
+        assert main(["predict", "--model", str(fitted / "tirl.npz"), "--tracks", str(scene / "vehicle_tracks_000.csv"),
+                     "--map", str(scene / "map.osm"), "--out", str(target), "--quiet"]) == 2
+        assert "is one of the inputs" in capsys.readouterr().err
+        assert target.read_bytes() == before
+
+
+def test_too_many_futures_is_a_clear_error_before_anything_is_allocated(fitted, capsys):
+    assert _predict(fitted, "tirl", fitted / "many.csv", "--futures", "1000000000") == 2
+    assert "--futures 1000000000: at most 100 modes per case" in capsys.readouterr().err

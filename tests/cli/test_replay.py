@@ -478,3 +478,15 @@ def test_replay_refuses_options_that_contradict_each_other(tmp_path, monkeypatch
     assert main(["replay", *argv, "--dry-run"]) == 2
     assert message in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == before and (tmp_path / "t.csv").read_text() == "track_id\n"
+
+
+def test_closed_loop_rollouts_refuse_the_learners_that_average_or_choose_futures(tmp_path):
+    """--likelihood receding rolls out closed loops by default; PIRL-kNN next and PIRL-select (the defaults of
+    --preset best) and --futures predict open-loop plans: the config says so before any cell runs."""
+    from pirl_sim.cli.replay import ReplayOptions
+
+    run = _recording(tmp_path / "run")
+    for extra in ({}, {"learners": ("tirl",), "futures": 6}):
+        options = ReplayOptions(tracks=run, map=run / "map.osm", likelihood="receding", **extra).resolve()
+        with pytest.raises(ValueError, match=r"--rollout closed re-plans at every step.*give --rollout open"):
+            options.config()

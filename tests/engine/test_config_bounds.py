@@ -48,3 +48,12 @@ def test_sweep_config_bounds_style_weights(field, value, match):
     style = {"name": "a", "weight": 1.0, "mean": {"state_sq": 4.0}, "std": {"state_sq": 1.0}, field: value}
     with pytest.raises(ValueError, match=match):
         parse_config(_config({"styles": [style]}))
+
+
+@pytest.mark.parametrize("value, match", [
+    (0, r"max_iter must be a positive number of iterations of the mixture's fit, got 0"),  # scikit-learn allows 0
+    (-3, r"max_iter.*-3"), (2.5, r"max_iter.*2\.5"),
+])
+def test_sweep_config_refuses_a_mixture_fit_of_no_iterations(value, match):
+    with pytest.raises(ValueError, match=match):
+        parse_config(_config(learner={"name": "pirl-dpgmm", "params": {"max_iter": value}}))

@@ -204,12 +204,13 @@ def test_scenes_show_where_the_best_learner_beats_ca_most_and_loses_most(mixed_r
     from matplotlib.colors import to_rgb
     from matplotlib.image import imread
 
-    from pirl_sim.experiments.replay_report import _scene_best
+    from pirl_sim.cli import main
+    from pirl_sim.experiments.replay_scenes import scene_learner
     from pirl_sim.viz.prediction import HISTORY_COLOR
 
     scene, result = mixed_result
     ex, errors, seed = result["examples"], result["errors"], result["seeds"][0]
-    best = _scene_best(result)
+    best = scene_learner(result)
     assert best in ("TIRL", "PIRL-GMM (k=2)")
     diff = errors[(seed, "CA (path)")] - errors[(seed, best)]
     gain, loss = (int(w) for w in ex["scene_windows"])
@@ -223,3 +224,4 @@ def test_scenes_show_where_the_best_learner_beats_ca_most_and_loses_most(mixed_r
         img = imread(tmp_path / f"scene_{kind}.png")[..., :3]
         assert np.all(np.abs(img - to_rgb(HISTORY_COLOR)) < 0.05, axis=-1).sum() > 20  # the history is drawn
     assert "![gain](scene_gain.png)" in (tmp_path / "README.md").read_text()
+    assert main(["show", str(tmp_path), "--window", "loss", "--out", str(tmp_path / "again.png")]) == 0
