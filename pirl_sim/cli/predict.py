@@ -35,8 +35,6 @@ _FRAME_MS = 100  # [ms] an INTERACTION frame
 _XY_TOLERANCE = 1e-6  # [m] a recorded position matches a trajectory's within this
 MAX_HORIZON_S = 600.0  #: [s] the longest --horizon predict takes
 MAX_FUTURES = 100  #: the most modes --futures takes (the INTERACTION challenge scores 6)
-#: files beside a track file that predict reads (a pirl_sim recording's sidecars; `pirl_sim.scenarios.recording`)
-_SIDECARS = ("ground_truth.csv", "run.json", "driver_steps.csv", "map.osm")
 
 
 @subcommand("predict", help="predict recorded drivers' futures with a saved model",
@@ -96,8 +94,11 @@ def _check_out(args, futures: int | None) -> None:
     """ValueError when ``--out`` (and with ``futures`` its probabilities' file, `proba_path`) is a directory, or one
     of the inputs (the model file, the map, a track file, a file in the tracks directory or a sidecar beside the
     track file), which writing it would overwrite."""
+    from pirl_sim.scenarios.recording import DRIVER_STEPS_FILE, GROUND_TRUTH_FILE, INFO_FILE, MAP_FILE
+
+    sidecars = (GROUND_TRUTH_FILE, INFO_FILE, DRIVER_STEPS_FILE, MAP_FILE)  # what a recording's reader reads beside
     inputs = [args.model, args.map, args.tracks] + (sorted(args.tracks.iterdir()) if args.tracks.is_dir() else
-                                                    [args.tracks.parent / name for name in _SIDECARS])
+                                                    [args.tracks.parent / name for name in sidecars])
     outputs = [("--out", args.out)]
     if futures is not None:
         outputs.append((f"the probabilities of --out {str(args.out)!r},", proba_path(args.out)))

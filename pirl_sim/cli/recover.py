@@ -20,10 +20,11 @@ SIMULATORS = ("sumo", "highway")
 
 @subcommand("recover",
             help="weight recovery of the receding-horizon IRL on simulated runs (table of errors per seed)",
-            description="Simulate each seed (or reuse its run under OUT/simulations), fit the receding-horizon IRL to every "
-            "PIRL track with enough usable steps and TIRL per style, and write table.csv/.md, styles.csv, tracks.csv, "
-            "selection.csv, times.csv, README.md (and noise.csv/.md with --control-noise) and scene_<simulator>_weights.png / "
-            "_errors.png (the first seed's tracks on the road, coloured by the fitted weight and its error) to --out.")
+            description="Simulate each seed (or reuse its run under OUT/simulations), fit the receding-horizon IRL "
+            "to every PIRL track with enough usable steps and TIRL per style, and write table.csv/.md, styles.csv, "
+            "tracks.csv, selection.csv, times.csv, README.md (and noise.csv/.md with --control-noise) and "
+            "scene_<simulator>_weights.png / _errors.png (the first seed's tracks on the road, coloured by the fitted "
+            "weight and its error) to --out.")
 def add_parser(p) -> None:
     """The options of ``recover``."""
     p.add_argument("--simulator", choices=[*SIMULATORS, "both"], default="sumo",

@@ -436,11 +436,11 @@ class ReplaySettings:
         from pirl_sim.experiments.horizon_scan import LEARNER
 
         o, p, scan = self.options, self.protocol(), self.options.scan_horizon is not None
+        learners = [{"name": LEARNER, "grid": {"horizon": list(o.scan_horizon)}}] if scan else self.learner_entries()
         if not scan and p.rollout != "open":
             from pirl_sim.learners.knn import MIXTURES
 
-            mixing = [e.get("label", e["name"]) for e in self.learner_entries()
-                      if e.get("params", {}).get("aggregate") in MIXTURES]
+            mixing = [e.get("label", e["name"]) for e in learners if e.get("params", {}).get("aggregate") in MIXTURES]
             if o.futures or mixing:
                 what = f"--futures {o.futures}" if o.futures else f"{', '.join(mixing)} (averaging or choosing futures)"
                 raise ValueError(f"--rollout {p.rollout} re-plans at every step (the default with --likelihood "
@@ -451,8 +451,7 @@ class ReplaySettings:
                   **({} if scan else {"rollout": p.rollout, "n_futures": o.futures or 0}),
                   **({"mpc_horizon": p.mpc_horizon} if p.mpc_horizon is not None and not scan else {})}
         exp = {"scenario": "horizon-scan" if scan else "recorded", "label": "horizon scan" if scan else "replay",
-               "learners": [{"name": LEARNER, "grid": {"horizon": list(o.scan_horizon)}}] if scan
-               else self.learner_entries(),
+               "learners": learners,
                "protocols": [{"kind": "rolling", "history_steps": p.history, "horizon": p.horizon, "stride": p.stride}],
                "params": {"tracks": str(o.tracks), "map": str(o.map), "files": o.files or 0, "load": self.load(),
                           "replay": replay}}

@@ -32,8 +32,8 @@ def _size(text: str) -> tuple[int, int]:
             "simulated run) on its Lanelet2 map: one frame (--frame or --time) with the vehicles as oriented boxes, "
             "every track (the default), or an animation over a time span (--span, written as .gif or .mp4 by the "
             "suffix of --out). Tracks are coloured by --color-by: a column of the track file, 'speed', or 'style' "
-            "(the drivers' styles from the run's ground_truth.csv). Given a replay's output folder, it draws one of the "
-            "replay's scenes (--window gain or loss: where the best learner beats CA most or loses to it most).")
+            "(the drivers' styles from the run's ground_truth.csv). Given a replay's output folder, it draws one of "
+            "the replay's scenes (--window gain or loss: where the best learner beats CA most or loses to it most).")
 def add_parser(p) -> None:
     """The options of ``show``."""
     p.add_argument("tracks", type=Path, help="a vehicle_tracks_*.csv file, a folder with one (a simulated run), or "

@@ -87,22 +87,21 @@ def write_recovery_scenes(study, run_dirs: Sequence[Path], out) -> dict[str, Pat
     out : path-like                the study's output folder
     """
     from pirl_sim.io.interaction import read_tracks
+    from pirl_sim.scenarios.recording import MAP_FILE, TRACKS_FILE
     from pirl_sim.viz import road_from_lanelet2
 
     out = Path(out)
     if len(run_dirs) != len(study.jobs):
         raise ValueError(f"one run folder per job is needed: {len(study.jobs)} jobs, {len(run_dirs)} folders")
     written: dict[str, Path] = {}
-    lines = []
+    lines, drawn = [], set()  # drawn: the simulators whose scenes are written
     for job, report, run_dir in zip(study.jobs, study.reports, run_dirs):
-        if job.control_noise is not None or any(f"scene_{job.simulator}_" in name for name in written):
+        tracks_file, map_file = Path(run_dir) / TRACKS_FILE, Path(run_dir) / MAP_FILE
+        if job.control_noise is not None or job.simulator in drawn or not tracks_file.is_file() or report.tracks.empty:
             continue
-        run_dir = Path(run_dir)
-        track_files = sorted(run_dir.glob("vehicle_tracks_*.csv"))
-        if not track_files or report.tracks.empty:
-            continue
-        tracks = read_tracks(track_files[0])
-        road = road_from_lanelet2(run_dir / "map.osm") if (run_dir / "map.osm").is_file() else None
+        drawn.add(job.simulator)
+        tracks = read_tracks(tracks_file)
+        road = road_from_lanelet2(map_file) if map_file.is_file() else None
         names = []
         for value in SCENE_VALUES:
             name = f"scene_{job.simulator}_{value}.png"

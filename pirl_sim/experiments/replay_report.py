@@ -67,15 +67,11 @@ def paired_differences(errors: dict, reference: str) -> pd.DataFrame:
         if any((s, reference) not in errors for s in seeds):
             continue
         per_seed = np.array([np.mean(errors[(s, m)] - errors[(s, reference)]) for s in seeds])
+        se = per_seed.std(ddof=1) / np.sqrt(len(seeds)) if len(seeds) > 1 else np.nan
         rows.append({"method": m, "reference": reference, "mean_difference": float(per_seed.mean()),
-                     "standard_error": _se(per_seed), "n_seeds": len(seeds),
+                     "standard_error": float(se), "n_seeds": len(seeds),
                      "better_in_every_seed": bool(np.all(per_seed < 0))})
     return pd.DataFrame(rows)
-
-
-def _se(x) -> float:
-    """The standard error of the mean of ``x`` (NaN for fewer than two values)."""
-    return float(np.std(x, ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
 
 
 def summarize(result: dict) -> pd.DataFrame:

@@ -20,12 +20,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pirl_sim.experiments.replay_report import DIRECT, _se, selection_table
+from pirl_sim.experiments.replay_report import DIRECT, selection_table
 from pirl_sim.io.atomic import atomic_write_text
 
 __all__ = ["table_row", "write_table", "table_markdown"]
 
 CA = "CA (path)"  #: the reference of the ratios
+
+
+def _se(x: pd.Series) -> float:
+    return float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
 
 
 def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: float) -> dict:
