@@ -625,13 +625,20 @@ def _check_fitted(learner, source: str) -> None:
                 fail("a feature-space mixture without its mixture_ or scaler_")
             C = count("mixture_.n_components", getattr(mix, "n_components", None), 1)
             array("components_", comps, (J,), integer=True, high=C)
-            array("mixture_.weights_", mix.weights_, (C,), nonnegative=True)  # type: ignore[union-attr]
+            w = array("mixture_.weights_", mix.weights_, (C,), nonnegative=True)  # type: ignore[union-attr]
+            if not w.sum() > 0:
+                fail("mixture_.weights_ are all zero; a mixture's weights sum to 1")
             array("mixture_.means_", mix.means_, (C, K))  # type: ignore[union-attr]
             shapes = {"full": (C, K, K), "tied": (K, K), "diag": (C, K), "spherical": (C,)}
             if mix.covariance_type not in shapes:  # type: ignore[union-attr]
                 fail(f"mixture_.covariance_type is {mix.covariance_type!r}")  # type: ignore[union-attr]
-            array("mixture_.precisions_cholesky_", mix.precisions_cholesky_,  # type: ignore[union-attr]
-                  shapes[mix.covariance_type])  # type: ignore[union-attr]
+            chol = array("mixture_.precisions_cholesky_", mix.precisions_cholesky_,  # type: ignore[union-attr]
+                         shapes[mix.covariance_type])  # type: ignore[union-attr]
+            kind = mix.covariance_type  # type: ignore[union-attr]
+            diag = np.diagonal(chol, axis1=-2, axis2=-1) if kind in ("full", "tied") else chol  # diag, spherical
+            if not (np.asarray(diag) > 0).all():
+                fail("mixture_.precisions_cholesky_ has a diagonal entry <= 0; a Cholesky factor of a precision "
+                     "matrix has a positive diagonal")
             array("scaler_.mean_", scaler.mean_, (K,))  # type: ignore[union-attr]
             array("scaler_.scale_", scaler.scale_, (K,), positive=True)  # type: ignore[union-attr]
         else:

@@ -669,6 +669,7 @@ def load_replay(
                 continue
             xy = xy[keep]
             speed = np.hypot(track["vx"].to_numpy(), track["vy"].to_numpy())[keep]
+            psi = track["psi_rad"].to_numpy(dtype=float)[keep]  # [rad] recorded heading (the miss rate's)
             usable = restart = None
             if steps_flags is not None:
                 f = steps_flags[int(track_id)].reindex(frames[keep])
@@ -694,7 +695,7 @@ def load_replay(
                     skipped["shorter than min_duration after cutting at a jump along its route"] += 1
                     continue
                 keep = slice(keep.start + part.start, keep.start + part.stop)
-                xy, speed, s_local, d = xy[part], speed[part], s_local[part], d[part]
+                xy, speed, psi, s_local, d = xy[part], speed[part], psi[part], s_local[part], d[part]
                 if usable is not None:
                     usable, restart = usable[part], restart[part]  # type: ignore[index]
             sel = slice(0, None, stride)
@@ -703,7 +704,7 @@ def load_replay(
             if truth is not None and int(track_id) in truth.index:
                 row = truth.loc[int(track_id)]
                 meta["truth"] = row.to_dict()
-            extra = {"v": speed[sel], "free": _free_steps(lead_t[keep], stride)}
+            extra = {"v": speed[sel], "psi": psi[sel], "free": _free_steps(lead_t[keep], stride)}
             if features == "following":
                 rows_k = track.index.to_numpy()[keep]
                 extra["gap"], extra["v_lead"] = _obstacle(gaps_all[rows_k], lead_speed_all[rows_k], speed)
@@ -790,7 +791,8 @@ def load_replay(
             n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &  # type: ignore[index]
                                                                    ~cut["yielding"])[:-1].sum())  # type: ignore[index]
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy), s_obs=np.asarray(s),
-                    v_obs=np.asarray(cut["v"]), estimator=estimator)  # type: ignore[index]
+                    v_obs=np.asarray(cut["v"]), psi_obs=np.asarray(cut["psi"]),  # type: ignore[index]
+                    estimator=estimator)
         if mask is not None:
             meta["step_mask"] = mask
         truth = meta.pop("truth", None)
@@ -819,7 +821,7 @@ def load_replay(
                     n_steps_counts["free steps in runs shorter than 2 steps (left out)"] += b - a
                     continue
                 cut_meta = {k: meta[k][a : b + 1]  # type: ignore[index]
-                            for k in ("d", "xy", "yielding", "s_obs", "v_obs") if k in meta}
+                            for k in ("d", "xy", "yielding", "s_obs", "v_obs", "psi_obs") if k in meta}
                 trajectories.append(Trajectory(states[a : b + 1], controls[a:b], dt,
                                                dict(meta, **cut_meta, free_run=r, free_start=a)))
             continue

@@ -224,6 +224,20 @@ def _errors(model, test, windows, s_pred, proto, lateral: str | None = None, pro
     return np.linalg.norm(xy - _recorded_xy(test, windows, proto.horizon), axis=-1)
 
 
+def _speed_heading_at_end(test, windows, horizon: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The true speed [m/s] and heading [rad] (W,) at each window's last predicted step: as recorded (``v_obs``,
+    ``psi_obs`` of the metadata: the track file's vx, vy and psi_rad), else from the last two recorded positions."""
+    speed, heading = np.empty(len(windows)), np.empty(len(windows))
+    for w, (i, step) in enumerate(windows):
+        meta, t = test[i].metadata, step + horizon
+        if "v_obs" in meta and "psi_obs" in meta:
+            speed[w], heading[w] = float(np.asarray(meta["v_obs"])[t]), float(np.asarray(meta["psi_obs"])[t])
+        else:
+            move = np.diff(np.asarray(meta["xy"])[t - 1 : t + 1], axis=0)[0]
+            speed[w], heading[w] = float(np.hypot(*move)) / dt, float(np.arctan2(move[1], move[0]))
+    return speed, heading
+
+
 def _future_scores(model, test, windows, s_futures, proba, proto, profile, dt: float, K: int) -> dict:
     """minADE_K, minFDE_K, the INTERACTION miss rate and the mixture NLL per step (sigma 1 m) of the futures
     along the path (W, K', horizon) with probabilities (W, K'), placed by the protocol's lateral model; named
@@ -232,11 +246,7 @@ def _future_scores(model, test, windows, s_futures, proba, proto, profile, dt: f
                    for k in range(s_futures.shape[1])],
                   axis=1)
     truth = _recorded_xy(test, windows, proto.horizon)
-    end = np.stack([np.asarray(test[i].metadata["xy"])[step + proto.horizon - 1 : step + proto.horizon + 1]
-                    for i, step in windows])  # the last two recorded positions: true speed and heading at T
-    move = end[:, 1] - end[:, 0]
-    speed = np.linalg.norm(move, axis=1) / dt
-    heading = np.arctan2(move[:, 1], move[:, 0])
+    speed, heading = _speed_heading_at_end(test, windows, proto.horizon, dt)
     return {f"min_ade@{K}": float(min_ade(xy, truth).mean()), f"min_fde@{K}": float(min_fde(xy, truth).mean()),
             f"miss_rate@{K}": float(interaction_miss(xy, truth, speed, heading).mean()),
             f"nll_per_step@{K}": float(mixture_nll(xy, proba, truth, 1.0).mean() / proto.horizon)}

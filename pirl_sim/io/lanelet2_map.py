@@ -199,29 +199,35 @@ def _check_nodes(path: Path) -> None:
     lanelet2 reads a coordinate that is not a number (``lat="abc"``) or is missing as 0 without a word, which
     moves the node by metres to kilometres; this check runs first.
     """
-    import xml.etree.ElementTree as ET
+    import xml.parsers.expat as expat
 
-    if b"<!DOCTYPE" in path.read_bytes():
+    def doctype(*_) -> None:  # in any encoding the parser reads (UTF-8, UTF-16, ...), before any entity is used
         raise ValueError(f"{path}: the file has a DTD (<!DOCTYPE ...>); lanelet2 does not expand its entities, so "
                          "coordinates written with them would be read differently: write the values themselves")
+
+    def start(tag: str, attrs: dict) -> None:
+        if tag != "node":
+            return
+        node_id = attrs.get("id")
+        if node_id is None or not _INTEGER.fullmatch(node_id):
+            raise ValueError(f"{path}: a <node> has id {node_id!r}; ids must be integers (ASCII digits)")
+        for attr, bound in (("lat", 90.0), ("lon", 180.0)):
+            text = attrs.get(attr)
+            if text is None:
+                raise ValueError(f"{path}: node {node_id} has no {attr} attribute; nodes need lat and lon in degrees")
+            value = float(text) if _DECIMAL.fullmatch(text) else math.nan
+            if not (math.isfinite(value) and -bound <= value <= bound):
+                raise ValueError(f"{path}: node {node_id} has {attr}={text!r}; expected a number of degrees in "
+                                 f"[-{bound:g}, {bound:g}] written with ASCII digits, an optional sign, point and "
+                                 "exponent (no digit separators)")
+
+    parser = expat.ParserCreate()
+    parser.StartDoctypeDeclHandler = doctype
+    parser.StartElementHandler = start
     try:
-        for _, elem in ET.iterparse(path, events=("end",)):
-            if elem.tag == "node":
-                node_id = elem.get("id")
-                if node_id is None or not _INTEGER.fullmatch(node_id):
-                    raise ValueError(f"{path}: a <node> has id {node_id!r}; ids must be integers (ASCII digits)")
-                for attr, bound in (("lat", 90.0), ("lon", 180.0)):
-                    text = elem.get(attr)
-                    if text is None:
-                        raise ValueError(f"{path}: node {node_id} has no {attr} attribute; nodes need lat and lon "
-                                         "in degrees")
-                    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
-                    if not (math.isfinite(value) and -bound <= value <= bound):
-                        raise ValueError(f"{path}: node {node_id} has {attr}={text!r}; expected a number of "
-                                         f"degrees in [-{bound:g}, {bound:g}] written with ASCII digits, an optional "
-                                         "sign, point and exponent (no digit separators)")
-            elem.clear()
-    except ET.ParseError as exc:
+        with open(path, "rb") as f:
+            parser.ParseFile(f)
+    except expat.ExpatError as exc:
         raise ValueError(f"{path}: not a readable Lanelet2 map: not well-formed XML: {exc}") from None
 
 
@@ -235,6 +241,10 @@ def _check_lanelets(path: Path, lmap) -> None:
             if len(bound) < 2:
                 raise ValueError(f"{path}: lanelet {ll.id} has a {side} border (line {bound.id}) of {len(bound)} "
                                  "node(s); a border needs at least two")
+            xy = np.array([[p.x, p.y] for p in bound], dtype=float)
+            if not (np.abs(np.diff(xy, axis=0)) > 1e-9).any():
+                raise ValueError(f"{path}: lanelet {ll.id} has a {side} border (line {bound.id}) whose nodes all lie "
+                                 "on one point; a border needs at least two distinct points")
         a = np.array([[p.x, p.y] for p in left], dtype=float)
         b = np.array([[p.x, p.y] for p in right], dtype=float)
         same = left.id == right.id or {p.id for p in left} == {p.id for p in right} or (

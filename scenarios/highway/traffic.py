@@ -271,6 +271,7 @@ class RoundaboutTraffic(Road):
         self._commands: dict[str, float] = {}  # PIRL vehicle id -> commanded acceleration this step
         self._upstream = self._upstream_ring_lanes()
         self._stop_offset = self._stop_offsets()
+        self._ring_after = self._ring_lanes_after()
         self._vdes_cache: dict[tuple[str, float], float] = {}
         #: called as ``callback(traffic)`` at the end of every :meth:`step` (after removal, recording, insertion)
         self.step_callbacks: list = []
@@ -300,6 +301,10 @@ class RoundaboutTraffic(Road):
                 b = a
             out[node] = lanes
         return out
+
+    def _ring_lanes_after(self) -> dict[str, tuple[str, str]]:
+        """ring node -> the ring lane (from, to) that leaves it (where a diverging vehicle's body still sweeps)."""
+        return {a: (a, b) for a, tos in self.network.graph.items() for b in tos if len(a) == 2 and len(b) == 2}
 
     def _stop_offsets(self) -> dict[str, float]:
         """merge node -> distance [m] before the node where a waiting vehicle's front bumper stops.
@@ -486,6 +491,18 @@ class RoundaboutTraffic(Road):
                     if d < best_d:
                         best_d, best = d, o
                     break  # the nearest one ahead on this lane
+        for m in range(k, len(route.lanes) - 1):  # a diverge ahead: ring vehicles just past its node are in the way
+            a, b = route.lanes[m][:2]
+            after = self._ring_after.get(b)
+            if len(a) != 2 or len(b) != 2 or after is None or after == route.lanes[m + 1][:2]:
+                continue
+            for s_lane, o in on_lane.get(after, ()):
+                if o is v or s_lane - 0.5 * o.LENGTH > v.LENGTH:  # type: ignore[attr-defined]
+                    continue  # clear of the exit's first length
+                d = route.offsets[m + 1] - s + s_lane
+                if 0.0 < d < best_d:
+                    best_d, best = d, o
+            break
         for o in merging:
             if o is v:
                 continue

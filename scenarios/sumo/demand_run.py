@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .imports import sumo_module
+
 __all__ = ["run_demand", "TRACK_COLUMNS"]
 
 TRACK_COLUMNS = ("track_id", "frame_id", "timestamp_ms", "agent_type", "x", "y", "vx", "vy", "psi_rad", "length",
@@ -31,7 +33,7 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
     -------
     path : pathlib.Path         ``out``
     """
-    import libsumo
+    libsumo = sumo_module("libsumo")
 
     from pirl_sim.io.interaction import write_tracks
 

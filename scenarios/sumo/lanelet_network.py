@@ -19,6 +19,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from pirl_sim.io.atomic import atomic_write_text
+from .imports import sumo_module
 
 __all__ = ["LaneletNetwork", "network_from_lanelet2", "lanelet_routes", "lane_distances", "edge_id"]
 
@@ -171,7 +172,7 @@ def network_from_lanelet2(lmap, out_dir, *, name: str = "lanelets", junction_rad
     -------
     network : LaneletNetwork    ValueError for a bad parameter, map or successors; RuntimeError if netconvert fails
     """
-    import sumolib
+    sumolib = sumo_module("sumolib")
 
     from pirl_sim.io.lanelet2_map import LaneletMap, load_map
 
@@ -236,7 +237,7 @@ def lane_distances(net, xy, *, spacing: float = 0.5) -> np.ndarray:
     -------
     numpy.ndarray, shape (n,)
     """
-    import sumolib
+    sumolib = sumo_module("sumolib")
 
     from pirl_sim.paths import polyline_distances
 

@@ -27,6 +27,7 @@ import numpy as np
 from pirl_sim.io.atomic import atomic_write_text
 
 from ..planning import route_id
+from .imports import sumo_module
 
 __all__ = [
     "RoundaboutSpec",
@@ -358,7 +359,7 @@ def build_network(spec: RoundaboutSpec, out_dir, *, name: str = "roundabout") ->
     files : NetworkFiles             ValueError for overlapping junctions of neighbouring arms (the message says
                                      what to change), RuntimeError when netconvert fails
     """
-    import sumolib  # heavy optional dependency, imported lazily
+    sumolib = sumo_module("sumolib")  # heavy optional dependency, imported lazily
 
     if not isinstance(spec, RoundaboutSpec):
         raise TypeError(f"spec must be a RoundaboutSpec, got {type(spec).__name__}")
@@ -424,7 +425,7 @@ def _check_built(spec: RoundaboutSpec, net_path) -> None:
 
 def load_net(net):
     """A ``sumolib.net.Net`` with internal (junction) lanes, from a path, NetworkFiles or a loaded net."""
-    import sumolib
+    sumolib = sumo_module("sumolib")
 
     if isinstance(net, NetworkFiles):
         net = net.net

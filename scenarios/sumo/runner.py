@@ -31,6 +31,7 @@ import pandas as pd
 
 from ..contract import STEP, BatchController  # noqa: F401  (BatchController: the contract's, re-exported)
 from .network import NetworkFiles, load_net, validate_route
+from .imports import sumo_module
 
 __all__ = [
     "BACKENDS",
@@ -87,12 +88,12 @@ def _import_libsumo():
     ``LIBSUMO_AS_TRACI=quiet`` (read by libsumo's ``__init__``) skips the print; it is set only around the
     import, after ``traci`` is imported, because with it set ``import traci`` would silently become libsumo.
     """
-    import traci  # noqa: F401  first: traci stays the socket client
+    sumo_module("traci")  # first: traci stays the socket client
 
     old = os.environ.get("LIBSUMO_AS_TRACI")
     os.environ["LIBSUMO_AS_TRACI"] = "quiet"
     try:
-        import libsumo
+        libsumo = sumo_module("libsumo")
     finally:
         if old is None:
             del os.environ["LIBSUMO_AS_TRACI"]
@@ -164,7 +165,7 @@ def sumo_command(net_path, *, seed: int = 0, step_length: float = DEFAULT_STEP_L
     cmd : list of str                 ``[sumo, -n, net, --step-length, ...]``: the flags of the SUMO page (Running
                                       SUMO), then ``extra_args``
     """
-    import sumolib
+    sumolib = sumo_module("sumolib")
 
     return [
         sumolib.checkBinary("sumo"), "-n", str(net_path),
@@ -543,7 +544,7 @@ class SumoRun:
             _libsumo_owner = self
             api = libsumo
         else:
-            import traci
+            traci = sumo_module("traci")
 
             label = f"pirl_sim-{os.getpid()}-{id(self)}"
             traci.start(self.command, label=label)
@@ -560,12 +561,14 @@ class SumoRun:
                 api.vehicle.add(v.vehicle_id, v.route_id, typeID=v.type_id, depart=repr(float(v.depart)),
                                 departLane="best", departPos="base", departSpeed=str(v.depart_speed))
         except BaseException:
-            self.close()
+            self.close(quiet=True)
             raise
         return self
 
-    def close(self) -> None:
-        """Close SUMO (idempotent; also called by ``__exit__``)."""
+    def close(self, *, quiet: bool = False) -> None:
+        """Close SUMO (idempotent; also called by ``__exit__``). ``quiet``: an error of the closing itself is
+        dropped, for when another exception is on its way (an interrupted run whose SUMO already ended: TraCI's
+        close then fails on the broken connection, and that must not replace the interruption)."""
         global _libsumo_owner
         api, self._api = self._api, None
         self._closed = True
@@ -573,6 +576,9 @@ class SumoRun:
             return
         try:
             api.close()
+        except Exception:
+            if not quiet:
+                raise
         finally:
             if _libsumo_owner is self:
                 _libsumo_owner = None
@@ -580,8 +586,8 @@ class SumoRun:
     def __enter__(self) -> SumoRun:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        self.close(quiet=exc_type is not None)
 
     def __del__(self):  # last resort: never leave libsumo's one simulation open
         try:

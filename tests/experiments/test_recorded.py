@@ -160,3 +160,18 @@ learners = ["tirl"]
         cfg.write_text(rolling)
         assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 0
         assert "1 cells (1 distinct)" in capsys.readouterr().out
+
+
+def test_the_miss_rate_takes_the_recorded_speed_and_heading_where_the_track_has_them():
+    """The INTERACTION rule's speed and heading at T: the track file's (vx, vy, psi_rad), as the challenge takes
+    them; from the last two positions only for trajectories without them."""
+    from types import SimpleNamespace
+
+    from pirl_sim.experiments.recorded import _speed_heading_at_end
+
+    xy = np.column_stack([np.arange(6.0), np.zeros(6)])  # moving +x at 1 m per step
+    recorded = SimpleNamespace(metadata={"xy": xy, "v_obs": np.full(6, 7.0), "psi_obs": np.full(6, 0.3)})
+    generated = SimpleNamespace(metadata={"xy": xy})
+    speed, heading = _speed_heading_at_end([recorded, generated], [(0, 1), (1, 1)], horizon=3, dt=0.1)
+    np.testing.assert_allclose(speed, [7.0, 10.0])
+    np.testing.assert_allclose(heading, [0.3, 0.0])

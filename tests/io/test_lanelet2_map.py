@@ -377,8 +377,12 @@ def test_coordinates_lanelet2_reads_differently_are_refused(tmp_path, load_map, 
         load_map(tmp_path / "m.osm")
 
 
-def test_a_dtd_entity_is_refused(tmp_path, load_map):
-    (tmp_path / "m.osm").write_text(_osm(lat="&x;", doctype='<!DOCTYPE osm [<!ENTITY x "0.00002">]>'))
+@pytest.mark.parametrize("encoding", ["utf-8", "utf-16"])
+def test_a_dtd_entity_is_refused(tmp_path, load_map, encoding):
+    text = _osm(lat="&x;", doctype='<!DOCTYPE osm [<!ENTITY x "0.00002">]>')
+    if encoding != "utf-8":
+        text = text.replace('<?xml version="1.0"?>', f'<?xml version="1.0" encoding="{encoding}"?>')
+    (tmp_path / "m.osm").write_text(text, encoding=encoding)
     with pytest.raises(ValueError, match=r"m\.osm: the file has a DTD.*lanelet2 does not expand its entities"):
         load_map(tmp_path / "m.osm")
 
@@ -387,6 +391,7 @@ def test_a_dtd_entity_is_refused(tmp_path, load_map):
     ({"left": (1,)}, r"lanelet 20 has a left border \(line 10\) of 1 node\(s\); a border needs at least two"),
     ({"right_way": 10}, r"lanelet 20 has its left border \(line 10\) and its right border \(line 10\) on the same"),
     ({"right": (1, 2)}, r"lanelet 20 has its left border \(line 10\) and its right border \(line 11\) on the same"),
+    ({"left": (1, 1)}, r"lanelet 20 has a left border \(line 10\) whose nodes all lie on one point"),
 ])
 def test_degenerate_lanelets_are_refused(tmp_path, load_map, kw, message):
     (tmp_path / "m.osm").write_text(_osm(**kw))

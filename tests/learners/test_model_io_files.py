@@ -211,6 +211,10 @@ def test_tampered_mixture_arrays_are_value_errors_naming_the_file(synthetic, tmp
         load_learner(_tamper(path, tmp_path / "u.npz", "state.components_", lambda a: a + 5))
     with pytest.raises(ValueError, match=r"v\.npz: mixture_.precisions_cholesky_ has shape"):
         load_learner(_tamper(path, tmp_path / "v.npz", "state.mixture_.precisions_cholesky_", lambda a: a[:, :1]))
+    with pytest.raises(ValueError, match=r"w\.npz: mixture_.precisions_cholesky_ has a diagonal entry <= 0"):
+        load_learner(_tamper(path, tmp_path / "w.npz", "state.mixture_.precisions_cholesky_", np.zeros_like))
+    with pytest.raises(ValueError, match=r"x\.npz: mixture_.weights_ are all zero"):
+        load_learner(_tamper(path, tmp_path / "x.npz", "state.mixture_.weights_", np.zeros_like))
 
 
 @pytest.mark.parametrize("param,value,message", [

@@ -355,3 +355,18 @@ def test_replay_with_following_features_sees_the_recorded_vehicle_ahead(tmp_path
     np.testing.assert_allclose(by_id[3].states[:, 4], 8.0)  # alone: the car's own speed (the gap stays put)
     assert not any(t.metadata["yielding"].any() for t in scene.selected)  # one lane: nobody crosses
     assert scene.steps["steps behind a vehicle ahead"] == by_id[2].n_steps
+
+
+def test_pieces_keep_the_recorded_heading_beside_positions_and_speeds(following_scene):
+    """psi_obs: the track file's psi_rad at the same steps as xy and v_obs (whole pieces and free-flow runs)."""
+    tracks, osm = following_scene
+    df = pd.read_csv(tracks)
+    df["psi_rad"] = 0.01 * df["frame_id"]  # a heading the positions do not show
+    df.to_csv(tracks, index=False)
+    for selection in ("tracks", "free"):
+        scene = load_replay([tracks], osm, selection=selection, max_steps=None)
+        for t in scene.trajectories:
+            meta = t.metadata
+            assert len(meta["psi_obs"]) == len(meta["xy"]) == len(meta["v_obs"])
+            rows = df[df["track_id"] == meta["track_id"]].set_index("x")
+            np.testing.assert_allclose(meta["psi_obs"], rows.loc[meta["xy"][:, 0], "psi_rad"].to_numpy())

@@ -138,6 +138,16 @@ def _leader_by_brute_force(traffic, v, others):
                 d = route.offsets[m] - o.merge_distance - v.route_s
                 if 0.0 < d < best_d:
                     best_d, best = d, o
+    for m in range(v.route_pos, len(route.lanes) - 1):  # the first diverge ahead: ring cars just past its node
+        a, b = route.lanes[m][:2]
+        ring_on = [(b, c) for c in traffic.network.graph.get(b, {}) if len(b) == 2 and len(c) == 2]
+        if len(a) == 2 and ring_on and ring_on[0] != route.lanes[m + 1][:2]:
+            for o in others:
+                if o is not v and o.lane_index[:2] == ring_on[0] and o.lane_s - 0.5 * o.LENGTH <= v.LENGTH:
+                    d = route.offsets[m + 1] + o.lane_s - v.route_s
+                    if 0.0 < d < best_d:
+                        best_d, best = d, o
+            break
     return (None, 0.0) if best is None else (best_d - 0.5 * (v.LENGTH + best.LENGTH), best.speed)
 
 

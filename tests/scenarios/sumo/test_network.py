@@ -2,6 +2,7 @@
 paths, and the lane graph as a Lanelet2 map."""
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -222,3 +223,18 @@ def test_lane_graph_is_a_connected_lanelet2_map(net, tmp_path):
         route = graph.getRoute(layer[ids[f"{edges[0]}_0"]], layer[ids[f"{edges[-1]}_0"]])
         assert route is not None, rid
         assert math.isfinite(route.length2d())
+
+
+@pytest.mark.parametrize("name", ["sumolib", "traci", "libsumo"])
+def test_a_missing_sumo_module_is_an_error_naming_the_extra(monkeypatch, name):
+    from pirl_sim.scenarios.sumo.imports import sumo_module
+
+    monkeypatch.setitem(sys.modules, name, None)  # what `import name` meets when it is not installed
+    with pytest.raises(ModuleNotFoundError, match=rf"{name} is not installed.*'sumo' extra.*pirl_sim\[sumo\]"):
+        sumo_module(name)
+
+
+def test_building_a_network_without_sumolib_names_the_extra(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "sumolib", None)
+    with pytest.raises(ModuleNotFoundError, match=r"'sumo' extra"):
+        build_network(RoundaboutSpec(), tmp_path)

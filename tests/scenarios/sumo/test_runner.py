@@ -182,6 +182,27 @@ def test_traci_backend_gives_the_same_recording(recording, scenario):
     assert rec.backend == "traci"
     pd.testing.assert_frame_equal(rec.frame, recording.frame)
 
+def test_an_interruption_is_not_replaced_by_the_error_of_closing_a_dead_traci_connection(scenario):
+    """Ctrl-C reaches SUMO too (one process group): TraCI's close then fails on the dead connection, and the
+    interruption, not that error, leaves the run."""
+    pytest.importorskip("traci")
+    files, rs, vehicles, _, _ = scenario
+    with pytest.raises(KeyboardInterrupt):
+        with SumoRun(files.net, rs, vehicles[:2], backend="traci") as run:
+            run.run(1.0)
+            process = run._api._process  # the SUMO server TraCI started
+            process.kill()
+            process.wait()
+            raise KeyboardInterrupt
+    assert not run.running
+    run2 = SumoRun(files.net, rs, vehicles[:2], backend="traci").start()
+    run2._api._process.kill()
+    run2._api._process.wait()
+    with pytest.raises(Exception) as closing:  # without an exception on its way, a failed close is not hidden
+        run2.close()
+    assert not isinstance(closing.value, KeyboardInterrupt)
+
+
 def test_libsumo_one_run_per_process_and_always_closed(scenario):
     files, rs, vehicles, _, _ = scenario
     with SumoRun(files.net, rs, vehicles[:2]) as run:
