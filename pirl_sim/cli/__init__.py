@@ -48,8 +48,7 @@ def cli_logging(verbose: bool = False):
     """Diagnostics of the ``pirl_sim`` loggers on stderr while a command runs: warnings always, progress and
     details (INFO) with ``--verbose``; the bare message, as the commands printed before. Removed on exit, so
     calling `main` again (tests, notebooks) adds no second handler."""
-    logger = logging.getLogger("pirl_sim")
-    handler = logging.StreamHandler(sys.stderr)
+    logger, handler = logging.getLogger("pirl_sim"), logging.StreamHandler(sys.stderr)
     handler.setLevel(logging.INFO if verbose else logging.WARNING)
     handler.setFormatter(logging.Formatter("%(message)s"))
     old_level = logger.level
@@ -65,10 +64,8 @@ def cli_logging(verbose: bool = False):
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser of every subcommand (`COMMANDS`), with ``--version``, ``--verbose`` and ``--blas-threads``."""
-    parser = argparse.ArgumentParser(
-        prog="pirl-sim",
-        description="Probabilistic IRL of diverse drivers: generate, learn, predict, score.",
-    )
+    description = "Probabilistic IRL of diverse drivers: generate, learn, predict, score."
+    parser = argparse.ArgumentParser(prog="pirl-sim", description=description)
     parser.add_argument("--version", action=_VersionAction, help="show program's version number and exit")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log progress and details (INFO) on stderr, not only warnings")

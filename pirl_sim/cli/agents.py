@@ -74,26 +74,21 @@ def add_parser(ap) -> None:
 
 def run(args) -> int:
     """``pirl-sim agents``: 0, or 2 for a bad setting."""
-    from pirl_sim.experiments.agents_study import AgentsConfig
+    from pirl_sim.experiments.agents_study import AgentsConfig, markdown_table, write_results
 
-    try:
-        same = ("modes", "action", "direct_modes", "residual_scale", "max_change", "seeds", "steps", "baselines",
-                "n_steps", "observe_residual", "gamma", "learning_rate", "log_std_init", "select_every",
-                "select_episodes")  # options named as the AgentsConfig fields
-        cfg = AgentsConfig(**{name: getattr(args, name) for name in same},
-                           eval_seeds=tuple(range(args.eval_seed, args.eval_seed + args.episodes)),
+    try:  # the options named as AgentsConfig fields, and the evaluation seeds
+        given = {k: v for k, v in vars(args).items() if k in AgentsConfig.__dataclass_fields__}
+        cfg = AgentsConfig(**given, eval_seeds=tuple(range(args.eval_seed, args.eval_seed + args.episodes)),
                            batch_size=min(AgentsConfig.batch_size, args.n_steps))
     except ValueError as exc:
         return error(exc)
-    if args.dry_run:
-        from pirl_sim.engine.presets import agents_config
+    from pirl_sim.engine.presets import agents_config, run_agents
 
+    if args.dry_run:
         print_plan(agents_config(cfg), args.out, "agents experiment", unit="runs")
         return 0
     import pandas as pd
 
-    from pirl_sim.engine.presets import run_agents
-    from pirl_sim.experiments.agents_study import markdown_table, write_results
     from pirl_sim.threads import blas_threads
 
     command = command_line("agents", ["--out", str(args.out)])

@@ -82,9 +82,7 @@ def interrupted(out) -> int:
 def finish(written, *lines: str) -> int:
     """Print ``lines`` (tables, summaries), then ``wrote WRITTEN``; returns 0, the exit status of a finished
     command."""
-    for line in lines:
-        print(line)
-    print(f"wrote {written}")
+    print(*lines, f"wrote {written}", sep="\n")
     return 0
 
 
@@ -156,21 +154,18 @@ def add_blas_threads_option(parser: argparse.ArgumentParser) -> None:
     if not any("--blas-threads" in a.option_strings for a in parser._actions):
         parser.add_argument("--blas-threads", type=blas_threads_arg, default=argparse.SUPPRESS, metavar="N",
                             help=_OPTION_HELP)
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for sub in action.choices.values():
-                add_blas_threads_option(sub)
+    for action in (a for a in parser._actions if isinstance(a, argparse._SubParsersAction)):
+        for sub in action.choices.values():
+            add_blas_threads_option(sub)
 
 
-def add_study_options(p: argparse.ArgumentParser, runs: str, count: str = "cells still to run",
-                      quiet: bool = True) -> None:
+def add_study_options(p: argparse.ArgumentParser, runs: str, count: str = "cells still to run") -> None:
     """``--workers`` (``runs`` at once, each in its own process), ``--dry-run`` (that counts the ``count``) and
-    with ``quiet`` ``--quiet``: the options of a `run_study` command."""
+    ``--quiet``: the options of a `run_study` command."""
     p.add_argument("--workers", type=workers_arg, default=1,
                    help=f"{runs} at once, each in its own process (default 1; 0: in this process)")
     p.add_argument("--dry-run", action="store_true", help=f"check the options and count the {count}")
-    if quiet:
-        p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
 def add_seed_option(p: argparse.ArgumentParser, what: str) -> None:

@@ -67,8 +67,7 @@ def run(args) -> int:
     try:
         from pirl_sim.scenarios.replay import recording_settings
 
-        receding = args.likelihood == "receding"
-        rec = recording_settings(args.tracks)
+        receding, rec = args.likelihood == "receding", recording_settings(args.tracks)
         dt = args.dt if args.dt is not None else (rec.dt if receding and rec is not None else 0.2)
         horizon = args.mpc_horizon
         if receding and horizon is None:

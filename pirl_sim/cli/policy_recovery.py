@@ -52,15 +52,13 @@ def run(args) -> int:
     from pirl_sim.engine.config import parse_config
     from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, collect_records, write_results
 
-    t0 = time.perf_counter()
-    command = command_line("policy-recovery", [])
+    t0, command = time.perf_counter(), command_line("policy-recovery", [])
 
     def config():
-        cfg = PpoRecoveryConfig(theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)), seeds=args.seeds,
-                                steps=args.steps, eval_seeds=args.eval_seeds, n_steps=args.n_steps,
+        given = {k: v for k, v in vars(args).items() if k in PpoRecoveryConfig.__dataclass_fields__}  # its fields
+        cfg = PpoRecoveryConfig(**given, theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)),
                                 batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
-                                n_vehicles=args.n_vehicles, initial_vehicles=args.initial_vehicles,
-                                duration=args.duration, normalize_reward=not args.no_normalize_reward)
+                                normalize_reward=not args.no_normalize_reward)
         return parse_config(cfg.sweep_data(), source="pirl-sim policy-recovery"), cfg
 
     def report(result, _, cfg) -> int:

@@ -22,8 +22,7 @@ from pathlib import Path
 
 from pirl_sim.validation import positive_float_arg, positive_int_arg
 
-from .common import (add_seed_option, add_track_options, error, finish, load_track_scene, seconds_to_steps,
-                     subcommand)
+from .common import add_seed_option, add_track_options, error, finish, load_track_scene, seconds_to_steps, subcommand
 
 __all__ = ["SUBMISSION_COLUMNS", "add_parser", "history_end_frames", "proba_path", "rebind_model", "run",
            "submission_tables"]
@@ -51,10 +50,9 @@ def add_parser(pr) -> None:
     pr.add_argument("--horizon", type=positive_float_arg, default=3.0,
                     help=f"predicted horizon [s], at most {MAX_HORIZON_S:g} (default 3)")
     pr.add_argument("--out", type=Path, required=True, help="CSV file of the predictions")
-    pr.add_argument("--futures", type=positive_int_arg, metavar="K",
-                    help=f"write the INTERACTION challenge's submission layout with K <= {MAX_FUTURES} predicted "
-                         "modes per case, and "
-                         "their probabilities in <OUT stem>_proba.csv (default: one row per predicted step)")
+    pr.add_argument("--futures", type=positive_int_arg, metavar="K", help="write the INTERACTION challenge's "
+                    f"submission layout with K <= {MAX_FUTURES} predicted modes per case, and their probabilities in "
+                    "<OUT stem>_proba.csv (default: one row per predicted step)")
     add_seed_option(pr, "the learners that draw their --futures")
 
 
@@ -149,8 +147,7 @@ def history_end_frames(trajectories, history: int, stride: int) -> list[tuple[in
         target = np.asarray(meta["xy"], dtype=float)[: history + 1]
         df = read(file)
         rows = df[df["track_id"] == track_id].sort_values("frame_id", kind="stable")
-        xy = rows[["x", "y"]].to_numpy(dtype=float)
-        frames = rows["frame_id"].to_numpy(dtype=np.int64)
+        xy, frames = rows[["x", "y"]].to_numpy(dtype=float), rows["frame_id"].to_numpy(dtype=np.int64)
         span = (len(target) - 1) * stride
         n = len(xy) - span  # first frames that leave room for the whole history
         found = None
@@ -183,19 +180,15 @@ def submission_tables(trajectories, states, proba, n_futures: int, ends, positio
     import numpy as np
     import pandas as pd
 
-    K = int(n_futures)
-    horizon = states.shape[2] - 1
-    n_frames = horizon * stride
-    j = np.arange(1, n_frames + 1)  # frames after the history's last
-    steps = np.arange(horizon + 1) * stride
-    blocks, probas = [], []
+    K, horizon = int(n_futures), states.shape[2] - 1
+    j = np.arange(1, horizon * stride + 1)  # frames after the history's last
+    steps, blocks, probas = np.arange(horizon + 1) * stride, [], []
     for i, (t, (frame, stamp)) in enumerate(zip(trajectories, ends)):
         p = np.asarray(proba[i], dtype=float)
         order = np.argsort(-p, kind="stable")[:K]
         p = p[order] / p[order].sum()
         pad = K - len(order)
-        order = np.concatenate([order, np.full(pad, order[0])])
-        p = np.concatenate([p, np.zeros(pad)])
+        order, p = np.concatenate([order, np.full(pad, order[0])]), np.pad(p, (0, pad))
         d = t.metadata.get("d")
         offset = float(d[history]) if d is not None and len(d) > history else 0.0
         anchor = np.asarray(t.metadata["xy"], dtype=float)[history]
@@ -205,10 +198,9 @@ def submission_tables(trajectories, states, proba, n_futures: int, ends, positio
                  for k in range(K) for n, c in enumerate("xy")}
         blocks.append(pd.DataFrame({**dict(zip(SUBMISSION_COLUMNS, firsts)), **modes}))
         probas.append([i + 1, *p])
-    submission = pd.concat(blocks, ignore_index=True)
     table = pd.DataFrame(probas, columns=["case_id", *(f"p{k}" for k in range(1, K + 1))])
     table["case_id"] = table["case_id"].astype(int)
-    return submission, table
+    return pd.concat(blocks, ignore_index=True), table
 
 
 def run(args) -> int:
@@ -219,8 +211,7 @@ def run(args) -> int:
     from pirl_sim.learners import load_learner
     from pirl_sim.progress import reporter
 
-    say = reporter(not args.quiet)
-    futures = getattr(args, "futures", None)
+    say, futures = reporter(not args.quiet), getattr(args, "futures", None)
     try:
         if args.horizon > MAX_HORIZON_S:
             raise ValueError(f"--horizon {args.horizon:g} s is longer than {MAX_HORIZON_S:g} s: a prediction of a "
@@ -263,11 +254,9 @@ def run(args) -> int:
         return finish(f"{args.out} and {proba_path(args.out)}", f"{len(usable)} cases, {futures} futures, "
                       f"{horizon * stride} frames of 0.1 s each (history {history * dt:g} s, horizon "
                       f"{horizon * dt:g} s)")
-    names = scene.model.features.names
-    rows = []
+    names, rows = scene.model.features.names, []
     for i, t in enumerate(usable):
-        xy = scene.model.positions(states[i, 1:])
-        rec = t.metadata.get("xy")
+        xy, rec = scene.model.positions(states[i, 1:]), t.metadata.get("xy")
         for k in range(horizon):
             j = history + k + 1  # index of the recorded state this step predicts
             row = {"file": t.metadata.get("file"), "track_id": t.metadata.get("track_id"),

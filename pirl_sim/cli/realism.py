@@ -63,8 +63,7 @@ def run(args) -> int:
         for p in [*args.reference, *(q for _, ps in args.source for q in ps), *([args.map] if args.map else [])]:
             if not p.exists():
                 raise ValueError(f"{str(p)!r}: no such file or folder")
-        out = check_output_dir(args.out)
-        lmap = load_map(args.map) if args.map is not None else None
+        out, lmap = check_output_dir(args.out), load_map(args.map) if args.map is not None else None
         reference = _features(list(args.reference), lmap)
         sources = {label: [_features([p], lmap) for p in paths] for label, paths in args.source}
         summary, features = compare_sources(reference, sources)

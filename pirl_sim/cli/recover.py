@@ -38,9 +38,8 @@ def add_parser(p) -> None:
     p.add_argument("--control-noise", type=list_arg(float, low=0), default=[], metavar="LEVELS", help="noise study: "
                    "comma-separated control-noise levels [m/s^3], e.g. 0,0.1,0.3,1 (written to noise.csv/.md)")
     p.add_argument("--noise-seeds", type=seed_arg, nargs="+", help="seeds of the noise study (default: --seeds)")
-    add_study_options(p, "runs simulated and fitted", count="runs still to do", quiet=False)
+    add_study_options(p, "runs simulated and fitted", count="runs still to do")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
-    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
 def run(args) -> int:

@@ -46,9 +46,7 @@ _KNN = {"prior": "population", "stride": 2, "irl_max_iter": 400}
 _NEXT = {**_KNN, "target": "next", "state_features": (1, 2), "lookup_features": False}
 #: the sweep config's learner entry of each --learners key and pseudo-learner, before the options' parameters
 LEARNER_ENTRIES: dict[str, dict[str, Any]] = {
-    "cv": {"name": "cv", "label": "CV (path)"},
-    "ca": {"name": "ca", "label": "CA (path)"},
-    "tirl": {"name": "tirl"},
+    "cv": {"name": "cv", "label": "CV (path)"}, "ca": {"name": "ca", "label": "CA (path)"}, "tirl": {"name": "tirl"},
     "pirl-gmm": {"name": "pirl-gmm", "params": {"random_state": 0}},
     "pirl-dpgmm": {"name": "pirl-dpgmm", "params": {"random_state": 0}},
     "pirl-knn": {"name": "pirl-knn", "params": _KNN},
@@ -59,8 +57,7 @@ LEARNER_ENTRIES: dict[str, dict[str, Any]] = {
              "params": {**_NEXT, "aggregate": "selected", "selector": "forecast", "n_candidates": 256}},
     "hindsight": {"name": "hindsight", "label": "hindsight cost (oracle)"},
     "direct": {"name": "direct", "label": "direct regression (no cost)"},  # pirl_sim.evaluation.direct
-    "cv-xy": {"name": "cv-xy", "label": "CV (x, y)"},
-}
+    "cv-xy": {"name": "cv-xy", "label": "CV (x, y)"}}
 
 #: what ``--preset best`` sets of the options not given: the configuration of the README's real-roundabout table
 _BEST = {"desired_speed": "fit", "features": "speed-level", "lateral": "neighbours", "selection": "free",
@@ -313,8 +310,7 @@ class ReplayOptions:
                              f"horizon: give --mpc-horizon H (steps of --dt = {dt:g} s); {self.tracks} is not a "
                              "pirl_sim recording with a run.json to take it from")
         steps_file = (tracks if tracks.is_dir() else tracks.parent) / DRIVER_STEPS_FILE
-        simulated = is_recording(tracks)
-        preset = data_preset(tracks, self.preset)
+        simulated, preset = is_recording(tracks), data_preset(tracks, self.preset)
         features, desired_speed = self.features or preset["features"], self.desired_speed or preset["desired_speed"]
         selection = self.selection or ("steps" if receding and steps_file.is_file() else
                                        "all" if features == "following" else preset["selection"])
@@ -386,11 +382,10 @@ class ReplaySettings:
     def load(self) -> dict:
         """How the scene is read: keyword arguments of `pirl_sim.scenarios.replay.load_replay` besides the files
         and the map, as JSON data (the ``recorded`` kind's parameter ``load``)."""
-        load = {"dt": self.dt, "estimate": self.estimate, "noise": dataclasses.asdict(self.noise),
-                "selection": self.selection, "max_steps": _steps(PIECE_DURATION, self.dt), "features": self.features}
-        if self.simulated:  # simulated drivers plan from their projected positions
-            load["arc_length"] = "observed"
-        return {**load, **driver_settings(self.recording, self.options.a_lat, self.options.v_max)}
+        return {"dt": self.dt, "estimate": self.estimate, "noise": dataclasses.asdict(self.noise),
+                "selection": self.selection, "max_steps": _steps(PIECE_DURATION, self.dt), "features": self.features,
+                **({"arc_length": "observed"} if self.simulated else {}),  # the positions simulated drivers plan from
+                **driver_settings(self.recording, self.options.a_lat, self.options.v_max)}
 
     def learner_entries(self) -> list[dict]:
         """The sweep config's learner entries in the order of the report's rows: CV and CA along the path, the
@@ -573,7 +568,7 @@ def _run_table(options: ReplayOptions, say) -> int:
     from pirl_sim.experiments.replay_report import write_replay_results
     from pirl_sim.experiments.replay_table import table_row, write_table
 
-    rows = []
+    rows, command = [], command_line("replay", [])
     for name in options.roundabouts:
         t0 = time.perf_counter()
         o = dataclasses.replace(options, tracks=options.table / "recorded_trackfiles" / name,  # type: ignore[operator]
@@ -583,11 +578,9 @@ def _run_table(options: ReplayOptions, say) -> int:
         result, scene, proto = _replay(o.resolve(), options.out / name, lambda m: say(f"{name}: {m}"))
         if result is None:  # --dry-run
             continue
-        write_replay_results(result, scene, options.out / name, command_line("replay", []))
+        write_replay_results(result, scene, options.out / name, command)
         elapsed = time.perf_counter() - t0
         files = [f.name for f in recorded_files({"tracks": o.tracks, "files": o.files or 0})]
         rows.append(table_row(name, files, result, scene, proto, elapsed))
         say(f"{name}: done in {elapsed:.0f} s")
-    if options.dry_run:
-        return 0
-    return finish(f"{options.out}/", write_table(rows, options.out, command_line("replay", [])))
+    return 0 if options.dry_run else finish(f"{options.out}/", write_table(rows, options.out, command))

@@ -19,8 +19,7 @@ from pirl_sim.validation import check_output_dir, positive_float_arg, positive_i
 
 from .common import add_seed_option, error, finish, reworded, subcommand
 
-__all__ = ["add_parser", "run", "add_simulator_parser", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT",
-           "SUMO_BACKENDS"]
+__all__ = ["add_parser", "run", "add_simulator_parser", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT", "SUMO_BACKENDS"]
 
 SUMO_OUT = Path("results") / "sumo_run"
 HIGHWAY_OUT = Path("results") / "highway_run"
@@ -83,8 +82,7 @@ class ProgressBar:
     terminal redrawn in place; otherwise a line at most every ``every`` seconds."""
 
     def __init__(self, stream=None, every: float = 5.0):
-        self.stream = sys.stderr if stream is None else stream
-        self.every = every
+        self.stream, self.every = sys.stderr if stream is None else stream, every
         self._bar: Any = None  # a tqdm bar (an untyped library) from the first call
 
     def __call__(self, time_s: float, n_done: int, n_total: int) -> None:

@@ -40,11 +40,8 @@ def add_parser(sw) -> None:
 def run(args) -> int:
     """``pirl-sim sweep``: 0 when every cell finished, 1 when some failed, 2 for a bad config or option,
     130 when interrupted (finished cells are kept)."""
-    from pirl_sim.engine import run as engine_run
-    from pirl_sim.engine.config import load_config
+    from pirl_sim.engine import ResultStore, load_config, run as engine_run, write_report
     from pirl_sim.engine.executors import check_one_place
-    from pirl_sim.engine.report import write_report
-    from pirl_sim.engine.store import ResultStore
 
     try:
         check_one_place(args.workers, args.scheduler, args.scheduler_file)

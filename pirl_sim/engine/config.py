@@ -160,8 +160,7 @@ def _parse_grid(label: str, grid, fixed: Mapping) -> tuple[GridAxis, ...]:
         return ()
     if not isinstance(grid, Mapping):
         raise ValueError(f"{label} must be a table {{parameter = [values]}}, got {grid!r}")
-    both = [k for k in grid if k in fixed]
-    if both:
+    if both := [k for k in grid if k in fixed]:
         raise ValueError(f"{label}: {both} given both as fixed parameters and in the grid")
     return tuple(GridAxis.parse(label, str(k), v) for k, v in grid.items())
 
@@ -272,11 +271,9 @@ class Experiment:
         check_keys(label, entry, EXPERIMENT_KEYS)
         if "scenario" not in entry:
             raise ValueError(f"{label} needs a scenario")
-        scenario = entry["scenario"]
-        scenario_spec(scenario)
+        scenario = scenario_spec(entry["scenario"]).name  # unknown: ValueError naming the registered ones
         params = _params(label, entry)
-        grid = _parse_grid(f"{label}.grid", entry.get("grid"), params)
-        seeds = entry.get("seeds", default_seeds)
+        grid, seeds = _parse_grid(f"{label}.grid", entry.get("grid"), params), entry.get("seeds", default_seeds)
         if seeds is None:
             raise ValueError(f"{label} has no seeds (give seeds here or at the top level)")
         protocols = entry.get("protocols", ["paper"] if scenario in PROTOCOL_FREE else [])
@@ -341,8 +338,7 @@ class Cell:
 def _learner_label(grid: LearnerGrid, params: dict, varied: list[tuple[str, str]]) -> tuple[str, int | None]:
     kname = K_PARAMS.get(grid.name)
     k = params.get(kname) if kname and params.get("aggregate") != "selected" else None  # a bank's choice: no k
-    parts = [] if k is None else [f"k={k}"]
-    parts += [f"{n}={lab}" for n, lab in varied if n != kname]
+    parts = ([] if k is None else [f"k={k}"]) + [f"{n}={lab}" for n, lab in varied if n != kname]
     return grid.label + (f" ({', '.join(parts)})" if parts else ""), (k if isinstance(k, int) else None)
 
 
@@ -450,8 +446,7 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
 def _check_runs_here(label: str, scenario: str, learner: str) -> None:
     """ValueError unless ``scenario`` runs ``learner``: its `ScenarioSpec.learners` when it names them, else any
     learner that is not another scenario's own (a class attribute ``scenarios``)."""
-    spec = scenario_spec(scenario)
-    own = getattr(sweep_learners()[learner], "scenarios", None)
+    spec, own = scenario_spec(scenario), getattr(sweep_learners()[learner], "scenarios", None)
     if spec.learners is not None and learner not in spec.learners:
         raise ValueError(f"{label}: scenario {scenario!r} runs the learners {list(spec.learners)} only, got "
                          f"{learner!r}")

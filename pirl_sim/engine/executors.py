@@ -26,7 +26,7 @@ import threading
 import time
 from contextlib import suppress
 
-from pirl_sim.validation import number
+from pirl_sim.validation import int_at_least, number
 
 from . import worker as cell
 
@@ -71,8 +71,7 @@ def watch_parent(parent_pid: int, interval: float = PARENT_POLL_SECONDS) -> thre
     parent_pid : int      pid of the process that started this worker
     interval : float      [s] polling period (> 0)
     """
-    if isinstance(parent_pid, bool) or not isinstance(parent_pid, int) or parent_pid < 1:
-        raise ValueError(f"parent_pid must be a positive integer, got {parent_pid!r}")
+    int_at_least("parent_pid", parent_pid, 1)
     number("interval [s]", interval, low=0, allow_equal=False, finite=False)
     if _parent_gone(parent_pid):  # died while this worker started
         os._exit(1)
@@ -112,11 +111,9 @@ class LocalExecutor(_Executor):
     """
 
     def __init__(self, workers: int, start_method: str = "spawn") -> None:
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        self.workers = workers = int_at_least("workers", workers, 1)
         if start_method not in ("spawn", "fork"):
             raise ValueError(f"start_method must be 'spawn' or 'fork', got {start_method!r}")
-        self.workers = workers
         self._pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method),
                                             initializer=watch_parent, initargs=(os.getpid(),))
 
@@ -224,8 +221,7 @@ class DaskExecutor(_Executor):
     @property
     def workers(self) -> int:
         """Threads over all workers: how many cells run at once."""
-        info = self.client.scheduler_info()["workers"]
-        return sum(w.get("nthreads", 1) for w in info.values()) or 1
+        return sum(w.get("nthreads", 1) for w in self.client.scheduler_info()["workers"].values()) or 1
 
     def describe(self) -> str:
         info = self.client.scheduler_info()["workers"]

@@ -87,8 +87,7 @@ def run_agents(cfg: agents_study.AgentsConfig, out, *, workers: int = 1, progres
     """Run (or resume) the agents study through the sweep engine into ``out`` (its ``cells/`` store and
     ``sweep.json``) on ``workers`` worker processes (1: in this process) and return every run's record
     (`pirl_sim.experiments.agents_study.collect_records`)."""
-    config = agents_config(cfg)
-    t0 = time.perf_counter()
+    config, t0 = agents_config(cfg), time.perf_counter()
     with (InlineExecutor() if workers == 1 else LocalExecutor(workers)) as executor:
         run = run_sweep(config, out, executor=executor, progress=progress, command=command, tables=False)
     run.check_failed("the experiment's runs")

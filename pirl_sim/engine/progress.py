@@ -24,9 +24,8 @@ class Progress:
     """
 
     def __init__(self, total: int, cached: int = 0, *, stream=None, enabled: bool = True, every: float = 5.0) -> None:
-        self.total, self.cached = total, cached
+        self.total, self.cached, self.enabled, self.every = total, cached, enabled, every
         self.stream = sys.stderr if stream is None else stream
-        self.enabled, self.every = enabled, every
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.computed = self.failed = 0
         self._bar: Any = None  # a tqdm bar (an untyped library) once started

@@ -27,8 +27,7 @@ def write_report(results, out_dir=None) -> dict:
     dict {name: path} of the files written.
     """
     results = Path(results)
-    table = read_table(results)
-    template = results.is_dir() and template_run(results)
+    table, template = read_table(results), results.is_dir() and template_run(results)
     if out_dir is None:
         res_dir = results if results.is_dir() else results.parent
         out_dir = res_dir / "report" if template else res_dir

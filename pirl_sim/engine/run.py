@@ -126,8 +126,7 @@ def run_sweep(config: SweepConfig, out_dir, *, executor=None, workers: int | Non
     -------
     run : SweepRun
     """
-    t_start = time.perf_counter()
-    out = Path(out_dir)
+    t_start, out = time.perf_counter(), Path(out_dir)
     store = ResultStore(out)
     version, keys, unique, records, todo = plan_cells(config, store)
     # connected first: an unreachable scheduler or workers of other versions fail before anything is written
@@ -139,8 +138,7 @@ def run_sweep(config: SweepConfig, out_dir, *, executor=None, workers: int | Non
     if todo:
         futures = {}
         try:
-            description = ex.describe()
-            t0 = time.perf_counter()
+            description, t0 = ex.describe(), time.perf_counter()
             ex.warm_up()
             startup_s = time.perf_counter() - t0
             if code_version() != version:  # the sources changed while the workers started: plan again
@@ -198,10 +196,8 @@ def run_sweep(config: SweepConfig, out_dir, *, executor=None, workers: int | Non
                 except Exception as exc:  # noqa: BLE001 - its cells fail, the others go on
                     sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
             # then the cells that read the simulations (those of a failed simulation fail)
-            for ks in tasks:
-                if waiting.get(ks[0]) in sim_errors:
-                    for k in ks:
-                        fail(k, sim_errors[waiting[k]])
+            for k in (k for ks in tasks if waiting.get(ks[0]) in sim_errors for k in ks):
+                fail(k, sim_errors[waiting[k]])
             later = {submit(ks): ks for ks in tasks if ks[0] in waiting and waiting[ks[0]] not in sim_errors}
             futures.update(later)
             for fut in ex.as_completed(later):
@@ -241,10 +237,7 @@ def _tasks(unique: dict, todo: list[str]) -> list[list[str]]:
     for k in todo:
         group = (scenario_spec(unique[k].scenario).task_group or knn_group)(unique[k].spec())
         by_group.setdefault(("cell", k) if group is None else ("group", group), []).append(k)
-    tasks = list(by_group.values())
-    for ks in tasks:
-        ks.sort(key=lambda k: unique[k].learner_params.get("n_neighbors", 0))
-    return tasks
+    return [sorted(ks, key=lambda k: unique[k].learner_params.get("n_neighbors", 0)) for ks in by_group.values()]
 
 
 def _simulations(unique: dict, todo: list[str], store: ResultStore, version: str):
@@ -332,12 +325,10 @@ def _recovery_frame(config: SweepConfig, keys: list[str], records: dict) -> pd.D
         r = rec["recovery"]
         true, inferred = np.asarray(r["true"], dtype=float), np.asarray(r["inferred"], dtype=float)
         for j, name in enumerate(r["features"]):
-            frames.append(pd.DataFrame({
-                "key": k, "experiment": cell.experiment, "scenario_label": cell.scenario_label,
-                "protocol": cell.protocol_label, "learner_label": cell.learner_label, "seed": cell.seed,
-                "feature": f"{name} / {r['reference']}", "point": np.arange(len(true)),
-                "true": true[:, j], "inferred": inferred[:, j],
-            }))
+            frames.append(pd.DataFrame({"key": k, "experiment": cell.experiment, "scenario_label": cell.scenario_label,
+                                        "protocol": cell.protocol_label, "learner_label": cell.learner_label,
+                                        "seed": cell.seed, "feature": f"{name} / {r['reference']}",
+                                        "point": np.arange(len(true)), "true": true[:, j], "inferred": inferred[:, j]}))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
@@ -390,8 +381,7 @@ def template_run(path: Path) -> bool:
 def _stored_table(path: Path) -> pd.DataFrame:
     """The tidy table of a report template's results directory (`template_run`): the cells its ``sweep.json``
     lists whose records are in ``cells/``."""
-    listed = json.loads((path / "sweep.json").read_text(encoding="utf-8"))["cells"]
-    store = ResultStore(path)
+    listed, store = json.loads((path / "sweep.json").read_text(encoding="utf-8"))["cells"], ResultStore(path)
     records = {c["key"]: rec for c in listed if (rec := store.load(c["key"])) is not None}
     cells = [SimpleNamespace(**c, protocol=records[c["key"]]["cell"]["protocol"] if c["key"] in records else None)
              for c in listed]
@@ -408,8 +398,7 @@ _TEXT_COLUMNS = tuple(c for c in _REQUIRED if c not in ("seed", "cell_s"))
 def _check_table(table: pd.DataFrame, path: Path) -> None:
     """``ValueError`` naming the file and the first bad row unless ``table`` has every column of `TABLE_COLUMNS`,
     the required ones filled in every row, text where text belongs and numbers in the score and timing columns."""
-    missing = [c for c in TABLE_COLUMNS if c not in table.columns]
-    if missing:
+    if missing := [c for c in TABLE_COLUMNS if c not in table.columns]:
         raise ValueError(f"{path}: not a sweep table: missing column(s) {', '.join(missing)} (expected "
                          f"{', '.join(TABLE_COLUMNS)})")
     line = 2 if path.suffix == ".csv" else None  # header = line 1 of a CSV file

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import io
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from pirl_sim.io.atomic import atomic_write_bytes
+
 __all__ = ["knn_vs_k", "knn_vs_k_figure", "label_log_axis", "legend_below", "nice_below", "nice_above",
            "feature_clusters", "s_t_predictions", "weight_tracking", "pyplot", "png_bytes", "panel_grid",
-           "value_ticks", "log_yerr", "series_colors"]
+           "value_ticks", "log_yerr", "series_colors", "write_png"]
 
 
 def pyplot():
@@ -29,6 +32,14 @@ def png_bytes(fig) -> bytes:
     fig.savefig(buf, format="png", metadata={"Software": None})
     pyplot().close(fig)
     return buf.getvalue()
+
+
+def write_png(path, fig, **savefig) -> Path:
+    """Write the figure ``fig`` (left open) as a PNG to ``path`` atomically (``savefig``: its ``savefig``
+    keywords, e.g. ``dpi``); returns the path."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", **savefig)
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 def nice_below(x: float) -> float:
@@ -84,10 +95,9 @@ def legend_below(fig, handles, labels, *, ncol: int | None = None, fontsize: flo
 def panel_grid(n: int, width: float = 4.6, height: float = 3.4):
     """A figure of ``n`` panels, at most three per row (``width`` x ``height`` inches each), and its ``n`` axes
     in reading order; the grid's unused axes are hidden."""
-    plt = pyplot()
     ncols = min(3, n)
     nrows = math.ceil(n / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(width * ncols, height * nrows), dpi=100, squeeze=False)
+    fig, axes = pyplot().subplots(nrows, ncols, figsize=(width * ncols, height * nrows), dpi=100, squeeze=False)
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     return fig, list(axes.flat[:n])
@@ -120,8 +130,7 @@ def knn_vs_k_figure(ktable: pd.DataFrame, title: str):
     and be cut off on a log axis: the mean (solid, markers) and the std (dashed, same colour) are drawn as two
     positive curves instead, on log-log axes.
     """
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6, 3.9), dpi=100)
+    fig, ax = pyplot().subplots(figsize=(6, 3.9), dpi=100)
     handles, values = [], []
     for c, (name, g) in enumerate(ktable.groupby("protocol", sort=False)):
         handles += ax.plot(g["k"], g["med"], marker="o", color=f"C{c}", label=str(name))  # the mean: in the legend
@@ -187,9 +196,8 @@ def s_t_predictions(t: np.ndarray, truth: np.ndarray, predictions: dict, history
 
     t (T,) [s]; truth (n, T) [m]; predictions {learner: (n, T - history_steps) [m]}.
     """
-    plt = pyplot()
     n = truth.shape[0]
-    fig, axes = plt.subplots(1, n, figsize=(3.3 * n, 3.2), dpi=100, squeeze=False, sharey=False)
+    fig, axes = pyplot().subplots(1, n, figsize=(3.3 * n, 3.2), dpi=100, squeeze=False, sharey=False)
     for i, ax in enumerate(axes[0]):
         ax.plot(t, truth[i], "k-", lw=2, label="recorded")
         ax.axvline(t[history_steps], color="0.6", ls=":", lw=1)
@@ -209,8 +217,7 @@ def weight_tracking(t: np.ndarray, inferred: np.ndarray, true: np.ndarray, label
 
     inferred (M, T) and true (T,) values of the plotted quantity.
     """
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6, 3.4), dpi=100)
+    fig, ax = pyplot().subplots(figsize=(6, 3.4), dpi=100)
     for m in range(inferred.shape[0]):
         ax.plot(t, inferred[m], color="C0", alpha=0.35, lw=1)
     ax.plot(t, np.median(inferred, axis=0), color="C0", lw=2, label="inferred (median over drivers)")

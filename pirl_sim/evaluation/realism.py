@@ -9,7 +9,6 @@ The docs' "Realism" page explains the features, the weights and how this differs
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -83,8 +82,7 @@ FEATURES: tuple[FeatureSpec, ...] = (
     FeatureSpec("time_to_collision", "s", 0.0, 5.0, 10, 0.10),
     FeatureSpec("stopped_time", "s", 0.0, 30.0, 15, 0.05, per="vehicle"),
     FeatureSpec("collision", "0/1", 0.0, 1.0, 2, 0.25, per="vehicle"),
-    FeatureSpec("lane_offset", "m", 0.0, 3.0, 15, 0.10, needs_map=True),
-)
+    FeatureSpec("lane_offset", "m", 0.0, 3.0, 15, 0.10, needs_map=True))
 
 _LEADER_RANGE = 50.0     # m: vehicles further ahead are not a leader
 _LEADER_LATERAL = 1.8    # m: |lateral offset| in the follower's frame
@@ -148,8 +146,7 @@ def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[Featur
     if not isinstance(tracks, pd.DataFrame):
         raise TypeError(f"tracks must be a pandas.DataFrame of INTERACTION columns, got {type(tracks).__name__}")
     need = ("track_id", "frame_id", "timestamp_ms", "x", "y", "vx", "vy", "length", "width")
-    missing = [c for c in need if c not in tracks.columns]
-    if missing:
+    if missing := [c for c in need if c not in tracks.columns]:
         raise ValueError(f"tracks lack the columns {missing}; need {list(need)}")
     names = [f.name for f in features if lmap is not None or not f.needs_map]
     unknown = [n for n in names if n not in {f.name for f in FEATURES}]
@@ -163,8 +160,7 @@ def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[Featur
             raise ValueError(f"tracks: column {c!r} has non-finite values")
 
     t = df["timestamp_ms"].to_numpy(dtype=float) / 1000.0
-    xy = df[["x", "y"]].to_numpy(dtype=float)
-    v_xy = df[["vx", "vy"]].to_numpy(dtype=float)
+    xy, v_xy = df[["x", "y"]].to_numpy(dtype=float), df[["vx", "vy"]].to_numpy(dtype=float)
     speed = np.hypot(v_xy[:, 0], v_xy[:, 1])
     psi = df["psi_rad"].to_numpy(dtype=float) if "psi_rad" in df.columns else np.arctan2(v_xy[:, 1], v_xy[:, 0])
     ids = df["track_id"].to_numpy()
@@ -213,8 +209,7 @@ def box_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             axis = np.stack([-edge[:, 1], edge[:, 0]], axis=-1)
             pa, pb = np.einsum("pkd,pd->pk", a, axis), np.einsum("pkd,pd->pk", b, axis)
             overlap &= (pa.max(1) >= pb.min(1)) & (pb.max(1) >= pa.min(1))
-    d = np.minimum(_corner_edge_distance(a, b), _corner_edge_distance(b, a))
-    return np.where(overlap, 0.0, d)
+    return np.where(overlap, 0.0, np.minimum(_corner_edge_distance(a, b), _corner_edge_distance(b, a)))
 
 
 def _corner_edge_distance(points: np.ndarray, box: np.ndarray) -> np.ndarray:
@@ -229,8 +224,7 @@ def _corner_edge_distance(points: np.ndarray, box: np.ndarray) -> np.ndarray:
 def _frame_pairs(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """All pairs (i, j), i < j, of rows with the same frame: two int arrays of equal length."""
     order = np.argsort(frames, kind="stable")
-    fs = frames[order]
-    ii, jj = [np.zeros(0, dtype=np.intp)], [np.zeros(0, dtype=np.intp)]
+    fs, ii, jj = frames[order], [np.zeros(0, dtype=np.intp)], [np.zeros(0, dtype=np.intp)]
     for k in range(1, len(fs)):
         same = fs[k:] == fs[:-k]
         if not same.any():
@@ -245,8 +239,7 @@ def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]
     leader (the nearest vehicle ahead in the same direction within `_LEADER_RANGE`)."""
     from pirl_sim.viz.vehicles import box_corners
 
-    n = len(df)
-    length, width = df["length"].to_numpy(dtype=float), df["width"].to_numpy(dtype=float)
+    n, length, width = len(df), df["length"].to_numpy(dtype=float), df["width"].to_numpy(dtype=float)
     i, j = _frame_pairs(df["frame_id"].to_numpy())
     close = np.hypot(*(xy[i] - xy[j]).T) < _NEAR  # centres
     i, j = i[close], j[close]
@@ -259,16 +252,13 @@ def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]
     np.minimum.at(nearest, f, dd)
     collides = np.zeros(n, dtype=bool)
     collides[f[dd == 0.0]] = True
-    h = np.stack([np.cos(psi), np.sin(psi)], axis=-1)
-    rel = xy[o] - xy[f]
-    lon = np.sum(rel * h[f], -1)
-    lat = rel[:, 1] * h[f, 0] - rel[:, 0] * h[f, 1]
+    h, rel = np.stack([np.cos(psi), np.sin(psi)], axis=-1), xy[o] - xy[f]
+    lon, lat = np.sum(rel * h[f], -1), rel[:, 1] * h[f, 0] - rel[:, 0] * h[f, 1]
     ok = (lon > 0) & (lon < _LEADER_RANGE) & (np.abs(lat) < _LEADER_LATERAL) & (np.sum(h[f] * h[o], -1) > _LEADER_COS)
     f, o, lon = f[ok], o[ok], lon[ok]
     best = np.full(n, np.inf)
     np.minimum.at(best, f, lon)
-    first = lon == best[f]
-    leader = np.full(n, -1)
+    first, leader = lon == best[f], np.full(n, -1)
     leader[f[first]] = o[first]
     gap, headway, ttc = np.full(n, np.nan), np.full(n, np.nan), np.full(n, 5.0)
     fr = np.flatnonzero(leader >= 0)  # the followers and their leaders
@@ -332,10 +322,8 @@ def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, feature
     if not isinstance(reference, TrackFeatures) or not isinstance(simulated, TrackFeatures):
         raise TypeError("reference and simulated must be TrackFeatures (see track_features)")
     number("pseudocount", pseudocount, low=0, allow_equal=False)
-    specs = {f.name: f for f in features}
-    weights = dict(weights or {})
-    bad = [k for k in weights if k not in specs]
-    if bad:
+    specs, weights = {f.name: f for f in features}, dict(weights or {})
+    if bad := [k for k in weights if k not in specs]:
         raise ValueError(f"weights name unknown features {bad}; known: {sorted(specs)}")
     for k, w in weights.items():
         number(f"weight of {k!r}", w, low=0)
@@ -345,8 +333,7 @@ def score_realism(reference: TrackFeatures, simulated: TrackFeatures, *, feature
     for name, spec in specs.items():
         if name not in reference.values or name not in simulated.values:
             continue
-        ref_parts = [a for a in reference.values[name] if len(a)]
-        sim = simulated.pooled(name)
+        ref_parts, sim = [a for a in reference.values[name] if len(a)], simulated.pooled(name)
         row = {"feature": name, "unit": spec.unit, "weight": float(weights.get(name, spec.weight)),
                "n_reference": int(sum(len(a) for a in ref_parts)), "n_simulated": int(len(sim)),
                "log_likelihood": math.nan, "likelihood": math.nan, "wasserstein": math.nan}
@@ -410,9 +397,7 @@ def realism_figure(reference: TrackFeatures, sources: Mapping[str, Sequence[Trac
                    features: Sequence[FeatureSpec] = FEATURES, reference_label: str = "reference"):
     """Draw each feature's distribution, the reference's filled and each source's (rollouts pooled) as a line,
     on the histogram bins of the score; write it to ``path`` (PNG) and return the figure."""
-    from pirl_sim.io.atomic import atomic_write_bytes
-
-    from .figures import pyplot
+    from .figures import pyplot, write_png
 
     specs = [f for f in features if f.name in reference.values]
     if not specs:
@@ -434,7 +419,5 @@ def realism_figure(reference: TrackFeatures, sources: Mapping[str, Sequence[Trac
         ax.set_visible(False)
     axes.flat[0].legend(fontsize=7)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    atomic_write_bytes(path, buf.getvalue())
+    write_png(path, fig, dpi=100)
     return fig

@@ -97,11 +97,10 @@ class AgentsConfig:
         if self.eval_seeds != tuple(range(first, first + len(self.eval_seeds))):
             raise ValueError(f"eval_seeds must be consecutive integers, got {list(self.eval_seeds)}")
         if self.select_every is not None:
-            vals = set(range(self.select_seed, self.select_seed + self.select_episodes))
-            clash = sorted(vals & (set(self.eval_seeds) | set(self.seeds)))
+            vals = range(self.select_seed, self.select_seed + self.select_episodes)
+            clash = sorted(set(vals) & (set(self.eval_seeds) | set(self.seeds)))
             if clash:
-                last = self.select_seed + self.select_episodes - 1
-                raise ValueError(f"the validation seeds {self.select_seed}..{last} (select_seed, select_episodes) "
+                raise ValueError(f"the validation seeds {self.select_seed}..{vals[-1]} (select_seed, select_episodes) "
                                  f"must differ from the evaluation and training seeds; both have {clash}")
 
 
@@ -179,8 +178,7 @@ def collect_records(cells, keys, records: dict, computed, wall_time_s: float = 0
     """Every run's record from a finished sweep of :func:`sweep_data`'s config: its ``cells`` and their ``keys``
     (config order), the stored ``records`` {key: record} and the keys ``computed`` now; each record has policy,
     mode, seed (-1 for scripted egos), episodes, curve, train_time_s, wall_time_s."""
-    result = ExperimentResult(records=[], wall_time_s=wall_time_s)
-    computed = set(computed)
+    result, computed = ExperimentResult(records=[], wall_time_s=wall_time_s), set(computed)
     for cell, key in zip(cells, keys):
         rec = records[key]
         res = rec["result"]
@@ -209,8 +207,7 @@ def _wilson(k: int, n: int) -> tuple[float, float, float]:
     """(rate, low, high) of a Wilson 95 % interval for k successes in n trials."""
     if n == 0:
         return math.nan, math.nan, math.nan
-    z = 1.959963984540054
-    p = k / n
+    z, p = 1.959963984540054, k / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return p, (0.0 if k == 0 else centre - half), (1.0 if k == n else centre + half)  # 0 and 1 exactly, not 1e-18 off
@@ -315,8 +312,7 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
-    grid = np.linspace(0, steps, 41)[1:]
-    ppo = [r for r in records if r["policy"].startswith("ppo")]
+    grid, ppo = np.linspace(0, steps, 41)[1:], [r for r in records if r["policy"].startswith("ppo")]
     for k, (policy, mode) in enumerate(dict.fromkeys((r["policy"], r["mode"]) for r in ppo)):
         runs = [r for r in ppo if r["mode"] == mode and r["policy"] == policy]
         finals = [np.mean([e["return"] for e in r["episodes"]]) for r in runs]
@@ -329,9 +325,8 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
                 f"({len(stacked)} seeds; dots: evaluation)")
         ax.fill_between(grid, stacked.min(axis=0), stacked.max(axis=0), color=col, alpha=0.2, lw=0)
         ax.plot(np.full(len(finals), grid[-1]), finals, "o", color=col, ms=4)
-    styles = ["--", ":", "-."]
     for k, r in enumerate(r for r in records if not r["policy"].startswith("ppo")):
-        ax.axhline(np.mean([e["return"] for e in r["episodes"]]), color="0.3", ls=styles[k % 3], lw=1,
+        ax.axhline(np.mean([e["return"] for e in r["episodes"]]), color="0.3", ls=["--", ":", "-."][k % 3], lw=1,
                    label=f"{r['policy']} (evaluation mean)")
     ax.set(xlabel="environment steps (0.2 s each)", ylabel="episode return (exit reward) [s]",
            title="PPO training on pirl_sim/Roundabout-v0: mean over seeds, band min-max")
@@ -381,8 +376,7 @@ def write_results(cfg: AgentsConfig, result: ExperimentResult, out, command: str
         "for PPO and over the evaluation episodes for the baselines (Student t); success and collision rates "
         "Wilson over the pooled episodes; Δreturn is PPO minus the baseline on the same evaluation seeds (PPO "
         "averaged over its training seeds), t over the evaluation seeds; Δtime to exit likewise over the "
-        "evaluation seeds on which both arrived. Time to exit counts arriving episodes only.", "",
-        md,
+        "evaluation seeds on which both arrived. Time to exit counts arriving episodes only.", "", md,
         *(["Where the return comes from (`terms.csv`): per policy the mean over its evaluation episodes of each "
            "weighted term of the exit reward [s] (progress along the route at v_max, minus the time, the comfort "
            "term's three parts, near misses and collisions, plus the arrival bonus); `total` is their sum, equal "

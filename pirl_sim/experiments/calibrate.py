@@ -19,6 +19,9 @@ from typing import Callable, Sequence, cast
 
 import numpy as np
 
+from pirl_sim.receding import STEP_MASK, fit_receding
+from pirl_sim.speed_fit import A_LAT_RANGE, V_MAX_RANGE, fit_desired_speed
+
 __all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX"]
 
 #: fewest usable recorded cars a calibration fits a mixture to
@@ -50,13 +53,11 @@ def fit_styles(log_weights: np.ndarray, max_styles: int = 4, seed: int = 0):
     returns (the one of least BIC, {n_components: BIC})."""
     from sklearn.mixture import GaussianMixture
 
-    x = np.asarray(log_weights, float)
-    fits, bic = {}, {}
+    x, fits, bic = np.asarray(log_weights, float), {}, {}
     for n in range(1, min(int(max_styles), len(x)) + 1):
         gmm = GaussianMixture(n, covariance_type="diag", reg_covar=1e-4, n_init=3, random_state=seed).fit(x)
         fits[n], bic[n] = gmm, float(gmm.bic(x))
-    best = min(bic, key=bic.__getitem__)
-    return fits[best], bic
+    return fits[min(bic, key=bic.__getitem__)], bic
 
 
 @dataclass(frozen=True)
@@ -166,7 +167,6 @@ def _own_steps(trajectories) -> list:
     """Free-flow runs read with the `following` features, as trajectories of the drivers' own model ((s, v, a)
     states) whose step mask leaves out every step at which the car yields at a conflict point: the simulated
     drivers' cost knows neither a vehicle ahead nor a conflict, so only what it can explain is fitted."""
-    from pirl_sim.receding import STEP_MASK
     from pirl_sim.trajectory import Trajectory
 
     out = []
@@ -184,21 +184,16 @@ def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tup
     Nelder-Mead over the log parameters from ``start``, within `pirl_sim.speed_fit`'s ranges."""
     from scipy.optimize import minimize
 
-    from pirl_sim.receding import fit_receding
-    from pirl_sim.speed_fit import A_LAT_RANGE, V_MAX_RANGE
-
     n_cars = int(labels.max()) + 1
     chosen = np.unique(np.linspace(0, n_cars - 1, min(PROFILE_CARS, n_cars)).round().astype(int))
     keep = np.isin(labels, chosen)
-    sub = [t for t, k in zip(demos, keep) if k]
-    sub_labels = np.searchsorted(chosen, labels[keep])
+    sub, sub_labels = [t for t, k in zip(demos, keep) if k], np.searchsorted(chosen, labels[keep])
     lo, hi = np.log([A_LAT_RANGE[0], V_MAX_RANGE[0]]), np.log([A_LAT_RANGE[1], V_MAX_RANGE[1]])
     warm: dict[str, np.ndarray | None] = {"init": None}
 
     def nll(x: np.ndarray) -> float:
-        x = np.clip(x, lo, hi)
-        res = fit_receding(model_at(*np.exp(x)), sub, sub_labels, horizon=horizon, stride=PROFILE_STRIDE,
-                           log_bounds=LOG_BOUNDS, init=warm["init"])
+        res = fit_receding(model_at(*np.exp(np.clip(x, lo, hi))), sub, sub_labels, horizon=horizon,
+                           stride=PROFILE_STRIDE, log_bounds=LOG_BOUNDS, init=warm["init"])
         warm["init"] = res.normalized
         return float(res.neg_log_likelihood.sum())
 
@@ -240,8 +235,6 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     """
     from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
     from pirl_sim.dynamics import longitudinal
-    from pirl_sim.receding import fit_receding
-    from pirl_sim.speed_fit import fit_desired_speed
     from pirl_sim.scenarios.replay import load_replay, track_key
     from pirl_sim.scenarios.scenario_config import MpcDriverConfig
     from pirl_sim.validation import int_at_least
@@ -300,7 +293,6 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
         raise ValueError(f"the track files span {duration:g} s: no departure rate can be read from them")
     return Calibration(a_lat=float(a_lat), v_max=float(v_max), horizon=drivers.horizon, dt=dt,
                        cars=tuple((Path(f).name, int(i)) for f, i in keys), log_weights=log_w,
-                       at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged),
-                       style_share=gmm.weights_, style_log_mean=gmm.means_, style_log_var=gmm.covariances_,
-                       bic=bic, depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks),
-                       duration_s=duration)
+                       at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged), style_share=gmm.weights_,
+                       style_log_mean=gmm.means_, style_log_var=gmm.covariances_, bic=bic,
+                       depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks), duration_s=duration)

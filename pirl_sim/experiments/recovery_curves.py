@@ -31,8 +31,7 @@ CURVE_AXES: dict[str, tuple[str, str]] = {
 def _without(label: str, name: str) -> str:
     """A learner label without ``name=value``: 'TIRL (likelihood=receding, horizon=10)' ->
     'TIRL (likelihood=receding)'."""
-    out = re.sub(rf"{re.escape(name)}=[^,)]+(, )?", "", label).replace(" ()", "")
-    return out.replace(", )", ")")
+    return re.sub(rf"{re.escape(name)}=[^,)]+(, )?", "", label).replace(" ()", "").replace(", )", ")")
 
 
 def curves_table(table: pd.DataFrame) -> pd.DataFrame:
@@ -40,11 +39,9 @@ def curves_table(table: pd.DataFrame) -> pd.DataFrame:
     exactly one of :data:`CURVE_AXES`, with ``experiment``, ``axis``, ``x``, ``learner`` (label without the
     axis), ``seed``, ``weight_error`` and ``truth`` (the drivers' horizon on a horizon axis, else NaN).
     Cells without a weight error (baselines) are left out; empty when no experiment is a curve."""
-    cols = ["experiment", "axis", "x", "learner", "seed", "weight_error", "truth"]
-    rows = []
+    cols, rows = ["experiment", "axis", "x", "learner", "seed", "weight_error", "truth"], []
     for exp, g in table[table["weight_error"].notna()].groupby("experiment", sort=False):
-        sp = [json.loads(s) for s in g["scenario_params"]]
-        lp = [json.loads(s) for s in g["learner_params"]]
+        sp, lp = [json.loads(s) for s in g["scenario_params"]], [json.loads(s) for s in g["learner_params"]]
         axes = [(name, where, [(p if where == "scenario" else q).get(name) for p, q in zip(sp, lp)])
                 for name, (where, _) in CURVE_AXES.items()]
         varied = [(name, where, values) for name, where, values in axes if len({json.dumps(v) for v in values}) > 1]
@@ -87,13 +84,11 @@ def recovery_curves_figure(summary: pd.DataFrame):
 
     if summary.empty:
         return None
-    panels = list(dict.fromkeys(summary["experiment"]))
-    colors = series_colors(summary["learner"])
+    panels, colors = list(dict.fromkeys(summary["experiment"])), series_colors(summary["learner"])
     fig, axes = panel_grid(len(panels))
     for ax, exp in zip(axes, panels):
         s = summary[summary["experiment"] == exp]
-        axis = s["axis"].iloc[0]
-        values = [v for v in s["mean"] if v > 0]
+        axis, values = s["axis"].iloc[0], [v for v in s["mean"] if v > 0]
         floor = min(values, default=None)
         for learner, g in s.groupby("learner", sort=False):
             m, ci = g["mean"].to_numpy(), g["ci"].fillna(0.0).to_numpy()
@@ -123,8 +118,7 @@ def curves_markdown(table: pd.DataFrame, fmt) -> list[str]:
     """Markdown lines: per curve, a table of learners (rows) by axis values (columns), 'mean ± ci' each."""
     from pirl_sim.evaluation.tables import markdown
 
-    summary = curves_summary(curves_table(table))
-    lines = []
+    summary, lines = curves_summary(curves_table(table)), []
     for exp, s in summary.groupby("experiment", sort=False):
         axis = s["axis"].iloc[0]
         cells: dict[str, dict[str, str]] = {}

@@ -8,14 +8,14 @@ The simulated runs are read from the study's ``simulations/`` folder, so the sce
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
-from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+from pirl_sim.evaluation.figures import write_png
+from pirl_sim.io.atomic import atomic_write_text
 
 __all__ = ["SCENE_VALUES", "recovery_scene", "scene_values", "write_recovery_scenes"]
 
@@ -41,10 +41,8 @@ def scene_values(fits: pd.DataFrame, value: str) -> dict:
     need = {"track_id", f"theta_hat_{_FEATURE}", f"log_err_{_FEATURE}"}
     if not need <= set(fits.columns):
         raise ValueError(f"fits need the columns {sorted(need)}, got {list(fits.columns)}")
-    if value == "weights":
-        numbers = np.log10(fits[f"theta_hat_{_FEATURE}"].to_numpy(float))
-    else:
-        numbers = np.log10(np.maximum(np.abs(fits[f"log_err_{_FEATURE}"].to_numpy(float)), _ERROR_FLOOR))
+    numbers = (np.log10(fits[f"theta_hat_{_FEATURE}"].to_numpy(float)) if value == "weights" else
+               np.log10(np.maximum(np.abs(fits[f"log_err_{_FEATURE}"].to_numpy(float)), _ERROR_FLOOR)))
     ok = np.isfinite(numbers)
     return dict(zip(fits["track_id"].to_numpy()[ok].tolist(), numbers[ok].tolist()))
 
@@ -100,24 +98,17 @@ def write_recovery_scenes(study, run_dirs: Sequence[Path], out) -> dict[str, Pat
         if job.control_noise is not None or job.simulator in drawn or not tracks_file.is_file() or report.tracks.empty:
             continue
         drawn.add(job.simulator)
-        tracks = read_tracks(tracks_file)
-        road = road_from_lanelet2(map_file) if map_file.is_file() else None
-        names = []
+        tracks, road = read_tracks(tracks_file), road_from_lanelet2(map_file) if map_file.is_file() else None
         for value in SCENE_VALUES:
-            name = f"scene_{job.simulator}_{value}.png"
-            title = f"{job.simulator} seed {job.seed}: {_LABELS[value]}"
-            buf = io.BytesIO()
-            recovery_scene(tracks, report.tracks, value, road=road, title=title).savefig(buf, format="png")
-            written[name] = atomic_write_bytes(out / name, buf.getvalue())
-            names.append(name)
-        lines.append(" ".join(f"![{job.simulator} {v}]({n})" for v, n in zip(SCENE_VALUES, names)))
+            name, title = f"scene_{job.simulator}_{value}.png", f"{job.simulator} seed {job.seed}: {_LABELS[value]}"
+            written[name] = write_png(out / name, recovery_scene(tracks, report.tracks, value, road=road, title=title))
+        lines.append(" ".join(f"![{job.simulator} {v}](scene_{job.simulator}_{v}.png)" for v in SCENE_VALUES))
     if lines:
         readme = out / "README.md"
         text = readme.read_text("utf-8") if readme.is_file() else ""
-        section = (
-            "## Scenes\n\nThe first seed of each simulator on its road: every track coloured by its fitted "
-            f"`{_FEATURE}` weight (log10, `scene_<simulator>_weights.png`; the styles show as colours) and by the "
-            "|log error| of that fit (log10, `scene_<simulator>_errors.png`); grey tracks were not fitted (not PIRL "
-            "drivers, or too few usable steps).\n\n" + "\n\n".join(lines) + "\n")
+        section = ("## Scenes\n\nThe first seed of each simulator on its road: every track coloured by its fitted "
+                   f"`{_FEATURE}` weight (log10, `scene_<simulator>_weights.png`; the styles show as colours) and by "
+                   "the |log error| of that fit (log10, `scene_<simulator>_errors.png`); grey tracks were not fitted "
+                   "(not PIRL drivers, or too few usable steps).\n\n" + "\n\n".join(lines) + "\n")
         written["README.md"] = atomic_write_text(readme, text.rstrip("\n") + "\n\n" + section)
     return written

@@ -11,9 +11,8 @@ from .spec import ScenarioSpec, convert_param
 
 __all__ = ["SCENARIOS", "KIND_LEARNERS", "PROTOCOL_FREE", "register_scenario", "scenario_spec", "resolve_scenario_params"]
 
-SCENARIOS: dict[str, ScenarioSpec] = {
-    s.name: s for s in (*simulated.SPECS, *recorded.SPECS, agents.SPEC, recovery.SPEC, horizon_scan.SPEC, policy_recovery.SPEC, weight_space.SPEC)
-}
+SCENARIOS: dict[str, ScenarioSpec] = {s.name: s for s in (*simulated.SPECS, *recorded.SPECS, agents.SPEC, recovery.SPEC,
+                                                           horizon_scan.SPEC, policy_recovery.SPEC, weight_space.SPEC)}
 #: learners that only some kinds run (their classes name the kinds in ``scenarios``): the agents' policies and
 #: the recovery kind's per-track IRL
 KIND_LEARNERS: dict[str, type] = {**agents.POLICIES, **recovery.LEARNERS, **policy_recovery.LEARNERS, **horizon_scan.LEARNERS}
@@ -53,12 +52,9 @@ def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path 
                                  ValueError for an unknown scenario or parameter (listing the valid ones) or value
     """
     spec = scenario_spec(name)
-    unknown = [k for k in given if k not in spec.params]
-    if unknown:
-        raise ValueError(
-            f"scenario {name!r}: unknown parameter(s) {', '.join(map(repr, unknown))}; valid parameters: "
-            f"{', '.join(spec.params)}"
-        )
+    if unknown := [k for k in given if k not in spec.params]:
+        raise ValueError(f"scenario {name!r}: unknown parameter(s) {', '.join(map(repr, unknown))}; valid "
+                         f"parameters: {', '.join(spec.params)}")
     full = {key: convert_param(p.kind, f"scenario {name!r} parameter {key!r}", given.get(key, p.default), base_dir,
                           p.choices) for key, p in spec.params.items()}
     try:

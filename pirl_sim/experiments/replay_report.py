@@ -60,17 +60,15 @@ def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=(
 
 def paired_differences(errors: dict, reference: str) -> pd.DataFrame:
     """MED(method) - MED(reference) paired by window, mean per seed, then mean and standard error over seeds."""
-    seeds = sorted({s for s, _ in errors})
-    methods = sorted({m for _, m in errors if m != reference})
+    seeds, methods = sorted({s for s, _ in errors}), sorted({m for _, m in errors if m != reference})
     rows = []
     for m in methods:
         if any((s, reference) not in errors for s in seeds):
             continue
         per_seed = np.array([np.mean(errors[(s, m)] - errors[(s, reference)]) for s in seeds])
-        se = per_seed.std(ddof=1) / np.sqrt(len(seeds)) if len(seeds) > 1 else np.nan
         rows.append({"method": m, "reference": reference, "mean_difference": float(per_seed.mean()),
-                     "standard_error": float(se), "n_seeds": len(seeds),
-                     "better_in_every_seed": bool(np.all(per_seed < 0))})
+                     "standard_error": float(per_seed.std(ddof=1) / np.sqrt(len(seeds)) if len(seeds) > 1 else np.nan),
+                     "n_seeds": len(seeds), "better_in_every_seed": bool(np.all(per_seed < 0))})
     return pd.DataFrame(rows)
 
 
@@ -97,8 +95,7 @@ def summarize(result: dict) -> pd.DataFrame:
 def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
     """rows.csv, summary.csv/.md, paired.csv, paired_ca.csv and README.md (with the selection counts) and the
     figures in ``out_dir``."""
-    out = Path(out_dir)
-    summary = summarize(result)
+    out, summary = Path(out_dir), summarize(result)
     for name, frame in (("rows", result["rows"]), ("summary", summary), ("paired", result["paired"]),
                         ("paired_ca", result["paired_ca"])):
         atomic_write_text(out / f"{name}.csv", frame.to_csv(index=False, float_format="%.6g"))
@@ -176,8 +173,7 @@ def _write_figures(result: dict, scene, out) -> None:
              if np.any(styles >= 0) else None)  # a sidecar gives styles: background traffic gets a marker too
     atomic_write_bytes(out / "clusters.png", figures.feature_clusters(
         model.feature_values(tracks), model.features.names, labels, styles if names else None, names))
-    ex = result["examples"]
-    if ex:
+    if ex := result["examples"]:
         h = result["history"]
         preds = {k: np.concatenate([ex["truth"][:, h : h + 1], v], axis=1) for k, v in ex["predictions"].items()}
         atomic_write_bytes(out / "s_t.png", figures.s_t_predictions(ex["t"], ex["truth"], preds, h))

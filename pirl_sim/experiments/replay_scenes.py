@@ -8,13 +8,13 @@ cells' (`pirl_sim.experiments.recorded`: ``examples["scene_*"]``), so drawing co
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
 import numpy as np
 
-from pirl_sim.io.atomic import atomic_write_bytes, atomic_write_text
+from pirl_sim.evaluation.figures import write_png
+from pirl_sim.io.atomic import atomic_write_text
 
 __all__ = ["SCENE_KINDS", "SCENES_FILE", "scene_learner", "replay_scene_windows", "write_replay_scenes",
            "read_replay_scenes", "draw_replay_scene"]
@@ -37,18 +37,15 @@ def replay_scene_windows(result: dict, scene) -> tuple[list, list]:
     """The scenes of a replay's result dict (`pirl_sim.experiments.replay_report.collect_replay`) on its ``scene``:
     (centre lines [(n, 2) arrays, m], [(kind, title, `pirl_sim.viz.PredictionWindow`)]); both empty when the
     result has no best learner or no CA (path) predictions of the windows."""
-    ex = result["examples"]
-    best = scene_learner(result)
+    ex, best = result["examples"], scene_learner(result)
     preds = ex.get("scenes", {})
     if best is None or best not in preds or _CA not in preds or "scene_history" not in ex:
         return [], []
     from pirl_sim.viz import PredictionWindow
 
-    segments = getattr(scene.model.path, "segments", (scene.model.path,))
-    lines = [np.column_stack([p.x, p.y]) for p in segments]
+    lines = [np.column_stack([p.x, p.y]) for p in getattr(scene.model.path, "segments", (scene.model.path,))]
     errors, seed = result["errors"], result["seeds"][0]
-    names = [best, _CA]
-    windows = []
+    names, windows = [best, _CA], []
     for k, kind in enumerate(SCENE_KINDS):
         w = int(ex["scene_windows"][k])
         window = PredictionWindow(history=ex["scene_history"][k], predictions=np.stack([preds[n][k] for n in names]),
@@ -72,12 +69,8 @@ def write_replay_scenes(result: dict, scene, out) -> list[str]:
     if not windows:
         return []
     out = Path(out)
-    names = []
     for kind, title, window in windows:
-        buf = io.BytesIO()
-        _draw(lines, title, window).savefig(buf, format="png")
-        names.append(f"scene_{kind}.png")
-        atomic_write_bytes(out / names[-1], buf.getvalue())
+        write_png(out / f"scene_{kind}.png", _draw(lines, title, window))
     record = {"format": _FORMAT, "learner": scene_learner(result), "seed": int(result["seeds"][0]),
               "centerlines": [np.asarray(c, float).tolist() for c in lines],
               "windows": [{"kind": kind, "title": title, "history": w.history.tolist(),
@@ -85,7 +78,7 @@ def write_replay_scenes(result: dict, scene, out) -> list[str]:
                            "predictions": w.predictions.tolist(), "probabilities": w.probabilities.tolist(),
                            "labels": list(w.labels or ())} for kind, title, w in windows]}
     atomic_write_text(out / SCENES_FILE, json.dumps(record) + "\n")
-    return names
+    return [f"scene_{kind}.png" for kind, _, _ in windows]
 
 
 def read_replay_scenes(folder) -> tuple[list, list]:
@@ -117,5 +110,4 @@ def draw_replay_scene(folder, kind: str, size_px=None):
     found = {k: (title, w) for k, title, w in windows}
     if kind not in found:
         raise ValueError(f"--window {kind!r}: the replay's scenes are {sorted(found)}")
-    title, window = found[kind]
-    return _draw(lines, title, window, size_px)
+    return _draw(lines, *found[kind], size_px)

@@ -125,8 +125,7 @@ def table_markdown(rows: list[dict]) -> str:
 
 def write_table(rows: list[dict], out_dir, command: str) -> str:
     """table.md and table.csv (one row per roundabout and method) in ``out_dir``; returns the Markdown."""
-    out = Path(out_dir)
-    text = f"# Replay on recorded roundabouts\n\nMade by `{command}`.\n\n" + table_markdown(rows)
+    out, text = Path(out_dir), f"# Replay on recorded roundabouts\n\nMade by `{command}`.\n\n" + table_markdown(rows)
     atomic_write_text(out / "table.md", text)
     flat = [{"roundabout": r["roundabout"], "method": m, **v, "best": m == r["best"], "elapsed_s": r["elapsed_s"]}
             for r in rows for m, v in r["methods"].items()]

@@ -169,8 +169,7 @@ def _style_switch(data, config, history_steps):
     dt = model.dynamics.dt
     png = figures.weight_tracking(steps * dt, ratio, true, "log10(w_speed_dev / w_acc_sq)", switch * dt)
     crossed = steps[(steps > switch) & (np.median(ratio, axis=0) > 0.5 * (true[0] + true[-1]))]  # half-way
-    lag = int(crossed[0] - switch) if len(crossed) else None
-    return png, {"switch_step": switch, "lag_steps": lag, "dt": dt}
+    return png, {"switch_step": switch, "lag_steps": int(crossed[0] - switch) if len(crossed) else None, "dt": dt}
 
 
 def _passage_summary(table, switch, config) -> str:

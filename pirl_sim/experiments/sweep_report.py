@@ -37,14 +37,13 @@ def summary_table(table: pd.DataFrame) -> pd.DataFrame:
     and learner variant, table order."""
     t = table.assign(learner_base=[_without(x, "k") for x in table["learner_label"]],  # 'PIRL-kNN (k=10)': 'PIRL-kNN'
                      n_styles=table["n_styles"].astype(float), k=table["k"].astype(float))
-    agg = t.groupby(["experiment", "scenario_label", "protocol", "learner_label"], sort=False).agg(
+    return t.groupby(["experiment", "scenario_label", "protocol", "learner_label"], sort=False).agg(
         learner=("learner", "first"), learner_base=("learner_base", "first"), k=("k", "first"),
         med=("med", "mean"), med_sd=("med", "std"), fde=("fde", "mean"), weight_error=("weight_error", "mean"),
         ari=("ari", "mean"), n_styles=("n_styles", "mean"), seeds=("seed", "nunique"), cell_s=("cell_s", "sum"),
         med_ci=("med", ci95), fde_ci=("fde", ci95), weight_error_ci=("weight_error", ci95), ari_ci=("ari", ci95),
         **{c: (c, "mean") for c in ONLINE_MEANS if c in t.columns},
-        **{f"{c}_ci": (c, ci95) for c in ONLINE_MEANS if c in t.columns})
-    return agg.reset_index()
+        **{f"{c}_ci": (c, ci95) for c in ONLINE_MEANS if c in t.columns}).reset_index()
 
 
 #: the online protocol's scores (`pirl_sim.engine.worker.ONLINE_SCORES`) averaged in `summary_table`, with the
@@ -75,11 +74,10 @@ def weights_summary(weights: pd.DataFrame) -> pd.DataFrame:
     """``weights.csv`` averaged over seeds per experiment, scenario variant, protocol, learner, feature and style:
     means and 95 % interval half-widths (``*_ci``) of the median and 90th-percentile |log error| and Spearman."""
     keys = ["experiment", "scenario_label", "protocol", "learner_label", "feature", "style"]
-    agg = weights.groupby(keys, sort=False).agg(
+    return weights.groupby(keys, sort=False).agg(
         median=("median_abs_log_err", "mean"), median_ci=("median_abs_log_err", ci95),
         p90=("p90_abs_log_err", "mean"), p90_ci=("p90_abs_log_err", ci95),
-        spearman=("spearman", "mean"), spearman_ci=("spearman", ci95), seeds=("seed", "nunique"))
-    return agg.reset_index()
+        spearman=("spearman", "mean"), spearman_ci=("spearman", ci95), seeds=("seed", "nunique")).reset_index()
 
 
 def _pm(mean, ci) -> str:
@@ -113,8 +111,7 @@ def med_vs_k_figure(summary: pd.DataFrame):
     colors = series_colors(proto for _, _, proto in multi.index)
     fig, axes = panel_grid(len(panels))
     for ax, (scen, base) in zip(axes, panels):
-        values = []
-        panel = s[(s["scenario_label"] == scen) & (s["learner_base"] == base)]
+        values, panel = [], s[(s["scenario_label"] == scen) & (s["learner_base"] == base)]
         groups = [(proto, panel[panel["protocol"] == proto].sort_values("k"))
                   for sc, lb, proto in multi.index if (sc, lb) == (scen, base)]
         # a log axis cannot show mean - std <= 0: such bars end at the panel's lowest positive value
@@ -170,8 +167,7 @@ def learners_side_by_side_figure(best: pd.DataFrame):
     for ax, exp in zip(axes, experiments):
         b = best[best["experiment"] == exp]
         groups = list(dict.fromkeys(zip(b["scenario_label"], b["protocol"])))
-        several_variants = len({g[0] for g in groups}) > 1
-        several_protocols = len({g[1] for g in groups}) > 1
+        several_variants, several_protocols = len({g[0] for g in groups}) > 1, len({g[1] for g in groups}) > 1
         names = list(dict.fromkeys(b["learner_base"]))
         width = 0.8 / max(1, len(names))
         at = {g: i for i, g in enumerate(groups)}  # a group's place on the x axis
@@ -179,8 +175,7 @@ def learners_side_by_side_figure(best: pd.DataFrame):
         tops = []
         for j, name in enumerate(names):
             r = b[b["learner_base"] == name]  # its bars, in group order
-            xs = (r["at"] + (j - (len(names) - 1) / 2) * width).tolist()
-            ys = r["med"].astype(float).tolist()
+            xs, ys = (r["at"] + (j - (len(names) - 1) / 2) * width).tolist(), r["med"].astype(float).tolist()
             errs = [float(sd) if n > 1 else 0.0 for sd, n in zip(r["med_sd"], r["seeds"])]
             ax.bar(xs, ys, width=width, yerr=errs if any(errs) else None, color=colors[name], label=name, capsize=2)
             for x, y, e, k in zip(xs, ys, errs, r["k"]):
@@ -190,8 +185,7 @@ def learners_side_by_side_figure(best: pd.DataFrame):
                                 va="bottom", rotation=90, fontsize=5.5)
         ticks = [_tick(scen, proto, exp, several_variants, several_protocols) for scen, proto in groups]
         ax.set_xticks(range(len(groups)), ticks, fontsize=6)
-        floor = _log_floor(b["med"])
-        positive = [t for t in tops if t == t and t > 0]
+        floor, positive = _log_floor(b["med"]), [t for t in tops if t == t and t > 0]
         label_log_axis(ax, floor, max(positive) * 3 if positive else floor * 10)  # room for the k labels above
         ax.set_ylabel("MED [m]")
         ax.set_title(exp if several_protocols else f"{exp}, {groups[0][1]}", fontsize=9)
@@ -211,8 +205,7 @@ def recovery_figure(recovery: pd.DataFrame, best: pd.DataFrame):
     for _, r in recovery.groupby("experiment", sort=False) if recovery is not None else ():
         scen, proto = r["scenario_label"].iloc[0], r["protocol"].iloc[0]
         b = best[(best["scenario_label"] == scen) & (best["protocol"] == proto)]
-        labels = [lab for lab in b["learner_label"] if lab in set(r["learner_label"])]
-        if labels:
+        if labels := [lab for lab in b["learner_label"] if lab in set(r["learner_label"])]:
             panels.append((scen, proto, labels))
     if not panels:
         return None
@@ -308,8 +301,7 @@ def write_sweep_report(table: pd.DataFrame, results, out_dir, *, template: bool 
     if agents.all():
         raise ValueError(f"{results}: every cell is of the 'agents' scenario, whose scores are episodes, not "
                          "predictions: `pirl-sim agents` writes their tables")
-    n_agents = int(agents.sum())
-    table = table[~agents].reset_index(drop=True)
+    n_agents, table = int(agents.sum()), table[~agents].reset_index(drop=True)
     res_dir = results if results.is_dir() else results.parent
     out = check_output_dir(out_dir, "the report's directory")
     manifest = _read(res_dir / "sweep.json", lambda f: json.loads(f.read_text(encoding="utf-8"))) or {}
