@@ -17,9 +17,8 @@ from .common import add_blas_threads_option, error
 __all__ = ["main", "build_parser", "package_version", "cli_logging", "COMMANDS", "EXTRAS"]
 
 #: the subcommands in the order of ``pirl-sim --help``: name (the module's, ``-`` for ``_``) -> module
-COMMANDS = {module.__name__.rpartition(".")[2].replace("_", "-"): module for module in (
-    reproduce, simulate, show, sweep, report, recover, replay, fit_model, predict, realism, calibrate, agents,
-    policy_recovery, weight_space)}
+COMMANDS = {module.__name__.rpartition(".")[2].replace("_", "-"): module for module in (reproduce, simulate, show,
+    sweep, report, recover, replay, fit_model, predict, realism, calibrate, agents, policy_recovery, weight_space)}
 
 
 def package_version() -> str:

@@ -22,10 +22,9 @@ BASELINES = ("hold-speed", "idm", "mpc")  #: `pirl_sim.experiments.agents_study.
 DEFAULT_SCALES = {"residual-idm": 1.0, "shielded-residual-idm": 1.0, "idm-speed": 0.3, "direct": 1.0}
 #: `pirl_sim.experiments.agents_study.AgentsConfig`'s defaults of the options (``episodes``: its evaluation seeds,
 #: ``eval_seed`` the first)
-DEFAULTS = {"action": "idm-speed", "direct_modes": ("none",), "max_change": 0.05, "seeds": (0, 1, 2),
-            "steps": 80_000, "episodes": 200, "eval_seed": 1000, "n_steps": 1024, "gamma": 0.99,
-            "learning_rate": 3e-4, "log_std_init": -2.0, "observe_residual": True, "select_every": None,
-            "select_episodes": 10}
+DEFAULTS = {"action": "idm-speed", "direct_modes": ("none",), "max_change": 0.05, "seeds": (0, 1, 2), "steps": 80_000,
+            "episodes": 200, "eval_seed": 1000, "n_steps": 1024, "gamma": 0.99, "learning_rate": 3e-4,
+            "log_std_init": -2.0, "observe_residual": True, "select_every": None, "select_episodes": 10}
 
 
 @subcommand("agents", help="PPO agents in a crowd of known styles against scripted egos (resumable)",

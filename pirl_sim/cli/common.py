@@ -50,11 +50,8 @@ workers_arg = reworded(lambda text: int_at_least("--workers", int(text), 0),
 
 def optional_arg(kind, what: str):
     """An argparse type: ``kind(text)``, or None for 'none'."""
-    parse = reworded(kind, f"expected {what} or 'none', got {{text!r}}")
-
-    def parse_optional(text: str):
-        return None if text.strip().lower() == "none" else parse(text)
-    return parse_optional
+    return reworded(lambda text: None if text.strip().lower() == "none" else kind(text),
+                    f"expected {what} or 'none', got {{text!r}}")
 
 
 def seconds_to_steps(seconds: float, dt: float, option: str) -> int:
@@ -102,9 +99,11 @@ _OPTION_HELP = (f"BLAS/OpenMP threads of this process (default {DEFAULT_THREADS}
                 "the machine is loaded; use processes (--workers) for parallelism")
 
 
-def run_study(name: str, make_config, report, args, command: str, ignore: str = "cells/\nerrors/\nsweep.json\n") -> int:
+def run_study(name: str, make_config, report, args, command: str, ignore: str = "cells/\nerrors/\nsweep.json\n",
+              source: str | None = None) -> int:
     """The cells of an experiment command through the engine into ``args.out``, then its report:
-    ``make_config()`` gives the sweep config and what else the command's report needs (errors there and a bad
+    ``make_config()`` gives the sweep config's data (validated here by `pirl_sim.engine.config.parse_config`, its
+    source ``source``, default ``pirl-sim NAME``) and what else the command's report needs (errors there and a bad
     ``--out`` are exit 2, before anything is written); ``--dry-run`` counts printed, else
     `pirl_sim.engine.run.run_sweep` with ``--workers`` and ``--quiet``; ``ignore`` is written to ``OUT/.gitignore``
     (what the store keeps beside the report).
@@ -116,13 +115,14 @@ def run_study(name: str, make_config, report, args, command: str, ignore: str = 
         ``make_config``'s second value; or 0 after a dry run, 1 when cells failed (the others are kept), 2 for a
         bad value, 130 when interrupted.
     """
+    from pirl_sim.engine.config import parse_config
     from pirl_sim.engine.run import run_sweep
     from pirl_sim.io.atomic import atomic_write_text
     from pirl_sim.validation import check_output_dir
 
     try:
-        config, study = make_config()
-        out = check_output_dir(args.out)
+        data, study = make_config()
+        config, out = parse_config(data, source=source or f"pirl-sim {name}"), check_output_dir(args.out)
         if args.dry_run:
             print_plan(config, out, name)
             return 0

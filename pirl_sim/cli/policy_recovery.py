@@ -49,7 +49,6 @@ def run(args) -> int:
     interrupted (finished cells are kept)."""
     import time
 
-    from pirl_sim.engine.config import parse_config
     from pirl_sim.experiments.policy_recovery import PpoRecoveryConfig, collect_records, write_results
 
     t0, command = time.perf_counter(), command_line("policy-recovery", [])
@@ -59,7 +58,7 @@ def run(args) -> int:
         cfg = PpoRecoveryConfig(**given, theta=(("speed_dev", args.speed_dev), ("acc_sq", args.acc_sq)),
                                 batch_size=min(PpoRecoveryConfig.batch_size, args.n_steps),
                                 normalize_reward=not args.no_normalize_reward)
-        return parse_config(cfg.sweep_data(), source="pirl-sim policy-recovery"), cfg
+        return cfg.sweep_data(), cfg
 
     def report(result, _, cfg) -> int:
         study = collect_records([result.records[k]["result"] for k in result.keys])

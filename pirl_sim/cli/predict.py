@@ -136,8 +136,7 @@ def history_end_frames(trajectories, history: int, stride: int) -> list[tuple[in
     the track when no frame matches."""
     import numpy as np
 
-    read = functools.cache(_read_track_file)  # each file once
-    out = []
+    read, out = functools.cache(_read_track_file), []  # each file once
     for t in trajectories:
         meta = t.metadata
         if not all(k in meta for k in ("file", "track_id", "xy")):
@@ -149,8 +148,7 @@ def history_end_frames(trajectories, history: int, stride: int) -> list[tuple[in
         rows = df[df["track_id"] == track_id].sort_values("frame_id", kind="stable")
         xy, frames = rows[["x", "y"]].to_numpy(dtype=float), rows["frame_id"].to_numpy(dtype=np.int64)
         span = (len(target) - 1) * stride
-        n = len(xy) - span  # first frames that leave room for the whole history
-        found = None
+        n, found = len(xy) - span, None  # n: first frames that leave room for the whole history
         if len(target) == history + 1 and n > 0:
             ok = np.ones(n, dtype=bool)
             for j, point in enumerate(target):
@@ -186,8 +184,7 @@ def submission_tables(trajectories, states, proba, n_futures: int, ends, positio
     for i, (t, (frame, stamp)) in enumerate(zip(trajectories, ends)):
         p = np.asarray(proba[i], dtype=float)
         order = np.argsort(-p, kind="stable")[:K]
-        p = p[order] / p[order].sum()
-        pad = K - len(order)
+        p, pad = p[order] / p[order].sum(), K - len(order)
         order, p = np.concatenate([order, np.full(pad, order[0])]), np.pad(p, (0, pad))
         d = t.metadata.get("d")
         offset = float(d[history]) if d is not None and len(d) > history else 0.0
@@ -242,8 +239,7 @@ def run(args) -> int:
             submission, table = submission_tables(usable, states, proba, futures, ends, scene.model.positions,
                                                   history, stride)
         else:
-            theta = learner.infer_weights(histories)
-            states = learner.predict_states(histories, horizon)
+            theta, states = learner.infer_weights(histories), learner.predict_states(histories, horizon)
             styles = learner.predict_style(histories) if hasattr(learner, "predict_style") else None
     except (ValueError, TypeError, FileNotFoundError) as exc:
         return error(exc)

@@ -18,8 +18,7 @@ DEFAULT_OUT = Path("results") / "recovery"
 SIMULATORS = ("sumo", "highway")
 
 
-@subcommand("recover",
-            help="weight recovery of the receding-horizon IRL on simulated runs (table of errors per seed)",
+@subcommand("recover", help="weight recovery of the receding-horizon IRL on simulated runs (table of errors per seed)",
             description="Simulate each seed (or reuse its run under OUT/simulations), fit the receding-horizon IRL "
             "to every PIRL track with enough usable steps and TIRL per style, and write table.csv/.md, styles.csv, "
             "tracks.csv, selection.csv, times.csv, README.md (and noise.csv/.md with --control-noise) and "
@@ -45,7 +44,6 @@ def add_parser(p) -> None:
 def run(args) -> int:
     """``pirl-sim recover``: 0 on success, 1 when runs failed (the others are kept), 2 for a bad configuration,
     130 when interrupted (finished runs are kept)."""
-    from pirl_sim.engine.config import parse_config
     from pirl_sim.engine.store import ResultStore, SIMULATION_RECORD, simulation_key
     from pirl_sim.experiments.recovery import (SPEC, check_targets, compact_table, recovery_jobs, recovery_result,
                                                write_recovery)
@@ -60,8 +58,7 @@ def run(args) -> int:
         jobs = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
                              control_noise=args.control_noise, noise_seeds=args.noise_seeds,
                              min_steps=args.min_steps, stride=args.stride)
-        return parse_config({"name": "recovery", "experiments": [j.experiment() for j in jobs]},
-                            source=str(args.population or "pirl-sim recover")), jobs
+        return {"name": "recovery", "experiments": [j.experiment() for j in jobs]}, jobs
 
     def report(result, config, jobs) -> int:
         store, simulated, sim_time, run_dirs = ResultStore(args.out), [], [], []
@@ -82,8 +79,8 @@ def run(args) -> int:
         for sim in sims:
             row = table[table["simulator"] == sim].iloc[-1].to_dict()
             missed = [f"{c} = {v:.3g} (target {op} {lim:g})" for c, op, lim, v, ok in check_targets(row, sim) if not ok]
-            print(f"{sim} (seed {row['seed']}): "
-                  + ("every target met" if not missed else "NOT met: " + "; ".join(missed)))
+            print(f"{sim} (seed {row['seed']}): " + (f"NOT met: {'; '.join(missed)}" if missed else "every target met"))
         return finish(f"{args.out}/")
 
-    return run_study("recovery", make_config, report, args, command, "simulations/\ncells/\nerrors/\nsweep.json\n")
+    return run_study("recovery", make_config, report, args, command, "simulations/\ncells/\nerrors/\nsweep.json\n",
+                     source=str(args.population or "pirl-sim recover"))

@@ -58,9 +58,7 @@ def run(args) -> int:
         return error(exc, 1 if isinstance(exc, RuntimeError) else 2)
     except KeyboardInterrupt:
         return interrupted(out)
-    print(table_text(table))
-    if args.experiment == "synthetic":
-        for proto in table["protocol"].unique():
-            verdict = "holds" if ordering_holds(table, proto) else "does NOT hold"
-            print(f"{proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) {verdict}")
-    return finish(f"{out}/")
+    orderings = [f"{proto}: MED(TIRL) > MED(PIRL-GMM) > MED(PIRL-kNN) "
+                 f"{'holds' if ordering_holds(table, proto) else 'does NOT hold'}"
+                 for proto in (table["protocol"].unique() if args.experiment == "synthetic" else ())]
+    return finish(f"{out}/", table_text(table), *orderings)

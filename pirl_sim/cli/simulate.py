@@ -27,8 +27,7 @@ HIGHWAY_OUT = Path("results") / "highway_run"
 SUMO_BACKENDS = ("libsumo", "traci")
 
 
-@subcommand("simulate",
-            help="simulate a driver population of known cost weights and record it in INTERACTION format",
+@subcommand("simulate", help="simulate a driver population of known cost weights and record it in INTERACTION format",
             description="Simulate a mixed-style driver population whose cost weights are known and record it: "
             "INTERACTION tracks, a ground-truth table and a Lanelet2 map.")
 def add_parser(sim) -> None:
@@ -40,9 +39,8 @@ def add_parser(sim) -> None:
         simulators, "sumo", help="a SUMO roundabout (libsumo)", default_out=SUMO_OUT, seed_of="every draw and of SUMO",
         description=f"Run a SUMO roundabout {drivers} SUMO background traffic; write vehicle_tracks_000.csv, "
         "ground_truth.csv, map.osm, run.json and network/ to --out. Runs with no arguments (embedded default "
-        "population and network).",
-        scenario_help="scenario TOML with [network], [drivers] and route settings (default: the default 4-arm "
-        "roundabout)")
+        "population and network).", scenario_help="scenario TOML with [network], [drivers] and route settings "
+        "(default: the default 4-arm roundabout)")
     sumo.add_argument("--backend", choices=SUMO_BACKENDS, default="libsumo",
                       help="libsumo (default, in-process) or traci (a SUMO process over a socket, slower)")
     sumo.add_argument("--demand", type=reworded(positive_float_arg, "expected a number > 0, got {text!r}"),
@@ -132,8 +130,7 @@ def run(args: argparse.Namespace) -> int:
         return error(exc)
     gt = result.recording.ground_truth
     pirl = gt[gt["is_pirl"]]
-    clean = pirl[~pirl["interacted"].fillna(False).astype(bool)]
-    t = result.timing
+    clean, t = pirl[~pirl["interacted"].fillna(False).astype(bool)], result.timing
     print(f"{len(gt)} tracks ({len(pirl)} PIRL, {len(gt) - len(pirl)} background), "
           f"{t['sim_time_s']:.1f} s simulated in {t['wall_time_s']:.1f} s ({t['real_time_factor']:.0f}x real time)")
     if "mean_pirl" in t:

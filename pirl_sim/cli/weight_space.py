@@ -31,7 +31,6 @@ def add_parser(p) -> None:
 def run(args) -> int:
     """``pirl-sim weight-space``: 0 on success, 1 when cells failed (the others are kept), 2 for a bad value or an
     unusable output directory, 130 when interrupted (finished cells are kept)."""
-    from pirl_sim.engine.config import parse_config
     from pirl_sim.evaluation.tables import markdown
     from pirl_sim.experiments.weight_space import study_config, write_study
 
@@ -39,12 +38,8 @@ def run(args) -> int:
     command = " ".join(["pirl-sim weight-space", *(["--seeds", *map(str, args.seeds)] if args.seeds != [0] else []),
                         *(["--experiments", *experiments] if experiments != list(EXPERIMENTS) else [])])
 
-    def config():
-        data, names = study_config(experiments, args.seeds)
-        return parse_config(data, source="pirl-sim weight-space"), names
-
     def report(result, _, names) -> int:
         table = write_study([result.records[k]["result"] for k in result.keys], names, args.out, command)  # any --out
         return finish(f"{args.out}/", markdown(table))
 
-    return run_study("weight-space", config, report, args, command)
+    return run_study("weight-space", lambda: study_config(experiments, args.seeds), report, args, command)

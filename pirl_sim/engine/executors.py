@@ -128,8 +128,7 @@ class LocalExecutor(_Executor):
 
     def warm_up(self) -> None:
         """Start every worker and import what cells need (so start-up is not charged to the first cells)."""
-        seconds = 0.5 if self.workers > 1 else 0.0
-        for f in [self._pool.submit(cell.warm_up, seconds) for _ in range(self.workers)]:
+        for f in [self._pool.submit(cell.warm_up, 0.5 if self.workers > 1 else 0.0) for _ in range(self.workers)]:
             f.result()
 
     def close(self, cancel: bool = False) -> None:
@@ -243,30 +242,25 @@ class DaskExecutor(_Executor):
             self.client.close()
 
 
-class _Deferred:
-    """A cell to run in the calling process when `InlineExecutor.as_completed` reaches it."""
+class _Deferred(cf.Future):
+    """A cell to run in the calling process when `InlineExecutor.as_completed` reaches it (or its result is asked
+    for first)."""
 
     def __init__(self, fn, args) -> None:
-        self._error: Exception | None
-        self._fn, self._args, self._done, self._value, self._error = fn, args, False, None, None
+        super().__init__()
+        self._fn, self._args = fn, args
 
     def _run(self) -> None:
-        if not self._done:
+        if not self.done():
             try:
                 with cell.single_threaded():
-                    self._value = self._fn(*self._args)
+                    self.set_result(self._fn(*self._args))
             except Exception as exc:  # noqa: BLE001 - handed to the caller through result()
-                self._error = exc
-            self._done = True
+                self.set_exception(exc)
 
-    def result(self):
+    def result(self, timeout=None):
         self._run()
-        if self._error is not None:
-            raise self._error
-        return self._value
-
-    def cancel(self) -> bool:
-        return not self._done
+        return super().result(timeout)
 
 
 class InlineExecutor(_Executor):

@@ -216,8 +216,7 @@ def run_sweep(config: SweepConfig, out_dir, *, executor=None, workers: int | Non
     else:
         atomic_write_text(out / "sweep.json", _manifest(config, keys, version, command))
 
-    cached = [k for k in records if k not in set(computed)]
-    table = assemble_table(config, keys, records)
+    cached, table = [k for k in records if k not in set(computed)], assemble_table(config, keys, records)
     if tables:
         _write(out / "table.parquet", table)
         _write(out / "table.csv", table)

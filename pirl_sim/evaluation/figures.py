@@ -162,8 +162,7 @@ def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=
 
     values (M, K) raw features; labels (M,) learned clusters; true_styles (M,) optional, drawn as markers.
     """
-    plt = pyplot()
-    logv = np.log10(np.maximum(values, 1e-12))
+    plt, logv = pyplot(), np.log10(np.maximum(values, 1e-12))
     pairs = [(0, 1), (0, 2), (1, 2)] if values.shape[1] >= 3 else [(0, 1)]
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), dpi=100, squeeze=False)
     markers = ["o", "s", "^", "D", "v", "P", "X"]
@@ -181,9 +180,9 @@ def feature_clusters(values: np.ndarray, names, labels: np.ndarray, true_styles=
         ax.grid(True, alpha=0.3)
     handles = [plt.Line2D([], [], color=f"C{c}", marker="o", ls="", label=f"cluster {c}") for c in np.unique(labels)]
     if true_styles is not None:
-        for t in np.unique(true_styles):
-            label = style_names[int(t)] if style_names is not None else f"style {t}"
-            handles.append(plt.Line2D([], [], color="k", marker=markers[int(t) % len(markers)], ls="", label=label))
+        handles += [plt.Line2D([], [], color="k", marker=markers[int(t) % len(markers)], ls="",
+                               label=style_names[int(t)] if style_names is not None else f"style {t}")
+                    for t in np.unique(true_styles)]
     axes[0][-1].legend(handles=handles, fontsize=7, loc="best")
     fig.suptitle("Clusters in feature space (colour: learned cluster"
                  + (", marker: true style)" if true_styles is not None else ")"))

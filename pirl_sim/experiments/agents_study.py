@@ -308,7 +308,7 @@ def markdown_table(table: pd.DataFrame) -> str:
 
 def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
     """Training-episode returns against environment steps per mode (see the module docstring)."""
-    from pirl_sim.evaluation.figures import pyplot
+    from pirl_sim.evaluation.figures import pyplot, write_png
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
@@ -319,8 +319,7 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
         curves = [c for c in (_binned_curve(r["curve"], grid) for r in runs) if c is not None]
         if not curves:
             continue
-        stacked = np.array(curves)
-        col = f"C{k}"  # the colour cycle's k-th (modulo its length)
+        stacked, col = np.array(curves), f"C{k}"  # col: the colour cycle's k-th (modulo its length)
         ax.plot(grid, stacked.mean(axis=0), color=col, label=f"{policy.upper()[:3]}{policy[3:]}, {mode} "
                 f"({len(stacked)} seeds; dots: evaluation)")
         ax.fill_between(grid, stacked.min(axis=0), stacked.max(axis=0), color=col, alpha=0.2, lw=0)
@@ -332,8 +331,7 @@ def learning_curves(records: Sequence[dict], path, steps: int) -> Path:
            title="PPO training on pirl_sim/Roundabout-v0: mean over seeds, band min-max")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2, fontsize=8, frameon=False)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=120)
+    path = write_png(path, fig, dpi=120)
     plt.close(fig)
     return path
 

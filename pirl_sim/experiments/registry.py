@@ -59,9 +59,7 @@ def resolve_scenario_params(name: str, given: Mapping[str, Any], base_dir: Path 
                           p.choices) for key, p in spec.params.items()}
     try:
         return spec.check(full)
-    except TypeError as exc:  # the scenario config's own type checks
-        raise ValueError(f"scenario {name!r}: {exc}") from None
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # TypeError: the scenario config's own type checks
         msg = str(exc)
         raise ValueError(msg if msg.startswith(f"scenario {name!r}") else f"scenario {name!r}: {msg}") from None
 

@@ -60,8 +60,7 @@ def collect_replay(scene, proto: ReplayProtocol, per_seed: dict, learner_specs=(
 
 def paired_differences(errors: dict, reference: str) -> pd.DataFrame:
     """MED(method) - MED(reference) paired by window, mean per seed, then mean and standard error over seeds."""
-    seeds, methods = sorted({s for s, _ in errors}), sorted({m for _, m in errors if m != reference})
-    rows = []
+    seeds, methods, rows = sorted({s for s, _ in errors}), sorted({m for _, m in errors if m != reference}), []
     for m in methods:
         if any((s, reference) not in errors for s in seeds):
             continue
@@ -124,9 +123,8 @@ def write_replay_results(result: dict, scene, out_dir, command: str) -> None:
         *_speed_lines(result), *_selection_lines(scene, result),
         "## Scores (mean and std over split seeds)", "", markdown(summary), "",
         "## Paired differences against TIRL (MED, per window; mean and standard error over seeds)", "",
-        markdown(result["paired"]), "",
-        "## Paired differences against CA (path)", "", markdown(result["paired_ca"]), "",
-        f"![clusters](clusters.png) ![S-T](s_t.png){knn_k}"]
+        markdown(result["paired"]), "", "## Paired differences against CA (path)", "", markdown(result["paired_ca"]),
+        "", f"![clusters](clusters.png) ![S-T](s_t.png){knn_k}"]
     if (out / "scene_gain.png").exists():
         lines += ["", f"Where {scene_learner(result)} beats CA (path) most and loses to it most (split seed "
                   f"{result['seeds'][0]}; black: history, dashed: what was recorded):", "",

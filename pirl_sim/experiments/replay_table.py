@@ -38,21 +38,19 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
     fde = max((c for c in rows.columns if c.startswith("de@")), key=lambda c: float(c[3:-1]))  # the last horizon
     methods: dict[str, dict[str, Any]] = {}
     for m, g in rows.groupby("method", sort=False):
-        methods[m] = {"med": float(g["med"].mean()), "med_se": _se(g["med"]),
-                      "fde": float(g[fde].mean()), "fde_se": _se(g[fde])}
+        entry = methods[m] = {"med": float(g["med"].mean()), "med_se": _se(g["med"]),
+                              "fde": float(g[fde].mean()), "fde_se": _se(g[fde])}
         if "med_path" in g and g["med_path"].notna().all():
-            methods[m]["med_path"] = float(g["med_path"].mean())
+            entry["med_path"] = float(g["med_path"].mean())
         if "irl_groups" in g and g["irl_groups"].notna().all():
-            methods[m]["converged"] = ", ".join(f"{int(c)}/{int(n)}" for c, n in zip(g["irl_converged"],
-                                                                                      g["irl_groups"]))
+            entry["converged"] = ", ".join(f"{int(c)}/{int(n)}" for c, n in zip(g["irl_converged"], g["irl_groups"]))
         if "ahead_weight" in g and g["ahead_weight"].notna().all():
-            methods[m]["ahead_weight"] = ", ".join(f"{w:g}" for w in g["ahead_weight"])
+            entry["ahead_weight"] = ", ".join(f"{w:g}" for w in g["ahead_weight"])
     pirl = [m for m in methods if m.startswith("PIRL")]
     best = min(pirl, key=lambda m: methods[m]["med"]) if pirl else None
     paired = result["paired_ca"].set_index("method")
-    out = {"roundabout": name, "files": files, "seeds": len(proto.seeds), "fde_column": fde,
-           "methods": methods, "best": best, "elapsed_s": elapsed,
-           "n_windows": int(rows.groupby("seed")["n_windows"].first().sum())}
+    out = {"roundabout": name, "files": files, "seeds": len(proto.seeds), "fde_column": fde, "methods": methods,
+           "best": best, "elapsed_s": elapsed, "n_windows": int(rows.groupby("seed")["n_windows"].first().sum())}
     if best is not None and best in paired.index:
         ca, per_seed = methods[CA], rows.pivot(index="seed", columns="method", values="med")
         out.update(best_minus_ca=float(paired.loc[best, "mean_difference"]),
@@ -116,10 +114,8 @@ def table_markdown(rows: list[dict]) -> str:
     lines += ["", "Matched car tracks usable per selection rule (min_steps: a training window = history; "
               "a test window = history + horizon):", "",
               "| roundabout | rule | selection | min_steps | usable / matched | share |", "|---|---|---|---|---|---|"]
-    for r in rows:
-        for _, c in r["selection"].iterrows():
-            lines.append(f"| {r['roundabout']} | {c['rule']} | {c['selection']} | {c['min_steps']} | "
-                         f"{c['usable']} / {c['matched']} | {c['share']:.0%} |")
+    lines += [f"| {r['roundabout']} | {c['rule']} | {c['selection']} | {c['min_steps']} | {c['usable']} / "
+              f"{c['matched']} | {c['share']:.0%} |" for r in rows for _, c in r["selection"].iterrows()]
     return "\n".join(lines) + "\n"
 
 

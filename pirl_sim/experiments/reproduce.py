@@ -126,9 +126,8 @@ def _passage_figures(cells, scenario, history_steps: int, out) -> dict:
     model = data.model
 
     def fitted(cell):
-        protocol = Protocol(**cell.protocol)
         params = {k: tuple(v) if isinstance(v, list) else v for k, v in dict(cell.learner_params).items()}
-        learner = LEARNERS[cell.learner](model=model, **params, **protocol.learner_params())
+        learner = LEARNERS[cell.learner](model=model, **params, **Protocol(**cell.protocol).learner_params())
         with warnings.catch_warnings(action="ignore", category=UserWarning):  # dropped tiny mixture components
             return learner.fit(data.train)
 
@@ -157,8 +156,7 @@ def _style_switch(data, config, history_steps):
         knn = PIRLKNN(model, n_neighbors=10, prior="population", window=history_steps, stride=2).fit(data.train)
     by_name = {s.name: model.features.weights({**dict(s.mean), "jerk_sq": 1.0}) for s in config.styles}
     before, after = by_name["minimises acceleration"], by_name["tracks desired speed"]
-    n_drivers, switch, n_steps = 8, 20, 45
-    rng = np.random.default_rng(config.seed + 1)
+    n_drivers, switch, n_steps, rng = 8, 20, 45, np.random.default_rng(config.seed + 1)
     x0 = np.column_stack([np.zeros(n_drivers), rng.uniform(10, 12, n_drivers), np.zeros(n_drivers)])
     trajs = simulate_receding_horizon(model, x0, lambda k: np.tile(before if k < switch else after, (n_drivers, 1)),
                                       n_steps, 25, rng=rng, control_noise=0.3)

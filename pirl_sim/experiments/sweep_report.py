@@ -74,9 +74,8 @@ def weights_summary(weights: pd.DataFrame) -> pd.DataFrame:
     """``weights.csv`` averaged over seeds per experiment, scenario variant, protocol, learner, feature and style:
     means and 95 % interval half-widths (``*_ci``) of the median and 90th-percentile |log error| and Spearman."""
     keys = ["experiment", "scenario_label", "protocol", "learner_label", "feature", "style"]
-    return weights.groupby(keys, sort=False).agg(
-        median=("median_abs_log_err", "mean"), median_ci=("median_abs_log_err", ci95),
-        p90=("p90_abs_log_err", "mean"), p90_ci=("p90_abs_log_err", ci95),
+    return weights.groupby(keys, sort=False).agg(median=("median_abs_log_err", "mean"),
+        median_ci=("median_abs_log_err", ci95), p90=("p90_abs_log_err", "mean"), p90_ci=("p90_abs_log_err", ci95),
         spearman=("spearman", "mean"), spearman_ci=("spearman", ci95), seeds=("seed", "nunique")).reset_index()
 
 
@@ -169,8 +168,7 @@ def learners_side_by_side_figure(best: pd.DataFrame):
         groups = list(dict.fromkeys(zip(b["scenario_label"], b["protocol"])))
         several_variants, several_protocols = len({g[0] for g in groups}) > 1, len({g[1] for g in groups}) > 1
         names = list(dict.fromkeys(b["learner_base"]))
-        width = 0.8 / max(1, len(names))
-        at = {g: i for i, g in enumerate(groups)}  # a group's place on the x axis
+        width, at = 0.8 / max(1, len(names)), {g: i for i, g in enumerate(groups)}  # at: a group's place on the x axis
         b = b.assign(at=[at[g] for g in zip(b["scenario_label"], b["protocol"])]).sort_values("at", kind="stable")
         tops = []
         for j, name in enumerate(names):
@@ -344,14 +342,13 @@ def write_sweep_report(table: pd.DataFrame, results, out_dir, *, template: bool 
         lines += [markdown(view, _fmt), ""]
         if (online := online_view(g)) is not None:
             lines += ["Online protocol, style posterior and 6 futures per test history (`pirl_sim.engine.worker`): "
-                      "style accuracy, the share of test histories whose most probable style given the observed "
-                      "steps (p(style | history) from each learned style's likelihood) is their true one, and "
-                      "style ARI, the adjusted Rand index of those styles (the ARI column above is of the "
-                      "training clusters); minADE_6 / minFDE_6 [m], the smallest mean / final distance of the "
-                      "futures to the true one; miss rate (the INTERACTION challenge's rule) and NLL [nats per "
-                      "predicted step] of the true future under a Gaussian mixture (sigma 0.5 m) around the futures. "
-                      "TIRL has one future, a feature-space mixture at most one per style.", "",
-                      markdown(online, _fmt), ""]
+                      "style accuracy, the share of test histories whose most probable style given the observed steps "
+                      "(p(style | history) from each learned style's likelihood) is their true one, and style ARI, the "
+                      "adjusted Rand index of those styles (the ARI column above is of the training clusters); "
+                      "minADE_6 / minFDE_6 [m], the smallest mean / final distance of the futures to the true one; "
+                      "miss rate (the INTERACTION challenge's rule) and NLL [nats per predicted step] of the true "
+                      "future under a Gaussian mixture (sigma 0.5 m) around the futures. TIRL has one future, a "
+                      "feature-space mixture at most one per style.", "", markdown(online, _fmt), ""]
         w = None if weights is None else weights[weights["experiment"] == exp]
         if w is not None and len(w) and exp in weight_experiments:
             overall = w[w["style"] == "all"]
