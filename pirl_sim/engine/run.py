@@ -196,8 +196,10 @@ def run_sweep(config: SweepConfig, out_dir, *, executor=None, workers: int | Non
                 except Exception as exc:  # noqa: BLE001 - its cells fail, the others go on
                     sim_errors[k] = f"simulation failed: {type(exc).__name__}: {exc}"
             # then the cells that read the simulations (those of a failed simulation fail)
-            for k in (k for ks in tasks if waiting.get(ks[0]) in sim_errors for k in ks):
-                fail(k, sim_errors[waiting[k]])
+            for ks in tasks:
+                if waiting.get(ks[0]) in sim_errors:
+                    for k in ks:
+                        fail(k, sim_errors[waiting[k]])
             later = {submit(ks): ks for ks in tasks if ks[0] in waiting and waiting[ks[0]] not in sim_errors}
             futures.update(later)
             for fut in ex.as_completed(later):

@@ -26,20 +26,24 @@ def pyplot():
     return plt
 
 
+def _png(fig, **savefig) -> bytes:
+    """``fig.savefig`` into PNG bytes (``savefig``: its keywords)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", **savefig)
+    return buf.getvalue()
+
+
 def png_bytes(fig) -> bytes:
     """The figure as PNG bytes without a time-stamped metadata field (same data, same bytes); closes it."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
+    data = _png(fig, metadata={"Software": None})
     pyplot().close(fig)
-    return buf.getvalue()
+    return data
 
 
 def write_png(path, fig, **savefig) -> Path:
     """Write the figure ``fig`` (left open) as a PNG to ``path`` atomically (``savefig``: its ``savefig``
     keywords, e.g. ``dpi``); returns the path."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", **savefig)
-    return atomic_write_bytes(path, buf.getvalue())
+    return atomic_write_bytes(path, _png(fig, **savefig))
 
 
 def nice_below(x: float) -> float:
