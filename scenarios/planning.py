@@ -13,7 +13,7 @@ Random streams (:func:`random_streams`): ``SeedSequence(seed).spawn(3)`` gives t
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -62,7 +62,8 @@ def check_routes(label: str, chosen, catalogue: Sequence[str]) -> tuple[str, ...
 
 def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed: int, *,
                     pirl_routes: Sequence[str] | None = None,
-                    background_routes: Sequence[str] | None = None) -> pd.DataFrame:
+                    background_routes: Sequence[str] | None = None,
+                    route_weights: Mapping[str, float] | None = None) -> pd.DataFrame:
     """Every vehicle of a run, drawn from ``seed`` before anything runs.
 
     Parameters
@@ -71,6 +72,9 @@ def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed
     route_ids : sequence of str        the route catalogue in its canonical order (draws index into it)
     seed : int                         in [0, 2**31)
     pirl_routes, background_routes : sequence of str, optional   routes PIRL / background vehicles draw from; None: all
+    route_weights : mapping route id -> float, optional   relative frequencies of the routes (normalised over the
+                                       routes each kind of vehicle draws from; a route not named has weight 0);
+                                       None: every route equally often
 
     Returns
     -------
@@ -95,8 +99,16 @@ def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed
     if n_pirl:
         theta[is_pirl], style[is_pirl] = population.sample_weights(n_pirl, rng)
     route = np.empty(n, dtype=object)
-    route[is_pirl] = [pirl_list[i] for i in rng.integers(len(pirl_list), size=n_pirl)]
-    route[~is_pirl] = [bg_list[i] for i in rng.integers(len(bg_list), size=n - n_pirl)]
+    if route_weights is None:
+        route[is_pirl] = [pirl_list[i] for i in rng.integers(len(pirl_list), size=n_pirl)]
+        route[~is_pirl] = [bg_list[i] for i in rng.integers(len(bg_list), size=n - n_pirl)]
+    else:
+        for label, mask, routes in (("pirl_routes", is_pirl, pirl_list), ("background_routes", ~is_pirl, bg_list)):
+            w = np.array([float(route_weights.get(r, 0.0)) for r in routes])
+            if mask.any() and not w.sum() > 0:
+                raise ValueError(f"route_weights give every route of {label} weight 0: {', '.join(routes)}")
+            if mask.any():
+                route[mask] = [routes[i] for i in rng.choice(len(routes), size=int(mask.sum()), p=w / w.sum())]
     width = max(3, len(str(n - 1)))
     names = population.style_names
     return pd.DataFrame({

@@ -42,6 +42,10 @@ def add_parser(p) -> None:
                    help="vehicles in the written population (default 80)")
     p.add_argument("--background-share", type=reworded(_share, "must be a number in [0, 1], got {text!r}"),
                    default=0.0, help="share of them driven by the simulator's own model (default 0)")
+    p.add_argument("--road", choices=("map", "ring"), default="map",
+                   help="where the written scenario drives: the recording's own roundabout, its routes drawn as often "
+                        "as the recorded cars took them (SUMO), or the simulators' parametric ring (SUMO or "
+                        "highway-env) (default map)")
     add_seed_option(p, "the mixture's EM initialisation")
 
 
@@ -60,7 +64,8 @@ def run(args) -> int:
         files = track_files(args.tracks, args.files)
         cal = calibrate(files, args.map, max_styles=args.max_styles, stride=args.stride, seed=args.seed,
                         desired_speed=args.desired_speed, progress=say)
-        text = cal.scenario_toml(", ".join(Path(f).name for f in files), args.n_vehicles, args.background_share)
+        text = cal.scenario_toml(", ".join(Path(f).name for f in files), args.n_vehicles, args.background_share,
+                                 road=args.road)
         atomic_write_text(args.out, text)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         return error(exc)

@@ -13,6 +13,7 @@ they stay known. How each step works and what the figures mean: the documentatio
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence, cast
@@ -22,7 +23,8 @@ import numpy as np
 from pirl_sim.receding import STEP_MASK, fit_receding
 from pirl_sim.speed_fit import A_LAT_RANGE, V_MAX_RANGE, fit_desired_speed
 
-__all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX"]
+__all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX",
+           "ROADS"]
 
 #: fewest usable recorded cars a calibration fits a mixture to
 MIN_TRACKS = 10
@@ -38,6 +40,8 @@ PROFILE_STRIDE = 5
 PROFILE_EVALUATIONS = 30
 #: the features whose weights differ between drivers (``jerk_sq`` is the reference, 1 for everybody)
 FREE = ("speed_dev", "acc_sq")
+#: Where the written scenario drives: the recording's own roundabout (SUMO), or the simulators' parametric ring.
+ROADS = ("map", "ring")
 
 
 def lognormal_moments(mu: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,6 +79,9 @@ class Calibration:
     style_log_mean, style_log_var : array (S, 2)   each style's Gaussian over the log weights (independent)
     bic : dict {n_styles: BIC}            of every mixture size tried; the least is kept
     depart_rate, n_cars, duration_s       cars per hour [veh/h], cars read, summed length of the files [s]
+    map_path : str                        the Lanelet2 map the cars were read on
+    route_counts : dict {route id: int}   cars per entry-to-exit route of the map (ids of
+                                          `pirl_sim.scenarios.sumo.lanelet_network.lanelet_routes`)
     """
 
     a_lat: float
@@ -92,6 +99,8 @@ class Calibration:
     depart_rate: float = math.nan
     n_cars: int = 0
     duration_s: float = math.nan
+    map_path: str = ""
+    route_counts: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n, s, k = len(self.log_weights), len(self.style_share), len(FREE)
@@ -126,9 +135,16 @@ class Calibration:
                                      "arrivals": "poisson", "background_share": background_share,
                                      "control_noise": 0.0, "styles": self.styles()}, source="calibrated population")
 
-    def scenario_toml(self, source: str = "", n_vehicles: int = 80, background_share: float = 0.0) -> str:
+    def scenario_toml(self, source: str = "", n_vehicles: int = 80, background_share: float = 0.0, *,
+                      road: str = "map") -> str:
         """A scenario TOML (``[drivers]``: the fitted desired speed, insertion at its cap, the fit's horizon;
-        ``[population]``) that ``pirl-sim simulate sumo|highway --scenario`` reads; comments give the figures."""
+        ``[population]``) that ``pirl-sim simulate`` reads; comments give the figures. ``road="map"``: SUMO on the
+        recording's own roundabout (``lanelet_map``, ``[route_weights]`` as the recorded cars' routes);
+        ``"ring"``: the simulators' parametric ring (SUMO or highway-env)."""
+        if road not in ROADS:
+            raise ValueError(f"road must be one of {ROADS}, got {road!r}")
+        if road == "map" and not (self.map_path and self.route_counts):
+            raise ValueError("road='map' needs the calibration's map_path and route_counts")
         pop = self.population(n_vehicles, background_share).to_dict()
         capped = int((self.style_log_var > LOG_VAR_MAX).any(axis=1).sum())
         lines = [f"# pirl_sim population calibrated on {source or 'a recording'}: {self.n_cars} cars, "
@@ -138,7 +154,10 @@ class Calibration:
                  f"# log weights at their bound: speed_dev {self.at_bound[:, 0].mean():.0%}, "
                  f"acc_sq {self.at_bound[:, 1].mean():.0%}; converged fits {self.converged.mean():.0%}; styles "
                  f"whose log variance was capped at {LOG_VAR_MAX:g}: {capped}",
-                 "", "[drivers]", f"horizon = {self.horizon}",
+                 ""]
+        if road == "map":
+            lines += [f"lanelet_map = {_toml(str(Path(self.map_path).resolve()))}   # SUMO on this roundabout", ""]
+        lines += ["[drivers]", f"horizon = {self.horizon}",
                  f"a_lat = {self.a_lat!r}   # [m/s^2] the desired speed's lateral-acceleration limit",
                  f"v_max = {self.v_max!r}   # [m/s] and speed cap",
                  f"depart_speed = {self.v_max!r}   # [m/s] at insertion: the speed cap", "", "[population]"]
@@ -149,6 +168,9 @@ class Calibration:
             lines += ["", "[[population.styles]]",
                       "# log weights: " + ", ".join(f"{f} {m:.3g} +- {s:.3g}" for f, m, s in zip(FREE, mu, sd))]
             lines += [f"{k} = {_toml(v)}" for k, v in style.items()]
+        if road == "map":
+            lines += ["", "[route_weights]   # recorded cars per route"]
+            lines += [f"{k} = {n}" for k, n in sorted(self.route_counts.items())]
         return "\n".join(lines) + "\n"
 
 
@@ -204,6 +226,24 @@ def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tup
                    options={"xatol": 0.01, "fatol": 0.5, "maxfev": PROFILE_EVALUATIONS,
                             "initial_simplex": np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.05]])})
     return cast(tuple[float, float], tuple(float(v) for v in np.exp(np.clip(out.x, lo, hi))))
+
+
+def _route_counts(files: Sequence[Path], map_path) -> dict[str, int]:
+    """Recorded cars per entry-to-exit route of the map (`pirl_sim.scenarios.demand.demand_from_tracks`)."""
+    from pirl_sim.io.interaction import read_tracks
+    from pirl_sim.io.lanelet2_map import load_map
+    from pirl_sim.scenarios.demand import demand_from_tracks
+    from pirl_sim.scenarios.sumo.lanelet_network import lanelet_routes
+
+    lmap = load_map(map_path)
+    routes = {tuple(int(e[2:]) for e in edges): rid for rid, edges in lanelet_routes(lmap)}
+    counts: Counter = Counter()
+    for f in files:
+        tracks = read_tracks(f)
+        tracks = tracks[tracks["agent_type"] == "car"]
+        if len(tracks):
+            counts.update(routes[d.route] for d in demand_from_tracks(tracks, lmap, list(routes)).departures)
+    return dict(sorted(counts.items()))
 
 
 def _recorded_duration(files: Sequence[Path]) -> float:
@@ -295,4 +335,5 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
                        cars=tuple((Path(f).name, int(i)) for f, i in keys), log_weights=log_w,
                        at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged), style_share=gmm.weights_,
                        style_log_mean=gmm.means_, style_log_var=gmm.covariances_, bic=bic,
-                       depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks), duration_s=duration)
+                       depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks), duration_s=duration,
+                       map_path=str(map_path), route_counts=_route_counts(files, map_path))

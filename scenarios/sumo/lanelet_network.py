@@ -3,11 +3,13 @@ connections, built with netconvert, and the map's entry-to-exit routes.
 
 Each lanelet becomes a one-lane edge whose shape is the lanelet's centre line; lanelet ends that the routing graph
 joins (a lanelet's end and its successors' starts) become one node; each successor relation becomes a connection.
-Coordinates are kept as in the map (the INTERACTION frame), so recorded tracks lie on the simulated lanes.
+Lanelets on a cycle of the routing graph (the circulating lanes) have priority over the others, so entering
+vehicles yield to the ring. Coordinates are kept as in the map (the INTERACTION frame), so recorded tracks lie on the simulated lanes.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import subprocess
@@ -21,7 +23,8 @@ import numpy as np
 from pirl_sim.io.atomic import atomic_write_text
 from .imports import sumo_module
 
-__all__ = ["LaneletNetwork", "network_from_lanelet2", "lanelet_routes", "lane_distances", "edge_id"]
+__all__ = ["LaneletNetwork", "network_from_lanelet2", "lanelet_routes", "map_routes", "lanelet_route_set", "lane_distances",
+           "edge_id"]
 
 _NETCONVERT_TIMEOUT_S = 120.0
 _DEFAULT_WIDTH = 3.5  # [m] a lanelet whose bounds give no width
@@ -115,6 +118,78 @@ def lanelet_routes(lmap, *, max_routes: int = 10_000) -> list[tuple[str, tuple[s
     return out
 
 
+def map_routes(path) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """`lanelet_routes` of the Lanelet2 map at ``path``, read once per version of the file in a process.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        As `pirl_sim.io.lanelet2_map.load_map` and `lanelet_routes` raise them.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"Lanelet2 map not found: {p}")
+    st = p.stat()
+    return _map_routes(str(p.resolve()), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=8)
+def _map_routes(path: str, mtime_ns: int, size: int) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    from pirl_sim.io.lanelet2_map import load_map
+
+    return tuple(lanelet_routes(load_map(path)))
+
+
+def lanelet_route_set(lmap, routes, *, smoothing: float | None = None, speed_smoothing: float = 0.0):
+    """Reference paths of routes along the map's lanelet centre lines (the lines `pirl_sim.io.lanelet2_map.match_route`
+    joins for a recorded track), not along SUMO's lanes, whose shapes netconvert cuts back at junctions.
+
+    Parameters
+    ----------
+    lmap : pirl_sim.io.lanelet2_map.LaneletMap or path
+    routes : mapping or iterable of (route id, edge ids ``ll<lanelet id>``)
+    smoothing, speed_smoothing : float      as `pirl_sim.scenarios.sumo.network.route_set` takes them [m]
+
+    Returns
+    -------
+    routes : pirl_sim.scenarios.drivers.RouteSet    ValueError for an edge that names no lanelet of the map
+    """
+    from pirl_sim.io.lanelet2_map import LaneletMap, load_map
+    from pirl_sim.paths import DEFAULT_SMOOTHING, ReferencePath
+
+    from ..drivers import ROUTE_SPACING, RouteSet
+
+    if not isinstance(lmap, LaneletMap):
+        lmap = load_map(lmap)
+    items = list(routes.items()) if isinstance(routes, dict) else list(routes)
+    paths = []
+    for rid, edges in items:
+        ids = [int(e[2:]) if e.startswith("ll") and e[2:].isdigit() else None for e in edges]
+        missing = [e for e, i in zip(edges, ids) if i not in lmap.centerlines]
+        if missing:
+            raise ValueError(f"route {rid!r}: edge(s) {missing} name no lanelet of {lmap.path} (edges are ll<id>)")
+        line = np.vstack([lmap.centerlines[i] for i in ids])
+        keep = np.concatenate(([True], np.hypot(*np.diff(line, axis=0).T) >= 1e-3))
+        paths.append(ReferencePath.from_polyline(line[keep], smoothing=DEFAULT_SMOOTHING if smoothing is None
+                                                 else smoothing))
+    return RouteSet(tuple(rid for rid, _ in items), tuple(paths), ROUTE_SPACING, speed_smoothing)
+
+
+def _ring_lanelets(succ: dict[int, list[int]]) -> set[int]:
+    """Lanelets on a cycle of the routing graph (a roundabout's circulating lanes)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    ids = sorted(succ)
+    index = {lid: k for k, lid in enumerate(ids)}
+    pairs = [(index[a], index[b]) for a, nexts in succ.items() for b in nexts]
+    rows, cols = (list(x) for x in zip(*pairs)) if pairs else ([], [])
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(ids), len(ids)))
+    _, labels = connected_components(graph, directed=True, connection="strong")
+    sizes = np.bincount(labels)
+    return {lid for lid, lab in zip(ids, labels) if sizes[lab] > 1}
+
+
 def _nodes(lmap, succ, tolerance: float):
     """Union of lanelet ends: (node of each lanelet's start, node of each end, node positions)."""
     parent: dict = {}
@@ -190,11 +265,13 @@ def network_from_lanelet2(lmap, out_dir, *, name: str = "lanelets", junction_rad
     nod = "<nodes>\n" + "".join(f'  <node id="{n}" x="{_fmt(p[0])}" y="{_fmt(p[1])}" type="priority"/>\n'
                                 for n, p in sorted(pos.items())) + "</nodes>\n"
     edg = ["<edges>\n"]
+    ring = _ring_lanelets(succ)
     for lid, line in sorted(lmap.centerlines.items()):
         if start[lid] == end[lid]:
             raise ValueError(f"map {lmap.path}: lanelet {lid} starts and ends at the same node")
-        edg.append(f'  <edge id={quoteattr(edge_id(lid))} from="{start[lid]}" to="{end[lid]}" numLanes="1" spreadType="center" '
-                   f'speed="{_fmt(speed)}" width="{_fmt(_width(lmap, lid))}" shape="{_shape(line)}"/>\n')
+        edg.append(f'  <edge id={quoteattr(edge_id(lid))} from="{start[lid]}" to="{end[lid]}" numLanes="1" '
+                   f'spreadType="center" priority="{2 if lid in ring else 1}" speed="{_fmt(speed)}" '
+                   f'width="{_fmt(_width(lmap, lid))}" shape="{_shape(line)}"/>\n')
     edg.append("</edges>\n")
     con = ["<connections>\n"]
     for lid, nexts in sorted(succ.items()):

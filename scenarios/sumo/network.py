@@ -46,6 +46,7 @@ __all__ = [
 
 _NETCONVERT_TIMEOUT_S = 120.0  # [s] a roundabout converts in well under a second
 _DUPLICATE_TOL = 1e-3  # [m] consecutive shape points closer than this are one point
+_RING_SAGITTA = 0.035  # [m] largest distance between the ring edges' chords and the circle
 _MIN_RING_EDGE = 1.0  # [m] shortest ring edge left between two arm junctions
 LANE_JOINT_SNAP = 0.05  #: [m] largest gap between a lane's end and its successor's start that lane_graph closes
 #: allowed ranges of the roundabout's geometry (`RoundaboutSpec`), [low, high]: beyond, netconvert and the route
@@ -310,7 +311,10 @@ def _plain_xml(spec: RoundaboutSpec) -> tuple[str, str, str]:
     for i in range(n):
         a0 = spec.arm_angle(i)
         a1 = a0 + full / n
-        pieces = max(1, round(spec.ring_segments / n))
+        # chords short enough that they leave the circle (which the ring's connections follow) by at most
+        # _RING_SAGITTA: on a large ring, ring_segments alone would leave gaps between lanes at every junction
+        chord = math.sqrt(8.0 * spec.radius * _RING_SAGITTA)
+        pieces = max(1, round(spec.ring_segments / n), math.ceil(spec.radius * (a1 - a0) / chord))
         shape = " ".join(_pt(_ring_point(spec, a)) for a in np.linspace(a0, a1, pieces + 1))
         edges.append(f'    <edge id="{_ring(i, n)}" from="{_ring_node(i)}" to="{_ring_node((i + 1) % n)}" '
                      f'priority="2" {common} shape="{shape}"/>')

@@ -46,6 +46,7 @@ from ..contract import STEP, ControllerWrapper, EgoSpec, ground_truth_table, run
 from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, scenario_from_table
 from .network import NetworkFiles, RoundaboutSpec, build_network, lane_graph, load_net, route_set, \
     routes as network_routes, validate_route
+from .lanelet_network import lanelet_route_set, map_routes, network_from_lanelet2
 from .runner import BACKENDS, COLLISION_ACTIONS, SPEED_MODE_ALL_CHECKS, SumoRecording, SumoRun, VehicleSpec
 
 __all__ = [
@@ -123,6 +124,11 @@ class SumoScenarioConfig:
     override_tol : float                       [m/s] a command is overridden when the speed misses it by more, > 0
     max_duration : float or None               longest simulated time [s]; None: last departure + 300 s
     demand_per_arm : float or None             [vehicles/h/arm] > 0: sets ``depart_interval`` (SUMO page); None: as is
+    lanelet_map : str or None                  a Lanelet2 map (``.osm``) whose roundabout replaces ``network``
+                                               (`~.lanelet_network.network_from_lanelet2`); ``routes`` default to
+                                               its entry-to-exit routes, read from the map on construction
+    route_weights : mapping route id -> float, or None   relative frequencies of the routes vehicles draw (a route
+                                               not named: 0); None: every route equally often
     """
 
     network: RoundaboutSpec = DEFAULT_NETWORK
@@ -136,6 +142,8 @@ class SumoScenarioConfig:
     override_tol: float = 0.01
     max_duration: float | None = None
     demand_per_arm: float | None = None
+    lanelet_map: str | None = None
+    route_weights: Mapping[str, float] | None = None
 
     def __post_init__(self) -> None:
         for name, cls in (("network", RoundaboutSpec), ("population", PopulationConfig), ("drivers", DriverConfig)):
@@ -152,7 +160,27 @@ class SumoScenarioConfig:
                     raise ValueError(f"route {rid!r} must be a non-empty list of edge ids, got {edges!r}")
                 cat[rid] = tuple(edges)
             object.__setattr__(self, "routes", dict(sorted(cat.items())))  # canonical order (draws use it)
+        if self.lanelet_map is not None:
+            if not isinstance(self.lanelet_map, (str, os.PathLike)) or not os.fspath(self.lanelet_map):
+                raise ValueError(f"lanelet_map must be the path of a Lanelet2 map (.osm), got {self.lanelet_map!r}")
+            object.__setattr__(self, "lanelet_map", os.fspath(self.lanelet_map))
+            if self.demand_per_arm is not None:
+                raise ValueError("demand_per_arm sets the demand of the parametric ring's arms: with lanelet_map, "
+                                 "set population.depart_interval (and route_weights) instead")
+            if self.routes is None:
+                object.__setattr__(self, "routes", dict(map_routes(self.lanelet_map)))
         known = list(self.route_catalogue())
+        if self.route_weights is not None:
+            if not isinstance(self.route_weights, Mapping) or not self.route_weights:
+                raise ValueError(f"route_weights must be a non-empty mapping route id -> weight, got "
+                                 f"{self.route_weights!r}")
+            unknown = sorted(set(self.route_weights) - set(known))
+            if unknown:
+                raise ValueError(f"route_weights: unknown route(s) {unknown}; routes: {', '.join(known)}")
+            weights = {r: number(f"route_weights[{r!r}]", w, low=0.0) for r, w in sorted(self.route_weights.items())}
+            if not sum(weights.values()) > 0:
+                raise ValueError(f"route_weights must give some route a weight > 0, got {self.route_weights!r}")
+            object.__setattr__(self, "route_weights", weights)
         for name in ("pirl_routes", "background_routes"):
             object.__setattr__(self, name, check_routes(name, getattr(self, name), known))
         sm = self.speed_mode
@@ -196,8 +224,9 @@ class SumoScenarioConfig:
                 out[name] = list(getattr(self, name))
         if self.max_duration is not None:
             out["max_duration"] = self.max_duration
-        if self.demand_per_arm is not None:
-            out["demand_per_arm"] = self.demand_per_arm
+        for name in ("demand_per_arm", "lanelet_map", "route_weights"):
+            if getattr(self, name) is not None:
+                out[name] = dict(self.route_weights) if name == "route_weights" else getattr(self, name)
         return out
 
 
@@ -247,7 +276,7 @@ def plan_vehicles(config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
         raise TypeError(f"config must be a SumoScenarioConfig, got {type(config).__name__}")
     return plan_population(config.population, list(config.route_catalogue()), seed,
                            pirl_routes=config.pirl_routes or None,
-                           background_routes=config.background_routes or None)
+                           background_routes=config.background_routes or None, route_weights=config.route_weights)
 
 
 def vehicle_types_xml(drivers: DriverConfig) -> str:
@@ -397,16 +426,24 @@ def _built_network(config: SumoScenarioConfig, cache: bool) -> _Network:
     """The network of ``config`` built into a temporary directory (from :data:`_NETWORKS` when ``cache``)."""
     drv = config.drivers
     catalogue = config.route_catalogue()
-    key = (config.network, tuple(catalogue.items()), drv.smoothing, drv.speed_smoothing)
+    key = (config.network, config.lanelet_map, tuple(catalogue.items()), drv.smoothing, drv.speed_smoothing)
     if cache and key in _NETWORKS:
         return _NETWORKS[key]
     tmp = tempfile.TemporaryDirectory(prefix="pirl_sumo_")
     try:
-        files = build_network(config.network, tmp.name, name=_NET_NAME)
+        if config.lanelet_map is None:
+            files = build_network(config.network, tmp.name, name=_NET_NAME)
+        else:
+            built = network_from_lanelet2(config.lanelet_map, tmp.name, name=_NET_NAME)
+            files = NetworkFiles(built.nodes, built.edges, built.connections, built.net, config.network)
         net = load_net(files.net)
         for rid, edges in catalogue.items():
             validate_route(net, edges, route_id=rid)
-        routes = route_set(net, catalogue, smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
+        if config.lanelet_map is None:
+            routes = route_set(net, catalogue, smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
+        else:
+            routes = lanelet_route_set(config.lanelet_map, catalogue, smoothing=drv.smoothing,
+                                       speed_smoothing=drv.speed_smoothing)
     except BaseException:
         tmp.cleanup()
         raise
@@ -461,8 +498,9 @@ class _SumoSimulation:
                         for r in pirl.itertuples(index=False)},
                 horizon=drv.horizon, control_noise=config.population.control_noise, rng=noise_rng,
                 override_tol=config.override_tol, stop_speed=drv.stop_speed, resume_speed=drv.resume_speed)
+            first = {rid: self.net.getEdge(edges[0]).getLength() for rid, edges in built.catalogue.items()}
             self.specs = [VehicleSpec(r.vehicle_id, r.route_id, float(r.depart),
-                                      depart_speed=drv.depart_speed if r.is_pirl else "max",
+                                      depart_speed=(insertion_speed(drv, first[r.route_id]) if r.is_pirl else "max"),
                                       type_id=PIRL_VTYPE if r.is_pirl else BACKGROUND_VTYPE)
                           for r in plan.itertuples(index=False)]
             driven, speed_modes = set(pirl["vehicle_id"]), None
@@ -539,6 +577,14 @@ class _SumoSimulation:
             plan = pd.concat([plan, pd.DataFrame([ego])], ignore_index=True)
         sumo = self.sumo_recording if self.sumo_recording is not None else self.run.recording()
         return scenario_recording(plan, sumo, lanes, successors, info, set(self.controller.handbacks))
+
+
+def insertion_speed(drivers: DriverConfig, entry_length: float, vehicle_length: float = 5.0) -> float:
+    """A PIRL vehicle's speed at insertion [m/s]: ``drivers.depart_speed``, or less on a first edge too short to
+    stop on before its junction (SUMO refuses such an insertion and drops the vehicle; the short entry lanelets
+    of real maps): the speed that stops within the edge's length past the vehicle at ``drivers.decel``."""
+    room = max(entry_length - vehicle_length - 0.5, 0.0)
+    return min(drivers.depart_speed, float(np.floor(10.0 * np.sqrt(2.0 * drivers.decel * room)) / 10.0))
 
 
 def _without_generator_comment(xml: str) -> str:
@@ -623,7 +669,15 @@ def load_sumo_run(directory) -> RecordedRun:
         raise ValueError(f"{d}: not a SUMO recording (simulator {info.get('simulator')!r})")
     config = scenario_from_dict(info["config"], source=f"{d}/{INFO_FILE}")
     drv = config.drivers
-    routes = route_set(d / info["network_file"], [(k, tuple(v)) for k, v in info["routes"]],
-                       smoothing=drv.smoothing, speed_smoothing=drv.speed_smoothing)
+    catalogue = [(k, tuple(v)) for k, v in info["routes"]]
+    if config.lanelet_map is None:
+        routes = route_set(d / info["network_file"], catalogue, smoothing=drv.smoothing,
+                           speed_smoothing=drv.speed_smoothing)
+    elif not Path(config.lanelet_map).is_file():
+        raise FileNotFoundError(f"{d}: the run's reference paths follow the Lanelet2 map {config.lanelet_map}, "
+                                "which is not there")
+    else:
+        routes = lanelet_route_set(config.lanelet_map, catalogue, smoothing=drv.smoothing,
+                                   speed_smoothing=drv.speed_smoothing)
     model = route_set_model(routes, dt=info["step_length_s"], a_lat=drv.a_lat, v_max=drv.v_max)
     return RecordedRun(rec, config, routes, model)

@@ -3,6 +3,8 @@ SUMO without teleport, and bad maps or parameters are clear errors."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -103,3 +105,111 @@ def test_bad_inputs(tmp_path, ring):
     net = network_from_lanelet2(lmap, tmp_path / "net")
     with pytest.raises(ValueError, match="xy must be"):
         lane_distances(net.net, np.zeros(3))
+
+
+def test_ring_lanelets_have_priority_over_entries(ring, tmp_path):
+    import sumolib
+
+    *_, lmap, _ = ring
+    net = sumolib.net.readNet(str(network_from_lanelet2(lmap, tmp_path).net))
+    priority = {e.getID(): e.getPriority() for e in net.getEdges()}
+    cycle = {eid for eid in priority if _on_cycle(net, eid)}
+    assert cycle and {priority[e] for e in cycle} == {2}
+    assert len(cycle) < len(priority) and {p for e, p in priority.items() if e not in cycle} == {1}
+
+
+def _on_cycle(net, eid: str) -> bool:
+    seen, todo = set(), [e.getID() for e in net.getEdge(eid).getOutgoing()]
+    while todo:
+        e = todo.pop()
+        if e == eid:
+            return True
+        if e not in seen:
+            seen.add(e)
+            todo.extend(x.getID() for x in net.getEdge(e).getOutgoing())
+    return False
+
+
+@pytest.fixture(scope="module")
+def map_run(ring, tmp_path_factory):
+    """PIRL drivers on the ring read back from its Lanelet2 map, two routes drawn 1:3."""
+    import dataclasses
+
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
+    from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, run_sumo_scenario
+
+    *_, d = ring
+    routes = [rid for rid, _ in lanelet_routes(load_map(d / "map.osm"))]
+    weights = {routes[0]: 1.0, routes[5]: 3.0}
+    config = SumoScenarioConfig(lanelet_map=str(d / "map.osm"), route_weights=weights,
+                                population=dataclasses.replace(DEFAULT_POPULATION, n_vehicles=12, depart_interval=3.0))
+    out = tmp_path_factory.mktemp("map_run")
+    return config, run_sumo_scenario(config, seed=1, out_dir=out), out, weights
+
+
+def test_pirl_drivers_drive_a_maps_roundabout_on_its_lanelets(map_run, ring):
+    from pirl_sim.evaluation.realism import _lane_offsets
+
+    config, res, out, weights = map_run
+    *_, lmap, _ = ring
+    assert config.routes == dict(lanelet_routes(lmap))  # the map's routes
+    gt = res.recording.ground_truth
+    assert len(gt) == 12 and set(gt["status"]) == {"arrived"} and not gt["collided"].any()
+    assert set(gt["route_id"]) <= set(weights)
+    assert gt["is_pirl"].sum() > 0 and np.isfinite(gt.loc[gt["is_pirl"], "theta_speed_dev"]).all()
+    xy = res.recording.tracks[["x", "y"]].to_numpy()
+    assert np.percentile(_lane_offsets(lmap, xy), 95) < 0.5  # [m] box centres on the map's centre lines
+    # the drivers' reference paths are the map's centre lines, joined along each route
+    path = res.routes.paths[res.routes.route_ids.index(sorted(weights)[0])]
+    first = lmap.centerlines[int(config.routes[sorted(weights)[0]][0][2:])]
+    assert np.hypot(path.x[0] - first[0, 0], path.y[0] - first[0, 1]) < 0.5
+
+
+def test_a_map_run_reads_back_with_its_routes(map_run):
+    from pirl_sim.scenarios.sumo.scenario import load_sumo_run
+
+    config, res, out, _ = map_run
+    info = json.loads((out / "run.json").read_text())
+    assert info["config"]["lanelet_map"] == config.lanelet_map
+    assert info["config"]["route_weights"] == config.route_weights
+    run = load_sumo_run(out)
+    assert run.config == config
+    s = np.linspace(0.0, res.routes.paths[0].length, 7)
+    np.testing.assert_allclose(run.routes.paths[0].position(s), res.routes.paths[0].position(s))
+
+
+def test_route_weights_set_how_often_each_route_is_driven():
+    import dataclasses
+
+    from pirl_sim.scenarios.planning import plan_population
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
+
+    pop = dataclasses.replace(DEFAULT_POPULATION, n_vehicles=2000)
+    plan = plan_population(pop, ["a", "b", "c"], 0, route_weights={"a": 1.0, "b": 3.0})
+    share = plan["route_id"].value_counts(normalize=True)
+    assert "c" not in share and share["b"] == pytest.approx(0.75, abs=0.03)
+    with pytest.raises(ValueError, match="route_weights give every route of background_routes weight 0"):
+        plan_population(pop, ["a", "b", "c"], 0, background_routes=["c"], route_weights={"a": 1.0})
+    unweighted = plan_population(pop, ["a", "b", "c"], 0)
+    assert set(unweighted["route_id"]) == {"a", "b", "c"}
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"lanelet_map": "/nonexistent/map.osm"}, FileNotFoundError, "Lanelet2 map not found: /nonexistent/map.osm"),
+    ({"lanelet_map": ""}, ValueError, "lanelet_map must be the path of a Lanelet2 map"),
+    ({"lanelet_map": "MAP", "demand_per_arm": 600.0}, ValueError, "demand_per_arm sets the demand of the parametric"),
+    ({"lanelet_map": "MAP", "route_weights": {"nowhere": 1.0}}, ValueError, r"route_weights: unknown route\(s\)"),
+    ({"lanelet_map": "MAP", "route_weights": {"R0": -1.0}}, ValueError, r"route_weights\['r.*'\] must be a finite "
+                                                                         "number >= 0"),
+    ({"lanelet_map": "MAP", "route_weights": {"R0": 0.0}}, ValueError, "must give some route a weight > 0"),
+])
+def test_bad_map_scenarios_are_named(ring, kwargs, error, match):
+    from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig
+
+    *_, d = ring
+    first = lanelet_routes(load_map(d / "map.osm"))[0][0]
+    kwargs = {k: (str(d / "map.osm") if v == "MAP" else v) for k, v in kwargs.items()}
+    if "route_weights" in kwargs:
+        kwargs["route_weights"] = {(first if k == "R0" else k): v for k, v in kwargs["route_weights"].items()}
+    with pytest.raises(error, match=match):
+        SumoScenarioConfig(**kwargs)

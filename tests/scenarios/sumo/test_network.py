@@ -238,3 +238,13 @@ def test_building_a_network_without_sumolib_names_the_extra(monkeypatch, tmp_pat
     monkeypatch.setitem(sys.modules, "sumolib", None)
     with pytest.raises(ModuleNotFoundError, match=r"'sumo' extra"):
         build_network(RoundaboutSpec(), tmp_path)
+
+
+@pytest.mark.parametrize("radius, lanes", [(150.0, 1), (400.0, 2), (500.0, 3)])
+def test_large_rings_join_their_lanes_at_every_junction(tmp_path, radius, lanes):
+    """The ring's chords stay within a few centimetres of the circle that its connections follow, so a large
+    ring's lanes meet their successors (a recording's map can be written)."""
+    files = build_network(RoundaboutSpec(radius=radius, lanes=lanes, junction_radius=10.0), tmp_path)
+    lines, succ = lane_graph(files.net)
+    gaps = [np.hypot(*(lines[a][-1] - lines[b][0])) for a, nexts in succ.items() for b in nexts]
+    assert max(gaps) == 0.0  # lane_graph moved every joint onto one point, none farther than LANE_JOINT_SNAP
