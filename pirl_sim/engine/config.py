@@ -436,6 +436,9 @@ def _expand(experiments: tuple[Experiment, ...]) -> tuple[Cell, ...]:
                             cell_params = _jsonable(llabel, {**lparams, "random_state": seed} if seeded else lparams)
                             _check_learner(f"{elabel}: {llabel} under the {proto.name} protocol", lgrid,
                                            _tuples(cell_params), proto, shape)
+                            if spec.check_learner is not None:
+                                with _named(f"{elabel}: {llabel}: scenario {exp.scenario!r} ", (TypeError, ValueError)):
+                                    spec.check_learner(params, lgrid.name, cell_params)
                             cell = Cell(exp.scenario, params, fingerprint, fields, lgrid.name, cell_params, seed,
                                         exp.label, slabel, proto.name, llabel, k)
                             own.setdefault(canonical_json(cell.spec()), cell)

@@ -228,14 +228,12 @@ def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tup
     return cast(tuple[float, float], tuple(float(v) for v in np.exp(np.clip(out.x, lo, hi))))
 
 
-def _route_counts(files: Sequence[Path], map_path) -> dict[str, int]:
+def _route_counts(files: Sequence[Path], lmap) -> dict[str, int]:
     """Recorded cars per entry-to-exit route of the map (`pirl_sim.scenarios.demand.demand_from_tracks`)."""
     from pirl_sim.io.interaction import read_tracks
-    from pirl_sim.io.lanelet2_map import load_map
     from pirl_sim.scenarios.demand import demand_from_tracks
     from pirl_sim.scenarios.sumo.lanelet_network import lanelet_routes
 
-    lmap = load_map(map_path)
     routes = {tuple(int(e[2:]) for e in edges): rid for rid, edges in lanelet_routes(lmap)}
     counts: Counter = Counter()
     for f in files:
@@ -271,12 +269,15 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
 
     Raises
     ------
-    ValueError    a bad parameter; no track file; fewer than ``min_tracks`` usable cars (e.g. tracks off the map)
+    ValueError    a bad parameter; no track file; a map without a roundabout; fewer than ``min_tracks`` usable cars
+                  (e.g. tracks off the map)
     """
     from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
     from pirl_sim.dynamics import longitudinal
+    from pirl_sim.io.lanelet2_map import load_map
     from pirl_sim.scenarios.replay import load_replay, track_key
     from pirl_sim.scenarios.scenario_config import MpcDriverConfig
+    from pirl_sim.scenarios.sumo.lanelet_network import ring_lanelets
     from pirl_sim.validation import int_at_least
 
     for name, value, low in (("max_styles", max_styles, 1), ("stride", stride, 1), ("min_tracks", min_tracks, 2)):
@@ -297,6 +298,10 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
         raise ValueError("calibrate needs at least one track file, got none")
     say = progress or (lambda _msg: None)
     dt = 0.1  # the simulated drivers re-plan every frame
+    lmap = load_map(map_path)
+    if not ring_lanelets(lmap):
+        raise ValueError(f"map {map_path}: no roundabout (no lanelets form a cycle in its routing graph); calibrate "
+                         "fits the drivers of a roundabout")
     say(f"reading {len(files)} track file(s) on {Path(map_path).name}")
     scene = load_replay(files, map_path, dt=dt, features="following", selection="free", estimate="speeds",
                         smoothing=drivers.smoothing, speed_smoothing=drivers.speed_smoothing, max_steps=None)
@@ -336,4 +341,4 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
                        at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged), style_share=gmm.weights_,
                        style_log_mean=gmm.means_, style_log_var=gmm.covariances_, bic=bic,
                        depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks), duration_s=duration,
-                       map_path=str(map_path), route_counts=_route_counts(files, map_path))
+                       map_path=str(map_path), route_counts=_route_counts(files, lmap))

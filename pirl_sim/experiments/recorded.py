@@ -610,6 +610,9 @@ def _check_recorded(params: dict) -> dict:
     dt = params["load"].get("dt", 0.2)
     if isinstance(dt, bool) or not isinstance(dt, (int, float)) or dt <= 0 or not np.isclose(dt / 0.1, round(dt / 0.1)):
         raise ValueError(f"load.dt must be a positive multiple of the 0.1 s frames, got {dt!r}")
+    if params["replay"].get("rollout", "open") != "open" and params["replay"].get("n_futures", 0):
+        raise ValueError(f"replay.n_futures = {params['replay']['n_futures']!r} scores open-loop futures, but "
+                         f"replay.rollout = {params['replay']['rollout']!r} re-plans at every step: use rollout 'open'")
     desired = params["replay"].get("desired_speed")
     if not (desired is None or desired == "fit" or (isinstance(desired, list) and len(desired) == 2)):
         raise ValueError(f"replay.desired_speed must be 'fit' or [a_lat, v_max], got {desired!r}")
@@ -625,6 +628,17 @@ def _check_protocol(params: dict, protocol: dict) -> None:
         _replay_settings({"scenario_params": params, "protocol": protocol, "seed": 0})
     except (TypeError, ValueError) as exc:
         raise ValueError(f"parameter 'replay': {exc}") from None
+
+
+def _check_recorded_learner(params: dict, name: str, learner_params: dict) -> None:
+    """A closed-loop rollout re-plans at every step: a learner that averages or chooses among its neighbours'
+    open-loop futures cannot predict it (refused at the config check, not in every cell)."""
+    from pirl_sim.learners.knn import MIXTURES
+
+    if params["replay"].get("rollout", "open") != "open" and learner_params.get("aggregate") in MIXTURES:
+        raise ValueError(f"rolls out closed loops (replay.rollout = {params['replay']['rollout']!r}), but {name} with "
+                         f"aggregate = {learner_params['aggregate']!r} predicts open-loop futures: use rollout "
+                         "'open', or another aggregate")
 
 
 def _recorded_shape(params: dict) -> TrainShape:
@@ -732,5 +746,6 @@ SPEC = ScenarioSpec(
     "window predicted and scored in metres (module pirl_sim.experiments.recorded)",
     RECORDED_PARAMS, _check_recorded, None, _recorded_shape, recorded_fingerprint,
     run_cells=run_recorded_cells, task_group=_group, check_protocol=_check_protocol,
+    check_learner=_check_recorded_learner,
 )
 SPECS = (SPEC, replace(SPEC, name="replay", summary="the recorded scenario's former name"))

@@ -115,6 +115,7 @@ class ScenarioSpec:
     run_cells : callable(specs), or None      the scenario's own cell runner; None: `pirl_sim.engine.worker.run_cells`
     task_group : callable(dict), or None      which cells run as one task; None: `pirl_sim.engine.worker.knn_group`
     check_protocol : callable(dict, dict), or None   ValueError for a protocol the scenario cannot run
+    check_learner : callable(dict, str, dict), or None   ValueError for a learner (name, parameters) it cannot run
     learners, code : tuple of str (or None)   the only learners this scenario runs; modules hashed into its keys only
     """
 
@@ -131,6 +132,7 @@ class ScenarioSpec:
     run_cells: Callable[..., list] | None = None
     task_group: Callable[[dict], str | None] | None = None
     check_protocol: Callable[[dict, dict], None] | None = None
+    check_learner: Callable[[dict, str, dict], None] | None = None
     learners: tuple[str, ...] | None = None
     code: tuple[str, ...] = ()
 

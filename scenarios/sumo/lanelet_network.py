@@ -23,8 +23,8 @@ import numpy as np
 from pirl_sim.io.atomic import atomic_write_text
 from .imports import sumo_module
 
-__all__ = ["LaneletNetwork", "network_from_lanelet2", "lanelet_routes", "map_routes", "lanelet_route_set", "lane_distances",
-           "edge_id"]
+__all__ = ["LaneletNetwork", "network_from_lanelet2", "lanelet_routes", "map_routes", "lanelet_route_set", "ring_lanelets",
+           "lane_distances", "edge_id"]
 
 _NETCONVERT_TIMEOUT_S = 120.0
 _DEFAULT_WIDTH = 3.5  # [m] a lanelet whose bounds give no width
@@ -173,6 +173,12 @@ def lanelet_route_set(lmap, routes, *, smoothing: float | None = None, speed_smo
         paths.append(ReferencePath.from_polyline(line[keep], smoothing=DEFAULT_SMOOTHING if smoothing is None
                                                  else smoothing))
     return RouteSet(tuple(rid for rid, _ in items), tuple(paths), ROUTE_SPACING, speed_smoothing)
+
+
+def ring_lanelets(lmap) -> set[int]:
+    """Ids of the lanelets on a cycle of the map's routing graph: a roundabout's circulating lanes (none: the map
+    has no roundabout)."""
+    return _ring_lanelets(_successors(lmap))
 
 
 def _ring_lanelets(succ: dict[int, list[int]]) -> set[int]:

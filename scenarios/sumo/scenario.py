@@ -250,8 +250,13 @@ def _network_from_table(table, label: str) -> RoundaboutSpec:
 
 
 def load_scenario(path, *, population: PopulationConfig | None = None) -> SumoScenarioConfig:
-    """Read a scenario TOML file (see :func:`scenario_from_dict`)."""
-    return scenario_from_dict(load_toml(path), source=str(path), population=population)
+    """Read a scenario TOML file (see :func:`scenario_from_dict`; a relative ``lanelet_map`` is taken from the
+    file's folder)."""
+    data = load_toml(path)
+    where = data.get("lanelet_map")
+    if isinstance(where, str) and where and not Path(where).is_absolute():
+        data = {**data, "lanelet_map": str(Path(path).parent / where)}
+    return scenario_from_dict(data, source=str(path), population=population)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from pirl_sim.experiments.calibrate import Calibration, calibrate, fit_styles, lognormal_moments
+from shared_sample import SAMPLE_MAP, needs_sample
 
 
 def _calibration(**kw) -> Calibration:
@@ -53,7 +54,7 @@ def test_the_scenario_toml_is_read_by_both_simulators_with_the_calibrated_styles
 
     cal = _calibration()
     path = tmp_path / "calibrated.toml"
-    path.write_text(cal.scenario_toml("f.csv", n_vehicles=40, background_share=0.1))
+    path.write_text(cal.scenario_toml("f.csv", n_vehicles=40, background_share=0.1, road="ring"))
     for load in (load_sumo, load_highway):
         config = load(path)
         drivers = config.drivers
@@ -66,6 +67,31 @@ def test_the_scenario_toml_is_read_by_both_simulators_with_the_calibrated_styles
         mean, std = lognormal_moments(cal.style_log_mean[1], cal.style_log_var[1])
         assert [pop.styles[0].mean[f] for f in ("speed_dev", "acc_sq")] == pytest.approx(mean)
         assert [pop.styles[0].std[f] for f in ("speed_dev", "acc_sq")] == pytest.approx(std)
+
+
+def test_a_map_calibration_drives_the_recordings_roundabout_with_its_route_shares(tmp_path):
+    pytest.importorskip("sumolib")
+    pytest.importorskip("lanelet2")
+    from pirl_sim.io.lanelet2_map import write_map
+    from pirl_sim.scenarios.highway.scenario import load_scenario as load_highway
+    from pirl_sim.scenarios.sumo.lanelet_network import map_routes
+    from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph
+    from pirl_sim.scenarios.sumo.scenario import load_scenario as load_sumo
+
+    write_map(*lane_graph(build_network(RoundaboutSpec(), tmp_path / "net").net), tmp_path / "map.osm")
+    routes = [rid for rid, _ in map_routes(tmp_path / "map.osm")]
+    cal = _calibration(map_path=str(tmp_path / "map.osm"), route_counts={routes[0]: 3, routes[2]: 1})
+    path = tmp_path / "calibrated.toml"
+    path.write_text(cal.scenario_toml("f.csv"))  # road="map" by default
+    config = load_sumo(path)
+    assert config.lanelet_map == str((tmp_path / "map.osm").resolve())
+    assert config.route_weights == {routes[0]: 3.0, routes[2]: 1.0} and set(config.routes) == set(routes)
+    with pytest.raises(ValueError, match=r"unknown key\(s\) 'lanelet_map', 'route_weights'"):
+        load_highway(path)  # highway-env drives the parametric ring only
+    with pytest.raises(ValueError, match="road='map' needs the calibration's map_path and route_counts"):
+        _calibration().scenario_toml()
+    with pytest.raises(ValueError, match="road must be one of"):
+        cal.scenario_toml(road="ft")
 
 
 def test_a_calibration_checks_its_shapes():
@@ -94,9 +120,23 @@ def test_bad_parameters_are_refused_before_reading(tmp_path, kwargs, message):
         calibrate([], tmp_path / "missing.osm")
 
 
-def test_too_few_cars_for_a_mixture_is_an_error_naming_the_count(real_like):
-    with pytest.raises(ValueError, match=r"usable car\(s\) in 1 track file\(s\).*a mixture needs at least 10"):
-        calibrate([real_like / "vehicle_tracks_000.csv"], real_like / "map.osm")
+def test_tracks_off_the_map_leave_too_few_cars_and_the_error_says_so(real_like, tmp_path):
+    """A recording that does not match the map: its cars (on a straight lane far from the ring) are not usable."""
+    pytest.importorskip("sumolib")
+    from pirl_sim.io.lanelet2_map import write_map
+    from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph
+
+    write_map(*lane_graph(build_network(RoundaboutSpec(center=(500.0, 500.0)), tmp_path / "net").net),
+              tmp_path / "ring.osm")
+    with pytest.raises(ValueError, match=r"no usable track in 1 files .skipped: .'no route on the map': 6"):
+        calibrate([real_like / "vehicle_tracks_000.csv"], tmp_path / "ring.osm")
+
+
+@needs_sample
+def test_a_map_without_a_roundabout_is_refused_before_the_tracks_are_read(tmp_path):
+    pytest.importorskip("lanelet2")
+    with pytest.raises(ValueError, match="no roundabout .no lanelets form a cycle in its routing graph"):
+        calibrate([tmp_path / "unread.csv"], SAMPLE_MAP)
 
 
 def test_the_command_refuses_a_missing_map_with_exit_2(tmp_path, real_like, capsys):
@@ -139,3 +179,5 @@ def test_the_weights_of_simulated_drivers_that_drove_on_their_own_come_back(sumo
                  "--stride", "10", "--max-styles", "2", "--desired-speed", "speeds", "--quiet"]) == 0
     config = load_scenario(out)
     assert 1 <= len(config.population.styles) <= 2 and config.drivers.horizon == 30
+    assert config.lanelet_map == str((real / "map.osm").resolve()) and config.route_weights
+    assert sum(config.route_weights.values()) == sum(cal.route_counts.values()) <= len(truth)

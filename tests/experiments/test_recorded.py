@@ -175,3 +175,25 @@ def test_the_miss_rate_takes_the_recorded_speed_and_heading_where_the_track_has_
     speed, heading = _speed_heading_at_end([recorded, generated], [(0, 1), (1, 1)], horizon=3, dt=0.1)
     np.testing.assert_allclose(speed, [7.0, 10.0])
     np.testing.assert_allclose(heading, [0.3, 0.0])
+
+
+@pytest.mark.parametrize("replay, learner, match", [
+    ('rollout = "closed", mpc_horizon = 10', '{ name = "pirl-knn", params = { n_neighbors = 2, aggregate = "futures" } }',
+     r"pirl-knn with aggregate = 'futures' predicts open-loop futures"),
+    ('rollout = "closed", mpc_horizon = 10, n_futures = 6', '"tirl"',
+     r"replay.n_futures = 6 scores open-loop futures, but replay.rollout = 'closed'"),
+])
+def test_a_closed_loop_sweep_refuses_open_loop_futures_at_the_config_check(passage_scene, tmp_path, replay, learner,
+                                                                           match):
+    out, _ = passage_scene
+    cfg = tmp_path / "closed.toml"
+    cfg.write_text(f"""
+seeds = [0]
+[[experiments]]
+scenario = "recorded"
+params = {{ tracks = "{out}", map = "{out / 'map.osm'}", replay = {{ fde_steps = [5], {replay} }} }}
+protocols = [{{ kind = "rolling", history_steps = 10, horizon = 15, stride = 5 }}]
+learners = [{learner}]
+""")
+    with pytest.raises(ValueError, match=match):
+        load_config(cfg)

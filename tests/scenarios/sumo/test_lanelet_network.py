@@ -213,3 +213,15 @@ def test_bad_map_scenarios_are_named(ring, kwargs, error, match):
         kwargs["route_weights"] = {(first if k == "R0" else k): v for k, v in kwargs["route_weights"].items()}
     with pytest.raises(error, match=match):
         SumoScenarioConfig(**kwargs)
+
+
+def test_a_scenario_file_finds_its_map_beside_it(ring, tmp_path):
+    import shutil
+
+    from pirl_sim.scenarios.sumo.scenario import load_scenario
+
+    *_, d = ring
+    shutil.copy(d / "map.osm", tmp_path / "ring.osm")
+    (tmp_path / "scenario.toml").write_text('lanelet_map = "ring.osm"\n')
+    config = load_scenario(tmp_path / "scenario.toml")
+    assert config.lanelet_map == str(tmp_path / "ring.osm") and config.routes
