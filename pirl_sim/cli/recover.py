@@ -30,6 +30,9 @@ def add_parser(p) -> None:
                    help="sumo (default), highway, or both")
     p.add_argument("--seeds", type=seed_arg, nargs="+", default=[0, 1, 2, 3], help="seeds (default 0 1 2 3)")
     p.add_argument("--population", type=Path, metavar="CONFIG", help="population TOML (default: the embedded one)")
+    p.add_argument("--scenario", type=Path, metavar="CONFIG",
+                   help="SUMO scenario TOML, e.g. from pirl-sim calibrate: its road, demand and drivers, and its "
+                        "population unless --population is given (--simulator sumo)")
     p.add_argument("--n-vehicles", type=positive_int_arg, help="override the population's number of vehicles")
     p.add_argument("--stride", type=positive_int_arg, default=1, help="score every STRIDE-th step (default 1)")
     p.add_argument("--min-steps", type=positive_int_arg, default=10,
@@ -54,10 +57,16 @@ def run(args) -> int:
     command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
 
     def make_config():
-        population = {} if args.population is None else toml_text.load(args.population, "population config")[0]
+        scenario = {} if args.scenario is None else dict(toml_text.load(args.scenario, "scenario config")[0])
+        where = scenario.get("lanelet_map")
+        if isinstance(where, str) and where and not Path(where).is_absolute():  # as simulate reads the file
+            scenario["lanelet_map"] = str(args.scenario.parent / where)
+        population = scenario.pop("population", {})
+        if args.population is not None:
+            population = toml_text.load(args.population, "population config")[0]
         jobs = recovery_jobs(sims, args.seeds, population=population, n_vehicles=args.n_vehicles,
                              control_noise=args.control_noise, noise_seeds=args.noise_seeds,
-                             min_steps=args.min_steps, stride=args.stride)
+                             min_steps=args.min_steps, stride=args.stride, scenario=scenario)
         return {"name": "recovery", "experiments": [j.experiment() for j in jobs]}, jobs
 
     def report(result, config, jobs) -> int:
@@ -83,4 +92,4 @@ def run(args) -> int:
         return finish(f"{args.out}/")
 
     return run_study("recovery", make_config, report, args, command, "simulations/\ncells/\nerrors/\nsweep.json\n",
-                     source=str(args.population or "pirl-sim recover"))
+                     source=str(args.scenario or args.population or "pirl-sim recover"))

@@ -232,6 +232,7 @@ class RecoveryJob:
     population : dict                 the population TOML's table (empty: the embedded default)
     n_vehicles : int or None          override the population's number of vehicles
     min_steps, stride : int           as :func:`recovery_report`
+    scenario : dict                   a SUMO scenario's keys and tables besides its population (empty: the ring)
     """
 
     simulator: str
@@ -241,6 +242,7 @@ class RecoveryJob:
     n_vehicles: int | None = None
     min_steps: int = 10
     stride: int = 1
+    scenario: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.simulator not in SIMULATORS:
@@ -252,7 +254,8 @@ class RecoveryJob:
         """This job as an experiment of a sweep config (the ``recovery`` kind, one seed)."""
         params = {"simulator": self.simulator, "population": dict(self.population),
                   "n_vehicles": self.n_vehicles or 0,
-                  "control_noise": -1.0 if self.control_noise is None else float(self.control_noise)}
+                  "control_noise": -1.0 if self.control_noise is None else float(self.control_noise),
+                  **({"scenario": dict(self.scenario)} if self.scenario else {})}
         noise = "" if self.control_noise is None else f" noise {self.control_noise:g}"
         return {"scenario": "recovery", "label": f"{self.simulator} seed {self.seed}{noise}", "params": params,
                 "seeds": [self.seed],
@@ -289,6 +292,8 @@ RECOVERY_PARAMS = {
     "population": Param("table", {}, "the population (a population TOML's table); empty: the embedded default"),
     "n_vehicles": Param("int", 0, "vehicles in the run; 0: the population's own"),
     "control_noise": Param("float", -1.0, "[m/s^3] noise on every applied jerk; < 0: the population's own"),
+    "scenario": Param("table", {}, "a SUMO scenario's keys and tables besides its population (a scenario TOML's, "
+                      "e.g. lanelet_map, route_weights, drivers); empty: the default ring"),
 }
 
 
@@ -313,8 +318,22 @@ def _check(params: dict) -> dict:
     if not math.isfinite(params["control_noise"]):
         raise ValueError(f"control_noise must be finite, got {params['control_noise']!r}")
     pop = _population(params)
-    return {"simulator": params["simulator"], "population": json.loads(json.dumps(pop.to_dict())),
-            "n_vehicles": int(pop.n_vehicles), "control_noise": float(pop.control_noise)}
+    out = {"simulator": params["simulator"], "population": json.loads(json.dumps(pop.to_dict())),
+           "n_vehicles": int(pop.n_vehicles), "control_noise": float(pop.control_noise)}
+    if params["scenario"]:  # written out in full (routes included); absent when empty, as before it existed
+        if params["simulator"] != "sumo":
+            raise ValueError(f"a scenario drives SUMO: simulator must be 'sumo', got {params['simulator']!r}")
+        if "population" in params["scenario"]:
+            raise ValueError("scenario: give its population as the 'population' parameter, not inside 'scenario'")
+        config = _sumo_scenario(params["scenario"], pop)
+        out["scenario"] = json.loads(json.dumps({k: v for k, v in config.to_dict().items() if k != "population"}))
+    return out
+
+
+def _sumo_scenario(scenario: dict, population):
+    from pirl_sim.scenarios.sumo.scenario import scenario_from_dict
+
+    return scenario_from_dict(scenario, source="scenario 'recovery' scenario", population=population)
 
 
 def _simulate(params: dict, seed: int, out_dir: Path) -> None:
@@ -322,7 +341,8 @@ def _simulate(params: dict, seed: int, out_dir: Path) -> None:
     if params["simulator"] == "sumo":
         from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, run_sumo_scenario
 
-        run_sumo_scenario(SumoScenarioConfig(population=pop), seed, out_dir=out_dir)
+        config = _sumo_scenario(params["scenario"], pop) if params.get("scenario") else SumoScenarioConfig(population=pop)
+        run_sumo_scenario(config, seed, out_dir=out_dir)
     else:
         from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig, run_highway_scenario
 
@@ -464,9 +484,11 @@ class RecoveryResult:
 
 
 def recovery_jobs(simulators, seeds, *, population: dict | None = None, n_vehicles: int | None = None,
-                  control_noise=(), noise_seeds=None, min_steps: int = 10, stride: int = 1) -> list[RecoveryJob]:
+                  control_noise=(), noise_seeds=None, min_steps: int = 10, stride: int = 1,
+                  scenario: dict | None = None) -> list[RecoveryJob]:
     """The study's runs: every (simulator, seed) at the population's own noise and, for the noise study, every
-    (simulator, noise level, noise seed); ValueError for an unknown simulator or no seed."""
+    (simulator, noise level, noise seed), on ``scenario``'s road (SUMO; default the ring); ValueError for an unknown
+    simulator or no seed."""
     unknown = [s for s in simulators if s not in SIMULATORS]
     if unknown or not simulators:
         raise ValueError(f"simulators must be some of {SIMULATORS}, got {list(simulators)}")
@@ -477,8 +499,9 @@ def recovery_jobs(simulators, seeds, *, population: dict | None = None, n_vehicl
     pop = dict(population or {})
     jobs = []
     for sim in simulators:
-        jobs += [RecoveryJob(sim, int(s), None, pop, n_vehicles, min_steps, stride) for s in seeds]
-        jobs += [RecoveryJob(sim, int(s), float(noise), pop, n_vehicles, min_steps, stride)
+        jobs += [RecoveryJob(sim, int(s), None, pop, n_vehicles, min_steps, stride, dict(scenario or {}))
+                 for s in seeds]
+        jobs += [RecoveryJob(sim, int(s), float(noise), pop, n_vehicles, min_steps, stride, dict(scenario or {}))
                  for noise in control_noise for s in noise_seeds]
     return jobs
 

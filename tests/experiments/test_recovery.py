@@ -96,6 +96,42 @@ def test_bad_input_is_rejected(tmp_path):
     assert not (tmp_path / "out" / "table.csv").exists()
 
 
+def _ring_map(folder):
+    from pirl_sim.io.lanelet2_map import write_map
+    from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph
+
+    write_map(*lane_graph(build_network(RoundaboutSpec(), folder / "net").net), folder / "ring.osm")
+    return folder / "ring.osm"
+
+
+def test_a_scenario_file_sets_the_road_of_a_sumo_recovery(tmp_path, capsys):
+    """``recover --scenario``: the file's road, demand and drivers in the runs' parameters (its population unless
+    --population), SUMO only, checked before any run."""
+    pytest.importorskip("sumolib")
+    pytest.importorskip("lanelet2")
+    from pirl_sim.engine.config import parse_config
+
+    _ring_map(tmp_path)
+    (tmp_path / "s.toml").write_text('lanelet_map = "ring.osm"\n[drivers]\nhorizon = 20\n[population]\n'
+                                     'n_vehicles = 7\n')
+    jobs = recovery_jobs(["sumo"], [0], scenario={"lanelet_map": str(tmp_path / "ring.osm"), "drivers": {"horizon": 20}},
+                         population={"n_vehicles": 7})
+    params = parse_config({"experiments": [j.experiment() for j in jobs]}).cells[0].scenario_params
+    assert params["scenario"]["lanelet_map"] == str(tmp_path / "ring.osm") and params["scenario"]["routes"]
+    assert params["scenario"]["drivers"]["horizon"] == 20 and params["population"]["n_vehicles"] == 7
+    plain = parse_config({"experiments": [j.experiment() for j in recovery_jobs(["sumo"], [0])]}).cells[0]
+    assert "scenario" not in plain.scenario_params  # the keys of ring runs do not change
+    assert main(["recover", "--scenario", str(tmp_path / "s.toml"), "--dry-run", "--out", str(tmp_path / "o")]) == 0
+    assert "4 cells, 0 already in" in capsys.readouterr().out  # the default seeds 0 1 2 3
+    assert main(["recover", "--scenario", str(tmp_path / "s.toml"), "--simulator", "highway", "--out",
+                 str(tmp_path / "o"), "--quiet"]) == 2
+    assert "a scenario drives SUMO: simulator must be 'sumo'" in capsys.readouterr().err
+    (tmp_path / "bad.toml").write_text('lanelet_map = "ring.osm"\ndemand_per_arm = 600.0\n')
+    assert main(["recover", "--scenario", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert "demand_per_arm sets the demand of the parametric" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "table.csv").exists()
+
+
 # ---------------------------------------------------------------------------------------------- slow
 def _recover(out, simulator, *extra):
     code = main(["recover", "--simulator", simulator, "--seeds", "0", "--n-vehicles", str(N_VEHICLES),
