@@ -576,11 +576,23 @@ def route_set(net, routes, *, smoothing: float | None = None, speed_smoothing: f
                     speed_smoothing)
 
 
+def _drop_points(lines: dict[str, np.ndarray], succ: dict[str, list[str]]) -> None:
+    """Leave out (in place) the lanes of one point, shorter than ``_DUPLICATE_TOL`` (netconvert makes such junction
+    lanes on real maps): no lanelet can hold them; their predecessors lead to their successors instead."""
+    for lid in [k for k, v in lines.items() if len(v) < 2]:
+        after = succ.pop(lid, [])
+        for k, nexts in succ.items():
+            if lid in nexts:
+                succ[k] = sorted((set(nexts) - {lid}) | set(after))
+        del lines[lid]
+
+
 def lane_graph(net) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
     """Every lane of a network (junction-internal lanes included) as centerlines with successor links.
 
     The form `pirl_sim.io.lanelet2_map.write_map` takes; lane ends and starts that meet are moved to their mean
-    (ValueError beyond `LANE_JOINT_SNAP`; SUMO page, Network geometry).
+    (ValueError beyond `LANE_JOINT_SNAP`; SUMO page, Network geometry); a lane of no length is left out, its
+    predecessors leading to its successors.
 
     Parameters
     ----------
@@ -603,6 +615,7 @@ def lane_graph(net) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
             nxt = sorted({c.getViaLaneID() or c.getToLane().getID() for c in lane.getOutgoing()})
             if nxt:
                 succ[lid] = nxt
+    _drop_points(lines, succ)
     # union-find over lane ends and starts that meet
     parent: dict[tuple[str, str], tuple[str, str]] = {}
 

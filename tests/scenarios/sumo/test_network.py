@@ -248,3 +248,15 @@ def test_large_rings_join_their_lanes_at_every_junction(tmp_path, radius, lanes)
     lines, succ = lane_graph(files.net)
     gaps = [np.hypot(*(lines[a][-1] - lines[b][0])) for a, nexts in succ.items() for b in nexts]
     assert max(gaps) == 0.0  # lane_graph moved every joint onto one point, none farther than LANE_JOINT_SNAP
+
+
+def test_a_lane_of_no_length_is_left_out_and_its_neighbours_joined():
+    """netconvert makes junction lanes of one point on some real maps (DR_USA_Roundabout_EP): no lanelet can hold
+    them, so the lanes before them lead to the lanes after them."""
+    from pirl_sim.scenarios.sumo.network import _drop_points
+
+    lines = {"a": np.array([[0.0, 0.0], [5.0, 0.0]]), ":j_0": np.array([[5.0, 0.0]]),
+             "b": np.array([[5.0, 0.0], [9.0, 0.0]]), "c": np.array([[5.0, 0.0], [5.0, 4.0]])}
+    succ = {"a": [":j_0"], ":j_0": ["b", "c"]}
+    _drop_points(lines, succ)
+    assert set(lines) == {"a", "b", "c"} and succ == {"a": ["b", "c"]}
