@@ -8,13 +8,14 @@ import logging
 import sys
 from contextlib import contextmanager
 
+from pirl_sim.extras import extra_of, install_hint
 from pirl_sim.threads import resolve_blas_threads, thread_policy
 
 from . import (agents, calibrate, fit_model, policy_recovery, predict, realism, recover, replay, report, reproduce,
                show, simulate, sweep, weight_space)
 from .common import add_blas_threads_option, error
 
-__all__ = ["main", "build_parser", "package_version", "cli_logging", "COMMANDS", "EXTRAS"]
+__all__ = ["main", "build_parser", "package_version", "cli_logging", "COMMANDS"]
 
 #: the subcommands in the order of ``pirl-sim --help``: name (the module's, ``-`` for ``_``) -> module
 COMMANDS = {module.__name__.rpartition(".")[2].replace("_", "-"): module for module in (reproduce, simulate, show,
@@ -76,14 +77,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: optional modules -> the extra of pyproject.toml that installs them (a missing one is named with its extra)
-EXTRAS = {"sumolib": "sumo", "traci": "sumo", "libsumo": "sumo", "highway_env": "highway", "gymnasium": "highway",
-          "lanelet2": "maps", "dask": "dask", "distributed": "dask", "stable_baselines3": "rl", "torch": "rl"}
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``pirl-sim`` with ``argv`` (default: the process's arguments); returns the exit status: a command's
     own, 130 for Ctrl-C and 2 for a file system error (an unwritable or full output, a directory where a file is
-    expected) or a missing optional module (named with its extra, `EXTRAS`) that the command did not handle, each
+    expected) or a missing optional module (named with its extra, `pirl_sim.extras`) that the command did not handle, each
     said in one line without a traceback."""
     args = build_parser().parse_args(argv)
     option = getattr(args, "blas_threads", None)
@@ -100,8 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         return error(exc)
     except ModuleNotFoundError as exc:
-        extra = EXTRAS.get((exc.name or "").split(".")[0])
+        extra = extra_of(exc.name)
         if extra is None:
             raise
-        return error(f"{exc.name} is not installed; pirl-sim {args.command} needs the '{extra}' extra: "
-                     f"pip install 'pirl_sim[{extra}]' (pip install -e '.[{extra}]' in a checkout)")
+        return error(f"{exc.name} is not installed; pirl-sim {args.command} needs it: {install_hint(extra)}")

@@ -26,6 +26,7 @@ import threading
 import time
 from contextlib import suppress
 
+from pirl_sim.extras import install_hint
 from pirl_sim.validation import int_at_least, number
 
 from . import worker as cell
@@ -198,7 +199,7 @@ class DaskExecutor(_Executor):
         try:
             from dask.distributed import Client
         except ImportError:  # pragma: no cover - dask is an extra
-            raise ValueError("a Dask scheduler needs dask[distributed]: pip install 'pirl_sim[dask]'") from None
+            raise ValueError(f"a Dask scheduler needs dask.distributed: {install_hint('dask')}") from None
         if (client_or_address is None) == (scheduler_file is None):
             raise ValueError("give a Dask client or scheduler address, or a scheduler file (one of them)")
         self._own = client_or_address is None or isinstance(client_or_address, str)  # a client of our own

@@ -8,6 +8,7 @@ from functools import partial
 from operator import itemgetter
 from pathlib import Path
 
+from pirl_sim.extras import install_hint
 from pirl_sim.population import Style
 
 from pirl_sim.scenarios.passage import PassageConfig
@@ -159,8 +160,7 @@ def _simulator(name: str):
     try:
         return importlib.import_module(f"pirl_sim.scenarios.{name}.scenario")
     except ModuleNotFoundError as exc:
-        raise ValueError(f"scenario {name!r} needs the {name} extra: pip install -e '.[{name}]' ({exc.name} is "
-                         "not installed)") from None
+        raise ValueError(f"scenario {name!r} needs {exc.name}, which is not installed: {install_hint(name)}") from None
 
 
 def _simulator_config(name: str, params: dict):

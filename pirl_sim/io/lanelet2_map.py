@@ -25,6 +25,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from pirl_sim.extras import install_hint
+
 from .atomic import atomic_write_text
 
 __all__ = [
@@ -81,9 +83,7 @@ def _lanelet2():
         import lanelet2.routing
         import lanelet2.traffic_rules
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "Lanelet2 maps need the lanelet2 package: pip install 'pirl_sim[maps]'"
-        ) from exc
+        raise ImportError(f"Lanelet2 maps need the lanelet2 package: {install_hint('maps')}") from exc
     return lanelet2
 
 

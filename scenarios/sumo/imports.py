@@ -6,10 +6,12 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
+from pirl_sim.extras import install_hint
+
 __all__ = ["sumo_module", "EXTRA_HINT"]
 
 #: how to install SUMO's modules (the ``sumo`` extra: eclipse-sumo, libsumo, traci, sumolib, numba)
-EXTRA_HINT = "install the 'sumo' extra: pip install 'pirl_sim[sumo]' (pip install -e '.[sumo]' in a checkout)"
+EXTRA_HINT = install_hint("sumo")
 
 
 def sumo_module(name: str) -> ModuleType:

@@ -161,5 +161,5 @@ learners = ["cv"]
 """)
     assert main(["sweep", str(cfg), "--dry-run", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert "scenario 'highway' needs the highway extra: pip install -e '.[highway]' (highway_env is not installed)" in err
+    assert "scenario 'highway' needs highway_env, which is not installed: install the 'highway' extra" in err
     assert "Traceback" not in err
