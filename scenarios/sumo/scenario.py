@@ -226,7 +226,8 @@ class SumoScenarioConfig:
             out["max_duration"] = self.max_duration
         for name in ("demand_per_arm", "lanelet_map", "route_weights"):
             if getattr(self, name) is not None:
-                out[name] = dict(self.route_weights) if name == "route_weights" else getattr(self, name)
+                out[name] = (dict(self.route_weights)  # type: ignore[arg-type]  # not None here
+                             if name == "route_weights" else getattr(self, name))
         return out
 
 
@@ -452,10 +453,10 @@ def _built_network(config: SumoScenarioConfig, cache: bool) -> _Network:
     except BaseException:
         tmp.cleanup()
         raise
-    built = _Network(tmp, files, net, catalogue, routes)
+    built = _Network(tmp, files, net, catalogue, routes)  # type: ignore[assignment]  # the network, not the map's
     if cache:
-        _NETWORKS[key] = built
-    return built
+        _NETWORKS[key] = built  # type: ignore[assignment]
+    return built  # type: ignore[return-value]
 
 
 class _SumoSimulation:
