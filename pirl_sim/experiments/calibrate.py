@@ -228,28 +228,23 @@ def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tup
     return cast(tuple[float, float], tuple(float(v) for v in np.exp(np.clip(out.x, lo, hi))))
 
 
-def _route_counts(files: Sequence[Path], lmap) -> dict[str, int]:
-    """Recorded cars per entry-to-exit route of the map (`pirl_sim.scenarios.demand.demand_from_tracks`)."""
+def _recorded_demand(files: Sequence[Path], lmap) -> tuple[float, dict[str, int]]:
+    """Summed time span [s] of the track files, and their cars per entry-to-exit route of the map
+    (`pirl_sim.scenarios.demand.demand_from_tracks`), each file read once."""
     from pirl_sim.io.interaction import read_tracks
     from pirl_sim.scenarios.demand import demand_from_tracks
     from pirl_sim.scenarios.sumo.lanelet_network import lanelet_routes
 
     routes = {tuple(int(e[2:]) for e in edges): rid for rid, edges in lanelet_routes(lmap)}
-    counts: Counter = Counter()
+    duration, counts = 0.0, Counter()  # type: ignore[var-annotated]
     for f in files:
         tracks = read_tracks(f)
-        tracks = tracks[tracks["agent_type"] == "car"]
-        if len(tracks):
-            counts.update(routes[d.route] for d in demand_from_tracks(tracks, lmap, list(routes)).departures)
-    return dict(sorted(counts.items()))
-
-
-def _recorded_duration(files: Sequence[Path]) -> float:
-    """Summed time span [s] of the track files."""
-    from pirl_sim.io.interaction import read_tracks
-
-    stamps = (read_tracks(f)["timestamp_ms"].to_numpy() for f in files)
-    return sum(((t.max() - t.min()) / 1000.0 if len(t) else 0.0 for t in stamps), 0.0)
+        stamps = tracks["timestamp_ms"].to_numpy()
+        duration += (stamps.max() - stamps.min()) / 1000.0 if len(stamps) else 0.0
+        cars = tracks[tracks["agent_type"] == "car"]
+        if len(cars):
+            counts.update(routes[d.route] for d in demand_from_tracks(cars, lmap, list(routes)).departures)
+    return duration, dict(sorted(counts.items()))
 
 
 def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_styles: int = 4, stride: int = 2,
@@ -333,7 +328,7 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     log_w = np.log(res.normalized[:, cols])
     gmm, bic = fit_styles(log_w, max_styles, seed)
     say(f"{gmm.n_components} style(s) by BIC")
-    duration = _recorded_duration(files)
+    duration, route_counts = _recorded_demand(files, lmap)
     if not duration > 0:
         raise ValueError(f"the track files span {duration:g} s: no departure rate can be read from them")
     return Calibration(a_lat=float(a_lat), v_max=float(v_max), horizon=drivers.horizon, dt=dt,
@@ -341,4 +336,4 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
                        at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged), style_share=gmm.weights_,
                        style_log_mean=gmm.means_, style_log_var=gmm.covariances_, bic=bic,
                        depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks), duration_s=duration,
-                       map_path=str(map_path), route_counts=_route_counts(files, lmap))
+                       map_path=str(map_path), route_counts=route_counts)
