@@ -338,7 +338,7 @@ class HeadwayResidual:
 #: target speed of the ``speed_hi`` feature [m/s] (72 km/h: above the speed of every roundabout)
 SPEED_HI = 20.0
 #: feature sets of `roundabout_features`
-FEATURE_SETS = ("paper", "speed-level", "following")
+FEATURE_SETS = ("paper", "speed-level", "following", "interacting")
 
 
 def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSet:
@@ -352,6 +352,9 @@ def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSe
 
     ``kind="following"`` adds to those ``headway`` (`HeadwayResidual`): the squared shortfall of the gap to the
     vehicle ahead below 2 m + 1 s x v; it needs the states of `pirl_sim.dynamics.following`.
+
+    ``kind="interacting"`` is the paper's three and ``headway``: the cost of the simulated drivers who interact
+    (`pirl_sim.scenarios.drivers`), with the states of `pirl_sim.dynamics.following`.
     """
     if kind not in FEATURE_SETS:
         raise ValueError(f"feature set must be one of {FEATURE_SETS}, got {kind!r}")
@@ -363,7 +366,7 @@ def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSe
     if kind in ("speed-level", "following"):
         feats += [squared_state("speed_sq", [1], reduction="mean"),
                   Feature("speed_hi", SpeedTargetResidual(SPEED_HI), reduction="mean", quadratic=True)]
-    if kind == "following":
+    if kind in ("following", "interacting"):
         feats.append(Feature("headway", HeadwayResidual(), reduction="mean", quadratic=False))
     return FeatureSet(tuple(feats), reference="jerk_sq")
 

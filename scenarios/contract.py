@@ -3,7 +3,8 @@
 :data:`STEP` [s] (0.1 s: the simulation step, the driver model's step and the INTERACTION frame); what a driver
 observes (:class:`VehicleView` inside a :class:`DriverObservation`; :class:`EgoView` / :class:`EgoObservation`
 the plain implementations); the controller protocol (:class:`BatchController`: one call per step,
-``commands(time, {vehicle id: observation}) -> {vehicle id: speed [m/s] one step ahead, or None}``); an agent's
+``commands(time, {vehicle id: observation}) -> {vehicle id: speed [m/s] one step ahead, or None}``, and
+``frame=`` every vehicle's :class:`Frame` for a controller whose ``needs_frame`` is true); an agent's
 vehicle (:class:`EgoSpec`); the ground truth (:func:`ground_truth_table`); and the run: :func:`run_scenario`
 ``(adapter, config, seed)`` plans, steps, records and writes a run for any :class:`SimulatorAdapter`.
 Units: SI throughout (m, s, m/s, m/s^2).
@@ -24,11 +25,12 @@ import pandas as pd
 from pirl_sim.validation import number
 
 from .planning import check_seed
-from .population_config import FEATURE_NAMES
-from .recording import FRAME_DT_S, GROUND_TRUTH_COLUMNS, ScenarioRecording
+from .population_config import FEATURE_NAMES, INTERACTION_FEATURES
+from .recording import FRAME_DT_S, GROUND_TRUTH_COLUMNS, INTERACTING_GROUND_TRUTH_COLUMNS, ScenarioRecording
 from .scenario_config import Progress, run_timing
 
-__all__ = ["STEP", "EXTRA_TIME_S", "VehicleView", "DriverObservation", "EgoView", "EgoObservation", "BatchController",
+__all__ = ["STEP", "EXTRA_TIME_S", "VehicleView", "DriverObservation", "EgoView", "EgoObservation", "Frame",
+           "BatchController",
            "EgoSpec", "ControllerWrapper", "Simulation", "SimulatorAdapter", "ground_truth_table", "run_scenario"]
 
 STEP = FRAME_DT_S  #: [s] simulation step = driver-model step = INTERACTION frame
@@ -68,6 +70,42 @@ class EgoObservation:
     """A plain :class:`DriverObservation`: the driven vehicle only."""
 
     ego: EgoView
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """Every vehicle in the simulation at one step, as the recording holds it (for drivers who interact).
+
+    Attributes
+    ----------
+    ids : tuple of str (n,)     vehicle ids
+    xy : array (n, 2) [m]       centre positions
+    psi : array (n,) [rad]      headings
+    speed : array (n,) [m/s]    speeds
+    length : array (n,) [m]     lengths
+    """
+
+    ids: tuple[str, ...]
+    xy: np.ndarray
+    psi: np.ndarray
+    speed: np.ndarray
+    length: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.ids)
+        shapes = {"xy": (n, 2), "psi": (n,), "speed": (n,), "length": (n,)}
+        for name, shape in shapes.items():
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != shape:
+                raise ValueError(f"Frame.{name} must have shape {shape} (one entry per id), got {a.shape}")
+            object.__setattr__(self, name, a)
+
+    def leaders(self) -> tuple[np.ndarray, np.ndarray]:
+        """Gap [m] to each vehicle's vehicle ahead and its speed [m/s] (`pirl_sim.scenarios.leaders.frame_leaders`,
+        bumper to bumper; inf and NaN where there is none)."""
+        from .leaders import frame_leaders
+
+        return frame_leaders(self.xy, self.psi, self.speed, self.length)
 
 
 @runtime_checkable
@@ -256,7 +294,8 @@ def ground_truth_table(*, agent_id: Sequence[str], route_id: Sequence[str], is_p
     agent_id, route_id, style_name, status : sequences of str (n,)
     is_pirl, collided, removed_early : bool arrays (n,)
     style : int array (n,)
-    theta : array (n, K) of the drivers' normalised weights in ``FEATURE_NAMES`` order (any value for non-PIRL)
+    theta : array (n, K) of the drivers' normalised weights in ``FEATURE_NAMES`` order (any value for non-PIRL); K = 4:
+        drivers who interact (``headway`` last, `INTERACTING_GROUND_TRUTH_COLUMNS`)
     interacted : bool array (n,); recorded as NA for non-PIRL tracks
     overridden_fraction : float array (n,); share of the driver's commands the simulator overrode, NaN for
         non-PIRL tracks
@@ -264,7 +303,10 @@ def ground_truth_table(*, agent_id: Sequence[str], route_id: Sequence[str], is_p
     """
     is_pirl = np.asarray(is_pirl, dtype=bool)
     n = len(is_pirl)
-    theta = np.asarray(theta, dtype=float).reshape(n, len(FEATURE_NAMES))
+    theta = np.asarray(theta, dtype=float)
+    names = FEATURE_NAMES + (INTERACTION_FEATURES if theta.ndim == 2 and theta.shape[1] == len(FEATURE_NAMES) + 1
+                             else ())
+    theta = theta.reshape(n, len(names))
     columns = {"agent_id": agent_id, "route_id": route_id, "style": style, "style_name": style_name,
                "interacted": interacted, "collided": collided, "removed_early": removed_early,
                "overridden_fraction": overridden_fraction, "status": status, "n_frames": n_frames}
@@ -278,11 +320,11 @@ def ground_truth_table(*, agent_id: Sequence[str], route_id: Sequence[str], is_p
         "is_pirl": is_pirl,
         "style": np.asarray(style, dtype=np.int64),
         "style_name": list(style_name),
-        **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
+        **{f"theta_{f}": theta[:, i] for i, f in enumerate(names)},
         "interacted": pd.array([bool(x) if p else pd.NA for x, p in zip(interacted, is_pirl)], dtype="boolean"),
         "collided": np.asarray(collided, dtype=bool),
         "removed_early": np.asarray(removed_early, dtype=bool),
         "overridden_fraction": np.where(is_pirl, np.asarray(overridden_fraction, dtype=float), np.nan),
         "status": list(status),
         "n_frames": np.asarray(n_frames, dtype=np.int64),
-    }, columns=list(GROUND_TRUTH_COLUMNS))
+    }, columns=list(INTERACTING_GROUND_TRUTH_COLUMNS if len(names) > len(FEATURE_NAMES) else GROUND_TRUTH_COLUMNS))

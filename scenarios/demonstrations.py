@@ -31,6 +31,7 @@ from pirl_sim.dynamics import longitudinal
 from pirl_sim.trajectory import Trajectory
 
 from .drivers import RouteSet, RouteSetDriverModel
+from .leaders import frame_leaders, obstacle
 from .population_config import FEATURE_NAMES
 from .recording import FRAME_DT_S, ScenarioRecording
 
@@ -138,6 +139,8 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
                   | gt["removed_early"].to_numpy())
     flags = _frame_flags(recording, exact_tol) if recording.driver_steps is not None else {}
     dyn = longitudinal(dt)
+    features = recording.theta_features
+    lead = _recorded_leaders(recording.tracks) if len(features) > len(FEATURE_NAMES) else None
     by_track = {tid: g for tid, g in recording.tracks.groupby("track_id", sort=True)}
     out = []
     for row in gt[keep].itertuples(index=False):
@@ -184,7 +187,12 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
         if arc_length == "observed":
             states = states.copy()
             states[:, 0] = s
-        theta = np.array([getattr(row, f"theta_{f}") for f in FEATURE_NAMES])
+        if lead is not None:  # the vehicle ahead as the drivers who interact saw it (`pirl_sim.dynamics.following`)
+            rows = g.index.to_numpy()[::stride]
+            speed = np.hypot(g["vx"].to_numpy(dtype=float), g["vy"].to_numpy(dtype=float))[::stride]
+            gap, v_lead = lead[0].loc[rows].to_numpy(), lead[1].loc[rows].to_numpy()
+            states = np.column_stack([states, *obstacle(gap, v_lead, speed)])
+        theta = np.array([getattr(row, f"theta_{f}") for f in features])
         meta: dict[str, Any] = {
             "track_id": int(row.track_id), "agent_id": row.agent_id, "route_id": row.route_id,
             "is_pirl": bool(row.is_pirl), "style": int(row.style), "style_name": row.style_name,
@@ -195,6 +203,20 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
                 settled(f["usable"].to_numpy(dtype=bool), settle_frames), stride, n_steps)  # type: ignore[index]
         out.append(Trajectory(states, controls, dt, meta))
     return out
+
+
+def _recorded_leaders(tracks: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
+    """Per row of a recording's tracks (by index): the gap [m] to the vehicle ahead and its speed [m/s]
+    (`pirl_sim.scenarios.leaders.frame_leaders` over the vehicles of the row's frame)."""
+    gap = np.full(len(tracks), np.inf)
+    v_lead = np.full(len(tracks), np.nan)
+    xy = tracks[["x", "y"]].to_numpy(dtype=float)
+    psi, length = tracks["psi_rad"].to_numpy(dtype=float), tracks["length"].to_numpy(dtype=float)
+    speed = np.hypot(tracks["vx"].to_numpy(dtype=float), tracks["vy"].to_numpy(dtype=float))
+    frames = np.round(tracks["time_s"].to_numpy(dtype=float) / FRAME_DT_S).astype(np.int64)
+    for rows in pd.Series(np.arange(len(tracks))).groupby(frames, sort=False).indices.values():
+        gap[rows], v_lead[rows] = frame_leaders(xy[rows], psi[rows], speed[rows], length[rows])
+    return pd.Series(gap, index=tracks.index), pd.Series(v_lead, index=tracks.index)
 
 
 def step_selection_summary(recording: ScenarioRecording, *, dt: float = FRAME_DT_S,

@@ -23,11 +23,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pirl_sim.driving import DEFAULT_BOUNDS, roundabout_features
-from pirl_sim.dynamics import longitudinal
+from pirl_sim.dynamics import following, longitudinal
 from pirl_sim.model import DriverModel
 from pirl_sim.mpc import Bounds, SequentialMPC
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
 
+from .leaders import obstacle
 from .route_set import ROUTE_SPACING, RouteSet, RouteSetProfile
 
 __all__ = [
@@ -77,8 +78,11 @@ class RouteSetDriverModel(DriverModel):
 
 def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT_A_LAT,
                     v_max: float = DEFAULT_V_MAX, bounds: Bounds | None = DEFAULT_BOUNDS, n_iter: int = 10,
-                    n_qp_iter: int = 4) -> RouteSetDriverModel:
+                    n_qp_iter: int = 4, interacting: bool = False) -> RouteSetDriverModel:
     """The paper's roundabout model (:func:`pirl_sim.driving.roundabout_model`) on every route of ``routes``.
+
+    With ``interacting`` the drivers also weigh ``headway`` to the vehicle ahead: features ``"interacting"`` of
+    `pirl_sim.driving.roundabout_features` on the states of `pirl_sim.dynamics.following` (s, v, a, g, v_L).
 
     Parameters
     ----------
@@ -93,7 +97,10 @@ def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT
         Newton iterations and bounded QPs per MPC call.
     """
     profile = RouteSetProfile(routes, a_lat, v_max)
-    return RouteSetDriverModel(longitudinal(dt), roundabout_features(profile), bounds,  # type: ignore[arg-type]
+    if not isinstance(interacting, bool):
+        raise TypeError(f"interacting must be a bool, got {interacting!r}")
+    dynamics, kind = (following(dt), "interacting") if interacting else (longitudinal(dt), "paper")
+    return RouteSetDriverModel(dynamics, roundabout_features(profile, kind), bounds,  # type: ignore[arg-type]
                                routes=routes,
                                n_iter=n_iter, n_qp_iter=n_qp_iter)
 
@@ -113,6 +120,10 @@ class PirlDrivers:
     control_noise, rng : float, Generator or None   std [m/s^3] of noise on each applied jerk; its generator (if > 0)
     override_tol, stop_speed, resume_speed : float   [m/s] a command is carried out within this; standstill hand-back
     kernel : {"auto", "numba", "numpy"}   compiled loops (`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`), or not
+
+    A model whose dynamics carry the vehicle ahead (`route_set_model` with ``interacting``) ``needs_frame``: its
+    `commands` take the step's `~pirl_sim.scenarios.contract.Frame`, whose vehicle ahead of each driver
+    (`pirl_sim.scenarios.leaders`) starts the driver's prediction, held at constant speed over it.
 
     Attributes
     ----------
@@ -188,11 +199,18 @@ class PirlDrivers:
                     if self.kernel == "numba":
                         raise
 
+    @property
+    def needs_frame(self) -> bool:
+        """Whether the drivers see other vehicles (their `commands` need ``frame``)."""
+        return self.model.dynamics.n_x > 3
+
     def __call__(self, time: float, vehicle_id: str, observation) -> float:
         """Single-vehicle :data:`~.sumo.runner.Controller` form (plans only this vehicle)."""
+        if self.needs_frame:
+            raise ValueError("drivers who interact plan in one batch with the step's frame: use commands(..., frame=)")
         return self._plan(time, {vehicle_id: observation}, prune=False)[vehicle_id]  # type: ignore[return-value]
 
-    def commands(self, time: float, observations: Mapping) -> dict[str, float | None]:
+    def commands(self, time: float, observations: Mapping, frame=None) -> dict[str, float | None]:
         """Commanded speeds [m/s] for every observed PIRL vehicle, planned in one batched MPC call.
 
         Parameters
@@ -200,6 +218,8 @@ class PirlDrivers:
         time : float
             [s]
         observations : mapping vehicle id -> Observation
+        frame : Frame or None
+            Every vehicle at this step; needed when `needs_frame` (each observed vehicle among its ids).
 
         Returns
         -------
@@ -207,9 +227,23 @@ class PirlDrivers:
             vehicle id -> speed [m/s] one step ahead in the vehicle's plan (>= 0), or None for a vehicle
             handed back to the simulator at a standstill.
         """
-        return self._plan(time, observations, prune=True)
+        if self.needs_frame and frame is None:
+            raise ValueError("these drivers weigh headway and need the step's frame: commands(time, observations, "
+                             "frame=Frame(...))")
+        return self._plan(time, observations, prune=True, frame=frame)
 
-    def _plan(self, time: float, observations: Mapping, *, prune: bool) -> dict[str, float | None]:
+    @staticmethod
+    def _obstacles(frame, vids: list, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gap [m] and speed [m/s] of the vehicle ahead of each of ``vids`` (`pirl_sim.scenarios.leaders.obstacle`)."""
+        where = {v: i for i, v in enumerate(frame.ids)}
+        missing = [v for v in vids if v not in where]
+        if missing:
+            raise ValueError(f"vehicle(s) {missing[:5]} are not in the step's frame")
+        gap, v_lead = frame.leaders()
+        rows = np.fromiter((where[v] for v in vids), dtype=np.int64, count=len(vids))
+        return obstacle(gap[rows], v_lead[rows], speed)
+
+    def _plan(self, time: float, observations: Mapping, *, prune: bool, frame=None) -> dict[str, float | None]:
         t0 = _time.perf_counter()
         if prune:  # vehicles not observed any more have left the network
             gone = [v for v in self._live if v not in observations]
@@ -259,6 +293,8 @@ class PirlDrivers:
             followed = np.isfinite(command) & (np.abs(speed - command) <= self.override_tol)
         a = np.where(followed, self._a_next[rows], accel)
         x0 = np.column_stack([self.model.routes.to_global(r, s_local), speed, a])  # type: ignore[union-attr]
+        if frame is not None and self.needs_frame:
+            x0 = np.column_stack([x0, *self._obstacles(frame, vids, speed)])
         x0 = np.clip(x0, self._lo, self._hi)  # the MPC plans from the start moved into its bounds
         at_rest = x0[:, 1] <= 0.0  # a stopped car does not decelerate further
         x0[at_rest, 2] = np.maximum(x0[at_rest, 2], 0.0)

@@ -21,11 +21,16 @@ import pandas as pd
 from .population_config import FEATURE_NAMES, PopulationConfig
 from .recording import BACKGROUND_STYLE, BACKGROUND_STYLE_NAME
 
-__all__ = ["PLAN_COLUMNS", "check_seed", "random_streams", "route_id", "check_routes", "plan_population"]
+__all__ = ["PLAN_COLUMNS", "theta_columns", "check_seed", "random_streams", "route_id", "check_routes", "plan_population"]
 
-#: columns of a plan, one row per vehicle in departure order
+#: columns of a plan, one row per vehicle in departure order (then ``theta_headway`` for drivers who interact)
 PLAN_COLUMNS: tuple[str, ...] = ("vehicle_id", "depart", "route_id", "is_pirl", "style", "style_name",
                                  *(f"theta_{f}" for f in FEATURE_NAMES))
+
+
+def theta_columns(plan: pd.DataFrame) -> list[str]:
+    """A plan's weight columns in feature order (``theta_<feature>``)."""
+    return [c for c in plan.columns if str(c).startswith("theta_")]
 
 
 def check_seed(seed) -> int:
@@ -94,7 +99,8 @@ def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed
     is_pirl = np.ones(n, dtype=bool)
     is_pirl[rng.choice(n, size=population.n_background, replace=False)] = False
     n_pirl = int(is_pirl.sum())
-    theta = np.full((n, len(FEATURE_NAMES)), np.nan)
+    features = population.feature_names
+    theta = np.full((n, len(features)), np.nan)
     style = np.full(n, BACKGROUND_STYLE, dtype=np.int64)
     if n_pirl:
         theta[is_pirl], style[is_pirl] = population.sample_weights(n_pirl, rng)
@@ -118,5 +124,5 @@ def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed
         "is_pirl": is_pirl,
         "style": style,
         "style_name": [names[s] if s >= 0 else BACKGROUND_STYLE_NAME for s in style],
-        **{f"theta_{f}": theta[:, i] for i, f in enumerate(FEATURE_NAMES)},
-    }, columns=list(PLAN_COLUMNS))
+        **{f"theta_{f}": theta[:, i] for i, f in enumerate(features)},
+    }, columns=[*PLAN_COLUMNS, *(f"theta_{f}" for f in features[len(FEATURE_NAMES):])])

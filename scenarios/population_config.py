@@ -32,6 +32,7 @@ from .passage import THREE_STYLES
 __all__ = [
     "FEATURE_NAMES",
     "FREE_FEATURES",
+    "INTERACTION_FEATURES",
     "REFERENCE_FEATURE",
     "PRESET_STYLES",
     "FrozenMapping",
@@ -57,6 +58,9 @@ FEATURE_NAMES: tuple[str, ...] = ("speed_dev", "acc_sq", "jerk_sq")
 REFERENCE_FEATURE = "jerk_sq"
 #: the features whose weights a style chooses
 FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
+#: the features of drivers who interact (``kind="interacting"`` of `pirl_sim.driving.roundabout_features`): a style
+#: that weighs them also chooses their weights; every style of a population weighs them, or none does
+INTERACTION_FEATURES: tuple[str, ...] = ("headway",)
 
 
 class FrozenMapping(Mapping):
@@ -105,7 +109,7 @@ def _feature_mapping(label: str, mapping: Any, *, allow_reference: bool) -> dict
     """A {free feature name: number} dict, with unknown names rejected."""
     if not isinstance(mapping, Mapping):
         raise ValueError(f"{label} must be a mapping of feature name -> number, got {mapping!r}")
-    allowed = FREE_FEATURES + ((REFERENCE_FEATURE,) if allow_reference else ())
+    allowed = FREE_FEATURES + INTERACTION_FEATURES + ((REFERENCE_FEATURE,) if allow_reference else ())
     unknown = [k for k in mapping if k not in allowed]
     if unknown:
         raise ValueError(f"{label}: unknown feature name(s) {', '.join(map(repr, unknown))}; allowed: "
@@ -119,16 +123,17 @@ def _feature_mapping(label: str, mapping: Any, *, allow_reference: bool) -> dict
 
 @dataclass(frozen=True)
 class StyleConfig:
-    """One driving style: a Gaussian over the normalised weights of ``speed_dev`` and ``acc_sq`` (draws kept positive
-    by redrawing, `pirl_sim.population.Population.sample_weights`).
+    """One driving style: a Gaussian over the normalised weights of ``speed_dev`` and ``acc_sq``, and of ``headway``
+    for drivers who interact (draws kept positive by redrawing, `pirl_sim.population.Population.sample_weights`).
 
     Attributes
     ----------
     name : str                    unique within a population, non-empty
     weight : float                mixture weight, > 0 (normalised over the styles)
-    mean : mapping {feature name: float}   mean normalised weights of both free features, > 0 (``jerk_sq``: 1)
+    mean : mapping {feature name: float}   mean normalised weights of both free features and, for a driver who
+        interacts, of ``headway``, > 0 (``jerk_sq``: 1)
     std : mapping {feature name: float}    independent standard deviations, >= 0 (0 where omitted); not with ``cov``
-    cov : mapping {feature name: {feature name: float}} or None   full covariance over the two free features,
+    cov : mapping {feature name: {feature name: float}} or None   full covariance over the free features,
         symmetric positive definite (a degenerate spread goes through ``std``); not with ``std``
     """
 
@@ -162,7 +167,12 @@ class StyleConfig:
                 raise ValueError(f"{label}: mean[{n!r}] must be > 0 (weights are positive), got {v!r}")
             if v > STYLE_VALUE_MAX:
                 raise ValueError(f"{label}: mean[{n!r}] must be in (0, {STYLE_VALUE_MAX:g}], got {v!r}")
+        free = self._free(mean)
         std = _feature_mapping(f"{label}: std", self.std, allow_reference=False)
+        stray = [n for n in std if n not in free]
+        if stray:
+            raise ValueError(f"{label}: std of {', '.join(map(repr, stray))}, which the mean does not weigh; give "
+                             f"its mean too")
         for n, v in std.items():
             if v < 0:
                 raise ValueError(f"{label}: std[{n!r}] must be >= 0, got {v!r}")
@@ -172,22 +182,38 @@ class StyleConfig:
         if self.cov is not None:
             if std:
                 raise ValueError(f"{label}: give std or cov, not both")
-            cov = self._checked_cov(label)
+            cov = self._checked_cov(label, free)
         object.__setattr__(self, "weight", weight)
-        object.__setattr__(self, "mean", FrozenMapping({n: mean[n] for n in FREE_FEATURES}))
-        object.__setattr__(self, "std", FrozenMapping({n: std[n] for n in FREE_FEATURES if n in std}))
+        object.__setattr__(self, "mean", FrozenMapping({n: mean[n] for n in free}))
+        object.__setattr__(self, "std", FrozenMapping({n: std[n] for n in free if n in std}))
         object.__setattr__(self, "cov", None if cov is None else FrozenMapping(
-            {a: FrozenMapping({b: float(cov[i, j]) for j, b in enumerate(FREE_FEATURES)})
-             for i, a in enumerate(FREE_FEATURES)}))
+            {a: FrozenMapping({b: float(cov[i, j]) for j, b in enumerate(free)})
+             for i, a in enumerate(free)}))
 
-    def _checked_cov(self, label: str) -> np.ndarray:
+    @staticmethod
+    def _free(mean: Mapping[str, float]) -> tuple[str, ...]:
+        return FREE_FEATURES + tuple(n for n in INTERACTION_FEATURES if n in mean)
+
+    @property
+    def free_features(self) -> tuple[str, ...]:
+        """The features whose weights this style chooses: `FREE_FEATURES`, and `INTERACTION_FEATURES` when its mean
+        weighs them."""
+        return self._free(self.mean)
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        """Every feature of this style's drivers, in the model's order (`FEATURE_NAMES`, then the interaction
+        features it weighs)."""
+        return FEATURE_NAMES + self.free_features[len(FREE_FEATURES):]
+
+    def _checked_cov(self, label: str, free: tuple[str, ...]) -> np.ndarray:
         if not isinstance(self.cov, Mapping):
             raise ValueError(f"{label}: cov must be a mapping feature -> (feature -> number), got {self.cov!r}")
-        rows = _feature_mapping_of_mappings(f"{label}: cov", self.cov)
-        k = len(FREE_FEATURES)
+        rows = _feature_mapping_of_mappings(f"{label}: cov", self.cov, free)
+        k = len(free)
         mat = np.full((k, k), np.nan)
-        for i, a in enumerate(FREE_FEATURES):
-            for j, b in enumerate(FREE_FEATURES):
+        for i, a in enumerate(free):
+            for j, b in enumerate(free):
                 if b in rows.get(a, {}):
                     mat[i, j] = rows[a][b]
         # one triangle is enough; a given pair must agree with its mirror
@@ -197,12 +223,12 @@ class StyleConfig:
                     mat[i, j] = mat[j, i]
                 elif not np.isnan(mat[j, i]) and not math.isclose(mat[i, j], mat[j, i], rel_tol=1e-9,
                                                                   abs_tol=1e-15):
-                    raise ValueError(f"{label}: cov is not symmetric: cov[{FREE_FEATURES[i]!r}]"
-                                     f"[{FREE_FEATURES[j]!r}] = {mat[i, j]} but cov[{FREE_FEATURES[j]!r}]"
-                                     f"[{FREE_FEATURES[i]!r}] = {mat[j, i]}")
+                    raise ValueError(f"{label}: cov is not symmetric: cov[{free[i]!r}]"
+                                     f"[{free[j]!r}] = {mat[i, j]} but cov[{free[j]!r}]"
+                                     f"[{free[i]!r}] = {mat[j, i]}")
         if np.isnan(mat).any():
             i, j = np.argwhere(np.isnan(mat))[0]
-            raise ValueError(f"{label}: cov misses the entry for ({FREE_FEATURES[i]!r}, {FREE_FEATURES[j]!r})")
+            raise ValueError(f"{label}: cov misses the entry for ({free[i]!r}, {free[j]!r})")
         eig = np.linalg.eigvalsh(mat)
         if eig.min() <= 1e-12 * max(1.0, float(np.abs(eig).max())):
             raise ValueError(f"{label}: cov must be positive definite, its smallest eigenvalue is "
@@ -211,15 +237,17 @@ class StyleConfig:
         return mat
 
     def covariance(self) -> np.ndarray:
-        """Covariance (2, 2) over :data:`FREE_FEATURES`, in that order."""
+        """Covariance (F, F) over `free_features`, in that order."""
+        free = self.free_features
         if self.cov is not None:
-            return np.array([[self.cov[a][b] for b in FREE_FEATURES] for a in FREE_FEATURES])
-        return np.diag([self.std.get(n, 0.0) ** 2 for n in FREE_FEATURES])
+            return np.array([[self.cov[a][b] for b in free] for a in free])
+        return np.diag([self.std.get(n, 0.0) ** 2 for n in free])
 
     def to_style(self) -> Style:
-        """The :class:`pirl_sim.population.Style` (covariance over all three features, reference fixed)."""
-        k = len(FEATURE_NAMES)
-        free = [FEATURE_NAMES.index(n) for n in FREE_FEATURES]
+        """The :class:`pirl_sim.population.Style` (covariance over all of `feature_names`, reference fixed)."""
+        names = self.feature_names
+        k = len(names)
+        free = [names.index(n) for n in self.free_features]
         cov = np.zeros((k, k))
         cov[np.ix_(free, free)] = self.covariance()
         return Style(self.name, self.weight, {**self.mean, REFERENCE_FEATURE: 1.0}, cov=cov)
@@ -238,19 +266,20 @@ class StyleConfig:
         """From a :class:`pirl_sim.population.Style` with ``std`` over the named features."""
         if style.cov is not None:
             cov = np.asarray(style.cov, dtype=float)
-            free = [FEATURE_NAMES.index(n) for n in FREE_FEATURES]
+            names = FEATURE_NAMES + tuple(n for n in INTERACTION_FEATURES if n in style.mean)
+            frees = cls._free(style.mean)
+            free = [names.index(n) for n in frees]
             sub = cov[np.ix_(free, free)]
             return cls(style.name, style.weight, dict(style.mean),
-                       cov={a: {b: float(sub[i, j]) for j, b in enumerate(FREE_FEATURES)}
-                            for i, a in enumerate(FREE_FEATURES)})
+                       cov={a: {b: float(sub[i, j]) for j, b in enumerate(frees)} for i, a in enumerate(frees)})
         return cls(style.name, style.weight, dict(style.mean), dict(style.std))
 
 
-def _feature_mapping_of_mappings(label: str, mapping: Mapping) -> dict[str, dict[str, float]]:
-    unknown = [k for k in mapping if k not in FREE_FEATURES]
+def _feature_mapping_of_mappings(label: str, mapping: Mapping, free: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    unknown = [k for k in mapping if k not in free]
     if unknown:
         raise ValueError(f"{label}: unknown feature name(s) {', '.join(map(repr, unknown))}; allowed: "
-                         f"{', '.join(FREE_FEATURES)}")
+                         f"{', '.join(free)}")
     return {str(a): _feature_mapping(f"{label}[{a!r}]", row, allow_reference=False) for a, row in mapping.items()}
 
 
@@ -299,6 +328,10 @@ class PopulationConfig:
         repeated = sorted({n for n in names if names.count(n) > 1})
         if repeated:
             raise ValueError(f"style names must be unique, repeated: {repeated}")
+        if len({s.feature_names for s in styles}) > 1:
+            weigh = [s.name for s in styles if s.feature_names != FEATURE_NAMES]
+            raise ValueError(f"every style weighs {', '.join(INTERACTION_FEATURES)} or none does: the style(s) "
+                             f"{weigh} weigh it, the others not")
         share = number("background_share", self.background_share)
         if not 0.0 <= share <= 1.0:
             raise ValueError(f"background_share must be in [0, 1], got {share!r}")
@@ -335,6 +368,17 @@ class PopulationConfig:
         return tuple(s.name for s in self.styles)
 
     @property
+    def feature_names(self) -> tuple[str, ...]:
+        """The drivers' features: `FEATURE_NAMES`, and `INTERACTION_FEATURES` when the styles weigh them."""
+        return self.styles[0].feature_names
+
+    @property
+    def interacting(self) -> bool:
+        """Whether the drivers weigh the interaction features (``kind="interacting"`` of
+        `pirl_sim.driving.roundabout_features`)."""
+        return self.feature_names != FEATURE_NAMES
+
+    @property
     def n_background(self) -> int:
         """Vehicles driven by the simulator's own model: ``round(background_share * n_vehicles)``."""
         return int(round(self.background_share * self.n_vehicles))
@@ -351,18 +395,18 @@ class PopulationConfig:
 
     def population(self, features: FeatureSet) -> Population:
         """The :class:`pirl_sim.population.Population` over ``features`` (names checked against them)."""
-        if tuple(features.names) != FEATURE_NAMES or features.reference != REFERENCE_FEATURE:
-            raise ValueError(f"features must be {FEATURE_NAMES} with reference {REFERENCE_FEATURE!r} (the "
+        if tuple(features.names) != self.feature_names or features.reference != REFERENCE_FEATURE:
+            raise ValueError(f"features must be {self.feature_names} with reference {REFERENCE_FEATURE!r} (the "
                              f"roundabout model), got {tuple(features.names)} with {features.reference!r}")
         return Population(features, tuple(s.to_style() for s in self.styles), None)
 
     def sample_weights(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Draw n drivers: normalised weights (n, 3) over :data:`FEATURE_NAMES` and style indices (n,).
+        """Draw n drivers: normalised weights (n, K) over `feature_names` and style indices (n,).
 
         :meth:`pirl_sim.population.Population.sample_weights` of :meth:`population` (styles by mixture
         weight, then each style's Gaussian, draws kept positive).
         """
-        return self.population(_naming_features()).sample_weights(n, rng)
+        return self.population(_naming_features(self.interacting)).sample_weights(n, rng)
 
     def depart_times(self, rng: np.random.Generator) -> np.ndarray:
         """Departure times [s], shape (n_vehicles,), non-decreasing, the first at 0.
@@ -392,7 +436,7 @@ class PopulationConfig:
         }
 
 
-def _naming_features() -> FeatureSet:
+def _naming_features(interacting: bool = False) -> FeatureSet:
     """The roundabout model's feature names and reference, for drawing weights without a path.
 
     ``speed_dev`` needs a reference path to be evaluated; drawing weights only needs the names, so its
@@ -402,9 +446,11 @@ def _naming_features() -> FeatureSet:
     def no_path(x, u):
         raise RuntimeError("speed_dev needs a reference path: use pirl_sim.driving.roundabout_features")
 
-    return FeatureSet((Feature("speed_dev", no_path, reduction="mean", quadratic=False),
-                       squared_state("acc_sq", [2], reduction="mean"),
-                       squared_control("jerk_sq", reduction="mean")), reference=REFERENCE_FEATURE)
+    feats = (Feature("speed_dev", no_path, reduction="mean", quadratic=False),
+             squared_state("acc_sq", [2], reduction="mean"), squared_control("jerk_sq", reduction="mean"))
+    if interacting:
+        feats += tuple(Feature(n, no_path, reduction="mean", quadratic=False) for n in INTERACTION_FEATURES)
+    return FeatureSet(feats, reference=REFERENCE_FEATURE)
 
 
 # ----------------------------------------------------------------------------------------------

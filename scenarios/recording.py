@@ -29,7 +29,9 @@ from pirl_sim.io.tables import read_csv_table
 __all__ = [
     "TRACK_COLUMNS",
     "GROUND_TRUTH_COLUMNS",
+    "INTERACTING_GROUND_TRUTH_COLUMNS",
     "THETA_FEATURES",
+    "INTERACTION_THETA_FEATURES",
     "STATUSES",
     "TRACKS_FILE",
     "GROUND_TRUTH_FILE",
@@ -56,6 +58,8 @@ _GRID_TOL = 1e-6  # [frames] times must sit this close to the 100 ms grid
 
 #: features whose ground-truth weights the sidecar holds (the roundabout driver model's, in its order)
 THETA_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq", "jerk_sq")
+#: and, after them, of drivers who interact (`pirl_sim.scenarios.population_config.INTERACTION_FEATURES`)
+INTERACTION_THETA_FEATURES: tuple[str, ...] = ("headway",)
 #: what became of a track: left at the end of its route, taken out early, or still driving at the end
 STATUSES: tuple[str, ...] = ("arrived", "vanished", "running")
 
@@ -63,17 +67,22 @@ STATUSES: tuple[str, ...] = ("arrived", "vanished", "running")
 TRACK_COLUMNS: tuple[str, ...] = (
     "track_id", "time_s", "agent_type", "x", "y", "vx", "vy", "psi_rad", "length", "width",
 )
+
+
+def _ground_truth_columns(features: tuple[str, ...]) -> tuple[str, ...]:
+    return ("track_id", "agent_id", "route_id", "is_pirl", "style", "style_name", *(f"theta_{f}" for f in features),
+            "interacted", "collided", "removed_early", "overridden_fraction", "status", "n_frames")
+
+
 #: columns of :attr:`ScenarioRecording.ground_truth` and ``ground_truth.csv``: one row per track
-GROUND_TRUTH_COLUMNS: tuple[str, ...] = (
-    "track_id", "agent_id", "route_id", "is_pirl", "style", "style_name",
-    *(f"theta_{f}" for f in THETA_FEATURES),
-    "interacted", "collided", "removed_early", "overridden_fraction", "status", "n_frames",
-)
+GROUND_TRUTH_COLUMNS: tuple[str, ...] = _ground_truth_columns(THETA_FEATURES)
+#: the same with the interaction weights, for a population of drivers who interact
+INTERACTING_GROUND_TRUTH_COLUMNS: tuple[str, ...] = _ground_truth_columns(THETA_FEATURES + INTERACTION_THETA_FEATURES)
 _GT_DTYPES = {
     "track_id": "int64", "agent_id": "object", "route_id": "object", "is_pirl": "bool", "style": "int64",
-    "style_name": "object", **{f"theta_{f}": "float64" for f in THETA_FEATURES}, "interacted": "boolean",
-    "collided": "bool", "removed_early": "bool", "overridden_fraction": "float64", "status": "object",
-    "n_frames": "int64",
+    "style_name": "object", **{f"theta_{f}": "float64" for f in THETA_FEATURES + INTERACTION_THETA_FEATURES},
+    "interacted": "boolean", "collided": "bool", "removed_early": "bool", "overridden_fraction": "float64",
+    "status": "object", "n_frames": "int64",
 }
 #: columns of :attr:`ScenarioRecording.driver_steps` and ``driver_steps.csv``: one row per PIRL track per frame
 DRIVER_STEP_COLUMNS: tuple[str, ...] = ("track_id", "frame_id", "commanded", "overridden", "collided",
@@ -89,7 +98,8 @@ class ScenarioRecording:
     Attributes
     ----------
     tracks : pandas.DataFrame               `TRACK_COLUMNS`; ``time_s`` [s] on the 100 ms grid, >= 0.1 s; any row order
-    ground_truth : pandas.DataFrame         `GROUND_TRUTH_COLUMNS`, one row per track, sorted by ``track_id``
+    ground_truth : pandas.DataFrame         `GROUND_TRUTH_COLUMNS` (`INTERACTING_GROUND_TRUTH_COLUMNS` for drivers who
+                                            interact), one row per track, sorted by ``track_id``
     lanes : mapping str -> numpy.ndarray    lane centerlines (P, 2) [m] for the map
     successors : mapping str -> sequence of str   lane successors for the map
     info : mapping                          JSON-serialisable description of the run, without wall-clock times
@@ -106,7 +116,9 @@ class ScenarioRecording:
 
     def __post_init__(self) -> None:
         tracks, gt = self.tracks, self.ground_truth
-        for label, df, cols in (("tracks", tracks, TRACK_COLUMNS), ("ground_truth", gt, GROUND_TRUTH_COLUMNS)):
+        interacting = isinstance(gt, pd.DataFrame) and tuple(gt.columns) == INTERACTING_GROUND_TRUTH_COLUMNS
+        gt_cols = INTERACTING_GROUND_TRUTH_COLUMNS if interacting else GROUND_TRUTH_COLUMNS
+        for label, df, cols in (("tracks", tracks, TRACK_COLUMNS), ("ground_truth", gt, gt_cols)):
             if not isinstance(df, pd.DataFrame):
                 raise ValueError(f"{label} must be a pandas DataFrame, got {type(df).__name__}")
             if tuple(df.columns) != cols:
@@ -130,9 +142,9 @@ class ScenarioRecording:
                              f"{only_tracks[:10]}, only in ground_truth: {only_gt[:10]}")
         if not np.all(np.diff(gt_ids) > 0):
             raise ValueError("ground_truth must be sorted by track_id")
-        gt = gt.astype(_GT_DTYPES)
+        gt = gt.astype({c: _GT_DTYPES[c] for c in gt_cols})
         pirl = gt["is_pirl"].to_numpy()
-        theta = gt[[f"theta_{f}" for f in THETA_FEATURES]].to_numpy(dtype=float)
+        theta = gt[[f"theta_{f}" for f in self._theta_features(gt)]].to_numpy(dtype=float)
         bad = pirl & ((gt["style"].to_numpy() < 0) | ~np.all(np.isfinite(theta) & (theta > 0), axis=1))
         if bad.any():
             raise ValueError(f"PIRL tracks need a style >= 0 and positive weights; track "
@@ -161,6 +173,16 @@ class ScenarioRecording:
         object.__setattr__(self, "lanes", MappingProxyType(dict(self.lanes)))
         object.__setattr__(self, "successors", MappingProxyType({k: tuple(v) for k, v in self.successors.items()}))
         object.__setattr__(self, "info", MappingProxyType(dict(self.info)))
+
+    @staticmethod
+    def _theta_features(gt: pd.DataFrame) -> tuple[str, ...]:
+        return THETA_FEATURES + tuple(f for f in INTERACTION_THETA_FEATURES if f"theta_{f}" in gt.columns)
+
+    @property
+    def theta_features(self) -> tuple[str, ...]:
+        """The features whose true weights the ground truth holds: `THETA_FEATURES`, then
+        `INTERACTION_THETA_FEATURES` for drivers who interact."""
+        return self._theta_features(self.ground_truth)
 
     @property
     def pirl_track_ids(self) -> np.ndarray:
@@ -349,15 +371,15 @@ def read_recording(directory) -> ScenarioRecording:
         raise FileNotFoundError(f"ground truth not found: {gt_path}")
     try:
         gt = pd.read_csv(gt_path, dtype={"agent_id": str, "route_id": str, "style_name": str, "status": str},
-                         keep_default_na=False, na_values={c: [""] for c in GROUND_TRUTH_COLUMNS
+                         keep_default_na=False, na_values={c: [""] for c in INTERACTING_GROUND_TRUTH_COLUMNS
                                                            if c not in ("agent_id", "route_id", "style_name",
                                                                         "status")}, encoding="utf-8")
     except (UnicodeDecodeError, pd.errors.EmptyDataError, pd.errors.ParserError) as exc:
         raise ValueError(f"{gt_path}: not a UTF-8 CSV table ({type(exc).__name__}: {exc}); the ground truth has the "
                          f"columns {', '.join(GROUND_TRUTH_COLUMNS)}") from None
-    if tuple(gt.columns) != GROUND_TRUTH_COLUMNS:
-        raise ValueError(f"{gt_path}: expected the columns {', '.join(GROUND_TRUTH_COLUMNS)}, found "
-                         f"{', '.join(map(str, gt.columns))}")
+    if tuple(gt.columns) not in (GROUND_TRUTH_COLUMNS, INTERACTING_GROUND_TRUTH_COLUMNS):
+        raise ValueError(f"{gt_path}: expected the columns {', '.join(GROUND_TRUTH_COLUMNS)} (theta_headway after "
+                         f"theta_jerk_sq for drivers who interact), found {', '.join(map(str, gt.columns))}")
     gt["interacted"] = gt["interacted"].map({True: True, False: False, "True": True, "False": False},
                                             na_action="ignore").astype("boolean")
     lmap = load_map(d / MAP_FILE)

@@ -47,6 +47,7 @@ from pirl_sim.validation import is_positive_int, number
 
 from .conflicts import ConflictRule, TrackMotion, yield_gaps
 from .demonstrations import settled
+from .leaders import NO_LEADER_GAP, frame_leaders, obstacle
 
 __all__ = ["SelectionRule", "CENTRE_RULE", "GAPS", "leader_gaps", "leader_frames", "selection_counts", "ReplayScene", "HistoryEstimator", "EstimateNoise", "DriverSettings", "load_replay", "interaction_flags",
            "track_key", "recording_settings", "is_recording", "FRAME_DT", "MAX_BRIDGE", "MEASURED_NOISE", "SIMULATED_NOISE",
@@ -64,6 +65,10 @@ DRIVER_STEPS_FILE = "driver_steps.csv"  #: per-step driver flags of a pirl_sim r
 RUN_INFO_FILE = "run.json"  #: a pirl_sim recording's run information (drivers' horizon, step, ...)
 #: columns of ``driver_steps.csv`` that the replay reads
 DRIVER_STEP_FLAGS = ("track_id", "frame_id", "commanded", "overridden", "collided")
+#: feature sets whose states carry the vehicle ahead (`pirl_sim.dynamics.following`): ``following`` also yields at
+#: conflict points (`pirl_sim.scenarios.conflicts`); ``interacting`` sees the vehicle ahead only
+#: (`pirl_sim.scenarios.leaders`), as the simulated drivers who interact do
+GAP_FEATURE_SETS = ("following", "interacting")
 
 
 @dataclass(frozen=True)
@@ -264,7 +269,7 @@ class ReplayScene:
     repairs : dict {what: count}  route-matching repairs of kept tracks (see module doc)
     selection : {"tracks", "steps"}  how `selected` chooses (module doc)
     steps : dict {what: count}    with ``selection="steps"``: steps of dt kept and left out by the masks
-    features : {"paper", "speed-level", "following"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
+    features : {"paper", "speed-level", "following", "interacting"}  the model's feature set (`pirl_sim.driving.roundabout_features`)
     """
 
     model: PathDriverModel
@@ -398,32 +403,17 @@ def leader_gaps_and_speeds(df: pd.DataFrame, rule: SelectionRule,
         return out, speed_out
     vx, vy = df["vx"].to_numpy(dtype=float), df["vy"].to_numpy(dtype=float)
     speeds = np.hypot(vx, vy)
-    cos_max = np.cos(np.deg2rad(rule.max_heading_diff_deg))
     frames = df["frame_id"].to_numpy()
     # columns as arrays once: indexing the frame's rows of a DataFrame cost 80 % of a file's load time
     xy_all = df[["x", "y"]].to_numpy(dtype=float)
     psi_all = df["psi_rad"].to_numpy(dtype=float) if "psi_rad" in df else np.arctan2(vy, vx)
-    head_all = np.column_stack([np.cos(psi_all), np.sin(psi_all)])
-    half_all = 0.5 * np.nan_to_num(df["length"].to_numpy(dtype=float)) if rule.gap == "bumper" else None
+    length_all = df["length"].to_numpy(dtype=float) if rule.gap == "bumper" else None
     for rows in pd.Series(np.arange(len(df))).groupby(frames, sort=False).indices.values():
         if len(rows) < 2:
             continue
-        xy, head = xy_all[rows], head_all[rows]
-        rel = xy[None, :, :] - xy[:, None, :]  # rel[i, j] = j seen from i
-        gap = np.linalg.norm(rel, axis=-1)
-        if half_all is not None:
-            half = half_all[rows]
-            gap = gap - half[:, None] - half[None, :]
-        ahead = np.einsum("ijk,ik->ij", rel, head) > 0
-        same_dir = head @ head.T >= cos_max
-        if max_lateral is not None:
-            across = np.abs(rel[..., 1] * head[:, None, 0] - rel[..., 0] * head[:, None, 1])
-            same_dir = same_dir & (across <= max_lateral)
-        gap = np.where(ahead & same_dir, gap, np.inf)
-        np.fill_diagonal(gap, np.inf)
-        nearest = gap.argmin(axis=1)
-        out[rows] = gap[np.arange(len(rows)), nearest]
-        speed_out[rows] = np.where(np.isfinite(out[rows]), speeds[rows][nearest], np.nan)
+        out[rows], speed_out[rows] = frame_leaders(
+            xy_all[rows], psi_all[rows], speeds[rows], None if length_all is None else length_all[rows],
+            max_heading_diff_deg=rule.max_heading_diff_deg, max_lateral=max_lateral)
     return out, speed_out
 
 
@@ -561,7 +551,7 @@ def load_replay(
     selection, min_usable_steps, settle_frames : str, int, int or None   ``"steps"``: ``driver_steps.csv`` masks
     smoothing, speed_smoothing, a_lat, v_max : float   [m] reference paths, v_des curvature; [m/s^2, m/s] v_des
     arc_length : {"fit", "observed"}   s from the estimate (real data) or the projected positions
-    features : {"paper", "speed-level", "following"}   the feature set (`pirl_sim.driving.roundabout_features`)
+    features : {"paper", "speed-level", "following", "interacting"}   the feature set (`pirl_sim.driving.roundabout_features`)
     """
     from .demonstrations import SETTLE_FRAMES
 
@@ -629,7 +619,7 @@ def load_replay(
         df = df[df["agent_type"].isin(rule.agent_types)].reset_index(drop=True)
         lead = leader_frames(df, rule)
         lead_centre = leader_frames(df, CENTRE_RULE)
-        if features == "following":
+        if features in GAP_FEATURE_SETS:
             gaps_all, lead_speed_all = leader_gaps_and_speeds(df, SelectionRule(gap="bumper"), max_lateral=2.0)
         ids = df["track_id"].to_numpy()
         flags = {int(t): bool(lead[ids == t].any()) for t in np.unique(ids)}
@@ -705,9 +695,9 @@ def load_replay(
                 row = truth.loc[int(track_id)]
                 meta["truth"] = row.to_dict()
             extra = {"v": speed[sel], "psi": psi[sel], "free": _free_steps(lead_t[keep], stride)}
-            if features == "following":
+            if features in GAP_FEATURE_SETS:
                 rows_k = track.index.to_numpy()[keep]
-                extra["gap"], extra["v_lead"] = _obstacle(gaps_all[rows_k], lead_speed_all[rows_k], speed)
+                extra["gap"], extra["v_lead"] = obstacle(gaps_all[rows_k], lead_speed_all[rows_k], speed)
                 extra["gap"], extra["v_lead"] = extra["gap"][sel], extra["v_lead"][sel]
                 meta["_motion"] = TrackMotion(frames[keep], s_local, speed, xy,
                                               track["psi_rad"].to_numpy(dtype=float)[keep], path_list[paths[key]])
@@ -783,13 +773,13 @@ def load_replay(
         s = s_local + composite.offsets[segment]  # type: ignore[attr-defined]
         states, controls = _estimate(s, cut, cut.get("estimate_mask"), dt, estimate,  # type: ignore[attr-defined]
                                      noise, jerk_weight, arc_length)
-        if features == "following":  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
+        if features in GAP_FEATURE_SETS:  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
             states = np.column_stack([states, cut["gap"], cut["v_lead"]])  # type: ignore[index]
-            meta = dict(meta, yielding=cut["yielding"])  # type: ignore[index]
-            n_steps_counts["steps yielding at a conflict point"] += int(
-                cut["yielding"][:-1].sum())  # type: ignore[index]
+            yielding = cut.get("yielding", np.zeros(len(states), dtype=bool))  # type: ignore[attr-defined]
+            meta = dict(meta, yielding=yielding)
+            n_steps_counts["steps yielding at a conflict point"] += int(yielding[:-1].sum())
             n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &  # type: ignore[index]
-                                                                   ~cut["yielding"])[:-1].sum())  # type: ignore[index]
+                                                                   ~yielding)[:-1].sum())
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy), s_obs=np.asarray(s),
                     v_obs=np.asarray(cut["v"]), psi_obs=np.asarray(cut["psi"]),  # type: ignore[index]
                     estimator=estimator)
@@ -901,13 +891,9 @@ def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a
     """The roundabout model on ``composite`` (`pirl_sim.driving.roundabout_model`), its desired speed from
     the curvature smoothed per path by ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`)."""
     profile_path = _profile_path(composite, speed_smoothing)
-    dynamics = following(dt) if features == "following" else longitudinal(dt)
+    dynamics = following(dt) if features in GAP_FEATURE_SETS else longitudinal(dt)
     features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max), features)  # type: ignore[assignment]
     return PathDriverModel(dynamics, features, DEFAULT_BOUNDS, path=composite)  # type: ignore[arg-type]
-
-
-#: gap [m] standing in for "no vehicle ahead" in the states of `pirl_sim.dynamics.following`
-NO_LEADER_GAP = 100.0
 
 
 def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
@@ -927,13 +913,6 @@ def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
             extra["gap"] = np.where(nearer, g, extra["gap"])
             extra["v_lead"] = np.where(nearer, v, extra["v_lead"])
             extra["yielding"] = nearer
-
-
-def _obstacle(gap: np.ndarray, v_lead: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame: the gap to the vehicle ahead, capped at `NO_LEADER_GAP` (also where there is none), and its
-    speed (the car's own where there is none, so that the capped gap stays put over a prediction)."""
-    none = ~np.isfinite(gap) | (gap > NO_LEADER_GAP)
-    return np.where(none, NO_LEADER_GAP, gap), np.where(none | ~np.isfinite(v_lead), speed, v_lead)
 
 
 def _driver_steps(track_file: Path) -> dict[int, pd.DataFrame]:

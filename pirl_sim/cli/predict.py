@@ -80,7 +80,8 @@ def _model_settings(model) -> dict:
     [m/s] (`load_track_scene`'s keywords)."""
     names = model.features.names
     out: dict[str, str | float]
-    out = {"features": "following" if "headway" in names else "speed-level" if "speed_sq" in names else "paper"}
+    out = {"features": ("following" if "speed_sq" in names else "interacting") if "headway" in names else
+           "speed-level" if "speed_sq" in names else "paper"}
     for feature in model.features.features:
         profile = getattr(feature.residual, "profile", None)
         if feature.name == "speed_dev" and profile is not None:

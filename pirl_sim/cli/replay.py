@@ -150,9 +150,11 @@ class ReplayOptions:
     features: str | None = _option(None, "the cost's features: 'paper' (speed_dev, acc_sq, jerk_sq), 'speed-level' "
                                    "(also speed_sq and speed_hi: a speed level of each driver's own) or 'following' "
                                    "(speed-level and headway: the gap to the recorded vehicle ahead, held at constant "
-                                   "velocity over a prediction; selection defaults to 'all') "
+                                   "velocity over a prediction, and the conflict points a car yields at; selection defaults to 'all') "
+                                   "or 'interacting' (paper and headway to the vehicle ahead only: the simulated "
+                                   "drivers' cost when their population weighs headway) "
                                    "(pirl_sim.driving.roundabout_features) (default: --preset's)",
-                                   choices=("paper", "speed-level", "following"))
+                                   choices=("paper", "speed-level", "following", "interacting"))
     lateral: str | None = _option(
         None, "lateral offsets of every path-based prediction (baselines and learners): 'hold' the last observed one, "
         "or follow the training tracks' 'mean-path' of the route, or their mean path pooled over routes in the "
@@ -313,7 +315,7 @@ class ReplayOptions:
         simulated, preset = is_recording(tracks), data_preset(tracks, self.preset)
         features, desired_speed = self.features or preset["features"], self.desired_speed or preset["desired_speed"]
         selection = self.selection or ("steps" if receding and steps_file.is_file() else
-                                       "all" if features == "following" else preset["selection"])
+                                       "all" if features in ("following", "interacting") else preset["selection"])
         if selection == "steps" and not steps_file.is_file():
             raise ValueError(f"--selection steps needs {DRIVER_STEPS_FILE} beside the tracks (pirl_sim recordings); "
                              f"none in {steps_file.parent}")

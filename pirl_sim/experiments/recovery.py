@@ -29,7 +29,8 @@ from .spec import Param, ScenarioSpec, TrainShape
 
 __all__ = ["SIMULATORS", "TARGETS", "RunRecovery", "recovery_report", "summary_row", "check_targets",
            "RecoveryJob", "recovery_jobs", "recovery_result", "RecoveryResult", "SPEC",
-           "LEARNERS", "to_record", "from_record", "write_recovery", "compact_table", "FREE_FEATURES"]
+           "LEARNERS", "to_record", "from_record", "write_recovery", "compact_table", "FREE_FEATURES",
+           "INTERACTION_FEATURES"]
 
 #: simulators of ``pirl-sim recover`` (the ``simulator`` entry of a run's ``run.json`` in brackets):
 #: sumo ("sumo"), highway ("highway-env")
@@ -37,6 +38,13 @@ SIMULATORS: tuple[str, ...] = ("sumo", "highway")
 _RUN_SIMULATOR = {"sumo": "sumo", "highway-env": "highway"}
 #: the features whose weights differ between drivers (jerk_sq is the reference, 1 for everybody)
 FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
+#: and, for drivers who interact, the weight of the gap to the vehicle ahead
+INTERACTION_FEATURES: tuple[str, ...] = ("headway",)
+#: [m] a step informs the ``headway`` weight when the gap is below the safe gap plus this margin (the feature's
+#: residual is then >= about 5 % of its softness; beyond, the weight has no measurable effect on the plan)
+HEADWAY_MARGIN = 3.0
+#: usable steps near a vehicle ahead (`HEADWAY_MARGIN`) a track needs to count for the ``headway`` scores
+MIN_HEADWAY_STEPS = 5
 _FLOAT = "%.4g"
 
 #: the recovery targets, per simulator: (column of a summary row, "<=" or ">=", threshold)
@@ -120,7 +128,8 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
     if simulator is None:
         raise ValueError(f"unknown simulator {info.get('simulator')!r} in the run's info")
     names = tuple(run.model.features.names)
-    free = [names.index(f) for f in FREE_FEATURES]
+    free_names = tuple(f for f in FREE_FEATURES + INTERACTION_FEATURES if f in names)
+    free = [names.index(f) for f in free_names]
     gt = run.recording.ground_truth
     n_pirl = int(gt["is_pirl"].sum())
     selection = run.step_selection_summary(min_steps=min_steps)
@@ -135,15 +144,17 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
         "usable_steps": [int(np.sum(d.metadata[STEP_MASK])) for d in demos],
         "fitted_steps": res.fitted_steps,
     }
-    for f, k in zip(FREE_FEATURES, free):
+    for f, k in zip(free_names, free):
         rows[f"theta_{f}"] = truth[:, k]
         rows[f"theta_hat_{f}"] = res.normalized[:, k]
         rows[f"log_err_{f}"] = np.log(res.normalized[:, k] / truth[:, k])
+    if "headway" in names:
+        rows["headway_steps"] = [_headway_steps(run.model, d) for d in demos]
     rows["sigma"] = res.sigma
     rows["converged"] = res.converged
     rows["at_bound"] = res.at_bound
     tracks = pd.DataFrame(rows)
-    weights = RecoveryReport(FREE_FEATURES, truth[:, free], res.normalized[:, free], np.asarray(rows["track_id"]),
+    weights = RecoveryReport(free_names, truth[:, free], res.normalized[:, free], np.asarray(rows["track_id"]),
                              tuple(rows["style_name"]), res.converged, res.fitted_steps,  # type: ignore[arg-type]
                              reference=names[run.model.features.reference_index],
                              source=f"{simulator} seed {int(info['seed'])}")
@@ -156,7 +167,7 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
         mean = np.mean([d.metadata["theta"] for d in members], axis=0)
         row = {"style_name": name, "tracks": len(members),
                "fitted_steps": int(tirl.irl_result_.n_steps[0])}
-        for f, k in zip(FREE_FEATURES, free):
+        for f, k in zip(free_names, free):
             row[f"theta_mean_{f}"] = mean[k]
             row[f"theta_tirl_{f}"] = tirl.theta_[k]
             row[f"log_err_{f}"] = float(np.log(tirl.theta_[k] / mean[k]))
@@ -166,6 +177,17 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
     tirl_time = time.perf_counter() - t0
     return RunRecovery(simulator, int(info["seed"]), float(run.control_noise), n_pirl, tracks,
                        pd.DataFrame(style_rows), selection, fit_time, tirl_time, weights)
+
+
+def _headway_steps(model, demo) -> int:
+    """Usable steps of a demonstration whose gap to the vehicle ahead is below the ``headway`` feature's safe gap
+    plus `HEADWAY_MARGIN` (the steps that inform its weight)."""
+    from pirl_sim.receding import STEP_MASK
+
+    res = model.features.features[list(model.features.names).index("headway")].residual
+    x = demo.states[:-1]
+    near = x[:, 3] < res.standstill + res.time_gap * x[:, 1] + HEADWAY_MARGIN
+    return int(np.sum(near & np.asarray(demo.metadata[STEP_MASK], dtype=bool)))
 
 
 def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) -> dict[str, Any]:
@@ -189,13 +211,21 @@ def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) 
         "usable_steps": int(tracks["usable_steps"].sum()),
         "fitted_steps": int(tracks["fitted_steps"].sum()),
     }
-    for f in FREE_FEATURES:
+    features = [f for f in FREE_FEATURES + INTERACTION_FEATURES if f"log_err_{f}" in tracks]
+    for f in features:
         err = np.abs(tracks[f"log_err_{f}"].to_numpy())
         row[f"median_abs_log_err_{f}"] = float(np.median(err)) if n else math.nan
         row[f"p90_abs_log_err_{f}"] = float(np.percentile(err, 90)) if n else math.nan
         row[f"max_abs_log_err_{f}"] = float(err.max()) if n else math.nan
         row[f"spearman_{f}"] = spearman(tracks[f"theta_{f}"].to_numpy(), tracks[f"theta_hat_{f}"].to_numpy())
-    for f in FREE_FEATURES:
+    if "headway_steps" in tracks:  # the weight of the gap, where the data hold it
+        near = tracks[tracks["headway_steps"] >= MIN_HEADWAY_STEPS]
+        err = np.abs(near["log_err_headway"].to_numpy())
+        row["headway_tracks"] = int(len(near))
+        row["median_abs_log_err_headway_near"] = float(np.median(err)) if len(near) else math.nan
+        row["p90_abs_log_err_headway_near"] = float(np.percentile(err, 90)) if len(near) else math.nan
+        row["spearman_headway_near"] = spearman(near["theta_headway"].to_numpy(), near["theta_hat_headway"].to_numpy())
+    for f in features:
         row[f"tirl_max_abs_log_err_{f}"] = float(np.abs(styles[f"log_err_{f}"]).max()) if len(styles) else math.nan
     row["converged"] = int(tracks["converged"].sum())
     row["groups"] = int(n)
@@ -537,6 +567,11 @@ def compact_table(table: pd.DataFrame) -> pd.DataFrame:
     out["steps"] = table["usable_steps"]
     for col, short in _SHORT.items():
         out[short] = table[col]
+    if "headway_tracks" in table:  # drivers who interact: the gap's weight, over all tracks and near a vehicle ahead
+        out["med hw"] = table["median_abs_log_err_headway"]
+        out["hw tracks"] = table["headway_tracks"]
+        out["med hw near"] = table["median_abs_log_err_headway_near"]
+        out["rho hw near"] = table["spearman_headway_near"]
     out["conv"] = [f"{c}/{g}" for c, g in zip(table["converged"], table["groups"])]
     out["at bound"] = table["at_bound"]
     out["TIRL conv"] = [f"{c}/{g}" for c, g in zip(table["tirl_converged"], table["tirl_groups"])]

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..contract import STEP, BatchController  # noqa: F401  (BatchController: the contract's, re-exported)
+from ..contract import STEP, BatchController, Frame  # noqa: F401  (BatchController: the contract's, re-exported)
 from .network import NetworkFiles, load_net, validate_route
 from .imports import sumo_module
 
@@ -307,6 +307,16 @@ class Observation:
     def __repr__(self) -> str:
         return (f"Observation(time={self.time!r}, vehicle_id={self.vehicle_id!r}, ego={self.ego!r}, "
                 f"others=<{len(self.others)} vehicles>, route_edges={self.route_edges!r})")
+
+
+def _frame(ids: list[str], states: Mapping[str, VehicleState]) -> Frame:
+    """Every vehicle of the step (`~pirl_sim.scenarios.contract.Frame`), in the order of ``ids``."""
+    st = [states[v] for v in ids]
+    n = len(st)
+    return Frame(tuple(ids), np.fromiter((c for x in st for c in (x.x, x.y)), dtype=float, count=2 * n).reshape(n, 2),
+                 np.fromiter((x.psi_rad for x in st), dtype=float, count=n),
+                 np.fromiter((x.speed for x in st), dtype=float, count=n),
+                 np.fromiter((x.length for x in st), dtype=float, count=n))
 
 
 def _leader_from_run():  # marker: Observation.leader asks its run
@@ -705,7 +715,8 @@ class SumoRun:
                 observations[vid] = of_run(self, t, vid, frozen_states, self.routes[rec.spec.route_id])
             batch = None
             if observations and self._batch:
-                batch = self.controller.commands(t, MappingProxyType(observations))  # type: ignore[union-attr]
+                extra = {"frame": _frame(ids, states)} if getattr(self.controller, "needs_frame", False) else {}
+                batch = self.controller.commands(t, MappingProxyType(observations), **extra)  # type: ignore[union-attr]
                 if not isinstance(batch, Mapping):
                     raise ValueError(f"controller.commands returned {type(batch).__name__} at t = {t} s; "
                                      "expected a mapping vehicle id -> speed or None")

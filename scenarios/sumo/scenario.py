@@ -30,8 +30,8 @@ from pirl_sim.validation import number
 
 from ..demonstrations import RecordedRun, recorded_demonstrations
 from ..drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_model
-from ..planning import check_routes, plan_population, random_streams
-from ..population_config import DEFAULT_POPULATION, FEATURE_NAMES, PopulationConfig
+from ..planning import check_routes, plan_population, random_streams, theta_columns
+from ..population_config import DEFAULT_POPULATION, PopulationConfig
 from ..recording import (
     BACKGROUND_STYLE,
     DRIVER_STEP_COLUMNS,
@@ -496,9 +496,9 @@ class _SumoSimulation:
             files = built.files
             self.network_files = (files.nodes, files.edges, files.connections, files.net, vtypes)
             model = route_set_model(self.routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
-                                    n_qp_iter=drv.n_qp_iter)
+                                    n_qp_iter=drv.n_qp_iter, interacting=config.population.interacting)
             pirl = plan[plan["is_pirl"]]
-            theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
+            theta_cols = theta_columns(plan)
             self.controller = PirlDrivers(
                 model, {r.vehicle_id: (r.route_id, np.array([getattr(r, c) for c in theta_cols]))
                         for r in pirl.itertuples(index=False)},
@@ -579,7 +579,7 @@ class _SumoSimulation:
         if spec is not None:
             ego = {"vehicle_id": spec.vehicle_id, "depart": spec.depart, "route_id": spec.route_id,
                    "is_pirl": False, "style": BACKGROUND_STYLE, "style_name": "ego",
-                   **{f"theta_{f}": np.nan for f in FEATURE_NAMES}}
+                   **{c: np.nan for c in theta_columns(plan)}}
             plan = pd.concat([plan, pd.DataFrame([ego])], ignore_index=True)
         sumo = self.sumo_recording if self.sumo_recording is not None else self.run.recording()
         return scenario_recording(plan, sumo, lanes, successors, info, set(self.controller.handbacks))
@@ -631,7 +631,7 @@ def scenario_recording(plan: pd.DataFrame, rec: SumoRecording, lanes, successors
     collided = s["collided"].to_numpy(dtype=bool)
     gt = ground_truth_table(
         agent_id=departed, route_id=p["route_id"].to_numpy(), is_pirl=pirl, style=p["style"].to_numpy(),
-        style_name=p["style_name"].to_numpy(), theta=p[[f"theta_{f}" for f in FEATURE_NAMES]].to_numpy(dtype=float),
+        style_name=p["style_name"].to_numpy(), theta=p[theta_columns(plan)].to_numpy(dtype=float),
         interacted=[bool(overridden_any.get(v, False)) or bool(c) or v in handed_back
                     for v, c in zip(departed, collided)],
         collided=collided, removed_early=s["removed_early"].to_numpy(dtype=bool),
@@ -685,5 +685,6 @@ def load_sumo_run(directory) -> RecordedRun:
     else:
         routes = lanelet_route_set(config.lanelet_map, catalogue, smoothing=drv.smoothing,
                                    speed_smoothing=drv.speed_smoothing)
-    model = route_set_model(routes, dt=info["step_length_s"], a_lat=drv.a_lat, v_max=drv.v_max)
+    model = route_set_model(routes, dt=info["step_length_s"], a_lat=drv.a_lat, v_max=drv.v_max,
+                            interacting=config.population.interacting)
     return RecordedRun(rec, config, routes, model)
