@@ -219,3 +219,28 @@ def test_sidecar_validation(small_recording):
         _with_steps(small_recording, steps[["track_id", "frame_id", "commanded", "overridden"]])
     with pytest.raises(ValueError, match="driver_steps.commanded must be booleans"):
         _with_steps(small_recording, steps.assign(commanded=steps["commanded"].astype(int)))
+
+
+def _interacting(gt: pd.DataFrame, headway) -> pd.DataFrame:
+    at = list(gt.columns).index("theta_jerk_sq") + 1
+    return pd.concat([gt.iloc[:, :at], pd.DataFrame({"theta_headway": headway}, index=gt.index), gt.iloc[:, at:]],
+                     axis=1)
+
+
+def test_drivers_who_interact_keep_their_headway_weight(tmp_path):
+    tracks, gt = _tracks_gt()
+    pirl = gt["is_pirl"].to_numpy()
+    gt = _interacting(gt, np.where(pirl, 4.0, np.nan))
+    lanes, succ = recording_lanes()
+    rec = ScenarioRecording(tracks, gt, lanes, succ, {"simulator": "test"})
+    assert rec.theta_features == ("speed_dev", "acc_sq", "jerk_sq", "headway")
+    assert make_recording().theta_features == ("speed_dev", "acc_sq", "jerk_sq")
+    write_recording(rec, tmp_path / "run")
+    back = read_recording(tmp_path / "run")
+    pd.testing.assert_frame_equal(back.ground_truth, rec.ground_truth)
+    with pytest.raises(ValueError, match="PIRL tracks need a style >= 0 and positive weights"):
+        ScenarioRecording(tracks, _interacting(_tracks_gt()[1], np.where(pirl, -1.0, np.nan)), lanes, succ, {})
+    bad = gt.rename(columns={"theta_headway": "theta_gap"})
+    bad.to_csv(tmp_path / "run" / "ground_truth.csv", index=False)
+    with pytest.raises(ValueError, match="theta_headway after theta_jerk_sq for drivers who interact"):
+        read_recording(tmp_path / "run")

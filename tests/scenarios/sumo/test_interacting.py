@@ -1,0 +1,103 @@
+"""Drivers who weigh headway to the vehicle ahead, in SUMO: the gap each driver planned with is the one the learner
+reads from the recording, the ground truth holds the headway weight, and the receding-horizon IRL gets it back on
+the tracks that drove near a vehicle ahead (and fails when the styles' headway weights are swapped)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("lanelet2")
+pytest.importorskip("libsumo")
+
+from pirl_sim.recovery import RecoveryReport, fit_track_weights, run_demonstrations  # noqa: E402
+from pirl_sim.scenarios import drivers as drivers_module  # noqa: E402
+from pirl_sim.scenarios.population_config import population_from_toml  # noqa: E402
+from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_sumo_run, run_sumo_scenario  # noqa: E402
+from pirl_sim.testing import assert_recovered  # noqa: E402
+
+#: two styles that differ in their headway weight tenfold; crowded (a departure every 1.5 s on 4 arms)
+CROWDED = """
+n_vehicles = 40
+depart_interval = 1.5
+background_share = 0.2
+
+[[styles]]
+name = "close follower"
+mean = { speed_dev = 3.0, acc_sq = 0.3, headway = 3.0 }
+std = { speed_dev = 0.3, acc_sq = 0.03, headway = 0.3 }
+
+[[styles]]
+name = "keeps its distance"
+mean = { speed_dev = 0.3, acc_sq = 0.3, headway = 30.0 }
+std = { speed_dev = 0.03, acc_sq = 0.03, headway = 3.0 }
+"""
+#: usable steps within the safe gap + 3 m a track needs for its headway weight to count (experiments.recovery's)
+NEAR_STEPS = 5
+#: stated tolerance on the median |log error| of the headway weight over those tracks (0.024 measured, seed 0)
+HEADWAY_TOLERANCE = {"median": {"headway": 0.1}}
+
+
+@pytest.fixture(scope="module")
+def crowded_run(tmp_path_factory):
+    """The run, and {(time [s], vehicle id): (gap [m], its speed [m/s])} every driver planned with."""
+    seen: dict[tuple[float, str], tuple[float, float]] = {}
+    commands = drivers_module.PirlDrivers.commands
+
+    def spy(self, time, observations, frame=None):
+        vids = list(observations)
+        speed = np.array([observations[v].ego.speed for v in vids])
+        for v, g, vl in zip(vids, *self._obstacles(frame, vids, speed)):
+            seen[round(time, 1), v] = (g, vl)
+        return commands(self, time, observations, frame)
+
+    drivers_module.PirlDrivers.commands = spy
+    try:
+        out = tmp_path_factory.mktemp("interacting")
+        run_sumo_scenario(SumoScenarioConfig(population=population_from_toml(CROWDED)), 0, out_dir=out)
+    finally:
+        drivers_module.PirlDrivers.commands = commands
+    return load_sumo_run(out), seen
+
+
+@pytest.mark.slow
+def test_the_learner_reads_the_gaps_the_drivers_planned_with(crowded_run):
+    run, seen = crowded_run
+    gt = run.recording.ground_truth
+    assert "theta_headway" in gt and run.model.features.names[-1] == "headway"
+    agents = dict(zip(gt["track_id"], gt["agent_id"]))
+    compared, near = 0, 0
+    for d in run_demonstrations(run, 10):
+        vid = agents[d.metadata["track_id"]]
+        times = np.round((d.metadata["first_frame"] + np.arange(len(d.states))) * 0.1, 1)
+        planned = np.array([seen.get((t, vid), (np.nan, np.nan)) for t in times])
+        ok = np.isfinite(planned[:, 0])  # not a step handed back to SUMO
+        np.testing.assert_allclose(d.states[ok, 3:5], planned[ok], atol=5e-3)
+        compared += int(ok.sum())
+        near += int((planned[ok, 0] < 20.0).sum())
+    assert compared > 3000 and near > 300
+
+
+@pytest.mark.slow
+def test_headway_weights_come_back_near_a_vehicle_ahead_and_a_swap_between_styles_fails(crowded_run):
+    from pirl_sim.experiments.recovery import _headway_steps
+
+    run, _ = crowded_run
+    demos = [d for d in run_demonstrations(run, 10) if _headway_steps(run.model, d) >= NEAR_STEPS]
+    assert len(demos) >= 6
+    res = fit_track_weights(run.model, demos, likelihood="receding", horizon=run.horizon)
+    truth = np.array([d.metadata["theta"] for d in demos])
+    styles = [d.metadata["style_name"] for d in demos]
+    free = ["speed_dev", "acc_sq", "headway"]
+    idx = [list(run.model.features.names).index(f) for f in free]
+    report = RecoveryReport.from_weights(truth[:, idx], res.normalized[:, idx], features=free, styles=styles)
+    assert_recovered(report, HEADWAY_TOLERANCE)
+    assert_recovered(report, {"median": {"speed_dev": 0.05, "acc_sq": 0.05}})
+    swapped = truth[:, idx].copy()
+    means = {s: np.mean(swapped[np.array(styles) == s, 2]) for s in set(styles)}
+    other = {s: [m for t, m in means.items() if t != s][0] for s in means} if len(means) == 2 else None
+    assert other is not None, "both styles drive near a vehicle ahead"
+    swapped[:, 2] = [other[s] for s in styles]
+    with pytest.raises(AssertionError, match="headway"):
+        assert_recovered(RecoveryReport.from_weights(swapped, res.normalized[:, idx], features=free, styles=styles),
+                         HEADWAY_TOLERANCE)
