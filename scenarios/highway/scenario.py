@@ -269,7 +269,8 @@ class HighwayAdapter:
         return write_recording(recording, out_dir, lane_width=LANE_WIDTH)
 
     def result(self, config, seed, plan, sim: _HighwaySimulation, recording, timing, files) -> HighwayScenarioResult:
-        model = route_set_model(sim.routes, dt=STEP_LENGTH, a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
+        model = route_set_model(sim.routes, dt=STEP_LENGTH, a_lat=config.drivers.a_lat, v_max=config.drivers.v_max,
+                                interacting=config.population.interacting)
         return HighwayScenarioResult(config, seed, plan, sim.traffic.summary(), recording, sim.routes, model, timing,
                                      files)
 
@@ -359,5 +360,6 @@ def load_highway_run(directory) -> RecordedRun:
         raise ValueError(f"{d}: not a highway-env recording (simulator {info.get('simulator')!r})")
     config = scenario_from_dict(info["config"], source=f"{d}/{INFO_FILE}")
     _, _, routes = build_routes(config)
-    model = route_set_model(routes, dt=info["step_length_s"], a_lat=config.drivers.a_lat, v_max=config.drivers.v_max)
+    model = route_set_model(routes, dt=info["step_length_s"], a_lat=config.drivers.a_lat, v_max=config.drivers.v_max,
+                            interacting=config.population.interacting)
     return RecordedRun(rec, config, routes, model)

@@ -29,7 +29,8 @@ from highway_env.vehicle.behavior import IDMVehicle
 
 from pirl_sim.validation import number
 
-from ..contract import STEP, EgoObservation, EgoView, ground_truth_table
+from ..contract import STEP, EgoObservation, EgoView, Frame, ground_truth_table
+from ..planning import theta_columns
 from ..population_config import FEATURE_NAMES
 from ..recording import (
     DRIVER_STEP_COLUMNS,
@@ -248,10 +249,11 @@ class RoundaboutTraffic(Road):
         self.rules = rules
         self.record = record
         self.behaviour_rng = behaviour_rng if behaviour_rng is not None else np.random.default_rng(0)
+        theta_cols = theta_columns(plan)
         self.model = route_set_model(route_set, dt=STEP_LENGTH, a_lat=drivers.a_lat, v_max=drivers.v_max,
-                                     n_iter=drivers.n_iter, n_qp_iter=drivers.n_qp_iter)
+                                     n_iter=drivers.n_iter, n_qp_iter=drivers.n_qp_iter,
+                                     interacting=len(theta_cols) > len(FEATURE_NAMES))
         self.profile = RouteSetProfile(route_set, drivers.a_lat, drivers.v_max)
-        theta_cols = [f"theta_{f}" for f in FEATURE_NAMES]
         self._pending: list[_Departure] = [
             _Departure(r.vehicle_id, float(r.depart), r.route_id, bool(r.is_pirl), int(r.style), r.style_name,
                        np.array([getattr(r, c) for c in theta_cols], dtype=float))
@@ -375,7 +377,7 @@ class RoundaboutTraffic(Road):
         self.tracks[vehicle_id] = _Track(
             len(self.tracks) + 1, vehicle_id, route_id, kind, int(style) if kind == PIRL else BACKGROUND_STYLE,
             style_name if kind == PIRL else (BACKGROUND_STYLE_NAME if kind == BACKGROUND else "ego"),
-            np.asarray(theta, dtype=float) if kind == PIRL else np.full(len(FEATURE_NAMES), np.nan))
+            np.asarray(theta, dtype=float) if kind == PIRL else np.full(self.model.features.n_features, np.nan))
         return v
 
     def _depart_speed(self, route_id: str, s: float, kind: str, factor: float = 1.0) -> float:
@@ -575,14 +577,25 @@ class RoundaboutTraffic(Road):
                                         free=free))
         return a
 
+    @staticmethod
+    def _frame(vehicles) -> Frame:
+        """Every vehicle on the road now (centres, headings, speeds, lengths), for drivers who interact."""
+        n = len(vehicles)
+        return Frame(tuple(str(getattr(v, "vehicle_id", f"_unnamed{k}")) for k, v in enumerate(vehicles)),
+                     np.array([v.position for v in vehicles], dtype=float).reshape(n, 2),
+                     np.array([v.heading for v in vehicles], dtype=float),
+                     np.array([v.speed for v in vehicles], dtype=float),
+                     np.array([v.LENGTH for v in vehicles], dtype=float))
+
     def act(self) -> None:
         """Decide every vehicle's command, then let each act (steering, and the command)."""
         t0 = _time.perf_counter()
         others = self.vehicles
         pirl = [v for v in others if getattr(v, "kind", None) == PIRL and not v.crashed]
+        frame = {"frame": self._frame(others)} if pirl and self.controller.needs_frame else {}
         commands = self.controller.commands(self.time, {
             v.vehicle_id: EgoObservation(EgoView(float(v.position[0]), float(v.position[1]), float(v.speed),
-                                                 float(v.applied_acceleration))) for v in pirl}) if pirl else {}
+                                                 float(v.applied_acceleration))) for v in pirl}, **frame) if pirl else {}
         self._commands = {}
         tol = self.drivers.override_tol / STEP_LENGTH
         idm = [v for v in others if isinstance(v, RouteFollowing) and not v.crashed
