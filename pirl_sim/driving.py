@@ -301,35 +301,42 @@ class SpeedTargetResidual:
 class HeadwayResidual:
     """Residual of the ``headway`` feature: how far the gap to the vehicle ahead is below a safe gap,
     ``r = w softplus((d_0 + T v - g) / w)`` [m] (about 0 beyond the safe gap, linear below it, smooth in
-    between); states of `pirl_sim.dynamics.following` (v at index 1, gap g at index 3).
+    between); states of `pirl_sim.dynamics.following` (v at index 1, gap g at ``gap_index``: 3 for the vehicle
+    ahead, 5 for the obstacle a car yields to).
 
     Parameters
     ----------
     standstill : float [m]   d_0, safe gap at standstill
     time_gap : float [s]     T, safe time gap
     softness : float [m]     w, width of the smooth corner
+    gap_index : int          the state entry of the gap
     """
 
     standstill: float = 2.0
     time_gap: float = 1.0
     softness: float = 1.0
+    gap_index: int = 3
 
     def __post_init__(self) -> None:
         for name in ("standstill", "time_gap", "softness"):
             v = getattr(self, name)
             if isinstance(v, bool) or not np.isfinite(v) or v < 0 or (name == "softness" and v == 0):
                 raise ValueError(f"{name} must be a finite number {'> 0' if name == 'softness' else '>= 0'}, got {v!r}")
+        if self.gap_index not in (3, 5):
+            raise ValueError(f"gap_index must be 3 (the vehicle ahead) or 5 (the obstacle yielded to), got "
+                             f"{self.gap_index!r}")
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> Residual:
-        if x.shape[-1] < 5:
-            raise ValueError(f"the headway feature needs states of pirl_sim.dynamics.following (s, v, a, g, v_L), "
-                             f"got {x.shape[-1]} state entries")
+        g = self.gap_index
+        if x.shape[-1] < g + 2:
+            raise ValueError(f"the headway feature needs states of pirl_sim.dynamics.following (s, v, a, g, v_L"
+                             f"{', g_y, v_y' if g == 5 else ''}), got {x.shape[-1]} state entries")
         w = self.softness
-        z = (self.standstill + self.time_gap * x[..., 1] - x[..., 3]) / w
+        z = (self.standstill + self.time_gap * x[..., 1] - x[..., g]) / w
         r = w * np.logaddexp(0.0, z)
         sig = 0.5 * (1.0 + np.tanh(0.5 * z))  # d r / d z / w, overflow-free
         dz = np.zeros(x.shape[-1])
-        dz[1], dz[3] = self.time_gap / w, -1.0 / w
+        dz[1], dz[g] = self.time_gap / w, -1.0 / w
         jx = (w * sig)[..., None, None] * dz  # (M, N, 1, n_x)
         hx = (w * sig * (1.0 - sig))[..., None, None, None] * np.outer(dz, dz)
         return Residual(r[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hx)
@@ -353,8 +360,10 @@ def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSe
     ``kind="following"`` adds to those ``headway`` (`HeadwayResidual`): the squared shortfall of the gap to the
     vehicle ahead below 2 m + 1 s x v; it needs the states of `pirl_sim.dynamics.following`.
 
-    ``kind="interacting"`` is the paper's three and ``headway``: the cost of the simulated drivers who interact
-    (`pirl_sim.scenarios.drivers`), with the states of `pirl_sim.dynamics.following`.
+    ``kind="interacting"`` is the paper's three, ``headway`` and ``yielding``: the cost of the simulated drivers
+    who interact (`pirl_sim.scenarios.drivers`), with the states of `pirl_sim.dynamics.following` with two
+    obstacles; ``yielding`` is ``headway``'s residual on the standing obstacle before a conflict point
+    (`pirl_sim.scenarios.yielding`).
     """
     if kind not in FEATURE_SETS:
         raise ValueError(f"feature set must be one of {FEATURE_SETS}, got {kind!r}")
@@ -368,6 +377,8 @@ def roundabout_features(profile: SpeedProfile, kind: str = "paper") -> FeatureSe
                   Feature("speed_hi", SpeedTargetResidual(SPEED_HI), reduction="mean", quadratic=True)]
     if kind in ("following", "interacting"):
         feats.append(Feature("headway", HeadwayResidual(), reduction="mean", quadratic=False))
+    if kind == "interacting":
+        feats.append(Feature("yielding", HeadwayResidual(gap_index=5), reduction="mean", quadratic=False))
     return FeatureSet(tuple(feats), reference="jerk_sq")
 
 

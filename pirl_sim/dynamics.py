@@ -202,7 +202,7 @@ def longitudinal(dt: float = 0.2) -> LinearDynamics:
 
 
 
-def following(dt: float = 0.2) -> LinearDynamics:
+def following(dt: float = 0.2, obstacles: int = 1) -> LinearDynamics:
     """`longitudinal` motion behind a vehicle ahead: state (s [m], v [m/s], a [m/s^2], g [m], v_L [m/s]),
     control jerk [m/s^3].
 
@@ -210,19 +210,25 @@ def following(dt: float = 0.2) -> LinearDynamics:
     constant (the vehicle ahead drives on at constant velocity over a prediction; recorded trajectories carry
     its recorded gap and speed instead). The gap shrinks by what the car drives:
     ``g_{k+1} = g_k + dt v_L - (s_{k+1} - s_k)``, so the controls reach it exactly as they reach s.
+    ``obstacles=2`` appends a second such pair, (g_y [m], v_y [m/s]): the obstacle a car yields to at a
+    conflict point (`pirl_sim.scenarios.yielding`).
     """
+    if obstacles not in (1, 2):
+        raise ValueError(f"obstacles must be 1 or 2, got {obstacles!r}")
     lon = longitudinal(dt)
-    A = np.zeros((5, 5))
+    n = 3 + 2 * obstacles
+    A = np.zeros((n, n))
     A[:3, :3] = lon.A
-    A[3, :3] = -(lon.A[0] - np.array([1.0, 0.0, 0.0]))  # minus the increment of s
-    A[3, 3] = 1.0
-    A[3, 4] = dt
-    A[4, 4] = 1.0
-    B = np.zeros((5, 1))
+    B = np.zeros((n, 1))
     B[:3] = lon.B
-    B[3] = -lon.B[0]
-    return LinearDynamics(A=A, B=B, dt=dt, state_names=(*lon.state_names, "g [m]", "v_L [m/s]"),
-                          control_names=lon.control_names, position_index=(0,))
+    for g in range(3, n, 2):
+        A[g, :3] = -(lon.A[0] - np.array([1.0, 0.0, 0.0]))  # minus the increment of s
+        A[g, g] = 1.0
+        A[g, g + 1] = dt
+        A[g + 1, g + 1] = 1.0
+        B[g] = -lon.B[0]
+    names = (*lon.state_names, "g [m]", "v_L [m/s]") + (("g_y [m]", "v_y [m/s]") if obstacles == 2 else ())
+    return LinearDynamics(A=A, B=B, dt=dt, state_names=names, control_names=lon.control_names, position_index=(0,))
 
 
 def constant_acceleration(s0: np.ndarray, v0: np.ndarray, a0: np.ndarray, t: np.ndarray):

@@ -515,7 +515,7 @@ def fit_receding(
     w[:, ref] = 0.0
     policy = RecedingPolicy(model, horizon)
     fit = _LM(policy, steps, grp, G, free, low, high, loss)
-    if init is None and 0 < len(free) <= 3:
+    if init is None and 0 < len(free) <= 4:
         w = fit.grid_start(w)
     if steps.n_steps >= _COARSE_MIN:  # a coarse pass on every 8th step finds the basin for a fraction of the cost
         coarse = np.zeros(steps.n_steps, dtype=bool)

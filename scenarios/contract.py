@@ -83,6 +83,7 @@ class Frame:
     psi : array (n,) [rad]      headings
     speed : array (n,) [m/s]    speeds
     length : array (n,) [m]     lengths
+    routes : tuple of str (n,)  route ids ("" where unknown: such a vehicle is never yielded to)
     """
 
     ids: tuple[str, ...]
@@ -90,9 +91,14 @@ class Frame:
     psi: np.ndarray
     speed: np.ndarray
     length: np.ndarray
+    routes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n = len(self.ids)
+        routes = tuple(self.routes) or ("",) * n
+        if len(routes) != n:
+            raise ValueError(f"Frame.routes must have one route id per id ({n}), got {len(routes)}")
+        object.__setattr__(self, "routes", routes)
         shapes = {"xy": (n, 2), "psi": (n,), "speed": (n,), "length": (n,)}
         for name, shape in shapes.items():
             a = np.asarray(getattr(self, name), dtype=float)
@@ -304,7 +310,7 @@ def ground_truth_table(*, agent_id: Sequence[str], route_id: Sequence[str], is_p
     is_pirl = np.asarray(is_pirl, dtype=bool)
     n = len(is_pirl)
     theta = np.asarray(theta, dtype=float)
-    names = FEATURE_NAMES + (INTERACTION_FEATURES if theta.ndim == 2 and theta.shape[1] == len(FEATURE_NAMES) + 1
+    names = FEATURE_NAMES + (INTERACTION_FEATURES if theta.ndim == 2 and theta.shape[1] > len(FEATURE_NAMES)
                              else ())
     theta = theta.reshape(n, len(names))
     columns = {"agent_id": agent_id, "route_id": route_id, "style": style, "style_name": style_name,

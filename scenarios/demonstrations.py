@@ -32,6 +32,7 @@ from pirl_sim.trajectory import Trajectory
 
 from .drivers import RouteSet, RouteSetDriverModel
 from .leaders import frame_leaders, obstacle
+from .yielding import ConflictTable, yield_gaps
 from .population_config import FEATURE_NAMES
 from .recording import FRAME_DT_S, ScenarioRecording
 
@@ -140,7 +141,7 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
     flags = _frame_flags(recording, exact_tol) if recording.driver_steps is not None else {}
     dyn = longitudinal(dt)
     features = recording.theta_features
-    lead = _recorded_leaders(recording.tracks) if len(features) > len(FEATURE_NAMES) else None
+    lead = _recorded_obstacles(recording, routes) if len(features) > len(FEATURE_NAMES) else None
     by_track = {tid: g for tid, g in recording.tracks.groupby("track_id", sort=True)}
     out = []
     for row in gt[keep].itertuples(index=False):
@@ -187,11 +188,11 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
         if arc_length == "observed":
             states = states.copy()
             states[:, 0] = s
-        if lead is not None:  # the vehicle ahead as the drivers who interact saw it (`pirl_sim.dynamics.following`)
-            rows = g.index.to_numpy()[::stride]
+        if lead is not None:  # what the drivers who interact saw ahead (`pirl_sim.dynamics.following`, 2 obstacles)
+            at = lead.loc[g.index.to_numpy()[::stride]]
             speed = np.hypot(g["vx"].to_numpy(dtype=float), g["vy"].to_numpy(dtype=float))[::stride]
-            gap, v_lead = lead[0].loc[rows].to_numpy(), lead[1].loc[rows].to_numpy()
-            states = np.column_stack([states, *obstacle(gap, v_lead, speed)])
+            states = np.column_stack([states, *obstacle(at["gap"].to_numpy(), at["v_lead"].to_numpy(), speed),
+                                      *obstacle(at["yield_gap"].to_numpy(), np.zeros(len(at)), speed)])
         theta = np.array([getattr(row, f"theta_{f}") for f in features])
         meta: dict[str, Any] = {
             "track_id": int(row.track_id), "agent_id": row.agent_id, "route_id": row.route_id,
@@ -205,18 +206,34 @@ def recorded_demonstrations(recording: ScenarioRecording, routes: RouteSet, *, d
     return out
 
 
-def _recorded_leaders(tracks: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
-    """Per row of a recording's tracks (by index): the gap [m] to the vehicle ahead and its speed [m/s]
-    (`pirl_sim.scenarios.leaders.frame_leaders` over the vehicles of the row's frame)."""
-    gap = np.full(len(tracks), np.inf)
-    v_lead = np.full(len(tracks), np.nan)
+def _recorded_obstacles(recording: ScenarioRecording, routes: RouteSet) -> pd.DataFrame:
+    """Per row of a recording's tracks (same index): ``gap`` [m] to the vehicle ahead and its speed ``v_lead``
+    [m/s] (`pirl_sim.scenarios.leaders.frame_leaders`), and ``yield_gap`` [m] to the obstacle a PIRL track
+    yields to (`pirl_sim.scenarios.yielding.yield_gaps`; inf where none), over the vehicles of the row's frame:
+    the rules the drivers who interact planned with."""
+    tracks = recording.tracks
     xy = tracks[["x", "y"]].to_numpy(dtype=float)
     psi, length = tracks["psi_rad"].to_numpy(dtype=float), tracks["length"].to_numpy(dtype=float)
     speed = np.hypot(tracks["vx"].to_numpy(dtype=float), tracks["vy"].to_numpy(dtype=float))
+    gt = recording.ground_truth.set_index("track_id")
+    ids = tracks["track_id"].to_numpy()
+    known = {rid: (routes.route_ids.index(rid) if rid in routes.route_ids else -1) for rid in gt["route_id"].unique()}
+    route = gt["route_id"].map(known).reindex(ids).to_numpy(dtype=np.int64)
+    pirl = gt["is_pirl"].reindex(ids).to_numpy(dtype=bool)
+    s = np.full(len(tracks), np.nan)
+    for rows in pd.Series(np.arange(len(tracks))).groupby(ids, sort=False).indices.values():
+        r = route[rows[0]]
+        if r >= 0:  # the drivers' projection (`RouteSet.project`), started at the path's own foot points
+            guess = routes.paths[r].to_frenet(xy[rows], extrapolate=True)[0]
+            s[rows] = routes.project(np.full(len(rows), r), xy[rows], guess)
+    table = ConflictTable(routes)
+    gap, v_lead, yield_gap = np.full(len(tracks), np.inf), np.full(len(tracks), np.nan), np.full(len(tracks), np.inf)
     frames = np.round(tracks["time_s"].to_numpy(dtype=float) / FRAME_DT_S).astype(np.int64)
     for rows in pd.Series(np.arange(len(tracks))).groupby(frames, sort=False).indices.values():
         gap[rows], v_lead[rows] = frame_leaders(xy[rows], psi[rows], speed[rows], length[rows])
-    return pd.Series(gap, index=tracks.index), pd.Series(v_lead, index=tracks.index)
+        egos = np.flatnonzero(pirl[rows])
+        yield_gap[rows[egos]] = yield_gaps(table, route[rows], s[rows], speed[rows], xy[rows], psi[rows], egos)
+    return pd.DataFrame({"gap": gap, "v_lead": v_lead, "yield_gap": yield_gap}, index=tracks.index)
 
 
 def step_selection_summary(recording: ScenarioRecording, *, dt: float = FRAME_DT_S,

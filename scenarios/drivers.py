@@ -29,6 +29,7 @@ from pirl_sim.mpc import Bounds, SequentialMPC
 from pirl_sim.paths import DEFAULT_A_LAT, DEFAULT_V_MAX
 
 from .leaders import obstacle
+from .yielding import ConflictTable, yield_gaps
 from .route_set import ROUTE_SPACING, RouteSet, RouteSetProfile
 
 __all__ = [
@@ -99,7 +100,7 @@ def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT
     profile = RouteSetProfile(routes, a_lat, v_max)
     if not isinstance(interacting, bool):
         raise TypeError(f"interacting must be a bool, got {interacting!r}")
-    dynamics, kind = (following(dt), "interacting") if interacting else (longitudinal(dt), "paper")
+    dynamics, kind = (following(dt, obstacles=2), "interacting") if interacting else (longitudinal(dt), "paper")
     return RouteSetDriverModel(dynamics, roundabout_features(profile, kind), bounds,  # type: ignore[arg-type]
                                routes=routes,
                                n_iter=n_iter, n_qp_iter=n_qp_iter)
@@ -186,6 +187,9 @@ class PirlDrivers:
             self.model.bounds.resolve(dyn) if self.model.bounds is not None  # type: ignore[var-annotated]
             else (np.full(dyn.n_x, -np.inf), np.full(dyn.n_x, np.inf), None, None))
         self._mpc = self.model.predictor()
+        self._table: ConflictTable | None = None  # where routes meet (drivers who yield), built when first needed
+        self._route_index: dict[str, int] = {}
+        self._s_seen: dict[str, float] = {}  # every vehicle's last local arc length [m] (warm starts)
         if self.kernel not in ("auto", "numba", "numpy"):
             raise ValueError(f"kernel must be 'auto', 'numba' or 'numpy', got {self.kernel!r}")
         self._compiled = None
@@ -232,16 +236,42 @@ class PirlDrivers:
                              "frame=Frame(...))")
         return self._plan(time, observations, prune=True, frame=frame)
 
-    @staticmethod
-    def _obstacles(frame, vids: list, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gap [m] and speed [m/s] of the vehicle ahead of each of ``vids`` (`pirl_sim.scenarios.leaders.obstacle`)."""
+    def _obstacles(self, frame, vids: list, speed: np.ndarray, s_local: np.ndarray) -> list[np.ndarray]:
+        """Per vehicle of ``vids`` (on the local arc lengths ``s_local`` [m] of their routes): gap [m] and speed
+        [m/s] of the vehicle ahead (`pirl_sim.scenarios.leaders.obstacle`), then of the obstacle it yields to
+        (`pirl_sim.scenarios.yielding.yield_gaps`; standing)."""
         where = {v: i for i, v in enumerate(frame.ids)}
         missing = [v for v in vids if v not in where]
         if missing:
             raise ValueError(f"vehicle(s) {missing[:5]} are not in the step's frame")
         gap, v_lead = frame.leaders()
         rows = np.fromiter((where[v] for v in vids), dtype=np.int64, count=len(vids))
-        return obstacle(gap[rows], v_lead[rows], speed)
+        route, s = self._frame_arc_lengths(frame)
+        s[rows] = s_local
+        g_y = yield_gaps(self._conflicts(), route, s, frame.speed, frame.xy, frame.psi, rows)
+        return [*obstacle(gap[rows], v_lead[rows], speed), *obstacle(g_y, np.zeros(len(rows)), speed)]
+
+    def _conflicts(self) -> ConflictTable:
+        if self._table is None:
+            self._table = ConflictTable(self.model.routes)
+        return self._table
+
+    def _frame_arc_lengths(self, frame) -> tuple[np.ndarray, np.ndarray]:
+        """Route index (-1: not a route of the model) and local arc length [m] of every vehicle of ``frame``
+        (warm-started from its last one)."""
+        routes = self.model.routes
+        index = self._route_index
+        for rid in frame.routes:
+            if rid not in index:
+                index[rid] = routes.route_ids.index(rid) if rid in routes.route_ids else -1
+        route = np.fromiter((index[rid] for rid in frame.routes), dtype=np.int64, count=len(frame.ids))
+        s = np.full(len(route), np.nan)
+        known = np.flatnonzero(route >= 0)
+        if len(known):
+            guess = np.array([self._s_seen.get(frame.ids[k], np.nan) for k in known])
+            s[known] = routes.project(route[known], frame.xy[known], guess)
+            self._s_seen = {frame.ids[k]: float(v) for k, v in zip(known, s[known])}
+        return route, s
 
     def _plan(self, time: float, observations: Mapping, *, prune: bool, frame=None) -> dict[str, float | None]:
         t0 = _time.perf_counter()
@@ -294,7 +324,7 @@ class PirlDrivers:
         a = np.where(followed, self._a_next[rows], accel)
         x0 = np.column_stack([self.model.routes.to_global(r, s_local), speed, a])  # type: ignore[union-attr]
         if frame is not None and self.needs_frame:
-            x0 = np.column_stack([x0, *self._obstacles(frame, vids, speed)])
+            x0 = np.column_stack([x0, *self._obstacles(frame, vids, speed, s_local)])
         x0 = np.clip(x0, self._lo, self._hi)  # the MPC plans from the start moved into its bounds
         at_rest = x0[:, 1] <= 0.0  # a stopped car does not decelerate further
         x0[at_rest, 2] = np.maximum(x0[at_rest, 2], 0.0)

@@ -60,7 +60,7 @@ REFERENCE_FEATURE = "jerk_sq"
 FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
 #: the features of drivers who interact (``kind="interacting"`` of `pirl_sim.driving.roundabout_features`): a style
 #: that weighs them also chooses their weights; every style of a population weighs them, or none does
-INTERACTION_FEATURES: tuple[str, ...] = ("headway",)
+INTERACTION_FEATURES: tuple[str, ...] = ("headway", "yielding")
 
 
 class FrozenMapping(Mapping):
@@ -167,6 +167,10 @@ class StyleConfig:
                 raise ValueError(f"{label}: mean[{n!r}] must be > 0 (weights are positive), got {v!r}")
             if v > STYLE_VALUE_MAX:
                 raise ValueError(f"{label}: mean[{n!r}] must be in (0, {STYLE_VALUE_MAX:g}], got {v!r}")
+        given = [n for n in INTERACTION_FEATURES if n in mean]
+        if given and len(given) < len(INTERACTION_FEATURES):
+            raise ValueError(f"{label}: a driver who interacts weighs {' and '.join(INTERACTION_FEATURES)}; the mean "
+                             f"gives only {', '.join(given)}")
         free = self._free(mean)
         std = _feature_mapping(f"{label}: std", self.std, allow_reference=False)
         stray = [n for n in std if n not in free]

@@ -59,7 +59,7 @@ _GRID_TOL = 1e-6  # [frames] times must sit this close to the 100 ms grid
 #: features whose ground-truth weights the sidecar holds (the roundabout driver model's, in its order)
 THETA_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq", "jerk_sq")
 #: and, after them, of drivers who interact (`pirl_sim.scenarios.population_config.INTERACTION_FEATURES`)
-INTERACTION_THETA_FEATURES: tuple[str, ...] = ("headway",)
+INTERACTION_THETA_FEATURES: tuple[str, ...] = ("headway", "yielding")
 #: what became of a track: left at the end of its route, taken out early, or still driving at the end
 STATUSES: tuple[str, ...] = ("arrived", "vanished", "running")
 

@@ -16,6 +16,7 @@ Route matching, selection rules, sidecars and state estimates are explained in t
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 import math
 from collections import Counter
@@ -733,8 +734,9 @@ def load_replay(
     pending = placed
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
-    if features == "following":
-        _add_yield_gaps(pending, stride, conflicts)
+    if features in GAP_FEATURE_SETS:
+        _add_yield_gaps(pending, stride, conflicts if features == "following" else
+                        dataclasses.replace(conflicts, obstacle="stop"), separate=features == "interacting")
     model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max, features)
     estimator = HistoryEstimator(float(dt), estimate, noise, jerk_weight, arc_length)
     names = model.features.names  # type: ignore[assignment]
@@ -775,6 +777,9 @@ def load_replay(
                                      noise, jerk_weight, arc_length)
         if features in GAP_FEATURE_SETS:  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
             states = np.column_stack([states, cut["gap"], cut["v_lead"]])  # type: ignore[index]
+            if "yield_gap" in cut:  # features "interacting": the standing obstacle yielded to, a pair of its own
+                states = np.column_stack([states, *obstacle(cut["yield_gap"], np.zeros(len(states)),  # type: ignore
+                                                            cut["v"])])  # type: ignore[index]
             yielding = cut.get("yielding", np.zeros(len(states), dtype=bool))  # type: ignore[attr-defined]
             meta = dict(meta, yielding=yielding)
             n_steps_counts["steps yielding at a conflict point"] += int(yielding[:-1].sum())
@@ -891,14 +896,16 @@ def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a
     """The roundabout model on ``composite`` (`pirl_sim.driving.roundabout_model`), its desired speed from
     the curvature smoothed per path by ``speed_smoothing`` [m] (as `pirl_sim.scenarios.drivers.RouteSet`)."""
     profile_path = _profile_path(composite, speed_smoothing)
-    dynamics = following(dt) if features in GAP_FEATURE_SETS else longitudinal(dt)
+    dynamics = (following(dt, obstacles=2) if features == "interacting" else following(dt)
+                if features in GAP_FEATURE_SETS else longitudinal(dt))
     features = roundabout_features(SpeedProfile(profile_path, a_lat, v_max), features)  # type: ignore[assignment]
     return PathDriverModel(dynamics, features, DEFAULT_BOUNDS, path=composite)  # type: ignore[arg-type]
 
 
-def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
+def _add_yield_gaps(pending, stride: int, rule: ConflictRule, separate: bool = False) -> None:
     """Per recording file: what a car yields to (`pirl_sim.scenarios.conflicts.yield_gaps`), written into each
-    pending track's sampled ``gap`` / ``v_lead`` where nearer than the vehicle ahead."""
+    pending track's sampled ``gap`` / ``v_lead`` where nearer than the vehicle ahead (``separate``: into
+    ``yield_gap`` instead, inf where none)."""
     by_file: dict[str, list] = {}
     for item in pending:
         by_file.setdefault(item[4]["file"], []).append(item)
@@ -909,6 +916,9 @@ def _add_yield_gaps(pending, stride: int, rule: ConflictRule) -> None:
         for it, (g, v), w in zip(items, gaps, which):
             extra = it[4]["_extra"]
             g, v = g[w], v[w]  # the frames the track is sampled at, as its extra["gap"]
+            if separate:
+                extra["yield_gap"], extra["yielding"] = g, np.isfinite(g)
+                continue
             nearer = g < extra["gap"]
             extra["gap"] = np.where(nearer, g, extra["gap"])
             extra["v_lead"] = np.where(nearer, v, extra["v_lead"])

@@ -38,13 +38,14 @@ SIMULATORS: tuple[str, ...] = ("sumo", "highway")
 _RUN_SIMULATOR = {"sumo": "sumo", "highway-env": "highway"}
 #: the features whose weights differ between drivers (jerk_sq is the reference, 1 for everybody)
 FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
-#: and, for drivers who interact, the weight of the gap to the vehicle ahead
-INTERACTION_FEATURES: tuple[str, ...] = ("headway",)
-#: [m] a step informs the ``headway`` weight when the gap is below the safe gap plus this margin (the feature's
-#: residual is then >= about 5 % of its softness; beyond, the weight has no measurable effect on the plan)
-HEADWAY_MARGIN = 3.0
-#: usable steps near a vehicle ahead (`HEADWAY_MARGIN`) a track needs to count for the ``headway`` scores
-MIN_HEADWAY_STEPS = 5
+#: and, for drivers who interact, the weights of the gaps to the vehicle ahead and to the obstacle they yield to
+INTERACTION_FEATURES: tuple[str, ...] = ("headway", "yielding")
+#: [m] a step informs an interaction weight when its gap is below the feature's safe gap plus this margin plus
+#: what the car covers over the drivers' horizon at its speed (the plan can reach the obstacle: the feature's
+#: residual then gets >= about 5 % of its softness; farther, the weight has no measurable effect on the plan)
+NEAR_MARGIN = 3.0
+#: usable steps near the obstacle (`NEAR_MARGIN`) a track needs to count for an interaction weight's "near" scores
+MIN_NEAR_STEPS = 5
 _FLOAT = "%.4g"
 
 #: the recovery targets, per simulator: (column of a summary row, "<=" or ">=", threshold)
@@ -148,8 +149,9 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
         rows[f"theta_{f}"] = truth[:, k]
         rows[f"theta_hat_{f}"] = res.normalized[:, k]
         rows[f"log_err_{f}"] = np.log(res.normalized[:, k] / truth[:, k])
-    if "headway" in names:
-        rows["headway_steps"] = [_headway_steps(run.model, d) for d in demos]
+    for f in INTERACTION_FEATURES:
+        if f in names:
+            rows[f"{f}_steps"] = [near_steps(run.model, d, f, run.horizon) for d in demos]
     rows["sigma"] = res.sigma
     rows["converged"] = res.converged
     rows["at_bound"] = res.at_bound
@@ -179,14 +181,16 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
                        pd.DataFrame(style_rows), selection, fit_time, tirl_time, weights)
 
 
-def _headway_steps(model, demo) -> int:
-    """Usable steps of a demonstration whose gap to the vehicle ahead is below the ``headway`` feature's safe gap
-    plus `HEADWAY_MARGIN` (the steps that inform its weight)."""
+def near_steps(model, demo, feature: str, horizon: int) -> int:
+    """Usable steps of a demonstration whose gap of an interaction ``feature`` (``headway``: the vehicle ahead,
+    ``yielding``: the obstacle yielded to) is within reach of a plan of ``horizon`` steps (`NEAR_MARGIN`): the
+    steps that inform its weight."""
     from pirl_sim.receding import STEP_MASK
 
-    res = model.features.features[list(model.features.names).index("headway")].residual
+    res = model.features.features[list(model.features.names).index(feature)].residual
     x = demo.states[:-1]
-    near = x[:, 3] < res.standstill + res.time_gap * x[:, 1] + HEADWAY_MARGIN
+    reach = np.maximum(x[:, 1], 0.0) * horizon * model.dynamics.dt
+    near = x[:, res.gap_index] < res.standstill + res.time_gap * x[:, 1] + NEAR_MARGIN + reach
     return int(np.sum(near & np.asarray(demo.metadata[STEP_MASK], dtype=bool)))
 
 
@@ -218,13 +222,15 @@ def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) 
         row[f"p90_abs_log_err_{f}"] = float(np.percentile(err, 90)) if n else math.nan
         row[f"max_abs_log_err_{f}"] = float(err.max()) if n else math.nan
         row[f"spearman_{f}"] = spearman(tracks[f"theta_{f}"].to_numpy(), tracks[f"theta_hat_{f}"].to_numpy())
-    if "headway_steps" in tracks:  # the weight of the gap, where the data hold it
-        near = tracks[tracks["headway_steps"] >= MIN_HEADWAY_STEPS]
-        err = np.abs(near["log_err_headway"].to_numpy())
-        row["headway_tracks"] = int(len(near))
-        row["median_abs_log_err_headway_near"] = float(np.median(err)) if len(near) else math.nan
-        row["p90_abs_log_err_headway_near"] = float(np.percentile(err, 90)) if len(near) else math.nan
-        row["spearman_headway_near"] = spearman(near["theta_headway"].to_numpy(), near["theta_hat_headway"].to_numpy())
+    for f in INTERACTION_FEATURES:  # the weights of the gaps, over the tracks whose data hold them
+        if f"{f}_steps" not in tracks:
+            continue
+        near = tracks[tracks[f"{f}_steps"] >= MIN_NEAR_STEPS]
+        err = np.abs(near[f"log_err_{f}"].to_numpy())
+        row[f"{f}_tracks"] = int(len(near))
+        row[f"median_abs_log_err_{f}_near"] = float(np.median(err)) if len(near) else math.nan
+        row[f"p90_abs_log_err_{f}_near"] = float(np.percentile(err, 90)) if len(near) else math.nan
+        row[f"spearman_{f}_near"] = spearman(near[f"theta_{f}"].to_numpy(), near[f"theta_hat_{f}"].to_numpy())
     for f in features:
         row[f"tirl_max_abs_log_err_{f}"] = float(np.abs(styles[f"log_err_{f}"]).max()) if len(styles) else math.nan
     row["converged"] = int(tracks["converged"].sum())
@@ -567,11 +573,12 @@ def compact_table(table: pd.DataFrame) -> pd.DataFrame:
     out["steps"] = table["usable_steps"]
     for col, short in _SHORT.items():
         out[short] = table[col]
-    if "headway_tracks" in table:  # drivers who interact: the gap's weight, over all tracks and near a vehicle ahead
-        out["med hw"] = table["median_abs_log_err_headway"]
-        out["hw tracks"] = table["headway_tracks"]
-        out["med hw near"] = table["median_abs_log_err_headway_near"]
-        out["rho hw near"] = table["spearman_headway_near"]
+    for f, short in (("headway", "hw"), ("yielding", "yld")):  # drivers who interact: all tracks, and near
+        if f"{f}_tracks" in table:
+            out[f"med {short}"] = table[f"median_abs_log_err_{f}"]
+            out[f"{short} tracks"] = table[f"{f}_tracks"]
+            out[f"med {short} near"] = table[f"median_abs_log_err_{f}_near"]
+            out[f"rho {short} near"] = table[f"spearman_{f}_near"]
     out["conv"] = [f"{c}/{g}" for c, g in zip(table["converged"], table["groups"])]
     out["at bound"] = table["at_bound"]
     out["TIRL conv"] = [f"{c}/{g}" for c, g in zip(table["tirl_converged"], table["tirl_groups"])]

@@ -585,7 +585,8 @@ class RoundaboutTraffic(Road):
                      np.array([v.position for v in vehicles], dtype=float).reshape(n, 2),
                      np.array([v.heading for v in vehicles], dtype=float),
                      np.array([v.speed for v in vehicles], dtype=float),
-                     np.array([v.LENGTH for v in vehicles], dtype=float))
+                     np.array([v.LENGTH for v in vehicles], dtype=float),
+                     tuple(str(getattr(v, "route_id", "") or "") for v in vehicles))
 
     def act(self) -> None:
         """Decide every vehicle's command, then let each act (steering, and the command)."""

@@ -309,14 +309,14 @@ class Observation:
                 f"others=<{len(self.others)} vehicles>, route_edges={self.route_edges!r})")
 
 
-def _frame(ids: list[str], states: Mapping[str, VehicleState]) -> Frame:
+def _frame(ids: list[str], states: Mapping[str, VehicleState], routes: list[str]) -> Frame:
     """Every vehicle of the step (`~pirl_sim.scenarios.contract.Frame`), in the order of ``ids``."""
     st = [states[v] for v in ids]
     n = len(st)
     return Frame(tuple(ids), np.fromiter((c for x in st for c in (x.x, x.y)), dtype=float, count=2 * n).reshape(n, 2),
                  np.fromiter((x.psi_rad for x in st), dtype=float, count=n),
                  np.fromiter((x.speed for x in st), dtype=float, count=n),
-                 np.fromiter((x.length for x in st), dtype=float, count=n))
+                 np.fromiter((x.length for x in st), dtype=float, count=n), tuple(routes))
 
 
 def _leader_from_run():  # marker: Observation.leader asks its run
@@ -715,7 +715,8 @@ class SumoRun:
                 observations[vid] = of_run(self, t, vid, frozen_states, self.routes[rec.spec.route_id])
             batch = None
             if observations and self._batch:
-                extra = {"frame": _frame(ids, states)} if getattr(self.controller, "needs_frame", False) else {}
+                extra = ({"frame": _frame(ids, states, [self._veh[v].spec.route_id for v in ids])}
+                         if getattr(self.controller, "needs_frame", False) else {})
                 batch = self.controller.commands(t, MappingProxyType(observations), **extra)  # type: ignore[union-attr]
                 if not isinstance(batch, Mapping):
                     raise ValueError(f"controller.commands returned {type(batch).__name__} at t = {t} s; "

@@ -285,13 +285,20 @@ def plan_vehicles(config: SumoScenarioConfig, seed: int) -> pd.DataFrame:
                            background_routes=config.background_routes or None, route_weights=config.route_weights)
 
 
-def vehicle_types_xml(drivers: DriverConfig) -> str:
-    """SUMO additional file with the vehicle types ``pirl`` and ``background`` (see the module docstring)."""
+#: SUMO's checks on drivers who interact, a safety layer only (their cost keeps the gaps and yields): Krauss's
+#: safe speed with this reaction time [s] and standstill gap [m], and no right of way at junctions (speed-mode bit 3)
+SAFETY_TAU, SAFETY_MIN_GAP, RIGHT_OF_WAY_BIT = 0.5, 1.0, 8
+
+
+def vehicle_types_xml(drivers: DriverConfig, interacting: bool = False) -> str:
+    """SUMO additional file with the vehicle types ``pirl`` and ``background`` (see the module docstring); with
+    ``interacting``, the ``pirl`` type's Krauss parameters are the safety layer's (`SAFETY_TAU`, `SAFETY_MIN_GAP`)."""
+    tau, min_gap = (SAFETY_TAU, SAFETY_MIN_GAP) if interacting else (1.0, 2.5)
     return (
         '<?xml version="1.0" encoding="UTF-8"?>\n<additional>\n'
         f'    <vType id="{PIRL_VTYPE}" vClass="passenger" carFollowModel="Krauss" accel="{drivers.accel!r}" '
-        f'decel="{drivers.decel!r}" emergencyDecel="9.0" sigma="0" tau="1.0" length="5.0" width="1.8" '
-        f'minGap="2.5" speedFactor="{drivers.speed_factor!r}" speedDev="0"/>\n'
+        f'decel="{drivers.decel!r}" emergencyDecel="9.0" sigma="0" tau="{tau!r}" length="5.0" width="1.8" '
+        f'minGap="{min_gap!r}" speedFactor="{drivers.speed_factor!r}" speedDev="0"/>\n'
         f'    <vType id="{BACKGROUND_VTYPE}" vClass="passenger" carFollowModel="Krauss" accel="2.6" '
         'decel="4.5" emergencyDecel="9.0" sigma="0.5" tau="1.0" length="5.0" width="1.8" minGap="2.5" '
         'speedFactor="1.0" speedDev="0.1"/>\n'
@@ -492,7 +499,8 @@ class _SumoSimulation:
         try:
             self.net, self.routes = built.net, built.routes
             vtypes = built.files.net.with_name("vtypes.add.xml")
-            atomic_write_text(vtypes, vehicle_types_xml(drv))
+            interacting = config.population.interacting
+            atomic_write_text(vtypes, vehicle_types_xml(drv, interacting))
             files = built.files
             self.network_files = (files.nodes, files.edges, files.connections, files.net, vtypes)
             model = route_set_model(self.routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
@@ -521,7 +529,8 @@ class _SumoSimulation:
             self.run = SumoRun(files.net, built.catalogue, self.specs, pirl_ids=driven,
                                controller=self.batch_controller,  # type: ignore[arg-type]
                                seed=self.seed, step_length=STEP_LENGTH,
-                               backend=self.backend, speed_mode=config.speed_mode, override_tol=config.override_tol,
+                               backend=self.backend, speed_mode=config.speed_mode & ~RIGHT_OF_WAY_BIT if interacting else config.speed_mode,
+                               override_tol=config.override_tol,
                                collision_action=config.collision_action, speed_modes=speed_modes,
                                extra_args=("--additional-files", str(vtypes), "--step-method.ballistic", "true"))
             self.run.__enter__()

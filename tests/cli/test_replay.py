@@ -362,7 +362,7 @@ def _recording(d, steps: bool = True):
     ("gmm_k", 0, "expected a positive integer"), ("seeds", 2.5, "expected a positive integer"),
     ("dt", float("nan"), "expected a finite number > 0"), ("mpc_horizon", 0, "positive number of steps"),
     ("knn_k", (), "comma-separated integers >= 1"), ("lookup_ahead", (-1.0,), "numbers >= 0"),
-    ("features", "speed", "one of ('paper', 'speed-level', 'following')"), ("hindsight", 1, "a value of type bool"),
+    ("features", "speed", "one of ('paper', 'speed-level', 'following', 'interacting')"), ("hindsight", 1, "a value of type bool"),
     ("learners", "tirl", "a value of type tuple[str, ...]"), ("out", "results", "a value of type Path")])
 def test_replay_options_name_a_bad_value_and_what_is_allowed(tmp_path, field, value, says):
     from pirl_sim.cli.replay import ReplayOptions

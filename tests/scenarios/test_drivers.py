@@ -125,7 +125,8 @@ def _frame(route_set, rid, cars):
     xy = np.array([p.position(s) for _, s, _ in cars], dtype=float)
     ahead = np.array([p.position(s + 0.5) for _, s, _ in cars], dtype=float)
     psi = np.arctan2(ahead[:, 1] - xy[:, 1], ahead[:, 0] - xy[:, 0])
-    return Frame(tuple(c[0] for c in cars), xy, psi, np.array([c[2] for c in cars]), np.full(len(cars), 5.0))
+    return Frame(tuple(c[0] for c in cars), xy, psi, np.array([c[2] for c in cars]), np.full(len(cars), 5.0),
+                 (rid,) * len(cars))
 
 
 def test_drivers_who_weigh_headway_brake_for_the_car_ahead_by_their_weight(route_set):
@@ -133,23 +134,22 @@ def test_drivers_who_weigh_headway_brake_for_the_car_ahead_by_their_weight(route
     ahead the weight changes nothing. Without the step's frame such drivers refuse to plan."""
     rid = "arm0_to_arm2"
     model = route_set_model(route_set, dt=0.1, n_iter=10, n_qp_iter=4, interacting=True)
-    assert model.dynamics.n_x == 5 and model.features.names[-1] == "headway"
+    assert model.dynamics.n_x == 7 and model.features.names[-2:] == ("headway", "yielding")
     p = route_set.path(rid)
     x, y = (float(c) for c in p.position(40.0))
     cmds = {}
     for w in (0.1, 10.0):
-        drv = PirlDrivers(model, {"v": (rid, np.array([1.0, 0.3, 1.0, w]))}, kernel="numpy")
+        drv = PirlDrivers(model, {"v": (rid, np.array([1.0, 0.3, 1.0, w, 1.0]))}, kernel="numpy")
         assert drv.needs_frame
         with pytest.raises(ValueError, match="need the step's frame"):
             drv.commands(0.1, {"v": _obs("v", x, y, 10.0)})
         cmds[w] = drv.commands(0.1, {"v": _obs("v", x, y, 10.0)},
                                frame=_frame(route_set, rid, [("v", 40.0, 10.0), ("stopped", 70.0, 0.0)]))["v"]
-        alone = PirlDrivers(model, {"v": (rid, np.array([1.0, 0.3, 1.0, w]))}, kernel="numpy").commands(
+        alone = PirlDrivers(model, {"v": (rid, np.array([1.0, 0.3, 1.0, w, 1.0]))}, kernel="numpy").commands(
             0.1, {"v": _obs("v", x, y, 10.0)}, frame=_frame(route_set, rid, [("v", 40.0, 10.0)]))["v"]
         cmds[w, "alone"] = alone
-    print(cmds)
     assert cmds[10.0] < cmds[0.1] - 0.01
     assert cmds[10.0, "alone"] == pytest.approx(cmds[0.1, "alone"], abs=1e-6)
     with pytest.raises(ValueError, match="not in the step's frame"):
-        PirlDrivers(model, {"v": (rid, np.array([1.0, 0.3, 1.0, 1.0]))}, kernel="numpy").commands(
+        PirlDrivers(model, {"v": (rid, np.array([1.0, 0.3, 1.0, 1.0, 1.0]))}, kernel="numpy").commands(
             0.1, {"v": _obs("v", x, y, 10.0)}, frame=_frame(route_set, rid, [("other", 40.0, 10.0)]))

@@ -86,7 +86,7 @@ cov = { speed_dev = { speed_dev = 0.04, acc_sq = 0.01 }, acc_sq = { acc_sq = 0.0
     ('[[styles]]\nname = "a"\nmean = { speed_dev = 1.0, acc_sq = 1.0 }\nsigma = 1.0',
      r"styles\[0\]: unknown key\(s\) 'sigma'; valid keys: name, preset, weight, mean, std, cov"),
     ('[[styles]]\nname = "a"\nmean = { speed_dev = 1.0, acc_sq = 1.0, jerk = 1.0 }',
-     r"unknown feature name\(s\) 'jerk'; allowed: speed_dev, acc_sq, headway, jerk_sq"),
+     r"unknown feature name\(s\) 'jerk'; allowed: speed_dev, acc_sq, headway, yielding, jerk_sq"),
     ('[[styles]]\nname = "a"\nmean = { speed_dev = 1.0, acc_sq = 1.0 }\nstd = { speed = 0.1 }',
      r"std: unknown feature name\(s\) 'speed'"),
     ('[[styles]]\npreset = "aggressive"',
@@ -254,22 +254,22 @@ def test_population_config_bounds_style_weights():
 _INTERACTING = """
 [[styles]]
 name = "close follower"
-mean = { speed_dev = 3.0, acc_sq = 0.3, headway = 3.0 }
+mean = { speed_dev = 3.0, acc_sq = 0.3, headway = 3.0, yielding = 1.0 }
 std = { speed_dev = 0.3, headway = 0.3 }
 
 [[styles]]
 name = "keeps its distance"
-mean = { speed_dev = 0.3, acc_sq = 0.3, headway = 30.0 }
-cov = { speed_dev = { speed_dev = 0.01 }, acc_sq = { acc_sq = 0.001, speed_dev = 0.0 }, headway = { headway = 4.0, speed_dev = 0.0, acc_sq = 0.0 } }
+mean = { speed_dev = 0.3, acc_sq = 0.3, headway = 30.0, yielding = 10.0 }
+cov = { speed_dev = { speed_dev = 0.01 }, acc_sq = { acc_sq = 0.001, speed_dev = 0.0 }, headway = { headway = 4.0, speed_dev = 0.0, acc_sq = 0.0 }, yielding = { yielding = 1.0, headway = 0.0, speed_dev = 0.0, acc_sq = 0.0 } }
 """
 
 
 def test_styles_that_weigh_headway_make_drivers_who_interact():
     pop = population_from_toml(_INTERACTING)
-    assert pop.interacting and pop.feature_names == ("speed_dev", "acc_sq", "jerk_sq", "headway")
+    assert pop.interacting and pop.feature_names == ("speed_dev", "acc_sq", "jerk_sq", "headway", "yielding")
     assert not DEFAULT_POPULATION.interacting
     theta, style = pop.sample_weights(400, np.random.default_rng(3))
-    assert theta.shape == (400, 4) and np.all(theta > 0) and np.all(theta[:, 2] == 1.0)
+    assert theta.shape == (400, 5) and np.all(theta > 0) and np.all(theta[:, 2] == 1.0)
     for s, mean in ((0, 3.0), (1, 30.0)):
         assert np.mean(theta[style == s, 3]) == pytest.approx(mean, rel=0.05)
     assert np.std(theta[style == 1, 3]) == pytest.approx(2.0, rel=0.2)
@@ -280,10 +280,11 @@ def test_styles_that_weigh_headway_make_drivers_who_interact():
 
 @pytest.mark.parametrize("text, match", [
     (_INTERACTING + '[[styles]]\nname = "free"\nmean = { speed_dev = 1.0, acc_sq = 1.0 }\n',
-     r"every style weighs headway or none does: the style\(s\) \['close follower', 'keeps its distance'\]"),
-    (_INTERACTING.replace(", headway = 3.0 }", " }"), "std of 'headway', which the mean does not weigh"),
-    (_INTERACTING.replace("headway = 3.0 }", "headway = -1.0 }"), r"mean\['headway'\] must be > 0"),
-    (_INTERACTING.replace("headway = 3.0 }", "headwayy = 1.0 }"), "unknown feature name.*'headwayy'"),
+     r"every style weighs headway, yielding or none does: the style\(s\) \['close follower', 'keeps its distance'\]"),
+    (_INTERACTING.replace(", headway = 3.0, yielding = 1.0 }", " }"), "std of 'headway', which the mean does not weigh"),
+    (_INTERACTING.replace(", yielding = 1.0 }", " }"), "weighs headway and yielding; the mean gives only headway"),
+    (_INTERACTING.replace("headway = 3.0,", "headway = -1.0,"), r"mean\['headway'\] must be > 0"),
+    (_INTERACTING.replace("headway = 3.0,", "headwayy = 1.0,"), "unknown feature name.*'headwayy'"),
 ])
 def test_bad_interaction_weights_are_named(text, match):
     with pytest.raises(ValueError, match=match):

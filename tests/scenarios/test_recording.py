@@ -223,8 +223,8 @@ def test_sidecar_validation(small_recording):
 
 def _interacting(gt: pd.DataFrame, headway) -> pd.DataFrame:
     at = list(gt.columns).index("theta_jerk_sq") + 1
-    return pd.concat([gt.iloc[:, :at], pd.DataFrame({"theta_headway": headway}, index=gt.index), gt.iloc[:, at:]],
-                     axis=1)
+    weights = pd.DataFrame({"theta_headway": headway, "theta_yielding": headway}, index=gt.index)
+    return pd.concat([gt.iloc[:, :at], weights, gt.iloc[:, at:]], axis=1)
 
 
 def test_drivers_who_interact_keep_their_headway_weight(tmp_path):
@@ -233,7 +233,7 @@ def test_drivers_who_interact_keep_their_headway_weight(tmp_path):
     gt = _interacting(gt, np.where(pirl, 4.0, np.nan))
     lanes, succ = recording_lanes()
     rec = ScenarioRecording(tracks, gt, lanes, succ, {"simulator": "test"})
-    assert rec.theta_features == ("speed_dev", "acc_sq", "jerk_sq", "headway")
+    assert rec.theta_features == ("speed_dev", "acc_sq", "jerk_sq", "headway", "yielding")
     assert make_recording().theta_features == ("speed_dev", "acc_sq", "jerk_sq")
     write_recording(rec, tmp_path / "run")
     back = read_recording(tmp_path / "run")

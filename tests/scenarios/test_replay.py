@@ -355,6 +355,13 @@ def test_replay_with_following_features_sees_the_recorded_vehicle_ahead(tmp_path
     np.testing.assert_allclose(by_id[3].states[:, 4], 8.0)  # alone: the car's own speed (the gap stays put)
     assert not any(t.metadata["yielding"].any() for t in scene.selected)  # one lane: nobody crosses
     assert scene.steps["steps behind a vehicle ahead"] == by_id[2].n_steps
+    inter = load_replay([tmp_path / "vehicle_tracks_000.csv"], tmp_path / "map.osm", features="interacting",
+                        selection="all")
+    assert inter.model.dynamics.n_x == 7 and inter.model.features.names[-2:] == ("headway", "yielding")
+    got = {t.metadata["track_id"]: t for t in inter.selected}
+    np.testing.assert_allclose(got[2].states[:, :5], by_id[2].states, atol=1e-9)  # the vehicle ahead as before
+    np.testing.assert_allclose(got[2].states[:, 5], NO_LEADER_GAP)  # nobody to yield to on one lane
+    np.testing.assert_allclose(got[2].states[:, 6], 8.0)
 
 
 def test_pieces_keep_the_recorded_heading_beside_positions_and_speeds(following_scene):

@@ -24,13 +24,13 @@ background_share = 0.2
 
 [[styles]]
 name = "close follower"
-mean = { speed_dev = 3.0, acc_sq = 0.3, headway = 3.0 }
-std = { speed_dev = 0.3, acc_sq = 0.03, headway = 0.3 }
+mean = { speed_dev = 3.0, acc_sq = 0.3, headway = 3.0, yielding = 3.0 }
+std = { speed_dev = 0.3, acc_sq = 0.03, headway = 0.3, yielding = 0.3 }
 
 [[styles]]
 name = "keeps its distance"
-mean = { speed_dev = 0.3, acc_sq = 0.3, headway = 30.0 }
-std = { speed_dev = 0.03, acc_sq = 0.03, headway = 3.0 }
+mean = { speed_dev = 0.3, acc_sq = 0.3, headway = 30.0, yielding = 30.0 }
+std = { speed_dev = 0.03, acc_sq = 0.03, headway = 3.0, yielding = 3.0 }
 """
 #: usable steps within the safe gap + 3 m a track needs for its headway weight to count (experiments.recovery's)
 NEAR_STEPS = 5
@@ -44,19 +44,26 @@ def crowded_run(tmp_path_factory):
     seen: dict[tuple[float, str], tuple[float, float]] = {}
     commands = drivers_module.PirlDrivers.commands
 
-    def spy(self, time, observations, frame=None):
-        vids = list(observations)
-        speed = np.array([observations[v].ego.speed for v in vids])
-        for v, g, vl in zip(vids, *self._obstacles(frame, vids, speed)):
-            seen[round(time, 1), v] = (g, vl)
+    obstacles = drivers_module.PirlDrivers._obstacles
+
+    def spy(self, frame, vids, speed, s_local):
+        out = obstacles(self, frame, vids, speed, s_local)
+        for v, *cols in zip(vids, *out):
+            seen[round(self._now, 1), v] = tuple(cols)
+        return out
+
+    def commands_spy(self, time, observations, frame=None):
+        self._now = time
         return commands(self, time, observations, frame)
 
-    drivers_module.PirlDrivers.commands = spy
+    drivers_module.PirlDrivers.commands = commands_spy
+    drivers_module.PirlDrivers._obstacles = spy
     try:
         out = tmp_path_factory.mktemp("interacting")
         run_sumo_scenario(SumoScenarioConfig(population=population_from_toml(CROWDED)), 0, out_dir=out)
     finally:
         drivers_module.PirlDrivers.commands = commands
+        drivers_module.PirlDrivers._obstacles = obstacles
     return load_sumo_run(out), seen
 
 
@@ -64,15 +71,15 @@ def crowded_run(tmp_path_factory):
 def test_the_learner_reads_the_gaps_the_drivers_planned_with(crowded_run):
     run, seen = crowded_run
     gt = run.recording.ground_truth
-    assert "theta_headway" in gt and run.model.features.names[-1] == "headway"
+    assert "theta_yielding" in gt and run.model.features.names[-2:] == ("headway", "yielding")
     agents = dict(zip(gt["track_id"], gt["agent_id"]))
     compared, near = 0, 0
     for d in run_demonstrations(run, 10):
         vid = agents[d.metadata["track_id"]]
         times = np.round((d.metadata["first_frame"] + np.arange(len(d.states))) * 0.1, 1)
-        planned = np.array([seen.get((t, vid), (np.nan, np.nan)) for t in times])
+        planned = np.array([seen.get((t, vid), (np.nan,) * 4) for t in times])
         ok = np.isfinite(planned[:, 0])  # not a step handed back to SUMO
-        np.testing.assert_allclose(d.states[ok, 3:5], planned[ok], atol=5e-3)
+        np.testing.assert_allclose(d.states[ok, 3:7], planned[ok], atol=5e-3)
         compared += int(ok.sum())
         near += int((planned[ok, 0] < 20.0).sum())
     assert compared > 3000 and near > 300
@@ -80,10 +87,10 @@ def test_the_learner_reads_the_gaps_the_drivers_planned_with(crowded_run):
 
 @pytest.mark.slow
 def test_headway_weights_come_back_near_a_vehicle_ahead_and_a_swap_between_styles_fails(crowded_run):
-    from pirl_sim.experiments.recovery import _headway_steps
+    from pirl_sim.experiments.recovery import near_steps
 
     run, _ = crowded_run
-    demos = [d for d in run_demonstrations(run, 10) if _headway_steps(run.model, d) >= NEAR_STEPS]
+    demos = [d for d in run_demonstrations(run, 10) if near_steps(run.model, d, "headway", run.horizon) >= NEAR_STEPS]
     assert len(demos) >= 6
     res = fit_track_weights(run.model, demos, likelihood="receding", horizon=run.horizon)
     truth = np.array([d.metadata["theta"] for d in demos])
