@@ -15,7 +15,9 @@ paper's three styles, 20 % SUMO background traffic; seed 0):
   at 240 s when the last one has departed (target: >= 40 PIRL drivers at once on average at
   >= 50x real time, every one re-planning every 0.1 s);
 - ``very crowded``: two lanes, 1 km arms, 800 vehicles per hour per arm, 400 vehicles, 450 s (target:
-  >= 100 at once at >= 20x); both crowded ones with libsumo, medians of ``--crowded-repeats`` runs.
+  >= 100 at once at >= 20x); both crowded ones with libsumo, medians of ``--crowded-repeats`` runs;
+- ``interacting``: the crowded scenario with drivers who interact (`INTERACTING_POPULATION`: headway and
+  yielding in their cost; target >= 40 at once at >= 30x).
   Their demand stays below the two-lane ring's capacity, so the drivers are in free flow and re-plan (at a
   single-lane ring's capacity queues form, and SUMO holds queued PIRL drivers at a standstill, where they
   do not plan: "planned per step" below counts the drivers the MPC actually drove).
@@ -113,14 +115,14 @@ def _crowd(m: dict) -> str:
 
 def scenarios():
     """(name, config, (target PIRL drivers at once, target real-time factor) or None)."""
-    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, INTERACTING_POPULATION
     from pirl_sim.scenarios.sumo import SumoScenarioConfig
 
     base = SumoScenarioConfig(population=dataclasses.replace(DEFAULT_POPULATION, n_vehicles=N_VEHICLES))
 
-    def crowded(lanes, approach, demand, n, duration):
+    def crowded(lanes, approach, demand, n, duration, population=DEFAULT_POPULATION):
         net = dataclasses.replace(base.network, lanes=lanes, approach_length=approach)
-        return SumoScenarioConfig(network=net, population=dataclasses.replace(DEFAULT_POPULATION, n_vehicles=n),
+        return SumoScenarioConfig(network=net, population=dataclasses.replace(population, n_vehicles=n),
                                   demand_per_arm=demand, max_duration=duration)
 
     return [
@@ -129,6 +131,8 @@ def scenarios():
          crowded(2, 400.0, 750.0, 200, 240.0), (40, 50.0)),
         ("very crowded: two lanes, 1 km arms, 800 veh/h per arm, 400 vehicles, 450 s",
          crowded(2, 1000.0, 800.0, 400, 450.0), (100, 20.0)),
+        ("interacting: the crowded scenario with drivers who weigh headway and yielding",
+         crowded(2, 400.0, 750.0, 200, 240.0, INTERACTING_POPULATION), (40, 30.0)),
     ]
 
 
@@ -193,7 +197,7 @@ def main(argv=None) -> int:
             print(f"  {verdict} the >= 50x real-time target ({lib['rtf']:.1f}x)")
             continue
         repeats = args.crowded_repeats
-        if args.baseline.lower() == "none":
+        if args.baseline.lower() == "none" or name.startswith("interacting"):  # the baseline has no such drivers
             lib, base = _measure(cfg, "libsumo", repeats), None
         else:
             lib, base = _compare(index, repeats, args.baseline)

@@ -41,6 +41,8 @@ __all__ = [
     "PopulationConfig",
     "DEFAULT_POPULATION",
     "DEFAULT_POPULATION_TOML",
+    "INTERACTING_POPULATION",
+    "INTERACTING_POPULATION_TOML",
     "load_population",
     "population_from_dict",
     "population_from_toml",
@@ -584,3 +586,25 @@ std = { speed_dev = 0.03, acc_sq = 0.03 }
 """
 
 DEFAULT_POPULATION: PopulationConfig = population_from_toml(DEFAULT_POPULATION_TOML, source="default population")
+
+#: an example of drivers who interact: two styles that differ tenfold in their headway and yielding weights
+INTERACTING_POPULATION_TOML = """\
+# pirl_sim example population of drivers who interact: the gap to the vehicle ahead (headway) and to the point
+# they yield at (yielding) are in their own cost. 20 % background traffic.
+n_vehicles = 80
+depart_interval = 4.0
+background_share = 0.2
+
+[[styles]]
+name = "close follower"
+mean = { speed_dev = 3.0, acc_sq = 0.3, headway = 3.0, yielding = 3.0 }
+std = { speed_dev = 0.3, acc_sq = 0.03, headway = 0.3, yielding = 0.3 }
+
+[[styles]]
+name = "keeps its distance"
+mean = { speed_dev = 0.3, acc_sq = 0.3, headway = 30.0, yielding = 30.0 }
+std = { speed_dev = 0.03, acc_sq = 0.03, headway = 3.0, yielding = 3.0 }
+"""
+
+INTERACTING_POPULATION: PopulationConfig = population_from_toml(INTERACTING_POPULATION_TOML,
+                                                                source="interacting population")
