@@ -2,7 +2,7 @@
 
 A :class:`PopulationConfig` says what a scenario's traffic is made of, independently of the simulator: named
 ``styles`` (Gaussians over the normalised weights of ``speed_dev`` and ``acc_sq``, ``jerk_sq`` = 1, with mixture
-weights), ``background_share`` (vehicles driven by the simulator's own model), ``n_vehicles`` and their
+weights; and of ``headway`` and ``yielding`` for drivers who interact, :data:`INTERACTION_FEATURES`), ``background_share`` (vehicles driven by the simulator's own model), ``n_vehicles`` and their
 departures (``depart_interval`` [s] or ``depart_rate`` [veh/h], ``arrivals``) and ``control_noise`` [m/s^3].
 Everything is validated when the config is built (``ValueError`` naming the entry); :func:`load_population`
 reads a TOML file and rejects unknown keys. :data:`DEFAULT_POPULATION` (:data:`DEFAULT_POPULATION_TOML`) is the

@@ -1,6 +1,7 @@
-"""Drivers who weigh headway to the vehicle ahead, in SUMO: the gap each driver planned with is the one the learner
-reads from the recording, the ground truth holds the headway weight, and the receding-horizon IRL gets it back on
-the tracks that drove near a vehicle ahead (and fails when the styles' headway weights are swapped)."""
+"""Drivers who interact (headway and yielding in their cost), in SUMO: the gaps each driver planned with are the ones
+the learner reads from the recording, the ground truth holds the interaction weights, and the receding-horizon IRL
+gets the headway weight back on the tracks that drove near a vehicle ahead (and fails when the styles' headway
+weights are swapped)."""
 
 from __future__ import annotations
 
