@@ -5,6 +5,8 @@ weights are swapped)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -13,27 +15,15 @@ pytest.importorskip("libsumo")
 
 from pirl_sim.recovery import RecoveryReport, fit_track_weights, run_demonstrations  # noqa: E402
 from pirl_sim.scenarios import drivers as drivers_module  # noqa: E402
-from pirl_sim.scenarios.population_config import population_from_toml  # noqa: E402
+from pirl_sim.scenarios.population_config import INTERACTING_POPULATION  # noqa: E402
 from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_sumo_run, run_sumo_scenario  # noqa: E402
 from pirl_sim.testing import assert_recovered  # noqa: E402
 
-#: two styles that differ in their headway weight tenfold; crowded (a departure every 1.5 s on 4 arms)
-CROWDED = """
-n_vehicles = 40
-depart_interval = 1.5
-background_share = 0.2
-
-[[styles]]
-name = "close follower"
-mean = { speed_dev = 3.0, acc_sq = 0.3, headway = 3.0, yielding = 3.0 }
-std = { speed_dev = 0.3, acc_sq = 0.03, headway = 0.3, yielding = 0.3 }
-
-[[styles]]
-name = "keeps its distance"
-mean = { speed_dev = 0.3, acc_sq = 0.3, headway = 30.0, yielding = 30.0 }
-std = { speed_dev = 0.03, acc_sq = 0.03, headway = 3.0, yielding = 3.0 }
-"""
-#: usable steps within the safe gap + 3 m a track needs for its headway weight to count (experiments.recovery's)
+#: the example population of drivers who interact (two styles, headway and yielding weights tenfold apart), crowded:
+#: 40 vehicles, a departure every 1.5 s on 4 arms
+CROWDED = dataclasses.replace(INTERACTING_POPULATION, n_vehicles=40, depart_interval=1.5)
+#: usable steps whose vehicle ahead a plan can reach that a track needs for its headway weight to count
+#: (`pirl_sim.experiments.recovery.MIN_NEAR_STEPS`)
 NEAR_STEPS = 5
 #: stated tolerance on the median |log error| of the headway weight over those tracks (0.024 measured, seed 0)
 HEADWAY_TOLERANCE = {"median": {"headway": 0.1}}
@@ -41,8 +31,9 @@ HEADWAY_TOLERANCE = {"median": {"headway": 0.1}}
 
 @pytest.fixture(scope="module")
 def crowded_run(tmp_path_factory):
-    """The run, and {(time [s], vehicle id): (gap [m], its speed [m/s])} every driver planned with."""
-    seen: dict[tuple[float, str], tuple[float, float]] = {}
+    """The run, and {(time [s], vehicle id): (gap [m] and speed [m/s] of the vehicle ahead, then of the obstacle
+    yielded to)} every driver planned with."""
+    seen: dict[tuple[float, str], tuple[float, ...]] = {}
     commands = drivers_module.PirlDrivers.commands
 
     obstacles = drivers_module.PirlDrivers._obstacles
@@ -61,7 +52,7 @@ def crowded_run(tmp_path_factory):
     drivers_module.PirlDrivers._obstacles = spy
     try:
         out = tmp_path_factory.mktemp("interacting")
-        run_sumo_scenario(SumoScenarioConfig(population=population_from_toml(CROWDED)), 0, out_dir=out)
+        run_sumo_scenario(SumoScenarioConfig(population=CROWDED), 0, out_dir=out)
     finally:
         drivers_module.PirlDrivers.commands = commands
         drivers_module.PirlDrivers._obstacles = obstacles
