@@ -450,6 +450,8 @@ _CAUCHY_C = 2.3849  # Cauchy scale per robust sigma: 95 % efficiency at Gaussian
 _MAD_SIGMA = 1.4826  # sigma per median absolute residual for Gaussian residuals
 _GRID = (-2.0, 0.0, 2.0)  # start grid of each free log weight
 _GRID_STEPS = 12  # steps per group that score the start grid
+_GRID_JOINT = 3  # free weights searched jointly on the start grid; further ones one at a time
+_GRID_MAX_FREE = 4  # more free weights start from the reference point (0 log weights)
 _CAUCHY_FLOOR = 0.01  # smallest Cauchy scale, per RMS of the recorded controls
 _MAX_STEP = 2.0  # largest Levenberg-Marquardt step in any log weight
 _RESCALE_ROUNDS = 3  # refits with a smaller Cauchy scale once the residuals shrank
@@ -515,7 +517,7 @@ def fit_receding(
     w[:, ref] = 0.0
     policy = RecedingPolicy(model, horizon)
     fit = _LM(policy, steps, grp, G, free, low, high, loss)
-    if init is None and 0 < len(free) <= 4:
+    if init is None and 0 < len(free) <= _GRID_MAX_FREE:
         w = fit.grid_start(w)
     if steps.n_steps >= _COARSE_MIN:  # a coarse pass on every 8th step finds the basin for a fraction of the cost
         coarse = np.zeros(steps.n_steps, dtype=bool)
@@ -666,7 +668,7 @@ class _LM:
 
     def grid_start(self, w):
         """Start weights per group: the best point of a grid over the free log weights (each in
-        `_GRID` = {-2, 0, 2}), scored by the sum of |residual| on up to `_GRID_STEPS` steps per group (a median would let the steps that
+        `_GRID` = {-2, 0, 2}; the first `_GRID_JOINT` jointly, each further one alone from the best point so far), scored by the sum of |residual| on up to `_GRID_STEPS` steps per group (a median would let the steps that
         every cost explains alike, e.g. cruising at the speed limit, decide). The
         receding-horizon objective is not convex in the weights; a start in the wrong basin can end at a
         bound (measured on SUMO drivers who minimise acceleration)."""
@@ -682,15 +684,28 @@ class _LM:
         grp = self.grp[sub]
         best = np.full(self.G, np.inf)
         out = w.copy()
-        for point in itertools.product(_GRID, repeat=len(self.free)):
-            trial = w.copy()
-            trial[:, self.free] = np.clip(point, self.low, self.high)
+        joint, rest = self.free[:_GRID_JOINT], self.free[_GRID_JOINT:]
+
+        def score(trial):
             _, r, _ = self._solve(trial, sub, self.steps.init[sub])
-            a = np.abs(r).max(axis=1)
-            score = np.bincount(grp, weights=a, minlength=self.G)  # L1: robust, and every step counts
-            take = score < best
-            best = np.where(take, score, best)
+            return np.bincount(grp, weights=np.abs(r).max(axis=1), minlength=self.G)  # L1: every step counts
+
+        for point in itertools.product(_GRID, repeat=len(joint)):  # the first weights jointly
+            trial = w.copy()
+            trial[:, joint] = np.clip(point, self.low, self.high)
+            s = score(trial)
+            take = s < best
+            best = np.where(take, s, best)
             out[take] = trial[take]
+        for k in rest:  # each further one alone, from the best point so far
+            base = out.copy()
+            for value in _GRID:
+                trial = base.copy()
+                trial[:, k] = np.clip(value, self.low, self.high)
+                s = score(trial)
+                take = s < best
+                best = np.where(take, s, best)
+                out[take] = trial[take]
         return out
 
     def scale_and_nll(self, resid, counts):
