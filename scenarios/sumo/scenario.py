@@ -226,8 +226,8 @@ class SumoScenarioConfig:
             out["max_duration"] = self.max_duration
         for name in ("demand_per_arm", "lanelet_map", "route_weights"):
             if getattr(self, name) is not None:
-                out[name] = (dict(self.route_weights)  # type: ignore[arg-type]  # not None here
-                             if name == "route_weights" else getattr(self, name))
+                value = getattr(self, name)
+                out[name] = dict(value) if name == "route_weights" else value
         return out
 
 
@@ -447,8 +447,8 @@ def _built_network(config: SumoScenarioConfig, cache: bool) -> _Network:
         if config.lanelet_map is None:
             files = build_network(config.network, tmp.name, name=_NET_NAME)
         else:
-            built = network_from_lanelet2(config.lanelet_map, tmp.name, name=_NET_NAME)
-            files = NetworkFiles(built.nodes, built.edges, built.connections, built.net, config.network)
+            made = network_from_lanelet2(config.lanelet_map, tmp.name, name=_NET_NAME)
+            files = NetworkFiles(made.nodes, made.edges, made.connections, made.net, config.network)
         net = load_net(files.net)
         for rid, edges in catalogue.items():
             validate_route(net, edges, route_id=rid)
@@ -460,10 +460,10 @@ def _built_network(config: SumoScenarioConfig, cache: bool) -> _Network:
     except BaseException:
         tmp.cleanup()
         raise
-    built = _Network(tmp, files, net, catalogue, routes)  # type: ignore[assignment]  # the network, not the map's
+    built = _Network(tmp, files, net, catalogue, routes)
     if cache:
-        _NETWORKS[key] = built  # type: ignore[assignment]
-    return built  # type: ignore[return-value]
+        _NETWORKS[key] = built
+    return built
 
 
 class _SumoSimulation:
