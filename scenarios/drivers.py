@@ -260,6 +260,7 @@ class PirlDrivers:
         """Route index (-1: not a route of the model) and local arc length [m] of every vehicle of ``frame``
         (warm-started from its last one)."""
         routes = self.model.routes
+        assert routes is not None  # a RouteSetDriverModel checks its routes when built
         index = self._route_index
         for rid in frame.routes:
             if rid not in index:

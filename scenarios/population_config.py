@@ -452,8 +452,9 @@ def _naming_features(interacting: bool = False) -> FeatureSet:
     def no_path(x, u):
         raise RuntimeError("speed_dev needs a reference path: use pirl_sim.driving.roundabout_features")
 
-    feats = (Feature("speed_dev", no_path, reduction="mean", quadratic=False),
-             squared_state("acc_sq", [2], reduction="mean"), squared_control("jerk_sq", reduction="mean"))
+    feats: tuple[Feature, ...] = (Feature("speed_dev", no_path, reduction="mean", quadratic=False),
+                                  squared_state("acc_sq", [2], reduction="mean"),
+                                  squared_control("jerk_sq", reduction="mean"))
     if interacting:
         feats += tuple(Feature(n, no_path, reduction="mean", quadratic=False) for n in INTERACTION_FEATURES)
     return FeatureSet(feats, reference=REFERENCE_FEATURE)

@@ -777,7 +777,7 @@ def load_replay(
                                      noise, jerk_weight, arc_length)
         if features in GAP_FEATURE_SETS:  # the vehicle ahead as recorded (`pirl_sim.dynamics.following`)
             states = np.column_stack([states, cut["gap"], cut["v_lead"]])  # type: ignore[index]
-            if "yield_gap" in cut:  # features "interacting": the standing obstacle yielded to, a pair of its own
+            if "yield_gap" in cut:  # type: ignore[operator]  # features "interacting": the obstacle yielded to
                 states = np.column_stack([states, *obstacle(cut["yield_gap"], np.zeros(len(states)),  # type: ignore
                                                             cut["v"])])  # type: ignore[index]
             yielding = cut.get("yielding", np.zeros(len(states), dtype=bool))  # type: ignore[attr-defined]
