@@ -57,10 +57,11 @@ def run(args) -> int:
     command = "pirl-sim " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["recover"] else "pirl-sim recover"
 
     def make_config():
-        scenario = {} if args.scenario is None else dict(toml_text.load(args.scenario, "scenario config")[0])
-        where = scenario.get("lanelet_map")
-        if isinstance(where, str) and where and not Path(where).is_absolute():  # as simulate reads the file
-            scenario["lanelet_map"] = str(args.scenario.parent / where)
+        scenario: dict = {}
+        if args.scenario is not None:  # a relative map as simulate reads it: beside the file
+            from pirl_sim.scenarios.sumo.scenario import resolve_lanelet_map
+
+            scenario = resolve_lanelet_map(toml_text.load(args.scenario, "scenario config")[0], args.scenario)
         population = scenario.pop("population", {})
         if args.population is not None:
             population = toml_text.load(args.population, "population config")[0]

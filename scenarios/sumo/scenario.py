@@ -59,6 +59,7 @@ __all__ = [
     "SumoScenarioResult",
     "scenario_from_dict",
     "load_scenario",
+    "resolve_lanelet_map",
     "plan_vehicles",
     "vehicle_types_xml",
     "run_sumo_scenario",
@@ -253,11 +254,15 @@ def _network_from_table(table, label: str) -> RoundaboutSpec:
 def load_scenario(path, *, population: PopulationConfig | None = None) -> SumoScenarioConfig:
     """Read a scenario TOML file (see :func:`scenario_from_dict`; a relative ``lanelet_map`` is taken from the
     file's folder)."""
-    data = load_toml(path)
+    return scenario_from_dict(resolve_lanelet_map(load_toml(path), path), source=str(path), population=population)
+
+
+def resolve_lanelet_map(data: Mapping, path) -> dict:
+    """A scenario table read from the file ``path`` with a relative ``lanelet_map`` taken from the file's folder."""
     where = data.get("lanelet_map")
     if isinstance(where, str) and where and not Path(where).is_absolute():
-        data = {**data, "lanelet_map": str(Path(path).parent / where)}
-    return scenario_from_dict(data, source=str(path), population=population)
+        return {**data, "lanelet_map": str(Path(path).parent / where)}
+    return dict(data)
 
 
 # ----------------------------------------------------------------------------------------------
