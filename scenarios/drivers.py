@@ -246,8 +246,7 @@ class PirlDrivers:
             raise ValueError(f"vehicle(s) {missing[:5]} are not in the step's frame")
         gap, v_lead = frame.leaders()
         rows = np.fromiter((where[v] for v in vids), dtype=np.int64, count=len(vids))
-        route, s = self._frame_arc_lengths(frame)
-        s[rows] = s_local
+        route, s = self._frame_arc_lengths(frame, rows, s_local)
         g_y = yield_gaps(self._conflicts(), route, s, frame.speed, frame.xy, frame.psi, rows)
         return [*obstacle(gap[rows], v_lead[rows], speed), *obstacle(g_y, np.zeros(len(rows)), speed)]
 
@@ -256,9 +255,9 @@ class PirlDrivers:
             self._table = ConflictTable(self.model.routes)
         return self._table
 
-    def _frame_arc_lengths(self, frame) -> tuple[np.ndarray, np.ndarray]:
-        """Route index (-1: not a route of the model) and local arc length [m] of every vehicle of ``frame``
-        (warm-started from its last one)."""
+    def _frame_arc_lengths(self, frame, rows: np.ndarray, s_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Route index (-1: not a route of the model) and local arc length [m] of every vehicle of ``frame``: the
+        planned ones' ``s_rows`` at ``rows``, the others projected (warm-started from their last one)."""
         routes = self.model.routes
         assert routes is not None  # a RouteSetDriverModel checks its routes when built
         index = self._route_index
@@ -267,7 +266,10 @@ class PirlDrivers:
                 index[rid] = routes.route_ids.index(rid) if rid in routes.route_ids else -1
         route = np.fromiter((index[rid] for rid in frame.routes), dtype=np.int64, count=len(frame.ids))
         s = np.full(len(route), np.nan)
-        known = np.flatnonzero(route >= 0)
+        s[rows] = s_rows
+        others = np.ones(len(route), dtype=bool)
+        others[rows] = False
+        known = np.flatnonzero((route >= 0) & others)
         if len(known):
             guess = np.array([self._s_seen.get(frame.ids[k], np.nan) for k in known])
             s[known] = routes.project(route[known], frame.xy[known], guess)
