@@ -686,26 +686,23 @@ class _LM:
         out = w.copy()
         joint, rest = self.free[:_GRID_JOINT], self.free[_GRID_JOINT:]
 
-        def score(trial):
+        def keep_better(start, columns, point):
+            """The groups whose score improves at ``point`` in ``columns`` (from ``start``) take it."""
+            nonlocal best
+            trial = start.copy()
+            trial[:, columns] = np.clip(point, self.low, self.high)
             _, r, _ = self._solve(trial, sub, self.steps.init[sub])
-            return np.bincount(grp, weights=np.abs(r).max(axis=1), minlength=self.G)  # L1: every step counts
+            score = np.bincount(grp, weights=np.abs(r).max(axis=1), minlength=self.G)  # L1: every step counts
+            take = score < best
+            best = np.where(take, score, best)
+            out[take] = trial[take]
 
         for point in itertools.product(_GRID, repeat=len(joint)):  # the first weights jointly
-            trial = w.copy()
-            trial[:, joint] = np.clip(point, self.low, self.high)
-            s = score(trial)
-            take = s < best
-            best = np.where(take, s, best)
-            out[take] = trial[take]
+            keep_better(w, joint, point)
         for k in rest:  # each further one alone, from the best point so far
             base = out.copy()
             for value in _GRID:
-                trial = base.copy()
-                trial[:, k] = np.clip(value, self.low, self.high)
-                s = score(trial)
-                take = s < best
-                best = np.where(take, s, best)
-                out[take] = trial[take]
+                keep_better(base, [k], [value])
         return out
 
     def scale_and_nll(self, resid, counts):
