@@ -17,7 +17,8 @@ paper's three styles, 20 % SUMO background traffic; seed 0):
 - ``very crowded``: two lanes, 1 km arms, 800 vehicles per hour per arm, 400 vehicles, 450 s (target:
   >= 100 at once at >= 20x); both crowded ones with libsumo, medians of ``--crowded-repeats`` runs;
 - ``interacting``: the crowded scenario with drivers who interact (`INTERACTING_POPULATION`: headway and
-  yielding in their cost; target >= 40 at once at >= 30x).
+  yielding in their cost; target >= 40 at once at >= 30x); its baseline is 7063aa3, where these drivers plan
+  with the numpy MPC.
   Their demand stays below the two-lane ring's capacity, so the drivers are in free flow and re-plan (at a
   single-lane ring's capacity queues form, and SUMO holds queued PIRL drivers at a standstill, where they
   do not plan: "planned per step" below counts the drivers the MPC actually drove).
@@ -55,6 +56,7 @@ N_VEHICLES = 40
 SEED = 0
 #: the default baseline revision: the code without the compiled drivers
 BASELINE = "e4e91c3"
+INTERACTING_BASELINE = "7063aa3"  # drivers who interact, planned by the numpy MPC (no compiled kernel for them)
 
 
 def _pin_to_one_core() -> str:
@@ -165,7 +167,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default=None, help="run only the scenarios whose name starts with this")
     ap.add_argument("--baseline", default=BASELINE,
                     help=f"git revision whose code the crowded scenarios are also run on, alternating with this "
-                         f"code (default {BASELINE}: before the compiled drivers); 'none' skips it")
+                         f"code (default {BASELINE}: before the compiled drivers; the interacting scenario: "
+                         f"{INTERACTING_BASELINE}, its drivers on the numpy MPC); 'none' skips both")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     from pirl_sim.threads import apply_thread_policy, current_blas_threads
@@ -197,11 +200,13 @@ def main(argv=None) -> int:
             print(f"  {verdict} the >= 50x real-time target ({lib['rtf']:.1f}x)")
             continue
         repeats = args.crowded_repeats
-        if args.baseline.lower() == "none" or name.startswith("interacting"):  # the baseline has no such drivers
+        interacting = name.startswith("interacting")
+        baseline = INTERACTING_BASELINE if interacting else args.baseline
+        if args.baseline.lower() == "none":
             lib, base = _measure(cfg, "libsumo", repeats), None
         else:
-            lib, base = _compare(index, repeats, args.baseline)
-        print(f"{name} (medians of {repeats}{', alternating with ' + args.baseline if base else ''}):")
+            lib, base = _compare(index, repeats, baseline)
+        print(f"{name} (medians of {repeats}{', alternating with ' + baseline if base else ''}):")
         print(f"  {_crowd(lib)}")
         _report("libsumo", lib)
         n_at_once, rtf = target
@@ -209,10 +214,11 @@ def main(argv=None) -> int:
         print(f"  {'meets' if ok else 'MISSES'} the target of >= {n_at_once} PIRL drivers at once at >= {rtf:.0f}x "
               f"real time ({lib['mean_pirl']:.1f} at {lib['rtf']:.1f}x; ~{lib['rtf_cpu']:.1f}x on a core of its own)")
         if base is not None:
-            print(f"  {args.baseline} (the code before the compiled drivers), same scenario:")
+            what = "these drivers on the numpy MPC" if interacting else "the code before the compiled drivers"
+            print(f"  {baseline} ({what}), same scenario:")
             print(f"  {_crowd(base)}")
             _report("libsumo", base)
-            print(f"  speed-up over {args.baseline}: {base['wall'] / lib['wall']:.2f}x over the stepping "
+            print(f"  speed-up over {baseline}: {base['wall'] / lib['wall']:.2f}x over the stepping "
                   f"({lib['wall'] * 1e3 / lib['steps']:.3f} against {base['wall'] * 1e3 / base['steps']:.3f} ms per step), "
                   f"{base['control'] / lib['control']:.2f}x on the drivers' side, "
                   f"{base['sumo_side'] / lib['sumo_side']:.2f}x on SUMO's and the recording's")

@@ -1,7 +1,14 @@
 """The numba-compiled loops of :mod:`pirl_sim.scenarios.driver_kernel` (imported only when a compiled kernel is
 built: this module imports numba). Every function works on one driver or one point at a time; arrays are
 float64 and C-contiguous; the module's doc and :class:`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`
-say what they compute."""
+say what they compute.
+
+Drivers who interact carry obstacles (the vehicle ahead, the obstacle yielded to): per driver ``ob`` (J, 2) holds
+each obstacle's ``c0 = g_0 + s_0`` [m] and ``dt v_L`` [m], so that the gap at stage n is ``c0 + n dt v_L - s_n``
+(the gap rows of `pirl_sim.dynamics.following` with the obstacle states eliminated), and ``hp`` (J, 3) the
+residual's (d_0 [m], T [s], w [m]) of `pirl_sim.driving.HeadwayResidual`; their weights follow the paper's
+three in ``th``. J = 0 is the paper's model. Per stage, ``hw`` (N, 8) holds what the obstacles add, weighted:
+the gradient in (s, v), the Gauss-Newton block (ss, sv, vv) and the exact Hessian's extra block (ss, sv, vv)."""
 
 from __future__ import annotations
 
@@ -14,6 +21,56 @@ _TOUCH_TOL = 1e-7  #: as `pirl_sim.mpc.BoxQP.touches`
 _VIOLATION_TOL = 1e-9  #: as `pirl_sim.mpc.SequentialMPC.controls`
 
 jit = njit(cache=True, nogil=True, error_model="numpy")  # divisions by zero as numpy: no checks
+
+
+@jit
+def softplus(z):
+    """log(1 + e^z) computed as ``numpy.logaddexp(0, z)``."""
+    if z == 0.0:
+        return math.log(2.0)
+    if z < 0.0:
+        return math.log1p(math.exp(z))
+    return z + math.log1p(math.exp(-z))
+
+
+@jit
+def obstacle_cost(s, v, n, ob, hp, th):
+    """The obstacles' weighted residuals squared, theta_j r_j^2 summed over j, at stage n (state (s, v))."""
+    f = 0.0
+    for j in range(ob.shape[0]):
+        w = hp[j, 2]
+        z = (hp[j, 0] + hp[j, 1] * v - (ob[j, 0] + (n + 1) * ob[j, 1] - s)) / w
+        r = w * softplus(z)
+        f += th[3 + j] * (r * r)
+    return f
+
+
+@jit
+def obstacle_terms(s, v, n, ob, hp, th, wsc, hw):
+    """Row n of hw (see the module doc): what the obstacles add to stage n's gradient and Hessian in (s, v),
+    each weighted by wsc theta_j; returns the weighted residuals squared as `obstacle_cost`."""
+    f = 0.0
+    for k in range(8):
+        hw[n, k] = 0.0
+    for j in range(ob.shape[0]):
+        w, T = hp[j, 2], hp[j, 1]
+        z = (hp[j, 0] + T * v - (ob[j, 0] + (n + 1) * ob[j, 1] - s)) / w
+        r = w * softplus(z)
+        sig = 0.5 * (1.0 + math.tanh(0.5 * z))
+        f += th[3 + j] * (r * r)
+        wj = wsc * th[3 + j]
+        gs = wj * r * sig  # d/ds of theta_j r^2 / N: dr/ds = sig, dr/dv = T sig
+        hg = wj * sig * sig
+        he = wj * r * sig * (1.0 - sig) / w
+        hw[n, 0] += gs
+        hw[n, 1] += gs * T
+        hw[n, 2] += hg
+        hw[n, 3] += hg * T
+        hw[n, 4] += hg * T * T
+        hw[n, 5] += he
+        hw[n, 6] += he * T
+        hw[n, 7] += he * T * T
+    return f
 
 
 @jit
@@ -85,29 +142,35 @@ def rollout(x0, U, Ad, Bd, X):
             X[n + 1, i] = Ad[i, 0] * X[n, 0] + Ad[i, 1] * X[n, 1] + Ad[i, 2] * X[n, 2] + Bd[i] * u
 
 @jit
-def cost(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start):
+def cost(x0, U, th, ob, hp, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start):
     """theta . f at (x0, U); X (N+1, 3) and idx (N,) are work arrays, start the piece of x0[0] (< 0: unknown)."""
     N = U.shape[0]
     rollout(x0, U, Ad, Bd, X)
     pieces(X, xb, idx, locate(x0[0], xb, -1) if start < 0 else start)
-    f0 = f1 = f2 = 0.0
+    f0 = f1 = f2 = fo = 0.0
     for n in range(N):
         r = X[n + 1, 1] - vdes(X[n + 1, 0], idx[n], xb, cf, inv_a4, vmax_m8)[0]
         f0 += r * r
         f1 += X[n + 1, 2] * X[n + 1, 2]
         f2 += U[n] * U[n]
-    return th[0] * (f0 / N) + th[1] * (f1 / N) + th[2] * (f2 / N)
+        if ob.shape[0]:
+            fo += obstacle_cost(X[n + 1, 0], X[n + 1, 1], n, ob, hp, th)
+    c = th[0] * (f0 / N) + th[1] * (f1 / N) + th[2] * (f2 / N)
+    return c + fo / N if ob.shape[0] else c
 
 
 @jit
-def stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, start):
-    """Rollout X (N+1, 3) and the speed residual with its derivatives per stage n = 1..N (into r, dvd, d2vd
-    (N,)); returns the cost. idx (N,) is a work array, start the piece of x0[0] (< 0: unknown)."""
+def stages(x0, U, th, ob, hp, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, hw, start):
+    """Rollout X (N+1, 3), the speed residual with its derivatives per stage n = 1..N (into r, dvd, d2vd
+    (N,)) and the obstacles' terms (into hw (N, 8); zeros without obstacles); returns the cost. idx (N,) is a
+    work array, start the piece of x0[0] (< 0: unknown)."""
     N = U.shape[0]
     rollout(x0, U, Ad, Bd, X)
     pieces(X, xb, idx, locate(x0[0], xb, -1) if start < 0 else start)
-    f0 = f1 = f2 = 0.0
+    f0 = f1 = f2 = fo = 0.0
+    wsc = 2.0 / N
     for n in range(N):
+        fo += obstacle_terms(X[n + 1, 0], X[n + 1, 1], n, ob, hp, th, wsc, hw)
         vd, d1, d2 = vdes(X[n + 1, 0], idx[n], xb, cf, inv_a4, vmax_m8)
         r[n] = X[n + 1, 1] - vd
         dvd[n] = d1
@@ -115,27 +178,33 @@ def stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, sta
         f0 += r[n] * r[n]
         f1 += X[n + 1, 2] * X[n + 1, 2]
         f2 += U[n] * U[n]
-    return th[0] * (f0 / N) + th[1] * (f1 / N) + th[2] * (f2 / N)
+    c = th[0] * (f0 / N) + th[1] * (f1 / N) + th[2] * (f2 / N)
+    return c + fo / N if ob.shape[0] else c
 
 
 @jit
-def stage_matrix(n, w0, w1, r, dvd, d2vd, exact, S):
+def stage_matrix(n, w0, w1, r, dvd, d2vd, hw, exact, S):
     """The state block S (3, 3) of stage n's Hessian (exact or Gauss-Newton)."""
-    S[0, 0] = w0 * dvd[n] * dvd[n] + (w0 * r[n] * (-d2vd[n]) if exact else 0.0)
-    S[0, 1] = S[1, 0] = -w0 * dvd[n]
-    S[1, 1] = w0
+    S[0, 0] = w0 * dvd[n] * dvd[n] + (w0 * r[n] * (-d2vd[n]) if exact else 0.0) + hw[n, 2]
+    S[0, 1] = S[1, 0] = -w0 * dvd[n] + hw[n, 3]
+    S[1, 1] = w0 + hw[n, 4]
+    if exact:
+        S[0, 0] += hw[n, 5]
+        S[0, 1] += hw[n, 6]
+        S[1, 0] = S[0, 1]
+        S[1, 1] += hw[n, 7]
     S[0, 2] = S[2, 0] = S[1, 2] = S[2, 1] = 0.0
     S[2, 2] = w1
 
 @jit
-def riccati(th, U, X, r, dvd, d2vd, Ad, Bd, exact, uu_share, with_step, step, Ks, ks):
+def riccati(th, U, X, r, dvd, d2vd, hw, Ad, Bd, exact, uu_share, with_step, step, Ks, ks):
     """Riccati recursion of the Newton model; True when every pivot is > 0 (the Hessian is positive
     definite). With ``with_step`` also the Newton step -H^-1 g into step (N,) (gains in Ks (N, 3), ks (N,)).
 
     Backwards over the stages, the cost-to-go 1/2 x'Px + p'x of x_{n+1} plus stage n+1's state terms
     (M = S + P, m = sigma + p) is mapped to (x_n, u_n) through x_{n+1} = A x_n + B u_n; u_n = K x_n + k
-    minimises it. The stage Hessian's state block is [[ss, sv, 0], [sv, vv, 0], [0, 0, aa]] (speed_dev
-    and acc_sq), its control entry uu_share * w2 (jerk_sq)."""
+    minimises it. The stage Hessian's state block is [[ss, sv, 0], [sv, vv, 0], [0, 0, aa]] (speed_dev, the
+    obstacles and acc_sq), its control entry uu_share * w2 (jerk_sq)."""
     N = U.shape[0]
     wsc = 2.0 / N
     w0, w1, w2 = wsc * th[0], wsc * th[1], wsc * th[2]
@@ -152,8 +221,15 @@ def riccati(th, U, X, r, dvd, d2vd, Ad, Bd, exact, uu_share, with_step, step, Ks
         ss = w0 * dvd[n] * dvd[n]
         if exact:
             ss += w0 * r[n] * (-d2vd[n])
-        m00, m01, m02 = ss + p00, -w0 * dvd[n] + p01, p02
-        m11, m12, m22 = w0 + p11, p12, w1 + p22
+        ss += hw[n, 2]
+        sv = -w0 * dvd[n] + hw[n, 3]
+        vv = w0 + hw[n, 4]
+        if exact:
+            ss += hw[n, 5]
+            sv += hw[n, 6]
+            vv += hw[n, 7]
+        m00, m01, m02 = ss + p00, sv + p01, p02
+        m11, m12, m22 = vv + p11, p12, w1 + p22
         # MA = M A (3 x 3), MB = M B
         ma00 = m00 * a00 + m01 * a10 + m02 * a20
         ma01 = m00 * a01 + m01 * a11 + m02 * a21
@@ -187,8 +263,8 @@ def riccati(th, U, X, r, dvd, d2vd, Ad, Bd, exact, uu_share, with_step, step, Ks
         p22 = a02 * ma02 + a12 * ma12 + a22 * ma22 + qux2 * K2
         if with_step:
             # the stage gradient in x_{n+1} plus the cost-to-go's linear term
-            g0 = w0 * r[n] * (-dvd[n]) + q0
-            g1 = w0 * r[n] + q1
+            g0 = w0 * r[n] * (-dvd[n]) + hw[n, 0] + q0
+            g1 = w0 * r[n] + hw[n, 1] + q1
             g2 = w1 * X[n + 1, 2] + q2
             qu = b0 * g0 + b1 * g1 + b2 * g2 + w2 * U[n]
             kk = -qu * inv
@@ -209,37 +285,38 @@ def riccati(th, U, X, r, dvd, d2vd, Ad, Bd, exact, uu_share, with_step, step, Ks
 
 
 @jit
-def exact_ok(th, U, X, r, dvd, d2vd, Ad, Bd, step, Ks, ks):
+def exact_ok(th, U, X, r, dvd, d2vd, hw, Ad, Bd, step, Ks, ks):
     """Whether the exact Hessian with half the reference term is positive definite (`SequentialMPC._model`'s
     test). Every stage's state block [[w0 (dvd^2 - r d2vd), -w0 dvd, 0], [-w0 dvd, w0, 0], [0, 0, w1]] is
-    positive semi-definite where r d2vd <= 0 (its determinant in (s, v) is -w0^2 r d2vd), and then the
-    Hessian, their sum plus the reference term's positive diagonal, is positive definite: the recursion's
-    pivots are tested only when some stage has r d2vd > 0."""
+    positive semi-definite where r d2vd <= 0 (its determinant in (s, v) is -w0^2 r d2vd), the obstacles'
+    blocks always are, and then the Hessian, their sum plus the reference term's positive diagonal, is
+    positive definite: the recursion's pivots are tested only when some stage has r d2vd > 0."""
     for n in range(U.shape[0]):
         if r[n] * d2vd[n] > 0.0:
-            return riccati(th, U, X, r, dvd, d2vd, Ad, Bd, True, 0.5, False, step, Ks, ks)
+            return riccati(th, U, X, r, dvd, d2vd, hw, Ad, Bd, True, 0.5, False, step, Ks, ks)
     return True
 
 
 @jit
-def newton_step(th, U, X, r, dvd, d2vd, Ad, Bd, step, Ks, ks):
+def newton_step(th, U, X, r, dvd, d2vd, hw, Ad, Bd, step, Ks, ks):
     """The Newton step (N,) of `pirl_sim.mpc.SequentialMPC._model`: exact where the exact Hessian with
     half the reference term is positive definite, Gauss-Newton elsewhere."""
-    if exact_ok(th, U, X, r, dvd, d2vd, Ad, Bd, step, Ks, ks):
-        riccati(th, U, X, r, dvd, d2vd, Ad, Bd, True, 1.0, True, step, Ks, ks)
+    if exact_ok(th, U, X, r, dvd, d2vd, hw, Ad, Bd, step, Ks, ks):
+        riccati(th, U, X, r, dvd, d2vd, hw, Ad, Bd, True, 1.0, True, step, Ks, ks)
     else:
-        riccati(th, U, X, r, dvd, d2vd, Ad, Bd, False, 1.0, True, step, Ks, ks)
+        riccati(th, U, X, r, dvd, d2vd, hw, Ad, Bd, False, 1.0, True, step, Ks, ks)
 
 @jit
-def dense_model(x0, th, U, Ad, Bd, xb, cf, inv_a4, vmax_m8, H, b):
+def dense_model(x0, th, ob, hp, U, Ad, Bd, xb, cf, inv_a4, vmax_m8, H, b):
     """The dense Newton model at U: H (N, N) and b (N,) of 1/2 U'HU + b'U (`SequentialMPC._model`)."""
     N = U.shape[0]
     X = np.empty((N + 1, 3))
     idx = np.empty(N, dtype=np.int64)
     r, dvd, d2vd = np.empty(N), np.empty(N), np.empty(N)
-    stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, -1)
+    hw = np.empty((N, 8))
+    stages(x0, U, th, ob, hp, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, hw, -1)
     dummy_s, dummy_K, dummy_k = np.empty(N), np.empty((N, 3)), np.empty(N)
-    exact = exact_ok(th, U, X, r, dvd, d2vd, Ad, Bd, dummy_s, dummy_K, dummy_k)
+    exact = exact_ok(th, U, X, r, dvd, d2vd, hw, Ad, Bd, dummy_s, dummy_K, dummy_k)
     wsc = 2.0 / N
     w0, w1, w2 = wsc * th[0], wsc * th[1], wsc * th[2]
     # Psi_k = A^k B (N, 3)
@@ -256,7 +333,7 @@ def dense_model(x0, th, U, Ad, Bd, xb, cf, inv_a4, vmax_m8, H, b):
     g = np.empty(N)
     for j in range(N - 1, -1, -1):
         # L_j = S_{j+1} + A' L_{j+1} A ; lambda_j = sigma_{j+1} + A' lambda_{j+1}
-        stage_matrix(j, w0, w1, r, dvd, d2vd, exact, S)
+        stage_matrix(j, w0, w1, r, dvd, d2vd, hw, exact, S)
         if j < N - 1:
             for i in range(3):
                 for k in range(3):
@@ -272,8 +349,8 @@ def dense_model(x0, th, U, Ad, Bd, xb, cf, inv_a4, vmax_m8, H, b):
                 for k in range(3):
                     L[i, k] = S[i, k]
             l0 = l1 = l2 = 0.0
-        lam[0] = l0 + w0 * r[j] * (-dvd[j])
-        lam[1] = l1 + w0 * r[j]
+        lam[0] = l0 + w0 * r[j] * (-dvd[j]) + hw[j, 0]
+        lam[1] = l1 + w0 * r[j] + hw[j, 1]
         lam[2] = l2 + w1 * X[j + 1, 2]
         g[j] = Bd[0] * lam[0] + Bd[1] * lam[1] + Bd[2] * lam[2] + w2 * U[j]
         for i in range(3):
@@ -315,38 +392,39 @@ def touches(x0, U, X, Ad, Bd, xlo, xhi, ulo, uhi, tol):
     return False
 
 @jit
-def newton_batch(x0s, ths, Us, Ad, Bd, xb, cf, inv_a4, vmax_m8, xlo, xhi, ulo, uhi, n_iter, tol,
+def newton_batch(x0s, ths, obs, hp, Us, Ad, Bd, xb, cf, inv_a4, vmax_m8, xlo, xhi, ulo, uhi, n_iter, tol,
                  on_bounds, bad, counts):
     """The Newton phase of `SequentialMPC.controls` for every driver (rows of Us changed in place), then
     the drivers needing bounded QPs (``bad``: the plan breaks a bound or the warm start sits on one).
-    counts[0] += Newton steps taken."""
+    obs (M, J, 2): each driver's obstacles (module doc). counts[0] += Newton steps taken."""
     M, N = Us.shape
     X = np.empty((N + 1, 3))
     idx = np.empty(N, dtype=np.int64)
     r, dvd, d2vd = np.empty(N), np.empty(N), np.empty(N)
     full, trial = np.empty(N), np.empty(N)
     Ks, ks = np.empty((N, 3)), np.empty(N)
+    hw = np.empty((N, 8))
     for m in range(M):
-        x0, th, U = x0s[m], ths[m], Us[m]
+        x0, th, ob, U = x0s[m], ths[m], obs[m], Us[m]
         on_bounds[m] = touches(x0, U, X, Ad, Bd, xlo, xhi, ulo, uhi, _TOUCH_TOL)
         if not on_bounds[m]:
             start = locate(x0[0], xb, -1)
-            c = stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, start)
+            c = stages(x0, U, th, ob, hp, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, hw, start)
             for _it in range(n_iter):
-                newton_step(th, U, X, r, dvd, d2vd, Ad, Bd, full, Ks, ks)
+                newton_step(th, U, X, r, dvd, d2vd, hw, Ad, Bd, full, Ks, ks)
                 counts[0] += 1
                 limit = c + 1e-12 * abs(c)
                 alpha = 1.0
                 for n in range(N):
                     trial[n] = U[n] + full[n]
-                tc = cost(x0, trial, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start)
+                tc = cost(x0, trial, th, ob, hp, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start)
                 for _half in range(6):
                     if not tc > limit:
                         break
                     alpha *= 0.5
                     for n in range(N):
                         trial[n] = U[n] + alpha * full[n]
-                    tc = cost(x0, trial, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start)
+                    tc = cost(x0, trial, th, ob, hp, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, start)
                 if tc > limit:  # not accepted: the controls stay, the iteration stops
                     break
                 big = 0.0
@@ -355,7 +433,7 @@ def newton_batch(x0s, ths, Us, Ad, Bd, xb, cf, inv_a4, vmax_m8, xlo, xhi, ulo, u
                     U[n] = trial[n]
                 if not alpha * big > tol:
                     break
-                c = stages(x0, U, th, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, start)
+                c = stages(x0, U, th, ob, hp, Ad, Bd, xb, cf, inv_a4, vmax_m8, X, idx, r, dvd, d2vd, hw, start)
         bad[m] = on_bounds[m] or violation(x0, U, X, Ad, Bd, xlo, xhi, ulo, uhi) > _VIOLATION_TOL
 
 @jit

@@ -2,7 +2,9 @@
 the routes, for :class:`~pirl_sim.scenarios.drivers.PirlDrivers`.
 
 :class:`CompiledDriverMPC` computes what :meth:`pirl_sim.mpc.SequentialMPC.controls` computes for the paper's
-roundabout model on a :class:`~pirl_sim.scenarios.drivers.RouteSet`, one driver at a time in compiled loops (the
+roundabout model on a :class:`~pirl_sim.scenarios.drivers.RouteSet`, and for the model of drivers who interact (the
+paper's features, ``headway`` and ``yielding`` on the states of ``pirl_sim.dynamics.following(dt, obstacles=2)``:
+the gaps are eliminated, the obstacles driving at constant speed), one driver at a time in compiled loops (the
 Newton steps by a Riccati recursion, O(N) per driver; the bounded QPs with `pirl_sim.mpc.BoxQP`). Plans equal the
 numpy path's to floating-point rounding (``tests/scenarios/test_driver_kernel.py``) and are deterministic run to run.
 numba is imported only when a kernel is built (:func:`numba_available`); compiled code is cached in
@@ -20,6 +22,7 @@ import numpy as np
 __all__ = ["numba_available", "CompiledDriverMPC", "KernelUnsupported"]
 
 _FEATURES = ("speed_dev", "acc_sq", "jerk_sq")
+_OBSTACLE_FEATURES = ("headway", "yielding")  # one per obstacle pair of `pirl_sim.dynamics.following`, in order
 
 _KERNELS: dict | None = None
 
@@ -54,23 +57,29 @@ class CompiledDriverMPC:
 
     Parameters
     ----------
-    model : RouteSetDriverModel    the paper's roundabout model on a route set (else `KernelUnsupported`)
+    model : RouteSetDriverModel    the paper's roundabout model on a route set, or the interacting one
+                                   (`route_set_model` with ``interacting``); else `KernelUnsupported`
     mpc : SequentialMPC            the model's predictor: its iteration limits, tolerances, bounds and QP solver
                                    are used, and its ``n_qp`` / ``n_infeasible`` counters kept up
     """
 
     def __init__(self, model, mpc):
-        from pirl_sim.driving import SpeedDeviationResidual
+        from pirl_sim.driving import HeadwayResidual, SpeedDeviationResidual
+        from pirl_sim.dynamics import following
         from pirl_sim.features import SquaredControlResidual, SquaredStateResidual
 
         from .route_set import RouteSetProfile
 
         feats = model.features
         dyn = model.dynamics
-        if tuple(feats.names) != _FEATURES or feats.reference != "jerk_sq":
-            raise KernelUnsupported(f"the compiled MPC implements the features {_FEATURES} (reference jerk_sq), "
-                                    f"got {tuple(feats.names)} (reference {feats.reference})")
-        f0, f1, f2 = feats.features
+        names = tuple(feats.names)
+        n_ob = len(names) - 3
+        if (names[:3] != _FEATURES or names[3:] not in ((), _OBSTACLE_FEATURES)
+                or feats.reference != "jerk_sq"):
+            raise KernelUnsupported(f"the compiled MPC implements the features {_FEATURES}, optionally followed by "
+                                    f"{_OBSTACLE_FEATURES} (reference jerk_sq), got {names} (reference "
+                                    f"{feats.reference})")
+        f0, f1, f2 = feats.features[:3]
         ok = (isinstance(f0.residual, SpeedDeviationResidual) and isinstance(f0.residual.profile, RouteSetProfile)
               and isinstance(f1.residual, SquaredStateResidual) and tuple(f1.residual.index or ()) == (2,)
               and isinstance(f2.residual, SquaredControlResidual)
@@ -79,9 +88,22 @@ class CompiledDriverMPC:
         if not ok:
             raise KernelUnsupported("the compiled MPC implements speed_dev on a RouteSetProfile, acc_sq = mean a^2 "
                                     "and jerk_sq = mean j^2 only")
-        if dyn.n_x != 3 or dyn.n_u != 1:
-            raise KernelUnsupported(f"the compiled MPC needs states (s, v, a) and one control, got n_x = {dyn.n_x}, "
-                                    f"n_u = {dyn.n_u}")
+        if dyn.n_x != 3 + 2 * n_ob or dyn.n_u != 1:
+            raise KernelUnsupported(f"the compiled MPC needs states (s, v, a){' and two obstacles' if n_ob else ''} "
+                                    f"and one control, got n_x = {dyn.n_x}, n_u = {dyn.n_u}")
+        hp = []
+        for j, f in enumerate(feats.features[3:]):
+            res = f.residual
+            if not (isinstance(res, HeadwayResidual) and res.gap_index == 3 + 2 * j and f.reduction == "mean"
+                    and not f.quadratic):
+                raise KernelUnsupported(f"the compiled MPC implements {f.name} as the mean HeadwayResidual with "
+                                        f"gap_index {3 + 2 * j} only")
+            hp.append((res.standstill, res.time_gap, res.softness))
+        if n_ob:
+            ref = following(dyn.dt, obstacles=n_ob)
+            if not (np.array_equal(dyn.A, ref.A) and np.array_equal(dyn.B, ref.B)):
+                raise KernelUnsupported("the compiled MPC needs the dynamics pirl_sim.dynamics.following(dt, "
+                                        f"obstacles={n_ob})")
         if mpc._qp is None or mpc.assembly != "outer":
             raise KernelUnsupported("the compiled MPC needs bounds and the 'outer' assembly of SequentialMPC")
         if mpc.dynamics is not dyn or mpc.features is not feats:
@@ -94,10 +116,16 @@ class CompiledDriverMPC:
         self._xb, self._cf = np.array(xb, dtype=float, order="C"), np.array(cf.T, dtype=float, order="C")
         self._inv_a4 = 1.0 / profile.a_lat**4
         self._vmax_m8 = profile.v_max**-8.0
-        self._Ad = np.array(dyn.A, dtype=float, order="C")
-        self._Bd = np.array(dyn.B[:, 0], dtype=float, order="C")
+        self.n_obstacles = n_ob  #: obstacles per driver: 0 (the paper's model) or 2 (drivers who interact)
+        self._hp = np.array(hp, dtype=float).reshape(n_ob, 3)
+        self._dt = float(dyn.dt)
+        self._Ad = np.array(dyn.A[:3, :3], dtype=float, order="C")
+        self._Bd = np.array(dyn.B[:3, 0], dtype=float, order="C")
         qp = mpc._qp
         self._xlo, self._xhi = np.array(qp._x_lo, dtype=float), np.array(qp._x_hi, dtype=float)
+        if np.isfinite(self._xlo[3:]).any() or np.isfinite(self._xhi[3:]).any():
+            raise KernelUnsupported("the compiled MPC bounds (s, v, a) only, not the obstacles' states")
+        self._xlo3, self._xhi3 = self._xlo[:3].copy(), self._xhi[:3].copy()
         self._ulo, self._uhi = float(qp._u_lo[0]), float(qp._u_hi[0])
         T = self.routes._tables
         self._tab = tuple(np.array(T[key], dtype=dtype, order="C") for key, dtype in (
@@ -105,8 +133,9 @@ class CompiledDriverMPC:
             ("rows", float)))
         self.n_newton = 0  #: Newton steps taken so far (all drivers)
         # compile (or load from numba's cache) now rather than inside the first simulation step
-        self.controls(np.zeros((0, 3)), np.ones((0, 3)), 1, np.zeros((0, 1, 1)))
-        self.model(np.zeros(3), np.ones(3), np.zeros(1))
+        n_x, n_th = 3 + 2 * n_ob, 3 + n_ob
+        self.controls(np.zeros((0, n_x)), np.ones((0, n_th)), 1, np.zeros((0, 1, 1)))
+        self.model(np.zeros(n_x), np.ones(n_th), np.zeros(1))
         self.project(np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(0))
 
     # -- the MPC ------------------------------------------------------------------------------------
@@ -118,8 +147,9 @@ class CompiledDriverMPC:
 
         Parameters
         ----------
-        x0 : array (M, 3)        starts (s [m] on the global axis, v [m/s], a [m/s^2]), moved inside the state bounds
-        theta : array (M, 3)     weights (speed_dev, acc_sq, jerk_sq), >= 0, jerk_sq > 0
+        x0 : array (M, n_x)      starts (s [m] on the global axis, v [m/s], a [m/s^2]; with obstacles also
+                                 (g [m], v_L [m/s]) per obstacle), moved inside the state bounds
+        theta : array (M, K)     weights (speed_dev, acc_sq, jerk_sq[, headway, yielding]), >= 0, jerk_sq > 0
         n_steps : int            horizon N [steps], >= 1
         init : array (M, N, 1)   warm starts [m/s^3], finite
         """
@@ -127,10 +157,11 @@ class CompiledDriverMPC:
 
         n_steps = _check_horizon(n_steps)
         x0 = np.array(x0, dtype=float, ndmin=2)
-        M = x0.shape[0]
-        if x0.shape != (M, 3) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"start states must be finite with shape (M, 3), got shape {x0.shape}")
-        theta = np.ascontiguousarray(np.broadcast_to(np.asarray(theta, dtype=float), (M, 3)))
+        M, n_ob = x0.shape[0], self.n_obstacles
+        n_x, n_th = 3 + 2 * n_ob, 3 + n_ob
+        if x0.shape != (M, n_x) or not np.all(np.isfinite(x0)):
+            raise ValueError(f"start states must be finite with shape (M, {n_x}), got shape {x0.shape}")
+        theta = np.ascontiguousarray(np.broadcast_to(np.asarray(theta, dtype=float), (M, n_th)))
         if not np.all(np.isfinite(theta)) or np.any(theta < 0) or np.any(theta[:, 2] <= 0):
             raise ValueError("weights must be finite and >= 0, the jerk_sq weight > 0")
         U = np.array(init, dtype=float)
@@ -142,23 +173,34 @@ class CompiledDriverMPC:
         bad = np.zeros(M, dtype=np.bool_)
         counts = np.zeros(1, dtype=np.int64)
         k = self._k
-        k["newton_batch"](x0, theta, U2, self._Ad, self._Bd, self._xb, self._cf, self._inv_a4, self._vmax_m8,
-                          self._xlo, self._xhi, self._ulo, self._uhi, self.mpc.n_iter, self.mpc.tol, on_bounds,
-                          bad, counts)
+        k["newton_batch"](np.ascontiguousarray(x0[:, :3]), theta, self._obstacles(x0), self._hp, U2, self._Ad,
+                          self._Bd, self._xb, self._cf, self._inv_a4, self._vmax_m8, self._xlo3, self._xhi3,
+                          self._ulo, self._uhi, self.mpc.n_iter, self.mpc.tol, on_bounds, bad, counts)
         self.n_newton += int(counts[0])
         rows = np.flatnonzero(bad)
         if len(rows):
             self._bounded(x0, theta, U2, rows, n_steps)
         return U
 
+    def _obstacles(self, x0: np.ndarray) -> np.ndarray:
+        """Per start of x0 (M, n_x): (c0 = g + s [m], dt v_L [m]) of each obstacle (M, J, 2), the gap at stage n
+        being c0 + n dt v_L - s_n (see :mod:`._driver_jit`)."""
+        M, J = x0.shape[0], self.n_obstacles
+        ob = np.empty((M, J, 2))
+        for j in range(J):
+            ob[:, j, 0] = x0[:, 3 + 2 * j] + x0[:, 0]
+            ob[:, j, 1] = self._dt * x0[:, 4 + 2 * j]
+        return ob
+
     def model(self, x0: np.ndarray, theta: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The dense Newton model at U of one start: H (N, N) and b (N,) with the model 1/2 U'HU + b'U
-        (`SequentialMPC._model`); x0 (3,), theta (3,), U (N,)."""
+        (`SequentialMPC._model`); x0 (n_x,), theta (K,), U (N,)."""
         N = len(U)
         H, b = np.empty((N, N)), np.empty(N)
-        self._k["dense_model"](np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(theta, dtype=float),
-                               np.ascontiguousarray(U, dtype=float), self._Ad, self._Bd, self._xb, self._cf,
-                               self._inv_a4, self._vmax_m8, H, b)
+        x0 = np.ascontiguousarray(x0, dtype=float)
+        self._k["dense_model"](np.ascontiguousarray(x0[:3]), np.ascontiguousarray(theta, dtype=float),
+                               self._obstacles(x0[None])[0], self._hp, np.ascontiguousarray(U, dtype=float),
+                               self._Ad, self._Bd, self._xb, self._cf, self._inv_a4, self._vmax_m8, H, b)
         return H, b
 
     def _bounded(self, x0, theta, U, rows, n_steps):

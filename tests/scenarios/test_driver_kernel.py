@@ -49,6 +49,54 @@ def test_plans_equal_the_numpy_mpc_on_random_problems(route_set, n_iter, n_qp_it
     assert kernel.mpc.n_infeasible == reference.n_infeasible
 
 
+def _interacting_problems(route_set, seed, m=48):
+    """`_problems` with the obstacles of drivers who interact: a vehicle ahead (near, far, none) and a standing
+    obstacle to yield to (near or none), and five weights."""
+    from pirl_sim.scenarios.leaders import NO_LEADER_GAP
+
+    rng = np.random.default_rng(seed)
+    x0, theta, init = _problems(route_set, seed, m)
+    gap = np.where(rng.random(m) < 0.2, NO_LEADER_GAP, rng.uniform(-1.0, 40.0, m))
+    g_y = np.where(rng.random(m) < 0.3, NO_LEADER_GAP, rng.uniform(0.0, 30.0, m))
+    x0 = np.column_stack([x0, gap, rng.uniform(0.0, 12.0, m), g_y, np.zeros(m)])
+    theta = np.column_stack([theta, np.exp(rng.normal(0.0, 1.5, (m, 2)))])
+    return x0, theta, init
+
+
+@pytest.mark.parametrize("n_iter, n_qp_iter, atol", [(1, 1, 1e-9), (3, 2, 1e-6)])
+def test_interacting_plans_equal_the_numpy_mpc(route_set, n_iter, n_qp_iter, atol):
+    """Drivers who interact (headway and yielding on two obstacles): the same plans as the numpy MPC on the
+    seven states of `pirl_sim.dynamics.following`, and the obstacles change them."""
+    reference = route_set_model(route_set, dt=0.1, n_iter=n_iter, n_qp_iter=n_qp_iter, interacting=True).predictor()
+    model = route_set_model(route_set, dt=0.1, n_iter=n_iter, n_qp_iter=n_qp_iter, interacting=True)
+    kernel = CompiledDriverMPC(model, model.predictor())
+    assert kernel.n_obstacles == 2
+    paper = route_set_model(route_set, dt=0.1, n_iter=n_iter, n_qp_iter=n_qp_iter)
+    free = CompiledDriverMPC(paper, paper.predictor())
+    for seed in (0, 1):
+        x0, theta, init = _interacting_problems(route_set, seed)
+        want = reference.controls(x0, theta, HORIZON, init=init)
+        got = kernel.controls(x0, theta, HORIZON, init)
+        np.testing.assert_allclose(got, want, rtol=0, atol=atol)
+        alone = free.controls(x0[:, :3], theta[:, :3], HORIZON, init)
+        assert np.abs(got - alone).max() > 1.0  # the obstacles matter
+    assert kernel.mpc.n_qp == reference.n_qp > 0
+    assert kernel.mpc.n_infeasible == reference.n_infeasible
+
+
+def test_interacting_dense_model_equals_the_numpy_newton_model(route_set):
+    model = route_set_model(route_set, dt=0.1, interacting=True)
+    mpc = model.predictor()
+    kernel = CompiledDriverMPC(model, mpc)
+    x0, theta, init = _interacting_problems(route_set, 3, m=16)
+    x0 = mpc._qp.clip_start(x0)
+    for m in range(len(x0)):
+        A, b, _ = mpc._model(x0[m:m + 1], init[m:m + 1], theta[m:m + 1])
+        H, g = kernel.model(x0[m], theta[m], init[m, :, 0])
+        np.testing.assert_allclose(H, A[0], rtol=0, atol=1e-10 * np.abs(A[0]).max())
+        np.testing.assert_allclose(g, b[0], rtol=0, atol=1e-10 * np.abs(b[0]).max())
+
+
 def test_plans_are_bit_for_bit_reproducible(route_set):
     model = route_set_model(route_set, dt=0.1, n_iter=1, n_qp_iter=1)
     x0, theta, init = _problems(route_set, 2)
@@ -97,6 +145,9 @@ def test_bad_input_and_unsupported_models(route_set):
         kernel.controls(x0, theta, HORIZON, init[:, :10])
     with pytest.raises(ValueError, match="start states"):
         kernel.controls(x0[:, :2], theta, HORIZON, init)
+    interacting = route_set_model(route_set, dt=0.1, interacting=True)
+    with pytest.raises(ValueError, match=r"shape \(M, 7\)"):
+        CompiledDriverMPC(interacting, interacting.predictor()).controls(x0, theta, HORIZON, init)
     with pytest.raises(ValueError, match="weights"):
         kernel.controls(x0, -theta, HORIZON, init)
     with pytest.raises(TypeError, match="horizon"):
@@ -119,14 +170,17 @@ def test_bad_input_and_unsupported_models(route_set):
     assert PirlDrivers(model, {}, kernel="numpy")._compiled is None
 
 
-def test_closed_loop_sumo_run_equals_the_numpy_drivers(monkeypatch):
-    """A short SUMO run driven by the compiled kernel and by the numpy MPC: the same commands to rounding."""
+@pytest.mark.parametrize("population", ["default", "interacting"])
+def test_closed_loop_sumo_run_equals_the_numpy_drivers(monkeypatch, population):
+    """A short SUMO run driven by the compiled kernel and by the numpy MPC: the same commands to rounding (the
+    paper's drivers, and drivers who interact)."""
     pytest.importorskip("libsumo")
-    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION
+    from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, INTERACTING_POPULATION
     from pirl_sim.scenarios.sumo import SumoScenarioConfig, run_sumo_scenario
     from pirl_sim.scenarios.sumo import scenario as scenario_module
 
-    cfg = SumoScenarioConfig(population=dataclasses.replace(DEFAULT_POPULATION, n_vehicles=10), max_duration=40.0)
+    pop = {"default": DEFAULT_POPULATION, "interacting": INTERACTING_POPULATION}[population]
+    cfg = SumoScenarioConfig(population=dataclasses.replace(pop, n_vehicles=10), max_duration=40.0)
     frames = {}
     for kernel in ("numba", "numpy"):
         monkeypatch.setattr(scenario_module, "PirlDrivers", functools.partial(drivers_module.PirlDrivers, kernel=kernel))
