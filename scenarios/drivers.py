@@ -250,6 +250,12 @@ class PirlDrivers:
         g_y = yield_gaps(self._conflicts(), route, s, frame.speed, frame.xy, frame.psi, rows)
         return [*obstacle(gap[rows], v_lead[rows], speed), *obstacle(g_y, np.zeros(len(rows)), speed)]
 
+    def _project(self, route: np.ndarray, xy: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        """`RouteSet.project` (compiled where the kernel is)."""
+        if self._compiled is not None:
+            return self._compiled.project(route, xy, guess)
+        return self.model.routes.project(route, xy, guess)  # type: ignore[union-attr]
+
     def _conflicts(self) -> ConflictTable:
         if self._table is None:
             self._table = ConflictTable(self.model.routes)
@@ -272,7 +278,7 @@ class PirlDrivers:
         known = np.flatnonzero((route >= 0) & others)
         if len(known):
             guess = np.array([self._s_seen.get(frame.ids[k], np.nan) for k in known])
-            s[known] = routes.project(route[known], frame.xy[known], guess)
+            s[known] = self._project(route[known], frame.xy[known], guess)
             self._s_seen = {frame.ids[k]: float(v) for k, v in zip(known, s[known])}
         return route, s
 
@@ -318,9 +324,7 @@ class PirlDrivers:
         r = self._route[rows]
         xy = np.fromiter((c for e in egos for c in (e.x, e.y)), dtype=float, count=2 * M).reshape(M, 2)
         accel = np.fromiter((e.accel for e in egos), dtype=float, count=M)
-        project = (self.model.routes.project  # type: ignore[union-attr]
-                   if self._compiled is None else self._compiled.project)
-        s_local = project(r, xy, self._s_next[rows])
+        s_local = self._project(r, xy, self._s_next[rows])
         command = self._command[rows]
         with np.errstate(invalid="ignore"):
             followed = np.isfinite(command) & (np.abs(speed - command) <= self.override_tol)
