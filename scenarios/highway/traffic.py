@@ -100,6 +100,10 @@ class TrafficRules:
     crash_removal_delay : float or None   [s] crashed vehicles are removed this long after the crash; None: never
     initial_spacing : float            [m] least distance between vehicles placed at a reset, > 0
     background_speed_factor_std : float   std of background drivers' speed factors (mean 1, in [0.7, 1.3]), >= 0
+    safety_time_gap, safety_jam_gap : float   [s], [m] the IDM's time gap and jam gap in the safety layer of
+                                       drivers who interact (their own cost keeps their distance), >= 0
+    safety_yield_headway : float       [s] ``yield_headway`` in that safety layer (0: the driver is held at the
+                                       line only when a ring vehicle would reach the node before it cleared it), >= 0
     """
 
     lookahead: float = 80.0
@@ -114,13 +118,16 @@ class TrafficRules:
     crash_removal_delay: float | None = 2.0
     initial_spacing: float = 15.0
     background_speed_factor_std: float = 0.1
+    safety_time_gap: float = 0.5
+    safety_jam_gap: float = 1.0
+    safety_yield_headway: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("lookahead", "yield_distance", "yield_lookback", "entry_acceleration", "max_deceleration",
                      "initial_spacing"):
             object.__setattr__(self, name, number(f"rules.{name}", getattr(self, name), low=0.0, allow_equal=False))
         for name in ("yield_headway", "yield_min_distance", "stop_clearance", "stop_margin",
-                     "background_speed_factor_std"):
+                     "background_speed_factor_std", "safety_time_gap", "safety_jam_gap", "safety_yield_headway"):
             object.__setattr__(self, name, number(f"rules.{name}", getattr(self, name), low=0.0))
         if self.crash_removal_delay is not None:
             object.__setattr__(self, "crash_removal_delay",
@@ -140,10 +147,12 @@ IDM_ACC_LIMIT = IDMVehicle.ACC_MAX  # [m/s^2] |acceleration| cap of highway-env'
 
 
 def idm_acceleration(v: float, v0: float, gap: float | None = None, v_lead: float = 0.0, *,
-                     delta: float = IDMVehicle.DELTA, s0: float = IDM_S0, free: bool = True) -> float:
+                     delta: float = IDMVehicle.DELTA, s0: float = IDM_S0, free: bool = True,
+                     time_gap: float = IDM_T) -> float:
     """The IDM's acceleration [m/s^2] with highway-env's parameters.
 
-    ``a_max (1 - (v/v0)^delta) - a_max (s*/gap)^2`` with ``s* = s0 + max(0, v T + v (v - v_lead) / (2 sqrt(a_max b)))``.
+    ``a_max (1 - (v/v0)^delta) - a_max (s*/gap)^2`` with ``s* = s0 + max(0, v T + v (v - v_lead) / (2 sqrt(a_max b)))``
+    (T = ``time_gap``).
 
     Parameters
     ----------
@@ -153,11 +162,12 @@ def idm_acceleration(v: float, v0: float, gap: float | None = None, v_lead: floa
     delta : float          exponent of the free-road term
     s0 : float             jam gap [m]
     free : bool            False: ``a_max`` instead of the free-road term (the limit an obstacle imposes)
+    time_gap : float       T [s]
     """
     v = max(v, 0.0)
     a = IDM_A_MAX * (1.0 - (v / max(v0, _EPS)) ** delta) if free else IDM_A_MAX
     if gap is not None:
-        s_star = s0 + max(0.0, v * IDM_T + v * (v - v_lead) / (2.0 * math.sqrt(IDM_A_MAX * IDM_B)))
+        s_star = s0 + max(0.0, v * time_gap + v * (v - v_lead) / (2.0 * math.sqrt(IDM_A_MAX * IDM_B)))
         a -= IDM_A_MAX * (s_star / max(gap, 0.01)) ** 2
     return a
 
@@ -517,8 +527,9 @@ class RoundaboutTraffic(Road):
             return None, 0.0
         return best_d - 0.5 * (v.LENGTH + best.LENGTH), best.speed  # type: ignore[attr-defined]
 
-    def _must_yield(self, v: RouteFollowing, others: list) -> bool:
-        """Gap acceptance at ``v``'s merge node (see the module docstring); updates ``v.committed``."""
+    def _must_yield(self, v: RouteFollowing, others: list, headway: float) -> bool:
+        """Gap acceptance at ``v``'s merge node with ``headway`` [s] (see the module docstring); updates
+        ``v.committed``."""
         rules = self.rules
         d = v.merge_distance
         if v.committed or not v.entering or d > rules.yield_distance:
@@ -543,7 +554,7 @@ class RoundaboutTraffic(Road):
             d_o = upstream[key] - s_lane
             if d_o > rules.yield_lookback:
                 continue
-            if d_o < rules.yield_min_distance or d_o / max(o.speed, 0.1) < t_clear + rules.yield_headway:
+            if d_o < rules.yield_min_distance or d_o / max(o.speed, 0.1) < t_clear + headway:
                 conflict = True
                 break
         stop_gap = d - 0.5 * v.LENGTH - self._stop_offset[node] - rules.stop_margin  # type: ignore[attr-defined]
@@ -557,17 +568,21 @@ class RoundaboutTraffic(Road):
         return conflict
 
     def _limit(self, v: RouteFollowing, others: list, occupancy: _Occupancy, *, free_v0: float | None,
-               delta: float) -> float:
+               delta: float, safety: bool = False) -> float:
         """IDM acceleration of ``v`` with its leader and, when yielding, the stop line; ``free_v0`` None:
-        without the free-road term (the limit others impose on a PIRL driver)."""
+        without the free-road term (the limit others impose on a PIRL driver); ``safety``: with the rules'
+        safety-layer gaps (drivers who interact)."""
+        rules = self.rules
+        s0, T, headway = ((rules.safety_jam_gap, rules.safety_time_gap, rules.safety_yield_headway) if safety
+                          else (IDM_S0, IDM_T, rules.yield_headway))
         gap, v_lead = self._leader(v, others, occupancy)
-        v.yielding = self._must_yield(v, others)
+        v.yielding = self._must_yield(v, others, headway)
         if v.committed and v.entering and v not in occupancy.merging:  # committed just now
             occupancy.merging.append(v)
         free = free_v0 is not None
         v0 = free_v0 if free else 1.0
         a = (idm_acceleration(v.speed, v0, gap, v_lead, delta=delta,  # type: ignore[arg-type]
-                              free=free) if gap is not None
+                              free=free, s0=s0, time_gap=T) if gap is not None
              else (idm_acceleration(v.speed, v0, delta=delta) if free else math.inf))  # type: ignore[arg-type]
         if v.yielding:
             stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
@@ -599,6 +614,7 @@ class RoundaboutTraffic(Road):
                                                  float(v.applied_acceleration))) for v in pirl}, **frame) if pirl else {}
         self._commands = {}
         tol = self.drivers.override_tol / STEP_LENGTH
+        safety = self.controller.needs_frame  # drivers who interact: highway-env's rules only as a safety layer
         idm = [v for v in others if isinstance(v, RouteFollowing) and not v.crashed
                and (v.kind == BACKGROUND or (v.kind == PIRL and commands.get(v.vehicle_id) is None))]
         v_des = dict(zip(map(id, idm), self.v_des_many(idm)))  # one profile evaluation for all IDM drivers
@@ -618,7 +634,7 @@ class RoundaboutTraffic(Road):
                                     delta=v.DELTA)  # type: ignore[attr-defined]
                 else:
                     a_cmd = (cmd - v.speed) / STEP_LENGTH
-                    a = min(a_cmd, self._limit(v, others, occupancy, free_v0=None,
+                    a = min(a_cmd, self._limit(v, others, occupancy, free_v0=None, safety=safety,
                                                delta=v.DELTA))  # type: ignore[attr-defined]
                     self._commands[v.vehicle_id] = a_cmd
                     track.n_commands += 1
