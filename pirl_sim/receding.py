@@ -6,6 +6,8 @@ A driver who re-plans every step over H steps is modelled step by step: ``u_t = 
 cluster) by batched Levenberg-Marquardt in the log weights, the MPC's derivatives in theta by implicit
 differentiation of its optimality conditions with the active bounds. The MPC ignores the scale of theta, so only
 the normalised weights are identified; the fitted sigma is the control noise (``beta = 1 / sigma^2`` in results).
+Each fitted log weight comes with a standard error from the fit's Gauss-Newton information: a weight the data
+do not inform (e.g. a headway weight of a car that never came near a vehicle ahead) gets a large or infinite one.
 `STEP_MASK` metadata leaves out steps whose control was not the driver's own.
 
 The model, its derivatives and its fit are explained in the documentation's "The two likelihoods" page.
@@ -27,7 +29,7 @@ from .trajectory import Trajectory
 from .validation import is_positive_int
 
 __all__ = ["RecedingPolicy", "PolicySolution", "RecedingSteps", "RecedingResult", "receding_steps", "fit_receding",
-           "receding_residuals", "cauchy_scale", "cauchy_nll", "STEP_MASK"]
+           "receding_residuals", "cauchy_scale", "cauchy_nll", "log_standard_errors", "STEP_MASK"]
 
 #: metadata key of a trajectory's per-step mask (bool, shape (n_steps,)): False = the control at that step
 #: was not the driver's own (overridden by a simulator, handed back, ...) and is left out of the likelihood
@@ -390,6 +392,8 @@ class RecedingResult:
     n_iter : int
     n_regularized : int                scored steps whose MPC took Gauss-Newton steps (indefinite cost Hessian)
     n_bounded : int                    plans with an active bound at the solution
+    log_se : array (G, K)              standard error of each fitted log normalised weight (`log_standard_errors`;
+                                       0 for the reference, inf where the data do not determine it)
     """
 
     theta: np.ndarray
@@ -403,6 +407,21 @@ class RecedingResult:
     n_iter: int
     n_regularized: int
     n_bounded: int
+    log_se: np.ndarray
+
+
+def log_standard_errors(info: np.ndarray, sigma: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    """Standard errors (G, F) of log weights from the Gauss-Newton information ``info`` (G, F, F) = J'WJ of
+    residuals with scale ``sigma`` (G,): ``sigma sqrt(diag(info^-1))``. A direction whose eigenvalue is at most
+    ``rcond`` times the largest (or every direction of a zero matrix) carries no information: the weights
+    that load on it get inf."""
+    info = np.asarray(info, dtype=float)
+    lam, V = np.linalg.eigh(info)
+    top = lam.max(axis=1, keepdims=True)
+    flat = (lam <= rcond * top) | (top <= 0.0)
+    var = np.einsum("gik,gk->gi", V**2, np.where(flat, 0.0, 1.0 / np.where(flat, 1.0, lam)))
+    lost = np.einsum("gik,gk->gi", (np.abs(V) > 1e-6).astype(float), flat.astype(float)) > 0
+    return np.where(lost, np.inf, np.asarray(sigma, dtype=float)[:, None] * np.sqrt(var))
 
 
 def receding_residuals(model: DriverModel, trajectories: Sequence[Trajectory], theta: np.ndarray, horizon: int, *,
@@ -531,6 +550,10 @@ def fit_receding(
     counts = np.bincount(grp, minlength=G)
     has = counts > 0
     sigma, nll = fit.scale_and_nll(state.resid, counts)
+    log_se = np.zeros((G, K))
+    log_se[:, free] = log_standard_errors(fit.information(state), sigma)
+    log_se[~has] = np.inf
+    log_se[:, ref] = 0.0
     theta = np.exp(w)
     at_bound = np.zeros((G, K), dtype=bool)
     at_bound[:, free] = (w[:, free] <= low + 1e-9) | (w[:, free] >= high - 1e-9)
@@ -538,7 +561,7 @@ def fit_receding(
         theta=theta, normalized=theta.copy(), beta=1.0 / np.maximum(sigma**2, np.finfo(float).tiny),
         sigma=sigma, neg_log_likelihood=nll, n_steps=counts, at_bound=at_bound,
         converged=state.converged & has, n_iter=n_coarse + n_iter, n_regularized=int(state.gauss_newton.sum()),
-        n_bounded=int(state.bounded.sum()),
+        n_bounded=int(state.bounded.sum()), log_se=log_se,
     )
 
 
@@ -592,6 +615,16 @@ class _LM:
             per = 0.5 * cc**2 * np.log1p(z)
             wts = 1.0 / (1.0 + z)
         return np.bincount(grp_rows, weights=per.sum(axis=1), minlength=self.G), wts
+
+    def information(self, st) -> np.ndarray:
+        """The Gauss-Newton information J'WJ (G, F, F) in the free log weights at a state of every step, W the
+        loss's IRLS weights at the residuals' own scale."""
+        grp = self.grp
+        _, wts = self._rho(st.resid, grp, self._scale(st.resid, grp))
+        F = len(self.free)
+        info = np.zeros((self.G, F, F))
+        np.add.at(info, grp, np.einsum("sui,su,suj->sij", st.jac, wts, st.jac, optimize=True))
+        return info
 
     def run(self, w, use, max_iter, tol, groups=None, state=None):
         """LM from log weights w (G, K) on the steps where ``use`` (S,): (w, state, iterations).

@@ -200,6 +200,8 @@ class TrackFits:
     at_bound : bool array (n,)      a log weight at its bound
     fitted_steps : int array (n,)   steps scored (receding) or steps of the trajectory (trajectory)
     sigma : array (n,)              [control units] fitted residual scale (receding); NaN (trajectory)
+    log_se : array (n, K)           standard errors of the fitted log weights (receding,
+                                    `pirl_sim.receding.log_standard_errors`); NaN (trajectory)
     """
 
     normalized: np.ndarray
@@ -207,6 +209,7 @@ class TrackFits:
     at_bound: np.ndarray
     fitted_steps: np.ndarray
     sigma: np.ndarray
+    log_se: np.ndarray
 
 
 def run_demonstrations(run, min_steps: int = 10) -> list:
@@ -255,14 +258,15 @@ def fit_track_weights(model, trajectories: Sequence[Trajectory], *, likelihood: 
         res = fit_receding(model, trajectories, horizon=int(horizon), stride=stride,  # type: ignore[arg-type]
                            log_bounds=log_bounds)
         return TrackFits(res.normalized, res.converged.astype(bool), res.at_bound.any(axis=1),  # type: ignore[arg-type]
-                         res.n_steps.astype(np.int64), np.asarray(res.sigma, dtype=float))
+                         res.n_steps.astype(np.int64), np.asarray(res.sigma, dtype=float), res.log_se)
     blocks = attach_gauss_newton(model.laplace_blocks(trajectories), model.features, model.dynamics, trajectories)
     labels = np.arange(n)
     res = fit_weights([b for b, _ in blocks], [labels[idx] for _, idx in blocks],  # type: ignore[assignment]
                       model.features, n_groups=n,
                       log_bounds=log_bounds)
     return TrackFits(res.normalized, res.converged.astype(bool), res.at_bound.any(axis=1),  # type: ignore[arg-type]
-                     np.array([t.n_steps for t in trajectories], dtype=np.int64), np.full(n, math.nan))
+                     np.array([t.n_steps for t in trajectories], dtype=np.int64), np.full(n, math.nan),
+                     np.full(res.normalized.shape, math.nan))
 
 
 # ---------------------------------------------------------------------------------------------- the report

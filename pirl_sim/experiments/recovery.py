@@ -44,8 +44,10 @@ INTERACTION_FEATURES: tuple[str, ...] = ("headway", "yielding")
 #: what the car covers over the drivers' horizon at its speed (the plan can reach the obstacle: the feature's
 #: residual then gets >= about 5 % of its softness; farther, the weight has no measurable effect on the plan)
 NEAR_MARGIN = 3.0
-#: usable steps near the obstacle (`NEAR_MARGIN`) a track needs to count for an interaction weight's "near" scores
-MIN_NEAR_STEPS = 5
+#: an interaction weight of a track counts as identified (its "identified" scores) when the fit's standard error of
+#: its log (`pirl_sim.receding.log_standard_errors`) is at most this: the track's data determine it. A car that
+#: never came near a vehicle ahead leaves its headway weight undetermined (standard error large or infinite)
+IDENTIFIED_SE = 0.3
 _FLOAT = "%.4g"
 
 #: the recovery targets, per simulator: (column of a summary row, "<=" or ">=", threshold)
@@ -149,6 +151,7 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
         rows[f"theta_{f}"] = truth[:, k]
         rows[f"theta_hat_{f}"] = res.normalized[:, k]
         rows[f"log_err_{f}"] = np.log(res.normalized[:, k] / truth[:, k])
+        rows[f"se_log_{f}"] = res.log_se[:, k]
     for f in INTERACTION_FEATURES:
         if f in names:
             rows[f"{f}_steps"] = [near_steps(run.model, d, f, run.horizon) for d in demos]
@@ -222,15 +225,16 @@ def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) 
         row[f"p90_abs_log_err_{f}"] = float(np.percentile(err, 90)) if n else math.nan
         row[f"max_abs_log_err_{f}"] = float(err.max()) if n else math.nan
         row[f"spearman_{f}"] = spearman(tracks[f"theta_{f}"].to_numpy(), tracks[f"theta_hat_{f}"].to_numpy())
-    for f in INTERACTION_FEATURES:  # the weights of the gaps, over the tracks whose data hold them
-        if f"{f}_steps" not in tracks:
+    for f in INTERACTION_FEATURES:  # the weights of the gaps, over the tracks whose data determine them
+        if f"se_log_{f}" not in tracks:
             continue
-        near = tracks[tracks[f"{f}_steps"] >= MIN_NEAR_STEPS]
-        err = np.abs(near[f"log_err_{f}"].to_numpy())
-        row[f"{f}_tracks"] = int(len(near))
-        row[f"median_abs_log_err_{f}_near"] = float(np.median(err)) if len(near) else math.nan
-        row[f"p90_abs_log_err_{f}_near"] = float(np.percentile(err, 90)) if len(near) else math.nan
-        row[f"spearman_{f}_near"] = spearman(near[f"theta_{f}"].to_numpy(), near[f"theta_hat_{f}"].to_numpy())
+        known = tracks[tracks[f"se_log_{f}"] <= IDENTIFIED_SE]
+        err = np.abs(known[f"log_err_{f}"].to_numpy())
+        row[f"{f}_tracks"] = int(len(known))
+        row[f"median_abs_log_err_{f}_identified"] = float(np.median(err)) if len(known) else math.nan
+        row[f"p90_abs_log_err_{f}_identified"] = float(np.percentile(err, 90)) if len(known) else math.nan
+        row[f"spearman_{f}_identified"] = spearman(known[f"theta_{f}"].to_numpy(),
+                                                   known[f"theta_hat_{f}"].to_numpy())
     for f in features:
         row[f"tirl_max_abs_log_err_{f}"] = float(np.abs(styles[f"log_err_{f}"]).max()) if len(styles) else math.nan
     row["converged"] = int(tracks["converged"].sum())
@@ -573,12 +577,13 @@ def compact_table(table: pd.DataFrame) -> pd.DataFrame:
     out["steps"] = table["usable_steps"]
     for col, short in _SHORT.items():
         out[short] = table[col]
-    for f, short in (("headway", "hw"), ("yielding", "yld")):  # drivers who interact: all tracks, and near
+    for f, short in (("headway", "hw"), ("yielding", "yld")):  # drivers who interact: all tracks, and identified
         if f"{f}_tracks" in table:
             out[f"med {short}"] = table[f"median_abs_log_err_{f}"]
-            out[f"{short} tracks"] = table[f"{f}_tracks"]
-            out[f"med {short} near"] = table[f"median_abs_log_err_{f}_near"]
-            out[f"rho {short} near"] = table[f"spearman_{f}_near"]
+            out[f"{short} id"] = table[f"{f}_tracks"]
+            out[f"med {short} id"] = table[f"median_abs_log_err_{f}_identified"]
+            out[f"p90 {short} id"] = table[f"p90_abs_log_err_{f}_identified"]
+            out[f"rho {short} id"] = table[f"spearman_{f}_identified"]
     out["conv"] = [f"{c}/{g}" for c, g in zip(table["converged"], table["groups"])]
     out["at bound"] = table["at_bound"]
     out["TIRL conv"] = [f"{c}/{g}" for c, g in zip(table["tirl_converged"], table["tirl_groups"])]

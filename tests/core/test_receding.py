@@ -213,3 +213,16 @@ def test_receding_fit_on_the_replay_recovers_the_drivers_weights(sumo_recording)
     res_off = fit_receding(off.model, off.selected[:6], horizon=rec.horizon)
     true = np.stack([t.metadata["theta"] for t in off.selected[:6]])
     assert np.median(weight_recovery_error(res_off.normalized, true, 2)) > 5 * np.median(err)
+
+
+def test_log_standard_errors_from_the_information():
+    from pirl_sim.receding import log_standard_errors
+
+    info = np.array([[[4.0, 0.0], [0.0, 0.25]],  # sigma / sqrt(diag): 0.5 / 2 and 0.5 / 0.5
+                     [[1.0, 0.0], [0.0, 0.0]],   # the second weight has no information
+                     [[1.0, 1.0], [1.0, 1.0]],   # only their sum is informed: both open
+                     np.zeros((2, 2))])           # no information at all
+    se = log_standard_errors(info, np.array([0.5, 1.0, 1.0, 1.0]))
+    np.testing.assert_allclose(se[0], [0.25, 1.0])
+    assert se[1, 0] == 1.0 and se[1, 1] == np.inf
+    assert np.all(np.isinf(se[2])) and np.all(np.isinf(se[3]))
