@@ -102,8 +102,7 @@ class TrafficRules:
     background_speed_factor_std : float   std of background drivers' speed factors (mean 1, in [0.7, 1.3]), >= 0
     safety_time_gap, safety_jam_gap : float   [s], [m] the IDM's time gap and jam gap in the safety layer of
                                        drivers who interact (their own cost keeps their distance), >= 0
-    safety_yield_headway : float       [s] ``yield_headway`` in that safety layer (0: the driver is held at the
-                                       line only when a ring vehicle would reach the node before it cleared it), >= 0
+    safety_yield_headway : float       [s] ``yield_headway`` in that safety layer, >= 0
     """
 
     lookahead: float = 80.0
@@ -120,7 +119,7 @@ class TrafficRules:
     background_speed_factor_std: float = 0.1
     safety_time_gap: float = 0.5
     safety_jam_gap: float = 1.0
-    safety_yield_headway: float = 0.0
+    safety_yield_headway: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("lookahead", "yield_distance", "yield_lookback", "entry_acceleration", "max_deceleration",
