@@ -418,8 +418,12 @@ def _factored_hessian(G, Jx, Ju, r, hess_x) -> np.ndarray:
         for a in np.flatnonzero(np.any(diag != 0, axis=(0, 1))):
             H += G[:, a, :].T @ (diag[:, :, a, None] * G[None, :, a, :])
         return H
-    T = (W @ G[None]).reshape(M, N * n_x, d)
-    return H + G.reshape(N * n_x, d).T[None] @ T
+    # only the states the second derivative touches (e.g. the speed and the gap of the headway residual)
+    touched = np.any(W, axis=(0, 1))
+    used = np.flatnonzero(touched.any(axis=0) | touched.any(axis=1))
+    Gu = G[:, used, :]
+    T = (W[:, :, used][:, :, :, used] @ Gu[None]).reshape(M, N * len(used), d)
+    return H + Gu.reshape(N * len(used), d).T[None] @ T
 
 
 def _group_by_length(trajectories: Sequence[Trajectory]) -> dict[int, np.ndarray]:
