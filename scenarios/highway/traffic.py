@@ -600,7 +600,7 @@ class RoundaboutTraffic(Road):
                      np.array([v.heading for v in vehicles], dtype=float),
                      np.array([v.speed for v in vehicles], dtype=float),
                      np.array([v.LENGTH for v in vehicles], dtype=float),
-                     tuple(str(getattr(v, "route_id", "") or "") for v in vehicles))
+                     tuple(v.route_lanes.route_id if isinstance(v, RouteFollowing) else "" for v in vehicles))
 
     def act(self) -> None:
         """Decide every vehicle's command, then let each act (steering, and the command)."""

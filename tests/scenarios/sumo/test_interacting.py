@@ -14,10 +14,11 @@ pytest.importorskip("lanelet2")
 pytest.importorskip("libsumo")
 
 from pirl_sim.recovery import RecoveryReport, fit_track_weights, run_demonstrations  # noqa: E402
-from pirl_sim.scenarios import drivers as drivers_module  # noqa: E402
 from pirl_sim.scenarios.population_config import INTERACTING_POPULATION  # noqa: E402
 from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_sumo_run, run_sumo_scenario  # noqa: E402
 from pirl_sim.testing import assert_recovered  # noqa: E402
+
+from obstacle_spy import assert_the_learner_reads_the_planned_gaps, planned_obstacles  # noqa: E402
 
 #: the example population of drivers who interact (two styles, headway and yielding weights tenfold apart), crowded:
 #: 40 vehicles, a departure every 1.5 s on 4 arms
@@ -29,50 +30,16 @@ HEADWAY_TOLERANCE = {"median": {"headway": 0.1}}
 
 @pytest.fixture(scope="module")
 def crowded_run(tmp_path_factory):
-    """The run, and {(time [s], vehicle id): (gap [m] and speed [m/s] of the vehicle ahead, then of the obstacle
-    yielded to)} every driver planned with."""
-    seen: dict[tuple[float, str], tuple[float, ...]] = {}
-    commands = drivers_module.PirlDrivers.commands
-
-    obstacles = drivers_module.PirlDrivers._obstacles
-
-    def spy(self, frame, vids, speed, s_local):
-        out = obstacles(self, frame, vids, speed, s_local)
-        for v, *cols in zip(vids, *out):
-            seen[round(self._now, 1), v] = tuple(cols)
-        return out
-
-    def commands_spy(self, time, observations, frame=None):
-        self._now = time
-        return commands(self, time, observations, frame)
-
-    drivers_module.PirlDrivers.commands = commands_spy
-    drivers_module.PirlDrivers._obstacles = spy
-    try:
-        out = tmp_path_factory.mktemp("interacting")
+    """The run, and what every driver planned with (`obstacle_spy.planned_obstacles`)."""
+    out = tmp_path_factory.mktemp("interacting")
+    with planned_obstacles() as seen:
         run_sumo_scenario(SumoScenarioConfig(population=CROWDED), 0, out_dir=out)
-    finally:
-        drivers_module.PirlDrivers.commands = commands
-        drivers_module.PirlDrivers._obstacles = obstacles
     return load_sumo_run(out), seen
 
 
 @pytest.mark.slow
 def test_the_learner_reads_the_gaps_the_drivers_planned_with(crowded_run):
-    run, seen = crowded_run
-    gt = run.recording.ground_truth
-    assert "theta_yielding" in gt and run.model.features.names[-2:] == ("headway", "yielding")
-    agents = dict(zip(gt["track_id"], gt["agent_id"]))
-    compared, near = 0, 0
-    for d in run_demonstrations(run, 10):
-        vid = agents[d.metadata["track_id"]]
-        times = np.round((d.metadata["first_frame"] + np.arange(len(d.states))) * 0.1, 1)
-        planned = np.array([seen.get((t, vid), (np.nan,) * 4) for t in times])
-        ok = np.isfinite(planned[:, 0])  # not a step handed back to SUMO
-        np.testing.assert_allclose(d.states[ok, 3:7], planned[ok], atol=5e-3)
-        compared += int(ok.sum())
-        near += int((planned[ok, 0] < 20.0).sum())
-    assert compared > 3000 and near > 300
+    assert_the_learner_reads_the_planned_gaps(*crowded_run, min_compared=3000, min_near=300)
 
 
 @pytest.mark.slow
