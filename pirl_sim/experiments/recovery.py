@@ -45,9 +45,14 @@ INTERACTION_FEATURES: tuple[str, ...] = ("headway", "yielding")
 #: residual then gets >= about 5 % of its softness; farther, the weight has no measurable effect on the plan)
 NEAR_MARGIN = 3.0
 #: an interaction weight of a track counts as identified (its "identified" scores) when the fit's standard error of
-#: its log (`pirl_sim.receding.log_standard_errors`) is at most this: the track's data determine it. A car that
-#: never came near a vehicle ahead leaves its headway weight undetermined (standard error large or infinite)
+#: its log (`pirl_sim.receding.log_standard_errors`) is at most this and at least `MIN_NEAR_STEPS` usable steps were
+#: within reach of the obstacle (`near_steps`): the track's data determine it. A car that never came near a vehicle
+#: ahead leaves its headway weight undetermined (standard error large or infinite); one or two steps near it
+#: determine it locally (a small standard error on noise-free data) but can leave the fit in another basin
 IDENTIFIED_SE = 0.3
+#: usable steps within reach of the obstacle (`near_steps`) a track needs for an interaction weight to count as
+#: identified
+MIN_NEAR_STEPS = 5
 _FLOAT = "%.4g"
 
 #: the recovery targets, per simulator: (column of a summary row, "<=" or ">=", threshold)
@@ -228,7 +233,7 @@ def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) 
     for f in INTERACTION_FEATURES:  # the weights of the gaps, over the tracks whose data determine them
         if f"se_log_{f}" not in tracks:
             continue
-        known = tracks[tracks[f"se_log_{f}"] <= IDENTIFIED_SE]
+        known = tracks[(tracks[f"se_log_{f}"] <= IDENTIFIED_SE) & (tracks[f"{f}_steps"] >= MIN_NEAR_STEPS)]
         err = np.abs(known[f"log_err_{f}"].to_numpy())
         row[f"{f}_tracks"] = int(len(known))
         row[f"median_abs_log_err_{f}_identified"] = float(np.median(err)) if len(known) else math.nan

@@ -24,7 +24,7 @@ from obstacle_spy import assert_the_learner_reads_the_planned_gaps, planned_obst
 #: 40 vehicles, a departure every 1.5 s on 4 arms
 CROWDED = dataclasses.replace(INTERACTING_POPULATION, n_vehicles=40, depart_interval=1.5)
 #: stated tolerance on the median |log error| of the headway weight over the tracks that determine it (standard
-#: error of its log <= `pirl_sim.experiments.recovery.IDENTIFIED_SE`)
+#: error of its log <= `pirl_sim.experiments.recovery.IDENTIFIED_SE`, enough steps within reach of a vehicle ahead)
 HEADWAY_TOLERANCE = {"median": {"headway": 0.1}}
 
 
@@ -44,14 +44,15 @@ def test_the_learner_reads_the_gaps_the_drivers_planned_with(crowded_run):
 
 @pytest.mark.slow
 def test_headway_weights_come_back_where_the_data_determine_them_and_a_swap_between_styles_fails(crowded_run):
-    from pirl_sim.experiments.recovery import IDENTIFIED_SE
+    from pirl_sim.experiments.recovery import IDENTIFIED_SE, MIN_NEAR_STEPS, near_steps
 
     run, _ = crowded_run
     demos = run_demonstrations(run, 10)
     fits = fit_track_weights(run.model, demos, likelihood="receding", horizon=run.horizon)
     free = ["speed_dev", "acc_sq", "headway"]
     idx = [list(run.model.features.names).index(f) for f in free]
-    known = np.flatnonzero(fits.log_se[:, idx[2]] <= IDENTIFIED_SE)
+    near = np.array([near_steps(run.model, d, "headway", run.horizon) for d in demos])
+    known = np.flatnonzero((fits.log_se[:, idx[2]] <= IDENTIFIED_SE) & (near >= MIN_NEAR_STEPS))
     assert 6 <= len(known) < len(demos)  # some cars never came near a vehicle ahead: their weight stays open
     truth = np.array([demos[i].metadata["theta"] for i in known])
     styles = [demos[i].metadata["style_name"] for i in known]
