@@ -44,12 +44,17 @@ class Residual(NamedTuple):
     jac_u : array, shape (M or 1, N or 1, p, n_u)
     hess_x : array, shape (M, N, p, n_x, n_x), or None when the residual is affine in x.
         Second derivatives of each residual component in the state (residuals are taken affine in u).
+    hess_scale : array, shape (M, N, p), or None
+        Optional: ``hess_x = hess_scale * jac_x^T jac_x`` per component (a second derivative along the gradient,
+        as a smooth function of one affine combination of the states has), which the Hessians then use: the
+        exact Hessian is the Gauss-Newton one with the Jacobian scaled by ``sqrt(1 + r hess_scale)``.
     """
 
     r: np.ndarray
     jac_x: np.ndarray
     jac_u: np.ndarray
     hess_x: np.ndarray | None = None
+    hess_scale: np.ndarray | None = None
 
 
 ResidualFn = Callable[[np.ndarray, np.ndarray], Residual]
@@ -326,7 +331,8 @@ class FeatureSet:
                 yield k, value, g, self._hessian_cache[key][0]
                 continue
             if factored and not feat.quadratic:
-                yield k, value, g, scale * _factored_hessian(G, Jx, Ju, r, None if gauss_newton else res.hess_x)
+                yield k, value, g, scale * _factored_hessian(G, Jx, Ju, r, None if gauss_newton else res.hess_x,
+                                                             None if gauss_newton else res.hess_scale)
                 continue
             Hxx = 2.0 * (JxT @ Jx)
             Hxu = 2.0 * (JxT @ Ju)
@@ -392,17 +398,24 @@ def _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u) -> np.ndarray:
     return blocks.reshape(Mp, d, d)
 
 
-def _factored_hessian(G, Jx, Ju, r, hess_x) -> np.ndarray:
+def _factored_hessian(G, Jx, Ju, r, hess_x, hess_scale=None) -> np.ndarray:
     """sum_k 2 J_k^T J_k + G_k^T (2 r_k . d2r_k) G_k with J_k = Jx_k G_k + Ju_k E_k, shape (M, d, d).
 
     G (N, n_x, d); Jx (M|1, N|1, p, n_x); Ju (M|1, N|1, p, n_u); r (M, N, p); hess_x (M, N, p, n_x, n_x) or
-    None. A second-derivative term that is diagonal in the state costs one product per non-zero entry.
+    None; hess_scale (M, N, p) or None (`Residual.hess_scale`: then, with no control in the residual and
+    1 + r hess_scale >= 0, the whole Hessian is one product, 2 (s J)^T (s J) with s = sqrt(1 + r hess_scale)). A
+    second-derivative term that is diagonal in the state costs one product per non-zero entry.
     """
     M, N, p = r.shape
     n_x, d = G.shape[1], G.shape[2]
     n_u = d // N
     J = np.broadcast_to(Jx, (M, N, p, n_x)) @ G[None]  # (M, N, p, d)
     Ju = np.broadcast_to(Ju, (M, N, p, n_u))
+    if hess_x is not None and hess_scale is not None and not np.any(Ju):
+        s2 = 1.0 + r * hess_scale
+        if np.all(s2 >= 0.0):
+            Jf = (J * np.sqrt(s2)[..., None]).reshape(M, N * p, d)
+            return 2.0 * (np.swapaxes(Jf, 1, 2) @ Jf)
     if np.any(Ju):
         J = J.reshape(M, N, p, N, n_u).copy()
         idx = np.arange(N)
