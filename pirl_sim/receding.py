@@ -392,8 +392,9 @@ class RecedingResult:
     n_iter : int
     n_regularized : int                scored steps whose MPC took Gauss-Newton steps (indefinite cost Hessian)
     n_bounded : int                    plans with an active bound at the solution
-    log_se : array (G, K)              standard error of each fitted log normalised weight (`log_standard_errors`;
-                                       0 for the reference, inf where the data do not determine it)
+    log_se : array (G, K) or None      standard error of each fitted log normalised weight (`log_standard_errors`;
+                                       0 for the reference, inf where the data do not determine it); None in
+                                       results saved without it
     """
 
     theta: np.ndarray
@@ -407,7 +408,7 @@ class RecedingResult:
     n_iter: int
     n_regularized: int
     n_bounded: int
-    log_se: np.ndarray
+    log_se: np.ndarray | None = None
 
 
 def log_standard_errors(info: np.ndarray, sigma: np.ndarray, rcond: float = 1e-10) -> np.ndarray:

@@ -152,9 +152,10 @@ def test_receding_results_and_composite_paths_round_trip(synthetic, tmp_path):
     learner.irl_result_ = RecedingResult(
         theta=np.ones((1, 2)), normalized=np.ones((1, 2)), beta=np.array([4.0]), sigma=np.array([0.5]),
         neg_log_likelihood=np.array([np.inf]), n_steps=np.array([10]), at_bound=np.zeros((1, 2), bool),
-        converged=np.array([True]), n_iter=3, n_regularized=0, n_bounded=1)
+        converged=np.array([True]), n_iter=3, n_regularized=0, n_bounded=1, log_se=np.array([[0.0, np.inf]]))
     back = load_learner(learner.save(tmp_path / "r"))
     assert back.irl_result_.neg_log_likelihood[0] == np.inf and back.irl_result_.n_bounded == 1
+    np.testing.assert_array_equal(back.irl_result_.log_se, [[0.0, np.inf]])
     assert back.irl_result_.at_bound.dtype == bool
 
     # a replay-like model: two routes on one arc-length axis, the desired speed from a smoothed curvature table
