@@ -84,19 +84,6 @@ def test_interacting_plans_equal_the_numpy_mpc(route_set, n_iter, n_qp_iter, ato
     assert kernel.mpc.n_infeasible == reference.n_infeasible
 
 
-def test_interacting_dense_model_equals_the_numpy_newton_model(route_set):
-    model = route_set_model(route_set, dt=0.1, interacting=True)
-    mpc = model.predictor()
-    kernel = CompiledDriverMPC(model, mpc)
-    x0, theta, init = _interacting_problems(route_set, 3, m=16)
-    x0 = mpc._qp.clip_start(x0)
-    for m in range(len(x0)):
-        A, b, _ = mpc._model(x0[m:m + 1], init[m:m + 1], theta[m:m + 1])
-        H, g = kernel.model(x0[m], theta[m], init[m, :, 0])
-        np.testing.assert_allclose(H, A[0], rtol=0, atol=1e-10 * np.abs(A[0]).max())
-        np.testing.assert_allclose(g, b[0], rtol=0, atol=1e-10 * np.abs(b[0]).max())
-
-
 def test_plans_are_bit_for_bit_reproducible(route_set):
     model = route_set_model(route_set, dt=0.1, n_iter=1, n_qp_iter=1)
     x0, theta, init = _problems(route_set, 2)
@@ -105,11 +92,12 @@ def test_plans_are_bit_for_bit_reproducible(route_set):
     assert np.array_equal(a, b)
 
 
-def test_dense_model_equals_the_numpy_newton_model(route_set):
-    model = route_set_model(route_set, dt=0.1)
+@pytest.mark.parametrize("interacting", [False, True])
+def test_dense_model_equals_the_numpy_newton_model(route_set, interacting):
+    model = route_set_model(route_set, dt=0.1, interacting=interacting)
     mpc = model.predictor()
     kernel = CompiledDriverMPC(model, mpc)
-    x0, theta, init = _problems(route_set, 3, m=12)
+    x0, theta, init = (_interacting_problems if interacting else _problems)(route_set, 3, m=16 if interacting else 12)
     x0 = mpc._qp.clip_start(x0)
     for m in range(len(x0)):
         A, b, _ = mpc._model(x0[m:m + 1], init[m:m + 1], theta[m:m + 1])
