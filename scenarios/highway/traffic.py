@@ -100,8 +100,8 @@ class TrafficRules:
     crash_removal_delay : float or None   [s] crashed vehicles are removed this long after the crash; None: never
     initial_spacing : float            [m] least distance between vehicles placed at a reset, > 0
     background_speed_factor_std : float   std of background drivers' speed factors (mean 1, in [0.7, 1.3]), >= 0
-    safety_time_gap, safety_jam_gap : float   [s], [m] the IDM's time gap and jam gap in the safety layer of
-                                       drivers who interact (their own cost keeps their distance), >= 0
+    safety_time_gap, safety_jam_gap : float   [s], [m] the reaction time and jam gap of the safety layer of drivers
+                                       who interact (`safe_acceleration`; their own cost keeps their distance), >= 0
     safety_yield_headway : float       [s] ``yield_headway`` in that safety layer, >= 0
     """
 
@@ -169,6 +169,16 @@ def idm_acceleration(v: float, v0: float, gap: float | None = None, v_lead: floa
         s_star = s0 + max(0.0, v * time_gap + v * (v - v_lead) / (2.0 * math.sqrt(IDM_A_MAX * IDM_B)))
         a -= IDM_A_MAX * (s_star / max(gap, 0.01)) ** 2
     return a
+
+
+def safe_acceleration(v: float, gap: float, v_lead: float, *, tau: float, b: float, dt: float) -> float:
+    """The acceleration [m/s^2] that reaches Krauss's safe speed in one step of dt [s]:
+    ``v_safe = v_L + (gap - v_L tau) / ((v + v_L) / (2 b) + tau)``, the fastest speed from which the car can still
+    stop behind a leader that brakes at b [m/s^2] after a reaction time tau [s] (Krauss 1998; SUMO's default
+    car-following model). gap [m] bumper to bumper, less the jam gap; v, v_L [m/s]."""
+    v, v_lead = max(v, 0.0), max(v_lead, 0.0)
+    v_safe = v_lead + (gap - v_lead * tau) / ((v + v_lead) / (2.0 * b) + tau)
+    return (max(v_safe, 0.0) - v) / dt
 
 
 def _time_to_cover(d: float, v: float, a: float) -> float:
@@ -569,8 +579,9 @@ class RoundaboutTraffic(Road):
     def _limit(self, v: RouteFollowing, others: list, occupancy: _Occupancy, *, free_v0: float | None,
                delta: float, safety: bool = False) -> float:
         """IDM acceleration of ``v`` with its leader and, when yielding, the stop line; ``free_v0`` None:
-        without the free-road term (the limit others impose on a PIRL driver); ``safety``: with the rules'
-        safety-layer gaps (drivers who interact)."""
+        without the free-road term (the limit others impose on a PIRL driver); ``safety``: the safety layer of
+        drivers who interact instead (`safe_acceleration` towards the leader and the stop line, reaction time
+        ``safety_time_gap``, jam gap ``safety_jam_gap``, braking ``max_deceleration``)."""
         rules = self.rules
         s0, T, headway = ((rules.safety_jam_gap, rules.safety_time_gap, rules.safety_yield_headway) if safety
                           else (IDM_S0, IDM_T, rules.yield_headway))
@@ -578,6 +589,16 @@ class RoundaboutTraffic(Road):
         v.yielding = self._must_yield(v, others, headway)
         if v.committed and v.entering and v not in occupancy.merging:  # committed just now
             occupancy.merging.append(v)
+        if safety:
+            a = math.inf
+            if gap is not None:
+                a = safe_acceleration(v.speed, gap - s0, v_lead, tau=T, b=rules.max_deceleration, dt=STEP_LENGTH)
+            if v.yielding:
+                stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
+                            - self._stop_offset[v.route_lanes.merge_node] - rules.stop_margin)
+                a = min(a, safe_acceleration(v.speed, stop_gap, 0.0, tau=T, b=rules.max_deceleration,
+                                             dt=STEP_LENGTH))
+            return a
         free = free_v0 is not None
         v0 = free_v0 if free else 1.0
         a = (idm_acceleration(v.speed, v0, gap, v_lead, delta=delta,  # type: ignore[arg-type]

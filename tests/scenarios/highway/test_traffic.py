@@ -279,3 +279,17 @@ def test_configs_reject_bad_values():
         plan_population(DEFAULT_POPULATION, ROUTE_IDS, 0, pirl_routes=["nowhere"])
     with pytest.raises(ValueError, match="seed must be an integer"):
         plan_population(DEFAULT_POPULATION, ROUTE_IDS, -1)
+
+
+def test_safe_acceleration_stops_behind_a_standing_obstacle_and_leaves_free_driving_alone():
+    from pirl_sim.scenarios.highway.traffic import safe_acceleration
+
+    dt, tau, b = 0.1, 0.5, 5.0
+    for v0, gap0 in ((12.0, 30.0), (8.0, 10.0), (3.0, 2.0)):
+        v, gap = v0, gap0
+        for _ in range(200):  # the car takes at most the safe speed each step; the obstacle stands
+            v = max(0.0, v + min(0.0, safe_acceleration(v, gap, 0.0, tau=tau, b=b, dt=dt)) * dt)
+            gap -= v * dt
+            assert gap > 0.0
+        assert v < 1e-3
+    assert safe_acceleration(10.0, 200.0, 10.0, tau=tau, b=b, dt=dt) > 0.0  # far behind: no limit
