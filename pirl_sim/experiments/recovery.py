@@ -40,9 +40,9 @@ _RUN_SIMULATOR = {"sumo": "sumo", "highway-env": "highway"}
 FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
 #: and, for drivers who interact, the weights of the gaps to the vehicle ahead and to the obstacle they yield to
 INTERACTION_FEATURES: tuple[str, ...] = ("headway", "yielding")
-#: [m] a step informs an interaction weight when its gap is below the feature's safe gap plus this margin plus
-#: what the car covers over the drivers' horizon at its speed (the plan can reach the obstacle: the feature's
-#: residual then gets >= about 5 % of its softness; farther, the weight has no measurable effect on the plan)
+#: [m] a step is within reach of an interaction's obstacle when its gap is below the feature's safe gap plus this
+#: margin plus what the car covers over the drivers' horizon at its speed (a plan can reach the obstacle; farther,
+#: the weight has no measurable effect on the plan; nearer, it may still have none, see `IDENTIFIED_SE`)
 NEAR_MARGIN = 3.0
 #: an interaction weight of a track counts as identified (its "identified" scores) when the fit's standard error of
 #: its log (`pirl_sim.receding.log_standard_errors`) is at most this and at least `MIN_NEAR_STEPS` usable steps were
@@ -192,7 +192,7 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
 def near_steps(model, demo, feature: str, horizon: int) -> int:
     """Usable steps of a demonstration whose gap of an interaction ``feature`` (``headway``: the vehicle ahead,
     ``yielding``: the obstacle yielded to) is within reach of a plan of ``horizon`` steps (`NEAR_MARGIN`): the
-    steps that inform its weight."""
+    steps that can inform its weight."""
     from pirl_sim.receding import STEP_MASK
 
     res = model.features.features[list(model.features.names).index(feature)].residual
