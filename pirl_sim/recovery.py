@@ -257,8 +257,9 @@ def fit_track_weights(model, trajectories: Sequence[Trajectory], *, likelihood: 
             raise ValueError(f"likelihood='receding' needs horizon, a positive number of steps; got {horizon!r}")
         res = fit_receding(model, trajectories, horizon=int(horizon), stride=stride,  # type: ignore[arg-type]
                            log_bounds=log_bounds)
+        log_se = res.log_se if res.log_se is not None else np.full(res.normalized.shape, math.nan)
         return TrackFits(res.normalized, res.converged.astype(bool), res.at_bound.any(axis=1),  # type: ignore[arg-type]
-                         res.n_steps.astype(np.int64), np.asarray(res.sigma, dtype=float), res.log_se)
+                         res.n_steps.astype(np.int64), np.asarray(res.sigma, dtype=float), log_se)
     blocks = attach_gauss_newton(model.laplace_blocks(trajectories), model.features, model.dynamics, trajectories)
     labels = np.arange(n)
     res = fit_weights([b for b, _ in blocks], [labels[idx] for _, idx in blocks],  # type: ignore[assignment]
