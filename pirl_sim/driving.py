@@ -338,10 +338,10 @@ class HeadwayResidual:
         dz = np.zeros(x.shape[-1])
         dz[1], dz[g] = self.time_gap / w, -1.0 / w
         jx = (w * sig)[..., None, None] * dz  # (M, N, 1, n_x)
-        hx = (w * sig * (1.0 - sig))[..., None, None, None] * np.outer(dz, dz)
-        # hx = (1 - sig) / (w sig) jx^T jx (where sig underflows to 0, both are 0)
+        # the second derivative w sig (1 - sig) dz dz^T = (1 - sig) / (w sig) jx^T jx (where sig underflows to 0,
+        # both are 0): given as that scale, never as an (M, N, 1, n_x, n_x) array
         along = np.divide(1.0 - sig, w * sig, out=np.zeros_like(sig), where=sig > 0.0)
-        return Residual(r[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hx, along[..., None])
+        return Residual(r[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hess_scale=along[..., None])
 
 
 #: target speed of the ``speed_hi`` feature [m/s] (72 km/h: above the speed of every roundabout)

@@ -42,12 +42,13 @@ class Residual(NamedTuple):
     r : array, shape (M, N, p)
     jac_x : array, shape (M or 1, N or 1, p, n_x)
     jac_u : array, shape (M or 1, N or 1, p, n_u)
-    hess_x : array, shape (M, N, p, n_x, n_x), or None when the residual is affine in x.
+    hess_x : array, shape (M, N, p, n_x, n_x), or None when the residual is affine in x (or gives `hess_scale`).
         Second derivatives of each residual component in the state (residuals are taken affine in u).
     hess_scale : array, shape (M, N, p), or None
-        Optional: ``hess_x = hess_scale * jac_x^T jac_x`` per component (a second derivative along the gradient,
-        as a smooth function of one affine combination of the states has), which the Hessians then use: the
-        exact Hessian is the Gauss-Newton one with the Jacobian scaled by ``sqrt(1 + r hess_scale)``.
+        Instead of ``hess_x``: the second derivative is ``hess_scale * jac_x^T jac_x`` per component (along the
+        gradient, as a smooth function of one affine combination of the states has), never stored as
+        (M, N, p, n_x, n_x); the exact Hessian is then the Gauss-Newton one with the Jacobian scaled by
+        ``sqrt(1 + r hess_scale)``.
     """
 
     r: np.ndarray
@@ -55,6 +56,18 @@ class Residual(NamedTuple):
     jac_u: np.ndarray
     hess_x: np.ndarray | None = None
     hess_scale: np.ndarray | None = None
+
+    @property
+    def curved(self) -> bool:
+        """Whether the residual has a second derivative in x (`hess_x` or `hess_scale`)."""
+        return self.hess_x is not None or self.hess_scale is not None
+
+    def second_x(self) -> np.ndarray | None:
+        """The second derivatives (M, N, p, n_x, n_x) in x: `hess_x`, or built from `hess_scale`; None if affine."""
+        if self.hess_x is not None or self.hess_scale is None:
+            return self.hess_x
+        jx = np.broadcast_to(self.jac_x, self.hess_scale.shape + self.jac_x.shape[-1:])
+        return self.hess_scale[..., None, None] * (jx[..., :, None] * jx[..., None, :])
 
 
 ResidualFn = Callable[[np.ndarray, np.ndarray], Residual]
@@ -331,14 +344,13 @@ class FeatureSet:
                 yield k, value, g, self._hessian_cache[key][0]
                 continue
             if factored and not feat.quadratic:
-                yield k, value, g, scale * _factored_hessian(G, Jx, Ju, r, None if gauss_newton else res.hess_x,
-                                                             None if gauss_newton else res.hess_scale)
+                yield k, value, g, scale * _factored_hessian(G, Jx, Ju, r, None if gauss_newton else res)
                 continue
             Hxx = 2.0 * (JxT @ Jx)
             Hxu = 2.0 * (JxT @ Ju)
             Huu = 2.0 * (JuT @ Ju)
-            if res.hess_x is not None and not gauss_newton:
-                Hxx = Hxx + 2.0 * np.einsum("mkp,mkpab->mkab", r, res.hess_x)
+            if res.curved and not gauss_newton:
+                Hxx = Hxx + 2.0 * np.einsum("mkp,mkpab->mkab", r, res.second_x())
             if feat.quadratic:
                 Hxx, Hxu, Huu = Hxx[:1, :], Hxu[:1, :], Huu[:1, :]
             Hk = scale * _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u)
@@ -398,20 +410,21 @@ def _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u) -> np.ndarray:
     return blocks.reshape(Mp, d, d)
 
 
-def _factored_hessian(G, Jx, Ju, r, hess_x, hess_scale=None) -> np.ndarray:
+def _factored_hessian(G, Jx, Ju, r, res=None) -> np.ndarray:
     """sum_k 2 J_k^T J_k + G_k^T (2 r_k . d2r_k) G_k with J_k = Jx_k G_k + Ju_k E_k, shape (M, d, d).
 
-    G (N, n_x, d); Jx (M|1, N|1, p, n_x); Ju (M|1, N|1, p, n_u); r (M, N, p); hess_x (M, N, p, n_x, n_x) or
-    None; hess_scale (M, N, p) or None (`Residual.hess_scale`: then, with no control in the residual and
-    1 + r hess_scale >= 0, the whole Hessian is one product, 2 (s J)^T (s J) with s = sqrt(1 + r hess_scale)). A
+    G (N, n_x, d); Jx (M|1, N|1, p, n_x); Ju (M|1, N|1, p, n_u); r (M, N, p); res: the `Residual` whose second
+    derivative enters, or None (Gauss-Newton). With its `Residual.hess_scale`, no control in the residual and
+    1 + r hess_scale >= 0, the whole Hessian is one product, 2 (s J)^T (s J) with s = sqrt(1 + r hess_scale). A
     second-derivative term that is diagonal in the state costs one product per non-zero entry.
     """
+    hess_scale = None if res is None else res.hess_scale
     M, N, p = r.shape
     n_x, d = G.shape[1], G.shape[2]
     n_u = d // N
     J = np.broadcast_to(Jx, (M, N, p, n_x)) @ G[None]  # (M, N, p, d)
     Ju = np.broadcast_to(Ju, (M, N, p, n_u))
-    if hess_x is not None and hess_scale is not None and not np.any(Ju):
+    if hess_scale is not None and not np.any(Ju):
         s2 = 1.0 + r * hess_scale
         if np.all(s2 >= 0.0):
             Jf = (J * np.sqrt(s2)[..., None]).reshape(M, N * p, d)
@@ -423,9 +436,9 @@ def _factored_hessian(G, Jx, Ju, r, hess_x, hess_scale=None) -> np.ndarray:
         J = J.reshape(M, N, p, d)
     Jf = J.reshape(M, N * p, d)
     H = 2.0 * (np.swapaxes(Jf, 1, 2) @ Jf)
-    if hess_x is None:
+    if res is None or not res.curved:
         return H
-    W = 2.0 * np.einsum("mkp,mkpab->mkab", r, hess_x)  # (M, N, n_x, n_x)
+    W = 2.0 * np.einsum("mkp,mkpab->mkab", r, res.second_x())  # (M, N, n_x, n_x)
     diag = np.einsum("mkaa->mka", W)
     if not np.any(W - diag[..., None] * np.eye(n_x)):
         for a in np.flatnonzero(np.any(diag != 0, axis=(0, 1))):

@@ -561,7 +561,12 @@ class _OuterExpansion:
                 for bb, Jb in cols[i:]:
                     prod = Ja[..., 0] * Jb[..., 0] if p == 1 else np.einsum("mnp,mnp->mn", Ja, Jb)
                     add(jj, (int(a), int(bb)), w * prod)
-            if res.hess_x is not None:
+            if res.hess_scale is not None and res.hess_x is None:  # h_ab = hess_scale Jx_a Jx_b (no n_x x n_x array)
+                for i, a in enumerate(nz_x):
+                    for bb in nz_x[i:]:
+                        h = res.hess_scale * Jx[..., a] * Jx[..., bb]
+                        add(ww, (int(a), int(bb)), w * (r[..., 0] * h[..., 0] if p == 1 else np.einsum("mnp,mnp->mn", r, h)))
+            elif res.hess_x is not None:
                 hx = res.hess_x
                 nz = np.any(hx, axis=tuple(range(hx.ndim - 2)))  # (n_x, n_x)
                 for a, bb in zip(*np.nonzero(np.triu(nz))):

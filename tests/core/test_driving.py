@@ -266,7 +266,7 @@ def test_headway_feature_derivatives_and_a_car_stopping_behind_a_standing_obstac
         fd = (res(x + dx, np.zeros((1, 2, 1))).r - res(x - dx, np.zeros((1, 2, 1))).r)[..., 0] / (2 * eps)
         np.testing.assert_allclose(out.jac_x[..., 0, i], fd, rtol=1e-6, atol=1e-9)
         fd2 = (res(x + dx, np.zeros((1, 2, 1))).jac_x - res(x - dx, np.zeros((1, 2, 1))).jac_x)[..., 0, :] / (2 * eps)
-        np.testing.assert_allclose(out.hess_x[..., 0, i, :], fd2, rtol=1e-5, atol=1e-8)
+        np.testing.assert_allclose(out.second_x()[..., 0, i, :], fd2, rtol=1e-5, atol=1e-8)
     assert out.r[0, 0, 0] > 3.9 and out.r[0, 1, 0] < 1e-20  # 2 + 6 - 4 below the safe gap; far ahead: none
     path = ReferencePath.from_polyline(np.column_stack([np.linspace(0, 400, 81), np.zeros(81)]))
     model = PathDriverModel(following(0.2), roundabout_features(SpeedProfile(path, 1.8, 10.0), "following"),
