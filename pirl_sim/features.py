@@ -349,8 +349,9 @@ class FeatureSet:
             Hxx = 2.0 * (JxT @ Jx)
             Hxu = 2.0 * (JxT @ Ju)
             Huu = 2.0 * (JuT @ Ju)
-            if res.curved and not gauss_newton:
-                Hxx = Hxx + 2.0 * np.einsum("mkp,mkpab->mkab", r, res.second_x())
+            second = None if gauss_newton else res.second_x()
+            if second is not None:
+                Hxx = Hxx + 2.0 * np.einsum("mkp,mkpab->mkab", r, second)
             if feat.quadratic:
                 Hxx, Hxu, Huu = Hxx[:1, :], Hxu[:1, :], Huu[:1, :]
             Hk = scale * _assemble_hessian(G, Hxx, Hxu, Huu, N, n_u)
