@@ -300,8 +300,8 @@ def ground_truth_table(*, agent_id: Sequence[str], route_id: Sequence[str], is_p
     agent_id, route_id, style_name, status : sequences of str (n,)
     is_pirl, collided, removed_early : bool arrays (n,)
     style : int array (n,)
-    theta : array (n, K) of the drivers' normalised weights in ``FEATURE_NAMES`` order (any value for non-PIRL); K = 4:
-        drivers who interact (``headway`` last, `INTERACTING_GROUND_TRUTH_COLUMNS`)
+    theta : array (n, K) of the drivers' normalised weights in ``FEATURE_NAMES`` order (any value for non-PIRL); K = 5:
+        drivers who interact (then ``headway`` and ``yielding``, `INTERACTING_GROUND_TRUTH_COLUMNS`)
     interacted : bool array (n,); recorded as NA for non-PIRL tracks
     overridden_fraction : float array (n,); share of the driver's commands the simulator overrode, NaN for
         non-PIRL tracks

@@ -82,8 +82,9 @@ def route_set_model(routes: RouteSet, *, dt: float = 0.1, a_lat: float = DEFAULT
                     n_qp_iter: int = 4, interacting: bool = False) -> RouteSetDriverModel:
     """The paper's roundabout model (:func:`pirl_sim.driving.roundabout_model`) on every route of ``routes``.
 
-    With ``interacting`` the drivers also weigh ``headway`` to the vehicle ahead: features ``"interacting"`` of
-    `pirl_sim.driving.roundabout_features` on the states of `pirl_sim.dynamics.following` (s, v, a, g, v_L).
+    With ``interacting`` the drivers also weigh ``headway`` to the vehicle ahead and ``yielding`` to the obstacle
+    before a conflict point: features ``"interacting"`` of `pirl_sim.driving.roundabout_features` on the states of
+    `pirl_sim.dynamics.following` with two obstacles (s, v, a, g, v_L, g_y, v_y).
 
     Parameters
     ----------
@@ -122,9 +123,10 @@ class PirlDrivers:
     override_tol, stop_speed, resume_speed : float   [m/s] a command is carried out within this; standstill hand-back
     kernel : {"auto", "numba", "numpy"}   compiled loops (`~pirl_sim.scenarios.driver_kernel.CompiledDriverMPC`), or not
 
-    A model whose dynamics carry the vehicle ahead (`route_set_model` with ``interacting``) ``needs_frame``: its
-    `commands` take the step's `~pirl_sim.scenarios.contract.Frame`, whose vehicle ahead of each driver
-    (`pirl_sim.scenarios.leaders`) starts the driver's prediction, held at constant speed over it.
+    A model whose dynamics carry obstacles (`route_set_model` with ``interacting``) ``needs_frame``: its
+    `commands` take the step's `~pirl_sim.scenarios.contract.Frame`, from which each driver's vehicle ahead
+    (`pirl_sim.scenarios.leaders`, held at constant speed over the prediction) and the standing obstacle it yields
+    to (`pirl_sim.scenarios.yielding`) start its prediction.
 
     Attributes
     ----------

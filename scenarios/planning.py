@@ -23,7 +23,8 @@ from .recording import BACKGROUND_STYLE, BACKGROUND_STYLE_NAME
 
 __all__ = ["PLAN_COLUMNS", "theta_columns", "check_seed", "random_streams", "route_id", "check_routes", "plan_population"]
 
-#: columns of a plan, one row per vehicle in departure order (then ``theta_headway`` for drivers who interact)
+#: columns of a plan, one row per vehicle in departure order (then ``theta_headway``, ``theta_yielding`` for drivers
+#: who interact)
 PLAN_COLUMNS: tuple[str, ...] = ("vehicle_id", "depart", "route_id", "is_pirl", "style", "style_name",
                                  *(f"theta_{f}" for f in FEATURE_NAMES))
 

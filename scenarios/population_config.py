@@ -126,14 +126,15 @@ def _feature_mapping(label: str, mapping: Any, *, allow_reference: bool) -> dict
 @dataclass(frozen=True)
 class StyleConfig:
     """One driving style: a Gaussian over the normalised weights of ``speed_dev`` and ``acc_sq``, and of ``headway``
-    for drivers who interact (draws kept positive by redrawing, `pirl_sim.population.Population.sample_weights`).
+    and ``yielding`` for drivers who interact (draws kept positive by redrawing,
+    `pirl_sim.population.Population.sample_weights`).
 
     Attributes
     ----------
     name : str                    unique within a population, non-empty
     weight : float                mixture weight, > 0 (normalised over the styles)
     mean : mapping {feature name: float}   mean normalised weights of both free features and, for a driver who
-        interacts, of ``headway``, > 0 (``jerk_sq``: 1)
+        interacts, of ``headway`` and ``yielding``, > 0 (``jerk_sq``: 1)
     std : mapping {feature name: float}    independent standard deviations, >= 0 (0 where omitted); not with ``cov``
     cov : mapping {feature name: {feature name: float}} or None   full covariance over the free features,
         symmetric positive definite (a degenerate spread goes through ``std``); not with ``std``
@@ -272,8 +273,8 @@ class StyleConfig:
         """From a :class:`pirl_sim.population.Style` with ``std`` over the named features."""
         if style.cov is not None:
             cov = np.asarray(style.cov, dtype=float)
-            names = FEATURE_NAMES + tuple(n for n in INTERACTION_FEATURES if n in style.mean)
             frees = cls._free(style.mean)
+            names = FEATURE_NAMES + frees[len(FREE_FEATURES):]
             free = [names.index(n) for n in frees]
             sub = cov[np.ix_(free, free)]
             return cls(style.name, style.weight, dict(style.mean),

@@ -378,8 +378,8 @@ def read_recording(directory) -> ScenarioRecording:
         raise ValueError(f"{gt_path}: not a UTF-8 CSV table ({type(exc).__name__}: {exc}); the ground truth has the "
                          f"columns {', '.join(GROUND_TRUTH_COLUMNS)}") from None
     if tuple(gt.columns) not in (GROUND_TRUTH_COLUMNS, INTERACTING_GROUND_TRUTH_COLUMNS):
-        raise ValueError(f"{gt_path}: expected the columns {', '.join(GROUND_TRUTH_COLUMNS)} (theta_headway after "
-                         f"theta_jerk_sq for drivers who interact), found {', '.join(map(str, gt.columns))}")
+        raise ValueError(f"{gt_path}: expected the columns {', '.join(GROUND_TRUTH_COLUMNS)} (theta_headway and "
+                         f"theta_yielding after theta_jerk_sq for drivers who interact), found {', '.join(map(str, gt.columns))}")
     gt["interacted"] = gt["interacted"].map({True: True, False: False, "True": True, "False": False},
                                             na_action="ignore").astype("boolean")
     lmap = load_map(d / MAP_FILE)

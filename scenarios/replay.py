@@ -67,8 +67,9 @@ RUN_INFO_FILE = "run.json"  #: a pirl_sim recording's run information (drivers' 
 #: columns of ``driver_steps.csv`` that the replay reads
 DRIVER_STEP_FLAGS = ("track_id", "frame_id", "commanded", "overridden", "collided")
 #: feature sets whose states carry the vehicle ahead (`pirl_sim.dynamics.following`): ``following`` also yields at
-#: conflict points (`pirl_sim.scenarios.conflicts`); ``interacting`` sees the vehicle ahead only
-#: (`pirl_sim.scenarios.leaders`), as the simulated drivers who interact do
+#: conflict points (`pirl_sim.scenarios.conflicts`) in the same gap; ``interacting`` keeps the vehicle ahead
+#: (`pirl_sim.scenarios.leaders`) and a standing obstacle before the conflict point apart, as the simulated drivers
+#: who interact do
 GAP_FEATURE_SETS = ("following", "interacting")
 
 

@@ -151,8 +151,9 @@ class ReplayOptions:
                                    "(also speed_sq and speed_hi: a speed level of each driver's own) or 'following' "
                                    "(speed-level and headway: the gap to the recorded vehicle ahead, held at constant "
                                    "velocity over a prediction, and the conflict points a car yields at; selection defaults to 'all') "
-                                   "or 'interacting' (paper and headway to the vehicle ahead only: the simulated "
-                                   "drivers' cost when their population weighs headway) "
+                                   "or 'interacting' (paper, headway to the vehicle ahead and yielding to a standing "
+                                   "obstacle before a conflict point: the simulated drivers' cost when their "
+                                   "population weighs headway and yielding) "
                                    "(pirl_sim.driving.roundabout_features) (default: --preset's)",
                                    choices=("paper", "speed-level", "following", "interacting"))
     lateral: str | None = _option(

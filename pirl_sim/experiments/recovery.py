@@ -25,6 +25,10 @@ from sklearn.base import BaseEstimator
 from pirl_sim.evaluation.tables import markdown
 from pirl_sim.io.atomic import atomic_write_text
 
+# the features whose weights differ between drivers (jerk_sq is the reference, 1 for everybody) and, for drivers who
+# interact, the weights of the gaps to the vehicle ahead and to the obstacle they yield to: the populations' own
+from pirl_sim.scenarios.population_config import FREE_FEATURES, INTERACTION_FEATURES
+
 from .spec import Param, ScenarioSpec, TrainShape
 
 __all__ = ["SIMULATORS", "TARGETS", "RunRecovery", "recovery_report", "summary_row", "check_targets",
@@ -36,10 +40,6 @@ __all__ = ["SIMULATORS", "TARGETS", "RunRecovery", "recovery_report", "summary_r
 #: sumo ("sumo"), highway ("highway-env")
 SIMULATORS: tuple[str, ...] = ("sumo", "highway")
 _RUN_SIMULATOR = {"sumo": "sumo", "highway-env": "highway"}
-#: the features whose weights differ between drivers (jerk_sq is the reference, 1 for everybody)
-FREE_FEATURES: tuple[str, ...] = ("speed_dev", "acc_sq")
-#: and, for drivers who interact, the weights of the gaps to the vehicle ahead and to the obstacle they yield to
-INTERACTION_FEATURES: tuple[str, ...] = ("headway", "yielding")
 #: [m] a step is within reach of an interaction's obstacle when its gap is below the feature's safe gap plus this
 #: margin plus what the car covers over the drivers' horizon at its speed (a plan can reach the obstacle; farther,
 #: the weight has no measurable effect on the plan; nearer, it may still have none, see `IDENTIFIED_SE`)

@@ -589,24 +589,22 @@ class RoundaboutTraffic(Road):
         v.yielding = self._must_yield(v, others, headway)
         if v.committed and v.entering and v not in occupancy.merging:  # committed just now
             occupancy.merging.append(v)
+        stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
+                    - self._stop_offset[v.route_lanes.merge_node]) if v.yielding else None
         if safety:
             a = math.inf
             if gap is not None:
                 a = safe_acceleration(v.speed, gap - s0, v_lead, tau=T, b=rules.max_deceleration, dt=STEP_LENGTH)
-            if v.yielding:
-                stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
-                            - self._stop_offset[v.route_lanes.merge_node] - rules.stop_margin)
-                a = min(a, safe_acceleration(v.speed, stop_gap, 0.0, tau=T, b=rules.max_deceleration,
-                                             dt=STEP_LENGTH))
+            if stop_gap is not None:
+                a = min(a, safe_acceleration(v.speed, stop_gap - rules.stop_margin, 0.0, tau=T,
+                                             b=rules.max_deceleration, dt=STEP_LENGTH))
             return a
         free = free_v0 is not None
         v0 = free_v0 if free else 1.0
         a = (idm_acceleration(v.speed, v0, gap, v_lead, delta=delta,  # type: ignore[arg-type]
                               free=free, s0=s0, time_gap=T) if gap is not None
              else (idm_acceleration(v.speed, v0, delta=delta) if free else math.inf))  # type: ignore[arg-type]
-        if v.yielding:
-            stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
-                        - self._stop_offset[v.route_lanes.merge_node])
+        if stop_gap is not None:
             a = min(a, idm_acceleration(v.speed, v0, stop_gap, 0.0, delta=delta,  # type: ignore[arg-type]
                                         s0=self.rules.stop_margin,
                                         free=free))

@@ -509,7 +509,7 @@ class _SumoSimulation:
             files = built.files
             self.network_files = (files.nodes, files.edges, files.connections, files.net, vtypes)
             model = route_set_model(self.routes, dt=STEP_LENGTH, a_lat=drv.a_lat, v_max=drv.v_max, n_iter=drv.n_iter,
-                                    n_qp_iter=drv.n_qp_iter, interacting=config.population.interacting)
+                                    n_qp_iter=drv.n_qp_iter, interacting=interacting)
             pirl = plan[plan["is_pirl"]]
             theta_cols = theta_columns(plan)
             self.controller = PirlDrivers(

@@ -242,5 +242,5 @@ def test_drivers_who_interact_keep_their_headway_weight(tmp_path):
         ScenarioRecording(tracks, _interacting(_tracks_gt()[1], np.where(pirl, -1.0, np.nan)), lanes, succ, {})
     bad = gt.rename(columns={"theta_headway": "theta_gap"})
     bad.to_csv(tmp_path / "run" / "ground_truth.csv", index=False)
-    with pytest.raises(ValueError, match="theta_headway after theta_jerk_sq for drivers who interact"):
+    with pytest.raises(ValueError, match="theta_headway and theta_yielding after theta_jerk_sq for drivers who interact"):
         read_recording(tmp_path / "run")
