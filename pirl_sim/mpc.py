@@ -381,6 +381,9 @@ RICCATI_MIN_ROWS = 96
 #: up to this many starts, `_OuterExpansion.newton_steps` runs its definiteness test and the exact steps in one
 #: recursion over both (stacked); larger batches run them one after the other
 _STACKED_RICCATI_MAX_ROWS = 256
+#: SequentialMPC: larger batches of starts are planned this many at a time (PIRL-select's bank on five INTERACTION
+#: files asks for ~500,000 plans at once: their dense Newton models alone would take ~2.5 GB per copy)
+MAX_BATCH_ROWS = 8192
 
 
 class _Rollouts:
@@ -731,6 +734,8 @@ class SequentialMPC:
     solver : str                     QP solver of the bounded QPs (`BoxQP`)
     assembly : {"outer", "stagewise"}   Hessians from tabulated stage outer products, or `FeatureSet.derivatives`
     riccati_rows : int or None       cold-started batches of at least this many starts use a Riccati recursion
+    max_rows : int                   larger batches of starts are planned in batches of this many (the kept Newton
+                                     models take (max_rows, N n_u, N n_u) floats; the plans are those of one batch)
     """
 
     def __init__(
@@ -746,7 +751,11 @@ class SequentialMPC:
         solver: str = "daqp",
         assembly: str = "outer",
         riccati_rows: int | None = RICCATI_MIN_ROWS,
+        max_rows: int = MAX_BATCH_ROWS,
     ):
+        if not is_positive_int(max_rows):
+            raise ValueError(f"max_rows must be a positive integer, got {max_rows!r}")
+        self.max_rows = int(max_rows)
         if assembly not in ("outer", "stagewise"):
             raise ValueError(f"assembly must be 'outer' or 'stagewise', got {assembly!r}")
         if riccati_rows is not None and not is_positive_int(riccati_rows):
@@ -844,14 +853,18 @@ class SequentialMPC:
             raise ValueError(f"weights must be >= 0, got {theta}")
         M = x0.shape[0]
         theta = np.broadcast_to(theta, (M, self.features.n_features))
-        if self._qp is not None:
-            x0 = self._qp.clip_start(x0)
         if init is None:
             U = np.zeros((M, n_steps, self.dynamics.n_u))
         else:
             U = np.array(init, dtype=float)
             if U.shape != (M, n_steps, self.dynamics.n_u) or not np.all(np.isfinite(U)):
                 raise ValueError(f"init must be finite with shape {(M, n_steps, self.dynamics.n_u)}, got {U.shape}")
+        if M > self.max_rows:  # independent starts: in batches, so the kept Newton models stay bounded in memory
+            return np.concatenate([self.controls(x0[lo:lo + self.max_rows], theta[lo:lo + self.max_rows], n_steps,
+                                                 None if init is None else U[lo:lo + self.max_rows])
+                                   for lo in range(0, M, self.max_rows)])
+        if self._qp is not None:
+            x0 = self._qp.clip_start(x0)
         todo = np.arange(M)
         on_bounds = np.zeros(M, dtype=bool)
         if init is not None and self._qp is not None:

@@ -146,6 +146,25 @@ def test_riccati_and_dense_plans_agree(path_model):
     np.testing.assert_allclose(U1, U0, atol=1e-9)
 
 
+def test_large_batches_are_planned_in_parts(path_model):
+    """More starts than ``max_rows``: planned in parts, each start's plan that of one batch to rounding (batched
+    products of other sizes round differently), cold and warm."""
+    rng = np.random.default_rng(6)
+    M = 23
+    x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(2, 12, M), np.clip(rng.normal(0, 0.5, M), -3.9, 2.9)])
+    theta = np.column_stack([rng.uniform(0.5, 2, M), rng.uniform(0.5, 2, M), np.ones(M)])
+    p = path_model.predictor()
+    whole = SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=None)
+    parts = SequentialMPC(p.dynamics, p.features, p.bounds, riccati_rows=None, max_rows=5)
+    U0 = whole.controls(x0, theta, 30)
+    np.testing.assert_allclose(parts.controls(x0, theta, 30), U0, atol=1e-10)
+    assert parts.n_qp == whole.n_qp > 0
+    init = np.roll(U0, -1, axis=1)
+    np.testing.assert_allclose(parts.controls(x0, theta, 30, init), whole.controls(x0, theta, 30, init), atol=1e-10)
+    with pytest.raises(ValueError, match="max_rows must be a positive integer"):
+        SequentialMPC(p.dynamics, p.features, p.bounds, max_rows=0)
+
+
 @pytest.mark.parametrize("bad", [0, -3, 2.5, "many"])
 def test_bad_riccati_rows_are_named(path_model, bad):
     p = path_model.predictor()
