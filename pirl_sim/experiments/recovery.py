@@ -621,11 +621,17 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
     table = result.table()
     noise = result.noise_table()
     styles, sel = result.styles(), result.selection()
+    from .recovery_styles import style_mixtures
+
+    tracks = result.tracks()
+    fitted = [f for f in FREE_FEATURES + INTERACTION_FEATURES if f"se_log_{f}" in tracks]
+    mixtures = style_mixtures(tracks, fitted) if fitted and len(tracks) else pd.DataFrame()
     files = {
         "table.csv": _csv(table),
         "table.md": markdown(compact_table(table)),
         "styles.csv": _csv(styles),
-        "tracks.csv": _csv(result.tracks()),
+        "tracks.csv": _csv(tracks),
+        "style_mixtures.csv": _csv(mixtures),
         "selection.csv": _csv(sel),
         "times.csv": result.times().to_csv(index=False, float_format="%.3f", lineterminator="\n"),
     }
@@ -661,12 +667,17 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
         "## Targets\n\n" + _targets_text(table) + "\n"
         "## Recovery\n\n" + markdown(compact_table(table)) + "\n"
         "## Per-style TIRL\n\n" + markdown(styles.drop(columns=["fitted_steps"])) + "\n"
+        "## Styles in weight space\n\nA deconvolved Gaussian mixture with one component per style fitted to the "
+        "tracks' log weights, each with its fit's standard errors (a weight the track's data do not determine is "
+        "integrated out; `pirl_sim.experiments.recovery_styles`): `ari` = adjusted Rand index of the tracks' "
+        "components against their styles, `mean_err_<f>` = the largest |component mean - style's mean log "
+        "weight| over styles.\n\n" + markdown(mixtures) + "\n"
         + noise_part +
         "## Step selection\n\nSteps per rule, all styles (per style: `selection.csv`; the rules overlap). "
         "`usable`: steps the mask keeps; `tracks_few_usable`: tracks with fewer than "
         f"{result.min_steps} usable steps (left out).\n\n" + markdown(sel_all) + "\n"
         "## Files\n\n`table.csv` (every column), `styles.csv` (per-style TIRL), `tracks.csv` (per-track "
-        "weights), `selection.csv`, `noise.csv`, `times.csv` (wall times of this machine: "
+        "weights), `style_mixtures.csv`, `selection.csv`, `noise.csv`, `times.csv` (wall times of this machine: "
         f"{result.workers} worker process(es), OPENBLAS_NUM_THREADS={result.blas_threads}). The simulated "
         "runs are kept under `simulations/` (not committed) so that a rerun does not simulate again.\n"
     )

@@ -231,9 +231,12 @@ def test_rerun_reuses_the_runs_and_writes_the_same_bytes(no_spread_study):
     for name in sorted(before):
         if name != "times.csv":  # wall times
             assert after[name] == before[name], name
-    assert {"table.csv", "table.md", "styles.csv", "tracks.csv", "selection.csv", "README.md",
+    assert {"table.csv", "table.md", "styles.csv", "tracks.csv", "style_mixtures.csv", "selection.csv", "README.md",
             ".gitignore", "scene_sumo_weights.png", "scene_sumo_errors.png"} <= set(after)
     assert "![sumo weights](scene_sumo_weights.png)" in (out / "README.md").read_text()
+    assert "## Styles in weight space" in (out / "README.md").read_text()
+    mixtures = pd.read_csv(out / "style_mixtures.csv")
+    assert (mixtures["ari"] == 1.0).all()  # three styles of nearly equal drivers, weights fitted noise-free
     sel = pd.read_csv(out / "selection.csv")
     assert {"overridden", "not_commanded", "collided", "usable", "tracks_kept"} <= set(sel.columns)
 
