@@ -1,10 +1,10 @@
 """Styles found back in weight space from the per-track fits of a recovery study (``pirl-sim recover``).
 
 Every PIRL track's fitted log weights are a noisy measurement of its driver's: the fit's standard errors
-(`pirl_sim.receding.log_standard_errors`) say how noisy. A weight the track's data do not determine (an interaction
-weight of a car that never came near the obstacle: not identified by the study's rule, `IDENTIFIED_SE` and
-`MIN_NEAR_STEPS`; or any weight with an infinite standard error) enters with `UNKNOWN_SE`, so it is integrated
-out rather than clustered on. `style_mixtures` fits a deconvolved Gaussian mixture with as many components as the
+(`pirl_sim.receding.log_standard_errors`) say how noisy. A weight the track's data do not determine (one with an
+infinite standard error; an interaction weight that the study's rule does not count as identified,
+`IDENTIFIED_SE` and `MIN_NEAR_STEPS`: near an obstacle for one or two steps, a fit can end far off with a small
+local error) enters with `UNKNOWN_SE`, so it is integrated out rather than clustered on. `style_mixtures` fits a deconvolved Gaussian mixture with as many components as the
 population has styles (`pirl_sim.deconvolution.extreme_deconvolution`) to each run's tracks and to all runs of a
 simulator and noise level pooled, and scores it:
 
@@ -38,10 +38,10 @@ def track_measurements(tracks: pd.DataFrame, features: list[str]) -> tuple[np.nd
     (rows of a recovery study's ``tracks.csv``) for ``features``; module doc for the unknown weights."""
     X = np.log(tracks[[f"theta_hat_{f}" for f in features]].to_numpy(dtype=float))
     se = tracks[[f"se_log_{f}" for f in features]].to_numpy(dtype=float)
-    known = np.isfinite(se) & (se <= IDENTIFIED_SE)
+    known = np.isfinite(se)
     for j, f in enumerate(features):
-        if f"{f}_steps" in tracks:  # an interaction weight: also enough steps within reach of its obstacle
-            known[:, j] &= tracks[f"{f}_steps"].to_numpy() >= MIN_NEAR_STEPS
+        if f"{f}_steps" in tracks:  # an interaction weight: only where identified (the study's rule)
+            known[:, j] &= (se[:, j] <= IDENTIFIED_SE) & (tracks[f"{f}_steps"].to_numpy() >= MIN_NEAR_STEPS)
     se = np.where(known, np.maximum(np.nan_to_num(se, nan=UNKNOWN_SE), SE_FLOOR), UNKNOWN_SE)
     return X, se[:, :, None] * np.eye(len(features)) * se[:, None, :]
 

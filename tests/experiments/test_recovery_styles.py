@@ -49,8 +49,10 @@ def test_unknown_weights_get_a_wide_error():
     tracks.loc[0, "se_log_headway"] = 0.5           # too large: not identified
     tracks.loc[1, "headway_steps"] = 2              # too few steps within reach
     tracks.loc[2, "se_log_speed_dev"] = np.nan      # written as empty (inf)
+    tracks.loc[0, "se_log_speed_dev"] = 0.5         # a free weight: its error as it is
     _, S = track_measurements(tracks, FEATURES)
     assert S[0, 1, 1] == S[1, 1, 1] == S[2, 0, 0] == UNKNOWN_SE**2
+    assert S[0, 0, 0] == pytest.approx(0.25)
     assert S[3, 0, 0] == S[3, 1, 1] == pytest.approx(0.01**2) and S[3, 0, 1] == 0.0
 
 
