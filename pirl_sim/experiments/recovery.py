@@ -625,7 +625,8 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
 
     tracks = result.tracks()
     fitted = [f for f in FREE_FEATURES + INTERACTION_FEATURES if f"se_log_{f}" in tracks]
-    mixtures = style_mixtures(tracks, fitted) if fitted and len(tracks) else pd.DataFrame()
+    mixtures = (style_mixtures(tracks, fitted, identified_se=IDENTIFIED_SE, min_near_steps=MIN_NEAR_STEPS)
+                if fitted and len(tracks) else pd.DataFrame())
     files = {
         "table.csv": _csv(table),
         "table.md": markdown(compact_table(table)),

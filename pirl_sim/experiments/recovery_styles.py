@@ -3,8 +3,8 @@
 Every PIRL track's fitted log weights are a noisy measurement of its driver's: the fit's standard errors
 (`pirl_sim.receding.log_standard_errors`) say how noisy. A weight the track's data do not determine (one with an
 infinite standard error; an interaction weight that the study's rule does not count as identified,
-`IDENTIFIED_SE` and `MIN_NEAR_STEPS`: near an obstacle for one or two steps, a fit can end far off with a small
-local error) enters with `UNKNOWN_SE`, so it is integrated out rather than clustered on. `style_mixtures` fits a deconvolved Gaussian mixture with as many components as the
+`pirl_sim.experiments.recovery.IDENTIFIED_SE` and ``MIN_NEAR_STEPS``, which the study passes: near an obstacle for
+one or two steps, a fit can end far off with a small local error) enters with `UNKNOWN_SE`, so it is integrated out rather than clustered on. `style_mixtures` fits a deconvolved Gaussian mixture with as many components as the
 population has styles (`pirl_sim.deconvolution.extreme_deconvolution`) to each run's tracks and to all runs of a
 simulator and noise level pooled, and scores it:
 
@@ -20,8 +20,6 @@ import math
 import numpy as np
 import pandas as pd
 
-from .recovery import IDENTIFIED_SE, MIN_NEAR_STEPS
-
 __all__ = ["UNKNOWN_SE", "SE_FLOOR", "style_mixtures", "track_measurements"]
 
 #: [log] standard error given to a weight the track's data do not determine: wide against any spread of styles
@@ -33,20 +31,23 @@ SE_FLOOR = 0.01
 N_INIT = 5
 
 
-def track_measurements(tracks: pd.DataFrame, features: list[str]) -> tuple[np.ndarray, np.ndarray]:
+def track_measurements(tracks: pd.DataFrame, features: list[str], *, identified_se: float,
+                       min_near_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Fitted log weights X (N, F) and their measurement covariances S (N, F, F) (diagonal) of the tracks
-    (rows of a recovery study's ``tracks.csv``) for ``features``; module doc for the unknown weights."""
+    (rows of a recovery study's ``tracks.csv``) for ``features``; an interaction weight (a feature with a
+    ``<f>_steps`` column) counts only with a standard error <= ``identified_se`` and >= ``min_near_steps`` steps
+    within reach of its obstacle; module doc for the unknown weights."""
     X = np.log(tracks[[f"theta_hat_{f}" for f in features]].to_numpy(dtype=float))
     se = tracks[[f"se_log_{f}" for f in features]].to_numpy(dtype=float)
     known = np.isfinite(se)
     for j, f in enumerate(features):
         if f"{f}_steps" in tracks:  # an interaction weight: only where identified (the study's rule)
-            known[:, j] &= (se[:, j] <= IDENTIFIED_SE) & (tracks[f"{f}_steps"].to_numpy() >= MIN_NEAR_STEPS)
+            known[:, j] &= (se[:, j] <= identified_se) & (tracks[f"{f}_steps"].to_numpy() >= min_near_steps)
     se = np.where(known, np.maximum(np.nan_to_num(se, nan=UNKNOWN_SE), SE_FLOOR), UNKNOWN_SE)
     return X, se[:, :, None] * np.eye(len(features)) * se[:, None, :]
 
 
-def _score(group: pd.DataFrame, features: list[str], seed: int) -> dict:
+def _score(group: pd.DataFrame, features: list[str], seed: int, rule: dict) -> dict:
     from sklearn.metrics import adjusted_rand_score
 
     from pirl_sim.deconvolution import extreme_deconvolution
@@ -57,7 +58,7 @@ def _score(group: pd.DataFrame, features: list[str], seed: int) -> dict:
     row: dict = {"tracks": len(group), "styles": len(names)}
     if len(group) < 2 * len(names):
         return dict(row, ari=math.nan, **{f"mean_err_{f}": math.nan for f in features})
-    X, S = track_measurements(group, features)
+    X, S = track_measurements(group, features, **rule)
     mix = extreme_deconvolution(X, S, len(names), rng=np.random.default_rng(seed), n_init=N_INIT)
     labels = mix.predict_proba(X, S).argmax(axis=1)
     row["ari"] = float(adjusted_rand_score(truth, labels))
@@ -69,11 +70,14 @@ def _score(group: pd.DataFrame, features: list[str], seed: int) -> dict:
     return row
 
 
-def style_mixtures(tracks: pd.DataFrame, features: list[str], seed: int = 0) -> pd.DataFrame:
+def style_mixtures(tracks: pd.DataFrame, features: list[str], seed: int = 0, *, identified_se: float,
+                   min_near_steps: int) -> pd.DataFrame:
     """Per run (``simulator``, ``control_noise``, ``seed``) and, with several seeds, pooled over the seeds: the
     mixture's scores (module doc) with ``tracks`` and ``styles``. ``tracks``: a recovery study's ``tracks.csv``
     rows; ``features``: the fitted weights to cluster on (e.g. every weight but the reference); ``seed`` seeds the
-    mixture's restarts."""
+    mixture's restarts; ``identified_se``, ``min_near_steps``: the study's rule for interaction weights
+    (`track_measurements`)."""
+    rule = {"identified_se": float(identified_se), "min_near_steps": int(min_near_steps)}
     if not features:
         raise ValueError("style_mixtures needs at least one feature to cluster on, got none")
     missing = [c for f in features for c in (f"theta_{f}", f"theta_hat_{f}", f"se_log_{f}") if c not in tracks]
@@ -85,5 +89,5 @@ def style_mixtures(tracks: pd.DataFrame, features: list[str], seed: int = 0) -> 
         if len(parts) > 1:
             parts.append(("pooled", runs))
         for label, g in parts:
-            rows.append({"simulator": sim, "control_noise": noise, "seed": label, **_score(g, features, seed)})
+            rows.append({"simulator": sim, "control_noise": noise, "seed": label, **_score(g, features, seed, rule)})
     return pd.DataFrame(rows)

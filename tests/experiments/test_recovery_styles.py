@@ -4,7 +4,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.experiments.recovery_styles import UNKNOWN_SE, style_mixtures, track_measurements
+from pirl_sim.experiments import recovery_styles
+from pirl_sim.experiments.recovery import IDENTIFIED_SE, MIN_NEAR_STEPS
+from pirl_sim.experiments.recovery_styles import UNKNOWN_SE, track_measurements
+
+RULE = {"identified_se": IDENTIFIED_SE, "min_near_steps": MIN_NEAR_STEPS}
+
+
+def style_mixtures(tracks, features):
+    return recovery_styles.style_mixtures(tracks, features, **RULE)
 
 FEATURES = ["speed_dev", "headway"]
 
@@ -50,7 +58,7 @@ def test_unknown_weights_get_a_wide_error():
     tracks.loc[1, "headway_steps"] = 2              # too few steps within reach
     tracks.loc[2, "se_log_speed_dev"] = np.nan      # written as empty (inf)
     tracks.loc[0, "se_log_speed_dev"] = 0.5         # a free weight: its error as it is
-    _, S = track_measurements(tracks, FEATURES)
+    _, S = track_measurements(tracks, FEATURES, **RULE)
     assert S[0, 1, 1] == S[1, 1, 1] == S[2, 0, 0] == UNKNOWN_SE**2
     assert S[0, 0, 0] == pytest.approx(0.25)
     assert S[3, 0, 0] == S[3, 1, 1] == pytest.approx(0.01**2) and S[3, 0, 1] == 0.0
