@@ -4,7 +4,8 @@ Every PIRL track's fitted log weights are a noisy measurement of its driver's: t
 (`pirl_sim.receding.log_standard_errors`) say how noisy. A weight the track's data do not determine (one with an
 infinite standard error; an interaction weight that the study's rule does not count as identified,
 `pirl_sim.experiments.recovery.IDENTIFIED_SE` and ``MIN_NEAR_STEPS``, which the study passes: near an obstacle for
-one or two steps, a fit can end far off with a small local error) enters with `UNKNOWN_SE`, so it is integrated out rather than clustered on. `style_mixtures` fits a deconvolved Gaussian mixture with as many components as the
+one or two steps, a fit can end far off with a small local error) enters with `UNKNOWN_SE`, so it is integrated
+out rather than clustered on. `style_mixtures` fits a deconvolved Gaussian mixture with as many components as the
 population has styles (`pirl_sim.deconvolution.extreme_deconvolution`) to each run's tracks and to all runs of a
 simulator and noise level pooled, and scores it:
 
