@@ -411,17 +411,24 @@ class RecedingResult:
     log_se: np.ndarray | None = None
 
 
+#: `log_standard_errors`: a log weight whose squared loadings on the uninformed directions sum to more than this
+#: has no standard error (inf). 1e-6 is a loading of 1e-3: across log-weight bounds 20 wide, an uninformed
+#: direction could move such a weight by at most 0.02
+FLAT_SHARE = 1e-6
+
+
 def log_standard_errors(info: np.ndarray, sigma: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
     """Standard errors (G, F) of log weights from the Gauss-Newton information ``info`` (G, F, F) = J'WJ of
     residuals with scale ``sigma`` (G,): ``sigma sqrt(diag(info^-1))``. A direction whose eigenvalue is at most
-    ``rcond`` times the largest (or every direction of a zero matrix) carries no information: the weights
-    that load on it get inf."""
+    ``rcond`` times the largest (or every direction of a zero matrix) carries no information: a weight gets inf
+    when more than `FLAT_SHARE` of it lies in such directions (a weight the data determine keeps its error when
+    another one is free, even if the free direction leans on it by a rounding-sized loading)."""
     info = np.asarray(info, dtype=float)
     lam, V = np.linalg.eigh(info)
     top = lam.max(axis=1, keepdims=True)
     flat = (lam <= rcond * top) | (top <= 0.0)
     var = np.einsum("gik,gk->gi", V**2, np.where(flat, 0.0, 1.0 / np.where(flat, 1.0, lam)))
-    lost = np.einsum("gik,gk->gi", (np.abs(V) > 1e-6).astype(float), flat.astype(float)) > 0
+    lost = np.einsum("gik,gk->gi", V**2, flat.astype(float)) > FLAT_SHARE  # invariant to a rotation among them
     return np.where(lost, np.inf, np.asarray(sigma, dtype=float)[:, None] * np.sqrt(var))
 
 

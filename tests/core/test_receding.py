@@ -226,3 +226,20 @@ def test_log_standard_errors_from_the_information():
     np.testing.assert_allclose(se[0], [0.25, 1.0])
     assert se[1, 0] == 1.0 and se[1, 1] == np.inf
     assert np.all(np.isinf(se[2])) and np.all(np.isinf(se[3]))
+
+
+def test_a_free_weight_leaves_the_error_of_a_determined_one():
+    """The uninformed direction leans on the determined weight by 1e-4 (as when a fit left a weight where its
+    feature is flat): that weight keeps a finite error near sigma / sqrt(its information); one leaning by 0.1
+    does not."""
+    from pirl_sim.receding import log_standard_errors
+
+    for lean, finite in ((1e-4, True), (0.1, False)):
+        c, s = np.cos(lean), np.sin(lean)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        info = R @ np.diag([4.0, 0.0, 1.0]) @ R.T  # weight 1 free, leaning on weight 0
+        se = log_standard_errors(info[None], np.array([1.0]))[0]
+        assert np.isinf(se[1]) and se[2] == pytest.approx(1.0)
+        assert np.isfinite(se[0]) == finite
+        if finite:
+            assert se[0] == pytest.approx(0.5, rel=1e-6)
