@@ -15,6 +15,11 @@ run on every ``n/baseline-tracks``-th track and its time scaled to all tracks. T
 variant solves each residual evaluation's MPCs step by step (a Python loop of one-start solves, as without a
 batched solver), on ``--per-step-tracks`` tracks, scaled by steps.
 
+``--interacting``: the default run of drivers who interact (`INTERACTING_POPULATION`, seed 0: headway and
+yielding weights fitted too), our fit with its Hessians from tabulated stage outer products against the same fit
+assembling them by `FeatureSet.expansion` (the baseline: factored per-residual products), alternating. Target:
+< 20 s.
+
 Times of our fit are medians over ``--repeats``; the machine is shared, so read the ratio. The BLAS thread
 setting is printed; run it with OPENBLAS_NUM_THREADS=1 and without.
 """
@@ -34,6 +39,7 @@ import scipy.optimize
 
 from pirl_sim.receding import RecedingPolicy, fit_receding, receding_steps
 
+RUN = Path("results/recovery/runs/sumo-seed0")
 _GRID = (-2.0, 0.0, 2.0)  # as pirl_sim.receding's start grid
 _GRID_STEPS = 12
 _CAUCHY_C, _MAD_SIGMA, _FLOOR = 2.3849, 1.4826, 0.01
@@ -51,14 +57,54 @@ def _blas() -> str:
         f" ({', '.join(pools)})" if pools else "")
 
 
-def _load_run(path: Path | None):
-    from pirl_sim.scenarios.sumo.scenario import load_sumo_run, run_sumo_scenario
+def _load_run(path: Path | None, interacting: bool = False):
+    from pirl_sim.scenarios.sumo.scenario import load_sumo_run, run_sumo_scenario, scenario_from_dict
 
     if path is not None and (path / "run.json").is_file():
         return load_sumo_run(path), None
     tmp = tempfile.TemporaryDirectory(prefix="bench_receding_")
-    run_sumo_scenario(None, 0, out_dir=tmp.name)
+    config = None
+    if interacting:
+        from pirl_sim.scenarios.population_config import INTERACTING_POPULATION
+
+        config = scenario_from_dict({}, population=INTERACTING_POPULATION)
+    run_sumo_scenario(config, 0, out_dir=tmp.name)
     return load_sumo_run(tmp.name), tmp
+
+
+class _StagewisePolicy(RecedingPolicy):
+    """The baseline of ``--interacting``: Hessians by `FeatureSet.expansion`."""
+
+    def _outer(self, H):
+        return None
+
+
+def _interacting(args) -> None:
+    import pirl_sim.receding as receding
+
+    run, tmp = _load_run(args.run, interacting=True)
+    demos = run.demonstrations(selection="steps", non_interacting=False, min_steps=10)
+    model, H = run.model, run.horizon
+    n_steps = sum(int(d.metadata["step_mask"].sum()) for d in demos)
+    print(f"receding-horizon IRL, drivers who interact, SUMO run seed 0: {len(demos)} PIRL tracks, {n_steps} usable "
+          f"steps, features {', '.join(model.features.names)}, H = {H}; {_blas()}")
+    ours, base = [], []
+    try:
+        for _ in range(args.repeats):
+            for policy, times in ((RecedingPolicy, ours), (_StagewisePolicy, base)):
+                receding.RecedingPolicy = policy  # type: ignore[misc]  (fit_receding builds its policy by name)
+                t0 = time.perf_counter()
+                res = fit_receding(model, demos, horizon=H)
+                times.append(time.perf_counter() - t0)
+    finally:
+        receding.RecedingPolicy = RecedingPolicy  # type: ignore[misc]
+    m_ours, m_base = statistics.median(ours), statistics.median(base)
+    print(f"  fit_receding, outer products      : {m_ours:8.2f} s (median of {args.repeats}) target < 20 s; converged "
+          f"{int(res.converged.sum())}/{len(demos)}")
+    print(f"  fit_receding, FeatureSet.expansion: {m_base:8.2f} s (median of {args.repeats})")
+    print(f"  speed-up vs FeatureSet.expansion: {m_base / m_ours:6.2f}x")
+    if tmp is not None:
+        tmp.cleanup()
 
 
 def _baseline_track(model, horizon, traj, free, ref, K, per_step=False):
@@ -102,9 +148,16 @@ def main(argv=None) -> None:
     ap.add_argument("--baseline-tracks", type=int, default=8, help="tracks the scipy loop runs on (default 8)")
     ap.add_argument("--per-step-tracks", type=int, default=2,
                     help="tracks the per-step variant of the scipy loop runs on (default 2)")
-    ap.add_argument("--run", type=Path, default=Path("results/recovery/runs/sumo-seed0"),
+    ap.add_argument("--run", type=Path, default=RUN,
                     help="a recorded default SUMO run, seed 0 (simulated into a temporary directory if missing)")
+    ap.add_argument("--interacting", action="store_true",
+                    help="drivers who interact: our fit against Hessians by FeatureSet.expansion (module doc)")
     args = ap.parse_args(argv)
+    if args.interacting:
+        if args.run == RUN:
+            args.run = None
+        _interacting(args)
+        return
 
     run, tmp = _load_run(args.run)
     demos = run.demonstrations(selection="steps", non_interacting=False, min_steps=10)

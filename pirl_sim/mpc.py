@@ -527,14 +527,15 @@ class _OuterExpansion:
         M, N, n_x = sigma.shape[0], self.N, self.dynamics.n_x
         return np.ascontiguousarray(sigma[:, :, :n_x]).reshape(M, N * n_x) @ self.Gflat + sigma[:, :, n_x:].reshape(M, self.d)
 
-    def stage_terms(self, X: np.ndarray, U: np.ndarray, theta: np.ndarray):
+    def stage_terms(self, X: np.ndarray, U: np.ndarray, theta: np.ndarray, per_feature: bool = False):
         """As `terms`, with the cost gradient per stage: ``sigma`` (M, N, q), the gradient of theta . f in
-        (x_n, u_{n-1}) for n = 1..N (`chain` maps it to U). One pass over the features, one product at the end."""
+        (x_n, u_{n-1}) for n = 1..N (`chain` maps it to U). One pass over the features, one product at the end.
+        ``per_feature``: ``sigma`` (M, K, N, q) holds each feature's own stage gradient (unweighted) instead."""
         M = U.shape[0]
         N, n_x, n_u = self.N, self.dynamics.n_x, self.dynamics.n_u
         x, u = X[:, 1:, :], U
         values = np.empty((M, self.features.n_features))
-        sigma = np.zeros((M, N, self.q))
+        sigma = np.zeros((M, self.features.n_features, N, self.q) if per_feature else (M, N, self.q))
         jj: dict[tuple[int, int], np.ndarray] = {}
         ww: dict[tuple[int, int], np.ndarray] = {}
 
@@ -547,14 +548,16 @@ class _OuterExpansion:
             scale = self.scale[k]
             values[:, k] = scale * np.sum(r**2, axis=(1, 2))
             w = (2.0 * scale) * theta[:, k, None]  # (M, 1)
-            wr = (w[:, :, None] * r)[..., None]  # (M, N, p, 1): 2 scale theta_k r
+            # (M, N, p, 1): 2 scale theta_k r, or 2 scale r for the feature's own gradient
+            wr = ((2.0 * scale) * r if per_feature else w[:, :, None] * r)[..., None]
+            target = sigma[:, k] if per_feature else sigma
             # the columns of J = [Jx, Ju] (over the stage basis) that are non-zero somewhere
             nz_x = np.flatnonzero(np.any(Jx, axis=tuple(range(Jx.ndim - 1))))
             nz_u = np.flatnonzero(np.any(Ju, axis=tuple(range(Ju.ndim - 1))))
             if len(nz_x):
-                sigma[:, :, :n_x] += np.sum(wr * Jx, axis=2)
+                target[:, :, :n_x] += np.sum(wr * Jx, axis=2)
             if len(nz_u):
-                sigma[:, :, n_x:] += np.sum(wr * Ju, axis=2)
+                target[:, :, n_x:] += np.sum(wr * Ju, axis=2)
             if feat.quadratic:
                 continue
             p = r.shape[2]

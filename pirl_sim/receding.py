@@ -109,6 +109,7 @@ class RecedingPolicy:
                 model.bounds.resolve(model.dynamics))  # type: ignore[union-attr, var-annotated]
         self.n_qp = 0
         self._cond: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._outers: dict[int, object] = {}
 
     # ------------------------------------------------------------------ pieces
     def start_states(self, x0: np.ndarray) -> np.ndarray:
@@ -136,17 +137,42 @@ class RecedingPolicy:
         future = (x0 @ phiT + U.reshape(U.shape[0], -1) @ gT).reshape(U.shape[0], H, dyn.n_x)
         return np.concatenate([x0[:, None, :], future], axis=1)
 
+    def _outer(self, H: int):
+        """The tabulated outer-product expansion of the model's cost over H steps (`pirl_sim.mpc`), or None when
+        the reference feature is not quadratic."""
+        if H not in self._outers:
+            from .mpc import _OuterExpansion
+
+            feats = self.model.features
+            quadratic_ref = feats.features[feats.reference_index].quadratic
+            self._outers[H] = _OuterExpansion(self.model.dynamics, feats, H) if quadratic_ref else None
+        return self._outers[H]
+
     def _expand(self, x0, U, theta, gauss_newton: bool = False):
-        """Values (M, K), gradients (M, K, d) and the cost Hessian (M, d, d) at U, in chunks."""
+        """Values (M, K), gradients (M, K, d) and the cost Hessian (M, d, d) at U, in chunks: the Hessian as
+        coefficients times tabulated stage outer products (one matrix product, `pirl_sim.mpc`), or by
+        `FeatureSet.expansion` for a model whose reference feature is not quadratic."""
         dyn, feats = self.model.dynamics, self.model.features
         M, d = U.shape[0], U.shape[1] * U.shape[2]
-        values = np.empty((M, feats.n_features))
-        grad = np.empty((M, feats.n_features, d))
-        hess = np.empty((M, d, d))
+        K = feats.n_features
+        exp = self._outer(U.shape[1])
+
+        def chunk(sl):
+            X = self._rollout(x0[sl], U[sl])
+            if exp is None:
+                ex = feats.expansion(dyn, X, U[sl], theta[sl], gauss_newton=gauss_newton)
+                return ex.values, ex.grad, ex.hess
+            m = X.shape[0]
+            values, sigma, jj, ww = exp.stage_terms(X, U[sl], theta[sl], per_feature=True)  # sigma (m, K, N, q)
+            grad = exp.chain(sigma.reshape(m * K, exp.N, exp.q)).reshape(m, K, d)
+            return values, grad, exp.hessians(theta[sl], jj, None if gauss_newton else ww, 1.0)
+
+        if M <= _CHUNK:
+            return chunk(slice(0, M))
+        values, grad, hess = np.empty((M, K)), np.empty((M, K, d)), np.empty((M, d, d))
         for lo in range(0, M, _CHUNK):
             sl = slice(lo, lo + _CHUNK)
-            ex = feats.expansion(dyn, self._rollout(x0[sl], U[sl]), U[sl], theta[sl], gauss_newton=gauss_newton)
-            values[sl], grad[sl], hess[sl] = ex.values, ex.grad, ex.hess
+            values[sl], grad[sl], hess[sl] = chunk(sl)
         return values, grad, hess
 
     def _cost(self, x0, U, theta):
