@@ -146,12 +146,10 @@ IDM_ACC_LIMIT = IDMVehicle.ACC_MAX  # [m/s^2] |acceleration| cap of highway-env'
 
 
 def idm_acceleration(v: float, v0: float, gap: float | None = None, v_lead: float = 0.0, *,
-                     delta: float = IDMVehicle.DELTA, s0: float = IDM_S0, free: bool = True,
-                     time_gap: float = IDM_T) -> float:
+                     delta: float = IDMVehicle.DELTA, s0: float = IDM_S0, free: bool = True) -> float:
     """The IDM's acceleration [m/s^2] with highway-env's parameters.
 
-    ``a_max (1 - (v/v0)^delta) - a_max (s*/gap)^2`` with ``s* = s0 + max(0, v T + v (v - v_lead) / (2 sqrt(a_max b)))``
-    (T = ``time_gap``).
+    ``a_max (1 - (v/v0)^delta) - a_max (s*/gap)^2`` with ``s* = s0 + max(0, v T + v (v - v_lead) / (2 sqrt(a_max b)))``.
 
     Parameters
     ----------
@@ -161,12 +159,11 @@ def idm_acceleration(v: float, v0: float, gap: float | None = None, v_lead: floa
     delta : float          exponent of the free-road term
     s0 : float             jam gap [m]
     free : bool            False: ``a_max`` instead of the free-road term (the limit an obstacle imposes)
-    time_gap : float       T [s]
     """
     v = max(v, 0.0)
     a = IDM_A_MAX * (1.0 - (v / max(v0, _EPS)) ** delta) if free else IDM_A_MAX
     if gap is not None:
-        s_star = s0 + max(0.0, v * time_gap + v * (v - v_lead) / (2.0 * math.sqrt(IDM_A_MAX * IDM_B)))
+        s_star = s0 + max(0.0, v * IDM_T + v * (v - v_lead) / (2.0 * math.sqrt(IDM_A_MAX * IDM_B)))
         a -= IDM_A_MAX * (s_star / max(gap, 0.01)) ** 2
     return a
 
@@ -583,18 +580,18 @@ class RoundaboutTraffic(Road):
         drivers who interact instead (`safe_acceleration` towards the leader and the stop line, reaction time
         ``safety_time_gap``, jam gap ``safety_jam_gap``, braking ``max_deceleration``)."""
         rules = self.rules
-        s0, T, headway = ((rules.safety_jam_gap, rules.safety_time_gap, rules.safety_yield_headway) if safety
-                          else (IDM_S0, IDM_T, rules.yield_headway))
         gap, v_lead = self._leader(v, others, occupancy)
-        v.yielding = self._must_yield(v, others, headway)
+        v.yielding = self._must_yield(v, others, rules.safety_yield_headway if safety else rules.yield_headway)
         if v.committed and v.entering and v not in occupancy.merging:  # committed just now
             occupancy.merging.append(v)
         stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
                     - self._stop_offset[v.route_lanes.merge_node]) if v.yielding else None
         if safety:
             a = math.inf
+            T = rules.safety_time_gap
             if gap is not None:
-                a = safe_acceleration(v.speed, gap - s0, v_lead, tau=T, b=rules.max_deceleration, dt=STEP_LENGTH)
+                a = safe_acceleration(v.speed, gap - rules.safety_jam_gap, v_lead, tau=T, b=rules.max_deceleration,
+                                      dt=STEP_LENGTH)
             if stop_gap is not None:
                 a = min(a, safe_acceleration(v.speed, stop_gap - rules.stop_margin, 0.0, tau=T,
                                              b=rules.max_deceleration, dt=STEP_LENGTH))
@@ -602,7 +599,7 @@ class RoundaboutTraffic(Road):
         free = free_v0 is not None
         v0 = free_v0 if free else 1.0
         a = (idm_acceleration(v.speed, v0, gap, v_lead, delta=delta,  # type: ignore[arg-type]
-                              free=free, s0=s0, time_gap=T) if gap is not None
+                              free=free) if gap is not None
              else (idm_acceleration(v.speed, v0, delta=delta) if free else math.inf))  # type: ignore[arg-type]
         if stop_gap is not None:
             a = min(a, idm_acceleration(v.speed, v0, stop_gap, 0.0, delta=delta,  # type: ignore[arg-type]
