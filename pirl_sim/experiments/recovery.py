@@ -29,6 +29,7 @@ from pirl_sim.io.atomic import atomic_write_text
 # interact, the weights of the gaps to the vehicle ahead and to the obstacle they yield to: the populations' own
 from pirl_sim.scenarios.population_config import FREE_FEATURES, INTERACTION_FEATURES
 
+from .recovery_styles import identified, style_mixtures
 from .spec import Param, ScenarioSpec, TrainShape
 
 __all__ = ["SIMULATORS", "TARGETS", "RunRecovery", "recovery_report", "summary_row", "check_targets",
@@ -233,7 +234,7 @@ def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) 
     for f in INTERACTION_FEATURES:  # the weights of the gaps, over the tracks whose data determine them
         if f"se_log_{f}" not in tracks:
             continue
-        known = tracks[(tracks[f"se_log_{f}"] <= IDENTIFIED_SE) & (tracks[f"{f}_steps"] >= MIN_NEAR_STEPS)]
+        known = tracks[identified(tracks, f, identified_se=IDENTIFIED_SE, min_near_steps=MIN_NEAR_STEPS)]
         err = np.abs(known[f"log_err_{f}"].to_numpy())
         row[f"{f}_tracks"] = int(len(known))
         row[f"median_abs_log_err_{f}_identified"] = float(np.median(err)) if len(known) else math.nan
@@ -621,8 +622,6 @@ def write_recovery(result: RecoveryResult, out, command: str) -> dict[str, Path]
     table = result.table()
     noise = result.noise_table()
     styles, sel = result.styles(), result.selection()
-    from .recovery_styles import style_mixtures
-
     tracks = result.tracks()
     fitted = [f for f in FREE_FEATURES + INTERACTION_FEATURES if f"se_log_{f}" in tracks]
     mixtures = (style_mixtures(tracks, fitted, identified_se=IDENTIFIED_SE, min_near_steps=MIN_NEAR_STEPS)

@@ -21,7 +21,7 @@ import math
 import numpy as np
 import pandas as pd
 
-__all__ = ["UNKNOWN_SE", "SE_FLOOR", "style_mixtures", "track_measurements"]
+__all__ = ["UNKNOWN_SE", "SE_FLOOR", "identified", "style_mixtures", "track_measurements"]
 
 #: [log] standard error given to a weight the track's data do not determine: wide against any spread of styles
 #: (log weights of the styles differ by a few units), so the mixture integrates it out
@@ -30,6 +30,14 @@ UNKNOWN_SE = 1e3
 SE_FLOOR = 0.01
 #: restarts of the mixture fit (the best log-likelihood kept)
 N_INIT = 5
+
+
+def identified(tracks: pd.DataFrame, feature: str, *, identified_se: float, min_near_steps: int) -> np.ndarray:
+    """Bool (N,): the tracks (rows of a recovery study's ``tracks.csv``) whose fit identifies the interaction weight
+    ``feature``: a standard error of its log at most ``identified_se`` (not NaN / inf) and at least
+    ``min_near_steps`` usable steps within reach of its obstacle (``<feature>_steps``)."""
+    se = tracks[f"se_log_{feature}"].to_numpy(dtype=float)
+    return (se <= identified_se) & (tracks[f"{feature}_steps"].to_numpy() >= min_near_steps)
 
 
 def track_measurements(tracks: pd.DataFrame, features: list[str], *, identified_se: float,
@@ -43,7 +51,7 @@ def track_measurements(tracks: pd.DataFrame, features: list[str], *, identified_
     known = np.isfinite(se)
     for j, f in enumerate(features):
         if f"{f}_steps" in tracks:  # an interaction weight: only where identified (the study's rule)
-            known[:, j] &= (se[:, j] <= identified_se) & (tracks[f"{f}_steps"].to_numpy() >= min_near_steps)
+            known[:, j] &= identified(tracks, f, identified_se=identified_se, min_near_steps=min_near_steps)
     se = np.where(known, np.maximum(np.nan_to_num(se, nan=UNKNOWN_SE), SE_FLOOR), UNKNOWN_SE)
     return X, se[:, :, None] * np.eye(len(features)) * se[:, None, :]
 
