@@ -701,8 +701,8 @@ def load_replay(
                 rows_k = track.index.to_numpy()[keep]
                 extra["gap"], extra["v_lead"] = obstacle(gaps_all[rows_k], lead_speed_all[rows_k], speed)
                 extra["gap"], extra["v_lead"] = extra["gap"][sel], extra["v_lead"][sel]
-                meta["_motion"] = TrackMotion(frames[keep], s_local, speed, xy,
-                                              track["psi_rad"].to_numpy(dtype=float)[keep], path_list[paths[key]])
+            meta["_motion"] = TrackMotion(frames[keep], s_local, speed, xy,
+                                          track["psi_rad"].to_numpy(dtype=float)[keep], path_list[paths[key]])
             if usable is not None:
                 extra["usable"], extra["a_obs"] = _frame_steps(usable, restart, speed, stride)  # type: ignore[arg-type]
                 extra["settled"] = _frame_steps(settled(usable, settle_frames),
@@ -735,9 +735,9 @@ def load_replay(
     pending = placed
     if not pending:
         raise ValueError(f"no usable track in {len(list(track_files))} files (skipped: {dict(skipped)})")
-    if features in GAP_FEATURE_SETS:
-        _add_yield_gaps(pending, stride, conflicts if features == "following" else
-                        dataclasses.replace(conflicts, obstacle="stop"), separate=features == "interacting")
+    _add_yield_gaps(pending, stride, conflicts if features == "following" else
+                    dataclasses.replace(conflicts, obstacle="stop"),
+                    "merge" if features == "following" else "separate" if features == "interacting" else "flag")
     model = _replay_model(composite, dt, speed_smoothing, a_lat, v_max, features)
     estimator = HistoryEstimator(float(dt), estimate, noise, jerk_weight, arc_length)
     names = model.features.names  # type: ignore[assignment]
@@ -781,12 +781,13 @@ def load_replay(
             if "yield_gap" in cut:  # type: ignore[operator]  # features "interacting": the obstacle yielded to
                 states = np.column_stack([states, *obstacle(cut["yield_gap"], np.zeros(len(states)),  # type: ignore
                                                             cut["v"])])  # type: ignore[index]
-            yielding = cut.get("yielding", np.zeros(len(states), dtype=bool))  # type: ignore[attr-defined]
+            yielding = cut["yielding"]  # type: ignore[index]
             meta = dict(meta, yielding=yielding)
             n_steps_counts["steps yielding at a conflict point"] += int(yielding[:-1].sum())
             n_steps_counts["steps behind a vehicle ahead"] += int(((cut["gap"] < NO_LEADER_GAP) &  # type: ignore[index]
                                                                    ~yielding)[:-1].sum())
         meta = dict(meta, segment=segment, d=np.asarray(d), xy=np.asarray(xy), s_obs=np.asarray(s),
+                    yields=np.asarray(cut["yields"]),  # type: ignore[index]
                     v_obs=np.asarray(cut["v"]), psi_obs=np.asarray(cut["psi"]),  # type: ignore[index]
                     estimator=estimator)
         if mask is not None:
@@ -817,7 +818,7 @@ def load_replay(
                     n_steps_counts["free steps in runs shorter than 2 steps (left out)"] += b - a
                     continue
                 cut_meta = {k: meta[k][a : b + 1]  # type: ignore[index]
-                            for k in ("d", "xy", "yielding", "s_obs", "v_obs", "psi_obs") if k in meta}
+                            for k in ("d", "xy", "yielding", "yields", "s_obs", "v_obs", "psi_obs") if k in meta}
                 trajectories.append(Trajectory(states[a : b + 1], controls[a:b], dt,
                                                dict(meta, **cut_meta, free_run=r, free_start=a)))
             continue
@@ -903,10 +904,11 @@ def _replay_model(composite: CompositePath, dt: float, speed_smoothing: float, a
     return PathDriverModel(dynamics, features, DEFAULT_BOUNDS, path=composite)  # type: ignore[arg-type]
 
 
-def _add_yield_gaps(pending, stride: int, rule: ConflictRule, separate: bool = False) -> None:
-    """Per recording file: what a car yields to (`pirl_sim.scenarios.conflicts.yield_gaps`), written into each
-    pending track's sampled ``gap`` / ``v_lead`` where nearer than the vehicle ahead (``separate``: into
-    ``yield_gap`` instead, inf where none)."""
+def _add_yield_gaps(pending, stride: int, rule: ConflictRule, mode: str = "merge") -> None:
+    """Per recording file: what a car yields to (`pirl_sim.scenarios.conflicts.yield_gaps`), ``yields`` (its
+    sampled steps with a conflict point to yield at) for every feature set, and with ``mode`` "merge" written
+    into each pending track's sampled ``gap`` / ``v_lead`` where nearer than the vehicle ahead, with "separate"
+    into ``yield_gap`` (inf where none), with "flag" nothing more."""
     by_file: dict[str, list] = {}
     for item in pending:
         by_file.setdefault(item[4]["file"], []).append(item)
@@ -917,7 +919,10 @@ def _add_yield_gaps(pending, stride: int, rule: ConflictRule, separate: bool = F
         for it, (g, v), w in zip(items, gaps, which):
             extra = it[4]["_extra"]
             g, v = g[w], v[w]  # the frames the track is sampled at, as its extra["gap"]
-            if separate:
+            extra["yields"] = np.isfinite(g)
+            if mode == "flag":
+                continue
+            if mode == "separate":
                 extra["yield_gap"], extra["yielding"] = g, np.isfinite(g)
                 continue
             nearer = g < extra["gap"]

@@ -39,7 +39,8 @@ from .spec import Param, ScenarioSpec, TrainShape, split_indices
 
 __all__ = ["ReplayProtocol", "replay_seed", "run_recorded_cells", "recorded_files", "recorded_fingerprint",
            "load_scene", "method_id", "decode_method", "predict_path_states", "split_by_track", "usable_tracks",
-           "fit_lateral_profile", "desired_speed_model", "fit_scene_speed", "start_histories", "history_lags",
+           "fit_lateral_profile", "desired_speed_model", "fit_scene_speed", "start_histories", "entry_windows",
+           "history_lags",
            "METHODS", "HINDSIGHT", "ROLLOUTS", "RECORDED_PARAMS"]
 
 #: pseudo-learners of this scenario (module doc); every other method is a learner of `pirl_sim.learners.LEARNERS`
@@ -115,6 +116,17 @@ def _windows(test, proto: ReplayProtocol):
             if mask is None or mask[step - proto.history : step + proto.horizon].all():
                 out.append((i, step))
     return out
+
+
+def entry_windows(test, windows, proto: ReplayProtocol) -> np.ndarray | None:
+    """(W,) bool: the windows (i, step) whose car has a conflict point to yield at (metadata ``yields``,
+    `pirl_sim.scenarios.replay.load_replay`) at some step of its history or horizon, the *entry windows*; None
+    when the pieces carry no such flags (scenes not read from track files)."""
+    flags = [test[i].metadata.get("yields") for i, _ in windows]
+    if any(f is None for f in flags):
+        return None
+    return np.array([bool(np.asarray(f)[step - proto.history : step + proto.horizon + 1].any())
+                     for f, (_, step) in zip(flags, windows)], dtype=bool)
 
 
 def start_histories(scene, test, windows, proto: ReplayProtocol) -> list:
@@ -488,6 +500,7 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
     examples = {"t": dt * np.arange(-proto.history, proto.horizon + 1),
                 "truth": np.stack([test[windows[w][0]].states[windows[w][1] - proto.history:
                                                              windows[w][1] + proto.horizon + 1, 0] for w in shown])}
+    entry = entry_windows(test, windows, proto)
     out, plane = {}, {}
     for name, key, _ in methods:
         if key == "cv-xy":  # in the plane, at the velocity between the last two recorded positions
@@ -502,6 +515,10 @@ def replay_seed(scene, seed: int, methods, proto: ReplayProtocol, *, desired_spe
             path = {"med_path": float(_errors(model, test, windows, s_pred, proto, "recorded").mean())}
         row = {"seed": seed, "method": name, "med": float(err.mean()), **path, "n_windows": len(windows), **counts,
                "fit_s": fit_s, "predict_s": pred_s, **extra}
+        if entry is not None:
+            row.update(n_entry_windows=int(entry.sum()),
+                       med_entry=float(err[entry].mean()) if entry.any() else float("nan"),
+                       med_not_entry=float(err[~entry].mean()) if not entry.all() else float("nan"))
         for k in proto.fde_steps:
             row[f"de@{k * dt:.1f}s"] = float(err[:, k - 1].mean())
         out[name] = {"row": row, "errors": err.mean(axis=1), "shown": None if s_pred is None else s_pred[shown]}

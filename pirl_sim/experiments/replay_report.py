@@ -76,7 +76,8 @@ def summarize(result: dict) -> pd.DataFrame:
     learners also ``irl_converged`` ("converged groups / groups", summed over seeds) and the numbers of IRL
     warnings raised while fitting (summed over seeds)."""
     rows = result["rows"]
-    scores = [c for c in rows.columns if c in ("med", "med_path", "ari", "weight_error", "irl_weight_error")
+    scores = [c for c in rows.columns if c in ("med", "med_path", "med_entry", "med_not_entry", "ari", "weight_error",
+                                                "irl_weight_error")
               or c.startswith(("de@", "min_ade@", "min_fde@", "miss_rate@", "nll_per_step@"))]
     agg = rows.groupby("method")[scores].agg(["mean", "std"])
     agg.columns = [f"{a}_{b}" for a, b in agg.columns]

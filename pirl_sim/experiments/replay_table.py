@@ -9,7 +9,9 @@ ordering TIRL > PIRL-GMM > PIRL-kNN in MED as measured; the desired-speed parame
 Where the rows have them (`pirl_sim.experiments.replay_report`): the ratio along the path (``med_path``: predictions at
 the recorded lateral offsets) and the lateral floor relative to CA (recorded arc lengths under the protocol's
 lateral model: the best ratio any prediction along the path could reach); with ``--direct`` the direct
-regression's MED relative to CA (`pirl_sim.evaluation.direct`: no cost, what the history and the map tell).
+regression's MED relative to CA (`pirl_sim.evaluation.direct`: no cost, what the history and the map tell);
+each method's MED on the entry windows (the car has a conflict point to yield at,
+`pirl_sim.experiments.recorded.entry_windows`) and on the others.
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
                               "fde": float(g[fde].mean()), "fde_se": _se(g[fde])}
         if "med_path" in g and g["med_path"].notna().all():
             entry["med_path"] = float(g["med_path"].mean())
+        for col in ("med_entry", "med_not_entry"):
+            if col in g and g[col].notna().all():
+                entry[col], entry[f"{col}_se"] = float(g[col].mean()), _se(g[col])
         if "irl_groups" in g and g["irl_groups"].notna().all():
             entry["converged"] = ", ".join(f"{int(c)}/{int(n)}" for c, n in zip(g["irl_converged"], g["irl_groups"]))
         if "ahead_weight" in g and g["ahead_weight"].notna().all():
@@ -51,6 +56,8 @@ def table_row(name: str, files: list[str], result: dict, scene, proto, elapsed: 
     paired = result["paired_ca"].set_index("method")
     out = {"roundabout": name, "files": files, "seeds": len(proto.seeds), "fde_column": fde, "methods": methods,
            "best": best, "elapsed_s": elapsed, "n_windows": int(rows.groupby("seed")["n_windows"].first().sum())}
+    if "n_entry_windows" in rows:
+        out["n_entry_windows"] = int(rows.groupby("seed")["n_entry_windows"].first().sum())
     if best is not None and best in paired.index:
         ca, per_seed = methods[CA], rows.pivot(index="seed", columns="method", values="med")
         out.update(best_minus_ca=float(paired.loc[best, "mean_difference"]),
@@ -104,6 +111,18 @@ def table_markdown(rows: list[dict]) -> str:
         cells = [r["roundabout"], ", ".join(r["files"]), r["seeds"], r["n_windows"], r["best"], *ratios, r["ordering"],
                  "yes" if r["paper_ordering_holds"] else "no", r.get("speed", ""), f"{r['elapsed_s']:.0f}"]
         lines.append("| " + " | ".join(map(str, cells)) + " |")
+    if any("n_entry_windows" in r for r in rows):
+        lines += ["", "Entry windows (the car has a conflict point to yield at in the window's history or horizon) "
+                  "and the other windows: MED [m], mean ± standard error over split seeds:", "",
+                  "| roundabout | windows | " + " | ".join(methods) + " |", "|---|---|" + "---|" * len(methods)]
+        for r in rows:
+            if "n_entry_windows" not in r:
+                continue
+            for col, label, n in (("med_entry", "entry", r["n_entry_windows"]),
+                                  ("med_not_entry", "other", r["n_windows"] - r["n_entry_windows"])):
+                cells = [_pm(r["methods"][m][col], r["methods"][m][f"{col}_se"]) if col in r["methods"].get(m, {})
+                         else "" for m in methods]
+                lines.append(f"| {r['roundabout']} ({label}) | {n} | " + " | ".join(cells) + " |")
     conv_methods = [m for m in methods if any("converged" in r["methods"].get(m, {}) for r in rows)]
     lines += ["", "IRL groups converged / fitted per split seed:", "",
               *by_method(conv_methods, lambda v: v.get("converged", ""))]

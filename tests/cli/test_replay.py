@@ -338,6 +338,10 @@ def test_table_command_end_to_end(passage_root, tmp_path, capsys):
                    or line.startswith("| SIM_Roundabout_A | vehicle_tracks")]
     ratio = row.split(" | ")[header.split(" | ").index("direct regression (no cost) / CA")]
     assert float(ratio.split(" ")[0]) == pytest.approx(med["direct regression (no cost)"] / med["CA (path)"], abs=1e-3)
+    n_windows = int(row.split(" | ")[header.split(" | ").index("windows")])
+    split = [int(line.split(" | ")[1]) for line in text.splitlines()
+             if line.startswith(("| SIM_Roundabout_A (entry) |", "| SIM_Roundabout_A (other) |"))]
+    assert len(split) == 2 and sum(split) == n_windows  # the entry windows and the others, each counted once
     assert main(["replay", "--preset", "paper", "--table", str(passage_root), "--roundabouts", "NO_SUCH_Roundabout",
                  "--out", str(out)]) == 2
     assert "NO_SUCH_Roundabout" in capsys.readouterr().err  # any name is read; a missing folder is named

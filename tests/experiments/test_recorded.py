@@ -197,3 +197,32 @@ learners = [{learner}]
 """)
     with pytest.raises(ValueError, match=match):
         load_config(cfg)
+
+
+def test_entry_windows_are_those_whose_car_yields_in_its_history_or_horizon():
+    from pirl_sim.experiments.recorded import entry_windows
+    from pirl_sim.trajectory import Trajectory
+
+    proto = ReplayProtocol(history=2, horizon=3, stride=1, seeds=(0,), fde_steps=(3,))
+    flags = np.zeros(12, dtype=bool)
+    flags[6] = True  # the car yields at step 6 only
+    t = Trajectory(np.zeros((12, 3)), np.zeros((11, 1)), 0.2, {"yields": flags})
+    steps = list(range(2, 10))
+    # a window at `step` covers steps step - 2 .. step + 3
+    expected = [step - 2 <= 6 <= step + 3 for step in steps]
+    np.testing.assert_array_equal(entry_windows([t], [(0, s) for s in steps], proto), expected)
+    assert entry_windows([Trajectory(np.zeros((12, 3)), np.zeros((11, 1)), 0.2)], [(0, 2)], proto) is None
+
+
+def test_a_roundabout_recording_has_entry_windows_and_the_replay_scores_them_apart(sumo_recording):
+    from pirl_sim.experiments.recorded import replay_seed
+
+    scene, _ = load_sumo_scene(sumo_recording, selection="all", estimate="speeds")
+    assert any(t.metadata["yields"].any() for t in scene.selected)  # cars wait to enter the ring
+    proto = ReplayProtocol(history=5, horizon=10, stride=5, seeds=(0,), fde_steps=(10,))
+    out = replay_seed(scene, 0, [("CA (path)", "ca", {}), ("CV (path)", "cv", {})], proto)
+    row = out["methods"]["CA (path)"]["row"]
+    assert 0 < row["n_entry_windows"] < row["n_windows"]
+    n = row["n_entry_windows"]
+    mixed = (n * row["med_entry"] + (row["n_windows"] - n) * row["med_not_entry"]) / row["n_windows"]
+    assert mixed == pytest.approx(row["med"])
