@@ -266,7 +266,7 @@ class SpeedDeviationResidual:
         jx[..., 0, 1] = 1.0
         hx = np.zeros(x.shape[:2] + (1, x.shape[-1], x.shape[-1]))
         hx[..., 0, 0, 0] = -d2vd
-        return Residual((v - vd)[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hx)
+        return Residual((v - vd)[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hx, x_support=(0, 1))
 
     def value(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The residual r (M, N, 1) [m/s] alone, without derivatives (`pirl_sim.features.FeatureSet.values`)."""
@@ -341,7 +341,8 @@ class HeadwayResidual:
         # the second derivative w sig (1 - sig) dz dz^T = (1 - sig) / (w sig) jx^T jx (where sig underflows to 0,
         # both are 0): given as that scale, never as an (M, N, 1, n_x, n_x) array
         along = np.divide(1.0 - sig, w * sig, out=np.zeros_like(sig), where=sig > 0.0)
-        return Residual(r[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hess_scale=along[..., None])
+        return Residual(r[..., None], jx, np.zeros((1, 1, 1, u.shape[-1])), hess_scale=along[..., None],
+                        x_support=(1, g))
 
 
 #: target speed of the ``speed_hi`` feature [m/s] (72 km/h: above the speed of every roundabout)

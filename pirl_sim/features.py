@@ -49,6 +49,9 @@ class Residual(NamedTuple):
         gradient, as a smooth function of one affine combination of the states has), never stored as
         (M, N, p, n_x, n_x); the exact Hessian is then the Gauss-Newton one with the Jacobian scaled by
         ``sqrt(1 + r hess_scale)``.
+    x_support : tuple of int, or None
+        The state entries the residual can depend on (the only columns of ``jac_x`` that can be non-zero), when the
+        residual states them; None: found from ``jac_x`` where needed.
     """
 
     r: np.ndarray
@@ -56,6 +59,7 @@ class Residual(NamedTuple):
     jac_u: np.ndarray
     hess_x: np.ndarray | None = None
     hess_scale: np.ndarray | None = None
+    x_support: tuple[int, ...] | None = None
 
     @property
     def curved(self) -> bool:

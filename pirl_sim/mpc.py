@@ -551,10 +551,14 @@ class _OuterExpansion:
             # (M, N, p, 1): 2 scale theta_k r, or 2 scale r for the feature's own gradient
             wr = ((2.0 * scale) * r if per_feature else w[:, :, None] * r)[..., None]
             target = sigma[:, k] if per_feature else sigma
-            # the columns of J = [Jx, Ju] (over the stage basis) that are non-zero somewhere
-            nz_x = np.flatnonzero(np.any(Jx, axis=tuple(range(Jx.ndim - 1))))
+            # the columns of J = [Jx, Ju] (over the stage basis) that are non-zero somewhere (as the residual
+            # states them, or found)
+            nz_x = (np.asarray(res.x_support, dtype=int) if res.x_support is not None
+                    else np.flatnonzero(np.any(Jx, axis=tuple(range(Jx.ndim - 1)))))
             nz_u = np.flatnonzero(np.any(Ju, axis=tuple(range(Ju.ndim - 1))))
-            if len(nz_x):
+            if res.x_support is not None and len(nz_x):
+                target[:, :, nz_x] += np.sum(wr * Jx[..., nz_x], axis=2)
+            elif len(nz_x):
                 target[:, :, :n_x] += np.sum(wr * Jx, axis=2)
             if len(nz_u):
                 target[:, :, n_x:] += np.sum(wr * Ju, axis=2)

@@ -268,3 +268,41 @@ def test_solve_many_equals_row_by_row(path_model, solver):
         on_bound += bool(one.violation(x0[m : m + 1], free[None, :, None])[0] > 1e-9)
     assert not feasible[-1]
     assert on_bound > M // 2
+
+
+def test_a_residuals_stated_support_gives_the_expansion_found_without_it():
+    """Residuals that state the state entries they depend on (``x_support``) give the stage terms found by
+    scanning their Jacobians, exactly."""
+    import dataclasses
+
+    from pirl_sim.driving import SpeedProfile, roundabout_features
+    from pirl_sim.dynamics import following
+    from pirl_sim.features import Feature, FeatureSet
+    from pirl_sim.paths import ReferencePath
+
+    path = ReferencePath.from_polyline(np.column_stack([np.linspace(0.0, 200.0, 41), np.zeros(41)]))
+    feats = roundabout_features(SpeedProfile(path, 2.0, 8.0), "interacting")
+
+    def unstated(feat):
+        def residual(x, u, _f=feat.residual):
+            return _f(x, u)._replace(x_support=None)
+        return dataclasses.replace(feat, residual=residual)
+
+    assert all(feats.features[k].residual(np.zeros((1, 2, 7)), np.zeros((1, 2, 1))).x_support is not None
+               for k in (0, 3, 4))  # speed_dev, headway, yielding
+    plain = FeatureSet([unstated(f) for f in feats.features], reference=feats.reference)
+    dyn = following(0.2, obstacles=2)
+    rng = np.random.default_rng(3)
+    M, N = 5, 12
+    x0 = np.column_stack([rng.uniform(0, 100, M), rng.uniform(2, 10, M), rng.normal(0, 0.5, M),
+                          rng.uniform(3, 30, M), rng.uniform(2, 10, M), rng.uniform(3, 30, M), np.zeros(M)])
+    U = rng.normal(0, 0.3, (M, N, 1))
+    X = dyn.rollout(x0, U)
+    theta = rng.uniform(0.1, 2.0, (M, feats.n_features))
+    exp_stated, exp_found = _OuterExpansion(dyn, feats, N), _OuterExpansion(dyn, plain, N)
+    stated, found = exp_stated.stage_terms(X, U, theta), exp_found.stage_terms(X, U, theta)
+    for a, b in zip(stated[:2], found[:2]):  # values, stage gradients
+        np.testing.assert_array_equal(a, b)
+    # on a straight path speed_dev does not depend on s: its stated column only adds zeros
+    np.testing.assert_array_equal(exp_stated.stage_hessians(theta, *stated[2:], 0.5),
+                                  exp_found.stage_hessians(theta, *found[2:], 0.5))
