@@ -2,13 +2,14 @@
 
 An experiment of a sweep is a recovery curve when its cells differ (beside the seed and the learner) in exactly
 one of :data:`CURVE_AXES`: the scenario's number of training tracks (``n_train``; the x value is the cell's
-actual training-set size, the table's ``n_train``), the drivers' control noise (``control_noise`` [m/s^3]), or
+actual training-set size, the table's ``n_train``), the drivers' control noise (``control_noise`` [m/s^3]), the
+traffic density as the time between departures (``depart_interval`` [s]), or
 the MPC horizon the learner assumes (learner parameter ``horizon`` [steps]; the drivers' own, the scenario's
 ``horizon``, is marked). :func:`curves_table` gathers the points, :func:`curves_summary` averages them over
 seeds (mean and Student-t 95 % half-width), :func:`recovery_curves_figure` draws one panel per curve with one
 line per learner, and :func:`curves_markdown` tabulates them; ``pirl-sim report`` writes
 ``recovery_curves.png`` and a "Recovery curves" section when a sweep has any (e.g.
-``pirl_sim/experiments/configs/recovery_curves.toml``).
+``pirl_sim/experiments/configs/recovery_curves.toml`` and ``interacting_curves.toml``).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ __all__ = ["CURVE_AXES", "curves_table", "curves_summary", "recovery_curves_figu
 #: recovery parameters: (where the parameter is, axis label)
 CURVE_AXES: dict[str, tuple[str, str]] = {
     "n_train": ("scenario", "training tracks"), "control_noise": ("scenario", "drivers' control noise [m/s^3]"),
+    "depart_interval": ("scenario", "time between departures [s]"),
     "horizon": ("learner", "MPC horizon assumed by the learner [steps]")}
 
 

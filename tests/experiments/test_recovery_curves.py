@@ -37,6 +37,27 @@ def test_the_preset_varies_one_recovery_parameter_per_experiment():
     assert {c.learner_params["horizon"] for c in by_exp["SUMO control noise"]} == {30}
 
 
+def test_the_interacting_preset_varies_density_or_noise_over_drivers_who_interact():
+    path = resources.files("pirl_sim.experiments") / "configs" / "interacting_curves.toml"
+    cfg = load_config(str(path))
+    by_exp: dict[str, list] = {}
+    for cell in cfg.cells:
+        by_exp.setdefault(cell.experiment, []).append(cell)
+    assert len(by_exp) == 4
+    axes = {}
+    for exp, cells in by_exp.items():
+        varied = [name for name, (where, _) in CURVE_AXES.items()
+                  if len({json.dumps((c.scenario_params if where == "scenario" else c.learner_params).get(name))
+                          for c in cells}) > 1]
+        assert len(varied) == 1, (exp, varied)
+        axes[exp] = varied[0]
+        assert sorted({c.seed for c in cells}) == [0, 1, 2]
+        for c in cells:  # every style weighs headway and yielding: the drivers interact by their own cost
+            assert all({"headway", "yielding"} <= set(s["mean"]) for s in c.scenario_params["styles"])
+            assert c.learner_params["likelihood"] == "receding"
+    assert sorted(axes.values()) == ["control_noise", "control_noise", "depart_interval", "depart_interval"]
+
+
 @pytest.mark.parametrize("params, match", [
     ("n_train = -1", r"parameter 'n_train' must be >= 0, got -1"),
     ("n_train = 20", r"parameter 'n_train' = 20 exceeds the 9 training tracks a run of 12 vehicles"),
