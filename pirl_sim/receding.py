@@ -155,6 +155,8 @@ class RecedingPolicy:
         dyn, feats = self.model.dynamics, self.model.features
         M, d = U.shape[0], U.shape[1] * U.shape[2]
         K = feats.n_features
+        if M == 0:  # e.g. no bounded QP of a round could be solved
+            return np.empty((0, K)), np.empty((0, K, d)), np.empty((0, d, d))
         exp = self._outer(U.shape[1])
 
         def chunk(sl):

@@ -243,3 +243,21 @@ def test_a_free_weight_leaves_the_error_of_a_determined_one():
         assert np.isfinite(se[0]) == finite
         if finite:
             assert se[0] == pytest.approx(0.5, rel=1e-6)
+
+
+def test_starts_whose_bounded_plans_are_all_infeasible_stay_unconverged(path_drivers, monkeypatch):
+    """When no bounded QP of a round can be solved (each infeasible from its start), the policy keeps the plans,
+    unconverged, instead of failing on an empty batch."""
+    model, _, _ = path_drivers
+    policy = RecedingPolicy(model, 20, tol=1e-10)
+    x0 = np.array([[60.0, 16.0, -3.5], [62.0, 17.0, -3.9]])  # they brake into the acceleration bound
+    theta = np.array([[3.0, 0.3, 1.0], [2.0, 0.1, 1.0]])
+
+    def infeasible(*args, **kwargs):
+        raise RuntimeError("infeasible")
+
+    monkeypatch.setattr(policy._qp, "solve", infeasible)
+    sol = policy.solve(x0, theta)
+    assert not sol.converged.any() and np.isfinite(sol.U).all()
+    empty = policy._expand(x0[:0], sol.U[:0], theta[:0])
+    assert [a.shape for a in empty] == [(0, 3), (0, 3, 20), (0, 20, 20)]
