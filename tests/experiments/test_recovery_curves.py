@@ -17,45 +17,42 @@ from pirl_sim.experiments.sweep_report import _fmt
 from sweep_configs import sweep_config, sweep_toml
 
 
-def test_the_preset_varies_one_recovery_parameter_per_experiment():
-    path = resources.files("pirl_sim.experiments") / "configs" / "recovery_curves.toml"
-    cfg = load_config(str(path))
+def _preset_curves(name: str) -> dict[str, tuple[list, list]]:
+    """{experiment: (its cells, the curve axes it varies)} of a preset config shipped with the package."""
+    cfg = load_config(str(resources.files("pirl_sim.experiments") / "configs" / name))
     by_exp: dict[str, list] = {}
     for cell in cfg.cells:
         by_exp.setdefault(cell.experiment, []).append(cell)
-    assert len(by_exp) == 6
-    for exp, cells in by_exp.items():
-        varied = [name for name, (where, _) in CURVE_AXES.items()
-                  if len({json.dumps((c.scenario_params if where == "scenario" else c.learner_params).get(name))
-                          for c in cells}) > 1]
+    return {exp: (cells, [axis for axis, (where, _) in CURVE_AXES.items()
+                          if len({json.dumps((c.scenario_params if where == "scenario" else c.learner_params).get(axis))
+                                  for c in cells}) > 1])
+            for exp, cells in by_exp.items()}
+
+
+def test_the_preset_varies_one_recovery_parameter_per_experiment():
+    curves = _preset_curves("recovery_curves.toml")
+    assert len(curves) == 6
+    for exp, (cells, varied) in curves.items():
         assert len(varied) == 1, (exp, varied)
         assert all(c.learner_params["likelihood"] == "receding" for c in cells)
         assert sorted({c.seed for c in cells}) == [0, 1, 2]
-    horizons = {c.learner_params["horizon"] for c in by_exp["SUMO assumed horizon"]}
+    horizons = {c.learner_params["horizon"] for c in curves["SUMO assumed horizon"][0]}
     assert horizons == {10, 20, 30, 45, 60}
     # the drivers' horizon is 30 in every run: the other experiments' learners assume the right one
-    assert {c.learner_params["horizon"] for c in by_exp["SUMO control noise"]} == {30}
+    assert {c.learner_params["horizon"] for c in curves["SUMO control noise"][0]} == {30}
 
 
 def test_the_interacting_preset_varies_density_or_noise_over_drivers_who_interact():
-    path = resources.files("pirl_sim.experiments") / "configs" / "interacting_curves.toml"
-    cfg = load_config(str(path))
-    by_exp: dict[str, list] = {}
-    for cell in cfg.cells:
-        by_exp.setdefault(cell.experiment, []).append(cell)
-    assert len(by_exp) == 4
-    axes = {}
-    for exp, cells in by_exp.items():
-        varied = [name for name, (where, _) in CURVE_AXES.items()
-                  if len({json.dumps((c.scenario_params if where == "scenario" else c.learner_params).get(name))
-                          for c in cells}) > 1]
+    curves = _preset_curves("interacting_curves.toml")
+    assert len(curves) == 4
+    for exp, (cells, varied) in curves.items():
         assert len(varied) == 1, (exp, varied)
-        axes[exp] = varied[0]
         assert sorted({c.seed for c in cells}) == [0, 1, 2]
         for c in cells:  # every style weighs headway and yielding: the drivers interact by their own cost
             assert all({"headway", "yielding"} <= set(s["mean"]) for s in c.scenario_params["styles"])
             assert c.learner_params["likelihood"] == "receding"
-    assert sorted(axes.values()) == ["control_noise", "control_noise", "depart_interval", "depart_interval"]
+    assert sorted(v[0] for _, v in curves.values()) == ["control_noise", "control_noise", "depart_interval",
+                                                        "depart_interval"]
 
 
 @pytest.mark.parametrize("params, match", [
