@@ -81,7 +81,7 @@ class Calibration:
     depart_rate, n_cars, duration_s       cars per hour [veh/h], cars read, summed length of the files [s]
     map_path : str                        the Lanelet2 map the cars were read on
     route_counts : dict {route id: int}   cars per entry-to-exit route of the map (ids of
-                                          `pirl_sim.scenarios.sumo.lanelet_network.lanelet_routes`)
+                                          `pirl_sim.scenarios.sumo.lanelet_network.lanelet_paths`)
     """
 
     a_lat: float
@@ -233,9 +233,9 @@ def _recorded_demand(files: Sequence[Path], lmap) -> tuple[float, dict[str, int]
     (`pirl_sim.scenarios.demand.demand_from_tracks`), each file read once."""
     from pirl_sim.io.interaction import read_tracks
     from pirl_sim.scenarios.demand import demand_from_tracks
-    from pirl_sim.scenarios.sumo.lanelet_network import lanelet_routes
+    from pirl_sim.scenarios.sumo.lanelet_network import lanelet_paths
 
-    routes = {tuple(int(e[2:]) for e in edges): rid for rid, edges in lanelet_routes(lmap)}
+    routes = {path: rid for rid, path in lanelet_paths(lmap)}
     duration, counts = 0.0, Counter()  # type: ignore[var-annotated]
     for f in files:
         tracks = read_tracks(f)

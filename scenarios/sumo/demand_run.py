@@ -24,7 +24,8 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
     Parameters
     ----------
     net : path or pirl_sim.scenarios.sumo.lanelet_network.LaneletNetwork
-    departures : sequence of pirl_sim.scenarios.demand.Departure   routes are lanelet ids (edges ``ll<id>``)
+    departures : sequence of pirl_sim.scenarios.demand.Departure   routes are lanelet ids, driven on the edges
+                                that hold them (a chain of lanelets is one edge ``ll<first id>``, `lanelet_edges`)
     out : path                  the track file to write (INTERACTION vehicle columns, 0.1 s frames; x, y the box centre)
     seed : int                  SUMO's random seed (its drivers' imperfection and speed factors)
     end_s : float, optional     stop at this time [s] (default: all arrived, at most an hour after the last departure)
@@ -56,10 +57,14 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
     rows: list[tuple] = []
     try:
         routes: dict[tuple, str] = {}
+        known = set(libsumo.edge.getIDList())  # a lanelet inside a chain has no edge of its own: its chain's edge
         for k, d in enumerate(departures):
             if tuple(d.route) not in routes:
                 routes[tuple(d.route)] = f"r{len(routes)}"
-                libsumo.route.add(routes[tuple(d.route)], [edge_id(i) for i in d.route])
+                edges = [e for e in (edge_id(i) for i in d.route) if e in known]
+                if not d.route or edge_id(d.route[0]) not in known:
+                    raise ValueError(f"run_demand: route {tuple(d.route)} does not start on an edge of {net_path}")
+                libsumo.route.add(routes[tuple(d.route)], edges)
             rid = routes[tuple(d.route)]
             vid = str(k + 1)
             libsumo.vehicle.add(vid, rid, depart=f"{max(d.time_s, 0.0):.1f}", departSpeed="max", departLane="best")

@@ -11,7 +11,7 @@ from pirl_sim.io.interaction import read_tracks
 from pirl_sim.io.lanelet2_map import load_map, write_map
 from pirl_sim.scenarios.demand import Departure, RecordedDemand, demand_from_tracks
 from pirl_sim.scenarios.sumo.demand_run import run_demand
-from pirl_sim.scenarios.sumo.lanelet_network import lanelet_routes, network_from_lanelet2
+from pirl_sim.scenarios.sumo.lanelet_network import lanelet_paths, network_from_lanelet2
 from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph
 
 
@@ -23,9 +23,9 @@ def ring_run(tmp_path_factory):
     write_map(lines, succ, d / "map.osm")
     lmap = load_map(d / "map.osm")
     net = network_from_lanelet2(lmap, d / "net")
-    routes = [r for _, r in lanelet_routes(lmap)]
+    routes = [r for _, r in lanelet_paths(lmap)]
     rng = np.random.default_rng(0)
-    lanelets = [tuple(int(e[2:]) for e in routes[k]) for k in rng.integers(0, len(routes), 12)]
+    lanelets = [routes[k] for k in rng.integers(0, len(routes), 12)]
     given = [Departure(6.0 * k, r, 4.0 + 0.1 * k, 1.8) for k, r in enumerate(lanelets)]
     path = run_demand(net, given, d / "vehicle_tracks_000.csv", seed=0)
     return lmap, net, given, read_tracks(path)
@@ -35,7 +35,7 @@ def test_the_demand_read_back_is_the_demand_driven(ring_run):
     lmap, net, given, tracks = ring_run
     assert tracks["track_id"].nunique() == len(given)
     assert tracks.groupby("track_id")["length"].first().to_numpy() == pytest.approx([d.length for d in given])
-    demand = demand_from_tracks(tracks, lmap, [[int(e[2:]) for e in r] for _, r in net.routes])
+    demand = demand_from_tracks(tracks, lmap, [r for _, r in lanelet_paths(lmap)])
     assert demand.unmatched == 0
     back = {d.track_id: d for d in demand.departures}
     for k, d in enumerate(given, start=1):
@@ -72,6 +72,6 @@ def test_bad_inputs(ring_run, tmp_path):
         demand_from_tracks(tracks, lmap, [])
     far = tracks.assign(x=tracks["x"] + 5000.0)
     with pytest.raises(ValueError, match="does the recording belong to this map"):
-        demand_from_tracks(far, lmap, [[int(e[2:]) for e in r] for _, r in net.routes])
+        demand_from_tracks(far, lmap, [r for _, r in lanelet_paths(lmap)])
     with pytest.raises(ValueError, match="no departures"):
         run_demand(net, [], tmp_path / "t.csv")

@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 
 from pirl_sim.io.lanelet2_map import load_map, write_map
-from pirl_sim.scenarios.sumo.lanelet_network import edge_id, lane_distances, lanelet_routes, network_from_lanelet2
+from pirl_sim.scenarios.sumo.lanelet_network import (
+    edge_id,
+    lane_distances,
+    lanelet_edges,
+    lanelet_paths,
+    lanelet_routes,
+    network_from_lanelet2,
+    route_lanelets,
+)
 from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph, routes
 from shared_sample import SAMPLE_MAP, SAMPLE_TRACKS, needs_sample
 
@@ -83,11 +91,55 @@ def test_the_interaction_sample_map_converts_and_its_tracks_lie_on_the_lanes(tmp
 
 def test_routes_follow_the_routing_graph(ring):
     *_, lmap, _ = ring
-    succ = {edge_id(k): {edge_id(int(n.id)) for n in lmap.routing_graph.following(lmap.map.laneletLayer[k])}
-            for k in lmap.centerlines}
-    for _, edges in lanelet_routes(lmap):
-        assert all(b in succ[a] for a, b in zip(edges[:-1], edges[1:]))
-        assert not succ[edges[-1]]
+    succ = {k: {int(n.id) for n in lmap.routing_graph.following(lmap.map.laneletLayer[k])} for k in lmap.centerlines}
+    paths = dict(lanelet_paths(lmap))
+    for rid, edges in lanelet_routes(lmap):
+        lanelets = route_lanelets(lmap, edges)
+        assert lanelets == paths[rid]
+        assert all(b in succ[a] for a, b in zip(lanelets[:-1], lanelets[1:]))
+        assert not succ[lanelets[-1]]
+
+
+def test_a_chain_of_lanelets_is_one_edge_and_the_routes_drive_on_it(ring, tmp_path):
+    import sumolib
+
+    *_, lmap, _ = ring
+    chains = lanelet_edges(lmap)
+    # the ring's lanelets (SUMO's lanes, junction-internal ones too) join into longer chains, each named by its head
+    assert sorted(lid for c in chains.values() for lid in c) == sorted(lmap.centerlines)
+    assert any(len(c) > 1 for c in chains.values()) and all(e == edge_id(c[0]) for e, c in chains.items())
+    net = network_from_lanelet2(lmap, tmp_path)
+    assert net.lanelets == chains
+    assert {e.getID() for e in sumolib.net.readNet(str(net.net)).getEdges()} == set(chains)
+    paths = dict(lanelet_paths(lmap))
+    for rid, edges in net.routes:
+        assert set(edges) <= set(chains) and all(a != b for a, b in zip(edges[:-1], edges[1:]))
+        assert tuple(lid for e in edges for lid in chains[e]) == paths[rid]
+        # a route given lanelet by lanelet reads back as the same lanelets
+        assert route_lanelets(lmap, [edge_id(lid) for lid in paths[rid]]) == paths[rid]
+    assert dict(net.routes) == dict(lanelet_routes(lmap))
+    assert [rid for rid, _ in net.routes] == [rid for rid, _ in lanelet_routes(lmap, merge_chains=False)]
+    single = network_from_lanelet2(lmap, tmp_path / "single", merge_chains=False)
+    assert all(len(c) == 1 for c in single.lanelets.values()) and len(single.lanelets) == len(lmap.centerlines)
+    with pytest.raises(ValueError, match="name no lanelet"):
+        route_lanelets(lmap, ["ll999999"])
+
+
+def test_no_lane_points_backwards_against_its_lanelets(ring, tmp_path):
+    import sumolib
+
+    *_, lmap, _ = ring
+    net = network_from_lanelet2(lmap, tmp_path)
+    sumo = sumolib.net.readNet(str(net.net))
+    for eid, chain in net.lanelets.items():
+        line = np.vstack([lmap.centerlines[lid] for lid in chain])
+        lane = np.asarray(sumo.getEdge(eid).getLanes()[0].getShape())[:, :2]
+        for a, b in ((lane[0], lane[1]), (lane[-2], lane[-1])):  # the lane's first and last segment
+            mid = (a + b) / 2.0
+            k = int(np.argmin(np.hypot(*((line[:-1] + line[1:]) / 2.0 - mid).T)))  # the centre line's nearest segment
+            along = line[k + 1] - line[k]
+            cos = np.dot(b - a, along) / (np.hypot(*(b - a)) * np.hypot(*along))
+            assert cos > 0.0, f"lane of {eid} runs against its lanelets"
 
 
 def test_bad_inputs(tmp_path, ring):
