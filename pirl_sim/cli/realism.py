@@ -20,6 +20,26 @@ def _source(text: str) -> tuple[str, list[Path]]:
     return label, [Path(p.strip()) for p in paths.split(",") if p.strip()]
 
 
+def _scenario(text: str) -> tuple[str, Path]:
+    """argparse type of ``--scenario``: ``LABEL=TOML``, a SUMO scenario simulated for ``--seeds`` seeds."""
+    label, sep, path = text.partition("=")
+    label, path = label.strip(), path.strip()
+    if not sep or not label or not path or "," in path:
+        raise argparse.ArgumentTypeError(f"expected LABEL=SCENARIO.toml (one SUMO scenario), got {text!r}")
+    return label, Path(path)
+
+
+def _seeds(text: str) -> int:
+    """argparse type of ``--seeds``: a count >= 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number of seeds >= 1, got {text!r}")
+    return n
+
+
 @subcommand("realism", help="score simulated traffic against a recording: feature likelihoods and a meta-metric",
             description="Score how real simulated traffic is. The reference (recorded track files) is scored under "
             "the histograms of each source's features (speed, acceleration, jerk, yaw rate and its rate, lateral "
@@ -27,13 +47,19 @@ def _source(text: str) -> tuple[str, list[Path]]:
             "stopped time, collisions, and with --map the offset from the lane centre). A source is LABEL=PATH,..., "
             "each PATH one rollout (a track file, or a folder whose track files make one rollout); the meta-metric "
             "is given per source as the mean over its rollouts with a 95 %% interval. Give the recording's other "
-            "files as a source for the real-against-real reference row.")
+            "files as a source for the real-against-real reference row. A --scenario LABEL=TOML source is a SUMO "
+            "scenario (e.g. from pirl-sim calibrate) run here for --seeds seeds into OUT/runs/LABEL/seed_S; a run "
+            "finished earlier is kept, so an interrupted command resumes where it stopped.")
 def add_parser(p) -> None:
     """The options of ``realism``."""
     p.add_argument("--reference", type=Path, nargs="+", required=True, metavar="PATH",
                    help="the recorded track files (or folders of them) that are scored")
-    p.add_argument("--source", type=_source, action="append", required=True, metavar="LABEL=PATH[,PATH...]",
+    p.add_argument("--source", type=_source, action="append", default=[], metavar="LABEL=PATH[,PATH...]",
                    help="a simulated source and its rollouts (repeat for several sources)")
+    p.add_argument("--scenario", type=_scenario, action="append", default=[], metavar="LABEL=TOML",
+                   help="a source simulated here: a SUMO scenario TOML run for --seeds seeds (repeat for several)")
+    p.add_argument("--seeds", type=_seeds, default=3,
+                   help="seeds 0..N-1 of each --scenario (default 3)")
     p.add_argument("--map", type=Path, help="the Lanelet2 map (.osm): adds the lane-centre offset")
     p.add_argument("--out", type=Path, default=Path("realism"),
                    help="output folder: summary.csv, features.csv, realism.png (default ./realism)")
@@ -47,6 +73,21 @@ def _features(paths: list[Path], lmap):
     return TrackFeatures.combine([track_features(read_tracks(f), lmap) for p in paths for f in track_files(p)])
 
 
+def _simulated(label: str, scenario: Path, seeds: int, out: Path) -> list[Path]:
+    """The run folders of seeds ``0 .. seeds - 1`` of a SUMO scenario under ``out/runs/label``; a folder that holds a
+    finished recording (its ``run.json``) is kept, the others are simulated (libsumo, in this process)."""
+    from pirl_sim.scenarios.recording import INFO_FILE
+    from pirl_sim.scenarios.sumo.scenario import load_scenario, run_sumo_scenario
+
+    config = load_scenario(scenario)
+    dirs = [out / "runs" / label / f"seed_{s}" for s in range(seeds)]
+    for s, d in enumerate(dirs):
+        if not (d / INFO_FILE).is_file():
+            print(f"{label}: simulating seed {s} of {scenario}", flush=True)
+            run_sumo_scenario(config, s, out_dir=d)
+    return dirs
+
+
 def run(args) -> int:
     """``pirl-sim realism``: 0, or 2 for a bad input (a missing file, a repeated label, tracks without samples)."""
     import pandas as pd
@@ -56,16 +97,22 @@ def run(args) -> int:
     from pirl_sim.validation import check_output_dir
 
     try:
-        labels = [label for label, _ in args.source]
+        if not args.source and not args.scenario:
+            raise ValueError("nothing to score: give at least one --source LABEL=PATH,... or --scenario LABEL=TOML")
+        labels = [label for label, _ in [*args.source, *args.scenario]]
         repeated = sorted({x for x in labels if labels.count(x) > 1})
         if repeated:
-            raise ValueError(f"--source labels must differ; repeated: {repeated}")
-        for p in [*args.reference, *(q for _, ps in args.source for q in ps), *([args.map] if args.map else [])]:
+            raise ValueError(f"--source and --scenario labels must differ; repeated: {repeated}")
+        for p in [*args.reference, *(q for _, ps in args.source for q in ps), *(s for _, s in args.scenario),
+                  *([args.map] if args.map else [])]:
             if not p.exists():
                 raise ValueError(f"{str(p)!r}: no such file or folder")
         out, lmap = check_output_dir(args.out), load_map(args.map) if args.map is not None else None
         reference = _features(list(args.reference), lmap)
-        sources = {label: [_features([p], lmap) for p in paths] for label, paths in args.source}
+        rollouts = dict(args.source)
+        for label, scenario in args.scenario:
+            rollouts[label] = _simulated(label, scenario, args.seeds, out)
+        sources = {label: [_features([p], lmap) for p in paths] for label, paths in rollouts.items()}
         summary, features = compare_sources(reference, sources)
         summary.to_csv(out / "summary.csv", index=False)
         features.to_csv(out / "features.csv", index=False)

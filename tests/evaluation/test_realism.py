@@ -190,3 +190,39 @@ def test_figure_has_a_panel_per_feature(tmp_path):
     fig = realism_figure(a, {"a": [a]}, tmp_path / "r.png")
     assert sum(ax.get_visible() for ax in fig.axes) == len(a.values)
     assert (tmp_path / "r.png").is_file()
+
+
+def test_command_simulates_a_scenario_source_and_resumes(tmp_path, capsys):
+    """``--scenario LABEL=TOML`` runs a SUMO scenario for --seeds seeds under OUT/runs and scores them; a rerun keeps
+    the finished runs (nothing simulated again, the same scores)."""
+    pytest.importorskip("libsumo")
+    from pirl_sim.cli import main
+
+    ref = _write(_traffic(np.random.default_rng(5), 10, 8.0), tmp_path / "vehicle_tracks_000.csv")
+    scenario = tmp_path / "small.toml"
+    scenario.write_text("[population]\nn_vehicles = 4\ndepart_interval = 3.0\n")
+    out = tmp_path / "out"
+    argv = ["realism", "--reference", str(ref), "--scenario", f"small={scenario}", "--seeds", "2", "--out", str(out)]
+    assert main(argv) == 0
+    assert capsys.readouterr().out.count("small: simulating seed") == 2
+    runs = [out / "runs" / "small" / f"seed_{s}" / "run.json" for s in (0, 1)]
+    stamps = [r.stat().st_mtime_ns for r in runs]
+    summary = pd.read_csv(out / "summary.csv")
+    assert summary["source"].tolist() == ["small"] and summary["rollouts"].tolist() == [2]
+    assert main(argv) == 0
+    assert "simulating" not in capsys.readouterr().out
+    assert [r.stat().st_mtime_ns for r in runs] == stamps
+    pd.testing.assert_frame_equal(pd.read_csv(out / "summary.csv"), summary)
+
+    assert main(["realism", "--reference", str(ref), "--out", str(out)]) == 2
+    assert "nothing to score" in capsys.readouterr().err
+    assert main(["realism", "--reference", str(ref), "--source", f"small={ref}", "--scenario", f"small={scenario}",
+                 "--out", str(out)]) == 2
+    assert "repeated: ['small']" in capsys.readouterr().err
+    assert main(["realism", "--reference", str(ref), "--scenario", f"x={tmp_path / 'none.toml'}",
+                 "--out", str(out)]) == 2
+    assert "none.toml" in capsys.readouterr().err
+    for bad in (["--scenario", "x"], ["--scenario", f"x={scenario}", "--seeds", "0"]):
+        with pytest.raises(SystemExit):
+            main(["realism", "--reference", str(ref), *bad])
+        assert "expected" in capsys.readouterr().err
