@@ -194,7 +194,7 @@ def _route_lanelets(lmap, chains, edges, rid: str | None = None) -> tuple[int, .
     heads: list[int] = []
     for i in ids:
         if not heads or heads[-1] != head[i]:
-            heads.append(head[i])  # type: ignore[index]
+            heads.append(head[i])
     return tuple(lid for h in heads for lid in chains[h])
 
 
