@@ -6,7 +6,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import error, finish, subcommand, track_files
+from pirl_sim.validation import positive_int_arg
+
+from .common import error, finish, reworded, subcommand, track_files
 
 __all__ = ["add_parser", "run"]
 
@@ -29,15 +31,8 @@ def _scenario(text: str) -> tuple[str, Path]:
     return label, Path(path)
 
 
-def _seeds(text: str) -> int:
-    """argparse type of ``--seeds``: a count >= 1."""
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number of seeds >= 1, got {text!r}")
-    return n
+#: argparse type of ``--seeds``: a count >= 1
+_seeds = reworded(positive_int_arg, "expected a whole number of seeds >= 1, got {text!r}")
 
 
 @subcommand("realism", help="score simulated traffic against a recording: feature likelihoods and a meta-metric",
