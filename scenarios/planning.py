@@ -18,10 +18,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from pirl_sim.validation import number
+
 from .population_config import FEATURE_NAMES, PopulationConfig
 from .recording import BACKGROUND_STYLE, BACKGROUND_STYLE_NAME
 
-__all__ = ["PLAN_COLUMNS", "theta_columns", "check_seed", "random_streams", "route_id", "check_routes", "plan_population"]
+__all__ = ["PLAN_COLUMNS", "theta_columns", "check_seed", "random_streams", "route_id", "check_routes",
+           "check_route_weights", "plan_population"]
 
 #: columns of a plan, one row per vehicle in departure order (then ``theta_headway``, ``theta_yielding`` for drivers
 #: who interact)
@@ -64,6 +67,22 @@ def check_routes(label: str, chosen, catalogue: Sequence[str]) -> tuple[str, ...
     if unknown:
         raise ValueError(f"{label}: unknown route(s) {unknown}; routes: {', '.join(catalogue)}")
     return tuple(chosen)
+
+
+def check_route_weights(weights, catalogue: Sequence[str]) -> dict[str, float] | None:
+    """``weights`` (route id -> relative frequency, >= 0, some > 0) as a dict sorted by route id (None stays None:
+    every route equally often), or ``ValueError`` naming a route not in ``catalogue`` or a bad weight."""
+    if weights is None:
+        return None
+    if not isinstance(weights, Mapping) or not weights:
+        raise ValueError(f"route_weights must be a non-empty mapping route id -> weight, got {weights!r}")
+    unknown = sorted(set(weights) - set(catalogue))
+    if unknown:
+        raise ValueError(f"route_weights: unknown route(s) {unknown}; routes: {', '.join(catalogue)}")
+    out = {r: number(f"route_weights[{r!r}]", w, low=0.0) for r, w in sorted(weights.items())}
+    if not sum(out.values()) > 0:
+        raise ValueError(f"route_weights must give some route a weight > 0, got {weights!r}")
+    return out
 
 
 def plan_population(population: PopulationConfig, route_ids: Sequence[str], seed: int, *,

@@ -12,8 +12,10 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,7 +27,7 @@ from pirl_sim.validation import check_keys, int_at_least, number
 from .population_config import PopulationConfig, population_from_dict
 
 __all__ = ["Progress", "run_timing", "MpcDriverConfig", "config_table", "from_table", "scenario_from_table",
-           "load_toml"]
+           "load_toml", "resolve_lanelet_map", "check_lanelet_map"]
 
 #: ``progress(simulated time [s], vehicles finished, vehicles in all)``
 Progress = Callable[[float, int, int], None]
@@ -142,6 +144,21 @@ def scenario_from_table(cls, data: Any, source: str, population: PopulationConfi
         return cls(**kwargs)
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
+
+
+def resolve_lanelet_map(data: Mapping, path) -> dict:
+    """A scenario table read from the file ``path`` with a relative ``lanelet_map`` taken from the file's folder."""
+    where = data.get("lanelet_map")
+    if isinstance(where, str) and where and not Path(where).is_absolute():
+        return {**data, "lanelet_map": str(Path(path).parent / where)}
+    return dict(data)
+
+
+def check_lanelet_map(where) -> str:
+    """``where`` as the path string of a Lanelet2 map (``.osm``), or ``ValueError`` (the file is read later)."""
+    if not isinstance(where, (str, os.PathLike)) or not os.fspath(where):
+        raise ValueError(f"lanelet_map must be the path of a Lanelet2 map (.osm), got {where!r}")
+    return os.fspath(where)
 
 
 def load_toml(path) -> dict[str, Any]:

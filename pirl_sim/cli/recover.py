@@ -59,7 +59,7 @@ def run(args) -> int:
     def make_config():
         scenario: dict = {}
         if args.scenario is not None:  # a relative map as simulate reads it: beside the file
-            from pirl_sim.scenarios.sumo.scenario import resolve_lanelet_map
+            from pirl_sim.scenarios.scenario_config import resolve_lanelet_map
 
             scenario = resolve_lanelet_map(toml_text.load(args.scenario, "scenario config")[0], args.scenario)
         population = scenario.pop("population", {})

@@ -39,6 +39,7 @@ __all__ = [
     "lane_curvature",
     "lane_graph",
     "lane_name",
+    "ring_lanes",
 ]
 
 ARMS: tuple[str, ...] = ("s", "e", "n", "w")  #: highway-env's arm letters, in driving order round the ring
@@ -103,8 +104,10 @@ class RouteLanes:
     lanes : tuple of LaneIndex      ``(from, to, 0)`` in driving order
     lengths : numpy.ndarray         each lane's length [m] (highway-env's ``lane.length``: the chord for sine lanes)
     offsets : numpy.ndarray         route coordinate [m] of each lane's start (cumulative lengths)
-    entry_lane : int                position in ``lanes`` of the entry's S-bend (ends where the route joins the ring)
-    merge_node : str                the ring node where the route joins the ring (e.g. ``"se"``)
+    entry_lane : int                position in ``lanes`` of the entry's S-bend (ends where the route joins the ring);
+                                    -1: the route never enters the ring from an entry (a bypass)
+    merge_node : str                the ring node where the route joins the ring (e.g. ``"se"``; a bypass: its first
+                                    node)
     """
 
     route_id: str
@@ -158,6 +161,21 @@ def route_catalogue(network, *, u_turns: bool = False) -> dict[str, RouteLanes]:
                 arr.setflags(write=False)
             out[rid] = RouteLanes(rid, lanes, lengths, offs, entry, lanes[entry][1])
     return out
+
+
+def ring_lanes(network) -> frozenset[tuple[str, str]]:
+    """The lanes (from, to) of a road's roundabout ring: those on a cycle of the lane graph (on highway-env's
+    roundabout the lanes between its two-letter ring nodes; on a map's road its ring lanelets)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    lanes = [(a, b) for a, tos in network.graph.items() for b in tos]
+    nodes = sorted({n for lane in lanes for n in lane})
+    index = {n: k for k, n in enumerate(nodes)}
+    rows, cols = [index[a] for a, _ in lanes], [index[b] for _, b in lanes]
+    graph = coo_matrix((np.ones(len(lanes)), (rows, cols)), shape=(len(nodes), len(nodes)))
+    _, label = connected_components(graph, directed=True, connection="strong")
+    return frozenset((a, b) for a, b in lanes if a != b and label[index[a]] == label[index[b]])
 
 
 def _ring_path(network, entry: str, exit_: str) -> list[str]:

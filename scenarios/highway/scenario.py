@@ -27,11 +27,12 @@ from pirl_sim.validation import int_at_least, number
 
 from ..demonstrations import RecordedRun, recorded_demonstrations
 from ..drivers import RouteSet, RouteSetDriverModel, route_set_model
-from ..planning import check_routes, plan_population, random_streams, route_id
+from ..planning import check_route_weights, check_routes, plan_population, random_streams, route_id
 from ..population_config import DEFAULT_POPULATION, PopulationConfig
 from ..recording import INFO_FILE, RecordingFiles, ScenarioRecording, read_recording, write_recording
 from ..contract import ControllerWrapper, EgoSpec, run_scenario
-from ..scenario_config import Progress, config_table, from_table, load_toml, scenario_from_table
+from ..scenario_config import (Progress, check_lanelet_map, config_table, from_table, load_toml, resolve_lanelet_map,
+                               scenario_from_table)
 from .network import ARMS, LANE_WIDTH, RoundaboutGeometry, build_network, lane_graph, route_catalogue, route_set
 from .traffic import STEP_LENGTH, DriverConfig, RoundaboutTraffic, TrafficRules
 from .vehicles import EGO, PIRL
@@ -67,9 +68,13 @@ class HighwayScenarioConfig:
     population : PopulationConfig        default: the paper's three styles, 20 % background
     drivers : DriverConfig               the PIRL drivers' model and MPC
     rules : TrafficRules                 leaders, yielding, crash removal
-    pirl_routes, background_routes : tuple of str or None   routes (of `ROUTE_IDS`) PIRL / background vehicles
-                                         draw from, uniformly; None: all
+    pirl_routes, background_routes : tuple of str or None   routes (of `route_ids`) PIRL / background vehicles
+                                         draw from; None: all
     max_duration : float or None         longest simulated time [s], > 0; None: last departure + 300 s
+    lanelet_map : str or None            a Lanelet2 map (``.osm``) whose roundabout replaces highway-env's
+                                         (`~.lanelet_road.lanelet_road`; ``geometry`` must then stay the default)
+    route_weights : mapping route id -> float, or None   relative frequencies of the routes vehicles draw (a route
+                                         not named: 0); None: every route equally often
     """
 
     geometry: RoundaboutGeometry = field(default_factory=RoundaboutGeometry)
@@ -79,17 +84,35 @@ class HighwayScenarioConfig:
     pirl_routes: tuple[str, ...] | None = None
     background_routes: tuple[str, ...] | None = None
     max_duration: float | None = None
+    lanelet_map: str | None = None
+    route_weights: Mapping[str, float] | None = None
 
     def __post_init__(self) -> None:
         for name, cls in (("geometry", RoundaboutGeometry), ("population", PopulationConfig),
                           ("drivers", DriverConfig), ("rules", TrafficRules)):
             if not isinstance(getattr(self, name), cls):
                 raise ValueError(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
+        if self.lanelet_map is not None:
+            object.__setattr__(self, "lanelet_map", check_lanelet_map(self.lanelet_map))
+            if self.geometry != RoundaboutGeometry():
+                raise ValueError("geometry sets highway-env's own roundabout: with lanelet_map the map's roundabout "
+                                 f"is driven, leave geometry out (got {self.geometry})")
+        known = self.route_ids()
+        object.__setattr__(self, "route_weights", check_route_weights(self.route_weights, known))
         for name in ("pirl_routes", "background_routes"):
-            object.__setattr__(self, name, check_routes(name, getattr(self, name), ROUTE_IDS))
+            object.__setattr__(self, name, check_routes(name, getattr(self, name), known))
         if self.max_duration is not None:
             object.__setattr__(self, "max_duration", number("max_duration", self.max_duration, low=0.0,
                                                             allow_equal=False))
+
+    def route_ids(self) -> tuple[str, ...]:
+        """The route catalogue's ids in canonical order: `ROUTE_IDS`, or the map's routes (sorted; read from the map,
+        FileNotFoundError / ValueError as `~.lanelet_road.map_road` raises them)."""
+        if self.lanelet_map is None:
+            return ROUTE_IDS
+        from .lanelet_road import map_road
+
+        return tuple(map_road(self.lanelet_map).routes)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain (TOML/JSON-ready) form that :func:`scenario_from_dict` reads back."""
@@ -108,6 +131,10 @@ class HighwayScenarioConfig:
                 out[name] = list(getattr(self, name))
         if self.max_duration is not None:
             out["max_duration"] = self.max_duration
+        if self.lanelet_map is not None:
+            out["lanelet_map"] = self.lanelet_map
+        if self.route_weights is not None:
+            out["route_weights"] = dict(self.route_weights)
         return out
 
 
@@ -149,8 +176,9 @@ def scenario_from_dict(data: Mapping[str, Any], *, source: str = "scenario",
 
 
 def load_scenario(path, *, population: PopulationConfig | None = None) -> HighwayScenarioConfig:
-    """Read a scenario TOML file (see :func:`scenario_from_dict`)."""
-    return scenario_from_dict(load_toml(path), source=str(path), population=population)
+    """Read a scenario TOML file (see :func:`scenario_from_dict`; a relative ``lanelet_map`` is taken from the
+    file's folder)."""
+    return scenario_from_dict(resolve_lanelet_map(load_toml(path), path), source=str(path), population=population)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -193,22 +221,36 @@ class HighwayScenarioResult:
 #: [m] the ego starts at least this far before its route's end
 EGO_END_MARGIN = 10.0
 
-#: build_routes' results kept with ``cache=True``, by (geometry, smoothing [m], speed smoothing [m])
+#: build_routes' results kept with ``cache=True``, by (geometry, map, smoothing [m], speed smoothing [m])
 _ROUTES: dict[tuple, tuple] = {}
 
 
 def build_routes(config: HighwayScenarioConfig, *, cache: bool = False):
-    """(network, route catalogue, RouteSet) of a configuration; with ``cache``, built once per process for
-    equal geometry and path smoothing (shared: nothing may change them)."""
-    key = (config.geometry, config.drivers.smoothing, config.drivers.speed_smoothing)
+    """(network, route catalogue, RouteSet) of a configuration; with ``cache``, built once per process
+    for equal geometry, map and path smoothing (shared: nothing may change them).
+
+    On a Lanelet2 map (``config.lanelet_map``) the reference paths follow the map's lanelet centre lines as the SUMO
+    scenario's and the replay's do (`~pirl_sim.scenarios.sumo.lanelet_network.lanelet_route_set`).
+    """
+    key = (config.geometry, config.lanelet_map, config.drivers.smoothing, config.drivers.speed_smoothing)
     if cache and key in _ROUTES:
         return _ROUTES[key]
-    net = build_network(config.geometry)
-    catalogue = route_catalogue(net)
-    if tuple(catalogue) != ROUTE_IDS:  # pragma: no cover - guards the constant against the network
-        raise AssertionError(f"route catalogue {tuple(catalogue)} differs from ROUTE_IDS")
-    routes = route_set(net, catalogue, smoothing=config.drivers.smoothing,
-                       speed_smoothing=config.drivers.speed_smoothing)
+    if config.lanelet_map is None:
+        net = build_network(config.geometry)
+        catalogue = route_catalogue(net)
+        if tuple(catalogue) != ROUTE_IDS:  # pragma: no cover - guards the constant against the network
+            raise AssertionError(f"route catalogue {tuple(catalogue)} differs from ROUTE_IDS")
+        routes = route_set(net, catalogue, smoothing=config.drivers.smoothing,
+                           speed_smoothing=config.drivers.speed_smoothing)
+    else:
+        from ..sumo.lanelet_network import edge_id, lanelet_route_set
+        from .lanelet_road import map_road
+
+        road = map_road(config.lanelet_map)
+        net, catalogue = road.network, road.routes
+        routes = lanelet_route_set(config.lanelet_map, {rid: [edge_id(lid) for lid in ids]
+                                                        for rid, ids in road.lanelets.items()},
+                                   smoothing=config.drivers.smoothing, speed_smoothing=config.drivers.speed_smoothing)
     if cache:
         _ROUTES[key] = (net, catalogue, routes)
     return net, catalogue, routes
@@ -235,8 +277,8 @@ class HighwayAdapter:
     config_type = HighwayScenarioConfig
 
     def plan(self, config: HighwayScenarioConfig, seed: int) -> pd.DataFrame:
-        return plan_population(config.population, ROUTE_IDS, seed, pirl_routes=config.pirl_routes,
-                               background_routes=config.background_routes)
+        return plan_population(config.population, config.route_ids(), seed, pirl_routes=config.pirl_routes,
+                               background_routes=config.background_routes, route_weights=config.route_weights)
 
     def start(self, config: HighwayScenarioConfig, seed: int, plan: pd.DataFrame, *, ego: EgoSpec | None = None,
               wrap_controller: ControllerWrapper | None = None, cache_network: bool = False,
@@ -263,7 +305,7 @@ class HighwayAdapter:
     def info(self, config: HighwayScenarioConfig) -> tuple[dict, dict]:
         import highway_env
 
-        return {"highway_env_version": highway_env.__version__}, {"routes": list(ROUTE_IDS)}
+        return {"highway_env_version": highway_env.__version__}, {"routes": list(config.route_ids())}
 
     def write(self, sim: _HighwaySimulation, recording: ScenarioRecording, out_dir, config) -> RecordingFiles:
         return write_recording(recording, out_dir, lane_width=LANE_WIDTH)

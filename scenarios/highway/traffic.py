@@ -41,7 +41,7 @@ from ..recording import (
 )
 from ..scenario_config import MpcDriverConfig
 from ..drivers import PirlDrivers, RouteSet, RouteSetProfile, route_set_model
-from .network import RouteLanes
+from .network import RouteLanes, ring_lanes
 from .vehicles import (
     BACKGROUND,
     EGO,
@@ -255,6 +255,7 @@ class RoundaboutTraffic(Road):
             raise TypeError("drivers must be a DriverConfig and rules a TrafficRules")
         self.routes = dict(routes)
         self.route_set = route_set
+        self.ring = ring_lanes(network)  # lanes (from, to) on the roundabout's ring
         unknown = sorted(set(plan["route_id"]) - set(self.routes))
         if unknown:
             raise ValueError(f"planned routes {unknown} are not in the catalogue {sorted(self.routes)}")
@@ -299,12 +300,9 @@ class RoundaboutTraffic(Road):
     def _upstream_ring_lanes(self) -> dict[str, dict[tuple[str, str], float]]:
         """merge node -> {ring lane (from, to): distance [m] from the lane's start to the node}, walking
         back round the ring up to ``yield_lookback`` (plus one lane)."""
-        graph = self.network.graph
         pred: dict[str, str] = {}
-        for a, tos in graph.items():
-            for b in tos:
-                if len(a) == 2 and len(b) == 2:  # ring lane
-                    pred[b] = a
+        for a, b in sorted(self.ring):
+            pred[b] = a
         out: dict[str, dict[tuple[str, str], float]] = {}
         for route in self.routes.values():
             node = route.merge_node
@@ -322,7 +320,7 @@ class RoundaboutTraffic(Road):
 
     def _ring_lanes_after(self) -> dict[str, tuple[str, str]]:
         """ring node -> the ring lane (from, to) that leaves it (where a diverging vehicle's body still sweeps)."""
-        return {a: (a, b) for a, tos in self.network.graph.items() for b in tos if len(a) == 2 and len(b) == 2}
+        return {a: (a, b) for a, b in sorted(self.ring)}
 
     def _stop_offsets(self) -> dict[str, float]:
         """merge node -> distance [m] before the node where a waiting vehicle's front bumper stops.
@@ -340,10 +338,9 @@ class RoundaboutTraffic(Road):
             if node in out:
                 continue
             entry = self.network.get_lane(route.lanes[route.entry_lane])
-            ring = [self.network.get_lane((a, b, 0)) for a, tos in self.network.graph.items() for b in tos
-                    if len(a) == 2 and len(b) == 2 and node in (a, b)]
+            ring = [self.network.get_lane((a, b, 0)) for a, b in sorted(self.ring) if node in (a, b)]
             x = 0.0
-            while x < entry.length - length:
+            while ring and x < entry.length - length:
                 sc = entry.length - x - 0.5 * length
                 c, h = entry.position(sc, 0.0), entry.heading_at(sc)
                 d = np.array([math.cos(h), math.sin(h)])
@@ -512,7 +509,7 @@ class RoundaboutTraffic(Road):
         for m in range(k, len(route.lanes) - 1):  # a diverge ahead: ring vehicles just past its node are in the way
             a, b = route.lanes[m][:2]
             after = self._ring_after.get(b)
-            if len(a) != 2 or len(b) != 2 or after is None or after == route.lanes[m + 1][:2]:
+            if (a, b) not in self.ring or after is None or after == route.lanes[m + 1][:2]:
                 continue
             for s_lane, o in on_lane.get(after, ()):
                 if o is v or s_lane - 0.5 * o.LENGTH > v.LENGTH:  # type: ignore[attr-defined]

@@ -30,7 +30,7 @@ from pirl_sim.validation import number
 
 from ..demonstrations import RecordedRun, recorded_demonstrations
 from ..drivers import PirlDrivers, RouteSet, RouteSetDriverModel, route_set_model
-from ..planning import check_routes, plan_population, random_streams, theta_columns
+from ..planning import check_route_weights, check_routes, plan_population, random_streams, theta_columns
 from ..population_config import DEFAULT_POPULATION, PopulationConfig
 from ..recording import (
     BACKGROUND_STYLE,
@@ -43,7 +43,8 @@ from ..recording import (
     write_recording,
 )
 from ..contract import STEP, ControllerWrapper, EgoSpec, ground_truth_table, run_scenario
-from ..scenario_config import MpcDriverConfig, Progress, from_table, load_toml, scenario_from_table
+from ..scenario_config import (MpcDriverConfig, Progress, check_lanelet_map, from_table, load_toml,
+                               resolve_lanelet_map, scenario_from_table)
 from .network import NetworkFiles, RoundaboutSpec, build_network, lane_graph, load_net, route_set, \
     routes as network_routes, validate_route
 from .lanelet_network import lanelet_route_set, map_routes, network_from_lanelet2
@@ -59,7 +60,6 @@ __all__ = [
     "SumoScenarioResult",
     "scenario_from_dict",
     "load_scenario",
-    "resolve_lanelet_map",
     "plan_vehicles",
     "vehicle_types_xml",
     "run_sumo_scenario",
@@ -162,26 +162,14 @@ class SumoScenarioConfig:
                 cat[rid] = tuple(edges)
             object.__setattr__(self, "routes", dict(sorted(cat.items())))  # canonical order (draws use it)
         if self.lanelet_map is not None:
-            if not isinstance(self.lanelet_map, (str, os.PathLike)) or not os.fspath(self.lanelet_map):
-                raise ValueError(f"lanelet_map must be the path of a Lanelet2 map (.osm), got {self.lanelet_map!r}")
-            object.__setattr__(self, "lanelet_map", os.fspath(self.lanelet_map))
+            object.__setattr__(self, "lanelet_map", check_lanelet_map(self.lanelet_map))
             if self.demand_per_arm is not None:
                 raise ValueError("demand_per_arm sets the demand of the parametric ring's arms: with lanelet_map, "
                                  "set population.depart_interval (and route_weights) instead")
             if self.routes is None:
                 object.__setattr__(self, "routes", dict(map_routes(self.lanelet_map)))
         known = list(self.route_catalogue())
-        if self.route_weights is not None:
-            if not isinstance(self.route_weights, Mapping) or not self.route_weights:
-                raise ValueError(f"route_weights must be a non-empty mapping route id -> weight, got "
-                                 f"{self.route_weights!r}")
-            unknown = sorted(set(self.route_weights) - set(known))
-            if unknown:
-                raise ValueError(f"route_weights: unknown route(s) {unknown}; routes: {', '.join(known)}")
-            weights = {r: number(f"route_weights[{r!r}]", w, low=0.0) for r, w in sorted(self.route_weights.items())}
-            if not sum(weights.values()) > 0:
-                raise ValueError(f"route_weights must give some route a weight > 0, got {self.route_weights!r}")
-            object.__setattr__(self, "route_weights", weights)
+        object.__setattr__(self, "route_weights", check_route_weights(self.route_weights, known))
         for name in ("pirl_routes", "background_routes"):
             object.__setattr__(self, name, check_routes(name, getattr(self, name), known))
         sm = self.speed_mode
@@ -255,14 +243,6 @@ def load_scenario(path, *, population: PopulationConfig | None = None) -> SumoSc
     """Read a scenario TOML file (see :func:`scenario_from_dict`; a relative ``lanelet_map`` is taken from the
     file's folder)."""
     return scenario_from_dict(resolve_lanelet_map(load_toml(path), path), source=str(path), population=population)
-
-
-def resolve_lanelet_map(data: Mapping, path) -> dict:
-    """A scenario table read from the file ``path`` with a relative ``lanelet_map`` taken from the file's folder."""
-    where = data.get("lanelet_map")
-    if isinstance(where, str) and where and not Path(where).is_absolute():
-        return {**data, "lanelet_map": str(Path(path).parent / where)}
-    return dict(data)
 
 
 # ----------------------------------------------------------------------------------------------
