@@ -23,11 +23,12 @@ def _source(text: str) -> tuple[str, list[Path]]:
 
 
 def _scenario(text: str) -> tuple[str, Path]:
-    """argparse type of ``--scenario``: ``LABEL=TOML``, a SUMO scenario simulated for ``--seeds`` seeds."""
+    """argparse type of ``--scenario`` and ``--highway-scenario``: ``LABEL=TOML``, a scenario simulated for
+    ``--seeds`` seeds."""
     label, sep, path = text.partition("=")
     label, path = label.strip(), path.strip()
     if not sep or not label or not path or "," in path:
-        raise argparse.ArgumentTypeError(f"expected LABEL=SCENARIO.toml (one SUMO scenario), got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected LABEL=SCENARIO.toml (one scenario), got {text!r}")
     return label, Path(path)
 
 
@@ -43,7 +44,8 @@ _seeds = reworded(positive_int_arg, "expected a whole number of seeds >= 1, got 
             "each PATH one rollout (a track file, or a folder whose track files make one rollout); the meta-metric "
             "is given per source as the mean over its rollouts with a 95 %% interval. Give the recording's other "
             "files as a source for the real-against-real reference row. A --scenario LABEL=TOML source is a SUMO "
-            "scenario (e.g. from pirl-sim calibrate) run here for --seeds seeds into OUT/runs/LABEL/seed_S; a run "
+            "scenario (e.g. from pirl-sim calibrate) run here for --seeds seeds into OUT/runs/LABEL/seed_S, a "
+            "--highway-scenario LABEL=TOML source the same on highway-env (the same file runs in both); a run "
             "finished earlier is kept, so an interrupted command resumes where it stopped.")
 def add_parser(p) -> None:
     """The options of ``realism``."""
@@ -53,8 +55,11 @@ def add_parser(p) -> None:
                    help="a simulated source and its rollouts (repeat for several sources)")
     p.add_argument("--scenario", type=_scenario, action="append", default=[], metavar="LABEL=TOML",
                    help="a source simulated here: a SUMO scenario TOML run for --seeds seeds (repeat for several)")
+    p.add_argument("--highway-scenario", type=_scenario, action="append", default=[], metavar="LABEL=TOML",
+                   help="a source simulated here on highway-env: a scenario TOML run for --seeds seeds (repeat "
+                        "for several)")
     p.add_argument("--seeds", type=_seeds, default=3,
-                   help="seeds 0..N-1 of each --scenario (default 3)")
+                   help="seeds 0..N-1 of each --scenario and --highway-scenario (default 3)")
     p.add_argument("--map", type=Path, help="the Lanelet2 map (.osm): adds the lane-centre offset")
     p.add_argument("--out", type=Path, default=Path("realism"),
                    help="output folder: summary.csv, features.csv, realism.png (default ./realism)")
@@ -68,18 +73,23 @@ def _features(paths: list[Path], lmap):
     return TrackFeatures.combine([track_features(read_tracks(f), lmap) for p in paths for f in track_files(p)])
 
 
-def _simulated(label: str, scenario: Path, seeds: int, out: Path) -> list[Path]:
-    """The run folders of seeds ``0 .. seeds - 1`` of a SUMO scenario under ``out/runs/label``; a folder that holds a
-    finished recording (its ``run.json``) is kept, the others are simulated (libsumo, in this process)."""
+def _simulated(label: str, scenario: Path, seeds: int, out: Path, simulator: str) -> list[Path]:
+    """The run folders of seeds ``0 .. seeds - 1`` of a scenario under ``out/runs/label``; a folder that holds a
+    finished recording (its ``run.json``) is kept, the others are simulated in this process (``simulator``
+    ``"sumo"``: libsumo, ``"highway"``: highway-env)."""
     from pirl_sim.scenarios.recording import INFO_FILE
-    from pirl_sim.scenarios.sumo.scenario import load_scenario, run_sumo_scenario
+
+    if simulator == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import load_scenario, run_sumo_scenario as simulate
+    else:
+        from pirl_sim.scenarios.highway.scenario import load_scenario, run_highway_scenario as simulate  # type: ignore[assignment]
 
     config = load_scenario(scenario)
     dirs = [out / "runs" / label / f"seed_{s}" for s in range(seeds)]
     for s, d in enumerate(dirs):
         if not (d / INFO_FILE).is_file():
             print(f"{label}: simulating seed {s} of {scenario}", flush=True)
-            run_sumo_scenario(config, s, out_dir=d)
+            simulate(config, s, out_dir=d)  # type: ignore[arg-type]
     return dirs
 
 
@@ -92,21 +102,22 @@ def run(args) -> int:
     from pirl_sim.validation import check_output_dir
 
     try:
-        if not args.source and not args.scenario:
+        scenarios = [(*x, "sumo") for x in args.scenario] + [(*x, "highway") for x in args.highway_scenario]
+        if not args.source and not scenarios:
             raise ValueError("nothing to score: give at least one --source LABEL=PATH,... or --scenario LABEL=TOML")
-        labels = [label for label, _ in [*args.source, *args.scenario]]
+        labels = [label for label, *_ in [*args.source, *scenarios]]
         repeated = sorted({x for x in labels if labels.count(x) > 1})
         if repeated:
             raise ValueError(f"--source and --scenario labels must differ; repeated: {repeated}")
-        for p in [*args.reference, *(q for _, ps in args.source for q in ps), *(s for _, s in args.scenario),
+        for p in [*args.reference, *(q for _, ps in args.source for q in ps), *(s for _, s, _ in scenarios),
                   *([args.map] if args.map else [])]:
             if not p.exists():
                 raise ValueError(f"{str(p)!r}: no such file or folder")
         out, lmap = check_output_dir(args.out), load_map(args.map) if args.map is not None else None
         reference = _features(list(args.reference), lmap)
         rollouts = dict(args.source)
-        for label, scenario in args.scenario:
-            rollouts[label] = _simulated(label, scenario, args.seeds, out)
+        for label, scenario, simulator in scenarios:
+            rollouts[label] = _simulated(label, scenario, args.seeds, out, simulator)
         sources = {label: [_features([p], lmap) for p in paths] for label, paths in rollouts.items()}
         summary, features = compare_sources(reference, sources)
         summary.to_csv(out / "summary.csv", index=False)

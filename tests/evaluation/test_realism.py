@@ -3,6 +3,7 @@ drawn like the reference above a shifted one, the command and its bad inputs."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -193,22 +194,26 @@ def test_figure_has_a_panel_per_feature(tmp_path):
 
 
 def test_command_simulates_a_scenario_source_and_resumes(tmp_path, capsys):
-    """``--scenario LABEL=TOML`` runs a SUMO scenario for --seeds seeds under OUT/runs and scores them; a rerun keeps
-    the finished runs (nothing simulated again, the same scores)."""
+    """``--scenario LABEL=TOML`` runs a SUMO scenario, ``--highway-scenario`` the same file on highway-env, for --seeds
+    seeds under OUT/runs and scores them; a rerun keeps the finished runs (nothing simulated again, the same scores)."""
     pytest.importorskip("libsumo")
+    pytest.importorskip("highway_env")
     from pirl_sim.cli import main
 
     ref = _write(_traffic(np.random.default_rng(5), 10, 8.0), tmp_path / "vehicle_tracks_000.csv")
     scenario = tmp_path / "small.toml"
     scenario.write_text("[population]\nn_vehicles = 4\ndepart_interval = 3.0\n")
     out = tmp_path / "out"
-    argv = ["realism", "--reference", str(ref), "--scenario", f"small={scenario}", "--seeds", "2", "--out", str(out)]
+    argv = ["realism", "--reference", str(ref), "--scenario", f"small={scenario}", "--highway-scenario",
+            f"small-hw={scenario}", "--seeds", "2", "--out", str(out)]
     assert main(argv) == 0
-    assert capsys.readouterr().out.count("small: simulating seed") == 2
-    runs = [out / "runs" / "small" / f"seed_{s}" / "run.json" for s in (0, 1)]
+    printed = capsys.readouterr().out
+    assert printed.count("small: simulating seed") == 2 and printed.count("small-hw: simulating seed") == 2
+    runs = [out / "runs" / label / f"seed_{s}" / "run.json" for label in ("small", "small-hw") for s in (0, 1)]
+    assert [json.loads(r.read_text())["simulator"] for r in runs] == ["sumo"] * 2 + ["highway-env"] * 2
     stamps = [r.stat().st_mtime_ns for r in runs]
     summary = pd.read_csv(out / "summary.csv")
-    assert summary["source"].tolist() == ["small"] and summary["rollouts"].tolist() == [2]
+    assert summary["source"].tolist() == ["small", "small-hw"] and summary["rollouts"].tolist() == [2, 2]
     assert main(argv) == 0
     assert "simulating" not in capsys.readouterr().out
     assert [r.stat().st_mtime_ns for r in runs] == stamps
@@ -222,7 +227,7 @@ def test_command_simulates_a_scenario_source_and_resumes(tmp_path, capsys):
     assert main(["realism", "--reference", str(ref), "--scenario", f"x={tmp_path / 'none.toml'}",
                  "--out", str(out)]) == 2
     assert "none.toml" in capsys.readouterr().err
-    for bad in (["--scenario", "x"], ["--scenario", f"x={scenario}", "--seeds", "0"]):
+    for bad in (["--scenario", "x"], ["--highway-scenario", "x"], ["--scenario", f"x={scenario}", "--seeds", "0"]):
         with pytest.raises(SystemExit):
             main(["realism", "--reference", str(ref), *bad])
         assert "expected" in capsys.readouterr().err
