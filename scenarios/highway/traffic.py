@@ -41,6 +41,7 @@ from ..recording import (
 )
 from ..scenario_config import MpcDriverConfig
 from ..drivers import PirlDrivers, RouteSet, RouteSetProfile, route_set_model
+from .crossings import lane_conflicts, route_conflicts
 from .network import RouteLanes, ring_lanes
 from .vehicles import (
     BACKGROUND,
@@ -291,6 +292,12 @@ class RoundaboutTraffic(Road):
         self._upstream = self._upstream_ring_lanes()
         self._stop_offset = self._stop_offsets()
         self._ring_after = self._ring_lanes_after()
+        #: crossings and merges away from the ring's merges (`~.crossings.lane_conflicts`; none on highway-env's own)
+        self.conflicts = lane_conflicts(network, self.routes, self.ring)
+        self._conflicts_ahead = route_conflicts(self.routes, self.conflicts)
+        self._conflict_at = {rid: {c: (s, side, rank) for s, c, side, rank in rows}
+                             for rid, rows in self._conflicts_ahead.items()}
+        self._accepted: set[tuple[str, int]] = set()  # (vehicle id, conflict) of gaps taken against a higher rank
         self._vdes_cache: dict[tuple[str, float], float] = {}
         #: called as ``callback(traffic)`` at the end of every :meth:`step` (after removal, recording, insertion)
         self.step_callbacks: list = []
@@ -322,35 +329,41 @@ class RoundaboutTraffic(Road):
         """ring node -> the ring lane (from, to) that leaves it (where a diverging vehicle's body still sweeps)."""
         return {a: (a, b) for a, b in sorted(self.ring)}
 
-    def _stop_offsets(self) -> dict[str, float]:
-        """merge node -> distance [m] before the node where a waiting vehicle's front bumper stops.
+    def _stop_offsets(self) -> dict[tuple[str, str], float]:
+        """entry lane (from, to) -> distance [m] before its merge node where a waiting vehicle's front bumper stops.
 
         Entries meet the ring at an angle (66 degrees here), so a vehicle whose front is at the node blocks
-        the ring. The stop position is the nearest one (0.25 m steps along the entry lane) at which every
-        corner of a vehicle box on the lane centre is at least ``WIDTH / 2 + stop_clearance`` from the ring
-        lanes' centre line next to the node.
+        the ring. The stop position is the nearest one (0.25 m steps back along the route, across lanes where an
+        entry lane is short) at which every corner of a vehicle box on the lane centre is at least
+        ``WIDTH / 2 + stop_clearance`` from the ring lanes' centre line next to the node.
         """
-        out: dict[str, float] = {}
+        out: dict[tuple[str, str], float] = {}
         length, width = IDMVehicle.LENGTH, IDMVehicle.WIDTH
         need = 0.5 * width + self.rules.stop_clearance
         for route in self.routes.values():
-            node = route.merge_node
-            if node in out:
+            key = route.lanes[route.entry_lane][:2]
+            if key in out:
                 continue
-            entry = self.network.get_lane(route.lanes[route.entry_lane])
+            node = route.merge_node
             ring = [self.network.get_lane((a, b, 0)) for a, b in sorted(self.ring) if node in (a, b)]
             x = 0.0
-            while ring and x < entry.length - length:
-                sc = entry.length - x - 0.5 * length
-                c, h = entry.position(sc, 0.0), entry.heading_at(sc)
+            while ring and x < route.merge_s - length:
+                u = route.merge_s - x - 0.5 * length
+                k = int(np.searchsorted(route.offsets, u, side="right") - 1)
+                lane = self.network.get_lane(route.lanes[k])
+                c, h = lane.position(u - route.offsets[k], 0.0), lane.heading_at(u - route.offsets[k])
                 d = np.array([math.cos(h), math.sin(h)])
                 n = np.array([-d[1], d[0]])
                 corners = [c + a * 0.5 * length * d + b * 0.5 * width * n for a in (-1, 1) for b in (-1, 1)]
-                if min(abs(lane.local_coordinates(p)[1]) for lane in ring for p in corners) >= need:
+                if min(r.distance(p) for r in ring for p in corners) >= need:
                     break
                 x += 0.25
-            out[node] = x
+            out[key] = x
         return out
+
+    def _stop_offset_of(self, route: RouteLanes) -> float:
+        """[m] `_stop_offsets` of the route's entry lane."""
+        return self._stop_offset[route.lanes[route.entry_lane][:2]]
 
     def v_des(self, vehicle: RouteFollowing) -> float:
         """The desired speed [m/s] of the vehicle's route at its route coordinate."""
@@ -560,7 +573,7 @@ class RoundaboutTraffic(Road):
             if d_o < rules.yield_min_distance or d_o / max(o.speed, 0.1) < t_clear + headway:
                 conflict = True
                 break
-        stop_gap = d - 0.5 * v.LENGTH - self._stop_offset[node] - rules.stop_margin  # type: ignore[attr-defined]
+        stop_gap = d - 0.5 * v.LENGTH - self._stop_offset_of(v.route_lanes) - rules.stop_margin  # type: ignore[attr-defined]
         if stop_gap > 0.0:
             can_stop = v.speed ** 2 / (2.0 * stop_gap) <= rules.max_deceleration
         else:
@@ -569,6 +582,75 @@ class RoundaboutTraffic(Road):
             v.committed = True  # cannot stop before the node any more: go
             return False
         return conflict
+
+    def _conflict_gap(self, v: RouteFollowing, others: list, headway: float) -> float | None:
+        """[m] from ``v``'s front bumper to where it stops for a vehicle that goes first at a crossing or merge
+        ahead (`~.crossings`), None when it need not stop.
+
+        A vehicle on the other lane goes first when it is in the conflict zone (within half its length and the
+        clearance of the point, or past it and not yet clear; when both are, the one nearer the point), when it is
+        moving and its front cannot stop before the point any more, or when it has the right of way: at equal rank the
+        one that arrives first (then the smaller vehicle id); against a lower rank the higher one (traffic
+        leaving the ring), unless the lower-ranked vehicle accepted the gap: it arrives later than it clears the
+        point plus ``headway`` [s], which it decides once and keeps. ``v`` goes on when it is past the point or its
+        front cannot stop before it.
+        """
+        rows = self._conflicts_ahead.get(v.route_lanes.route_id)
+        if not rows:
+            return None
+        rules = self.rules
+        best = None
+        for s_c, c, side, rank in rows:
+            d = s_c - v.route_s
+            if d > rules.yield_distance:
+                break  # rows are in route order: the rest are farther
+            clear = self._clearance(c)
+            if d < 0.0 or not self._can_stop(v.speed, d - 0.5 * v.LENGTH):  # type: ignore[attr-defined]
+                continue  # it goes on
+            t_v, zone_v = d / max(v.speed, 0.1), 0.5 * v.LENGTH + clear  # type: ignore[attr-defined]
+            t_clear = _time_to_cover(d + 0.5 * v.LENGTH + clear, v.speed, rules.entry_acceleration)  # type: ignore[attr-defined]
+            for o in others:
+                if o is v or not isinstance(o, RouteFollowing):
+                    continue
+                at = self._conflict_at[o.route_lanes.route_id].get(c)
+                if at is None or at[1] == side:
+                    continue
+                d_o, rank_o = at[0] - o.route_s, at[2]
+                zone_o = 0.5 * o.LENGTH + clear  # type: ignore[attr-defined]
+                if d_o < -zone_o or d_o > rules.yield_lookback:
+                    continue  # clear of the point, or far off
+                t_o = d_o / max(o.speed, 0.1)
+                if d_o < zone_o:  # in the zone: in the way, unless v is nearer the point in the zone too
+                    first = d >= zone_v or (d_o, o.vehicle_id) < (d, v.vehicle_id)
+                elif not self._can_stop(o.speed, d_o - 0.5 * o.LENGTH):  # type: ignore[attr-defined]
+                    first = True
+                elif rank_o == rank:
+                    first = (o.vehicle_id, c) in self._accepted or (t_o, o.vehicle_id) < (t_v, v.vehicle_id)
+                elif rank_o > rank:
+                    first = (v.vehicle_id, c) not in self._accepted and t_o < t_clear + headway
+                    if not first:
+                        self._accepted.add((v.vehicle_id, c))  # the gap is taken: the other vehicle lets it go
+                else:
+                    first = (o.vehicle_id, c) in self._accepted
+                if first:
+                    gap = d - 0.5 * v.LENGTH - clear  # type: ignore[attr-defined]
+                    best = gap if best is None else min(best, gap)
+                    break
+        return best
+
+    def _can_stop(self, speed: float, gap: float) -> bool:
+        """Whether a vehicle at ``speed`` [m/s] can stop within ``gap`` [m] braking at most ``max_deceleration``
+        (a standing vehicle always can)."""
+        if speed < _STANDSTILL:
+            return True
+        return gap > 0.0 and speed * speed / (2.0 * gap) <= self.rules.max_deceleration
+
+    def _clearance(self, c: int) -> float:
+        """[m] how far before conflict ``c``'s point a vehicle's front stops: a vehicle width and the stop clearance
+        between the two lanes' centre lines at the conflict's angle, at most two vehicle lengths."""
+        angle = math.radians(max(self.conflicts[c].angle, 1.0))
+        need = IDMVehicle.WIDTH + self.rules.stop_clearance
+        return min(need / math.sin(min(angle, 0.5 * math.pi)), 2.0 * IDMVehicle.LENGTH)
 
     def _limit(self, v: RouteFollowing, others: list, occupancy: _Occupancy, *, free_v0: float | None,
                delta: float, safety: bool = False) -> float:
@@ -582,7 +664,10 @@ class RoundaboutTraffic(Road):
         if v.committed and v.entering and v not in occupancy.merging:  # committed just now
             occupancy.merging.append(v)
         stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
-                    - self._stop_offset[v.route_lanes.merge_node]) if v.yielding else None
+                    - self._stop_offset_of(v.route_lanes)) if v.yielding else None
+        crossing = self._conflict_gap(v, others, rules.safety_yield_headway if safety else rules.yield_headway)
+        if crossing is not None:
+            stop_gap = crossing if stop_gap is None else min(stop_gap, crossing)
         if safety:
             a = math.inf
             T = rules.safety_time_gap
