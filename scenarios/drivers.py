@@ -253,10 +253,15 @@ class PirlDrivers:
         return [*obstacle(gap[rows], v_lead[rows], speed), *obstacle(g_y, np.zeros(len(rows)), speed)]
 
     def _project(self, route: np.ndarray, xy: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        """`RouteSet.project` (compiled where the kernel is)."""
-        if self._compiled is not None:
-            return self._compiled.project(route, xy, guess)
-        return self.model.routes.project(route, xy, guess)  # type: ignore[union-attr]
+        """`RouteSet.project` (compiled where the kernel is); from the nearest points of the paths when the warm
+        starts ``guess`` do not converge (a vehicle that moved far from its last arc length)."""
+        project = self._compiled.project if self._compiled is not None else self.model.routes.project  # type: ignore
+        try:
+            return project(route, xy, guess)
+        except ValueError:
+            if not np.isfinite(guess).any():
+                raise
+            return project(route, xy, np.full(len(guess), np.nan))
 
     def _conflicts(self) -> ConflictTable:
         if self._table is None:
@@ -281,7 +286,9 @@ class PirlDrivers:
         if len(known):
             guess = np.array([self._s_seen.get(frame.ids[k], np.nan) for k in known])
             s[known] = self._project(route[known], frame.xy[known], guess)
-            self._s_seen = {frame.ids[k]: float(v) for k, v in zip(known, s[known])}
+        # every vehicle's arc length, the planned ones' too: one that stops being planned warm-starts from it, not
+        # from the nearest point of its path, which is ambiguous where a route crosses itself
+        self._s_seen = {frame.ids[k]: float(s[k]) for k in np.flatnonzero(np.isfinite(s))}
         return route, s
 
     def _plan(self, time: float, observations: Mapping, *, prune: bool, frame=None) -> dict[str, float | None]:
@@ -307,7 +314,8 @@ class PirlDrivers:
             self._handed_back[r_rows] = False
             self._plans[r_rows] = 0.0
             self._command[r_rows] = math.nan
-            self._s_next[r_rows] = math.nan
+            # _s_next stays where the vehicle stopped: the warm start of its projection, not the nearest point of its
+            # path, which is ambiguous where a route crosses itself (`_project` falls back on that)
         if stopped.any():
             self._handed_back[rows[stopped]] = True
             for k in np.flatnonzero(stopped):
