@@ -27,6 +27,8 @@ import numpy as np
 
 from pirl_sim.extras import install_hint
 
+from pirl_sim.joints import joined_ends, joint_members
+
 from .atomic import atomic_write_text
 
 __all__ = [
@@ -662,15 +664,6 @@ def write_map(
     half = 0.5 * lane_width
 
     # joints: union of lane ends and the starts of their successors
-    parent: dict[tuple[str, str], tuple[str, str]] = {}
-
-    def find(key):
-        parent.setdefault(key, key)
-        while parent[key] != key:
-            parent[key] = parent[parent[key]]
-            key = parent[key]
-        return key
-
     for a, b in links:
         gap = float(np.hypot(*(lines[a][-1] - lines[b][0])))
         if gap > JOINT_TOLERANCE:
@@ -678,10 +671,8 @@ def write_map(
                 f"lane {a!r} ends {gap:.3f} m from the start of its successor {b!r}; "
                 f"they must meet within {JOINT_TOLERANCE} m"
             )
-        parent[find(("end", a))] = find(("start", b))
-    members: dict[tuple[str, str], list[tuple[str, str]]] = {}
-    for key in list(parent):
-        members.setdefault(find(key), []).append(key)
+    joints = joined_ends(links)
+    members = joint_members(joints)
 
     def end_tangent(key) -> np.ndarray:
         kind, name = key
@@ -727,10 +718,10 @@ def write_map(
         offsets = _left_offsets(line, half)
         left, right = [], []
         for i, p in enumerate(line):
-            key = (("start", name) if i == 0  # type: ignore[assignment]
+            key = (("start", name) if i == 0
                    else ("end", name) if i == len(line) - 1 else None)
-            if key is not None and key in parent:
-                root = find(key)
+            if key is not None and key in joints:
+                root = joints[key]
                 if root not in joint_nodes:
                     jp, jo = joint_offset[root]
                     joint_nodes[root] = (new_node(jp + jo), new_node(jp - jo))

@@ -24,6 +24,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.joints import joined_ends
 from .imports import sumo_module
 
 __all__ = ["LaneletNetwork", "network_from_lanelet2", "lanelet_routes", "lanelet_paths", "lanelet_edges",
@@ -113,20 +114,10 @@ def _chains(succ: dict[int, list[int]], joined: bool = True) -> dict[int, tuple[
 
 def _ends(succ: dict[int, list[int]]) -> tuple[dict[int, object], dict[int, object]]:
     """The node of each lanelet's start and of its end, as the routing graph joins them (a lanelet's end and its
-    successors' starts are one node): lanelet id -> a key of its node."""
-    parent: dict = {}
-
-    def find(k):
-        parent.setdefault(k, k)
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
-    for lid, nexts in succ.items():
-        for s in nexts:
-            parent[find(("end", lid))] = find(("start", s))
-    return {lid: find(("start", lid)) for lid in succ}, {lid: find(("end", lid)) for lid in succ}
+    successors' starts are one node): lanelet id -> a key of its node (`pirl_sim.joints.joined_ends`)."""
+    joints = joined_ends((lid, s) for lid, nexts in succ.items() for s in nexts)
+    return ({lid: joints.get(("start", lid), ("start", lid)) for lid in succ},
+            {lid: joints.get(("end", lid), ("end", lid)) for lid in succ})
 
 
 def lanelet_edges(lmap, *, merge_chains: bool = True) -> dict[str, tuple[int, ...]]:
@@ -344,27 +335,20 @@ def _ring_lanelets(succ: dict[int, list[int]]) -> set[int]:
 
 
 def _nodes(lmap, succ, tolerance: float):
-    """Union of lanelet ends: (node of each lanelet's start, node of each end, node positions)."""
-    parent: dict = {}
-
-    def find(k):
-        parent.setdefault(k, k)
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
-    def union(a, b):
-        parent[find(a)] = find(b)
-
+    """Union of lanelet ends (`pirl_sim.joints.joined_ends`): (node of each lanelet's start, node of each end, node
+    positions); nodes are named ``n<k>`` in the order of their representative ends' text."""
     lines = lmap.centerlines
-    for lid, nexts in succ.items():
-        for s in nexts:
-            gap = float(np.hypot(*(lines[lid][-1] - lines[s][0])))
-            if gap > tolerance:
-                raise ValueError(f"map {lmap.path}: lanelet {lid} ends {gap:.2f} m from the start of its successor "
-                                 f"{s} (more than {tolerance} m): the routing graph joins lanelets that do not meet")
-            union(("end", lid), ("start", s))
+    links = [(lid, s) for lid, nexts in succ.items() for s in nexts]
+    for lid, s in links:
+        gap = float(np.hypot(*(lines[lid][-1] - lines[s][0])))
+        if gap > tolerance:
+            raise ValueError(f"map {lmap.path}: lanelet {lid} ends {gap:.2f} m from the start of its successor "
+                             f"{s} (more than {tolerance} m): the routing graph joins lanelets that do not meet")
+    joints = joined_ends(links)
+
+    def find(key):
+        return joints.get(key, key)
+
     groups: dict = {}
     for lid in lines:
         for end in ("start", "end"):

@@ -25,6 +25,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from pirl_sim.io.atomic import atomic_write_text
+from pirl_sim.joints import joined_ends, joint_members
 
 from ..planning import route_id
 from .imports import sumo_module
@@ -616,27 +617,14 @@ def lane_graph(net) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
             if nxt:
                 succ[lid] = nxt
     _drop_points(lines, succ)
-    # union-find over lane ends and starts that meet
-    parent: dict[tuple[str, str], tuple[str, str]] = {}
-
-    def find(key):
-        parent.setdefault(key, key)
-        while parent[key] != key:
-            parent[key] = parent[parent[key]]
-            key = parent[key]
-        return key
-
-    for a, nexts in succ.items():
-        for b in nexts:
-            gap = float(np.hypot(*(lines[a][-1] - lines[b][0])))
-            if gap > LANE_JOINT_SNAP:
-                raise ValueError(f"lane {a!r} ends {gap:.3f} m from the start of its successor {b!r} "
-                                 f"(more than {LANE_JOINT_SNAP} m)")
-            parent[find(("end", a))] = find(("start", b))
-    groups: dict[tuple[str, str], list[tuple[str, str]]] = {}
-    for key in list(parent):
-        groups.setdefault(find(key), []).append(key)
-    for keys in groups.values():
+    # lane ends and the starts of their successors meet at one point, the mean of theirs
+    links = [(a, b) for a, nexts in succ.items() for b in nexts]
+    for a, b in links:
+        gap = float(np.hypot(*(lines[a][-1] - lines[b][0])))
+        if gap > LANE_JOINT_SNAP:
+            raise ValueError(f"lane {a!r} ends {gap:.3f} m from the start of its successor {b!r} "
+                             f"(more than {LANE_JOINT_SNAP} m)")
+    for keys in joint_members(joined_ends(links)).values():
         pts = np.array([lines[name][0 if kind == "start" else -1] for kind, name in keys])
         mean = pts.mean(axis=0)
         for kind, name in keys:
