@@ -23,7 +23,9 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
 
     Parameters
     ----------
-    net : path or pirl_sim.scenarios.sumo.lanelet_network.LaneletNetwork
+    net : pirl_sim.scenarios.sumo.lanelet_network.LaneletNetwork or path
+        The network (`network_from_lanelet2`), or its ``*.net.xml``: a lanelet of a route that is on no edge of a
+        `LaneletNetwork` is a ValueError; a bare path has no record of the chains, and such lanelets are skipped.
     departures : sequence of pirl_sim.scenarios.demand.Departure   routes are lanelet ids, driven on the edges
                                 that hold them (a chain of lanelets is one edge ``ll<first id>``, `lanelet_edges`)
     out : path                  the track file to write (INTERACTION vehicle columns, 0.1 s frames; x, y the box centre)
@@ -43,6 +45,7 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
     net_path = Path(getattr(net, "net", net))
     if not net_path.is_file():
         raise FileNotFoundError(f"no SUMO network at {net_path}")
+    chain_of = {lid: e for e, lids in getattr(net, "lanelets", {}).items() for lid in lids}  # lanelet -> its edge
     departures = sorted(departures, key=lambda d: d.time_s)
     if not departures:
         raise ValueError("run_demand: no departures")
@@ -61,8 +64,18 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
         for k, d in enumerate(departures):
             if tuple(d.route) not in routes:
                 routes[tuple(d.route)] = f"r{len(routes)}"
-                edges = [e for e in (edge_id(i) for i in d.route) if e in known]
-                if not d.route or edge_id(d.route[0]) not in known:
+                if not d.route:
+                    raise ValueError("run_demand: a departure has an empty route")
+                if chain_of:  # through the chains, so that a lanelet the network lacks is named
+                    unknown = [i for i in d.route if int(i) not in chain_of]
+                    if unknown:
+                        raise ValueError(f"run_demand: lanelet(s) {unknown} of route {tuple(d.route)} are on no edge "
+                                         f"of {net_path}")
+                    on = [chain_of[int(i)] for i in d.route]
+                    edges = [e for j, e in enumerate(on) if j == 0 or e != on[j - 1]]
+                else:
+                    edges = [e for e in (edge_id(i) for i in d.route) if e in known]
+                if not edges or edges[0] != edge_id(d.route[0]) or edges[0] not in known:
                     raise ValueError(f"run_demand: route {tuple(d.route)} does not start on an edge of {net_path}")
                 libsumo.route.add(routes[tuple(d.route)], edges)
             rid = routes[tuple(d.route)]

@@ -75,3 +75,6 @@ def test_bad_inputs(ring_run, tmp_path):
         demand_from_tracks(far, lmap, [r for _, r in lanelet_paths(lmap)])
     with pytest.raises(ValueError, match="no departures"):
         run_demand(net, [], tmp_path / "t.csv")
+    route = given[0].route
+    with pytest.raises(ValueError, match=r"lanelet\(s\) \[999999\] of route .* are on no edge of"):
+        run_demand(net, [Departure(0.0, (*route, 999999), 4.0, 1.8)], tmp_path / "t.csv")
