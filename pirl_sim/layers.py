@@ -20,7 +20,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("core", ("pirl_sim.trajectory", "pirl_sim.dynamics", "pirl_sim.paths", "pirl_sim.features", "pirl_sim.model",
               "pirl_sim.population", "pirl_sim.driving", "pirl_sim.irl", "pirl_sim.receding", "pirl_sim.mpc",
               "pirl_sim.metrics", "pirl_sim.deconvolution", "pirl_sim.validation", "pirl_sim.recovery",
-              "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit", "pirl_sim.threads",
+              "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit", "pirl_sim.joints", "pirl_sim.threads",
               "pirl_sim.progress", "pirl_sim.testing", "pirl_sim.layers", "pirl_sim.typecheck", "pirl_sim.extras",
               "pirl_sim.io")),
     ("learners", ("pirl_sim.learners",)),

@@ -89,7 +89,7 @@ def _simulated(label: str, scenario: Path, seeds: int, out: Path, simulator: str
     for s, d in enumerate(dirs):
         if not (d / INFO_FILE).is_file():
             print(f"{label}: simulating seed {s} of {scenario}", flush=True)
-            simulate(config, s, out_dir=d)  # type: ignore[arg-type]
+            simulate(config, s, out_dir=d)
     return dirs
 
 

@@ -39,7 +39,7 @@ CELL_CODE: tuple[str, ...] = (
     "pirl_sim.population", "pirl_sim.driving", "pirl_sim.irl", "pirl_sim.receding", "pirl_sim.mpc",
     "pirl_sim.metrics", "pirl_sim.deconvolution", "pirl_sim.validation", "pirl_sim.extras",
     "pirl_sim.recovery",            # weight-recovery scores (the cells' ``weights``)
-    "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit",
+    "pirl_sim.lateral", "pirl_sim.simulate", "pirl_sim.speed_fit", "pirl_sim.joints",
     "pirl_sim.io.*",                # track and map formats (the replay and simulator scenarios read them)
     "pirl_sim.learners.*",
     "pirl_sim.scenarios.*",         # the scenario builders and simulators

@@ -77,7 +77,8 @@ class CenterlineLane(_lane_base()):  # type: ignore[misc]
         self.priority = 0
 
     def _segment(self, longitudinal: float) -> int:
-        return int(min(max(np.searchsorted(self._s, longitudinal, side="right") - 1, 0), len(self._len) - 1))
+        k = int(np.searchsorted(self._s, longitudinal, side="right")) - 1
+        return min(max(k, 0), len(self._len) - 1)
 
     def position(self, longitudinal: float, lateral: float) -> np.ndarray:
         i = self._segment(longitudinal)

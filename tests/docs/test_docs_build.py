@@ -19,7 +19,7 @@ DOCS = ROOT / "docs"
 
 #: top-level modules of pirl_sim with an API page (the core types and maths)
 CORE = ("trajectory", "dynamics", "paths", "features", "irl", "receding", "mpc", "metrics", "population", "driving",
-        "lateral", "deconvolution", "model", "recovery", "speed_fit", "simulate", "validation", "testing",
+        "lateral", "deconvolution", "model", "recovery", "speed_fit", "joints", "simulate", "validation", "testing",
         "layers", "threads", "progress", "typecheck", "extras")
 #: top-level modules of pirl_sim without one (the package's face, which re-exports core types, and ``python -m``)
 CORE_UNDOCUMENTED = ("__init__", "__main__")

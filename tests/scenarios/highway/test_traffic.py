@@ -176,7 +176,7 @@ def test_stop_line_keeps_a_waiting_vehicle_clear_of_the_ring(road):
     traffic = make_traffic(road)
     net = road[0]
     route = traffic.routes["arm0_to_arm2"]
-    offset = traffic._stop_offset[route.merge_node]
+    offset = traffic._stop_offset_of(route)
     assert 1.0 < offset < 5.0
     entry = net.get_lane(route.lanes[route.entry_lane])
     ring = [net.get_lane(("sx", "se", 0)), net.get_lane(("se", "ex", 0))]
