@@ -3,8 +3,8 @@
 A road built from a real roundabout's map (`~.lanelet_road`) has lanes that meet outside the ring: an entry that
 crosses an exit, two entries that merge before the ring, a bypass that merges into an exit. highway-env's vehicles
 know only the vehicle ahead on their own lane, so without a rule they drive into each other there.
-`lane_conflicts` finds these points: **crossings**, where two lanes' centre lines cross at least ``min_angle``
-degrees apart and away from both lanes' ends (the nodes), and **merges**, where two lanes end at the same node and
+`lane_conflicts` finds these points: **crossings**, where the centre lines of two lanes without a node in common cross
+at least ``min_angle`` degrees apart and away from both lanes' ends, and **merges**, where two lanes end at the same node and
 neither is a ring lane (an entry joining the ring is the traffic's gap acceptance). Each side of a conflict has a
 *rank*: 1 on the ring and after it on every route through the lane (exits), 0 before it (entries, bypasses), so
 that entering traffic yields to traffic leaving the ring; two sides of equal rank go in order of arrival
@@ -118,6 +118,8 @@ def lane_conflicts(network, routes: Mapping[str, RouteLanes], ring: frozenset, *
                 ang = math.degrees(abs((ha - hb + math.pi) % (2 * math.pi) - math.pi))
                 out.append(LaneConflict(a, b, float(la.length), float(lb.length), "merge", ang, rank[a], rank[b]))
                 continue
+            if set(a) & set(b):
+                continue  # lanes that share a node meet there: the routes' order settles it (a merge: above)
             for sa, sb, ang in _crossings(*geo[a], *geo[b]):
                 if ang < min_angle or min(sa, la.length - sa, sb, lb.length - sb) < end_clearance:
                     continue

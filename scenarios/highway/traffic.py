@@ -588,8 +588,9 @@ class RoundaboutTraffic(Road):
         ahead (`~.crossings`), None when it need not stop.
 
         A vehicle on the other lane goes first when it is in the conflict zone (within half its length and the
-        clearance of the point, or past it and not yet clear; when both are, the one nearer the point), when it is
-        moving and its front cannot stop before the point any more, or when it has the right of way: at equal rank the
+        clearance of the point, or past it and not yet clear; when both are, the one nearer the point); otherwise,
+        unless ``v`` is in the zone, when it is moving and its front cannot stop before the point any more, or when
+        it has the right of way: at equal rank the
         one that arrives first (then the smaller vehicle id); against a lower rank the higher one (traffic
         leaving the ring), unless the lower-ranked vehicle accepted the gap: it arrives later than it clears the
         point plus ``headway`` [s], which it decides once and keeps. ``v`` goes on when it is past the point or its
@@ -622,6 +623,8 @@ class RoundaboutTraffic(Road):
                 t_o = d_o / max(o.speed, 0.1)
                 if d_o < zone_o:  # in the zone: in the way, unless v is nearer the point in the zone too
                     first = d >= zone_v or (d_o, o.vehicle_id) < (d, v.vehicle_id)
+                elif d < zone_v:  # v is in the zone and o is not: v goes on
+                    first = False
                 elif not self._can_stop(o.speed, d_o - 0.5 * o.LENGTH):  # type: ignore[attr-defined]
                     first = True
                 elif rank_o == rank:
