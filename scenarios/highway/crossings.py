@@ -5,7 +5,8 @@ crosses an exit, two entries that merge before the ring, a bypass that merges in
 know only the vehicle ahead on their own lane, so without a rule they drive into each other there.
 `lane_conflicts` finds these points: **crossings**, where the centre lines of two lanes without a node in common cross
 at least ``min_angle`` degrees apart and away from both lanes' ends, and **merges**, where two lanes end at the same node and
-neither is a ring lane (an entry joining the ring is the traffic's gap acceptance). Each side of a conflict has a
+neither is a ring lane (an entry joining the ring is the traffic's gap acceptance), or one ends on the other away from
+its ends. Each side of a conflict has a
 *rank*: 1 on the ring and after it on every route through the lane (exits), 0 before it (entries, bypasses), so
 that entering traffic yields to traffic leaving the ring; two sides of equal rank go in order of arrival
 (`~.traffic.RoundaboutTraffic`). highway-env's own roundabout has none.
@@ -76,6 +77,18 @@ def _crossings(pa, sa, pb, sb) -> list[tuple[float, float, float]]:
     return out
 
 
+def _joins(la, lb, end_clearance: float, tolerance: float = 0.5) -> tuple[float, float, float] | None:
+    """(s on a, s on b, angle [deg]) where one lane ends on the other away from the other's ends (a merge into the
+    middle of a lane, without a node of the map there), or None."""
+    for first, second, swap in ((la, lb, False), (lb, la, True)):
+        s, lat = second.local_coordinates(first.position(first.length, 0.0))
+        if abs(lat) <= tolerance and end_clearance <= s <= second.length - end_clearance:
+            ang = abs((first.heading_at(first.length) - second.heading_at(s) + math.pi) % (2 * math.pi) - math.pi)
+            pair = (float(s), float(first.length)) if swap else (float(first.length), float(s))
+            return (*pair, math.degrees(ang))
+    return None
+
+
 def _ranks(routes: Mapping[str, RouteLanes], ring: frozenset) -> dict[LaneKey, int]:
     """Lane -> 1 if it is on the ring or after it on every route through it, else 0."""
     rank: dict[LaneKey, int] = {}
@@ -120,6 +133,11 @@ def lane_conflicts(network, routes: Mapping[str, RouteLanes], ring: frozenset, *
                 continue
             if set(a) & set(b):
                 continue  # lanes that share a node meet there: the routes' order settles it (a merge: above)
+            joins = _joins(la, lb, end_clearance)
+            if joins is not None:
+                sa, sb, ang = joins
+                out.append(LaneConflict(a, b, sa, sb, "merge", ang, rank[a], rank[b]))
+                continue
             for sa, sb, ang in _crossings(*geo[a], *geo[b]):
                 if ang < min_angle or min(sa, la.length - sa, sb, lb.length - sb) < end_clearance:
                     continue

@@ -60,6 +60,7 @@ __all__ = ["STEP_LENGTH", "DriverConfig", "TrafficRules", "RoundaboutTraffic", "
 STEP_LENGTH = STEP  #: [s] simulation step = driver-model step = INTERACTION frame (the contract's)
 _EPS = 1e-9
 _STANDSTILL = 0.1  # [m/s] slower counts as stopped at the line
+_IN_THE_WAY = 1.0  # [m/s] a vehicle this slow whose rear is still over a node is in the way of the node's other lanes
 
 
 @dataclass(frozen=True)
@@ -292,6 +293,9 @@ class RoundaboutTraffic(Road):
         self._upstream = self._upstream_ring_lanes()
         self._stop_offset = self._stop_offsets()
         self._ring_after = self._ring_lanes_after()
+        self._leaving: dict[str, list[tuple[str, str]]] = {}  # node -> the lanes (from, to) that leave it
+        for a_, tos in self.network.graph.items():
+            self._leaving[a_] = sorted((a_, b_) for b_ in tos)
         #: crossings and merges away from the ring's merges (`~.crossings.lane_conflicts`; none on highway-env's own)
         self.conflicts = lane_conflicts(network, self.routes, self.ring)
         self._conflicts_ahead = route_conflicts(self.routes, self.conflicts)
@@ -457,8 +461,9 @@ class RoundaboutTraffic(Road):
         return len(self._pending)
 
     def insert_due(self) -> int:
-        """Insert pending vehicles whose departure time has come, where their first lane has room (a
-        blocked vehicle also holds back the later ones of its route's entry). Returns the number inserted."""
+        """Insert pending vehicles whose departure time has come, where their route has room (no vehicle within the
+        IDM's safe distance from its start, on its first lane or, where that is short, the next ones; a blocked
+        vehicle also holds back the later ones of its route's entry). Returns the number inserted."""
         inserted = 0
         blocked: set[str] = set()
         keep = []
@@ -473,7 +478,8 @@ class RoundaboutTraffic(Road):
                 continue
             speed = self._depart_speed(d.route_id, 0.0, PIRL if d.is_pirl else BACKGROUND)
             need = IDM_S0 + speed * IDM_T + IDMVehicle.LENGTH
-            free = all(not (isinstance(v, RouteFollowing) and v.lane_index[:2] == first and v.lane_s < need)
+            free = all(not (isinstance(v, RouteFollowing) and v.lane_index[:2] in route.position_of
+                            and route.offsets[route.position_of[v.lane_index[:2]]] + v.lane_s < need)
                        for v in self.vehicles)
             if not free:
                 blocked.add(first)  # type: ignore[arg-type]
@@ -504,7 +510,9 @@ class RoundaboutTraffic(Road):
     def _leader(self, v: RouteFollowing, others: list, occupancy: _Occupancy | None = None
                 ) -> tuple[float | None, float]:
         """(bumper gap [m], speed [m/s]) of the nearest vehicle ahead on ``v``'s route, None if none within
-        ``lookahead``; committed entering vehicles count at their distance to their merge node.
+        ``lookahead``; committed entering vehicles count at their distance to their merge node, ring vehicles just
+        past the node where ``v`` leaves the ring, and vehicles slower than 1 m/s on another lane leaving a node
+        ahead whose rear is still over the node.
 
         ``occupancy`` (:meth:`_occupancy` of ``others``) saves building it again for every vehicle."""
         on_lane, merging = occupancy if occupancy is not None else self._occupancy(others)
@@ -531,6 +539,17 @@ class RoundaboutTraffic(Road):
                 if 0.0 < d < best_d:
                     best_d, best = d, o
             break
+        for m in range(k, len(route.lanes) - 1):  # a node ahead: a vehicle standing on another lane leaving it,
+            b, nxt = route.lanes[m][1], route.lanes[m + 1][:2]  # its rear still over the node, is in the way
+            for after in self._leaving.get(b, ()):
+                if after == nxt:
+                    continue
+                for s_lane, o in on_lane.get(after, ()):
+                    if o is v or o.speed >= _IN_THE_WAY or s_lane - 0.5 * o.LENGTH > 0.5 * v.WIDTH:  # type: ignore[attr-defined]
+                        continue
+                    d = route.offsets[m + 1] - s + s_lane
+                    if 0.0 < d < best_d:
+                        best_d, best = d, o
         for o in merging:
             if o is v:
                 continue
@@ -573,9 +592,17 @@ class RoundaboutTraffic(Road):
             if d_o < rules.yield_min_distance or d_o / max(o.speed, 0.1) < t_clear + headway:
                 conflict = True
                 break
+        if not conflict:  # no room on the ring: a vehicle standing just past the node
+            after = v.route_lanes.lanes[v.route_lanes.entry_lane + 1][:2]
+            conflict = any(o is not v and o.lane_index[:2] == after and o.speed < _IN_THE_WAY
+                           and o.lane.local_coordinates(o.position)[0] - 0.5 * o.LENGTH < v.LENGTH + rules.stop_margin
+                           for o in others)
         stop_gap = d - 0.5 * v.LENGTH - self._stop_offset_of(v.route_lanes) - rules.stop_margin  # type: ignore[attr-defined]
+        to_line = stop_gap + rules.stop_margin  # [m] front bumper to the stop line
         if stop_gap > 0.0:
             can_stop = v.speed ** 2 / (2.0 * stop_gap) <= rules.max_deceleration
+        elif to_line > 0.0:  # creeping up to the line: it can still stop there
+            can_stop = v.speed ** 2 / (2.0 * to_line) <= rules.max_deceleration
         else:
             can_stop = v.speed < _STANDSTILL  # waiting at the line
         if not can_stop:
@@ -583,7 +610,8 @@ class RoundaboutTraffic(Road):
             return False
         return conflict
 
-    def _conflict_gap(self, v: RouteFollowing, others: list, headway: float) -> float | None:
+    def _conflict_gap(self, v: RouteFollowing, others: list, headway: float,
+                      leader: tuple[float | None, float] = (None, 0.0)) -> float | None:
         """[m] from ``v``'s front bumper to where it stops for a vehicle that goes first at a crossing or merge
         ahead (`~.crossings`), None when it need not stop.
 
@@ -593,8 +621,9 @@ class RoundaboutTraffic(Road):
         it has the right of way: at equal rank the
         one that arrives first (then the smaller vehicle id); against a lower rank the higher one (traffic
         leaving the ring), unless the lower-ranked vehicle accepted the gap: it arrives later than it clears the
-        point plus ``headway`` [s], which it decides once and keeps. ``v`` goes on when it is past the point or its
-        front cannot stop before it.
+        point plus ``headway`` [s], which it decides once and keeps until it stands before the point. ``v`` goes on when it is past the point or its
+        front cannot stop before it. It also stops before a zone it could not leave: when its ``leader`` ((bumper gap
+        [m], speed [m/s]) as `_leader` gives it) stands (slower than 1 m/s) less than a vehicle length beyond it.
         """
         rows = self._conflicts_ahead.get(v.route_lanes.route_id)
         if not rows:
@@ -609,6 +638,13 @@ class RoundaboutTraffic(Road):
             if d < 0.0 or not self._can_stop(v.speed, d - 0.5 * v.LENGTH):  # type: ignore[attr-defined]
                 continue  # it goes on
             t_v, zone_v = d / max(v.speed, 0.1), 0.5 * v.LENGTH + clear  # type: ignore[attr-defined]
+            gap = d - 0.5 * v.LENGTH - clear  # type: ignore[attr-defined]
+            if v.speed < _STANDSTILL:
+                self._accepted.discard((v.vehicle_id, c))  # a gap taken is given up by stopping before the point
+            if d >= zone_v and leader[0] is not None and leader[1] < 1.0 \
+                    and leader[0] < 2.0 * clear + 1.5 * v.LENGTH + gap:  # type: ignore[attr-defined]
+                best = gap if best is None else min(best, gap)  # keep the zone clear: no room beyond it
+                continue
             t_clear = _time_to_cover(d + 0.5 * v.LENGTH + clear, v.speed, rules.entry_acceleration)  # type: ignore[attr-defined]
             for o in others:
                 if o is v or not isinstance(o, RouteFollowing):
@@ -636,7 +672,6 @@ class RoundaboutTraffic(Road):
                 else:
                     first = (o.vehicle_id, c) in self._accepted
                 if first:
-                    gap = d - 0.5 * v.LENGTH - clear  # type: ignore[attr-defined]
                     best = gap if best is None else min(best, gap)
                     break
         return best
@@ -668,7 +703,8 @@ class RoundaboutTraffic(Road):
             occupancy.merging.append(v)
         stop_gap = (v.merge_distance - 0.5 * v.LENGTH  # type: ignore[attr-defined]
                     - self._stop_offset_of(v.route_lanes)) if v.yielding else None
-        crossing = self._conflict_gap(v, others, rules.safety_yield_headway if safety else rules.yield_headway)
+        crossing = self._conflict_gap(v, others, rules.safety_yield_headway if safety else rules.yield_headway,
+                                      (gap, v_lead))
         if crossing is not None:
             stop_gap = crossing if stop_gap is None else min(stop_gap, crossing)
         if safety:
