@@ -339,7 +339,8 @@ class RoundaboutTraffic(Road):
         Entries meet the ring at an angle (66 degrees here), so a vehicle whose front is at the node blocks
         the ring. The stop position is the nearest one (0.25 m steps back along the route, across lanes where an
         entry lane is short) at which every corner of a vehicle box on the lane centre is at least
-        ``WIDTH / 2 + stop_clearance`` from the ring lanes' centre line next to the node.
+        ``WIDTH / 2 + stop_clearance`` from the ring lanes next to the node (their centre lines, not continued past
+        their ends: highway-env's ``AbstractLane.distance``).
         """
         out: dict[tuple[str, str], float] = {}
         length, width = IDMVehicle.LENGTH, IDMVehicle.WIDTH
