@@ -138,9 +138,9 @@ class Calibration:
     def scenario_toml(self, source: str = "", n_vehicles: int = 80, background_share: float = 0.0, *,
                       road: str = "map") -> str:
         """A scenario TOML (``[drivers]``: the fitted desired speed, insertion at its cap, the fit's horizon;
-        ``[population]``) that ``pirl-sim simulate`` reads; comments give the figures. ``road="map"``: SUMO on the
-        recording's own roundabout (``lanelet_map``, ``[route_weights]`` as the recorded cars' routes);
-        ``"ring"``: the simulators' parametric ring (SUMO or highway-env)."""
+        ``[population]``) that ``pirl-sim simulate`` reads; comments give the figures. ``road="map"``: the
+        recording's own roundabout, in SUMO or highway-env (``lanelet_map``, ``[route_weights]`` as the recorded
+        cars' routes); ``"ring"``: the simulators' parametric ring."""
         if road not in ROADS:
             raise ValueError(f"road must be one of {ROADS}, got {road!r}")
         if road == "map" and not (self.map_path and self.route_counts):
@@ -156,7 +156,7 @@ class Calibration:
                  f"whose log variance was capped at {LOG_VAR_MAX:g}: {capped}",
                  ""]
         if road == "map":
-            lines += [f"lanelet_map = {_toml(str(Path(self.map_path).resolve()))}   # SUMO on this roundabout", ""]
+            lines += [f"lanelet_map = {_toml(str(Path(self.map_path).resolve()))}   # SUMO and highway-env on this roundabout", ""]
         lines += ["[drivers]", f"horizon = {self.horizon}",
                  f"a_lat = {self.a_lat!r}   # [m/s^2] the desired speed's lateral-acceleration limit",
                  f"v_max = {self.v_max!r}   # [m/s] and speed cap",

@@ -86,8 +86,9 @@ def test_a_map_calibration_drives_the_recordings_roundabout_with_its_route_share
     config = load_sumo(path)
     assert config.lanelet_map == str((tmp_path / "map.osm").resolve())
     assert config.route_weights == {routes[0]: 3.0, routes[2]: 1.0} and set(config.routes) == set(routes)
-    with pytest.raises(ValueError, match=r"unknown key\(s\) 'lanelet_map', 'route_weights'"):
-        load_highway(path)  # highway-env drives the parametric ring only
+    highway = load_highway(path)  # the same file drives highway-env on the map's road
+    assert highway.lanelet_map == config.lanelet_map and highway.route_weights == config.route_weights
+    assert set(highway.route_ids()) == set(routes)
     with pytest.raises(ValueError, match="road='map' needs the calibration's map_path and route_counts"):
         _calibration().scenario_toml()
     with pytest.raises(ValueError, match="road must be one of"):
