@@ -31,8 +31,8 @@ def add_parser(p) -> None:
     p.add_argument("--seeds", type=seed_arg, nargs="+", default=[0, 1, 2, 3], help="seeds (default 0 1 2 3)")
     p.add_argument("--population", type=Path, metavar="CONFIG", help="population TOML (default: the embedded one)")
     p.add_argument("--scenario", type=Path, metavar="CONFIG",
-                   help="SUMO scenario TOML, e.g. from pirl-sim calibrate: its road, demand and drivers, and its "
-                        "population unless --population is given (--simulator sumo)")
+                   help="scenario TOML, e.g. from pirl-sim calibrate: its road, demand and drivers, and its "
+                        "population unless --population is given (for each --simulator)")
     p.add_argument("--n-vehicles", type=positive_int_arg, help="override the population's number of vehicles")
     p.add_argument("--stride", type=positive_int_arg, default=1, help="score every STRIDE-th step (default 1)")
     p.add_argument("--min-steps", type=positive_int_arg, default=10,

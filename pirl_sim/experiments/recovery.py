@@ -338,8 +338,8 @@ RECOVERY_PARAMS = {
     "population": Param("table", {}, "the population (a population TOML's table); empty: the embedded default"),
     "n_vehicles": Param("int", 0, "vehicles in the run; 0: the population's own"),
     "control_noise": Param("float", -1.0, "[m/s^3] noise on every applied jerk; < 0: the population's own"),
-    "scenario": Param("table", {}, "a SUMO scenario's keys and tables besides its population (a scenario TOML's, "
-                      "e.g. lanelet_map, route_weights, drivers); empty: the default ring"),
+    "scenario": Param("table", {}, "a scenario's keys and tables besides its population (a scenario TOML's of the "
+                      "simulator, e.g. lanelet_map, route_weights, drivers); empty: the default ring"),
 }
 
 
@@ -367,17 +367,19 @@ def _check(params: dict) -> dict:
     out = {"simulator": params["simulator"], "population": json.loads(json.dumps(pop.to_dict())),
            "n_vehicles": int(pop.n_vehicles), "control_noise": float(pop.control_noise)}
     if params["scenario"]:  # written out in full (routes included); absent when empty, as before it existed
-        if params["simulator"] != "sumo":
-            raise ValueError(f"a scenario drives SUMO: simulator must be 'sumo', got {params['simulator']!r}")
         if "population" in params["scenario"]:
             raise ValueError("scenario: give its population as the 'population' parameter, not inside 'scenario'")
-        config = _sumo_scenario(params["scenario"], pop)
+        config = _scenario(params["simulator"], params["scenario"], pop)
         out["scenario"] = json.loads(json.dumps({k: v for k, v in config.to_dict().items() if k != "population"}))
     return out
 
 
-def _sumo_scenario(scenario: dict, population):
-    from pirl_sim.scenarios.sumo.scenario import scenario_from_dict
+def _scenario(simulator: str, scenario: dict, population):
+    """The simulator's scenario configuration of a scenario table and a population."""
+    if simulator == "sumo":
+        from pirl_sim.scenarios.sumo.scenario import scenario_from_dict
+    else:
+        from pirl_sim.scenarios.highway.scenario import scenario_from_dict  # type: ignore[assignment]
 
     return scenario_from_dict(scenario, source="scenario 'recovery' scenario", population=population)
 
@@ -387,12 +389,15 @@ def _simulate(params: dict, seed: int, out_dir: Path) -> None:
     if params["simulator"] == "sumo":
         from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, run_sumo_scenario
 
-        config = _sumo_scenario(params["scenario"], pop) if params.get("scenario") else SumoScenarioConfig(population=pop)
+        config = _scenario("sumo", params["scenario"], pop) if params.get("scenario") \
+            else SumoScenarioConfig(population=pop)
         run_sumo_scenario(config, seed, out_dir=out_dir)
     else:
         from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig, run_highway_scenario
 
-        run_highway_scenario(HighwayScenarioConfig(population=pop), seed, out_dir=out_dir)
+        hw = _scenario("highway", params["scenario"], pop) if params.get("scenario") \
+            else HighwayScenarioConfig(population=pop)
+        run_highway_scenario(hw, seed, out_dir=out_dir)
 
 
 def _paper_only(params: dict, protocol: dict) -> None:

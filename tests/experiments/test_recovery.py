@@ -123,9 +123,13 @@ def test_a_scenario_file_sets_the_road_of_a_sumo_recovery(tmp_path, capsys):
     assert "scenario" not in plain.scenario_params  # the keys of ring runs do not change
     assert main(["recover", "--scenario", str(tmp_path / "s.toml"), "--dry-run", "--out", str(tmp_path / "o")]) == 0
     assert "4 cells, 0 already in" in capsys.readouterr().out  # the default seeds 0 1 2 3
-    assert main(["recover", "--scenario", str(tmp_path / "s.toml"), "--simulator", "highway", "--out",
+    hw = parse_config({"experiments": [j.experiment() for j in recovery_jobs(
+        ["highway"], [0], scenario={"lanelet_map": str(tmp_path / "ring.osm")})]}).cells[0].scenario_params
+    assert hw["simulator"] == "highway" and hw["scenario"]["lanelet_map"] == str(tmp_path / "ring.osm")
+    (tmp_path / "sumo_only.toml").write_text('lanelet_map = "ring.osm"\nspeed_mode = 31\n')
+    assert main(["recover", "--scenario", str(tmp_path / "sumo_only.toml"), "--simulator", "highway", "--out",
                  str(tmp_path / "o"), "--quiet"]) == 2
-    assert "a scenario drives SUMO: simulator must be 'sumo'" in capsys.readouterr().err
+    assert "speed_mode" in capsys.readouterr().err  # a SUMO key highway-env does not know
     (tmp_path / "bad.toml").write_text('lanelet_map = "ring.osm"\ndemand_per_arm = 600.0\n')
     assert main(["recover", "--scenario", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert "demand_per_arm sets the demand of the parametric" in capsys.readouterr().err
