@@ -596,7 +596,7 @@ class RoundaboutTraffic(Road):
         if not conflict:  # no room on the ring: a vehicle standing just past the node
             after = v.route_lanes.lanes[v.route_lanes.entry_lane + 1][:2]
             conflict = any(o is not v and o.lane_index[:2] == after and o.speed < _IN_THE_WAY
-                           and o.lane.local_coordinates(o.position)[0] - 0.5 * o.LENGTH < v.LENGTH + rules.stop_margin
+                           and o.lane.local_coordinates(o.position)[0] - 0.5 * o.LENGTH < v.LENGTH + rules.stop_margin  # type: ignore[attr-defined]
                            for o in others)
         stop_gap = d - 0.5 * v.LENGTH - self._stop_offset_of(v.route_lanes) - rules.stop_margin  # type: ignore[attr-defined]
         to_line = stop_gap + rules.stop_margin  # [m] front bumper to the stop line
