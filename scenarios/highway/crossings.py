@@ -1,8 +1,9 @@
 """Where lanes of a highway-env road meet away from the ring's merges: crossings and merges, with who goes first.
 
-A road built from a real roundabout's map (`~.lanelet_road`) has lanes that meet outside the ring: an entry that
-crosses an exit, two entries that merge before the ring, a bypass that merges into an exit. highway-env's vehicles
-know only the vehicle ahead on their own lane, so without a rule they drive into each other there.
+A road built from a real roundabout's map (:mod:`~pirl_sim.scenarios.highway.lanelet_road`) has lanes that meet
+outside the ring: an entry that crosses an exit, two entries that merge before the ring, a bypass that merges into an
+exit. highway-env's vehicles know only the vehicle ahead on their own lane, so without a rule they drive into each
+other there.
 `lane_conflicts` finds these points: **crossings**, where the centre lines of two lanes without a node in common cross
 at least ``min_angle`` degrees apart and away from both lanes' ends, and **merges**, where two lanes end at the same node and
 neither is a ring lane (an entry joining the ring is the traffic's gap acceptance), or one ends on the other away from
