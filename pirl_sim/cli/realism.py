@@ -104,11 +104,12 @@ def run(args) -> int:
     try:
         scenarios = [(*x, "sumo") for x in args.scenario] + [(*x, "highway") for x in args.highway_scenario]
         if not args.source and not scenarios:
-            raise ValueError("nothing to score: give at least one --source LABEL=PATH,... or --scenario LABEL=TOML")
+            raise ValueError("nothing to score: give at least one --source LABEL=PATH,..., --scenario LABEL=TOML or "
+                             "--highway-scenario LABEL=TOML")
         labels = [label for label, *_ in [*args.source, *scenarios]]
         repeated = sorted({x for x in labels if labels.count(x) > 1})
         if repeated:
-            raise ValueError(f"--source and --scenario labels must differ; repeated: {repeated}")
+            raise ValueError(f"--source, --scenario and --highway-scenario labels must differ; repeated: {repeated}")
         for p in [*args.reference, *(q for _, ps in args.source for q in ps), *(s for _, s, _ in scenarios),
                   *([args.map] if args.map else [])]:
             if not p.exists():
