@@ -23,7 +23,8 @@ def _share(text: str) -> float:
 @subcommand("calibrate", help="fit a driver population to a recording; write a scenario TOML for simulate",
             description="Fit a population of PIRL drivers to recorded cars (INTERACTION track files on their "
             "Lanelet2 map): the desired speed's a_lat and v_max, one weight vector per car by the receding-horizon "
-            "IRL on its free-flow steps (the simulated drivers' features, step and horizon), and a Gaussian mixture "
+            "IRL on its free-flow steps (the simulated drivers' features, step and horizon; with --interaction on every "
+            "step, also weighing the gaps to the vehicle ahead and to the point it yields at), and a Gaussian mixture "
             "over the log weights with the number of styles chosen by BIC. Writes a scenario TOML ([drivers], "
             "[population]) for pirl-sim simulate sumo|highway --scenario; the simulated drivers' weights are drawn "
             "from the mixture and written to the ground truth.")
@@ -46,6 +47,9 @@ def add_parser(p) -> None:
                    help="where the written scenario drives: the recording's own roundabout, its routes drawn as often "
                         "as the recorded cars took them (SUMO), or the simulators' parametric ring (SUMO or "
                         "highway-env) (default map)")
+    p.add_argument("--interaction", action="store_true",
+                   help="also fit the weights of the gap to the vehicle ahead (headway) and to the point a car yields "
+                        "at (yielding), on every step of each car: the written drivers interact")
     add_seed_option(p, "the mixture's EM initialisation")
 
 
@@ -63,7 +67,7 @@ def run(args) -> int:
             raise ValueError(f"--map {str(args.map)!r}: no such file")
         files = track_files(args.tracks, args.files)
         cal = calibrate(files, args.map, max_styles=args.max_styles, stride=args.stride, seed=args.seed,
-                        desired_speed=args.desired_speed, progress=say)
+                        desired_speed=args.desired_speed, interaction=args.interaction, progress=say)
         text = cal.scenario_toml(", ".join(Path(f).name for f in files), args.n_vehicles, args.background_share,
                                  road=args.road)
         atomic_write_text(args.out, text)

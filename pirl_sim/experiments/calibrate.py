@@ -24,7 +24,7 @@ from pirl_sim.receding import STEP_MASK, fit_receding
 from pirl_sim.speed_fit import A_LAT_RANGE, V_MAX_RANGE, fit_desired_speed
 
 __all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX",
-           "ROADS"]
+           "ROADS", "FREE", "FREE_INTERACTING"]
 
 #: fewest usable recorded cars a calibration fits a mixture to
 MIN_TRACKS = 10
@@ -40,6 +40,9 @@ PROFILE_STRIDE = 5
 PROFILE_EVALUATIONS = 30
 #: the features whose weights differ between drivers (``jerk_sq`` is the reference, 1 for everybody)
 FREE = ("speed_dev", "acc_sq")
+#: with ``interaction=True``: also the weights of the gaps to the vehicle ahead and to the point yielded at (the
+#: ``interacting`` features of `pirl_sim.driving.roundabout_features`, the simulated drivers who interact)
+FREE_INTERACTING = FREE + ("headway", "yielding")
 #: Where the written scenario drives: the recording's own roundabout (SUMO), or the simulators' parametric ring.
 ROADS = ("map", "ring")
 
@@ -73,15 +76,16 @@ class Calibration:
     a_lat, v_max : float [m/s^2, m/s]     the desired speed's fitted lateral-acceleration limit and speed cap
     horizon, dt : int, float [steps, s]   the drivers' MPC horizon and re-planning step the weights were fitted with
     cars : tuple of (str, int)            (track file name, track id) of each fitted car
-    log_weights, at_bound : array (n, 2)   per car, log normalised weights of ``speed_dev``, ``acc_sq``; at `LOG_BOUNDS`
+    log_weights, at_bound : array (n, K)   per car, log normalised weights of ``features``; at `LOG_BOUNDS`
     converged : array (n,) bool           the car's fit converged
     style_share : array (S,)              the mixture's component weights (sum 1)
-    style_log_mean, style_log_var : array (S, 2)   each style's Gaussian over the log weights (independent)
+    style_log_mean, style_log_var : array (S, K)   each style's Gaussian over the log weights (independent)
     bic : dict {n_styles: BIC}            of every mixture size tried; the least is kept
     depart_rate, n_cars, duration_s       cars per hour [veh/h], cars read, summed length of the files [s]
     map_path : str                        the Lanelet2 map the cars were read on
     route_counts : dict {route id: int}   cars per entry-to-exit route of the map (ids of
                                           `pirl_sim.scenarios.sumo.lanelet_network.lanelet_paths`)
+    features : tuple of str               the K fitted weights' features: `FREE`, or `FREE_INTERACTING`
     """
 
     a_lat: float
@@ -101,9 +105,12 @@ class Calibration:
     duration_s: float = math.nan
     map_path: str = ""
     route_counts: dict = field(default_factory=dict)
+    features: tuple = FREE
 
     def __post_init__(self) -> None:
-        n, s, k = len(self.log_weights), len(self.style_share), len(FREE)
+        if tuple(self.features) not in (FREE, FREE_INTERACTING):
+            raise ValueError(f"features must be {FREE} or {FREE_INTERACTING}, got {self.features!r}")
+        n, s, k = len(self.log_weights), len(self.style_share), len(self.features)
         if len(self.cars) != n or np.shape(self.log_weights) != (n, k) or np.shape(self.at_bound) != (n, k):
             raise ValueError(f"cars, log_weights and at_bound must be as many as the cars ({n}), over {k} features")
         if np.shape(self.style_log_mean) != (s, k) or np.shape(self.style_log_var) != (s, k):
@@ -123,7 +130,8 @@ class Calibration:
         order = np.argsort(-self.style_share, kind="stable")
         means, stds = lognormal_moments(self.style_log_mean[order], np.minimum(self.style_log_var[order], LOG_VAR_MAX))
         return [{"name": f"calibrated {n + 1}", "weight": float(self.style_share[i]),
-                 "mean": {f: float(m) for f, m in zip(FREE, mean)}, "std": {f: float(x) for f, x in zip(FREE, std)}}
+                 "mean": {f: float(m) for f, m in zip(self.features, mean)},
+                 "std": {f: float(x) for f, x in zip(self.features, std)}}
                 for n, (i, mean, std) in enumerate(zip(order, means, stds))]
 
     def population(self, n_vehicles: int = 80, background_share: float = 0.0):
@@ -151,8 +159,9 @@ class Calibration:
                  f"{len(self.log_weights)} fitted, {self.duration_s / 60:.1f} min recorded",
                  f"# styles chosen by BIC over 1..{max(self.bic)} components: "
                  + ", ".join(f"{n}: {b:.1f}" for n, b in sorted(self.bic.items())),
-                 f"# log weights at their bound: speed_dev {self.at_bound[:, 0].mean():.0%}, "
-                 f"acc_sq {self.at_bound[:, 1].mean():.0%}; converged fits {self.converged.mean():.0%}; styles "
+                 "# log weights at their bound: " + ", ".join(f"{f} {b:.0%}" for f, b in zip(self.features,
+                                                                                           self.at_bound.mean(axis=0)))
+                 + f"; converged fits {self.converged.mean():.0%}; styles "
                  f"whose log variance was capped at {LOG_VAR_MAX:g}: {capped}",
                  ""]
         if road == "map":
@@ -166,7 +175,8 @@ class Calibration:
         for style, order in zip(pop["styles"], np.argsort(-self.style_share, kind="stable")):
             mu, sd = self.style_log_mean[order], np.sqrt(self.style_log_var[order])
             lines += ["", "[[population.styles]]",
-                      "# log weights: " + ", ".join(f"{f} {m:.3g} +- {s:.3g}" for f, m, s in zip(FREE, mu, sd))]
+                      "# log weights: " + ", ".join(f"{f} {m:.3g} +- {s:.3g}" for f, m, s in zip(self.features, mu,
+                                                                                                 sd))]
             lines += [f"{k} = {_toml(v)}" for k, v in style.items()]
         if road == "map":
             lines += ["", "[route_weights]   # recorded cars per route"]
@@ -249,7 +259,7 @@ def _recorded_demand(files: Sequence[Path], lmap) -> tuple[float, dict[str, int]
 
 def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_styles: int = 4, stride: int = 2,
               seed: int = 0, drivers=None, desired_speed="likelihood", min_tracks: int = MIN_TRACKS,
-              progress: Callable[[str], None] | None = None) -> Calibration:
+              interaction: bool = False, progress: Callable[[str], None] | None = None) -> Calibration:
     """Fit a population of PIRL drivers to recorded cars (module doc).
 
     Parameters
@@ -261,6 +271,9 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     desired_speed : "likelihood", "speeds" or (float, float)   a_lat [m/s^2], v_max [m/s]: of greatest likelihood
                                   (`PROFILE_CARS` cars), fitted to the speeds alone, or given ("Calibration" page)
     min_tracks, progress : int, callable(str)   fewest usable cars (>= 2); told what is being done (optional)
+    interaction : bool            also fit the weights of ``headway`` and ``yielding`` (`FREE_INTERACTING`), on every
+                                  step of each car with the vehicle ahead and the point it yields at as recorded; the
+                                  written population's drivers then interact ("Calibration" page)
 
     Raises
     ------
@@ -268,7 +281,7 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
                   (e.g. tracks off the map)
     """
     from pirl_sim.driving import PathDriverModel, SpeedProfile, roundabout_features
-    from pirl_sim.dynamics import longitudinal
+    from pirl_sim.dynamics import following, longitudinal
     from pirl_sim.io.lanelet2_map import load_map
     from pirl_sim.scenarios.replay import load_replay, track_key
     from pirl_sim.scenarios.scenario_config import MpcDriverConfig
@@ -279,6 +292,8 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
         int_at_least(name, value, low)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if not isinstance(interaction, bool):
+        raise TypeError(f"interaction must be True or False, got {interaction!r}")
     if not (isinstance(desired_speed, str) and desired_speed in ("likelihood", "speeds")):
         pair = np.asarray(desired_speed, dtype=float) if not isinstance(desired_speed, str) else np.array([])
         if pair.shape != (2,) or not np.all(np.isfinite(pair)) or np.any(pair <= 0):
@@ -298,21 +313,31 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
         raise ValueError(f"map {map_path}: no roundabout (no lanelets form a cycle in its routing graph); calibrate "
                          "fits the drivers of a roundabout")
     say(f"reading {len(files)} track file(s) on {Path(map_path).name}")
-    scene = load_replay(files, map_path, dt=dt, features="following", selection="free", estimate="speeds",
-                        smoothing=drivers.smoothing, speed_smoothing=drivers.speed_smoothing, max_steps=None)
-    demos = _own_steps(scene.selected)
-    keys = list(dict.fromkeys(track_key(t) for t in demos))
-    if len(keys) < min_tracks:
-        raise ValueError(f"{len(keys)} usable car(s) in {len(files)} track file(s) (of {scene.n_tracks} read; "
-                         f"skipped: {scene.skipped}): a mixture needs at least {min_tracks}; give more track files "
-                         "or check that they were recorded on this map")
-    index = {k: i for i, k in enumerate(keys)}
-    labels = np.array([index[track_key(t)] for t in demos])
 
-    def model_at(a_lat: float, v_max: float):
-        profile = SpeedProfile(scene.profile_path, a_lat, v_max)  # type: ignore[arg-type]  # a CompositePath
-        return PathDriverModel(longitudinal(dt), roundabout_features(profile),
-                               scene.model.bounds, path=scene.model.path)
+    def read(features: str, selection: str):
+        """The recorded cars read with ``features`` (``selection`` of `load_replay`)."""
+        return load_replay(files, map_path, dt=dt, features=features, selection=selection, estimate="speeds",
+                           smoothing=drivers.smoothing, speed_smoothing=drivers.speed_smoothing, max_steps=None)
+
+    def cars(scene, demos: list) -> tuple[list, np.ndarray]:
+        """The cars' keys (in order) and each trajectory's car, or the error for too few cars."""
+        keys = list(dict.fromkeys(track_key(t) for t in demos))
+        if len(keys) < min_tracks:
+            raise ValueError(f"{len(keys)} usable car(s) in {len(files)} track file(s) (of {scene.n_tracks} read; "
+                             f"skipped: {scene.skipped}): a mixture needs at least {min_tracks}; give more track "
+                             "files or check that they were recorded on this map")
+        index = {k: i for i, k in enumerate(keys)}
+        return keys, np.array([index[track_key(t)] for t in demos])
+
+    scene = read("following", "free")
+    demos = _own_steps(scene.selected)
+    keys, labels = cars(scene, demos)
+
+    def model_at(a_lat: float, v_max: float, on=scene, kind: str = "paper"):
+        """The drivers' model on the paths of scene ``on`` under the desired speed (a_lat, v_max)."""
+        profile = SpeedProfile(on.profile_path, a_lat, v_max)  # type: ignore[arg-type]  # a CompositePath
+        dynamics = following(dt, obstacles=2) if kind == "interacting" else longitudinal(dt)
+        return PathDriverModel(dynamics, roundabout_features(profile, kind), on.model.bounds, path=on.model.path)
 
     if isinstance(desired_speed, str):
         fit = fit_desired_speed(scene.curvature(np.concatenate([t.states[:, 0] for t in demos])),
@@ -320,11 +345,18 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
         desired_speed = (fit.a_lat, fit.v_max) if desired_speed == "speeds" else _most_likely_speed(
             model_at, demos, labels, (fit.a_lat, fit.v_max), drivers.horizon, say)
     a_lat, v_max = desired_speed
+    features = FREE_INTERACTING if interaction else FREE
     model = model_at(a_lat, v_max)
+    if interaction:  # every step, with the vehicle ahead and the point yielded at in the cost
+        say("reading the track files again with the vehicle ahead and the conflict points (every step)")
+        every = read("interacting", "all")
+        demos = list(every.selected)
+        keys, labels = cars(every, demos)
+        model = model_at(a_lat, v_max, every, "interacting")
     say(f"desired speed: a_lat {a_lat:.3g} m/s^2, v_max {v_max:.3g} m/s; fitting the weights of {len(keys)} cars "
         f"(horizon {drivers.horizon} steps of {dt:g} s)")
     res = fit_receding(model, demos, labels, horizon=drivers.horizon, stride=stride, log_bounds=LOG_BOUNDS)
-    cols = [list(model.features.names).index(f) for f in FREE]
+    cols = [list(model.features.names).index(f) for f in features]
     log_w = np.log(res.normalized[:, cols])
     gmm, bic = fit_styles(log_w, max_styles, seed)
     say(f"{gmm.n_components} style(s) by BIC")
@@ -336,4 +368,4 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
                        at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged), style_share=gmm.weights_,
                        style_log_mean=gmm.means_, style_log_var=gmm.covariances_, bic=bic,
                        depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks), duration_s=duration,
-                       map_path=str(map_path), route_counts=route_counts)
+                       map_path=str(map_path), route_counts=route_counts, features=features)

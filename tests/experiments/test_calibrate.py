@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.experiments.calibrate import Calibration, calibrate, fit_styles, lognormal_moments
+from pirl_sim.experiments.calibrate import FREE_INTERACTING, Calibration, calibrate, fit_styles, lognormal_moments
 from shared_sample import SAMPLE_MAP, needs_sample
 
 
@@ -95,6 +95,33 @@ def test_a_map_calibration_drives_the_recordings_roundabout_with_its_route_share
         cal.scenario_toml(road="ft")
 
 
+def test_an_interacting_calibration_writes_drivers_who_weigh_the_gaps(tmp_path):
+    """With the interaction weights (`FREE_INTERACTING`) the written styles weigh headway and yielding, and the
+    simulators read the population as one of drivers who interact."""
+    pytest.importorskip("sumolib")
+    from pirl_sim.scenarios.highway.scenario import load_scenario as load_highway
+    from pirl_sim.scenarios.sumo.scenario import load_scenario as load_sumo
+
+    rng = np.random.default_rng(4)
+    log_mean = np.array([[1.0, -1.0, 0.5, 2.0], [-2.0, 1.0, -1.0, 0.0]])
+    cal = _calibration(log_weights=np.repeat(log_mean, 6, axis=0) + rng.normal(0, 0.1, (12, 4)),
+                       at_bound=np.zeros((12, 4), bool), style_log_mean=log_mean,
+                       style_log_var=np.full((2, 4), 0.01), features=FREE_INTERACTING)
+    text = cal.scenario_toml("f.csv", road="ring")
+    assert "headway 0%, yielding 0%" in text
+    path = tmp_path / "calibrated.toml"
+    path.write_text(text)
+    for load in (load_sumo, load_highway):
+        pop = load(path).population
+        assert pop.interacting and pop.feature_names == ("speed_dev", "acc_sq", "jerk_sq", "headway", "yielding")
+        mean, _ = lognormal_moments(log_mean[1], np.full(4, 0.01))  # the larger share first
+        assert [pop.styles[0].mean[f] for f in FREE_INTERACTING] == pytest.approx(mean)
+    with pytest.raises(ValueError, match=r"as many as the cars \(12\), over 4 features"):
+        _calibration(features=FREE_INTERACTING)  # two weights per car
+    with pytest.raises(ValueError, match="features must be"):
+        _calibration(features=("speed_dev", "headway"))
+
+
 def test_a_calibration_checks_its_shapes():
     with pytest.raises(ValueError, match="as many as the cars"):
         _calibration(cars=(("f.csv", 1),))
@@ -112,9 +139,10 @@ def test_a_calibration_checks_its_shapes():
     ({"desired_speed": (0.0, 13.9)}, r"desired_speed must be 'likelihood', 'speeds' or \(a_lat, v_max\)"),
     ({"desired_speed": "fitted"}, r"desired_speed must be 'likelihood', 'speeds' or \(a_lat, v_max\)"),
     ({"drivers": {"horizon": 30}}, "drivers must be an MpcDriverConfig, got dict"),
+    ({"interaction": "yes"}, "interaction must be True or False, got 'yes'"),
 ])
 def test_bad_parameters_are_refused_before_reading(tmp_path, kwargs, message):
-    error = TypeError if "drivers" in kwargs else ValueError
+    error = TypeError if "drivers" in kwargs or "interaction" in kwargs else ValueError
     with pytest.raises(error, match=message):
         calibrate([tmp_path / "missing.csv"], tmp_path / "missing.osm", **kwargs)
     with pytest.raises(ValueError, match="at least one track file"):
