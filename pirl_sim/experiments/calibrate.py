@@ -23,7 +23,7 @@ import numpy as np
 from pirl_sim.receding import STEP_MASK, fit_receding
 from pirl_sim.speed_fit import A_LAT_RANGE, V_MAX_RANGE, fit_desired_speed
 
-__all__ = ["Calibration", "calibrate", "fit_styles", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX",
+__all__ = ["Calibration", "calibrate", "fit_styles", "fit_styles_deconvolved", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX",
            "ROADS", "FREE", "FREE_INTERACTING"]
 
 #: fewest usable recorded cars a calibration fits a mixture to
@@ -67,6 +67,26 @@ def fit_styles(log_weights: np.ndarray, max_styles: int = 4, seed: int = 0):
     return fits[min(bic, key=bic.__getitem__)], bic
 
 
+def fit_styles_deconvolved(log_weights: np.ndarray, log_se: np.ndarray, max_styles: int = 4, seed: int = 0):
+    """Deconvolved Gaussian mixtures (`pirl_sim.deconvolution.extreme_deconvolution`) of 1 .. ``max_styles``
+    components fitted to ``log_weights`` (n, K) measured with standard errors ``log_se`` (n, K) (a weight the data
+    do not determine has `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`); returns (the one of least BIC, {n_components: BIC})."""
+    from pirl_sim.deconvolution import extreme_deconvolution
+
+    from .recovery_styles import N_INIT
+
+    x = np.asarray(log_weights, float)
+    se = np.asarray(log_se, float)
+    n, k = x.shape
+    cov = se[:, :, None] * np.eye(k) * se[:, None, :]
+    fits, bic = {}, {}
+    for j in range(1, min(int(max_styles), n) + 1):
+        mix = extreme_deconvolution(x, cov, j, rng=np.random.default_rng(seed), n_init=N_INIT)
+        params = (j - 1) + j * k + j * k * (k + 1) // 2
+        fits[j], bic[j] = mix, float(-2.0 * mix.log_likelihood + params * np.log(n))
+    return fits[min(bic, key=bic.__getitem__)], bic
+
+
 @dataclass(frozen=True)
 class Calibration:
     """A population fitted to a recording (`calibrate`).
@@ -86,6 +106,8 @@ class Calibration:
     route_counts : dict {route id: int}   cars per entry-to-exit route of the map (ids of
                                           `pirl_sim.scenarios.sumo.lanelet_network.lanelet_paths`)
     features : tuple of str               the K fitted weights' features: `FREE`, or `FREE_INTERACTING`
+    identified : array (n, K) bool or None   with `FREE_INTERACTING`: which cars' data determine each weight (the
+                                          mixture integrates the others out)
     """
 
     a_lat: float
@@ -106,6 +128,7 @@ class Calibration:
     map_path: str = ""
     route_counts: dict = field(default_factory=dict)
     features: tuple = FREE
+    identified: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if tuple(self.features) not in (FREE, FREE_INTERACTING):
@@ -117,6 +140,8 @@ class Calibration:
             raise ValueError(f"style_log_mean and style_log_var must hold {s} styles over {k} features")
         if not np.all(np.isfinite(self.log_weights)):
             raise ValueError("log_weights must be finite")
+        if self.identified is not None and np.shape(self.identified) != (n, k):
+            raise ValueError(f"identified must be None or of shape ({n}, {k}), got {np.shape(self.identified)}")
 
     @property
     def n_styles(self) -> int:
@@ -125,10 +150,15 @@ class Calibration:
 
     def styles(self) -> list[dict]:
         """Each style as a population's style table: name, weight, mean and std over the weights (moment-matched
-        to the style's log-normal, `lognormal_moments`, its log variance capped at `LOG_VAR_MAX`), in order of
+        to the style's log-normal, `lognormal_moments`, its log variance capped at `LOG_VAR_MAX` and its mean and
+        standard deviation at the population's largest value, `pirl_sim.population.STYLE_VALUE_MAX`), in order of
         decreasing share."""
+        from pirl_sim.population import STYLE_VALUE_MAX
+
         order = np.argsort(-self.style_share, kind="stable")
         means, stds = lognormal_moments(self.style_log_mean[order], np.minimum(self.style_log_var[order], LOG_VAR_MAX))
+        scale = np.minimum(1.0, STYLE_VALUE_MAX / np.maximum(means, stds))  # a log-normal shifted down to fit
+        means, stds = means * scale, stds * scale
         return [{"name": f"calibrated {n + 1}", "weight": float(self.style_share[i]),
                  "mean": {f: float(m) for f, m in zip(self.features, mean)},
                  "std": {f: float(x) for f, x in zip(self.features, std)}}
@@ -162,8 +192,11 @@ class Calibration:
                  "# log weights at their bound: " + ", ".join(f"{f} {b:.0%}" for f, b in zip(self.features,
                                                                                            self.at_bound.mean(axis=0)))
                  + f"; converged fits {self.converged.mean():.0%}; styles "
-                 f"whose log variance was capped at {LOG_VAR_MAX:g}: {capped}",
-                 ""]
+                 f"whose log variance was capped at {LOG_VAR_MAX:g}: {capped}"]
+        if self.identified is not None:
+            lines.append("# cars whose data determine the weight: " + ", ".join(
+                f"{f} {int(c)}" for f, c in zip(self.features, self.identified.sum(axis=0))))
+        lines.append("")
         if road == "map":
             lines += [f"lanelet_map = {_toml(str(Path(self.map_path).resolve()))}   # SUMO and highway-env on this roundabout", ""]
         lines += ["[drivers]", f"horizon = {self.horizon}",
@@ -208,6 +241,55 @@ def _own_steps(trajectories) -> list:
         if own.any():
             out.append(Trajectory(t.states[:, :3], t.controls, t.dt, dict(t.metadata, **{STEP_MASK: own})))
     return out
+
+
+#: a style's interaction weight is its own when the cars that determine it weigh at least this much in the style
+#: (summed probabilities of membership); else it is that of all cars that determine it (`_determined_styles`)
+MIN_DETERMINED = 5.0
+
+
+def _determined_styles(mix, log_w: np.ndarray, se: np.ndarray, known: np.ndarray, features: tuple):
+    """(share (S,), log mean (S, K), log variance (S, K)) of a deconvolved mixture's styles, where a style whose
+    members' data determine an interaction weight in fewer than `MIN_DETERMINED` cars takes that weight's mean and
+    variance over all cars that determine it (a component's mean in a weight nobody in it shows is arbitrary).
+    ValueError when no car's data determine an interaction weight."""
+    cov = se[:, :, None] * np.eye(se.shape[1]) * se[:, None, :]
+    resp = mix.predict_proba(log_w, cov)
+    mean, var = mix.means.copy(), np.diagonal(mix.covariances, axis1=1, axis2=2).copy()
+    for j, f in enumerate(features):
+        if f not in FREE_INTERACTING[len(FREE):]:
+            continue
+        shown = log_w[known[:, j], j]
+        if not len(shown):
+            raise ValueError(f"no recorded car's data determine the {f} weight (none came near enough to what it "
+                             "weighs often enough): calibrate without interaction weights")
+        thin = resp[known[:, j]].sum(axis=0) < MIN_DETERMINED
+        mean[thin, j], var[thin, j] = shown.mean(), shown.var()
+    return mix.weights, mean, var
+
+
+def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], horizon: int):
+    """Which fitted log weights (n_cars, K) the cars' data determine, and the standard errors the mixture takes:
+    a weight with a finite standard error counts (floored at `~pirl_sim.experiments.recovery_styles.SE_FLOOR`);
+    an interaction weight only by the recovery study's rule (standard error <= `~.recovery.IDENTIFIED_SE` and
+    at least `~.recovery.MIN_NEAR_STEPS` steps within reach of its obstacle, `~.recovery.near_steps`); the
+    others get `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`."""
+    from pirl_sim.trajectory import Trajectory
+
+    from .recovery import IDENTIFIED_SE, MIN_NEAR_STEPS, near_steps
+    from .recovery_styles import SE_FLOOR, UNKNOWN_SE
+
+    names = [model.features.names[c] for c in cols]
+    se = np.asarray(res.log_se, float)[:, cols]
+    known = np.isfinite(se)
+    for j, f in enumerate(names):
+        if f in FREE_INTERACTING[len(FREE):]:
+            near = np.zeros(len(se), dtype=int)
+            for t, g in zip(demos, labels):  # every step is the car's own (the recording has no overrides)
+                whole = Trajectory(t.states, t.controls, t.dt, dict(t.metadata, **{STEP_MASK: np.ones(len(t.controls), bool)}))
+                near[g] += near_steps(model, whole, f, horizon)
+            known[:, j] &= (se[:, j] <= IDENTIFIED_SE) & (near >= MIN_NEAR_STEPS)
+    return known, np.where(known, np.maximum(np.nan_to_num(se, nan=UNKNOWN_SE), SE_FLOOR), UNKNOWN_SE)
 
 
 def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tuple[float, float]:
@@ -358,14 +440,21 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     res = fit_receding(model, demos, labels, horizon=drivers.horizon, stride=stride, log_bounds=LOG_BOUNDS)
     cols = [list(model.features.names).index(f) for f in features]
     log_w = np.log(res.normalized[:, cols])
-    gmm, bic = fit_styles(log_w, max_styles, seed)
-    say(f"{gmm.n_components} style(s) by BIC")
+    known = None
+    if interaction:  # a mixture that integrates out the weights a car's data do not determine
+        known, se = _identified(model, demos, labels, res, cols, drivers.horizon)
+        gmm, bic = fit_styles_deconvolved(log_w, se, max_styles, seed)
+        share, mean, var = _determined_styles(gmm, log_w, se, known, features)
+    else:
+        gmm, bic = fit_styles(log_w, max_styles, seed)
+        share, mean, var = gmm.weights_, gmm.means_, gmm.covariances_
+    say(f"{len(share)} style(s) by BIC")
     duration, route_counts = _recorded_demand(files, lmap)
     if not duration > 0:
         raise ValueError(f"the track files span {duration:g} s: no departure rate can be read from them")
     return Calibration(a_lat=float(a_lat), v_max=float(v_max), horizon=drivers.horizon, dt=dt,
                        cars=tuple((Path(f).name, int(i)) for f, i in keys), log_weights=log_w,
-                       at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged), style_share=gmm.weights_,
-                       style_log_mean=gmm.means_, style_log_var=gmm.covariances_, bic=bic,
+                       at_bound=res.at_bound[:, cols], converged=np.asarray(res.converged), style_share=share,
+                       style_log_mean=mean, style_log_var=var, bic=bic, identified=known,
                        depart_rate=3600.0 * scene.n_tracks / duration, n_cars=int(scene.n_tracks), duration_s=duration,
                        map_path=str(map_path), route_counts=route_counts, features=features)

@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.experiments.calibrate import FREE_INTERACTING, Calibration, calibrate, fit_styles, lognormal_moments
+from pirl_sim.experiments.calibrate import (FREE_INTERACTING, Calibration, calibrate, fit_styles,
+                                            fit_styles_deconvolved, lognormal_moments)
 from shared_sample import SAMPLE_MAP, needs_sample
 
 
@@ -106,9 +107,11 @@ def test_an_interacting_calibration_writes_drivers_who_weigh_the_gaps(tmp_path):
     log_mean = np.array([[1.0, -1.0, 0.5, 2.0], [-2.0, 1.0, -1.0, 0.0]])
     cal = _calibration(log_weights=np.repeat(log_mean, 6, axis=0) + rng.normal(0, 0.1, (12, 4)),
                        at_bound=np.zeros((12, 4), bool), style_log_mean=log_mean,
-                       style_log_var=np.full((2, 4), 0.01), features=FREE_INTERACTING)
+                       style_log_var=np.full((2, 4), 0.01), features=FREE_INTERACTING,
+                       identified=np.arange(48).reshape(12, 4) % 5 > 0)
     text = cal.scenario_toml("f.csv", road="ring")
     assert "headway 0%, yielding 0%" in text
+    assert "# cars whose data determine the weight: speed_dev 9, acc_sq 9, headway 10, yielding 10" in text
     path = tmp_path / "calibrated.toml"
     path.write_text(text)
     for load in (load_sumo, load_highway):
@@ -120,6 +123,56 @@ def test_an_interacting_calibration_writes_drivers_who_weigh_the_gaps(tmp_path):
         _calibration(features=FREE_INTERACTING)  # two weights per car
     with pytest.raises(ValueError, match="features must be"):
         _calibration(features=("speed_dev", "headway"))
+    with pytest.raises(ValueError, match=r"identified must be None or of shape \(12, 2\)"):
+        _calibration(identified=np.ones((12, 4), bool))
+
+
+def test_the_deconvolved_styles_cluster_on_the_weights_the_cars_show():
+    """Two styles apart in the first weight; the second weight is shown by a third of the cars only (the others
+    measured with an unknown error and a value far off): the mixture still finds two styles with the shown means."""
+    from pirl_sim.experiments.recovery_styles import UNKNOWN_SE
+
+    rng = np.random.default_rng(5)
+    truth = np.repeat([[1.0, 0.5], [-2.0, 2.0]], 60, axis=0)
+    x = truth + rng.normal(0, 0.1, truth.shape)
+    se = np.full(x.shape, 0.05)
+    hidden = rng.random(len(x)) > 1 / 3
+    x[hidden, 1], se[hidden, 1] = rng.uniform(-20, 20, hidden.sum()), UNKNOWN_SE
+    mix, bic = fit_styles_deconvolved(x, se, max_styles=3, seed=0)
+    assert mix.n_components == 2 and min(bic, key=bic.get) == 2
+    found = mix.means[np.argsort(mix.means[:, 0])]
+    np.testing.assert_allclose(found, [[-2.0, 2.0], [1.0, 0.5]], atol=0.15)
+
+
+def test_a_style_whose_members_show_no_interaction_weight_takes_that_of_the_cars_that_do():
+    from pirl_sim.experiments.calibrate import MIN_DETERMINED, _determined_styles
+    from pirl_sim.experiments.recovery_styles import UNKNOWN_SE
+
+    rng = np.random.default_rng(6)
+    x = np.column_stack([np.repeat([1.0, -2.0], 40), np.zeros(80), rng.normal(0.7, 0.2, 80), np.zeros(80)])
+    x[:, 0] += rng.normal(0, 0.1, 80)
+    se = np.full(x.shape, 0.05)
+    known = np.ones(x.shape, bool)
+    known[40:, 2] = False  # the second style's cars never come near a vehicle ahead
+    known[:, 3] = False
+    se[~known] = UNKNOWN_SE
+    mix, _ = fit_styles_deconvolved(x[:, :3], se[:, :3], max_styles=2, seed=0)
+    share, mean, var = _determined_styles(mix, x[:, :3], se[:, :3], known[:, :3], FREE_INTERACTING[:3])
+    second = int(np.argmin(mean[:, 0]))
+    assert MIN_DETERMINED > 0 and mean[second, 2] == pytest.approx(x[:40, 2].mean())
+    assert var[second, 2] == pytest.approx(x[:40, 2].var())
+    with pytest.raises(ValueError, match="no recorded car's data determine the yielding weight"):
+        mix4, _ = fit_styles_deconvolved(x, se, max_styles=1, seed=0)
+        _determined_styles(mix4, x, se, known, FREE_INTERACTING)
+
+
+def test_a_style_beyond_the_populations_largest_weight_is_shifted_down_to_it():
+    from pirl_sim.population import STYLE_VALUE_MAX
+
+    cal = _calibration(style_log_mean=np.array([[1.0, -1.0], [-2.0, 19.0]]))
+    big = cal.styles()[0]  # the larger share first
+    assert max(big["mean"]["acc_sq"], big["std"]["acc_sq"]) == pytest.approx(STYLE_VALUE_MAX)
+    assert cal.population().styles[0].mean["acc_sq"] <= STYLE_VALUE_MAX
 
 
 def test_a_calibration_checks_its_shapes():
