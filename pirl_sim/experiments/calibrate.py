@@ -269,27 +269,29 @@ def _determined_styles(mix, log_w: np.ndarray, se: np.ndarray, known: np.ndarray
 
 
 def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], horizon: int):
-    """Which fitted log weights (n_cars, K) the cars' data determine, and the standard errors the mixture takes:
-    a weight with a finite standard error counts (floored at `~pirl_sim.experiments.recovery_styles.SE_FLOOR`);
-    an interaction weight only by the recovery study's rule (standard error <= `~.recovery.IDENTIFIED_SE` and
-    at least `~.recovery.MIN_NEAR_STEPS` steps within reach of its obstacle, `~.recovery.near_steps`); the
-    others get `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`."""
+    """Which fitted log weights (n_cars, K) the cars' data determine, and the standard errors the mixture takes.
+    ``speed_dev`` and ``acc_sq`` count as in `fit_styles` (a weight at its bound too: its feature does not count for
+    the car), with their standard errors floored at `~pirl_sim.experiments.recovery_styles.SE_FLOOR`; an interaction
+    weight only by the recovery study's rule (standard error <= `~.recovery.IDENTIFIED_SE` and at least
+    `~.recovery.MIN_NEAR_STEPS` steps within reach of its obstacle, `~.recovery.near_steps`), the others get
+    `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`."""
     from pirl_sim.trajectory import Trajectory
 
     from .recovery import IDENTIFIED_SE, MIN_NEAR_STEPS, near_steps
     from .recovery_styles import SE_FLOOR, UNKNOWN_SE
 
-    names = [model.features.names[c] for c in cols]
-    se = np.asarray(res.log_se, float)[:, cols]
-    known = np.isfinite(se)
-    for j, f in enumerate(names):
+    raw = np.asarray(res.log_se, float)[:, cols]
+    se = np.where(np.isfinite(raw), np.maximum(raw, SE_FLOOR), SE_FLOOR)
+    known = np.ones(se.shape, dtype=bool)
+    for j, f in enumerate(model.features.names[c] for c in cols):
         if f in FREE_INTERACTING[len(FREE):]:
             near = np.zeros(len(se), dtype=int)
-            for t, g in zip(demos, labels):  # every step is the car's own (the recording has no overrides)
-                whole = Trajectory(t.states, t.controls, t.dt, dict(t.metadata, **{STEP_MASK: np.ones(len(t.controls), bool)}))
+            for t, g in zip(demos, labels):  # every step is the car's own (a recording shows no overrides)
+                whole = Trajectory(t.states, t.controls, t.dt,
+                                   dict(t.metadata, **{STEP_MASK: np.ones(len(t.controls), dtype=bool)}))
                 near[g] += near_steps(model, whole, f, horizon)
-            known[:, j] &= (se[:, j] <= IDENTIFIED_SE) & (near >= MIN_NEAR_STEPS)
-    return known, np.where(known, np.maximum(np.nan_to_num(se, nan=UNKNOWN_SE), SE_FLOOR), UNKNOWN_SE)
+            known[:, j] = (raw[:, j] <= IDENTIFIED_SE) & (near >= MIN_NEAR_STEPS)  # NaN and inf: not determined
+    return known, np.where(known, se, UNKNOWN_SE)
 
 
 def _most_likely_speed(model_at, demos, labels, start, horizon: int, say) -> tuple[float, float]:

@@ -263,3 +263,35 @@ def test_the_weights_of_simulated_drivers_that_drove_on_their_own_come_back(sumo
     assert 1 <= len(config.population.styles) <= 2 and config.drivers.horizon == 30
     assert config.lanelet_map == str((real / "map.osm").resolve()) and config.route_weights
     assert sum(config.route_weights.values()) == sum(cal.route_counts.values()) <= len(truth)
+
+
+@pytest.mark.slow
+def test_drivers_who_interact_read_as_real_data_keep_their_free_weights(tmp_path):
+    """SUMO drivers who interact (`INTERACTING_POPULATION`'s two styles, 24 of them, one every 2 s), read as real
+    data with the interaction weights: speed_dev and acc_sq come back (median |log error| < 0.1); an interaction
+    weight counts only for the cars whose data determine it, and the written population interacts."""
+    pytest.importorskip("libsumo")
+    import dataclasses
+
+    from pirl_sim.scenarios.population_config import INTERACTING_POPULATION
+    from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_scenario, run_sumo_scenario
+
+    pop = dataclasses.replace(INTERACTING_POPULATION, n_vehicles=24, depart_interval=2.0, background_share=0.0)
+    config = SumoScenarioConfig(population=pop)
+    run_sumo_scenario(config, seed=1, out_dir=tmp_path / "run")
+    real = tmp_path / "real"
+    real.mkdir()
+    for name in ("vehicle_tracks_000.csv", "map.osm"):
+        shutil.copy(tmp_path / "run" / name, real / name)
+    cal = calibrate([real / "vehicle_tracks_000.csv"], real / "map.osm", min_tracks=5, interaction=True,
+                    desired_speed=(config.drivers.a_lat, config.drivers.v_max))
+    assert cal.features == FREE_INTERACTING and cal.identified is not None
+    truth = pd.read_csv(tmp_path / "run" / "ground_truth.csv").set_index("track_id")
+    true_log = np.log([[truth.loc[t, f"theta_{f}"] for f in cal.features] for _, t in cal.cars])
+    err = np.abs(cal.log_weights - true_log)
+    assert np.median(err[:, :2], axis=0).max() < 0.1
+    assert cal.identified[:, :2].all() and 0 < cal.identified[:, 2:].sum() < cal.identified[:, 2:].size
+    out = tmp_path / "calibrated.toml"
+    out.write_text(cal.scenario_toml("run"))
+    written = load_scenario(out).population
+    assert written.interacting and len(written.styles) == cal.n_styles
