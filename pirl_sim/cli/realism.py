@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pirl_sim.validation import positive_int_arg
 
-from .common import error, finish, reworded, subcommand, track_files
+from .common import error, finish, reworded, scenario_runner, subcommand, track_files
 
 __all__ = ["add_parser", "run"]
 
@@ -79,11 +79,7 @@ def _simulated(label: str, scenario: Path, seeds: int, out: Path, simulator: str
     ``"sumo"``: libsumo, ``"highway"``: highway-env)."""
     from pirl_sim.scenarios.recording import INFO_FILE
 
-    if simulator == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import load_scenario, run_sumo_scenario as simulate
-    else:
-        from pirl_sim.scenarios.highway.scenario import load_scenario, run_highway_scenario as simulate  # type: ignore[assignment]
-
+    _, load_scenario, simulate = scenario_runner(simulator)
     config = load_scenario(scenario)
     dirs = [out / "runs" / label / f"seed_{s}" for s in range(seeds)]
     for s, d in enumerate(dirs):

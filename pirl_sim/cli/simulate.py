@@ -17,7 +17,7 @@ from typing import Any
 
 from pirl_sim.validation import check_output_dir, positive_float_arg, positive_int_arg
 
-from .common import add_seed_option, error, finish, reworded, subcommand
+from .common import add_seed_option, error, finish, reworded, scenario_runner, subcommand
 
 __all__ = ["add_parser", "run", "add_simulator_parser", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT", "SUMO_BACKENDS"]
 
@@ -104,13 +104,9 @@ def run(args: argparse.Namespace) -> int:
     if args.print_default_population:
         sys.stdout.write(DEFAULT_POPULATION_TOML)
         return 0
+    Config, load_scenario, simulate = scenario_runner(args.simulator)
     if args.simulator == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig as Config, load_scenario, run_sumo_scenario
-
-        simulate = functools.partial(run_sumo_scenario, backend=args.backend)
-    else:
-        from pirl_sim.scenarios.highway.scenario import (  # type: ignore[assignment]  # either simulator's
-            HighwayScenarioConfig as Config, load_scenario, run_highway_scenario as simulate)
+        simulate = functools.partial(simulate, backend=args.backend)
     try:
         population = load_population(args.population) if args.population is not None else None
         config = (load_scenario(args.scenario, population=population) if args.scenario is not None
