@@ -23,11 +23,11 @@ def _share(text: str) -> float:
 @subcommand("calibrate", help="fit a driver population to a recording; write a scenario TOML for simulate",
             description="Fit a population of PIRL drivers to recorded cars (INTERACTION track files on their "
             "Lanelet2 map): the desired speed's a_lat and v_max, one weight vector per car by the receding-horizon "
-            "IRL on its free-flow steps (the simulated drivers' features, step and horizon; with --interaction on every "
-            "step, also weighing the gaps to the vehicle ahead and to the point it yields at), and a Gaussian mixture "
-            "over the log weights with the number of styles chosen by BIC. Writes a scenario TOML ([drivers], "
-            "[population]) for pirl-sim simulate sumo|highway --scenario; the simulated drivers' weights are drawn "
-            "from the mixture and written to the ground truth.")
+            "IRL on its free-flow steps (the simulated drivers' features, step and horizon; with --interaction on "
+            "every step, also weighing the gaps to the vehicle ahead and to the point it yields at), and a Gaussian "
+            "mixture over the log weights with the number of styles chosen by BIC. Writes a scenario TOML "
+            "([drivers], [population]) for pirl-sim simulate sumo|highway --scenario; the simulated drivers' weights "
+            "are drawn from the mixture and written to the ground truth.")
 def add_parser(p) -> None:
     """The options of ``calibrate``."""
     add_track_options(p)

@@ -4,10 +4,12 @@
 (features ``speed_dev``, ``acc_sq``, ``jerk_sq``; their re-planning step and MPC horizon; their reference-path
 smoothing), fits one weight vector per recorded car by the receding-horizon IRL on the steps where it neither
 follows nor yields (`pirl_sim.receding`) under the desired speed (a_lat, v_max) of greatest likelihood, and fits
-a Gaussian mixture to the log weights with the number of styles chosen by BIC. `Calibration.scenario_toml`
-writes the result as a scenario TOML (``[drivers]`` and ``[population]``) that ``pirl-sim simulate`` runs: the
-simulated drivers' weights are then drawn from the fitted mixture and written to the ground-truth sidecar, so
-they stay known. How each step works and what the figures mean: the documentation's "Calibration" page.
+a Gaussian mixture to the log weights with the number of styles chosen by BIC. With ``interaction=True`` each car's
+weights of ``headway`` and ``yielding`` (the simulated drivers who interact) are fitted too, on every step, and the
+styles are a deconvolved mixture that integrates out the interaction weights a car's data do not determine.
+`Calibration.scenario_toml` writes the result as a scenario TOML (``[drivers]`` and ``[population]``) that
+``pirl-sim simulate`` runs: the simulated drivers' weights are then drawn from the fitted mixture and written to the
+ground-truth sidecar, so they stay known. How each step works and what the figures mean: the documentation's "Calibration" page.
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ import numpy as np
 from pirl_sim.receding import STEP_MASK, fit_receding
 from pirl_sim.speed_fit import A_LAT_RANGE, V_MAX_RANGE, fit_desired_speed
 
-__all__ = ["Calibration", "calibrate", "fit_styles", "fit_styles_deconvolved", "lognormal_moments", "MIN_TRACKS", "LOG_BOUNDS", "LOG_VAR_MAX",
-           "ROADS", "FREE", "FREE_INTERACTING"]
+__all__ = ["Calibration", "calibrate", "fit_styles", "fit_styles_deconvolved", "lognormal_moments", "MIN_TRACKS",
+           "LOG_BOUNDS", "LOG_VAR_MAX", "ROADS", "FREE", "FREE_INTERACTING"]
 
 #: fewest usable recorded cars a calibration fits a mixture to
 MIN_TRACKS = 10
@@ -43,6 +45,7 @@ FREE = ("speed_dev", "acc_sq")
 #: with ``interaction=True``: also the weights of the gaps to the vehicle ahead and to the point yielded at (the
 #: ``interacting`` features of `pirl_sim.driving.roundabout_features`, the simulated drivers who interact)
 FREE_INTERACTING = FREE + ("headway", "yielding")
+_INTERACTION = FREE_INTERACTING[len(FREE):]
 #: Where the written scenario drives: the recording's own roundabout (SUMO), or the simulators' parametric ring.
 ROADS = ("map", "ring")
 
@@ -70,21 +73,27 @@ def fit_styles(log_weights: np.ndarray, max_styles: int = 4, seed: int = 0):
 def fit_styles_deconvolved(log_weights: np.ndarray, log_se: np.ndarray, max_styles: int = 4, seed: int = 0):
     """Deconvolved Gaussian mixtures (`pirl_sim.deconvolution.extreme_deconvolution`) of 1 .. ``max_styles``
     components fitted to ``log_weights`` (n, K) measured with standard errors ``log_se`` (n, K) (a weight the data
-    do not determine has `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`); returns (the one of least BIC, {n_components: BIC})."""
+    do not determine has `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`); returns (the one of least BIC,
+    {n_components: BIC})."""
     from pirl_sim.deconvolution import extreme_deconvolution
 
     from .recovery_styles import N_INIT
 
     x = np.asarray(log_weights, float)
-    se = np.asarray(log_se, float)
     n, k = x.shape
-    cov = se[:, :, None] * np.eye(k) * se[:, None, :]
+    cov = _diagonal(log_se)
     fits, bic = {}, {}
     for j in range(1, min(int(max_styles), n) + 1):
         mix = extreme_deconvolution(x, cov, j, rng=np.random.default_rng(seed), n_init=N_INIT)
         params = (j - 1) + j * k + j * k * (k + 1) // 2
         fits[j], bic[j] = mix, float(-2.0 * mix.log_likelihood + params * np.log(n))
     return fits[min(bic, key=bic.__getitem__)], bic
+
+
+def _diagonal(se: np.ndarray) -> np.ndarray:
+    """Measurement covariances (n, K, K) of independent standard errors ``se`` (n, K)."""
+    se = np.asarray(se, float)
+    return se[:, :, None] * np.eye(se.shape[1]) * se[:, None, :]
 
 
 @dataclass(frozen=True)
@@ -253,11 +262,10 @@ def _determined_styles(mix, log_w: np.ndarray, se: np.ndarray, known: np.ndarray
     members' data determine an interaction weight in fewer than `MIN_DETERMINED` cars takes that weight's mean and
     variance over all cars that determine it (a component's mean in a weight nobody in it shows is arbitrary).
     ValueError when no car's data determine an interaction weight."""
-    cov = se[:, :, None] * np.eye(se.shape[1]) * se[:, None, :]
-    resp = mix.predict_proba(log_w, cov)
+    resp = mix.predict_proba(log_w, _diagonal(se))
     mean, var = mix.means.copy(), np.diagonal(mix.covariances, axis1=1, axis2=2).copy()
     for j, f in enumerate(features):
-        if f not in FREE_INTERACTING[len(FREE):]:
+        if f not in _INTERACTION:
             continue
         shown = log_w[known[:, j], j]
         if not len(shown):
@@ -284,7 +292,7 @@ def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], ho
     se = np.where(np.isfinite(raw), np.maximum(raw, SE_FLOOR), SE_FLOOR)
     known = np.ones(se.shape, dtype=bool)
     for j, f in enumerate(model.features.names[c] for c in cols):
-        if f in FREE_INTERACTING[len(FREE):]:
+        if f in _INTERACTION:
             near = np.zeros(len(se), dtype=int)
             for t, g in zip(demos, labels):  # every step is the car's own (a recording shows no overrides)
                 whole = Trajectory(t.states, t.controls, t.dt,
