@@ -9,7 +9,8 @@ weights of ``headway`` and ``yielding`` (the simulated drivers who interact) are
 styles are a deconvolved mixture that integrates out the interaction weights a car's data do not determine.
 `Calibration.scenario_toml` writes the result as a scenario TOML (``[drivers]`` and ``[population]``) that
 ``pirl-sim simulate`` runs: the simulated drivers' weights are then drawn from the fitted mixture and written to the
-ground-truth sidecar, so they stay known. How each step works and what the figures mean: the documentation's "Calibration" page.
+ground-truth sidecar, so they stay known. How each step works and what the figures mean: the documentation's
+"Calibration" page.
 """
 
 from __future__ import annotations
@@ -280,9 +281,9 @@ def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], ho
     """Which fitted log weights (n_cars, K) the cars' data determine, and the standard errors the mixture takes.
     ``speed_dev`` and ``acc_sq`` count as in `fit_styles` (a weight at its bound too: its feature does not count for
     the car), with their standard errors floored at `~pirl_sim.experiments.recovery_styles.SE_FLOOR`; an interaction
-    weight only by the recovery study's rule (standard error <= `~.recovery.IDENTIFIED_SE` and at least
-    `~.recovery.MIN_NEAR_STEPS` steps within reach of its obstacle, `~.recovery.near_steps`), the others get
-    `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`."""
+    weight only by the recovery study's rule (standard error <= `~pirl_sim.experiments.recovery.IDENTIFIED_SE` and
+    at least `~pirl_sim.experiments.recovery.MIN_NEAR_STEPS` steps within reach of its obstacle,
+    `~pirl_sim.experiments.recovery.near_steps`), the others get `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`."""
     from pirl_sim.trajectory import Trajectory
 
     from .recovery import IDENTIFIED_SE, MIN_NEAR_STEPS, near_steps
