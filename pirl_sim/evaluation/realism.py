@@ -64,11 +64,14 @@ class FeatureSpec:
         return np.clip(i, 0, self.bins - 1).astype(np.intp)
 
 
+_NO_GAP = 10.0           # s: the accepted gap of a vehicle that enters with no ring vehicle closing in within _NEAR
+
 #: The features and their default weights. The challenge's weights where a feature corresponds to one of its
 #: metrics (speed, acceleration, yaw rate and acceleration 0.05 each; distance to the nearest object 0.10;
 #: collision 0.25; time to collision 0.10; lane-centre offset in place of the distance to the road edge 0.10);
 #: the roundabout's own features (jerk, gap and time headway to the leader, stopped time, lateral acceleration)
-#: 0.05 each. They sum to 1.
+#: 0.05 each. They sum to 1. The entry features (the wait before entering the ring and the time gap accepted there)
+#: are scored and drawn for reading, with weight 0 (``score_realism(weights=...)`` gives them one).
 FEATURES: tuple[FeatureSpec, ...] = (
     FeatureSpec("speed", "m/s", 0.0, 20.0, 20, 0.05),
     FeatureSpec("acceleration", "m/s^2", -6.0, 6.0, 24, 0.05),
@@ -82,7 +85,9 @@ FEATURES: tuple[FeatureSpec, ...] = (
     FeatureSpec("time_to_collision", "s", 0.0, 5.0, 10, 0.10),
     FeatureSpec("stopped_time", "s", 0.0, 30.0, 15, 0.05, per="vehicle"),
     FeatureSpec("collision", "0/1", 0.0, 1.0, 2, 0.25, per="vehicle"),
-    FeatureSpec("lane_offset", "m", 0.0, 3.0, 15, 0.10, needs_map=True))
+    FeatureSpec("lane_offset", "m", 0.0, 3.0, 15, 0.10, needs_map=True),
+    FeatureSpec("entry_wait", "s", 0.0, 30.0, 15, 0.0, per="vehicle", needs_map=True),
+    FeatureSpec("accepted_gap", "s", 0.0, _NO_GAP, 20, 0.0, per="vehicle", needs_map=True))
 
 _LEADER_RANGE = 50.0     # m: vehicles further ahead are not a leader
 _LEADER_LATERAL = 1.8    # m: |lateral offset| in the follower's frame
@@ -90,6 +95,7 @@ _LEADER_COS = 0.7        # cos of the largest heading difference (about 45 deg)
 _STOPPED = 0.5           # m/s: below this speed a vehicle counts as stopped
 _MIN_HEADWAY_SPEED = 1.0  # m/s: time headway only above this speed
 _NEAR = 50.0             # m: pairs of vehicles further apart (centres) are neither measured nor leaders
+_CLOSING = 0.5           # m/s: a ring vehicle closes in on the entry point at least this fast
 
 
 @dataclass(frozen=True)
@@ -186,6 +192,8 @@ def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[Featur
         per_row["lane_offset"] = _lane_offsets(lmap, xy)
     vehicles = {n: np.split(col, starts[1:]) for n, col in per_row.items()}  # each column's rows per vehicle
     per_vehicle = {"stopped_time": stopped, "collision": [np.array([float(c.any())]) for c in vehicles["_collides"]]}
+    if {"entry_wait", "accepted_gap"} & set(names):
+        per_vehicle.update(_entries(df, t, xy, v_xy, speed, _on_ring(lmap, xy), starts, ends))
     out = {n: per_vehicle[n] if n in per_vehicle else [c[np.isfinite(c)] for c in vehicles[n]] for n in names}
     return TrackFeatures(out, len(starts), duration)
 
@@ -272,6 +280,47 @@ def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]
     ttc[fr[coming]] = np.minimum(g[coming] / closing[coming], 5.0)
     return {"nearest_distance": np.where(np.isfinite(nearest), nearest, np.nan), "gap": gap,
             "time_headway": headway, "time_to_collision": ttc, "_collides": collides}
+
+
+def _on_ring(lmap, xy: np.ndarray) -> np.ndarray:
+    """Bool (n,): each point is nearer to a centre line of the roundabout's ring (the lanelets on a cycle of the
+    routing graph) than to any other lanelet's; all False on a map without a roundabout."""
+    from pirl_sim.paths import polyline_distances
+    from pirl_sim.scenarios.sumo.lanelet_network import ring_lanelets
+
+    ring = ring_lanelets(lmap)
+    if not ring:
+        return np.zeros(len(xy), dtype=bool)
+    others = [c for lid, c in lmap.centerlines.items() if lid not in ring]
+    d_ring = polyline_distances([lmap.centerlines[lid] for lid in ring], xy)
+    return d_ring < polyline_distances(others, xy) if others else np.ones(len(xy), dtype=bool)
+
+
+def _entries(df: pd.DataFrame, t, xy, v_xy, speed, on_ring, starts, ends) -> dict[str, list[np.ndarray]]:
+    """Per vehicle that drives onto the ring from outside it: ``entry_wait``, its time [s] below the stopped speed
+    before its first row on the ring, and ``accepted_gap``, the time [s] in which the nearest ring vehicle closing in
+    on that entry position (within 50 m, at 0.5 m/s or faster) would reach it at that frame (`_NO_GAP` when none);
+    other vehicles (starting on the ring, never on it) have no sample."""
+    frames = df.groupby("frame_id").indices
+    frame_ids, ids = df["frame_id"].to_numpy(), df["track_id"].to_numpy()
+    wait, gap = [], []
+    for a, b in zip(starts, ends):
+        ring = on_ring[a:b]
+        if ring[0] or not ring.any():
+            wait.append(np.zeros(0))
+            gap.append(np.zeros(0))
+            continue
+        k = a + int(np.argmax(ring))
+        dt = np.diff(t[a : k + 1])
+        wait.append(np.array([float(np.sum(dt[speed[a:k] < _STOPPED]))]))
+        rows = frames[frame_ids[k]]
+        rows = rows[on_ring[rows] & (ids[rows] != ids[k])]
+        rel = xy[k] - xy[rows]  # from each ring vehicle to the entry position
+        dist = np.hypot(rel[:, 0], rel[:, 1])
+        closing = np.einsum("ij,ij->i", v_xy[rows], rel) / np.maximum(dist, 1e-9)
+        near = (dist < _NEAR) & (closing >= _CLOSING)
+        gap.append(np.array([min(float(np.min(dist[near] / closing[near])), _NO_GAP) if near.any() else _NO_GAP]))
+    return {"entry_wait": wait, "accepted_gap": gap}
 
 
 def _lane_offsets(lmap, xy: np.ndarray) -> np.ndarray:

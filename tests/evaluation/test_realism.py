@@ -231,3 +231,32 @@ def test_command_simulates_a_scenario_source_and_resumes(tmp_path, capsys):
         with pytest.raises(SystemExit):
             main(["realism", "--reference", str(ref), *bad])
         assert "expected" in capsys.readouterr().err
+
+
+def test_entry_wait_and_accepted_gap_on_a_roundabout_map(tmp_path):
+    """A car waits 3 s on an entry lane and enters the ring while a ring car 13.7 m upstream closes in at 9.4 m/s:
+    its entry wait is 3 s and its accepted gap that time; a car that starts on the ring has neither."""
+    from pirl_sim.io.lanelet2_map import load_map, write_map
+
+    def arc(a0, a1):
+        a = np.radians(np.linspace(a0, a1, 20))
+        return np.column_stack([20 * np.cos(a), 20 * np.sin(a)])
+
+    lanes = {"E": np.array([[0.0, -60.0], [0.0, -20.0]]), "R1": arc(-90, 0), "R2": arc(0, 90), "R3": arc(90, 180),
+             "R4": arc(180, 270)}
+    write_map(lanes, {"E": ["R1"], "R1": ["R2"], "R2": ["R3"], "R3": ["R4"], "R4": ["R1"]}, tmp_path / "map.osm")
+    entering = ([(1, f, 0.0, -50.0 + f, 0.0, 10.0) for f in range(1, 21)]
+                + [(1, f, 0.0, -30.0, 0.0, 0.0) for f in range(21, 51)]
+                + [(1, f, 0.0, -30.0 + (f - 50), 0.0, 10.0) for f in range(51, 60)])  # to 1 m before the ring
+    entry = 20 * np.array([np.cos(np.radians(-80)), np.sin(np.radians(-80))])
+    entering.append((1, 60, *entry, 10.0, 1.8))
+    theta = np.radians(-120)
+    ring_xy, ring_v = 20 * np.array([np.cos(theta), np.sin(theta)]), 10 * np.array([-np.sin(theta), np.cos(theta)])
+    ringcar = [(2, f, *(ring_xy + (f - 60) * 0.1 * ring_v), *ring_v) for f in range(58, 63)]
+    on_ring = [(3, f, *arc(0, 90)[f - 1], -10.0, 10.0) for f in range(1, 6)]
+    feats = track_features(_scene(entering + ringcar + on_ring), load_map(tmp_path / "map.osm"))
+    rel = entry - ring_xy
+    gap = np.hypot(*rel) / (ring_v @ rel / np.hypot(*rel))
+    assert feats.values["entry_wait"][0] == pytest.approx([3.0])
+    assert feats.values["accepted_gap"][0] == pytest.approx([gap]) and 1.0 < gap < 2.0
+    assert [len(feats.values[n][i]) for n in ("entry_wait", "accepted_gap") for i in (1, 2)] == [0, 0, 0, 0]
