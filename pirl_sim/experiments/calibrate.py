@@ -428,7 +428,7 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
 
     def model_at(a_lat: float, v_max: float, on=scene, kind: str = "paper"):
         """The drivers' model on the paths of scene ``on`` under the desired speed (a_lat, v_max)."""
-        profile = SpeedProfile(on.profile_path, a_lat, v_max)  # type: ignore[arg-type]  # a CompositePath
+        profile = SpeedProfile(on.profile_path, a_lat, v_max)  # on.profile_path: a CompositePath
         dynamics = following(dt, obstacles=2) if kind == "interacting" else longitudinal(dt)
         return PathDriverModel(dynamics, roundabout_features(profile, kind), on.model.bounds, path=on.model.path)
 
