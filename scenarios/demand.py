@@ -107,7 +107,7 @@ def demand_from_tracks(tracks: pd.DataFrame, lmap, routes, *, min_share: float =
     tracks : pandas.DataFrame       INTERACTION vehicle columns (`pirl_sim.io.interaction.read_tracks`)
     lmap : pirl_sim.io.lanelet2_map.LaneletMap
     routes : sequence of sequence of int   entry-to-exit lanelet routes (e.g. from
-                                           `pirl_sim.scenarios.sumo.lanelet_network.lanelet_paths`)
+                                           `pirl_sim.scenarios.lanelet_graph.lanelet_paths`)
     min_share : float               a track whose best route holds less of its matched lanelets counts as unmatched
 
     Returns

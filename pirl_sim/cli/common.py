@@ -148,20 +148,6 @@ def print_plan(config, out, what: str, unit: str = "cells", code: bool = False) 
           + (f" (code {version})" if code else ""))
 
 
-def scenario_runner(simulator: str):
-    """(config class, ``load_scenario``, ``run_*_scenario``) of a simulator's scenarios, ``"sumo"`` or
-    ``"highway"``, imported when asked for."""
-    if simulator == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, load_scenario, run_sumo_scenario
-
-        return SumoScenarioConfig, load_scenario, run_sumo_scenario
-    if simulator == "highway":
-        from pirl_sim.scenarios.highway import scenario as highway
-
-        return highway.HighwayScenarioConfig, highway.load_scenario, highway.run_highway_scenario
-    raise ValueError(f"simulator must be 'sumo' or 'highway', got {simulator!r}")
-
-
 def add_blas_threads_option(parser: argparse.ArgumentParser) -> None:
     """Add ``--blas-threads`` to ``parser`` and, recursively, to each of its subcommands' parsers (so it may
     come before or after a command's name). Absent from the namespace unless given."""

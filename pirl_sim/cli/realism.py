@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pirl_sim.validation import positive_int_arg
 
-from .common import error, finish, reworded, scenario_runner, subcommand, track_files
+from .common import error, finish, reworded, subcommand, track_files
 
 __all__ = ["add_parser", "run"]
 
@@ -79,8 +79,10 @@ def _simulated(label: str, scenario: Path, seeds: int, out: Path, simulator: str
     finished recording (its ``run.json``) is kept, the others are simulated in this process (``simulator``
     ``"sumo"``: libsumo, ``"highway"``: highway-env)."""
     from pirl_sim.scenarios.recording import INFO_FILE
+    from pirl_sim.scenarios.simulators import simulator_scenarios
 
-    _, load_scenario, simulate = scenario_runner(simulator)
+    sim = simulator_scenarios(simulator)
+    load_scenario, simulate = sim.load, sim.run
     config = load_scenario(scenario)
     dirs = [out / "runs" / label / f"seed_{s}" for s in range(seeds)]
     for s, d in enumerate(dirs):

@@ -17,7 +17,7 @@ from typing import Any
 
 from pirl_sim.validation import check_output_dir, positive_float_arg, positive_int_arg
 
-from .common import add_seed_option, error, finish, reworded, scenario_runner, subcommand
+from .common import add_seed_option, error, finish, reworded, subcommand
 
 __all__ = ["add_parser", "run", "add_simulator_parser", "ProgressBar", "SUMO_OUT", "HIGHWAY_OUT", "SUMO_BACKENDS"]
 
@@ -100,11 +100,13 @@ def run(args: argparse.Namespace) -> int:
     """``pirl-sim simulate SIMULATOR``: 0 on success; 2 for a bad configuration (the reason on stderr, nothing
     written)."""
     from pirl_sim.scenarios.population_config import DEFAULT_POPULATION, DEFAULT_POPULATION_TOML, load_population
+    from pirl_sim.scenarios.simulators import simulator_scenarios
 
     if args.print_default_population:
         sys.stdout.write(DEFAULT_POPULATION_TOML)
         return 0
-    Config, load_scenario, simulate = scenario_runner(args.simulator)
+    sim = simulator_scenarios(args.simulator)
+    Config, load_scenario, simulate = sim.config, sim.load, sim.run
     if args.simulator == "sumo":
         simulate = functools.partial(simulate, backend=args.backend)
     try:

@@ -286,7 +286,7 @@ def _on_ring(lmap, xy: np.ndarray) -> np.ndarray:
     """Bool (n,): each point is nearer to a centre line of the roundabout's ring (the lanelets on a cycle of the
     routing graph) than to any other lanelet's; all False on a map without a roundabout."""
     from pirl_sim.paths import polyline_distances
-    from pirl_sim.scenarios.sumo.lanelet_network import ring_lanelets
+    from pirl_sim.scenarios.lanelet_graph import ring_lanelets
 
     ring = ring_lanelets(lmap)
     if not ring:

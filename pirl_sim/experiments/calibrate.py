@@ -114,7 +114,7 @@ class Calibration:
     depart_rate, n_cars, duration_s       cars per hour [veh/h], cars read, summed length of the files [s]
     map_path : str                        the Lanelet2 map the cars were read on
     route_counts : dict {route id: int}   cars per entry-to-exit route of the map (ids of
-                                          `pirl_sim.scenarios.sumo.lanelet_network.lanelet_paths`)
+                                          `pirl_sim.scenarios.lanelet_graph.lanelet_paths`)
     features : tuple of str               the K fitted weights' features: `FREE`, or `FREE_INTERACTING`
     identified : array (n, K) bool or None   with `FREE_INTERACTING`: which cars' data determine each weight (the
                                           mixture integrates the others out)
@@ -284,8 +284,6 @@ def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], ho
     weight only by the recovery study's rule (standard error <= `~pirl_sim.experiments.recovery.IDENTIFIED_SE` and
     at least `~pirl_sim.experiments.recovery.MIN_NEAR_STEPS` steps within reach of its obstacle,
     `~pirl_sim.experiments.recovery.near_steps`), the others get `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`."""
-    from pirl_sim.trajectory import Trajectory
-
     from .recovery import IDENTIFIED_SE, MIN_NEAR_STEPS, near_steps
     from .recovery_styles import SE_FLOOR, UNKNOWN_SE
 
@@ -296,9 +294,7 @@ def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], ho
         if f in _INTERACTION:
             near = np.zeros(len(se), dtype=int)
             for t, g in zip(demos, labels):  # every step is the car's own (a recording shows no overrides)
-                whole = Trajectory(t.states, t.controls, t.dt,
-                                   dict(t.metadata, **{STEP_MASK: np.ones(len(t.controls), dtype=bool)}))
-                near[g] += near_steps(model, whole, f, horizon)
+                near[g] += near_steps(model, t, f, horizon)
             known[:, j] = (raw[:, j] <= IDENTIFIED_SE) & (near >= MIN_NEAR_STEPS)  # NaN and inf: not determined
     return known, np.where(known, se, UNKNOWN_SE)
 
@@ -336,7 +332,7 @@ def _recorded_demand(files: Sequence[Path], lmap) -> tuple[float, dict[str, int]
     (`pirl_sim.scenarios.demand.demand_from_tracks`), each file read once."""
     from pirl_sim.io.interaction import read_tracks
     from pirl_sim.scenarios.demand import demand_from_tracks
-    from pirl_sim.scenarios.sumo.lanelet_network import lanelet_paths
+    from pirl_sim.scenarios.lanelet_graph import lanelet_paths
 
     routes = {path: rid for rid, path in lanelet_paths(lmap)}
     duration, counts = 0.0, Counter()  # type: ignore[var-annotated]
@@ -378,7 +374,7 @@ def calibrate(track_files: Sequence[str | Path], map_path: str | Path, *, max_st
     from pirl_sim.io.lanelet2_map import load_map
     from pirl_sim.scenarios.replay import load_replay, track_key
     from pirl_sim.scenarios.scenario_config import MpcDriverConfig
-    from pirl_sim.scenarios.sumo.lanelet_network import ring_lanelets
+    from pirl_sim.scenarios.lanelet_graph import ring_lanelets
     from pirl_sim.validation import int_at_least
 
     for name, value, low in (("max_styles", max_styles, 1), ("stride", stride, 1), ("min_tracks", min_tracks, 2)):

@@ -193,14 +193,17 @@ def recovery_report(run, *, min_steps: int = 10, stride: int = 1) -> RunRecovery
 def near_steps(model, demo, feature: str, horizon: int) -> int:
     """Usable steps of a demonstration whose gap of an interaction ``feature`` (``headway``: the vehicle ahead,
     ``yielding``: the obstacle yielded to) is within reach of a plan of ``horizon`` steps (`NEAR_MARGIN`): the
-    steps that can inform its weight."""
+    steps that can inform its weight. A demonstration without a step mask (`pirl_sim.receding.STEP_MASK`, e.g. a
+    recorded car, whose every step is its own) counts all its steps."""
     from pirl_sim.receding import STEP_MASK
 
     res = model.features.features[list(model.features.names).index(feature)].residual
     x = demo.states[:-1]
     reach = np.maximum(x[:, 1], 0.0) * horizon * model.dynamics.dt
     near = x[:, res.gap_index] < res.standstill + res.time_gap * x[:, 1] + NEAR_MARGIN + reach
-    return int(np.sum(near & np.asarray(demo.metadata[STEP_MASK], dtype=bool)))
+    if STEP_MASK in demo.metadata:
+        near &= np.asarray(demo.metadata[STEP_MASK], dtype=bool)
+    return int(np.sum(near))
 
 
 def summary_row(tracks: pd.DataFrame, styles: pd.DataFrame, n_pirl_tracks: int) -> dict[str, Any]:
@@ -369,35 +372,27 @@ def _check(params: dict) -> dict:
     if params["scenario"]:  # written out in full (routes included); absent when empty, as before it existed
         if "population" in params["scenario"]:
             raise ValueError("scenario: give its population as the 'population' parameter, not inside 'scenario'")
-        config = _scenario(params["simulator"], params["scenario"], pop)
+        config = _scenario_config(params, pop)
         out["scenario"] = json.loads(json.dumps({k: v for k, v in config.to_dict().items() if k != "population"}))
     return out
 
 
-def _scenario(simulator: str, scenario: dict, population):
-    """The simulator's scenario configuration of a scenario table and a population."""
-    if simulator == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import scenario_from_dict
-    else:
-        from pirl_sim.scenarios.highway.scenario import scenario_from_dict  # type: ignore[assignment]
+def _scenario_config(params: dict, population):
+    """The simulator's scenario configuration of the cell's scenario table (none: its default scenario) with
+    ``population``."""
+    from pirl_sim.scenarios.simulators import simulator_scenarios
 
-    return scenario_from_dict(scenario, source="scenario 'recovery' scenario", population=population)
+    sim = simulator_scenarios(params["simulator"])
+    if not params.get("scenario"):
+        return sim.config(population=population)
+    return sim.from_dict(params["scenario"], source="scenario 'recovery' scenario", population=population)
 
 
 def _simulate(params: dict, seed: int, out_dir: Path) -> None:
-    pop = _population(params)
-    if params["simulator"] == "sumo":
-        from pirl_sim.scenarios.sumo.scenario import SumoScenarioConfig, run_sumo_scenario
+    from pirl_sim.scenarios.simulators import simulator_scenarios
 
-        config = _scenario("sumo", params["scenario"], pop) if params.get("scenario") \
-            else SumoScenarioConfig(population=pop)
-        run_sumo_scenario(config, seed, out_dir=out_dir)
-    else:
-        from pirl_sim.scenarios.highway.scenario import HighwayScenarioConfig, run_highway_scenario
-
-        hw = _scenario("highway", params["scenario"], pop) if params.get("scenario") \
-            else HighwayScenarioConfig(population=pop)
-        run_highway_scenario(hw, seed, out_dir=out_dir)
+    simulator_scenarios(params["simulator"]).run(_scenario_config(params, _population(params)), seed,
+                                                 out_dir=out_dir)
 
 
 def _paper_only(params: dict, protocol: dict) -> None:

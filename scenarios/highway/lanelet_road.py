@@ -4,9 +4,9 @@ Each lanelet with a centre line becomes one highway-env lane along that centre l
 width from its bounds), between two nodes: lanelet ends that the map's routing graph joins (a lanelet's end and its
 successors' starts) are one node, as in the SUMO network of the same map
 (`pirl_sim.scenarios.sumo.lanelet_network`). Routes are the map's entry-to-exit routes with the ids SUMO uses
-(`~pirl_sim.scenarios.sumo.lanelet_network.lanelet_paths`), so a population plan, ``route_weights`` and a
+(`~pirl_sim.scenarios.lanelet_graph.lanelet_paths`), so a population plan, ``route_weights`` and a
 calibrated scenario mean the same in both simulators. The ring is the lanelets on a cycle of the routing graph
-(`~pirl_sim.scenarios.sumo.lanelet_network.ring_lanelets`); a route joins it at its first ring lanelet, where the
+(`~pirl_sim.scenarios.lanelet_graph.ring_lanelets`); a route joins it at its first ring lanelet, where the
 traffic's gap acceptance applies (`~.traffic.RoundaboutTraffic`). Coordinates stay the map's, so recorded tracks lie
 on the simulated lanes.
 
@@ -131,9 +131,9 @@ class MapRoad:
 
 def _node_names(succ: dict[int, list[int]]) -> tuple[dict[int, str], dict[int, str]]:
     """(node of each lanelet's start, node of its end): ``n<k>``, numbered in the order of the sorted lanelet ids."""
-    from ..sumo.lanelet_network import _ends
+    from ..lanelet_graph import node_keys
 
-    start, end = _ends(succ)
+    start, end = node_keys(succ)
     names: dict = {}
     for lid in sorted(succ):
         for key in (start[lid], end[lid]):
@@ -161,10 +161,10 @@ def lanelet_road(lmap) -> MapRoad:
     """
     from highway_env.road.road import RoadNetwork
 
-    from ..sumo.lanelet_network import _loaded, _successors, _width, lanelet_paths, ring_lanelets
+    from ..lanelet_graph import lanelet_paths, lanelet_width, loaded_map, ring_lanelets, successors
 
-    lmap = _loaded(lmap)
-    succ = _successors(lmap)
+    lmap = loaded_map(lmap)
+    succ = successors(lmap)
     ring_ids = ring_lanelets(lmap)
     if not ring_ids:
         raise ValueError(f"map {lmap.path}: no roundabout: no lanelets form a cycle of the routing graph")
@@ -185,7 +185,7 @@ def lanelet_road(lmap) -> MapRoad:
     for lid, (a, b) in lane_of.items():
         points = lmap.centerlines[lid]
         keep = np.concatenate(([True], np.hypot(*np.diff(points, axis=0).T) >= 1e-3))
-        network.add_lane(a, b, CenterlineLane(points[keep], _width(lmap, lid)))
+        network.add_lane(a, b, CenterlineLane(points[keep], lanelet_width(lmap, lid)))
     routes: dict[str, RouteLanes] = {}
     lanelets: dict[str, tuple[int, ...]] = {}
     for rid, path in lanelet_paths(lmap):

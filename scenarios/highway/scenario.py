@@ -230,7 +230,7 @@ def build_routes(config: HighwayScenarioConfig, *, cache: bool = False):
     for equal geometry, map and path smoothing (shared: nothing may change them).
 
     On a Lanelet2 map (``config.lanelet_map``) the reference paths follow the map's lanelet centre lines as the SUMO
-    scenario's and the replay's do (`~pirl_sim.scenarios.sumo.lanelet_network.lanelet_route_set`).
+    scenario's and the replay's do (`~pirl_sim.scenarios.lanelet_graph.lanelet_route_set`).
     """
     key = (config.geometry, config.lanelet_map, config.drivers.smoothing, config.drivers.speed_smoothing)
     if cache and key in _ROUTES:
@@ -243,7 +243,7 @@ def build_routes(config: HighwayScenarioConfig, *, cache: bool = False):
         routes = route_set(net, catalogue, smoothing=config.drivers.smoothing,
                            speed_smoothing=config.drivers.speed_smoothing)
     else:
-        from ..sumo.lanelet_network import edge_id, lanelet_route_set
+        from ..lanelet_graph import edge_id, lanelet_route_set
         from .lanelet_road import map_road
 
         road = map_road(config.lanelet_map)

@@ -40,7 +40,7 @@ def run_demand(net, departures, out, *, seed: int = 0, end_s: float | None = Non
 
     from pirl_sim.io.interaction import write_tracks
 
-    from .lanelet_network import edge_id
+    from ..lanelet_graph import edge_id
 
     net_path = Path(getattr(net, "net", net))
     if not net_path.is_file():

@@ -47,7 +47,8 @@ from ..scenario_config import (MpcDriverConfig, Progress, check_lanelet_map, fro
                                resolve_lanelet_map, scenario_from_table)
 from .network import NetworkFiles, RoundaboutSpec, build_network, lane_graph, load_net, route_set, \
     routes as network_routes, validate_route
-from .lanelet_network import lanelet_route_set, map_routes, network_from_lanelet2
+from ..lanelet_graph import lanelet_route_set, map_routes
+from .lanelet_network import network_from_lanelet2
 from .runner import BACKENDS, COLLISION_ACTIONS, SPEED_MODE_ALL_CHECKS, SumoRecording, SumoRun, VehicleSpec
 
 __all__ = [

@@ -75,7 +75,7 @@ def test_a_map_calibration_drives_the_recordings_roundabout_with_its_route_share
     pytest.importorskip("lanelet2")
     from pirl_sim.io.lanelet2_map import write_map
     from pirl_sim.scenarios.highway.scenario import load_scenario as load_highway
-    from pirl_sim.scenarios.sumo.lanelet_network import map_routes
+    from pirl_sim.scenarios.lanelet_graph import map_routes
     from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph
     from pirl_sim.scenarios.sumo.scenario import load_scenario as load_sumo
 

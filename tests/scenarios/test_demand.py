@@ -11,7 +11,8 @@ from pirl_sim.io.interaction import read_tracks
 from pirl_sim.io.lanelet2_map import load_map, write_map
 from pirl_sim.scenarios.demand import Departure, RecordedDemand, demand_from_tracks
 from pirl_sim.scenarios.sumo.demand_run import run_demand
-from pirl_sim.scenarios.sumo.lanelet_network import lanelet_paths, network_from_lanelet2
+from pirl_sim.scenarios.lanelet_graph import lanelet_paths
+from pirl_sim.scenarios.sumo.lanelet_network import network_from_lanelet2
 from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph
 
 

@@ -23,7 +23,7 @@ from pirl_sim.scenarios.highway.scenario import (  # noqa: E402
     run_highway_scenario,
 )
 from pirl_sim.scenarios.population_config import DEFAULT_POPULATION  # noqa: E402
-from pirl_sim.scenarios.sumo.lanelet_network import lanelet_paths, ring_lanelets  # noqa: E402
+from pirl_sim.scenarios.lanelet_graph import lanelet_paths, ring_lanelets  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -9,15 +9,8 @@ import numpy as np
 import pytest
 
 from pirl_sim.io.lanelet2_map import load_map, write_map
-from pirl_sim.scenarios.sumo.lanelet_network import (
-    edge_id,
-    lane_distances,
-    lanelet_edges,
-    lanelet_paths,
-    lanelet_routes,
-    network_from_lanelet2,
-    route_lanelets,
-)
+from pirl_sim.scenarios.lanelet_graph import edge_id, lanelet_edges, lanelet_paths, lanelet_routes, route_lanelets
+from pirl_sim.scenarios.sumo.lanelet_network import lane_distances, network_from_lanelet2
 from pirl_sim.scenarios.sumo.network import RoundaboutSpec, build_network, lane_graph, routes
 from shared_sample import SAMPLE_MAP, SAMPLE_TRACKS, needs_sample
 
