@@ -19,8 +19,8 @@ import numpy as np
 from pirl_sim.joints import joined_ends
 
 __all__ = ["edge_id", "successors", "lanelet_width", "lanelet_chains", "node_keys", "loaded_map", "chain_route",
-           "lanelet_edges", "route_lanelets", "lanelet_paths", "lanelet_routes", "map_routes", "lanelet_route_set",
-           "ring_lanelets", "cycle_lanelets"]
+           "lanelet_edges", "route_lanelets", "lanelet_paths", "lanelet_routes", "map_routes", "map_file_version",
+           "lanelet_route_set", "ring_lanelets", "cycle_lanelets"]
 
 DEFAULT_WIDTH = 3.5  # [m] a lanelet whose bounds give no width
 
@@ -237,11 +237,17 @@ def map_routes(path) -> tuple[tuple[str, tuple[str, ...]], ...]:
     FileNotFoundError, ValueError
         As `pirl_sim.io.lanelet2_map.load_map` and `lanelet_routes` raise them.
     """
+    return _map_routes(*map_file_version(path))
+
+
+def map_file_version(path) -> tuple[str, int, int]:
+    """(resolved path, modification time [ns], size [bytes]) of a Lanelet2 map file: the key of a cache that
+    rereads the file when it changes. FileNotFoundError if it is not a file."""
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"Lanelet2 map not found: {p}")
     st = p.stat()
-    return _map_routes(str(p.resolve()), st.st_mtime_ns, st.st_size)
+    return str(p.resolve()), st.st_mtime_ns, st.st_size
 
 
 @functools.lru_cache(maxsize=8)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -214,11 +213,9 @@ def map_road(path) -> MapRoad:
     FileNotFoundError, ValueError
         As `pirl_sim.io.lanelet2_map.load_map` and `lanelet_road` raise them.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"Lanelet2 map not found: {p}")
-    st = p.stat()
-    return _map_road(str(p.resolve()), st.st_mtime_ns, st.st_size)
+    from ..lanelet_graph import map_file_version
+
+    return _map_road(*map_file_version(path))
 
 
 @functools.lru_cache(maxsize=4)
