@@ -1,13 +1,11 @@
 """The scenario entry points of each simulator, looked up by name: what the command line and the experiments that
-run either simulator (``"sumo"`` or ``"highway"``) share.
+run either simulator (``"sumo"`` or ``"highway"``) share::
 
-```python
-from pirl_sim.scenarios.simulators import simulator_scenarios
+    from pirl_sim.scenarios.simulators import simulator_scenarios
 
-sim = simulator_scenarios("highway")            # imports highway-env's scenario module only now
-config = sim.load("calibrated.toml")            # or sim.from_dict(table, population=...), sim.config(...)
-sim.run(config, 0, out_dir="/tmp/run_0")
-```
+    sim = simulator_scenarios("highway")            # imports highway-env's scenario module only now
+    config = sim.load("calibrated.toml")            # or sim.from_dict(table, population=...), sim.config(...)
+    sim.run(config, 0, out_dir="/tmp/run_0")
 """
 
 from __future__ import annotations
