@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pirl_sim.validation import positive_int_arg
 
 from .common import error, finish, reworded, subcommand, track_files
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["add_parser", "run"]
 
@@ -63,7 +67,8 @@ def add_parser(p) -> None:
                    help="seeds 0..N-1 of each --scenario and --highway-scenario (default 3)")
     p.add_argument("--map", type=Path, help="the Lanelet2 map (.osm): adds the lane-centre offset")
     p.add_argument("--out", type=Path, default=Path("realism"),
-                   help="output folder: summary.csv, features.csv, realism.png (default ./realism)")
+                   help="output folder: summary.csv, features.csv, realism.png, overlaps.csv and (with --map or "
+                        "overlaps) overlaps.png (default ./realism)")
 
 
 def _features(paths: list[Path], lmap):
@@ -96,9 +101,11 @@ def run(args) -> int:
     """``pirl-sim realism``: 0, or 2 for a bad input (a missing file, a repeated label, tracks without samples)."""
     import pandas as pd
 
-    from pirl_sim.evaluation.realism import compare_sources, realism_figure
+    from pirl_sim.evaluation.realism import compare_sources, overlap_map, realism_figure
+    from pirl_sim.io.atomic import atomic_write_text
     from pirl_sim.io.lanelet2_map import load_map
     from pirl_sim.validation import check_output_dir
+    from pirl_sim.viz import road_from_lanelet2
 
     try:
         scenarios = [(*x, "sumo") for x in args.scenario] + [(*x, "highway") for x in args.highway_scenario]
@@ -123,6 +130,13 @@ def run(args) -> int:
         summary.to_csv(out / "summary.csv", index=False)
         features.to_csv(out / "features.csv", index=False)
         realism_figure(reference, sources, out / "realism.png")
+        overlaps = _overlaps(reference, sources)
+        atomic_write_text(out / "overlaps.csv", overlaps.to_csv(index=False))
+        drawn = lmap is not None or len(overlaps) > 0
+        if drawn:
+            overlap_map({label: g for label, g in overlaps.groupby("source", sort=False)}, out / "overlaps.png",
+                        road=road_from_lanelet2(lmap) if lmap is not None else None,
+                        title="where vehicles overlap (first frame of each pair)")
     except (ValueError, TypeError, FileNotFoundError) as exc:
         return error(exc)
     with pd.option_context("display.width", 160, "display.max_columns", 20):
@@ -130,4 +144,20 @@ def run(args) -> int:
         print(summary.round(3).to_string(index=False))
         print(features.groupby(["feature", "source"], sort=False)["likelihood"].mean().unstack("source")
               .round(3).to_string())
-    return finish(f"{out / 'summary.csv'}, {out / 'features.csv'}, {out / 'realism.png'}")
+    pairs = overlaps.groupby("source", sort=False).size().reindex(["reference", *sources], fill_value=0)
+    print("pairs of vehicles whose boxes overlap (all rollouts): "
+          + ", ".join(f"{label} {n}" for label, n in pairs.items()))
+    written = ["summary.csv", "features.csv", "realism.png", "overlaps.csv"] + (["overlaps.png"] if drawn else [])
+    return finish(", ".join(str(out / name) for name in written))
+
+
+def _overlaps(reference, sources) -> pd.DataFrame:
+    """The overlapping pairs of the reference and of every source's rollouts in one table: ``source``,
+    ``rollout``, ``part`` (the track file within the rollout), then `pirl_sim.evaluation.realism.OVERLAP_COLUMNS`."""
+    import pandas as pd
+
+    from pirl_sim.evaluation.realism import OVERLAP_COLUMNS
+
+    parts = [reference.overlaps.assign(source="reference", rollout=0)]
+    parts += [f.overlaps.assign(source=label, rollout=r) for label, feats in sources.items() for r, f in enumerate(feats)]
+    return pd.concat(parts, ignore_index=True)[["source", "rollout", "part", *OVERLAP_COLUMNS]]

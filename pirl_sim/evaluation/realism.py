@@ -19,7 +19,7 @@ import pandas as pd
 from pirl_sim.validation import int_at_least, number
 
 __all__ = ["FeatureSpec", "FEATURES", "TrackFeatures", "track_features", "score_realism", "RealismScore",
-           "compare_sources", "box_distance", "realism_figure"]
+           "compare_sources", "box_distance", "realism_figure", "OVERLAP_COLUMNS", "overlap_map"]
 
 
 @dataclass(frozen=True)
@@ -110,11 +110,15 @@ class TrackFeatures:
     n_vehicles : int
     duration_s : float
         Sum over vehicles of their tracked time [s].
+    overlaps : pandas.DataFrame or None
+        Every pair of vehicles whose boxes overlap at some frame, one row each (`OVERLAP_COLUMNS`); the
+        ``collision`` feature counts the vehicles in them. None when not computed.
     """
 
     values: dict[str, list[np.ndarray]]
     n_vehicles: int
     duration_s: float
+    overlaps: pd.DataFrame | None = None
 
     def pooled(self, name: str) -> np.ndarray:
         """All samples of feature ``name``, shape (n,)."""
@@ -129,8 +133,12 @@ class TrackFeatures:
         if not parts:
             raise ValueError("combine: no TrackFeatures given")
         names = set.intersection(*(set(p.values) for p in parts))
+        overlaps = None
+        if all(p.overlaps is not None for p in parts):  # the part each came from (track ids repeat across files)
+            overlaps = pd.concat([p.overlaps.assign(part=k) for k, p in enumerate(parts)],  # type: ignore[union-attr]
+                                 ignore_index=True)
         return TrackFeatures({n: [a for p in parts for a in p.values[n]] for n in sorted(names)},
-                             sum(p.n_vehicles for p in parts), float(sum(p.duration_s for p in parts)))
+                             sum(p.n_vehicles for p in parts), float(sum(p.duration_s for p in parts)), overlaps)
 
 
 def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[FeatureSpec] = FEATURES) -> TrackFeatures:
@@ -187,7 +195,8 @@ def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[Featur
         stopped.append(np.array([np.sum(dt[speed[a:b] < _STOPPED])]))
         duration += float(tt[-1] - tt[0])
 
-    per_row.update(_interaction_rows(df, xy, psi, speed))
+    interaction, overlaps = _interaction_rows(df, xy, psi, speed)
+    per_row.update(interaction)
     if "lane_offset" in names:
         per_row["lane_offset"] = _lane_offsets(lmap, xy)
     vehicles = {n: np.split(col, starts[1:]) for n, col in per_row.items()}  # each column's rows per vehicle
@@ -195,7 +204,7 @@ def track_features(tracks: pd.DataFrame, lmap=None, *, features: Sequence[Featur
     if {"entry_wait", "accepted_gap"} & set(names):
         per_vehicle.update(_entries(df, t, xy, v_xy, speed, _on_ring(lmap, xy), starts, ends))
     out = {n: per_vehicle[n] if n in per_vehicle else [c[np.isfinite(c)] for c in vehicles[n]] for n in names}
-    return TrackFeatures(out, len(starts), duration)
+    return TrackFeatures(out, len(starts), duration, overlaps)
 
 
 def box_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -242,9 +251,10 @@ def _frame_pairs(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(ii), np.concatenate(jj)
 
 
-def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]:
+def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> tuple[dict[str, np.ndarray], pd.DataFrame]:
     """Per row: distance to the nearest other box, collision, gap, time headway and time to collision to the
-    leader (the nearest vehicle ahead in the same direction within `_LEADER_RANGE`)."""
+    leader (the nearest vehicle ahead in the same direction within `_LEADER_RANGE`); and the pairs of vehicles whose
+    boxes overlap (`OVERLAP_COLUMNS`)."""
     from pirl_sim.viz.vehicles import box_corners
 
     n, length, width = len(df), df["length"].to_numpy(dtype=float), df["width"].to_numpy(dtype=float)
@@ -260,6 +270,7 @@ def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]
     np.minimum.at(nearest, f, dd)
     collides = np.zeros(n, dtype=bool)
     collides[f[dd == 0.0]] = True
+    overlaps = _overlap_table(df, xy, psi, speed, i[d == 0.0], j[d == 0.0])
     h, rel = np.stack([np.cos(psi), np.sin(psi)], axis=-1), xy[o] - xy[f]
     lon, lat = np.sum(rel * h[f], -1), rel[:, 1] * h[f, 0] - rel[:, 0] * h[f, 1]
     ok = (lon > 0) & (lon < _LEADER_RANGE) & (np.abs(lat) < _LEADER_LATERAL) & (np.sum(h[f] * h[o], -1) > _LEADER_COS)
@@ -279,7 +290,30 @@ def _interaction_rows(df: pd.DataFrame, xy, psi, speed) -> dict[str, np.ndarray]
     coming = closing > 0.1
     ttc[fr[coming]] = np.minimum(g[coming] / closing[coming], 5.0)
     return {"nearest_distance": np.where(np.isfinite(nearest), nearest, np.nan), "gap": gap,
-            "time_headway": headway, "time_to_collision": ttc, "_collides": collides}
+            "time_headway": headway, "time_to_collision": ttc, "_collides": collides}, overlaps
+
+
+#: The columns of `TrackFeatures.overlaps`: the two vehicles (``track_a`` < ``track_b``), the first frame their
+#: boxes overlap and for how many frames, the midpoint of their centres [m] and their heading difference [deg, 0..180]
+#: at that frame, and their speeds then [m/s].
+OVERLAP_COLUMNS = ("track_a", "track_b", "frame_id", "frames", "x", "y", "heading_difference_deg", "speed_a",
+                   "speed_b")
+
+
+def _overlap_table(df: pd.DataFrame, xy, psi, speed, i: np.ndarray, j: np.ndarray) -> pd.DataFrame:
+    """One row per pair of vehicles among the overlapping rows (i, j) of the same frames (`OVERLAP_COLUMNS`)."""
+    ids, frames = df["track_id"].to_numpy(), df["frame_id"].to_numpy()
+    swap = ids[i] > ids[j]
+    a, b = np.where(swap, j, i), np.where(swap, i, j)
+    turn = np.abs((psi[a] - psi[b] + np.pi) % (2.0 * np.pi) - np.pi)
+    rows = pd.DataFrame({"track_a": ids[a], "track_b": ids[b], "frame_id": frames[a],
+                         "x": 0.5 * (xy[a, 0] + xy[b, 0]), "y": 0.5 * (xy[a, 1] + xy[b, 1]),
+                         "heading_difference_deg": np.degrees(turn), "speed_a": speed[a], "speed_b": speed[b]})
+    rows = rows.sort_values(["track_a", "track_b", "frame_id"], kind="stable")
+    pairs = rows.groupby(["track_a", "track_b"], sort=True)
+    out = pairs.first().reset_index()
+    out.insert(3, "frames", pairs.size().to_numpy())
+    return out[list(OVERLAP_COLUMNS)].reset_index(drop=True)
 
 
 def _on_ring(lmap, xy: np.ndarray) -> np.ndarray:
@@ -469,4 +503,50 @@ def realism_figure(reference: TrackFeatures, sources: Mapping[str, Sequence[Trac
     axes.flat[0].legend(fontsize=7)
     fig.tight_layout()
     write_png(path, fig, dpi=100)
+    return fig
+
+
+def overlap_map(overlaps: Mapping[str, pd.DataFrame], path, *, road=None, title: str | None = None):
+    """Draw where vehicles overlap: one marker per overlapping pair (`TrackFeatures.overlaps`) at the midpoint of
+    their centres when their boxes first overlap, a colour per source, over ``road`` (a `pirl_sim.viz.Road`, e.g.
+    `pirl_sim.viz.road_from_lanelet2` of the map); write it to ``path`` (PNG) and return the figure.
+
+    Parameters
+    ----------
+    overlaps : mapping label -> pandas.DataFrame     with columns ``x`` and ``y`` [m] at least; the legend gives
+                                                     each source's number of pairs
+    path : path-like                                 the PNG
+    road, title : Road or None, str or None          drawn beneath; above the axes
+
+    Raises
+    ------
+    ValueError
+        With neither a road nor a single pair to draw.
+    """
+    from pirl_sim.viz import distinct_colors, draw_road, new_figure
+    from pirl_sim.viz.raster import place_axes
+    from pirl_sim.viz.road import road_axes
+    from pirl_sim.viz.scene import fit_equal_aspect
+
+    from .figures import write_png
+
+    points = {label: table[["x", "y"]].to_numpy(dtype=float).reshape(-1, 2) for label, table in overlaps.items()}
+    every = np.vstack([np.zeros((0, 2)), *points.values()])
+    if road is None and not len(every):
+        raise ValueError("overlap_map: no road and no overlapping pairs: nothing to draw")
+    fig = new_figure()
+    ax = road_axes(fig, title=title)
+    place_axes(fig, title=bool(title))
+    if road is not None:
+        draw_road(ax, road)
+        x0, y0, x1, y1 = road.bounds
+    else:
+        (x0, y0), (x1, y1) = every.min(axis=0) - 10.0, every.max(axis=0) + 10.0
+    for (label, xy), color in zip(points.items(), distinct_colors(len(points))):
+        ax.scatter(xy[:, 0], xy[:, 1], s=14, color=color, alpha=0.75, edgecolors="black", linewidths=0.3, zorder=5,
+                   label=f"{label} ({len(xy)} pairs)")
+    if points:
+        ax.legend(fontsize="small", loc="upper right")
+    fit_equal_aspect(ax, (x0, x1, y0, y1))
+    write_png(path, fig)
     return fig

@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pirl_sim.evaluation.realism import (FEATURES, FeatureSpec, TrackFeatures, box_distance, compare_sources,
-                                         realism_figure, score_realism, track_features)
+from pirl_sim.evaluation.realism import (FEATURES, OVERLAP_COLUMNS, FeatureSpec, TrackFeatures, box_distance,
+                                         compare_sources, overlap_map, realism_figure, score_realism, track_features)
 
 
 def _box(cx, cy, psi=0.0, length=4.0, width=2.0):
@@ -66,6 +66,39 @@ def test_overlap_is_a_collision_and_opposite_traffic_is_no_leader():
     assert feats.values["gap"][0] == pytest.approx(np.zeros(5))  # its leader overlaps it
     assert len(feats.values["gap"][2]) == 0  # the others are ahead of it but head the other way
     assert feats.values["stopped_time"][1][0] == pytest.approx(0.5)  # five 0.1 s steps at rest
+
+
+def test_overlapping_pairs_are_listed_once_with_where_and_how_long():
+    # vehicle 2 stands across vehicle 1's lane; 1 drives through it at 5 m/s: its 4 m box overlaps 2's for the
+    # frames in which their centres are less than (4 + 2) / 2 = 3 m apart along x; vehicle 3 is far away
+    rows = [(2, f, 10.0, 0.0, 0.0, 0.0) for f in range(1, 31)]
+    rows += [(1, f, 0.5 * f + 0.2, 0.0, 5.0, 0.0) for f in range(1, 31)]
+    rows += [(3, f, 0.5 * f, 40.0, 5.0, 0.0) for f in range(1, 31)]
+    scene = _scene(rows)
+    scene.loc[scene["track_id"] == 2, "psi_rad"] = math.pi / 2  # crosswise
+    table = track_features(scene).overlaps
+    assert tuple(table.columns) == OVERLAP_COLUMNS
+    assert len(table) == 1
+    row = table.iloc[0]
+    assert (row["track_a"], row["track_b"]) == (1, 2)
+    inside = [f for f in range(1, 31) if abs(0.5 * f + 0.2 - 10.0) < 3.0]  # boxes 4 x 2 m: 2 + 1 m along x
+    assert row["frame_id"] == inside[0] and row["frames"] == len(inside)
+    assert row["x"] == pytest.approx((0.5 * inside[0] + 0.2 + 10.0) / 2) and row["y"] == pytest.approx(0.0)
+    assert row["heading_difference_deg"] == pytest.approx(90.0)
+    assert (row["speed_a"], row["speed_b"]) == pytest.approx((5.0, 0.0))
+    apart = track_features(scene[scene["track_id"] != 2]).overlaps
+    assert len(apart) == 0 and tuple(apart.columns) == OVERLAP_COLUMNS
+    both = TrackFeatures.combine([track_features(scene), track_features(scene)]).overlaps
+    assert both["part"].tolist() == [0, 1]
+
+
+def test_overlap_map_draws_each_source_and_needs_something_to_draw(tmp_path):
+    table = pd.DataFrame({"x": [1.0, 2.0], "y": [0.0, 1.0]})
+    fig = overlap_map({"a": table, "b": table.iloc[:1]}, tmp_path / "o.png", title="t")
+    assert (tmp_path / "o.png").is_file()
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["a (2 pairs)", "b (1 pairs)"]
+    with pytest.raises(ValueError, match="nothing to draw"):
+        overlap_map({"a": table.iloc[:0]}, tmp_path / "none.png")
 
 
 def _traffic(rng, n_vehicles, mean_speed, spread=1.0, frames=60):
@@ -173,7 +206,11 @@ def test_command_writes_the_tables_and_a_figure(tmp_path, capsys):
     img = imread(out / "realism.png")
     grey = np.all(np.abs(img[..., :3] - 0.75) < 0.01, axis=-1)  # the reference's filled histograms
     assert grey.sum() > 500
-    assert "meta_metric" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "meta_metric" in printed
+    assert "overlap (all rollouts): reference 0, same 0, fast 0" in printed  # two lanes 3.5 m apart, 30 m gaps
+    assert pd.read_csv(out / "overlaps.csv").columns.tolist() == ["source", "rollout", "part", *OVERLAP_COLUMNS]
+    assert not (out / "overlaps.png").exists()  # no map and no pair: nothing to draw
 
     assert main(["realism", "--reference", str(ref), "--source", f"a={same[0]}", "--source", f"a={fast[0]}",
                  "--out", str(out)]) == 2
