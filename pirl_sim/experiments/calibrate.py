@@ -78,23 +78,17 @@ def fit_styles_deconvolved(log_weights: np.ndarray, log_se: np.ndarray, max_styl
     {n_components: BIC})."""
     from pirl_sim.deconvolution import extreme_deconvolution
 
-    from .recovery_styles import N_INIT
+    from .recovery_styles import N_INIT, diagonal_covariances
 
     x = np.asarray(log_weights, float)
     n, k = x.shape
-    cov = _diagonal(log_se)
+    cov = diagonal_covariances(log_se)
     fits, bic = {}, {}
     for j in range(1, min(int(max_styles), n) + 1):
         mix = extreme_deconvolution(x, cov, j, rng=np.random.default_rng(seed), n_init=N_INIT)
         params = (j - 1) + j * k + j * k * (k + 1) // 2
         fits[j], bic[j] = mix, float(-2.0 * mix.log_likelihood + params * np.log(n))
     return fits[min(bic, key=bic.__getitem__)], bic
-
-
-def _diagonal(se: np.ndarray) -> np.ndarray:
-    """Measurement covariances (n, K, K) of independent standard errors ``se`` (n, K)."""
-    se = np.asarray(se, float)
-    return se[:, :, None] * np.eye(se.shape[1]) * se[:, None, :]
 
 
 @dataclass(frozen=True)
@@ -263,7 +257,9 @@ def _determined_styles(mix, log_w: np.ndarray, se: np.ndarray, known: np.ndarray
     members' data determine an interaction weight in fewer than `MIN_DETERMINED` cars takes that weight's mean and
     variance over all cars that determine it (a component's mean in a weight nobody in it shows is arbitrary).
     ValueError when no car's data determine an interaction weight."""
-    resp = mix.predict_proba(log_w, _diagonal(se))
+    from .recovery_styles import diagonal_covariances
+
+    resp = mix.predict_proba(log_w, diagonal_covariances(se))
     mean, var = mix.means.copy(), np.diagonal(mix.covariances, axis1=1, axis2=2).copy()
     for j, f in enumerate(features):
         if f not in _INTERACTION:
@@ -285,7 +281,7 @@ def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], ho
     at least `~pirl_sim.experiments.recovery.MIN_NEAR_STEPS` steps within reach of its obstacle,
     `~pirl_sim.experiments.recovery.near_steps`), the others get `~pirl_sim.experiments.recovery_styles.UNKNOWN_SE`."""
     from .recovery import IDENTIFIED_SE, MIN_NEAR_STEPS, near_steps
-    from .recovery_styles import SE_FLOOR, UNKNOWN_SE
+    from .recovery_styles import SE_FLOOR, UNKNOWN_SE, determined
 
     raw = np.asarray(res.log_se, float)[:, cols]
     se = np.where(np.isfinite(raw), np.maximum(raw, SE_FLOOR), SE_FLOOR)
@@ -295,7 +291,7 @@ def _identified(model, demos: list, labels: np.ndarray, res, cols: list[int], ho
             near = np.zeros(len(se), dtype=int)
             for t, g in zip(demos, labels):  # every step is the car's own (a recording shows no overrides)
                 near[g] += near_steps(model, t, f, horizon)
-            known[:, j] = (raw[:, j] <= IDENTIFIED_SE) & (near >= MIN_NEAR_STEPS)  # NaN and inf: not determined
+            known[:, j] = determined(raw[:, j], near, identified_se=IDENTIFIED_SE, min_near_steps=MIN_NEAR_STEPS)
     return known, np.where(known, se, UNKNOWN_SE)
 
 

@@ -21,7 +21,8 @@ import math
 import numpy as np
 import pandas as pd
 
-__all__ = ["UNKNOWN_SE", "SE_FLOOR", "identified", "style_mixtures", "track_measurements"]
+__all__ = ["UNKNOWN_SE", "SE_FLOOR", "identified", "determined", "diagonal_covariances", "style_mixtures",
+           "track_measurements"]
 
 #: [log] standard error given to a weight the track's data do not determine: wide against any spread of styles
 #: (log weights of the styles differ by a few units), so the mixture integrates it out
@@ -36,8 +37,21 @@ def identified(tracks: pd.DataFrame, feature: str, *, identified_se: float, min_
     """Bool (N,): the tracks (rows of a recovery study's ``tracks.csv``) whose fit identifies the interaction weight
     ``feature``: a standard error of its log at most ``identified_se`` (not NaN / inf) and at least
     ``min_near_steps`` usable steps within reach of its obstacle (``<feature>_steps``)."""
-    se = tracks[f"se_log_{feature}"].to_numpy(dtype=float)
-    return (se <= identified_se) & (tracks[f"{feature}_steps"].to_numpy() >= min_near_steps)
+    return determined(tracks[f"se_log_{feature}"].to_numpy(dtype=float), tracks[f"{feature}_steps"].to_numpy(),
+                      identified_se=identified_se, min_near_steps=min_near_steps)
+
+
+def determined(se: np.ndarray, near_steps: np.ndarray, *, identified_se: float, min_near_steps: int) -> np.ndarray:
+    """Bool, the shape of ``se``: an interaction weight is identified where the standard error of its log is at
+    most ``identified_se`` (NaN and inf are not) and at least ``min_near_steps`` steps came within reach of its
+    obstacle (``near_steps``, broadcast against ``se``)."""
+    return (np.asarray(se, dtype=float) <= identified_se) & (np.asarray(near_steps) >= min_near_steps)
+
+
+def diagonal_covariances(se: np.ndarray) -> np.ndarray:
+    """Measurement covariances (N, F, F) of independent standard errors ``se`` (N, F)."""
+    se = np.asarray(se, dtype=float)
+    return se[:, :, None] * np.eye(se.shape[1]) * se[:, None, :]
 
 
 def track_measurements(tracks: pd.DataFrame, features: list[str], *, identified_se: float,
@@ -53,7 +67,7 @@ def track_measurements(tracks: pd.DataFrame, features: list[str], *, identified_
         if f"{f}_steps" in tracks:  # an interaction weight: only where identified (the study's rule)
             known[:, j] &= identified(tracks, f, identified_se=identified_se, min_near_steps=min_near_steps)
     se = np.where(known, np.maximum(np.nan_to_num(se, nan=UNKNOWN_SE), SE_FLOOR), UNKNOWN_SE)
-    return X, se[:, :, None] * np.eye(len(features)) * se[:, None, :]
+    return X, diagonal_covariances(se)
 
 
 def _score(group: pd.DataFrame, features: list[str], seed: int, rule: dict) -> dict:
